@@ -1,0 +1,49 @@
+"""Pose and point conventions shared by every stage.
+
+Poses are (4, 4) float64 world-from-sensor SE(3) matrices in the LiDAR frame; sequences are (N, 4, 4).
+Points are (P, 3) float32/float64 in the sensor frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from msa_slam.errors import InputError
+
+ROTATION_TOLERANCE = 1e-4
+
+
+def validate_pose(pose: np.ndarray, where: str = "pose") -> np.ndarray:
+    """Return `pose` as a (4, 4) float64 array, or raise InputError naming `where`."""
+    arr = np.asarray(pose, dtype=np.float64)
+    if arr.shape != (4, 4):
+        raise InputError(f"{where}: expected a 4x4 pose, got shape {arr.shape}")
+    return validate_poses(arr[None], where)[0]
+
+
+def validate_poses(poses: np.ndarray, where: str = "poses") -> np.ndarray:
+    """Check an (N, 4, 4) pose stack is finite and rigid; the error names the first bad frame."""
+    arr = np.asarray(poses, dtype=np.float64)
+    if arr.ndim != 3 or arr.shape[1:] != (4, 4):
+        raise InputError(f"{where}: expected poses of shape (N, 4, 4), got {arr.shape}")
+    finite = np.isfinite(arr).all(axis=(1, 2))
+    if not finite.all():
+        raise InputError(f"{where}: frame {int(np.argmin(finite))} has NaN or infinite values")
+    rot = arr[:, :3, :3]
+    ortho_err = np.abs(rot @ rot.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(rot)
+    bad = (ortho_err > ROTATION_TOLERANCE) | (np.abs(det - 1.0) > ROTATION_TOLERANCE)
+    bottom_bad = np.abs(arr[:, 3, :] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=1) > 1e-9
+    bad |= bottom_bad
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError(
+            f"{where}: frame {k} is not a rigid transform (|R R^T - I| = {ortho_err[k]:.2e}, "
+            f"det R = {det[k]:.6f}, last row {arr[k, 3].tolist()})"
+        )
+    return arr
+
+
+def translations(poses: np.ndarray) -> np.ndarray:
+    """(N, 3) translations of an (N, 4, 4) pose stack."""
+    return np.asarray(poses)[:, :3, 3]
