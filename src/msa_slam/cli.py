@@ -1,0 +1,35 @@
+"""The `msa-slam` command line: thin entry points over the library (each command lives with its stage)."""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+
+from msa_slam.errors import InputError
+
+app = typer.Typer(
+    name="msa-slam",
+    help="Informed keyframe sampling (Minimal Subset Approach) for LiDAR SLAM, with a measured back-end.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+@app.callback()
+def _main() -> None:
+    """msa-slam command line."""
+
+
+# Command registrations (one line per command; the functions live with their stage).
+# -- end of command registrations --
+
+
+def main() -> None:
+    """Entry point that turns InputError into one clear line and exit code 2."""
+    try:
+        app(standalone_mode=False)
+    except InputError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        sys.exit(2)
