@@ -1,0 +1,74 @@
+"""Precision/recall of recorded loop matches, as the MSA authors' place-recognition example scores them.
+
+Each recorded match has a similarity and the ground-truth distance between query and match. For
+thresholds 0.00..0.99: TP = sim >= thr and dist <= max_distance; FP = sim > thr and dist >
+max_distance (the reference uses a strict '>' here; `strict_false_positive=False` uses '>=');
+FN = sim < thr and dist <= max_distance. Precision is 1 when nothing is predicted, recall 0 when
+nothing is positive, F1 0 when both are 0. PR-AUC = trapezoid area under precision over recall.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.integrate import trapezoid
+
+from msa_slam.errors import InputError
+
+DEFAULT_THRESHOLDS = np.arange(100) / 100.0
+
+
+@dataclass(frozen=True)
+class PRCurve:
+    """Precision, recall and F1 per threshold, with PR-AUC and F1-max."""
+
+    thresholds: np.ndarray
+    precision: np.ndarray
+    recall: np.ndarray
+    f1: np.ndarray
+    auc: float
+    f1_max: float
+    f1_max_threshold: float
+
+    def as_dict(self) -> dict:
+        return {
+            "pr_auc": self.auc,
+            "f1_max": self.f1_max,
+            "f1_max_threshold": self.f1_max_threshold,
+            "thresholds": self.thresholds.tolist(),
+            "precision": self.precision.tolist(),
+            "recall": self.recall.tolist(),
+        }
+
+
+def precision_recall(
+    similarities: np.ndarray,
+    distances: np.ndarray,
+    max_distance: float = 3.0,
+    thresholds: np.ndarray | None = None,
+    strict_false_positive: bool = True,
+) -> PRCurve:
+    """PR curve, PR-AUC and F1-max of recorded matches (similarity, ground-truth distance in m)."""
+    sim = np.asarray(similarities, dtype=np.float64).ravel()
+    dist = np.asarray(distances, dtype=np.float64).ravel()
+    if sim.shape != dist.shape:
+        raise InputError(f"precision_recall: {sim.size} similarities but {dist.size} distances")
+    if not (np.isfinite(sim).all() and np.isfinite(dist).all()):
+        raise InputError("precision_recall: similarities and distances must be finite")
+    thr = DEFAULT_THRESHOLDS if thresholds is None else np.asarray(thresholds, dtype=np.float64).ravel()
+    if thr.size == 0:
+        raise InputError("precision_recall: thresholds must not be empty")
+    near = dist <= max_distance
+    above = sim[None, :] >= thr[:, None]
+    predicted_far = (sim[None, :] > thr[:, None]) if strict_false_positive else above
+    tp = (above & near).sum(axis=1)
+    fp = (predicted_far & ~near).sum(axis=1)
+    fn = (~above & near).sum(axis=1)
+    precision = np.where(tp + fp > 0, tp / np.maximum(tp + fp, 1), 1.0)
+    recall = np.where(tp + fn > 0, tp / np.maximum(tp + fn, 1), 0.0)
+    denom = precision + recall
+    f1 = np.where(denom > 0, 2 * precision * recall / np.where(denom > 0, denom, 1.0), 0.0)
+    best = int(np.argmax(f1))
+    auc = float(-trapezoid(precision, recall))
+    return PRCurve(thr, precision, recall, f1, auc, float(f1[best]), float(thr[best]))
