@@ -1,0 +1,41 @@
+"""Memory and time accounting: bytes of what a stage keeps, peak RSS of the process, wall time per stage."""
+
+from __future__ import annotations
+
+import contextlib
+import resource
+import sys
+import time
+from typing import Iterator
+
+import numpy as np
+
+
+def array_bytes(*arrays: np.ndarray | None) -> int:
+    """Accounted memory of numpy arrays (their data buffers); None entries count as zero."""
+    return int(sum(np.asarray(a).nbytes for a in arrays if a is not None))
+
+
+def peak_rss_bytes() -> int:
+    """Peak resident set size of this process so far (ru_maxrss is KiB on Linux, bytes on macOS)."""
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return int(peak if sys.platform == "darwin" else peak * 1024)
+
+
+class StageTimer:
+    """Wall time per named stage; a stage entered several times accumulates."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    @contextlib.contextmanager
+    def stage(self, name: str) -> Iterator[None]:
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - start
+
+    @property
+    def total(self) -> float:
+        return float(sum(self.seconds.values()))
