@@ -1,0 +1,157 @@
+"""The sampler protocol: frames go in one at a time, finalised keyframe indices come out.
+
+Every sampler (MSA and the paper's baselines) shares this interface so a pipeline can swap them by name:
+`push(pose, descriptor, points=None) -> list[int]` returns the frame indices that this frame finalised
+as keyframes; `finish()` flushes what is still pending at the end of the stream (reported apart,
+because the reference implementation does not flush).
+"""
+
+from __future__ import annotations
+
+import time
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from msa_slam.errors import InputError
+from msa_slam.types import validate_pose
+
+
+@dataclass
+class SamplerStats:
+    """Work counters of a sampler; `optimisation_ms` holds one entry per window optimisation."""
+
+    frames: int = 0
+    window_optimisations: int = 0
+    candidates_evaluated: int = 0
+    optimisation_ms: list[float] = field(default_factory=list)
+
+    @property
+    def median_optimisation_ms(self) -> float:
+        return float(np.median(self.optimisation_ms)) if self.optimisation_ms else 0.0
+
+    def as_dict(self) -> dict:
+        times = np.asarray(self.optimisation_ms)
+        return {
+            "frames": self.frames,
+            "window_optimisations": self.window_optimisations,
+            "candidates_evaluated": self.candidates_evaluated,
+            "optimisation_ms_median": float(np.median(times)) if times.size else 0.0,
+            "optimisation_ms_p95": float(np.percentile(times, 95)) if times.size else 0.0,
+            "optimisation_ms_total": float(times.sum()),
+        }
+
+
+class Sampler(ABC):
+    """Base class: validates each frame, numbers it, and keeps the keyframe lists."""
+
+    name: str = "sampler"
+    needs_points: bool = False
+
+    def __init__(self) -> None:
+        self._online: list[int] = []
+        self._flushed: list[int] = []
+        self._descriptor_shape: tuple[int, ...] | None = None
+        self._finished = False
+        self.stats = SamplerStats()
+
+    @property
+    def keyframes(self) -> list[int]:
+        """All keyframes in insertion order: those chosen online, then those from the end-of-stream flush."""
+        return self._online + self._flushed
+
+    @property
+    def online_keyframes(self) -> list[int]:
+        """Keyframes selected while streaming (what the reference implementation reports)."""
+        return list(self._online)
+
+    @property
+    def flushed_keyframes(self) -> list[int]:
+        """Keyframes added by `finish()` only."""
+        return list(self._flushed)
+
+    def push(self, pose: np.ndarray, descriptor: np.ndarray | None = None,
+             points: np.ndarray | None = None) -> list[int]:
+        """Feed the next frame; return the frame indices this frame finalised as keyframes."""
+        if self._finished:
+            raise RuntimeError(f"{self.name}: push() after finish()")
+        index = self.stats.frames
+        pose = validate_pose(pose, where=f"{self.name}: frame {index} pose")
+        descriptor = self._check_descriptor(descriptor, index)
+        if self.needs_points:
+            points = self._check_points(points, index)
+        self.stats.frames += 1
+        new = self._push(index, pose, descriptor, points)
+        self._online.extend(new)
+        return new
+
+    def finish(self) -> list[int]:
+        """End of stream: return keyframes added by the flush (empty for online baselines)."""
+        if self._finished:
+            return []
+        self._finished = True
+        new = self._finish()
+        self._flushed.extend(new)
+        return new
+
+    def run(self, poses: np.ndarray, descriptors: np.ndarray | None = None,
+            clouds=None, flush: bool = False) -> list[int]:
+        """Convenience: push a whole stream and return the keyframe list."""
+        n = len(poses)
+        if descriptors is not None and len(descriptors) != n:
+            raise InputError(f"{self.name}: {n} poses but {len(descriptors)} descriptors")
+        if clouds is not None and len(clouds) != n:
+            raise InputError(f"{self.name}: {n} poses but {len(clouds)} clouds")
+        for i in range(n):
+            self.push(poses[i], None if descriptors is None else descriptors[i],
+                      None if clouds is None else clouds[i])
+        if flush:
+            self.finish()
+        return self.keyframes
+
+    @abstractmethod
+    def _push(self, index: int, pose: np.ndarray, descriptor: np.ndarray | None,
+              points: np.ndarray | None) -> list[int]:
+        """Algorithm step for one validated frame."""
+
+    def _finish(self) -> list[int]:
+        return []
+
+    def _check_descriptor(self, descriptor, index: int) -> np.ndarray | None:
+        if descriptor is None:
+            return None
+        desc = np.asarray(descriptor, dtype=np.float64)
+        if desc.ndim not in (1, 2) or desc.size == 0:
+            raise InputError(f"{self.name}: frame {index} descriptor must be a non-empty 1-D or 2-D array, "
+                             f"got shape {desc.shape}")
+        if self._descriptor_shape is None:
+            self._descriptor_shape = desc.shape
+        elif desc.shape != self._descriptor_shape:
+            raise InputError(f"{self.name}: frame {index} descriptor has shape {desc.shape}, "
+                             f"earlier frames had {self._descriptor_shape}")
+        if not np.isfinite(desc).all():
+            raise InputError(f"{self.name}: frame {index} descriptor has NaN or infinite values")
+        return desc
+
+    def _check_points(self, points, index: int) -> np.ndarray:
+        if points is None:
+            raise InputError(f"{self.name}: frame {index} has no point cloud; this sampler needs points")
+        pts = np.asarray(points)
+        if pts.ndim != 2 or pts.shape[1] < 3 or pts.shape[0] == 0:
+            raise InputError(f"{self.name}: frame {index} points must be (P, 3) with P > 0, got {pts.shape}")
+        pts = pts[:, :3]
+        if not np.isfinite(pts).all():
+            raise InputError(f"{self.name}: frame {index} points contain NaN or infinite values")
+        return pts
+
+
+class Timer:
+    """Wall-clock milliseconds of a block (perf_counter)."""
+
+    def __enter__(self) -> "Timer":
+        self._t0 = time.perf_counter()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.ms = (time.perf_counter() - self._t0) * 1e3

@@ -1,0 +1,238 @@
+"""One MSA window optimisation: enumerate the constrained power set, score rho and pi, pick the minimum.
+
+Implements section IV of the paper (eqs. 3-8) with the reference implementation's exact arithmetic
+(../docs/msa-reference-semantics.md, step 3 b-e), batched over all candidates of one size:
+
+- `exact` keeps the reference's floating-point path for pi (numpy.gradient's non-uniform formula in its
+  operation order, C = J^T J, numpy.linalg.eigh on that matrix, scaled eigen-directions compared by
+  BLAS dot products), so it selects bit-for-bit the same subsets.
+- `fast` shares everything that depends only on the window: with A the candidate's gradient operator and
+  G_S its block of the window's descriptor Gram matrix, C = A G_S A^T and
+  e_j^2 = (a_{j+1} - a_j)^T G_S (a_{j+1} - a_j) with a_j = sqrt(lam_j) v_j, so a candidate costs O(m^3)
+  instead of O(m^2 M). Algebraically equal, numerically not bit-identical (pi is ill-conditioned).
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+MODES = ("exact", "fast")
+EIGENVALUE_FLOOR = 1e-6
+C_CLIP = 1e6
+
+
+@dataclass(frozen=True)
+class WindowResult:
+    """The chosen subset (positions into the window, starting with 0) and the work done."""
+
+    positions: tuple[int, ...]
+    candidates: int
+
+
+@dataclass(frozen=True)
+class ScoreWeights:
+    """alpha, beta of eq. (8); the paper's ablations switch rho or pi off."""
+
+    alpha: float = 1.0
+    beta: float = 1.0
+    use_rho: bool = True
+    use_pi: bool = True
+
+
+@lru_cache(maxsize=64)
+def subsets_by_size(n: int) -> tuple[np.ndarray, ...]:
+    """All candidate subsets of n window positions, grouped by size m = 2..n-1, in the reference order.
+
+    A subset always starts at position 0; the rest is an itertools.combinations of 1..n-1.
+    """
+    groups = []
+    for size in range(2, n):
+        combos = np.array(list(itertools.combinations(range(1, n), size - 1)), dtype=np.intp)
+        groups.append(np.hstack([np.zeros((len(combos), 1), dtype=np.intp), combos]))
+    for g in groups:
+        g.setflags(write=False)
+    return tuple(groups)
+
+
+def vector_similarity(a: np.ndarray, b: np.ndarray) -> float:
+    """Redundancy similarity of the reference: 1/(1+L2) for vectors; summed per column for 2-D arrays."""
+    if a.ndim == 1:
+        return 1.0 / (1.0 + np.linalg.norm(a - b))
+    return float(np.sum(1.0 / (1.0 + np.linalg.norm(a - b, axis=0))))
+
+
+def _pairwise_exact(translations: np.ndarray, descriptors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distances and similarities pair by pair, with the same calls the reference makes per candidate."""
+    n = len(translations)
+    dist = np.zeros((n, n))
+    sim = np.zeros((n, n))
+    for i in range(n):
+        for j in range(i + 1, n):
+            dist[i, j] = dist[j, i] = np.linalg.norm(translations[j] - translations[i])
+            sim[i, j] = sim[j, i] = vector_similarity(descriptors[j], descriptors[i])
+    return dist, sim
+
+
+def _pairwise_fast(translations: np.ndarray, descriptors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distances and similarities for all pairs at once (same values up to rounding)."""
+    dist = np.sqrt(((translations[:, None, :] - translations[None, :, :]) ** 2).sum(-1))
+    diff = descriptors[:, None] - descriptors[None, :]
+    if descriptors.ndim == 2:
+        sim = 1.0 / (1.0 + np.sqrt((diff ** 2).sum(-1)))
+    else:
+        sim = (1.0 / (1.0 + np.sqrt((diff ** 2).sum(-2)))).sum(-1)
+    return dist, sim
+
+
+def _minmax(values: np.ndarray) -> np.ndarray:
+    lo, hi = values.min(), values.max()
+    if hi == lo:
+        return np.ones_like(values)
+    return (values - lo) / (hi - lo)
+
+
+def _redundancy(subsets: np.ndarray, sim: np.ndarray) -> np.ndarray:
+    """rho: mean similarity of consecutive members (summed left to right, as the reference does)."""
+    pair_sims = sim[subsets[:, 1:], subsets[:, :-1]]
+    return np.mean(pair_sims, axis=1)
+
+
+def _normalised_mean_steps(e: np.ndarray) -> np.ndarray:
+    """pi from the eigen-step lengths e (C, m-1): min-max normalise each row, then average."""
+    lo = e.min(axis=1, keepdims=True)
+    hi = e.max(axis=1, keepdims=True)
+    return np.mean((e - lo) / (hi - lo + EIGENVALUE_FLOOR), axis=1)
+
+
+def _sanitize(c: np.ndarray) -> np.ndarray:
+    """The reference's guard: non-finite information matrices are cleaned and clipped."""
+    bad = ~np.isfinite(c).all(axis=(1, 2))
+    if bad.any():
+        c[bad] = np.clip(np.nan_to_num(c[bad]), -C_CLIP, C_CLIP)
+    return c
+
+
+def _gradient_exact(ft: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """numpy.gradient(ft, x, axis=-1) for a stack of (M, m) arrays, each with its own coordinates x.
+
+    Same formulas and operation order as numpy (edge_order 1), including its switch to the uniform
+    formula when all spacings are equal, so each slice is bit-identical to numpy's own call.
+    """
+    dx = np.diff(x, axis=1)  # (C, m-1)
+    out = np.empty((ft.shape[0], ft.shape[2], ft.shape[1])).transpose(0, 2, 1)  # F-ordered slices
+    uniform = (dx == dx[:, :1]).all(axis=1)
+    if ft.shape[2] > 2:
+        dx1 = dx[:, :-1, None].transpose(0, 2, 1)
+        dx2 = dx[:, 1:, None].transpose(0, 2, 1)
+        a = -(dx2) / (dx1 * (dx1 + dx2))
+        b = (dx2 - dx1) / (dx1 * dx2)
+        c = dx1 / (dx2 * (dx1 + dx2))
+        out[:, :, 1:-1] = a * ft[:, :, :-2] + b * ft[:, :, 1:-1] + c * ft[:, :, 2:]
+        if uniform.any():
+            u = np.flatnonzero(uniform)
+            out[u, :, 1:-1] = (ft[u, :, 2:] - ft[u, :, :-2]) / (2.0 * dx[u, 0])[:, None, None]
+    out[:, :, 0] = (ft[:, :, 1] - ft[:, :, 0]) / dx[:, :1]
+    out[:, :, -1] = (ft[:, :, -1] - ft[:, :, -2]) / dx[:, -1:]
+    return out
+
+
+def _information_exact(subsets: np.ndarray, x: np.ndarray, flat: np.ndarray) -> np.ndarray:
+    """pi for candidates of one size with the reference's arithmetic (stacked, one eigh call)."""
+    f = flat[subsets]  # (C, m, M), C-contiguous like the reference's F
+    ft = f.transpose(0, 2, 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        j = _gradient_exact(ft, x)
+        c = _sanitize(j.transpose(0, 2, 1) @ j)
+    lam, v = np.linalg.eigh(c)
+    lam[lam < 0] = 0
+    lam += EIGENVALUE_FLOOR
+    t = (ft @ v) * np.sqrt(lam)[:, None, :]  # (C, M, m)
+    steps = np.ascontiguousarray((t[:, :, 1:] - t[:, :, :-1]).transpose(0, 2, 1))  # (C, m-1, M)
+    e = np.sqrt((steps[:, :, None, :] @ steps[:, :, :, None])[:, :, 0, 0])  # BLAS dot per step
+    return _normalised_mean_steps(e)
+
+
+def _gradient_operators(x: np.ndarray) -> np.ndarray:
+    """A (C, m, m) with J^T = A F: numpy.gradient's non-uniform first-order-edge stencil as a matrix."""
+    count, m = x.shape
+    dx = np.diff(x, axis=1)
+    ops = np.zeros((count, m, m))
+    rows = np.arange(m)
+    ops[:, 0, 0] = -1.0 / dx[:, 0]
+    ops[:, 0, 1] = 1.0 / dx[:, 0]
+    ops[:, -1, -2] = -1.0 / dx[:, -1]
+    ops[:, -1, -1] = 1.0 / dx[:, -1]
+    if m > 2:
+        dx1, dx2 = dx[:, :-1], dx[:, 1:]
+        inner = rows[1:-1]
+        ops[:, inner, inner - 1] = -dx2 / (dx1 * (dx1 + dx2))
+        ops[:, inner, inner] = (dx2 - dx1) / (dx1 * dx2)
+        ops[:, inner, inner + 1] = dx1 / (dx2 * (dx1 + dx2))
+    return ops
+
+
+def _information_fast(subsets: np.ndarray, x: np.ndarray, gram: np.ndarray) -> np.ndarray:
+    """pi for candidates of one size through the window's Gram matrix: O(m^3) per candidate."""
+    g = gram[subsets[:, :, None], subsets[:, None, :]]  # (C, m, m)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = _gradient_operators(x)
+        c = _sanitize(a @ g @ a.transpose(0, 2, 1))
+    lam, v = np.linalg.eigh(c)
+    np.maximum(lam, 0.0, out=lam)
+    lam += EIGENVALUE_FLOOR
+    scaled = v * np.sqrt(lam)[:, None, :]
+    steps = scaled[:, :, 1:] - scaled[:, :, :-1]  # (C, m, m-1)
+    e2 = np.einsum("cij,cij->cj", g @ steps, steps)
+    return _normalised_mean_steps(np.sqrt(np.maximum(e2, 0.0)))
+
+
+def optimise_window(translations: np.ndarray, descriptors: np.ndarray, dmin: float, dmax: float,
+                    weights: ScoreWeights, mode: str = "exact") -> WindowResult:
+    """Choose the subset of the n window members that minimises (alpha + rho^) / (beta + pi^).
+
+    translations (n, 3) and descriptors (n, ...) are the window members in window order.
+    """
+    n = len(translations)
+    if mode == "exact":
+        dist, sim = _pairwise_exact(translations, descriptors)
+    else:
+        dist, sim = _pairwise_fast(translations, descriptors)
+    allowed = (dist >= dmin) & (dist <= dmax)
+    groups = []
+    for subsets in subsets_by_size(n):
+        keep = allowed[subsets[:, :-1], subsets[:, 1:]].all(axis=1)
+        if keep.any():
+            groups.append(subsets[keep])
+    if not groups:
+        return WindowResult((0, n - 1), 1)
+    count = sum(len(g) for g in groups)
+    if count == 1:
+        return WindowResult(tuple(int(p) for p in groups[0][0]), 1)
+
+    flat = descriptors.reshape(n, -1)
+    gram = flat @ flat.T if mode == "fast" and weights.use_pi else None
+    rho_parts, pi_parts = [], []
+    for subsets in groups:
+        if weights.use_rho:
+            rho_parts.append(_redundancy(subsets, sim))
+        if weights.use_pi:
+            x = dist[0, subsets]
+            if subsets.shape[1] == 2:
+                pi_parts.append(np.zeros(len(subsets)))
+            elif mode == "exact":
+                pi_parts.append(_information_exact(subsets, x, flat))
+            else:
+                pi_parts.append(_information_fast(subsets, x, gram))
+    rho_hat = _minmax(np.concatenate(rho_parts)) if weights.use_rho else np.zeros(count)
+    pi_hat = _minmax(np.concatenate(pi_parts)) if weights.use_pi else np.zeros(count)
+    score = (weights.alpha + rho_hat) / (weights.beta + pi_hat)
+    best = int(np.argmin(score))
+    for subsets in groups:
+        if best < len(subsets):
+            return WindowResult(tuple(int(p) for p in subsets[best]), count)
+        best -= len(subsets)
+    raise AssertionError("unreachable: best index beyond the candidate list")
