@@ -96,6 +96,8 @@ def test_bad_trajectories_raise():
         ate(bad, ref)
     with pytest.raises(InputError, match="unit"):
         rpe(ref, ref, unit="parsecs")
+    with pytest.raises(InputError, match="RPE with delta 1000"):
+        rpe(ref, ref, delta=1000, unit="meters")
     with pytest.raises(InputError, match="at least 3"):
         ate(ref[:2], ref[:2])
 

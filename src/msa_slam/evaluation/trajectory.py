@@ -10,7 +10,7 @@ import copy
 from dataclasses import dataclass
 
 import numpy as np
-from evo.core import metrics
+from evo.core import filters, metrics
 from evo.core.trajectory import PosePath3D
 from evo.core.units import Unit
 
@@ -80,7 +80,7 @@ def rpe(estimate: np.ndarray, reference: np.ndarray, delta: float = 1, unit: str
     try:
         trans, rot = _errors(ref, est, metrics.RPE, delta=delta, delta_unit=RPE_UNITS[unit],
                              rel_delta_tol=tolerance, all_pairs=False)
-    except metrics.MetricsException as exc:
+    except (metrics.MetricsException, filters.FilterException) as exc:
         raise InputError(f"RPE with delta {delta} {unit}: {exc}") from exc
     return _summary(trans, rot)
 
