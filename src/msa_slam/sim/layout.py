@@ -1,0 +1,271 @@
+"""Procedural placement of street-side structure along a trajectory (one seeded world per sequence).
+
+Each side of the path is walked by arc length: a block (varied footprint, height, setback, relief on the
+facade that faces the path), then a gap (empty, a wall, or trees); poles, trees and parked cars in
+between. Every object is rejected if its footprint comes closer than a clearance to ANY trajectory point
+(so the road stays clear where the path crosses or doubles back) or if it overlaps an object already
+placed (so a revisited place keeps what was built on the first pass: same place, same look).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from msa_slam.sim.shapes import MeshBuilder
+
+
+@dataclass(frozen=True)
+class Style:
+    """Street-scene parameters, metres. `city` for vehicles (KITTI-like), `campus` for slow platforms."""
+
+    name: str
+    road_clearance: float       # no block footprint closer than this to any trajectory point
+    setback: tuple[float, float]  # near facade distance from the path
+    length: tuple[float, float]   # block length along the street
+    depth: tuple[float, float]    # block depth away from the street
+    height: tuple[float, float]
+    gap: tuple[float, float]
+    p_gap: float                  # probability of a gap after a block
+    p_back_row: float             # probability of a taller block behind the front
+    pole_spacing: float
+    tree_spacing: float
+    p_parked: float               # probability per car slot of a parked car
+    car_offset: tuple[float, float]
+    furniture_clearance: float
+    ground_radius: float          # ground extends this far from the path
+    ground_cell: float
+
+
+STYLES: dict[str, Style] = {
+    "city": Style("city", 5.0, (7.0, 12.0), (6.0, 24.0), (8.0, 20.0), (4.0, 25.0), (2.0, 8.0), 0.3, 0.35,
+                  30.0, 14.0, 0.35, (3.3, 4.3), 2.3, 70.0, 2.5),
+    "campus": Style("campus", 2.0, (4.0, 9.0), (8.0, 30.0), (8.0, 16.0), (3.0, 14.0), (3.0, 10.0), 0.3, 0.3,
+                    18.0, 7.0, 0.0, (1.6, 2.2), 1.2, 45.0, 1.5),
+}
+
+
+class Footprints:
+    """Oriented rectangles on a spatial hash; answers "does this rectangle overlap a placed one?"."""
+
+    def __init__(self, cell: float = 10.0) -> None:
+        self.cell = cell
+        self.rects: list[tuple[np.ndarray, np.ndarray, float]] = []
+        self.grid: dict[tuple[int, int], list[int]] = {}
+
+    def _cells(self, center: np.ndarray, radius: float) -> list[tuple[int, int]]:
+        lo = np.floor((center - radius) / self.cell).astype(int)
+        hi = np.floor((center + radius) / self.cell).astype(int)
+        return [(i, j) for i in range(lo[0], hi[0] + 1) for j in range(lo[1], hi[1] + 1)]
+
+    @staticmethod
+    def _overlap(a: tuple[np.ndarray, np.ndarray, float], b: tuple[np.ndarray, np.ndarray, float],
+                 margin: float) -> bool:
+        axes = [np.array([np.cos(t), np.sin(t)]) for t in (a[2], a[2] + np.pi / 2, b[2], b[2] + np.pi / 2)]
+        d = b[0] - a[0]
+        for ax in axes:
+            ra = sum(h * abs(np.dot(ax, u)) for h, u in zip(a[1], _frame(a[2])))
+            rb = sum(h * abs(np.dot(ax, u)) for h, u in zip(b[1], _frame(b[2])))
+            if abs(np.dot(d, ax)) > ra + rb + margin:
+                return False
+        return True
+
+    def add_if_free(self, center: np.ndarray, half: np.ndarray, yaw: float, margin: float = 0.3) -> bool:
+        rect = (np.asarray(center, float), np.asarray(half, float), float(yaw))
+        radius = float(np.hypot(*half)) + margin
+        cells = self._cells(rect[0], radius)
+        seen: set[int] = set()
+        for c in cells:
+            for idx in self.grid.get(c, ()):
+                if idx not in seen:
+                    seen.add(idx)
+                    if self._overlap(rect, self.rects[idx], margin):
+                        return False
+        self.rects.append(rect)
+        for c in cells:
+            self.grid.setdefault(c, []).append(len(self.rects) - 1)
+        return True
+
+
+def _frame(yaw: float) -> tuple[np.ndarray, np.ndarray]:
+    return np.array([np.cos(yaw), np.sin(yaw)]), np.array([-np.sin(yaw), np.cos(yaw)])
+
+
+class PathClearance:
+    """Distance queries from footprints to every point of the (densified) trajectory."""
+
+    def __init__(self, xy: np.ndarray) -> None:
+        seg = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+        extra = [np.linspace(a, b, int(np.ceil(s / 0.5)) + 1)[1:] for a, b, s in zip(xy[:-1], xy[1:], seg)]
+        self.points = np.concatenate([xy[:1], *extra]) if extra else xy
+        self.tree = cKDTree(self.points)
+
+    def is_clear(self, center: np.ndarray, half: np.ndarray, yaw: float, clearance: float) -> bool:
+        idx = self.tree.query_ball_point(center, float(np.hypot(*half)) + clearance)
+        if not idx:
+            return True
+        ex, ey = _frame(yaw)
+        rel = self.points[idx] - center
+        dx = np.maximum(np.abs(rel @ ex) - half[0], 0.0)
+        dy = np.maximum(np.abs(rel @ ey) - half[1], 0.0)
+        return bool(np.all(dx * dx + dy * dy >= clearance * clearance))
+
+
+class StreetLayout:
+    """Places blocks and street furniture along a path; primitives go to a MeshBuilder."""
+
+    def __init__(self, xy: np.ndarray, style: Style, rng: np.random.Generator,
+                 ground_height: "callable") -> None:
+        self.style = style
+        self.rng = rng
+        self.ground = ground_height
+        self.clear = PathClearance(xy)
+        self.taken = Footprints()
+        self.boxes: list[tuple[float, ...]] = []   # cx, cy, cz, hx, hy, hz, yaw, refl
+        self.trunks: list[tuple[float, ...]] = []  # x, y, z, radius, height, refl
+        self.crowns: list[tuple[float, ...]] = []  # x, y, z, rx, ry, rz, refl
+        seg = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+        self.arc = np.concatenate([[0.0], np.cumsum(seg)])
+        self.xy = xy
+
+    def _at(self, s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Point, unit heading and unit left normal at arc length s."""
+        p = np.array([np.interp(s, self.arc, self.xy[:, 0]), np.interp(s, self.arc, self.xy[:, 1])])
+        q = np.array([np.interp(s + 2.0, self.arc, self.xy[:, 0]), np.interp(s + 2.0, self.arc, self.xy[:, 1])])
+        r = np.array([np.interp(s - 2.0, self.arc, self.xy[:, 0]), np.interp(s - 2.0, self.arc, self.xy[:, 1])])
+        h = q - r
+        h = h / max(np.linalg.norm(h), 1e-9)
+        return p, h, np.array([-h[1], h[0]])
+
+    def _try(self, center: np.ndarray, half: np.ndarray, yaw: float, clearance: float) -> bool:
+        return self.clear.is_clear(center, half, yaw, clearance) and self.taken.add_if_free(center, half, yaw)
+
+    def _u(self, lo_hi: tuple[float, float]) -> float:
+        return float(self.rng.uniform(*lo_hi))
+
+    def build(self) -> None:
+        total = self.arc[-1]
+        for side in (1.0, -1.0):
+            s = self._u((0.0, 10.0))
+            while s < total:
+                s += self._block_or_gap(s, side)
+        self._furniture(total)
+
+    def _block_or_gap(self, s: float, side: float) -> float:
+        st = self.style
+        if self.rng.random() < st.p_gap:
+            length = self._u(st.gap)
+            kind = self.rng.random()
+            p, h, n = self._at(s + length / 2)
+            if kind < 0.35 and length > 3:
+                off = self._u(st.setback)
+                self._add_box(p + side * n * off, (length / 2, 0.15), np.arctan2(h[1], h[0]),
+                              self._u((0.8, 2.5)), self._u((0.3, 0.6)), st.road_clearance)
+            return length
+        length, depth = self._u(st.length), self._u(st.depth)
+        p, h, n = self._at(s + length / 2)
+        yaw = float(np.arctan2(h[1], h[0]))
+        setback = self._u(st.setback)
+        center = p + side * n * (setback + depth / 2)
+        if self._building(center, yaw, side, length, depth, st.road_clearance):
+            if self.rng.random() < st.p_back_row:
+                back_depth = self._u(st.depth)
+                back = center + side * n * (depth / 2 + self._u((2.0, 8.0)) + back_depth / 2)
+                self._building(back, yaw, side, self._u(st.length), back_depth, st.road_clearance,
+                               height_scale=1.5)
+        return length + self._u((0.3, 1.5))
+
+    def _add_box(self, center: np.ndarray, half_xy: tuple[float, float], yaw: float, height: float,
+                 refl: float, clearance: float, sink: float = 0.5) -> bool:
+        half = np.asarray(half_xy, float)
+        if not self._try(center, half, yaw, clearance):
+            return False
+        z0 = self.ground(center) - sink
+        self.boxes.append((*center, z0 + (height + sink) / 2, *half, (height + sink) / 2, yaw, refl))
+        return True
+
+    def _building(self, center: np.ndarray, yaw: float, side: float, length: float, depth: float,
+                  clearance: float, height_scale: float = 1.0) -> bool:
+        """A block with relief on the facade facing the path: pilasters, balconies, a stepped top."""
+        st = self.style
+        height = min(self._u(st.height) * height_scale, st.height[1] * 1.4)
+        refl = self._u((0.35, 0.75))
+        if not self._add_box(center, (length / 2, depth / 2), yaw, height, refl, clearance):
+            return False
+        ex, ey = _frame(yaw)
+        base = self.ground(center) - 0.5
+        near = center - side * ey * depth / 2  # facade facing the path
+        x = -length / 2 + self._u((0.5, 3.0))
+        while x < length / 2 - 0.5:  # pilasters at irregular spacing
+            w, d = self._u((0.3, 0.9)), self._u((0.25, 0.8))
+            top = height if self.rng.random() < 0.6 else self._u((2.5, height))
+            c = near + ex * x - side * ey * d / 2
+            self.boxes.append((*c, base + top / 2, w / 2, d / 2, top / 2, yaw, refl * 0.9))
+            x += self._u((1.8, 6.0))
+        floors = int(height // 3.0)
+        if floors >= 2 and self.rng.random() < 0.5:  # balconies on a few floors
+            for k in range(1, floors):
+                if self.rng.random() < 0.5:
+                    continue
+                for x in np.arange(-length / 2 + 2.0, length / 2 - 2.0, self._u((4.0, 8.0))):
+                    c = near + ex * x - side * ey * 0.6
+                    self.boxes.append((*c, base + 0.5 + 3.0 * k, self._u((0.8, 1.8)), 0.6, 0.5, yaw, refl))
+        if height > 8 and self.rng.random() < 0.5:  # stepped upper storey
+            c = center + side * ey * depth * 0.15
+            extra = self._u((2.0, 6.0))
+            self.boxes.append((*c, base + height + extra / 2, length * 0.35, depth * 0.3, extra / 2, yaw, refl))
+        return True
+
+    def _furniture(self, total: float) -> None:
+        st = self.style
+        for side in (1.0, -1.0):
+            s = self._u((0.0, st.pole_spacing))
+            while s < total:  # poles
+                p, h, n = self._at(s)
+                c = p + side * n * self._u((st.car_offset[1] + 0.7, st.setback[0] - 0.5))
+                if self._try(c, np.array([0.2, 0.2]), 0.0, st.furniture_clearance):
+                    self.trunks.append((*c, self.ground(c) - 0.3, self._u((0.08, 0.18)), self._u((4.5, 8.0)), 0.8))
+                s += st.pole_spacing * self._u((0.6, 1.4))
+            s = self._u((0.0, st.tree_spacing))
+            while s < total:  # trees
+                if self.rng.random() < 0.6:
+                    p, h, n = self._at(s)
+                    c = p + side * n * self._u((st.car_offset[1] + 1.0, st.setback[1]))
+                    crown = self._u((1.2, 3.0))
+                    if self._try(c, np.array([0.6, 0.6]), 0.0, st.furniture_clearance + 0.5):
+                        trunk_h = self._u((1.8, 4.0))
+                        z = self.ground(c) - 0.3
+                        self.trunks.append((*c, z, self._u((0.12, 0.3)), trunk_h + crown * 0.5, 0.3))
+                        self.crowns.append((*c, z + trunk_h + crown * 0.8, crown, crown * self._u((0.8, 1.2)),
+                                            crown * self._u((0.7, 1.3)), 0.25))
+                s += st.tree_spacing * self._u((0.5, 1.5))
+            if st.p_parked <= 0:
+                continue
+            s = self._u((0.0, 10.0))
+            while s < total:  # parked cars: body and cabin
+                if self.rng.random() < st.p_parked:
+                    p, h, n = self._at(s)
+                    yaw = float(np.arctan2(h[1], h[0]))
+                    c = p + side * n * self._u(st.car_offset)
+                    half = np.array([self._u((1.9, 2.4)), self._u((0.8, 0.95))])
+                    if self._try(c, half, yaw, st.furniture_clearance):
+                        z = self.ground(c)
+                        refl = self._u((0.3, 0.9))
+                        self.boxes.append((*c, z + 0.2 + 0.4, *half, 0.45, yaw, refl))
+                        cab = self._u((1.3, 1.5))
+                        self.boxes.append((*c, z + 1.05 + cab * 0.25, half[0] * 0.55, half[1] * 0.9,
+                                           cab * 0.25, yaw, refl))
+                s += self._u((5.0, 7.5))
+
+    def emit(self, builder: MeshBuilder) -> None:
+        if self.boxes:
+            b = np.array(self.boxes)
+            builder.boxes(b[:, :3], b[:, 3:6], b[:, 6], b[:, 7])
+        if self.trunks:
+            t = np.array(self.trunks)
+            builder.prisms(t[:, :3], t[:, 3], t[:, 4], t[:, 5])
+        if self.crowns:
+            c = np.array(self.crowns)
+            builder.blobs(c[:, :3], c[:, 3:6], c[:, 6], self.rng)

@@ -1,0 +1,251 @@
+"""Simulated sequences: configuration, an in-memory frame iterator, and cached KITTI-layout output.
+
+A sequence directory holds velodyne/NNNNNN.bin (float32 x, y, z, intensity), poses.txt (ground truth,
+LiDAR frame, KITTI 12-number lines), times.txt, calib.txt (Tr = identity, so readers that convert cam0
+poses get the same) and sim.json (the config, its hash and provenance). For kiss-icp's KITTI loader it
+also holds sequences/00/ and poses/00.txt as relative links: `KITTIOdometryDataset(DIR, "00")`.
+Directories are written under a temporary name and renamed when complete, so a partial one is never
+mistaken for a cached sequence.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator, NamedTuple
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
+
+import msa_slam
+from msa_slam.errors import InputError
+from msa_slam.io.poses import format_kitti
+from msa_slam.sim.layout import STYLES
+from msa_slam.sim.sensors import SENSORS, Lidar, LidarModel, get_sensor
+from msa_slam.sim.trajectories import TRAJECTORY_NAMES, frame_indices, load_trajectory
+from msa_slam.sim.world import World, build_world
+
+SIM_VERSION = "1"  # bump when generated worlds or scans change, so stale caches are not reused
+META_FILE = "sim.json"
+KITTI_CITATION = ("Trajectory: KITTI odometry ground truth (Geiger, Lenz, Urtasun, CVPR 2012), "
+                  "CC BY-NC-SA 3.0")
+
+
+class SimConfig(BaseModel):
+    """Everything that determines a simulated sequence (and so its cache key)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    trajectory: str = "kitti-05"
+    sensor: str = "hdl64"
+    start: int = 0
+    end: int | None = None
+    stride: int = 1
+    seed: int = 0
+    azimuth_steps: int | None = None
+    max_range: float | None = None
+    range_noise: float = 0.02
+    dropout: float = 0.0
+    style: str | None = None  # None: "city" for vehicles, "campus" for walking platforms
+
+    @field_validator("trajectory")
+    @classmethod
+    def _known_trajectory(cls, v: str) -> str:
+        if v not in TRAJECTORY_NAMES:
+            raise ValueError(f"unknown trajectory {v!r}; choose one of {', '.join(TRAJECTORY_NAMES)}")
+        return v
+
+    @field_validator("sensor")
+    @classmethod
+    def _known_sensor(cls, v: str) -> str:
+        if v not in SENSORS:
+            raise ValueError(f"unknown sensor {v!r}; choose one of {', '.join(SENSORS)}")
+        return v
+
+    @field_validator("style")
+    @classmethod
+    def _known_style(cls, v: str | None) -> str | None:
+        if v is not None and v not in STYLES:
+            raise ValueError(f"unknown world style {v!r}; choose one of {', '.join(STYLES)}")
+        return v
+
+    def key(self) -> str:
+        """Hash of the config and simulator version: the cache key."""
+        blob = json.dumps({"config": self.model_dump(), "sim_version": SIM_VERSION}, sort_keys=True)
+        return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def make_config(**fields: object) -> SimConfig:
+    """A SimConfig, with validation problems reported as one InputError naming the parameters."""
+    try:
+        return SimConfig(**fields)
+    except ValidationError as exc:
+        problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg'].removeprefix('Value error, ')}"
+                             for e in exc.errors())
+        raise InputError(f"simulation config: {problems}") from None
+
+
+class SimFrame(NamedTuple):
+    """One simulated scan: output index, time (s from the first frame), points, ground-truth pose."""
+
+    index: int
+    time: float
+    points: np.ndarray
+    gt_pose: np.ndarray
+
+
+@dataclass
+class Simulation:
+    """A resolved config: the selected poses, the world built around them and the bound sensor."""
+
+    config: SimConfig
+    frames: np.ndarray  # source-trajectory indices of the output frames
+    poses: np.ndarray
+    times: np.ndarray
+    world: World
+    lidar: Lidar
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def scan(self, k: int) -> np.ndarray:
+        """(P, 4) float32 scan of output frame k; its noise is seeded by (seed, source frame)."""
+        rng = np.random.default_rng([self.config.seed, int(self.frames[k])])
+        return self.lidar.scan(self.poses[k], rng)
+
+
+def prepare(config: SimConfig) -> Simulation:
+    """Load the trajectory, select frames and build the world around the whole selected range (unstrided,
+    so every stride of the same range sees the same world)."""
+    traj = load_trajectory(config.trajectory)
+    frames = frame_indices(len(traj), config.start, config.end, config.stride, config.trajectory)
+    span = traj.poses[frames[0]:frames[-1] + 1]
+    style = config.style or ("campus" if traj.platform == "walk" else "city")
+    world = build_world(span, style, config.seed, traj.sensor_height)
+    model: LidarModel = get_sensor(config.sensor, azimuth_steps=config.azimuth_steps, max_range=config.max_range,
+                                   range_noise=config.range_noise, dropout=config.dropout)
+    times = traj.times[frames] - traj.times[frames[0]]
+    return Simulation(config, frames, traj.poses[frames], times, world, Lidar(model, world))
+
+
+def iter_frames(config: SimConfig, with_intensity: bool = False) -> Iterator[SimFrame]:
+    """Simulate in memory: yields SimFrame(index, time, points (P,3) or (P,4) float32, gt_pose)."""
+    sim = prepare(config)
+    for k in range(len(sim)):
+        pts = sim.scan(k)
+        yield SimFrame(k, float(sim.times[k]), pts if with_intensity else pts[:, :3].copy(), sim.poses[k])
+
+
+def cache_root(cache_dir: str | os.PathLike | None = None) -> Path:
+    """`cache_dir`, else $MSA_SLAM_CACHE, else ~/.cache/msa-slam."""
+    if cache_dir is not None:
+        return Path(cache_dir)
+    env = os.environ.get("MSA_SLAM_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "msa-slam"
+
+
+def _read_meta(seq_dir: Path) -> dict | None:
+    try:
+        return json.loads((seq_dir / META_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def is_complete(seq_dir: Path, key: str) -> bool:
+    """True when `seq_dir` is a finished simulation of the config with this key, all scans present."""
+    meta = _read_meta(seq_dir)
+    if meta is None or meta.get("key") != key:
+        return False
+    n = meta.get("frames", -1)
+    return (len(list((seq_dir / "velodyne").glob("*.bin"))) == n
+            and (seq_dir / "poses.txt").is_file() and (seq_dir / "times.txt").is_file())
+
+
+CALIB_TEXT = "".join(f"P{k}: 1 0 0 0 0 1 0 0 0 0 1 0\n" for k in range(4)) + "Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n"
+
+
+def _write(sim: Simulation, target: Path, progress: bool) -> None:
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    (target / "velodyne").mkdir(parents=True)
+    with Progress(TextColumn("[bold]simulating[/] {task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TimeRemainingColumn(), disable=not progress, transient=False) as bar:
+        task = bar.add_task(f"{sim.config.trajectory} / {sim.config.sensor}", total=len(sim))
+        for k in range(len(sim)):
+            sim.scan(k).tofile(target / "velodyne" / f"{k:06d}.bin")
+            bar.advance(task)
+    (target / "poses.txt").write_text(format_kitti(sim.poses))
+    (target / "times.txt").write_text("".join(f"{t:.6e}\n" for t in sim.times))
+    (target / "calib.txt").write_text(CALIB_TEXT)
+    kiss = target / "sequences" / "00"
+    kiss.mkdir(parents=True)
+    for name in ("velodyne", "calib.txt", "times.txt", "poses.txt"):
+        (kiss / name).symlink_to(Path("..", "..", name))
+    (target / "poses").mkdir()
+    (target / "poses" / "00.txt").symlink_to(Path("..", "poses.txt"))
+    meta = {
+        "key": sim.config.key(), "sim_version": SIM_VERSION, "msa_slam_version": msa_slam.__version__,
+        "config": sim.config.model_dump(), "frames": len(sim), "source_frames": sim.frames.tolist(),
+        "sensor": {"beams": sim.lidar.model.beams, "azimuth_steps": sim.lidar.model.azimuth_steps,
+                   "max_range": sim.lidar.model.max_range},
+        "world_triangles": sim.world.triangles,
+        "source": KITTI_CITATION if sim.config.trajectory.startswith("kitti") else "procedural",
+    }
+    (target / META_FILE).write_text(json.dumps(meta, indent=1))  # written last: marks completeness
+
+
+def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
+                      cache_dir: str | os.PathLike | None = None, progress: bool = False) -> Path:
+    """Write (or reuse) the sequence of `config`; returns its directory.
+
+    Without `out` the directory is <cache>/<trajectory>_<sensor>_<key>. An existing complete
+    simulation of the same config is returned as is; any other existing non-empty `out` is an error.
+    """
+    key = config.key()
+    target = Path(out) if out is not None else cache_root(cache_dir) / f"{config.trajectory}_{config.sensor}_{key}"
+    if is_complete(target, key):
+        return target
+    if target.exists() and (not target.is_dir() or any(target.iterdir())):
+        raise InputError(f"{target}: exists and is not a complete simulation of this config (key {key}); "
+                         "remove it or choose another output directory")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    sim = prepare(config)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=target.parent))
+    try:
+        _write(sim, tmp / "seq", progress)
+        if target.exists():
+            target.rmdir()  # an empty directory (checked above) is replaced
+        os.replace(tmp / "seq", target)
+    except OSError:
+        if not is_complete(target, key):  # not a concurrent writer that finished first
+            raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return target
+
+
+# The embedded defaults (see docs in `default_sequence`).
+DEFAULT_CONFIGS: dict[str, SimConfig] = {
+    "demo": SimConfig(trajectory="kitti-05", sensor="hdl64", stride=3, azimuth_steps=720),
+    "test": SimConfig(trajectory="figure-eight", sensor="hdl64", stride=2, azimuth_steps=360),
+}
+
+
+def default_sequence(kind: str = "demo", cache_dir: str | os.PathLike | None = None,
+                     progress: bool = False) -> Path:
+    """The embedded default sequence, simulated on first use and cached.
+
+    "demo": the whole KITTI-05 trajectory (2.2 km, real loops: three revisit stretches) at every 3rd
+    frame, 921 scans ~2.4 m apart, HDL-64 beams with 720 azimuth steps (0.5 deg, ~40k points a scan):
+    enough for KISS-ICP and Scan Context to behave as on KITTI while odometry stays fast.
+    "test": the procedural figure-eight (revisits at its crossing and where it closes) at every 2nd
+    frame, 209 scans ~2 m apart, HDL-64 beams with 360 azimuth steps (1 deg): a few seconds to make.
+    """
+    if kind not in DEFAULT_CONFIGS:
+        raise InputError(f"unknown default sequence {kind!r}; choose one of {', '.join(DEFAULT_CONFIGS)}")
+    return simulate_sequence(DEFAULT_CONFIGS[kind], cache_dir=cache_dir, progress=progress)
