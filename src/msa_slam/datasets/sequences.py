@@ -1,0 +1,121 @@
+"""Sequences of scan files: KITTI layout (Geiger et al., CVPR 2012), generic folders, kiss_icp's loaders."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Callable, Iterator, Sequence
+
+import numpy as np
+
+from msa_slam.datasets.clouds import CLOUD_SUFFIXES, read_cloud
+from msa_slam.datasets.frame import Frame
+from msa_slam.errors import InputError
+from msa_slam.io.poses import read_poses
+from msa_slam.types import validate_poses
+
+
+class ScanSequence:
+    """Scans read lazily from files, with optional times and ground-truth poses (LiDAR frame)."""
+
+    def __init__(self, path: Path, scan_files: Sequence[Path], gt_poses: np.ndarray | None = None,
+                 times: np.ndarray | None = None, reader: Callable[[Path], np.ndarray] = read_cloud) -> None:
+        self.path = Path(path)
+        self.name = self.path.name
+        self.scan_files = [Path(f) for f in scan_files]
+        if not self.scan_files:
+            raise InputError(f"{self.path}: no scan files ({', '.join(CLOUD_SUFFIXES)}) found")
+        for what, values in (("ground-truth poses", gt_poses), ("timestamps", times)):
+            if values is not None and len(values) != len(self.scan_files):
+                raise InputError(f"{self.path}: {len(values)} {what} but {len(self.scan_files)} scans")
+        self.gt_poses = None if gt_poses is None else validate_poses(gt_poses, f"{self.path} poses")
+        self.times = np.arange(len(self.scan_files), dtype=np.float64) if times is None else np.asarray(times)
+        self._reader = reader
+
+    def __len__(self) -> int:
+        return len(self.scan_files)
+
+    def __getitem__(self, index: int) -> Frame:
+        if not -len(self) <= index < len(self):
+            raise IndexError(f"frame {index} out of range for {len(self)} scans")
+        index %= len(self)
+        gt = None if self.gt_poses is None else self.gt_poses[index]
+        return Frame(index, float(self.times[index]), self._reader(self.scan_files[index]), gt)
+
+    def __iter__(self) -> Iterator[Frame]:
+        return (self[i] for i in range(len(self)))
+
+
+def read_kitti_calibration(path: Path) -> np.ndarray:
+    """The Velodyne->cam0 extrinsic `Tr` of a KITTI calib.txt as a 4x4 matrix."""
+    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+        if line.startswith("Tr:"):
+            values = line.split()[1:]
+            if len(values) != 12:
+                raise InputError(f"{path}:{lineno}: Tr needs 12 values, has {len(values)}")
+            tr = np.eye(4)
+            try:
+                tr[:3, :4] = np.array(values, dtype=np.float64).reshape(3, 4)
+            except ValueError as exc:
+                raise InputError(f"{path}:{lineno}: Tr is not numeric ({exc})") from exc
+            return tr
+    raise InputError(f"{path}: no 'Tr:' line (the Velodyne->camera extrinsic)")
+
+
+def kitti_sequence(path: str | os.PathLike) -> ScanSequence:
+    """A KITTI-layout sequence: velodyne/*.bin, calib.txt, optional times.txt and poses.
+
+    Poses come from `poses.txt` in the sequence folder or from the benchmark's `../../poses/NN.txt`; they
+    are cam0 poses, converted to the LiDAR frame as inv(Tr) P Tr (identity Tr for simulator output).
+    """
+    path = Path(path)
+    velodyne = path / "velodyne"
+    if not velodyne.is_dir():
+        raise InputError(f"{path}: not a KITTI sequence (no velodyne/ folder)")
+    scans = sorted(velodyne.glob("*.bin"))
+    if not scans:
+        raise InputError(f"{velodyne}: no .bin scans")
+    times = None
+    if (path / "times.txt").is_file():
+        try:
+            times = np.loadtxt(path / "times.txt", ndmin=1).ravel()
+        except ValueError as exc:
+            raise InputError(f"{path / 'times.txt'}: not a column of numbers ({exc})") from exc
+    gt = None
+    candidates = [path / "poses.txt", path.parent.parent / "poses" / f"{path.name}.txt"]
+    pose_file = next((p for p in candidates if p.is_file()), None)
+    if pose_file is not None:
+        calib = path / "calib.txt"
+        if not calib.is_file():
+            raise InputError(f"{calib}: missing; needed to convert {pose_file} from camera to LiDAR frame")
+        tr = read_kitti_calibration(calib)
+        cam, _ = read_poses(pose_file, "kitti")
+        if len(cam) != len(scans):
+            raise InputError(f"{pose_file}: {len(cam)} poses but {velodyne} has {len(scans)} scans")
+        gt = np.linalg.inv(tr) @ cam @ tr
+    return ScanSequence(path, scans, gt, times)
+
+
+def folder_sequence(path: str | os.PathLike, poses: str | os.PathLike | None = None,
+                    pose_format: str = "auto") -> ScanSequence:
+    """A folder of .bin/.ply/.pcd scans (one format, natural order) with an optional LiDAR pose file."""
+    path = Path(path)
+    if not path.is_dir():
+        raise InputError(f"{path}: scan folder not found")
+    files = [f for f in path.iterdir() if f.suffix.lower() in CLOUD_SUFFIXES and f.is_file()]
+    suffixes = {f.suffix.lower() for f in files}
+    if len(suffixes) > 1:
+        raise InputError(f"{path}: mixes scan formats {sorted(suffixes)}; keep one format per folder")
+    files.sort(key=_natural_key)
+    gt, times = None, None
+    if poses is not None:
+        gt, times = read_poses(poses, pose_format)
+        if len(gt) != len(files):
+            raise InputError(f"{poses}: {len(gt)} poses but {path} has {len(files)} scans")
+    return ScanSequence(path, files, gt, times)
+
+
+def _natural_key(path: Path) -> list:
+    import re
+
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name)]

@@ -1,0 +1,166 @@
+"""Dataset readers on tiny sequences written into tmp_path; every bad layout names its file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from msa_slam.datasets import Frame, open_dataset, read_cloud, read_pcd
+from msa_slam.errors import InputError
+from msa_slam.io.poses import format_kitti, write_poses
+
+TR = np.eye(4)
+TR[:3, :3] = Rotation.from_euler("zyx", [-90, 0, -90], degrees=True).as_matrix()  # LiDAR x-forward -> camera z
+TR[:3, 3] = [0.01, -0.05, -0.3]
+
+
+def _points(k: int, n: int = 50) -> np.ndarray:
+    rng = np.random.default_rng(k)
+    return rng.normal(size=(n, 3)).astype(np.float32) * 10
+
+
+def _lidar_poses(n: int) -> np.ndarray:
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    poses[:, 0, 3] = np.arange(n) * 1.5
+    poses[:, :3, :3] = Rotation.from_euler("z", np.arange(n)[:, None] * 0.1).as_matrix()
+    return poses
+
+
+def _write_bin(path: Path, points: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.hstack([points, np.ones((len(points), 1), np.float32)]).astype(np.float32).tofile(path)
+
+
+def _kitti(root: Path, n: int = 3, poses_in_sequence: bool = True) -> Path:
+    seq = root / "sequences" / "07"
+    for k in range(n):
+        _write_bin(seq / "velodyne" / f"{k:06d}.bin", _points(k))
+    (seq / "calib.txt").write_text("P0: " + " ".join(["0"] * 12) + "\nTr: "
+                                   + " ".join(f"{v:.12e}" for v in TR[:3].ravel()) + "\n")
+    (seq / "times.txt").write_text("".join(f"{0.1 * k:.6f}\n" for k in range(n)))
+    cam = TR @ _lidar_poses(n) @ np.linalg.inv(TR)
+    pose_file = seq / "poses.txt" if poses_in_sequence else root / "poses" / "07.txt"
+    pose_file.parent.mkdir(parents=True, exist_ok=True)
+    pose_file.write_text(format_kitti(cam))
+    return seq
+
+
+@pytest.mark.parametrize("poses_in_sequence", [True, False])
+def test_kitti_sequence_reads_scans_times_and_lidar_poses(tmp_path, poses_in_sequence):
+    seq = open_dataset(_kitti(tmp_path, poses_in_sequence=poses_in_sequence))
+    assert len(seq) == 3 and seq.name == "07"
+    frame = seq[2]
+    assert isinstance(frame, Frame) and frame.index == 2 and frame.time == pytest.approx(0.2)
+    np.testing.assert_array_equal(frame.points, _points(2))
+    np.testing.assert_allclose(frame.gt_pose, _lidar_poses(3)[2], atol=1e-9)
+    assert [f.index for f in seq] == [0, 1, 2]
+    with pytest.raises(IndexError):
+        seq[3]
+
+
+def test_kitti_errors_name_the_file(tmp_path):
+    seq = _kitti(tmp_path)
+    (seq / "poses.txt").write_text(format_kitti(_lidar_poses(2)))
+    with pytest.raises(InputError, match=r"poses.txt: 2 poses but .*velodyne has 3 scans"):
+        open_dataset(seq)
+    (seq / "poses.txt").write_text(format_kitti(_lidar_poses(3)))
+    (seq / "calib.txt").unlink()
+    with pytest.raises(InputError, match="calib.txt: missing"):
+        open_dataset(seq)
+    with pytest.raises(InputError, match="no velodyne"):
+        open_dataset(tmp_path, kind="kitti")
+    with pytest.raises(InputError, match="dataset not found"):
+        open_dataset(tmp_path / "nowhere")
+
+
+def test_corrupt_and_empty_scans(tmp_path):
+    seq = _kitti(tmp_path)
+    bad = seq / "velodyne" / "000001.bin"
+    bad.write_bytes(b"\x00" * 20)
+    with pytest.raises(InputError, match="000001.bin: 20 bytes is not a whole number"):
+        open_dataset(seq)[1]
+    bad.write_bytes(b"")
+    with pytest.raises(InputError, match="000001.bin: scan file is empty"):
+        open_dataset(seq)[1]
+    assert len(open_dataset(seq)[0].points) == 50  # other frames still read
+
+
+def test_folder_of_ply_with_tum_poses(tmp_path):
+    import trimesh
+
+    for k in range(3):
+        trimesh.PointCloud(_points(k).astype(np.float64)).export(tmp_path / f"scan_{k + 8}.ply")
+    poses = _lidar_poses(3)
+    write_poses(tmp_path / "poses.tum", poses, fmt="tum", times=np.array([1.0, 1.1, 1.2]))
+    seq = open_dataset(tmp_path, poses=tmp_path / "poses.tum")
+    assert [f.name for f in seq.scan_files] == ["scan_8.ply", "scan_9.ply", "scan_10.ply"]  # natural order
+    np.testing.assert_allclose(seq[1].points, _points(1), atol=1e-6)
+    np.testing.assert_allclose(seq[2].gt_pose, poses[2], atol=1e-6)
+    assert seq[2].time == pytest.approx(1.2)
+    write_poses(tmp_path / "short.txt", poses[:2])
+    with pytest.raises(InputError, match="short.txt: 2 poses but .* has 3 scans"):
+        open_dataset(tmp_path, poses=tmp_path / "short.txt")
+
+
+def test_folder_errors(tmp_path):
+    with pytest.raises(InputError, match="no scan files"):
+        open_dataset(tmp_path)
+    _write_bin(tmp_path / "a.bin", _points(0))
+    (tmp_path / "b.pcd").write_text("x")
+    with pytest.raises(InputError, match="mixes scan formats"):
+        open_dataset(tmp_path)
+    with pytest.raises(InputError, match="unsupported scan format"):
+        read_cloud(tmp_path / "c.xyz")
+
+
+def _pcd_header(n: int, data: str, extra: bool) -> str:
+    fields = "x y z intensity" if extra else "x y z"
+    sizes = "4 4 4 2" if extra else "4 4 4"
+    types = "F F F U" if extra else "F F F"
+    return (f"# .PCD v0.7\nVERSION 0.7\nFIELDS {fields}\nSIZE {sizes}\nTYPE {types}\n"
+            f"COUNT {' '.join(['1'] * len(fields.split()))}\nWIDTH {n}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\n"
+            f"POINTS {n}\nDATA {data}\n")
+
+
+def test_pcd_ascii_and_binary(tmp_path):
+    pts = _points(3, n=7)
+    ascii_file = tmp_path / "a.pcd"
+    ascii_file.write_text(_pcd_header(7, "ascii", False) + "".join(f"{x} {y} {z}\n" for x, y, z in pts))
+    np.testing.assert_allclose(read_pcd(ascii_file), pts, atol=1e-5)
+    record = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<u2")])
+    table = np.zeros(7, dtype=record)
+    table["x"], table["y"], table["z"] = pts.T
+    binary_file = tmp_path / "b.pcd"
+    binary_file.write_bytes(_pcd_header(7, "binary", True).encode() + table.tobytes())
+    np.testing.assert_array_equal(read_pcd(binary_file), pts.astype(np.float64))
+    binary_file.write_bytes(_pcd_header(7, "binary", True).encode() + table.tobytes()[:-10])
+    with pytest.raises(InputError, match="b.pcd: PCD data is truncated"):
+        read_pcd(binary_file)
+    (tmp_path / "c.pcd").write_text(_pcd_header(7, "binary_compressed", False))
+    with pytest.raises(InputError, match="binary_compressed"):
+        read_pcd(tmp_path / "c.pcd")
+
+
+def test_mulran_through_kiss_loader(tmp_path):
+    stamps = [1000, 2000, 3000]
+    for k, stamp in enumerate(stamps):
+        _write_bin(tmp_path / "Ouster" / f"{stamp}.bin", _points(k))
+    rows = []
+    for stamp in stamps:  # timestamp, then a row-major 3x4 pose moving 1 m along x per scan
+        pose = np.eye(4)[:3]
+        pose[0, 3] = stamp / 1000.0
+        rows.append([stamp, *pose.ravel()])
+    np.savetxt(tmp_path / "global_pose.csv", np.array(rows), delimiter=",")
+    seq = open_dataset(tmp_path, kind="mulran")
+    assert len(seq) == 3
+    np.testing.assert_array_equal(seq[1].points, _points(1))
+    # kiss_icp expresses MulRan ground truth relative to the first pose, in the LiDAR frame.
+    assert np.linalg.norm(seq[2].gt_pose[:3, 3]) == pytest.approx(2.0, abs=1e-3)
+    (tmp_path / "global_pose.csv").unlink()
+    with pytest.raises(InputError, match="global_pose.csv: missing"):
+        open_dataset(tmp_path, kind="mulran")
+    with pytest.raises(InputError, match="unknown dataset loader"):
+        open_dataset(tmp_path, kind="nuscenes-ish")
