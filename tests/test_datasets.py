@@ -164,3 +164,18 @@ def test_mulran_through_kiss_loader(tmp_path):
         open_dataset(tmp_path, kind="mulran")
     with pytest.raises(InputError, match="unknown dataset loader"):
         open_dataset(tmp_path, kind="nuscenes-ish")
+
+
+def test_apollo_layout_without_open3d(tmp_path):
+    (tmp_path / "pcds").mkdir()
+    for k in range(3):
+        pts = _points(k, n=5)
+        (tmp_path / "pcds" / f"{k + 1}.pcd").write_text(
+            _pcd_header(5, "ascii", False) + "".join(f"{x} {y} {z}\n" for x, y, z in pts))
+    (tmp_path / "poses").mkdir()
+    lines = [f"{k} {k * 0.1} {10 + 2 * k} 5 0 0 0 0 1\n" for k in range(3)]  # index time x y z qx qy qz qw
+    (tmp_path / "poses" / "gt_poses.txt").write_text("".join(lines))
+    seq = open_dataset(tmp_path, kind="apollo")
+    assert [f.name for f in seq.scan_files] == ["1.pcd", "2.pcd", "3.pcd"]
+    np.testing.assert_allclose(seq[2].points, _points(2, n=5), atol=1e-5)
+    np.testing.assert_allclose(seq[2].gt_pose[:3, 3], [4.0, 0.0, 0.0])  # relative to the first pose
