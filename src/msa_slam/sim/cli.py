@@ -1,0 +1,34 @@
+"""`msa-slam simulate`: write (or reuse) a simulated sequence in the KITTI odometry layout."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+
+def simulate_command(
+    trajectory: str = typer.Option("kitti-05", help="kitti-00/05/06/07/09, figure-eight, city-tour, campus-walk"),
+    sensor: str = typer.Option("hdl64", help="hdl64, os1-64 or os1-128"),
+    out: Optional[Path] = typer.Option(None, help="output directory (default: the cache, keyed by config hash)"),
+    start: int = typer.Option(0, help="first trajectory frame"),
+    end: Optional[int] = typer.Option(None, help="end frame (exclusive; default: the whole trajectory)"),
+    stride: int = typer.Option(1, help="keep every stride-th frame"),
+    seed: int = typer.Option(0, help="seed of the world and the sensor noise"),
+    azimuth_steps: Optional[int] = typer.Option(None, help="rays per beam per revolution (sensor default)"),
+    max_range: Optional[float] = typer.Option(None, help="maximum range, metres (sensor default)"),
+    range_noise: float = typer.Option(0.02, help="Gaussian range noise sigma, metres"),
+    dropout: float = typer.Option(0.0, help="fraction of returns dropped at random"),
+    style: Optional[str] = typer.Option(None, help="world style: city or campus (default from the platform)"),
+    cache_dir: Optional[Path] = typer.Option(None, help="cache root (default $MSA_SLAM_CACHE or ~/.cache/msa-slam)"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+) -> None:
+    """Simulate a LiDAR sequence (velodyne/*.bin, poses.txt, times.txt, calib.txt) and print its folder."""
+    from msa_slam.sim.sequence import make_config, simulate_sequence
+
+    config = make_config(trajectory=trajectory, sensor=sensor, start=start, end=end, stride=stride, seed=seed,
+                         azimuth_steps=azimuth_steps, max_range=max_range, range_noise=range_noise,
+                         dropout=dropout, style=style)
+    path = simulate_sequence(config, out=out, cache_dir=cache_dir, progress=not quiet)
+    typer.echo(str(path))
