@@ -17,7 +17,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from msa_slam.sampling.base import Sampler, Timer
-from msa_slam.sampling.msa_window import MODES, ScoreWeights, optimise_window
+from msa_slam.sampling.msa_window import MODES, ExactWorkspace, ScoreWeights, optimise_window
 
 MIN_WINDOW_STEP = 0.01  # a frame joins the window only if it moved this far from the last member
 INITIAL_DMIN, INITIAL_DMAX = 1.0, 5.0
@@ -65,6 +65,7 @@ class MSASampler(Sampler):
         self.dmin, self.dmax = INITIAL_DMIN, INITIAL_DMAX
         self._tree: cKDTree | None = None
         self._tree_size = 0
+        self._workspace = ExactWorkspace()
 
     @property
     def window(self) -> list[int]:
@@ -140,7 +141,7 @@ class MSASampler(Sampler):
             result = optimise_window(
                 np.array([self._translation[f] for f in members]),
                 np.array([self._descriptor[f] for f in members]),
-                self.dmin, self.dmax, self.weights, self.mode)
+                self.dmin, self.dmax, self.weights, self.mode, self._workspace)
         self.stats.window_optimisations += 1
         self.stats.candidates_evaluated += result.candidates
         self.stats.optimisation_ms.append(timer.ms)

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+from numba import njit
 
 MODES = ("exact", "fast")
 EIGENVALUE_FLOOR = 1e-6
@@ -116,42 +117,95 @@ def _sanitize(c: np.ndarray) -> np.ndarray:
     return c
 
 
-def _gradient_exact(ft: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """numpy.gradient(ft, x, axis=-1) for a stack of (M, m) arrays, each with its own coordinates x.
+class ExactWorkspace:
+    """Reusable scratch buffers for the exact batches.
 
-    Same formulas and operation order as numpy (edge_order 1), including its switch to the uniform
-    formula when all spacings are equal, so each slice is bit-identical to numpy's own call.
+    Fresh multi-megabyte temporaries per batch cost more in page faults than the arithmetic itself,
+    so every large intermediate is written into one of these buffers with `out=` (same arithmetic).
     """
-    dx = np.diff(x, axis=1)  # (C, m-1)
-    out = np.empty((ft.shape[0], ft.shape[2], ft.shape[1])).transpose(0, 2, 1)  # F-ordered slices
-    uniform = (dx == dx[:, :1]).all(axis=1)
-    if ft.shape[2] > 2:
-        dx1 = dx[:, :-1, None].transpose(0, 2, 1)
-        dx2 = dx[:, 1:, None].transpose(0, 2, 1)
-        a = -(dx2) / (dx1 * (dx1 + dx2))
-        b = (dx2 - dx1) / (dx1 * dx2)
-        c = dx1 / (dx2 * (dx1 + dx2))
-        out[:, :, 1:-1] = a * ft[:, :, :-2] + b * ft[:, :, 1:-1] + c * ft[:, :, 2:]
-        if uniform.any():
-            u = np.flatnonzero(uniform)
-            out[u, :, 1:-1] = (ft[u, :, 2:] - ft[u, :, :-2]) / (2.0 * dx[u, 0])[:, None, None]
-    out[:, :, 0] = (ft[:, :, 1] - ft[:, :, 0]) / dx[:, :1]
-    out[:, :, -1] = (ft[:, :, -1] - ft[:, :, -2]) / dx[:, -1:]
+
+    CHUNK = 48  # candidates per batch
+
+    def __init__(self) -> None:
+        self._buffers: dict[str, np.ndarray] = {}
+
+    def get(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
+        size = int(np.prod(shape))
+        buf = self._buffers.get(name)
+        if buf is None or buf.size < size:
+            buf = self._buffers[name] = np.empty(size)
+        return buf[:size].reshape(shape)
+
+
+@njit(cache=True)
+def _gradient_exact(f: np.ndarray, x: np.ndarray, out: np.ndarray) -> np.ndarray:  # pragma: no cover
+    """numpy.gradient(F.T, x, axis=1).T for a stack of (m, M) descriptor blocks F with coordinates x.
+
+    numpy's formulas in its operation order (edge_order 1; a*f[:-2] + b*f[1:-1] + c*f[2:] inside,
+    one-sided differences at both ends, the uniform formula when all spacings are equal), compiled
+    without floating-point contraction, so each slice is bit-identical to numpy's own call. Writes
+    J^T as (C, m, M) into `out` (the memory layout of numpy's result: J is Fortran-ordered there).
+    """
+    count, m, width = f.shape
+    for c in range(count):
+        dx0 = x[c, 1] - x[c, 0]
+        dxn = x[c, m - 1] - x[c, m - 2]
+        uniform = True
+        for k in range(1, m - 1):
+            if x[c, k + 1] - x[c, k] != dx0:
+                uniform = False
+        for p in range(width):
+            out[c, 0, p] = (f[c, 1, p] - f[c, 0, p]) / dx0
+            out[c, m - 1, p] = (f[c, m - 1, p] - f[c, m - 2, p]) / dxn
+        for k in range(1, m - 1):
+            if uniform:
+                for p in range(width):
+                    out[c, k, p] = (f[c, k + 1, p] - f[c, k - 1, p]) / (2.0 * dx0)
+                continue
+            dx1 = x[c, k] - x[c, k - 1]
+            dx2 = x[c, k + 1] - x[c, k]
+            a = -(dx2) / (dx1 * (dx1 + dx2))
+            b = (dx2 - dx1) / (dx1 * dx2)
+            cc = dx1 / (dx2 * (dx1 + dx2))
+            for p in range(width):
+                out[c, k, p] = a * f[c, k - 1, p] + b * f[c, k, p] + cc * f[c, k + 1, p]
     return out
 
 
-def _information_exact(subsets: np.ndarray, x: np.ndarray, flat: np.ndarray) -> np.ndarray:
-    """pi for candidates of one size with the reference's arithmetic (stacked, one eigh call)."""
-    f = flat[subsets]  # (C, m, M), C-contiguous like the reference's F
-    ft = f.transpose(0, 2, 1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        j = _gradient_exact(ft, x)
-        c = _sanitize(j.transpose(0, 2, 1) @ j)
+@njit(cache=True)
+def _scaled_steps(t: np.ndarray, scale: np.ndarray, out: np.ndarray) -> np.ndarray:  # pragma: no cover
+    """T[:, j+1] * sqrt(lam_{j+1}) - T[:, j] * sqrt(lam_j) for each candidate, rows contiguous."""
+    count, m, width = t.shape
+    for c in range(count):
+        for j in range(m - 1):
+            for p in range(width):
+                out[c, j, p] = t[c, j + 1, p] * scale[c, j + 1] - t[c, j, p] * scale[c, j]
+    return out
+
+
+def _information_exact(subsets: np.ndarray, x: np.ndarray, flat: np.ndarray,
+                       workspace: ExactWorkspace) -> np.ndarray:
+    """pi for candidates of one size with the reference's arithmetic (stacked, one eigh per batch)."""
+    chunk = workspace.CHUNK
+    return np.concatenate([
+        _information_exact_batch(subsets[i:i + chunk], x[i:i + chunk], flat, workspace)
+        for i in range(0, len(subsets), chunk)])
+
+
+def _information_exact_batch(subsets: np.ndarray, x: np.ndarray, flat: np.ndarray,
+                             ws: ExactWorkspace) -> np.ndarray:
+    count, m = subsets.shape
+    width = flat.shape[1]
+    f = np.take(flat, subsets, axis=0, out=ws.get("f", (count, m, width)))  # the reference's F, (m, M)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        jt = _gradient_exact(f, x, ws.get("jt", (count, m, width)))
+        c = _sanitize(jt @ jt.transpose(0, 2, 1))  # C = J^T J
     lam, v = np.linalg.eigh(c)
     lam[lam < 0] = 0
     lam += EIGENVALUE_FLOOR
-    t = (ft @ v) * np.sqrt(lam)[:, None, :]  # (C, M, m)
-    steps = np.ascontiguousarray((t[:, :, 1:] - t[:, :, :-1]).transpose(0, 2, 1))  # (C, m-1, M)
+    t = ws.get("t", (count, m, width))  # (F^T V)^T: the reference's T, stored row per eigen-direction
+    np.matmul(f.transpose(0, 2, 1), v, out=t.transpose(0, 2, 1))
+    steps = _scaled_steps(t, np.sqrt(lam), ws.get("steps", (count, m - 1, width)))
     e = np.sqrt((steps[:, :, None, :] @ steps[:, :, :, None])[:, :, 0, 0])  # BLAS dot per step
     return _normalised_mean_steps(e)
 
@@ -191,10 +245,12 @@ def _information_fast(subsets: np.ndarray, x: np.ndarray, gram: np.ndarray) -> n
 
 
 def optimise_window(translations: np.ndarray, descriptors: np.ndarray, dmin: float, dmax: float,
-                    weights: ScoreWeights, mode: str = "exact") -> WindowResult:
+                    weights: ScoreWeights, mode: str = "exact",
+                    workspace: ExactWorkspace | None = None) -> WindowResult:
     """Choose the subset of the n window members that minimises (alpha + rho^) / (beta + pi^).
 
-    translations (n, 3) and descriptors (n, ...) are the window members in window order.
+    translations (n, 3) and descriptors (n, ...) are the window members in window order; pass a
+    workspace to reuse scratch buffers across windows (exact mode).
     """
     n = len(translations)
     if mode == "exact":
@@ -224,7 +280,7 @@ def optimise_window(translations: np.ndarray, descriptors: np.ndarray, dmin: flo
             if subsets.shape[1] == 2:
                 pi_parts.append(np.zeros(len(subsets)))
             elif mode == "exact":
-                pi_parts.append(_information_exact(subsets, x, flat))
+                pi_parts.append(_information_exact(subsets, x, flat, workspace or ExactWorkspace()))
             else:
                 pi_parts.append(_information_fast(subsets, x, gram))
     rho_hat = _minmax(np.concatenate(rho_parts)) if weights.use_rho else np.zeros(count)
