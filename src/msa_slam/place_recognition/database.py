@@ -156,14 +156,17 @@ class KeyframeDatabase:
         threshold: float = 0.8,
         top_k: int = 1,
         search: str | None = None,
+        n_candidates: int | None = None,
     ) -> list[LoopMatch]:
         """Best matches (similarity >= threshold, best first, at most top_k) among keyframes with
-        frame_id - id > exclude_frames, leaving out the `exclude_recent` newest keyframes."""
+        frame_id - id > exclude_frames, leaving out the `exclude_recent` newest keyframes.
+        `search` and `n_candidates` (stage-1 neighbours of the two-stage search) override the defaults."""
         if self._n == 0:
             return []
         eligible = self._eligible(frame_id, exclude_frames, exclude_recent)
         if self._uses_two_stage(search):
-            rows = self._index.candidates(self._keys[: self._n], self.descriptor.search_key(descriptor), eligible)
+            key = self.descriptor.search_key(descriptor)
+            rows = self._index.candidates(self._keys[: self._n], key, eligible, n_candidates)
         else:
             rows = np.flatnonzero(eligible)
             if len(rows) == self._n:

@@ -21,18 +21,21 @@ class RingKeyIndex:
         self._tree: cKDTree | None = None
         self._tree_size = 0
 
-    def candidates(self, keys: np.ndarray, query_key: np.ndarray, eligible: np.ndarray) -> np.ndarray:
+    def candidates(
+        self, keys: np.ndarray, query_key: np.ndarray, eligible: np.ndarray, n_candidates: int | None = None
+    ) -> np.ndarray:
         """Indices (ascending) of the stage-2 candidates among rows of `keys` where `eligible` is True."""
+        wanted = self.n_candidates if n_candidates is None else int(n_candidates)
         n = len(keys)
         if self._tree is None or n - self._tree_size >= self.rebuild_every or n < self._tree_size:
             self._tree = cKDTree(keys) if n else None
             self._tree_size = n
         picked = np.zeros(0, dtype=np.int64)
-        if self._tree is not None and self.n_candidates > 0:
+        if self._tree is not None and wanted > 0:
             blocked = int(self._tree_size - eligible[: self._tree_size].sum())
-            k = min(self._tree_size, self.n_candidates + blocked)
+            k = min(self._tree_size, wanted + blocked)
             _, idx = self._tree.query(query_key, k=[*range(1, k + 1)])
             idx = np.asarray(idx, dtype=np.int64).ravel()
-            picked = idx[eligible[idx]][: self.n_candidates]
+            picked = idx[eligible[idx]][:wanted]
         fresh = np.arange(self._tree_size, n)
         return np.union1d(picked, fresh[eligible[fresh]])
