@@ -41,7 +41,7 @@ class Style:
 
 STYLES: dict[str, Style] = {
     "city": Style("city", 5.0, (7.0, 12.0), (6.0, 24.0), (8.0, 20.0), (4.0, 25.0), (2.0, 8.0), 0.3, 0.35,
-                  30.0, 14.0, 0.35, (3.3, 4.3), 2.3, 70.0, 2.5),
+                  30.0, 14.0, 0.5, (3.3, 4.3), 2.3, 70.0, 2.5),
     "campus": Style("campus", 2.0, (4.0, 9.0), (8.0, 30.0), (8.0, 16.0), (3.0, 14.0), (3.0, 10.0), 0.3, 0.3,
                     18.0, 7.0, 0.0, (1.6, 2.2), 1.2, 45.0, 1.5),
 }
@@ -155,14 +155,22 @@ class StreetLayout:
 
     def _block_or_gap(self, s: float, side: float) -> float:
         st = self.style
-        if self.rng.random() < st.p_gap:
+        if self.rng.random() < st.p_gap:  # a gap: a wall or fence, a hedge, a row of trees, or nothing
             length = self._u(st.gap)
             kind = self.rng.random()
             p, h, n = self._at(s + length / 2)
-            if kind < 0.35 and length > 3:
-                off = self._u(st.setback)
-                self._add_box(p + side * n * off, (length / 2, 0.15), np.arctan2(h[1], h[0]),
-                              self._u((0.8, 2.5)), self._u((0.3, 0.6)), st.road_clearance)
+            yaw = float(np.arctan2(h[1], h[0]))
+            off = self._u(st.setback)
+            if kind < 0.4 and length > 2:
+                self._add_box(p + side * n * off, (length / 2, 0.15), yaw, self._u((0.8, 2.5)),
+                              self._u((0.3, 0.6)), st.road_clearance)
+            elif kind < 0.65 and length > 2:
+                self._add_box(p + side * n * off, (length / 2, 0.5), yaw, self._u((0.8, 1.6)), 0.2,
+                              st.road_clearance)
+            elif kind < 0.85:
+                for x in np.arange(1.0, length, self._u((3.0, 5.0))):
+                    q, _, m = self._at(s + x)
+                    self._tree(q + side * m * (off + self._u((0.0, 3.0))), st.road_clearance)
             return length
         length, depth = self._u(st.length), self._u(st.depth)
         p, h, n = self._at(s + length / 2)
@@ -218,6 +226,16 @@ class StreetLayout:
             self.boxes.append((*c, base + height + extra / 2, length * 0.35, depth * 0.3, extra / 2, yaw, refl))
         return True
 
+    def _tree(self, c: np.ndarray, clearance: float) -> None:
+        """A trunk and an irregular crown."""
+        crown = self._u((1.2, 3.0))
+        if self._try(c, np.array([0.6, 0.6]), 0.0, clearance):
+            trunk_h = self._u((1.8, 4.0))
+            z = self.ground(c) - 0.3
+            self.trunks.append((*c, z, self._u((0.12, 0.3)), trunk_h + crown * 0.5, 0.3))
+            self.crowns.append((*c, z + trunk_h + crown * 0.8, crown, crown * self._u((0.8, 1.2)),
+                                crown * self._u((0.7, 1.3)), 0.25))
+
     def _furniture(self, total: float) -> None:
         st = self.style
         for side in (1.0, -1.0):
@@ -233,13 +251,7 @@ class StreetLayout:
                 if self.rng.random() < 0.6:
                     p, h, n = self._at(s)
                     c = p + side * n * self._u((st.car_offset[1] + 1.0, st.setback[1]))
-                    crown = self._u((1.2, 3.0))
-                    if self._try(c, np.array([0.6, 0.6]), 0.0, st.furniture_clearance + 0.5):
-                        trunk_h = self._u((1.8, 4.0))
-                        z = self.ground(c) - 0.3
-                        self.trunks.append((*c, z, self._u((0.12, 0.3)), trunk_h + crown * 0.5, 0.3))
-                        self.crowns.append((*c, z + trunk_h + crown * 0.8, crown, crown * self._u((0.8, 1.2)),
-                                            crown * self._u((0.7, 1.3)), 0.25))
+                    self._tree(c, st.furniture_clearance + 0.5)
                 s += st.tree_spacing * self._u((0.5, 1.5))
             if st.p_parked <= 0:
                 continue

@@ -97,7 +97,7 @@ def _rounded_polyline(corners: np.ndarray, radius: float) -> np.ndarray:
         prev, cur, nxt = corners[k - 1], corners[k], corners[k + 1]
         d_in = (cur - prev) / np.linalg.norm(cur - prev)
         d_out = (nxt - cur) / np.linalg.norm(nxt - cur)
-        if abs(np.cross(d_in, d_out)) < 1e-9:
+        if abs(d_in[0] * d_out[1] - d_in[1] * d_out[0]) < 1e-9:  # straight through
             pts.append(cur)
             continue
         a0, a1 = cur - d_in * radius, cur + d_out * radius

@@ -62,6 +62,21 @@ class GroundModel:
         return z if np.ndim(xy) > 1 else float(z[0])
 
 
+def extend_path(xy: np.ndarray, length: float) -> np.ndarray:
+    """`xy` continued straight for `length` metres before its start and after its end, so the first and
+    last scans see a street around them too (as a real drive that began and ended elsewhere)."""
+    def heading(a: np.ndarray) -> np.ndarray:
+        far = a[np.argmax(np.linalg.norm(a - a[0], axis=1) > 5.0)] if len(a) > 1 else a[0]
+        d = far - a[0]
+        n = np.linalg.norm(d)
+        return d / n if n > 1e-6 else np.array([1.0, 0.0])
+
+    steps = np.arange(length, 0.0, -1.0)[:, None]
+    before = xy[0] - steps * heading(xy)
+    after = xy[-1] - steps[::-1] * heading(xy[::-1])
+    return np.concatenate([before, xy, after])
+
+
 def build_world(poses: np.ndarray, style: str = "city", seed: int = 0, sensor_height: float = 1.73) -> World:
     """The world around `poses` (N, 4, 4): same seed and poses give the same world, triangle for triangle."""
     if style not in STYLES:
@@ -69,7 +84,7 @@ def build_world(poses: np.ndarray, style: str = "city", seed: int = 0, sensor_he
     st = STYLES[style]
     rng = np.random.default_rng(seed)
     ground = GroundModel(poses, sensor_height, rng)
-    xy = poses[:, :2, 3]
+    xy = extend_path(poses[:, :2, 3], 80.0)
     layout = StreetLayout(xy, st, rng, ground)
     layout.build()
     builder = MeshBuilder()

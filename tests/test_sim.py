@@ -1,0 +1,327 @@
+"""Simulator: shipped KITTI trajectories, sensor geometry, worlds, determinism, caching, realism."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial import cKDTree
+
+from msa_slam.errors import InputError
+from msa_slam.io.poses import read_poses
+from msa_slam.sim import (
+    DEFAULT_CONFIGS, Lidar, World, build_world, default_sequence, get_sensor, iter_frames, load_trajectory,
+    make_config, prepare, simulate_sequence,
+)
+from msa_slam.sim.sequence import is_complete
+from msa_slam.sim.trajectories import frame_indices
+from tests.conftest import shared_path
+
+SMALL = dict(trajectory="kitti-07", end=6, azimuth_steps=128)
+
+
+@pytest.fixture(scope="module")
+def test_sequence(tmp_path_factory):
+    """The embedded test default, simulated once for this module."""
+    return default_sequence("test", cache_dir=tmp_path_factory.mktemp("cache"))
+
+
+def _revisit_pairs(positions: np.ndarray, radius: float, min_gap: int) -> list[tuple[int, int]]:
+    tree = cKDTree(positions)
+    return [(i, j) for i, j in sorted(tree.query_pairs(radius)) if abs(i - j) > min_gap]
+
+
+# --- trajectories -----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("seq", ["00", "05", "06", "07", "09"])
+def test_shipped_kitti_trajectory_is_ground_truth_in_lidar_frame(seq):
+    gt_dir = shared_path("data", "kitti_gt")
+    cam, _ = read_poses(gt_dir / f"{seq}.txt", "kitti")
+    line = next(l for l in (gt_dir / "calib.txt").read_text().splitlines() if l.startswith(seq + " "))
+    tr = np.eye(4)
+    tr[:3, :4] = np.array(line.split()[1:], dtype=float).reshape(3, 4)
+    expected = np.linalg.inv(tr) @ cam @ tr
+    traj = load_trajectory(f"kitti-{seq}")
+    assert len(traj) == len(cam)
+    assert np.abs(traj.poses[:, :3, 3] - expected[:, :3, 3]).max() < 2e-3
+    assert np.abs(traj.poses[:, :3, :3] - expected[:, :3, :3]).max() < 1e-4
+    # LiDAR convention: the first pose is the world frame, z stays up, x forward along the motion.
+    assert np.allclose(traj.poses[0], np.eye(4), atol=1e-3)
+    assert traj.poses[:, 2, 2].min() > 0.98
+    step = traj.poses[10, :3, 3] - traj.poses[0, :3, 3]
+    assert (traj.poses[0, :3, :3].T @ step)[0] > 0.9 * np.linalg.norm(step)
+    assert np.median(np.diff(traj.times)) == pytest.approx(0.1037, abs=2e-3)
+
+
+def test_procedural_trajectories():
+    walk = load_trajectory("campus-walk")
+    steps = np.linalg.norm(np.diff(walk.poses[:, :3, 3], axis=0), axis=1)
+    assert np.median(steps) == pytest.approx(0.1, abs=0.01) and walk.platform == "walk"
+    for name in ("figure-eight", "city-tour", "campus-walk"):
+        traj = load_trajectory(name)
+        assert np.allclose(np.diff(traj.times), 0.1)
+        assert _revisit_pairs(traj.poses[::5, :2, 3], 3.0, 100 // 5), f"{name} never revisits a place"
+
+
+def test_trajectory_errors():
+    with pytest.raises(InputError, match="kitti-08.*kitti-05.*campus-walk"):
+        load_trajectory("kitti-08")
+    with pytest.raises(InputError, match="stride must be >= 1"):
+        frame_indices(100, stride=0)
+    with pytest.raises(InputError, match="start 100 outside 0..99"):
+        frame_indices(100, start=100)
+    with pytest.raises(InputError, match="end 5 must be in 11..100"):
+        frame_indices(100, start=10, end=5)
+    assert frame_indices(100, 10, 20, 3).tolist() == [10, 13, 16, 19]
+
+
+# --- sensors ----------------------------------------------------------------------------------------
+
+def test_sensor_models():
+    hdl = get_sensor("hdl64")
+    assert hdl.beams == 64 and max(hdl.elevations_deg) == 2.0 and min(hdl.elevations_deg) == -24.8
+    for name, beams in (("os1-64", 64), ("os1-128", 128)):
+        s = get_sensor(name, azimuth_steps=256)
+        assert s.beams == beams and max(s.elevations_deg) == 22.5 and min(s.elevations_deg) == -22.5
+        dirs = s.directions()
+        assert dirs.shape == (beams * 256, 3) and np.allclose(np.linalg.norm(dirs, axis=1), 1.0)
+    with pytest.raises(InputError, match="unknown sensor 'vlp16'.*hdl64"):
+        get_sensor("vlp16")
+    with pytest.raises(InputError, match="dropout"):
+        get_sensor("hdl64", dropout=1.5)
+    with pytest.raises(InputError, match="azimuth_steps"):
+        get_sensor("hdl64", azimuth_steps=2)
+
+
+def _room() -> World:
+    """A closed 40 x 30 x 12 m box around the origin (every ray hits a wall)."""
+    mesh = trimesh.creation.box(extents=(40.0, 30.0, 12.0))
+    return World(mesh, np.full(len(mesh.faces), 0.5, dtype=np.float32))
+
+
+def _on_room_surface(points_world: np.ndarray) -> np.ndarray:
+    half = np.array([20.0, 15.0, 6.0])
+    return np.abs(np.abs(points_world) / half).max(axis=1)
+
+
+def test_scan_points_lie_on_surfaces_in_sensor_frame():
+    lidar = Lidar(get_sensor("os1-64", azimuth_steps=256, range_noise=0.0), _room())
+    pose = np.eye(4)
+    c, s = np.cos(0.5), np.sin(0.5)
+    pose[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+    pose[:3, 3] = [3.0, -2.0, 1.0]
+    pts = lidar.scan(pose, np.random.default_rng(0))
+    assert pts.dtype == np.float32 and pts.shape == (64 * 256, 4)
+    world = pts[:, :3].astype(float) @ pose[:3, :3].T + pose[:3, 3]
+    assert np.allclose(_on_room_surface(world), 1.0, atol=1e-4)
+    assert np.all((pts[:, 3] > 0) & (pts[:, 3] <= 0.5))
+    # the sensor frame is attached to the pose: the forward ray hits the +x wall along the rotated x axis
+    ranges = np.linalg.norm(pts[:, :3], axis=1)
+    assert ranges.min() > 1.0 and ranges.max() < 30.0
+
+
+def test_range_noise_dropout_and_max_range():
+    room = _room()
+    clean = Lidar(get_sensor("hdl64", azimuth_steps=512, range_noise=0.0), room).scan(np.eye(4), np.random.default_rng(0))
+    noisy = Lidar(get_sensor("hdl64", azimuth_steps=512, range_noise=0.05), room).scan(np.eye(4), np.random.default_rng(0))
+    delta = np.linalg.norm(noisy[:, :3], axis=1) - np.linalg.norm(clean[:, :3], axis=1)
+    assert np.std(delta) == pytest.approx(0.05, rel=0.05)
+    dropped = Lidar(get_sensor("hdl64", azimuth_steps=512, dropout=0.3), room).scan(np.eye(4), np.random.default_rng(0))
+    assert len(dropped) / len(clean) == pytest.approx(0.7, abs=0.02)
+    short = Lidar(get_sensor("hdl64", azimuth_steps=512, max_range=16.0), room).scan(np.eye(4), np.random.default_rng(0))
+    assert 0 < len(short) < len(clean) and np.linalg.norm(short[:, :3], axis=1).max() < 16.1
+
+
+# --- worlds -----------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("name", ["figure-eight", "city-tour"])
+def test_road_stays_clear_where_the_path_crosses_or_returns(name):
+    poses = load_trajectory(name).poses
+    world = build_world(poses, "city", seed=3)
+    origins = poses[:-1, :3, 3]
+    step = poses[1:, :3, 3] - origins
+    tri, ray, loc = world.cast(origins, step / np.linalg.norm(step, axis=1, keepdims=True))
+    hit_dist = np.linalg.norm(loc - origins[ray], axis=1)
+    blocked = hit_dist < np.linalg.norm(step[ray], axis=1) + 2.0
+    assert not blocked.any(), f"{blocked.sum()} path segments blocked by the world"
+
+
+def test_worlds_are_seeded_and_structured():
+    poses = load_trajectory("kitti-07").poses[:300]
+    a, b = build_world(poses, "city", seed=1), build_world(poses, "city", seed=1)
+    assert np.array_equal(a.mesh.vertices, b.mesh.vertices)
+    c = build_world(poses, "city", seed=2)
+    assert len(c.mesh.vertices) != len(a.mesh.vertices) or not np.allclose(c.mesh.vertices, a.mesh.vertices)
+    campus = build_world(load_trajectory("campus-walk").poses[:800], "campus", seed=1, sensor_height=1.2)
+    assert a.triangles > 10_000 and campus.triangles > 5_000
+    with pytest.raises(InputError, match="unknown world style 'forest'"):
+        build_world(poses, "forest")
+
+
+def test_scans_see_structure_and_ground():
+    sim = prepare(make_config(trajectory="kitti-05", start=500, end=501, azimuth_steps=512))
+    pts = sim.scan(0)
+    ground = np.abs(pts[:, 2] + 1.73) < 0.4
+    assert 0.2 < ground.mean() < 0.8, "a scan should be part ground, part structure (KITTI-like)"
+    assert (pts[:, 2] > -1.0).mean() > 0.2, "buildings, walls, cars, poles and trees"
+
+
+# --- sequences --------------------------------------------------------------------------------------
+
+def test_iterator_is_deterministic_and_seeded():
+    cfg = make_config(**SMALL)
+    first, second = list(iter_frames(cfg)), list(iter_frames(cfg))
+    assert [f.index for f in first] == list(range(6))
+    for a, b in zip(first, second):
+        assert np.array_equal(a.points, b.points) and np.array_equal(a.gt_pose, b.gt_pose)
+        assert a.points.dtype == np.float32 and a.points.shape[1] == 3
+    assert first[0].time == 0.0 and first[1].time == pytest.approx(0.1036, abs=2e-3)
+    other = next(iter_frames(make_config(**SMALL, seed=1)))
+    assert len(other.points) != len(first[0].points) or not np.array_equal(other.points, first[0].points)
+    with_int = next(iter_frames(cfg, with_intensity=True))
+    assert with_int.points.shape[1] == 4 and np.array_equal(with_int.points[:, :3], first[0].points)
+
+
+def test_same_place_looks_the_same_when_revisited(test_sequence):
+    poses, _ = read_poses(test_sequence / "poses.txt")
+    i, j = min(_revisit_pairs(poses[:, :3, 3], 1.5, 50), key=lambda p: np.linalg.norm(
+        poses[p[0], :3, 3] - poses[p[1], :3, 3]))
+
+    def world_points(k: int) -> np.ndarray:
+        """Non-ground points of scan k in the world frame."""
+        pts = np.fromfile(test_sequence / "velodyne" / f"{k:06d}.bin", dtype=np.float32).reshape(-1, 4)[:, :3]
+        pts = pts[pts[:, 2] > -1.2]
+        return pts @ poses[k, :3, :3].T + poses[k, :3, 3]
+
+    a, b = world_points(i), world_points(j)
+    near = np.linalg.norm(a - poses[i, :3, 3], axis=1) < 25
+    d_same, _ = cKDTree(b).query(a[near])
+    assert np.median(d_same) < 0.15
+    far = int(np.argmax(np.linalg.norm(poses[:, :3, 3] - poses[i, :3, 3], axis=1)))
+    shifted = world_points(far) - poses[far, :3, 3] + poses[i, :3, 3]  # a different place, same origin
+    d_other, _ = cKDTree(shifted).query(a[near])
+    assert np.median(d_other) > 5 * np.median(d_same)
+
+
+def test_sequence_layout_readers_and_cache(tmp_path):
+    from kiss_icp.datasets.kitti import KITTIOdometryDataset
+
+    from msa_slam.datasets.sequences import kitti_sequence
+
+    cfg = make_config(**SMALL)
+    path = simulate_sequence(cfg, cache_dir=tmp_path)
+    assert path.parent == tmp_path and is_complete(path, cfg.key())
+    assert sorted(p.name for p in (path / "velodyne").iterdir()) == [f"{k:06d}.bin" for k in range(6)]
+    poses, _ = read_poses(path / "poses.txt")
+    expected = [f.gt_pose for f in iter_frames(cfg)]
+    assert np.allclose(poses, expected, atol=1e-8)
+    assert "Tr: 1 0 0 0 0 1 0 0 0 0 1 0" in (path / "calib.txt").read_text()
+    kiss = KITTIOdometryDataset(str(path), "00")
+    assert len(kiss) == 6 and np.allclose(kiss.gt_poses, poses, atol=1e-6)
+    ours = kitti_sequence(path)
+    assert len(ours) == 6 and np.allclose(ours.gt_poses, poses, atol=1e-8)
+    assert np.array_equal(ours[2].points[:, :3], next(f for f in iter_frames(cfg) if f.index == 2).points)
+    # cached: same path, untouched files
+    mtime = (path / "velodyne" / "000000.bin").stat().st_mtime_ns
+    assert simulate_sequence(cfg, cache_dir=tmp_path) == path
+    assert (path / "velodyne" / "000000.bin").stat().st_mtime_ns == mtime
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], "temporary directory left behind"
+    # an incomplete sequence is never taken for a cached one
+    (path / "velodyne" / "000005.bin").unlink()
+    assert not is_complete(path, cfg.key())
+    with pytest.raises(InputError, match="not a complete simulation"):
+        simulate_sequence(cfg, cache_dir=tmp_path)
+    other = tmp_path / "other"
+    (other / "velodyne").mkdir(parents=True)
+    with pytest.raises(InputError, match=f"{other}: exists"):
+        simulate_sequence(cfg, out=other)
+
+
+def test_failed_simulation_leaves_nothing(tmp_path):
+    cfg = make_config(trajectory="kitti-07", start=1100, end=1101, azimuth_steps=128, dropout=0.99)
+    out = tmp_path / "seq"
+    simulate_sequence(cfg, out=out)  # a valid, nearly empty scan still completes
+    assert is_complete(out, cfg.key())
+    with pytest.raises(InputError, match="dropout"):
+        simulate_sequence(make_config(**SMALL, dropout=1.0), out=tmp_path / "bad")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["seq"]
+
+
+def test_config_errors_name_the_parameter():
+    with pytest.raises(InputError, match="trajectory: unknown trajectory 'mars'.*kitti-00"):
+        make_config(trajectory="mars")
+    with pytest.raises(InputError, match="sensor: unknown sensor"):
+        make_config(sensor="hdl32")
+    with pytest.raises(InputError, match="colour"):
+        make_config(colour="red")
+    with pytest.raises(InputError, match="unknown default sequence 'huge'.*demo, test"):
+        default_sequence("huge")
+
+
+def test_cache_dir_from_environment(tmp_path, monkeypatch):
+    monkeypatch.setenv("MSA_SLAM_CACHE", str(tmp_path))
+    path = simulate_sequence(make_config(**SMALL))
+    assert path.parent == tmp_path
+
+
+def test_cli_simulate(tmp_path, monkeypatch, capsys):
+    from msa_slam.cli import main
+
+    out = tmp_path / "cli"
+    monkeypatch.setattr(sys, "argv", ["msa-slam", "simulate", "--trajectory", "kitti-07", "--end", "3",
+                                      "--azimuth-steps", "64", "--out", str(out), "--quiet"])
+    main()
+    assert capsys.readouterr().out.strip() == str(out) and len(os.listdir(out / "velodyne")) == 3
+    monkeypatch.setattr(sys, "argv", ["msa-slam", "simulate", "--trajectory", "kitti-42", "-q"])
+    with pytest.raises(SystemExit) as exc:
+        main()
+    assert exc.value.code == 2 and "unknown trajectory 'kitti-42'" in capsys.readouterr().err
+
+
+# --- realism ----------------------------------------------------------------------------------------
+
+def test_default_sequences_are_the_documented_ones(test_sequence):
+    assert DEFAULT_CONFIGS["demo"].trajectory == "kitti-05" and DEFAULT_CONFIGS["demo"].stride == 3
+    poses, _ = read_poses(test_sequence / "poses.txt")
+    assert 150 <= len(poses) <= 250
+    assert _revisit_pairs(poses[:, :3, 3], 3.0, 50)
+
+
+def test_kiss_icp_drifts_like_real_odometry():
+    from kiss_icp.config import load_config
+    from kiss_icp.kiss_icp import KissICP
+
+    config = load_config(None)
+    config.data.deskew = False
+    odometry = KissICP(config)
+    gt, est = [], []
+    for frame in iter_frames(make_config(trajectory="kitti-05", start=0, end=80, azimuth_steps=512)):
+        odometry.register_frame(frame.points.astype(np.float64), np.array([]))
+        est.append(odometry.last_pose.copy())
+        gt.append(frame.gt_pose)
+    gt = np.linalg.inv(gt[0]) @ np.array(gt)
+    err = np.linalg.norm(np.array(est)[:, :3, 3] - gt[:, :3, 3], axis=1)
+    ate = float(np.sqrt(np.mean(err**2)))
+    distance = np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1).sum()
+    assert distance > 50
+    assert 0.0 < ate < 0.03 * distance
+
+
+def test_scan_context_separates_revisits_from_other_places(test_sequence):
+    from msa_slam.descriptors.scan_context import ScanContext
+
+    poses, _ = read_poses(test_sequence / "poses.txt")
+    sc = ScanContext()
+    desc = np.array([sc.compute(np.fromfile(f, dtype=np.float32).reshape(-1, 4)[:, :3])
+                     for f in sorted((test_sequence / "velodyne").glob("*.bin"))])
+    pos = poses[:, :3, 3]
+    revisits = [sc.similarity(desc[i], desc[j]) for i, j in _revisit_pairs(pos, 3.0, 50)]
+    rng = np.random.default_rng(0)
+    pairs = rng.integers(0, len(pos), size=(600, 2))
+    far = [sc.similarity(desc[i], desc[j]) for i, j in pairs if np.linalg.norm(pos[i] - pos[j]) > 20]
+    assert len(revisits) >= 5 and len(far) > 300
+    assert np.median(revisits) > np.median(far) + 0.25
+    assert np.median(revisits) > np.percentile(far, 99)
