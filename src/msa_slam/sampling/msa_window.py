@@ -78,14 +78,28 @@ def _pairwise_exact(translations: np.ndarray, descriptors: np.ndarray) -> tuple[
     return dist, sim
 
 
-def _pairwise_fast(translations: np.ndarray, descriptors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Distances and similarities for all pairs at once (same values up to rounding)."""
-    dist = np.sqrt(((translations[:, None, :] - translations[None, :, :]) ** 2).sum(-1))
-    diff = descriptors[:, None] - descriptors[None, :]
-    if descriptors.ndim == 2:
-        sim = 1.0 / (1.0 + np.sqrt((diff ** 2).sum(-1)))
-    else:
-        sim = (1.0 / (1.0 + np.sqrt((diff ** 2).sum(-2)))).sum(-1)
+@njit(cache=True)
+def _pairwise_fast(translations: np.ndarray, descriptors: np.ndarray):  # pragma: no cover
+    """Distances and similarities for all pairs, compiled (same values up to rounding).
+
+    descriptors is (n, rings, sectors); a 1-D descriptor is passed as (n, dim, 1).
+    """
+    n, rows, cols = descriptors.shape
+    dist = np.zeros((n, n))
+    sim = np.zeros((n, n))
+    for i in range(n):
+        for j in range(i + 1, n):
+            d = 0.0
+            for k in range(3):
+                d += (translations[i, k] - translations[j, k]) ** 2
+            dist[i, j] = dist[j, i] = np.sqrt(d)
+            total = 0.0
+            for col in range(cols):
+                sq = 0.0
+                for row in range(rows):
+                    sq += (descriptors[i, row, col] - descriptors[j, row, col]) ** 2
+                total += 1.0 / (1.0 + np.sqrt(sq))
+            sim[i, j] = sim[j, i] = total
     return dist, sim
 
 
@@ -210,38 +224,171 @@ def _information_exact_batch(subsets: np.ndarray, x: np.ndarray, flat: np.ndarra
     return _normalised_mean_steps(e)
 
 
-def _gradient_operators(x: np.ndarray) -> np.ndarray:
-    """A (C, m, m) with J^T = A F: numpy.gradient's non-uniform first-order-edge stencil as a matrix."""
-    count, m = x.shape
-    dx = np.diff(x, axis=1)
-    ops = np.zeros((count, m, m))
-    rows = np.arange(m)
-    ops[:, 0, 0] = -1.0 / dx[:, 0]
-    ops[:, 0, 1] = 1.0 / dx[:, 0]
-    ops[:, -1, -2] = -1.0 / dx[:, -1]
-    ops[:, -1, -1] = 1.0 / dx[:, -1]
-    if m > 2:
-        dx1, dx2 = dx[:, :-1], dx[:, 1:]
-        inner = rows[1:-1]
-        ops[:, inner, inner - 1] = -dx2 / (dx1 * (dx1 + dx2))
-        ops[:, inner, inner] = (dx2 - dx1) / (dx1 * dx2)
-        ops[:, inner, inner + 1] = dx1 / (dx2 * (dx1 + dx2))
-    return ops
+@lru_cache(maxsize=64)
+def padded_subsets(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """All candidate subsets of n positions in the reference order as one (K, n-1) array padded with -1,
+    and their sizes (for the compiled fast path)."""
+    groups = subsets_by_size(n)
+    table = np.full((sum(len(g) for g in groups), n - 1), -1, dtype=np.int64)
+    sizes = np.empty(len(table), dtype=np.int64)
+    row = 0
+    for g in groups:
+        table[row:row + len(g), :g.shape[1]] = g
+        sizes[row:row + len(g)] = g.shape[1]
+        row += len(g)
+    return table, sizes
 
 
-def _information_fast(subsets: np.ndarray, x: np.ndarray, gram: np.ndarray) -> np.ndarray:
-    """pi for candidates of one size through the window's Gram matrix: O(m^3) per candidate."""
-    g = gram[subsets[:, :, None], subsets[:, None, :]]  # (C, m, m)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a = _gradient_operators(x)
-        c = _sanitize(a @ g @ a.transpose(0, 2, 1))
-    lam, v = np.linalg.eigh(c)
-    np.maximum(lam, 0.0, out=lam)
-    lam += EIGENVALUE_FLOOR
-    scaled = v * np.sqrt(lam)[:, None, :]
-    steps = scaled[:, :, 1:] - scaled[:, :, :-1]  # (C, m, m-1)
-    e2 = np.einsum("cij,cij->cj", g @ steps, steps)
-    return _normalised_mean_steps(np.sqrt(np.maximum(e2, 0.0)))
+@njit(cache=True)
+def _information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.ndarray,
+                      scratch: np.ndarray) -> float:  # pragma: no cover
+    """pi of one candidate through the window's Gram matrix G: C = A G_S A^T, e_j^2 = d_j^T G_S d_j.
+
+    A is numpy.gradient's (tridiagonal) stencil for the candidate's spacing, so J^T = A F; its three
+    diagonals are `lower`, `diag`, `upper` (row k uses columns k-1, k, k+1).
+    """
+    lower, diag, upper, scale, d = scratch[0, :m], scratch[1, :m], scratch[2, :m], scratch[3, :m], scratch[4, :m]
+    e = scratch[5, :m - 1]
+    g, h = scratch[6:6 + m, :m], scratch[6 + m:6 + 2 * m, :m]
+    lower[0] = 0.0
+    upper[m - 1] = 0.0
+    first = dist[0, members[1]] - dist[0, members[0]]
+    last = dist[0, members[m - 1]] - dist[0, members[m - 2]]
+    diag[0], upper[0] = -1.0 / first, 1.0 / first
+    lower[m - 1], diag[m - 1] = -1.0 / last, 1.0 / last
+    for k in range(1, m - 1):
+        dx1 = dist[0, members[k]] - dist[0, members[k - 1]]
+        dx2 = dist[0, members[k + 1]] - dist[0, members[k]]
+        lower[k] = -dx2 / (dx1 * (dx1 + dx2))
+        diag[k] = (dx2 - dx1) / (dx1 * dx2)
+        upper[k] = dx1 / (dx2 * (dx1 + dx2))
+    for i in range(m):
+        for j in range(m):
+            g[i, j] = gram[members[i], members[j]]
+    # h = A G
+    for k in range(m):
+        for j in range(m):
+            v = diag[k] * g[k, j]
+            if k > 0:
+                v += lower[k] * g[k - 1, j]
+            if k < m - 1:
+                v += upper[k] * g[k + 1, j]
+            h[k, j] = v
+    c = np.empty((m, m))  # (A G) A^T
+    finite = True
+    for i in range(m):
+        for k in range(m):
+            v = diag[k] * h[i, k]
+            if k > 0:
+                v += lower[k] * h[i, k - 1]
+            if k < m - 1:
+                v += upper[k] * h[i, k + 1]
+            c[i, k] = v
+            finite = finite and np.isfinite(v)
+    if not finite:  # the reference's guard for coincident distances
+        for i in range(m):
+            for k in range(m):
+                v = 0.0 if np.isnan(c[i, k]) else c[i, k]
+                c[i, k] = min(max(v, -C_CLIP), C_CLIP)
+    lam, vec = np.linalg.eigh(c)
+    for j in range(m):
+        scale[j] = np.sqrt(max(lam[j], 0.0) + EIGENVALUE_FLOOR)
+    for j in range(m - 1):
+        for i in range(m):
+            d[i] = vec[i, j + 1] * scale[j + 1] - vec[i, j] * scale[j]
+        total = 0.0
+        for i in range(m):
+            row = 0.0
+            for k in range(m):
+                row += g[i, k] * d[k]
+            total += d[i] * row
+        e[j] = np.sqrt(max(total, 0.0))
+    lo, hi = e.min(), e.max()
+    return np.mean((e - lo) / (hi - lo + EIGENVALUE_FLOOR))
+
+
+@njit(cache=True)
+def _fast_scores(table: np.ndarray, sizes: np.ndarray, dist: np.ndarray, sim: np.ndarray,
+                 gram: np.ndarray, dmin: float, dmax: float, use_rho: bool,
+                 use_pi: bool):  # pragma: no cover
+    """rho and pi of every feasible candidate, compiled (no per-size Python round trips)."""
+    count = len(table)
+    keep = np.zeros(count, dtype=np.bool_)
+    rho = np.zeros(count)
+    pi = np.zeros(count)
+    width = table.shape[1] + 1
+    scratch = np.empty((6 + 2 * width, width))
+    for row in range(count):
+        m = sizes[row]
+        members = table[row]
+        feasible = True
+        for k in range(m - 1):
+            d = dist[members[k], members[k + 1]]
+            if d < dmin or d > dmax:
+                feasible = False
+                break
+        if not feasible:
+            continue
+        keep[row] = True
+        if use_rho:
+            total = 0.0
+            for k in range(m - 1):
+                total += sim[members[k + 1], members[k]]
+            rho[row] = total / (m - 1)
+        if use_pi and m > 2:
+            pi[row] = _information_gram(members, m, dist, gram, scratch)
+    return keep, rho, pi
+
+
+def _optimise_fast(translations: np.ndarray, descriptors: np.ndarray, dmin: float, dmax: float,
+                   weights: ScoreWeights) -> WindowResult:
+    n = len(translations)
+    blocks = descriptors.reshape(n, -1, 1) if descriptors.ndim == 2 else descriptors
+    dist, sim = _pairwise_fast(np.ascontiguousarray(translations), np.ascontiguousarray(blocks))
+    flat = descriptors.reshape(n, -1)
+    table, sizes = padded_subsets(n)
+    keep, rho, pi = _fast_scores(table, sizes, dist, sim, flat @ flat.T, dmin, dmax,
+                                 weights.use_rho, weights.use_pi)
+    rows = np.flatnonzero(keep)
+    if rows.size == 0:
+        return WindowResult((0, n - 1), 1)
+    rho_hat = _minmax(rho[rows]) if weights.use_rho else np.zeros(rows.size)
+    pi_hat = _minmax(pi[rows]) if weights.use_pi else np.zeros(rows.size)
+    best = rows[int(np.argmin((weights.alpha + rho_hat) / (weights.beta + pi_hat)))]
+    return WindowResult(tuple(int(p) for p in table[best, :sizes[best]]), int(rows.size))
+
+
+def _optimise_exact(translations: np.ndarray, descriptors: np.ndarray, dmin: float, dmax: float,
+                    weights: ScoreWeights, workspace: ExactWorkspace) -> WindowResult:
+    n = len(translations)
+    dist, sim = _pairwise_exact(translations, descriptors)
+    allowed = (dist >= dmin) & (dist <= dmax)
+    groups = []
+    for subsets in subsets_by_size(n):
+        keep = allowed[subsets[:, :-1], subsets[:, 1:]].all(axis=1)
+        if keep.any():
+            groups.append(subsets[keep])
+    if not groups:
+        return WindowResult((0, n - 1), 1)
+    count = sum(len(g) for g in groups)
+    flat = descriptors.reshape(n, -1)
+    rho_parts, pi_parts = [], []
+    for subsets in groups:
+        if weights.use_rho:
+            rho_parts.append(_redundancy(subsets, sim))
+        if weights.use_pi:
+            if subsets.shape[1] == 2:
+                pi_parts.append(np.zeros(len(subsets)))
+            else:
+                pi_parts.append(_information_exact(subsets, dist[0, subsets], flat, workspace))
+    rho_hat = _minmax(np.concatenate(rho_parts)) if weights.use_rho else np.zeros(count)
+    pi_hat = _minmax(np.concatenate(pi_parts)) if weights.use_pi else np.zeros(count)
+    best = int(np.argmin((weights.alpha + rho_hat) / (weights.beta + pi_hat)))
+    for subsets in groups:
+        if best < len(subsets):
+            return WindowResult(tuple(int(p) for p in subsets[best]), count)
+        best -= len(subsets)
+    raise AssertionError("unreachable: best index beyond the candidate list")
 
 
 def optimise_window(translations: np.ndarray, descriptors: np.ndarray, dmin: float, dmax: float,
@@ -252,43 +399,6 @@ def optimise_window(translations: np.ndarray, descriptors: np.ndarray, dmin: flo
     translations (n, 3) and descriptors (n, ...) are the window members in window order; pass a
     workspace to reuse scratch buffers across windows (exact mode).
     """
-    n = len(translations)
-    if mode == "exact":
-        dist, sim = _pairwise_exact(translations, descriptors)
-    else:
-        dist, sim = _pairwise_fast(translations, descriptors)
-    allowed = (dist >= dmin) & (dist <= dmax)
-    groups = []
-    for subsets in subsets_by_size(n):
-        keep = allowed[subsets[:, :-1], subsets[:, 1:]].all(axis=1)
-        if keep.any():
-            groups.append(subsets[keep])
-    if not groups:
-        return WindowResult((0, n - 1), 1)
-    count = sum(len(g) for g in groups)
-    if count == 1:
-        return WindowResult(tuple(int(p) for p in groups[0][0]), 1)
-
-    flat = descriptors.reshape(n, -1)
-    gram = flat @ flat.T if mode == "fast" and weights.use_pi else None
-    rho_parts, pi_parts = [], []
-    for subsets in groups:
-        if weights.use_rho:
-            rho_parts.append(_redundancy(subsets, sim))
-        if weights.use_pi:
-            x = dist[0, subsets]
-            if subsets.shape[1] == 2:
-                pi_parts.append(np.zeros(len(subsets)))
-            elif mode == "exact":
-                pi_parts.append(_information_exact(subsets, x, flat, workspace or ExactWorkspace()))
-            else:
-                pi_parts.append(_information_fast(subsets, x, gram))
-    rho_hat = _minmax(np.concatenate(rho_parts)) if weights.use_rho else np.zeros(count)
-    pi_hat = _minmax(np.concatenate(pi_parts)) if weights.use_pi else np.zeros(count)
-    score = (weights.alpha + rho_hat) / (weights.beta + pi_hat)
-    best = int(np.argmin(score))
-    for subsets in groups:
-        if best < len(subsets):
-            return WindowResult(tuple(int(p) for p in subsets[best]), count)
-        best -= len(subsets)
-    raise AssertionError("unreachable: best index beyond the candidate list")
+    if mode == "fast":
+        return _optimise_fast(translations, descriptors, dmin, dmax, weights)
+    return _optimise_exact(translations, descriptors, dmin, dmax, weights, workspace or ExactWorkspace())
