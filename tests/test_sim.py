@@ -143,8 +143,7 @@ def test_road_stays_clear_where_the_path_crosses_or_returns(name):
     world = build_world(poses, "city", seed=3)
     origins = poses[:-1, :3, 3]
     step = poses[1:, :3, 3] - origins
-    tri, ray, loc = world.cast(origins, step / np.linalg.norm(step, axis=1, keepdims=True))
-    hit_dist = np.linalg.norm(loc - origins[ray], axis=1)
+    tri, ray, hit_dist = world.cast(origins, step / np.linalg.norm(step, axis=1, keepdims=True))
     blocked = hit_dist < np.linalg.norm(step[ray], axis=1) + 2.0
     assert not blocked.any(), f"{blocked.sum()} path segments blocked by the world"
 

@@ -82,8 +82,7 @@ class Lidar:
         pose = validate_pose(pose, "sensor pose")
         rot, origin = pose[:3, :3], pose[:3, 3]
         dirs_world = self._dirs @ np.ascontiguousarray(rot.T)  # a transposed view is 10x slower here
-        hit_tri, ray_idx, locations = self.world.cast(origin, dirs_world)  # ray order: beam-major
-        ranges = np.linalg.norm(locations - origin, axis=1)
+        hit_tri, ray_idx, ranges = self.world.cast(origin, dirs_world)  # ray order: beam-major
         m = self.model
         keep = (ranges >= m.min_range) & (ranges <= m.max_range)
         if m.dropout > 0:
