@@ -1,0 +1,212 @@
+"""Sampler API, registry, baselines and MSA behaviour on constructed streams."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from msa_slam.errors import InputError
+from msa_slam.sampling import SAMPLERS, make_sampler, sampler_parameters
+from msa_slam.sampling.baselines import histogram_entropy, spaciousness_threshold
+from msa_slam.sampling.msa_window import ScoreWeights, optimise_window, subsets_by_size
+
+
+def straight_line(n: int, step: float = 1.0) -> np.ndarray:
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    poses[:, 0, 3] = np.arange(n) * step
+    return poses
+
+
+def random_walk(n: int, seed: int = 0, dim: int = 32):
+    rng = np.random.default_rng(seed)
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    poses[:, :2, 3] = np.cumsum(rng.uniform(0.3, 1.2, (n, 2)), axis=0)
+    descriptors = np.cumsum(rng.standard_normal((n, dim)), axis=0)
+    return poses, descriptors
+
+
+def test_registry_lists_all_paper_methods():
+    assert set(SAMPLERS) == {"all", "constant", "entropy", "spaciousness", "msa"}
+    assert sampler_parameters("msa")["window"] == 10
+    assert sampler_parameters("constant") == {"distance": 1.0}
+
+
+def test_unknown_sampler_name_lists_available():
+    with pytest.raises(InputError, match="unknown sampler 'msaa'; available: all, constant"):
+        make_sampler("msaa")
+
+
+def test_unknown_parameter_lists_known_ones():
+    with pytest.raises(InputError, match=r"unknown parameter\(s\) windw; it takes: window=10"):
+        make_sampler("msa", windw=5)
+
+
+@pytest.mark.parametrize("name, params, fragment", [
+    ("msa", {"window": 2}, "window must be an integer >= 3"),
+    ("msa", {"mode": "quick"}, "mode must be one of exact, fast"),
+    ("msa", {"alpha": 0}, "alpha and beta must be > 0"),
+    ("msa", {"lambda_l": 4.0, "lambda_u": 3.0}, "lambda_l <= lambda_u"),
+    ("constant", {"distance": -1}, "distance must be >= 0"),
+])
+def test_invalid_parameter_values(name, params, fragment):
+    with pytest.raises(InputError, match=fragment):
+        make_sampler(name, **params)
+
+
+def test_constant_distance_on_a_straight_line():
+    sampler = make_sampler("constant", distance=2.0)
+    assert sampler.run(straight_line(10, 0.5)) == [0, 4, 8]
+
+
+def test_all_samples_and_push_return_values():
+    sampler = make_sampler("all")
+    assert [sampler.push(p) for p in straight_line(3)] == [[0], [1], [2]]
+    assert sampler.finish() == []
+
+
+def test_histogram_entropy_of_uniform_and_single_cell_clouds():
+    corners = np.array([[x, y, z] for x in (0, 9) for y in (0, 9) for z in (0, 9)], dtype=float)
+    # 8 equally filled cells: -0.5 * 8 * (1/8) * log2(1/8) = 1.5
+    assert histogram_entropy(corners) == pytest.approx(1.5)
+    assert histogram_entropy(np.ones((5, 3))) == 0.0
+
+
+def test_entropy_keyframe_on_scene_change_and_distance():
+    rng = np.random.default_rng(1)
+    spread = rng.uniform(-10, 10, (500, 3))
+    compact = np.vstack([spread[:50], np.zeros((450, 3))])
+    poses = straight_line(4, 1.0)
+    sampler = make_sampler("entropy", threshold=0.05, max_distance=2.5)
+    keyframes = sampler.run(poses, clouds=[spread, spread, compact, compact])
+    assert keyframes == [0, 2]  # the cloud changed at frame 2; frame 3 is only 1 m further
+    sampler = make_sampler("entropy", threshold=0.05, max_distance=2.5)
+    assert sampler.run(straight_line(4, 1.0), clouds=[spread] * 4) == [0, 3]  # 3 m > 2.5 m
+
+
+def test_spaciousness_threshold_bands():
+    assert [spaciousness_threshold(s) for s in (20.0, 7.0, 4.0, 2.5)] == [3.0, 2.0, 1.0, 2.5]
+
+
+def test_spaciousness_uses_threshold_of_smoothed_mean_range():
+    cloud = np.array([[12.0, 0.0, 0.0]])  # mean range 12 > 10 -> 3 m threshold
+    sampler = make_sampler("spaciousness")
+    assert sampler.run(straight_line(8, 1.0), clouds=[cloud] * 8) == [0, 4]  # > 3 m strictly
+
+
+def test_point_based_baselines_require_points():
+    with pytest.raises(InputError, match="frame 0 has no point cloud"):
+        make_sampler("entropy").push(np.eye(4))
+
+
+def test_bad_pose_is_named():
+    pose = np.eye(4)
+    pose[0, 3] = np.nan
+    with pytest.raises(InputError, match="msa: frame 0 pose: frame 0 has NaN"):
+        make_sampler("msa").push(pose, np.zeros(8))
+    sheared = np.eye(4)
+    sheared[0, 1] = 0.5
+    with pytest.raises(InputError, match="not a rigid transform"):
+        make_sampler("all").push(sheared)
+    with pytest.raises(InputError, match="expected a 4x4 pose"):
+        make_sampler("all").push(np.eye(3))
+
+
+def test_descriptor_shape_change_is_named():
+    sampler = make_sampler("msa")
+    sampler.push(np.eye(4), np.zeros(8))
+    with pytest.raises(InputError, match=r"frame 1 descriptor has shape \(9,\), earlier frames had \(8,\)"):
+        sampler.push(np.eye(4), np.zeros(9))
+
+
+def test_run_rejects_mismatched_lengths():
+    with pytest.raises(InputError, match="10 poses but 9 descriptors"):
+        make_sampler("msa").run(straight_line(10), np.zeros((9, 4)))
+
+
+def test_candidate_enumeration_follows_itertools_order():
+    groups = subsets_by_size(5)
+    assert [g.shape for g in groups] == [(4, 2), (6, 3), (4, 4)]
+    assert groups[1][:3].tolist() == [[0, 1, 2], [0, 1, 3], [0, 1, 4]]
+    assert sum(len(g) for g in subsets_by_size(10)) == 2 ** 9 - 2
+
+
+def test_window_without_feasible_subset_falls_back_to_ends():
+    t = np.zeros((5, 3))
+    t[:, 0] = np.arange(5) * 10.0  # every step is beyond dmax
+    for mode in ("exact", "fast"):
+        result = optimise_window(t, np.eye(5), dmin=0.1, dmax=5.0, weights=ScoreWeights(), mode=mode)
+        assert result.positions == (0, 4) and result.candidates == 1
+
+
+def test_rho_only_prefers_dissimilar_consecutive_members():
+    # members 1 and 2 are near-duplicates in descriptor space: without pi, MSA skips one of them
+    t = np.zeros((5, 3))
+    t[:, 0] = np.arange(5, dtype=float)
+    desc = np.array([[0.0], [5.0], [5.01], [10.0], [15.0]])
+    weights = ScoreWeights(use_pi=False)
+    for mode in ("exact", "fast"):
+        chosen = optimise_window(t, desc, 0.5, 3.0, weights, mode).positions
+        assert not {1, 2} <= set(chosen)
+
+
+def test_msa_selects_a_subset_and_counts_its_work():
+    poses, desc = random_walk(120)
+    sampler = make_sampler("msa", window=8)
+    keyframes = sampler.run(poses, desc)
+    assert keyframes[0] == 0 and keyframes == sorted(set(keyframes))
+    assert 10 < len(keyframes) < 120
+    stats = sampler.stats.as_dict()
+    assert stats["frames"] == 120
+    assert stats["window_optimisations"] == len(sampler.stats.optimisation_ms) > 5
+    assert stats["candidates_evaluated"] >= stats["window_optimisations"]
+
+
+def test_msa_push_reports_keyframes_when_windows_close():
+    poses, desc = random_walk(60, seed=3)
+    sampler = make_sampler("msa", window=8)
+    reported = [k for p, d in zip(poses, desc) for k in sampler.push(p, d)]
+    assert reported == sampler.keyframes
+
+
+def test_finish_flushes_the_window_apart():
+    poses, desc = random_walk(50, seed=2)
+    sampler = make_sampler("msa", window=10)
+    online = sampler.run(poses, desc)
+    flushed = sampler.finish()
+    assert sampler.online_keyframes == online
+    assert sampler.flushed_keyframes == flushed and flushed
+    assert all(k > online[-1] for k in flushed)
+    assert sampler.keyframes == online + flushed
+    with pytest.raises(RuntimeError, match="after finish"):
+        sampler.push(poses[0], desc[0])
+
+
+def test_fast_and_exact_agree_on_2d_descriptors():
+    rng = np.random.default_rng(5)
+    poses, _ = random_walk(80, seed=5)
+    desc = np.abs(np.cumsum(rng.standard_normal((80, 20, 60)), axis=0))
+    exact = make_sampler("msa", window=9).run(poses, desc)
+    fast = make_sampler("msa", window=9, mode="fast").run(poses, desc)
+    assert exact == fast
+
+
+def test_ablations_change_the_selection():
+    poses, desc = random_walk(150, seed=7)
+    full = make_sampler("msa").run(poses, desc)
+    no_rho = make_sampler("msa", use_rho=False).run(poses, desc)
+    no_pi = make_sampler("msa", use_pi=False).run(poses, desc)
+    assert no_rho != full or no_pi != full
+
+
+def test_neighbours_bring_old_keyframes_into_the_window_at_revisits():
+    # out along x, then back: at the return, old keyframes are nearby
+    n = 80
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    x = np.concatenate([np.arange(40), 39 - np.arange(40)]) * 0.8
+    poses[:, 0, 3] = x
+    poses[40:, 1, 3] = 0.3
+    desc = np.stack([np.sin(x / 3.0 + k) for k in range(16)], axis=1)
+    sampler = make_sampler("msa", window=8, neighbours=2)
+    sampler.run(poses, desc)
+    baseline = make_sampler("msa", window=8, neighbours=0).run(poses, desc)
+    assert sampler.keyframes != baseline
