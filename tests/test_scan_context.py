@@ -55,6 +55,20 @@ def test_voxel_centroids_reproduce_reference_cloud(parity):
     np.testing.assert_array_equal(ours[np.lexsort(ours.T)], ref[np.lexsort(ref.T)])
 
 
+def test_voxel_centroids_match_sort_based_reference_with_many_voxels():
+    """Tiny voxels force the hash table to grow many times; compare with np.unique grouping."""
+    pts = np.random.default_rng(0).random((20_000, 3)) * 50.0
+    ours = voxel_downsample(pts.astype(np.float32), 0.05)
+    p64 = pts.astype(np.float32).astype(np.float64)
+    keys = np.floor((p64 - p64.min(axis=0)) / 0.05).astype(np.int64)
+    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    sums = np.zeros((len(counts), 3))
+    np.add.at(sums, inverse.ravel(), p64)
+    ref = sums / counts[:, None]
+    assert ours.shape == ref.shape
+    np.testing.assert_allclose(ours[np.lexsort(ours.T)], ref[np.lexsort(ref.T)], rtol=0, atol=1e-12)
+
+
 def test_full_pipeline_from_raw_scan_matches_reference(parity):
     _, expected, _, _ = parity
     np.testing.assert_allclose(ScanContext().compute(load_scan("000000")), expected[0], rtol=0, atol=1e-9)
@@ -117,8 +131,10 @@ def test_bad_input_raises_clear_errors():
     sc = ScanContext()
     with pytest.raises(InputError, match="shape"):
         sc.compute(np.zeros((10, 2)))
+    with pytest.raises(InputError, match="point 1 has NaN"):
+        sc.compute(np.array([[0.0, 1.0, 2.0], [0.0, 1.0, np.nan]]))
     with pytest.raises(InputError, match="NaN"):
-        sc.compute(np.array([[0.0, 1.0, np.nan]]))
+        ScanContext(voxel_size=None).compute(np.array([[0.0, 1.0, np.inf]]))
     with pytest.raises(InputError, match=r"\(N, 20, 60\)"):
         sc.similarity_many(np.zeros((20, 60)), np.zeros((3, 20, 61)))
     with pytest.raises(InputError, match="voxel_size"):

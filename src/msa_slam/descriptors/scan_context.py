@@ -93,10 +93,9 @@ class ScanContext:
 
     def compute(self, points: np.ndarray | None, frame: int | None = None) -> np.ndarray:
         """Descriptor (n_ring, n_sector) of a raw scan: voxel downsampling, then binning."""
-        xyz = validate_points(points, f"scan_context: frame {frame} points" if frame is not None else "points")
-        if self.voxel_size is not None and len(xyz):
-            xyz = voxel_downsample(xyz, self.voxel_size)
-        return self.bin(xyz)
+        if self.voxel_size is not None:
+            points = voxel_downsample(points, self.voxel_size)
+        return self.bin(points)
 
     def bin(self, points: np.ndarray) -> np.ndarray:
         """Binning step alone, for clouds that are already downsampled."""
