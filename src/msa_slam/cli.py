@@ -7,6 +7,7 @@ import sys
 import typer
 
 from msa_slam.errors import InputError
+from msa_slam.sampling.cli import sample_command
 from msa_slam.sim.cli import simulate_command
 
 app = typer.Typer(
@@ -25,6 +26,7 @@ def _main() -> None:
 
 # Command registrations (one line per command; the functions live with their stage).
 app.command("simulate")(simulate_command)
+app.command("sample")(sample_command)
 # -- end of command registrations --
 
 

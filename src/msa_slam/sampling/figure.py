@@ -1,0 +1,37 @@
+"""Top-down trajectory figure with the selected keyframes marked."""
+
+from __future__ import annotations
+
+import os
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from msa_slam.io.atomic import atomic_path  # noqa: E402
+
+
+def plot_keyframes(poses: np.ndarray, keyframes: list[int], path: str | os.PathLike,
+                   title: str = "", flushed: list[int] | None = None) -> None:
+    """Write a PNG: the path in x-y, keyframes as dots, end-of-stream flush keyframes apart."""
+    xy = poses[:, :2, 3]
+    fig, ax = plt.subplots(figsize=(7, 6), dpi=120)
+    ax.plot(xy[:, 0], xy[:, 1], "-", color="0.6", lw=1, label=f"trajectory ({len(poses)} frames)")
+    online = [k for k in keyframes if not flushed or k not in flushed]
+    ax.scatter(xy[online, 0], xy[online, 1], s=12, c="tab:red", zorder=3,
+               label=f"keyframes ({len(online)})")
+    if flushed:
+        ax.scatter(xy[flushed, 0], xy[flushed, 1], s=24, marker="x", c="tab:blue", zorder=4,
+                   label=f"end-of-stream flush ({len(flushed)})")
+    ax.scatter(xy[:1, 0], xy[:1, 1], s=60, marker="*", c="k", zorder=5, label="start")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(title)
+    ax.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
