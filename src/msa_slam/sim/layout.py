@@ -10,6 +10,7 @@ placed (so a revisited place keeps what was built on the first pass: same place,
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -117,7 +118,7 @@ class StreetLayout:
     """Places blocks and street furniture along a path; primitives go to a MeshBuilder."""
 
     def __init__(self, xy: np.ndarray, style: Style, rng: np.random.Generator,
-                 ground_height: "callable") -> None:
+                 ground_height: Callable[[np.ndarray], float]) -> None:
         self.style = style
         self.rng = rng
         self.ground = ground_height

@@ -30,7 +30,7 @@ from msa_slam.sim.sensors import SENSORS, Lidar, LidarModel, get_sensor
 from msa_slam.sim.trajectories import TRAJECTORY_NAMES, frame_indices, load_trajectory
 from msa_slam.sim.world import World, build_world
 
-SIM_VERSION = "1"  # bump when generated worlds or scans change, so stale caches are not reused
+SIM_VERSION = "2"  # bump when generated worlds or scans change, so stale caches are not reused
 META_FILE = "sim.json"
 KITTI_CITATION = ("Trajectory: KITTI odometry ground truth (Geiger, Lenz, Urtasun, CVPR 2012), "
                   "CC BY-NC-SA 3.0")

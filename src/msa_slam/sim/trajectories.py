@@ -49,7 +49,7 @@ def _kitti(seq: str) -> Trajectory:
 
 
 def _resample(xy: np.ndarray, step: np.ndarray | float) -> np.ndarray:
-    """Points along the polyline `xy` at arc-length spacing `step` (scalar, or a speed profile callable)."""
+    """Points along the polyline `xy` at arc-length spacing `step`, or at the arc-length stations `step`."""
     seg = np.linalg.norm(np.diff(xy, axis=0), axis=1)
     arc = np.concatenate([[0.0], np.cumsum(seg)])
     stations = np.arange(0.0, arc[-1], step) if np.isscalar(step) else step
@@ -117,7 +117,9 @@ def city_tour() -> Trajectory:
     turn = np.abs(np.gradient(np.unwrap(np.arctan2(*np.gradient(dense, axis=0).T[::-1]))))
     arc = np.arange(len(dense)) * 0.2
     slow_zone = np.convolve(turn > 0.01, np.ones(150), mode="same") > 0
-    factor = lambda s: np.where(np.interp(s, arc, slow_zone.astype(float)) > 0.5, 0.45, 1.0)  # noqa: E731
+    def factor(s: np.ndarray) -> np.ndarray:
+        return np.where(np.interp(s, arc, slow_zone.astype(float)) > 0.5, 0.45, 1.0)
+
     stations = _speed_profile(arc[-1], 1.1, factor)
     xy = np.column_stack([np.interp(stations, arc, dense[:, k]) for k in range(2)])
     return _planar("city-tour", xy, np.zeros(len(xy)), "car")
