@@ -7,6 +7,7 @@ Real scans: ../shared/data/kitti_scans_00 (KITTI, Geiger et al., CVPR 2012). Med
 from __future__ import annotations
 
 import argparse
+import tempfile
 import time
 from pathlib import Path
 
@@ -63,24 +64,23 @@ def bench_extraction(scans: list[np.ndarray], ot_weights: str | None) -> None:
 
 
 def _ot_model(weights: str | None):
+    """OverlapTransformer from the given checkpoint, or from random weights (timing only) if none."""
     try:
         import torch
     except ImportError:
         return None
-    from msa_slam.descriptors import overlap_transformer as otm
+    from msa_slam.descriptors._ot_network import OverlapTransformerNet
+    from msa_slam.descriptors.overlap_transformer import OverlapTransformer
 
     if weights:
-        return otm.OverlapTransformer(weights)
-    from msa_slam.descriptors._ot_network import OverlapTransformerNet
-
-    model = otm.OverlapTransformer.__new__(otm.OverlapTransformer)
-    model.max_range, model._torch = 80.0, torch
-    torch.manual_seed(0)
-    model.network = OverlapTransformerNet()
-    for p in model.network.parameters():
-        torch.nn.init.normal_(p, std=0.02)
-    model.network.eval()
-    return model
+        return OverlapTransformer(weights)
+    rng = np.random.default_rng(0)
+    state = {name: torch.from_numpy(rng.normal(0, 0.02, t.shape).astype(np.float32))
+             for name, t in OverlapTransformerNet().state_dict().items()}
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "random_weights.pth"
+        torch.save({"state_dict": state}, path)
+        return OverlapTransformer(path)
 
 
 def random_walk_bank(base: np.ndarray, n: int, seed: int) -> np.ndarray:

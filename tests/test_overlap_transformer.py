@@ -72,9 +72,14 @@ def torch_mod():
 
 
 @pytest.fixture(scope="module")
-def weights(torch_mod, tmp_path_factory):
+def state(torch_mod):
+    return deterministic_state_dict(torch_mod)
+
+
+@pytest.fixture(scope="module")
+def weights(torch_mod, state, tmp_path_factory):
     path = tmp_path_factory.mktemp("ot") / "weights.pth.tar"
-    torch_mod.save({"state_dict": deterministic_state_dict(torch_mod)}, path)
+    torch_mod.save({"state_dict": state}, path)
     return path
 
 
@@ -122,10 +127,9 @@ def test_corrupt_weights_file(torch_mod, tmp_path):
         load_network(bad)
 
 
-def test_state_dict_mismatch_named(torch_mod, tmp_path):
+def test_state_dict_mismatch_named(torch_mod, state, tmp_path):
     from msa_slam.descriptors.overlap_transformer import load_network
 
-    state = deterministic_state_dict(torch_mod)
     missing = dict(state)
     del missing["net_vlad.hidden1_weights"]
     torch_mod.save({"state_dict": missing}, tmp_path / "missing.pth")
@@ -136,6 +140,14 @@ def test_state_dict_mismatch_named(torch_mod, tmp_path):
     torch_mod.save({"state_dict": wrong}, tmp_path / "wrong.pth")
     with pytest.raises(InputError, match=r"'conv3.weight' has shape \(64, 32, 5, 1\), expected \(64, 32, 3, 1\)"):
         load_network(tmp_path / "wrong.pth")
+    extra = dict(state)
+    extra["head.weight"] = torch_mod.zeros(3)
+    torch_mod.save({"state_dict": extra}, tmp_path / "extra.pth")
+    with pytest.raises(InputError, match="unexpected weights: head.weight"):
+        load_network(tmp_path / "extra.pth")
+    torch_mod.save({"weights": 1}, tmp_path / "nostate.pth")
+    with pytest.raises(InputError, match="lacks weights used at inference"):
+        load_network(tmp_path / "nostate.pth")
 
 
 def test_missing_torch_is_a_clear_error(monkeypatch, tmp_path):
