@@ -116,9 +116,11 @@ def city_tour() -> Trajectory:
     dense = _resample(_rounded_polyline(route, 12.0), 0.2)
     turn = np.abs(np.gradient(np.unwrap(np.arctan2(*np.gradient(dense, axis=0).T[::-1]))))
     arc = np.arange(len(dense)) * 0.2
-    slow_zone = np.convolve(turn > 0.01, np.ones(150), mode="same") > 0
+    slow_zone = (np.convolve(turn > 0.01, np.ones(150), mode="same") > 0).astype(float)
+    slow_zone = np.convolve(slow_zone, np.ones(100) / 100, mode="same")  # brake over ~20 m (~2.5 m/s^2)
+
     def factor(s: np.ndarray) -> np.ndarray:
-        return np.where(np.interp(s, arc, slow_zone.astype(float)) > 0.5, 0.45, 1.0)
+        return 1.0 - 0.55 * np.interp(s, arc, slow_zone)
 
     stations = _speed_profile(arc[-1], 1.1, factor)
     xy = np.column_stack([np.interp(stations, arc, dense[:, k]) for k in range(2)])
