@@ -123,6 +123,8 @@ def test_database_errors():
     db.add(0, np.eye(4), np.zeros((20, 60)))
     with pytest.raises(InputError, match=r"keyframe 1: descriptor shape \(20, 59\)"):
         db.add(1, np.eye(4), np.zeros((20, 59)))
+    with pytest.raises(InputError, match="keyframe 3: descriptor has NaN"):
+        db.add(3, np.eye(4), np.full((20, 60), np.nan))
     with pytest.raises(InputError, match="keyframe 2 pose"):
         db.add(2, np.zeros((4, 4)), np.zeros((20, 60)))
 

@@ -87,7 +87,7 @@ class KeyframeDatabase:
 
     @property
     def nbytes(self) -> int:
-        """Bytes held for the stored keyframes (ids, poses, descriptors, search keys)."""
+        """Bytes of the stored keyframes (ids, poses, descriptors, search keys), without spare capacity."""
         if self._n == 0:
             return 0
         per = self._ids.itemsize + self._poses[0].nbytes
@@ -102,6 +102,8 @@ class KeyframeDatabase:
         """Store a keyframe; the descriptor shape must match the first one stored."""
         pose = validate_pose(pose, f"keyframe {frame_id} pose")
         desc = np.asarray(descriptor, dtype=np.float64)
+        if not np.isfinite(desc).all():
+            raise InputError(f"keyframe {frame_id}: descriptor has NaN or infinite values")
         if self._desc is None:
             self._desc = np.zeros((0, *desc.shape))
             if self._index is not None:
