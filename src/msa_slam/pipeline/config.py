@@ -1,0 +1,172 @@
+"""The batch experiment's configuration (pydantic): every knob of the paper's section V-A protocol.
+
+Unknown keys are an error that lists the valid ones, so a typo never silently runs the default.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Literal, Mapping
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from msa_slam.errors import InputError
+
+MODES = ("oracle", "realistic")
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class VerifierSettings(_Section):
+    """small_gicp verification of loop candidates (fields of msa_slam.registration.VerifierConfig)."""
+
+    voxel_size: float = Field(0.5, gt=0)
+    max_correspondence_distance: float = Field(1.0, gt=0)
+    max_residual: float = Field(0.3, gt=0)
+    min_inlier_fraction: float = Field(0.5, ge=0, le=1)
+    min_inliers: int = Field(100, ge=0)
+    coarse_to_fine: bool = True
+    max_iterations: int = Field(50, ge=1)
+
+
+class GraphSettings(_Section):
+    """Pose-graph noise (radians, metres), robust loop kernel and LM iterations (msa_slam.backend)."""
+
+    odometry_rotation: float = Field(0.01, gt=0)
+    odometry_translation: float = Field(0.1, gt=0)
+    loop_rotation: float = Field(0.01, gt=0)
+    loop_translation: float = Field(0.1, gt=0)
+    robust: Literal["none", "huber", "cauchy"] = "none"
+    robust_threshold: float = Field(1.0, gt=0)
+    max_iterations: int = Field(100, ge=1)
+
+
+class BatchConfig(_Section):
+    """One batch run: dataset, odometry, descriptor, sampler, loop closing, verification, graph.
+
+    `dataset` is a sequence folder (KITTI layout, scan folder) or `sim:NAME` (NAME = demo, test, or a
+    simulator trajectory such as kitti-05, optionally with simulator fields: `sim:kitti-05,stride=3`).
+    `odometry` is "kiss" (KISS-ICP) or the path of a KITTI/TUM pose file (LiDAR frame, one pose per scan).
+    """
+
+    dataset: str
+    dataset_kind: str = "auto"
+    odometry: str = "kiss"
+    odometry_params: dict[str, Any] = Field(default_factory=dict)
+    descriptor: str = "sc"
+    descriptor_params: dict[str, Any] = Field(default_factory=dict)
+    sampler: str = "msa"
+    sampler_params: dict[str, Any] = Field(default_factory=dict)
+    sample_on: Literal["odometry", "gt"] = "odometry"
+    flush: bool = True
+    mode: Literal["oracle", "realistic"] = "oracle"
+    similarity_threshold: float = Field(0.8, ge=0, le=1)
+    min_frame_gap: int = Field(50, ge=0)
+    exclude_recent: int = Field(10, ge=0)
+    top_k: int = Field(1, ge=1)
+    loop_radius: float = Field(3.0, gt=0)
+    verifier: VerifierSettings = Field(default_factory=VerifierSettings)
+    graph: GraphSettings = Field(default_factory=GraphSettings)
+    cache_dir: str | None = None
+    label: str | None = None
+
+    @property
+    def name(self) -> str:
+        """Label of the run in tables (the sampler name unless given)."""
+        return self.label or self.sampler
+
+    def dump(self) -> dict[str, Any]:
+        return self.model_dump(mode="json")
+
+
+def _fields(model: type[BaseModel]) -> list[str]:
+    return list(model.model_fields)
+
+
+def _section_of(loc: tuple) -> type[BaseModel]:
+    if loc and loc[0] == "verifier":
+        return VerifierSettings
+    if loc and loc[0] == "graph":
+        return GraphSettings
+    return BatchConfig
+
+
+def _problem(error: Mapping[str, Any]) -> str:
+    loc = tuple(error["loc"])
+    where = ".".join(map(str, loc)) or "config"
+    if error["type"] == "extra_forbidden":
+        section = _section_of(loc[:-1] if len(loc) > 1 else ())
+        return f"unknown key {where!r}; valid keys: {', '.join(_fields(section))}"
+    return f"{where}: {error['msg']}"
+
+
+def make_config(data: Mapping[str, Any] | None = None, **overrides: Any) -> BatchConfig:
+    """A validated BatchConfig from a mapping plus keyword overrides; problems become one InputError."""
+    merged = {**(dict(data) if data else {}), **overrides}
+    try:
+        return BatchConfig(**merged)
+    except ValidationError as exc:
+        raise InputError("config: " + "; ".join(_problem(e) for e in exc.errors())) from None
+
+
+def load_config(path: str | os.PathLike) -> BatchConfig:
+    """Read a YAML config file (the `config.yaml` of a result folder works as input)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: config file not found")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: not valid YAML ({exc})") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: expected a mapping of config keys, got {type(data).__name__}")
+    return make_config(data)
+
+
+_SECTIONS = {"sampler": "sampler_params", "descriptor": "descriptor_params", "odometry": "odometry_params"}
+
+
+def apply_params(config: BatchConfig, params: list[str]) -> BatchConfig:
+    """Apply `key=value` overrides (values parsed as YAML).
+
+    Keys: a config field (`similarity_threshold=0.7`), a section field (`verifier.max_residual=0.2`,
+    `graph.robust=cauchy`), a stage parameter (`sampler.lambda_u=5`, `descriptor.n_sector=60`,
+    `odometry.max_range=80`), or a bare sampler parameter (`lambda_u=5`).
+    """
+    data = config.dump()
+    for item in params:
+        key, sep, raw = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise InputError(f"--param {item!r}: expected key=value")
+        try:
+            value = yaml.safe_load(raw)
+        except yaml.YAMLError:
+            value = raw
+        head, dot, tail = key.partition(".")
+        if dot and head in _SECTIONS:
+            data[_SECTIONS[head]] = {**data[_SECTIONS[head]], tail: value}
+        elif dot and head in ("verifier", "graph"):
+            data[head] = {**data[head], tail: value}
+        elif not dot and key in BatchConfig.model_fields:
+            data[key] = value
+        elif not dot:
+            _check_sampler_param(config.sampler, key)
+            data["sampler_params"] = {**data["sampler_params"], key: value}
+        else:
+            raise InputError(f"--param {key!r}: unknown section {head!r}; use one of "
+                             f"{', '.join([*_SECTIONS, 'verifier', 'graph'])}")
+    return make_config(data)
+
+
+def _check_sampler_param(sampler: str, key: str) -> None:
+    from msa_slam.sampling import sampler_parameters
+
+    known = sampler_parameters(sampler)
+    if key not in known:
+        raise InputError(f"--param {key!r}: not a config key ({', '.join(_fields(BatchConfig))}) nor a "
+                         f"parameter of sampler {sampler!r} ({', '.join(known) or 'none'})")

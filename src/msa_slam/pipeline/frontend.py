@@ -1,0 +1,143 @@
+"""The per-sequence front end: odometry and descriptors of every frame, computed once and cached on disk.
+
+These are the expensive stages that do not depend on the sampler, so `compare` runs them once and every
+sampler reuses them; a re-run finds them in the cache (keyed by sequence path, frame count and settings).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from msa_slam.datasets import ScanSequence
+from msa_slam.descriptors import Descriptor, make_descriptor
+from msa_slam.errors import InputError
+from msa_slam.evaluation import StageTimer
+from msa_slam.io.atomic import atomic_path
+from msa_slam.odometry import KissOdometry, OdometryCache, PosesFromFile, sequence_odometry
+from msa_slam.pipeline.config import BatchConfig
+from msa_slam.pipeline.progress import progress_bar
+from msa_slam.pipeline.source import open_sequence
+from msa_slam.sim.sequence import cache_root
+
+
+@dataclass
+class Frontend:
+    """A sequence with its ground truth, odometry and per-frame descriptors (plus how long they took)."""
+
+    sequence: ScanSequence
+    gt_poses: np.ndarray
+    odometry: np.ndarray
+    descriptors: np.ndarray
+    descriptor: Descriptor
+    odometry_config: dict[str, Any]
+    timer: StageTimer = field(default_factory=StageTimer)
+    cached: dict[str, bool] = field(default_factory=dict)
+    descriptor_settings: tuple = (None, None)
+
+    def __len__(self) -> int:
+        return len(self.sequence)
+
+    @property
+    def name(self) -> str:
+        return self.sequence.name
+
+    def matches(self, config: BatchConfig) -> bool:
+        """True when `config` asks for this front end (same odometry and descriptor settings)."""
+        return (self.odometry_config == _odometry_config(config, len(self))
+                and self.descriptor_settings == (config.descriptor, config.descriptor_params))
+
+
+def _odometry_config(config: BatchConfig, n_frames: int) -> dict[str, Any]:
+    return {"odometry": config.odometry, "params": config.odometry_params, "frames": n_frames}
+
+
+def pipeline_cache(config: BatchConfig) -> Path:
+    """Folder of the pipeline's caches: <cache root>/pipeline (root: config.cache_dir, $MSA_SLAM_CACHE
+    or ~/.cache/msa-slam)."""
+    return cache_root(config.cache_dir) / "pipeline"
+
+
+def make_odometry(config: BatchConfig, n_frames: int):
+    """KISS-ICP with `odometry_params`, or the pose file named by `config.odometry` (length checked)."""
+    if config.odometry == "kiss":
+        try:
+            return KissOdometry(**config.odometry_params)
+        except TypeError as exc:
+            raise InputError(f"odometry kiss: bad parameters {sorted(config.odometry_params)} ({exc}); "
+                             "it takes max_range, min_range, voxel_size, deskew, num_threads") from None
+    if config.odometry_params:
+        raise InputError(f"odometry from a pose file takes no parameters, got {sorted(config.odometry_params)}")
+    path = Path(config.odometry).expanduser()
+    if not path.is_file():
+        raise InputError(f"odometry {config.odometry!r}: neither 'kiss' nor an existing pose file")
+    odometry = PosesFromFile(path)
+    if len(odometry) != n_frames:
+        raise InputError(f"odometry pose file {path}: {len(odometry)} poses but the sequence has {n_frames} scans")
+    return odometry
+
+
+def _descriptor_key(sequence: ScanSequence, name: str, params: dict[str, Any]) -> str:
+    blob = json.dumps({"sequence": os.path.abspath(sequence.path), "frames": len(sequence),
+                       "descriptor": name, "params": params}, sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:24]
+
+
+def compute_descriptors(sequence: ScanSequence, descriptor: Descriptor, cache: Path | None, key: str,
+                        quiet: bool = True) -> tuple[np.ndarray, bool]:
+    """(N, *shape) descriptors of every frame, from `cache/descriptors-<key>.npy` when present."""
+    path = None if cache is None else cache / f"descriptors-{key}.npy"
+    if path is not None and path.is_file():
+        try:
+            cached = np.load(path, allow_pickle=False)
+            if len(cached) == len(sequence):
+                return cached, True
+        except (OSError, ValueError):
+            pass
+    first = np.asarray(descriptor.compute(sequence[0].points, frame=0), dtype=np.float64)
+    out = np.empty((len(sequence), *first.shape))
+    out[0] = first
+    with progress_bar(quiet) as bar:
+        task = bar.add_task(f"descriptors ({descriptor.name})", total=len(sequence))
+        bar.advance(task)
+        for i in range(1, len(sequence)):
+            out[i] = descriptor.compute(sequence[i].points, frame=i)
+            bar.advance(task)
+    if path is not None:
+        with atomic_path(path) as tmp, open(tmp, "wb") as handle:
+            np.save(handle, out)
+    return out, False
+
+
+def prepare_frontend(config: BatchConfig, quiet: bool = True) -> Frontend:
+    """Open the dataset, then odometry and descriptors for all frames (cached per sequence)."""
+    timer = StageTimer()
+    with timer.stage("load"):
+        sequence = open_sequence(config.dataset, config.dataset_kind, config.cache_dir, progress=not quiet)
+    cache = pipeline_cache(config)
+    n = len(sequence)
+    odometry = make_odometry(config, n)
+    params = dict(config.descriptor_params)
+    if config.descriptor == "precomputed":
+        params.setdefault("n_frames", n)
+    descriptor = make_descriptor(config.descriptor, **params)
+    cached: dict[str, bool] = {}
+    with timer.stage("odometry"):
+        store = OdometryCache(cache)
+        cached["odometry"] = store.load(OdometryCache.key(sequence.path, odometry.config), n) is not None
+        poses = sequence_odometry(sequence, odometry, store, sequence=sequence.path, quiet=quiet)
+    with timer.stage("descriptors"):
+        use_cache = config.descriptor != "precomputed"
+        key = _descriptor_key(sequence, config.descriptor, config.descriptor_params)
+        descriptors, cached["descriptors"] = compute_descriptors(sequence, descriptor, cache if use_cache else None,
+                                                                 key, quiet)
+    frontend = Frontend(sequence, sequence.gt_poses, poses, descriptors, descriptor,
+                        _odometry_config(config, n), timer, cached)
+    frontend.descriptor_settings = (config.descriptor, config.descriptor_params)
+    return frontend

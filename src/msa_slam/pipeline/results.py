@@ -1,0 +1,182 @@
+"""Result folder of one run: config.yaml, metrics.json, frames.csv, loops.csv, trajectories (KITTI + TUM),
+figures and report.md. The folder is built under a temporary name and renamed when complete."""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+import yaml
+
+import msa_slam
+from msa_slam.evaluation import align_se3
+from msa_slam.io.poses import write_poses
+from msa_slam.pipeline.batch import BatchResult
+from msa_slam.place_recognition.figures import plot_pr_curves
+from msa_slam.viz import TrajectoryPanel, plot_trajectories
+
+RUN_FILES = ("config.yaml", "metrics.json", "frames.csv", "loops.csv", "report.md")
+
+
+@contextlib.contextmanager
+def atomic_dir(target: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary folder next to `target`; on success it replaces `target` (an older result)."""
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=target.parent))
+    try:
+        yield tmp
+        if target.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
+            os.replace(target, old / "previous")
+            os.replace(tmp, target)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, target)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, (np.integer, np.floating)):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def write_json(path: Path, data: Any) -> None:
+    path.write_text(json.dumps(data, indent=1, default=_json_default) + "\n")
+
+
+def _frames_csv(result: BatchResult) -> str:
+    fe = result.frontend
+    row_of = {int(k): i for i, k in enumerate(result.keyframes)}
+    buf = io.StringIO()
+    writer = csv.writer(buf)
+    writer.writerow(["frame", "time", "is_keyframe", "odom_x", "odom_y", "odom_z", "gt_x", "gt_y", "gt_z",
+                     "opt_x", "opt_y", "opt_z", "ate_odom_m", "ate_opt_m"])
+    for i in range(len(fe)):
+        row = [i, f"{fe.sequence.times[i]:.6f}", int(i in row_of)]
+        row += [f"{v:.6f}" for v in fe.odometry[i, :3, 3]] + [f"{v:.6f}" for v in fe.gt_poses[i, :3, 3]]
+        k = row_of.get(i)
+        if k is None:
+            row += [""] * 5
+        else:
+            row += [f"{v:.6f}" for v in result.optimised[k, :3, 3]]
+            row += [f"{result.ate_errors['odometry'][k]:.6f}", f"{result.ate_errors['optimised'][k]:.6f}"]
+        writer.writerow(row)
+    return buf.getvalue()
+
+
+def _loops_csv(result: BatchResult) -> str:
+    buf = io.StringIO()
+    writer = csv.writer(buf)
+    writer.writerow(["query_frame", "match_frame", "similarity", "gt_distance_m", "registered", "accepted",
+                     "residual_m", "false_loop"])
+    radius = result.config.loop_radius
+    for c in result.loops:
+        writer.writerow([c.query, c.match, f"{c.similarity:.6f}", f"{c.gt_distance:.4f}", int(c.verified),
+                         int(c.accepted), f"{c.residual:.4f}", int(c.accepted and c.gt_distance > radius)])
+    return buf.getvalue()
+
+
+def _write_trajectories(result: BatchResult, folder: Path) -> None:
+    fe, kf = result.frontend, result.keyframes
+    folder.mkdir()
+    times = np.asarray(fe.sequence.times, dtype=np.float64)
+    for name, poses, stamps in (("optimised_keyframes", result.optimised, times[kf]),
+                                ("odometry_keyframes", fe.odometry[kf], times[kf]),
+                                ("gt_keyframes", fe.gt_poses[kf], times[kf]),
+                                ("odometry", fe.odometry, times)):
+        write_poses(folder / f"{name}.kitti", poses, "kitti")
+        write_poses(folder / f"{name}.tum", poses, "tum", stamps)
+
+
+def trajectory_panels(result: BatchResult) -> tuple[TrajectoryPanel, TrajectoryPanel]:
+    """Odometry and optimised keyframe trajectories (SE(3)-aligned to GT) with their loops."""
+    kf, fe = result.keyframes, result.frontend
+    gt = fe.gt_poses[kf]
+    row = {int(k): i for i, k in enumerate(kf)}
+    radius = result.config.loop_radius
+    good = [(row[c.match], row[c.query]) for c in result.accepted_loops if c.gt_distance <= radius]
+    bad = [(row[c.match], row[c.query]) for c in result.accepted_loops if c.gt_distance > radius]
+    m = result.metrics
+    odom = align_se3(fe.odometry[kf], gt)[:, :2, 3]
+    opt = align_se3(result.optimised, gt)[:, :2, 3]
+    return (TrajectoryPanel(f"odometry, ATE {m['before']['ate_translation_m']:.2f} m", odom,
+                            result.ate_errors["odometry"], good, bad),
+            TrajectoryPanel(f"{m['method']} optimised, ATE {m['after']['ate_translation_m']:.2f} m", opt,
+                            result.ate_errors["optimised"], good, bad))
+
+
+def _write_figures(result: BatchResult, folder: Path) -> list[str]:
+    folder.mkdir()
+    m = result.metrics
+    plot_trajectories(folder / "trajectories.png", result.frontend.gt_poses[:, :2, 3], trajectory_panels(result),
+                      title=f"{m['sequence']}: {m['method']} ({m['keyframes']} keyframes, {m['verified']} loops, "
+                            f"{m['mode']})")
+    names = ["trajectories.png"]
+    if result.pr is not None:
+        plot_pr_curves({m["method"]: result.pr}, folder / "pr_curve.png", title=f"{m['sequence']}: loop candidates")
+        names.append("pr_curve.png")
+    return names
+
+
+def _mib(n: float) -> str:
+    return f"{n / 2**20:.2f} MiB"
+
+
+def _report(result: BatchResult, figures: list[str]) -> str:
+    m = result.metrics
+    b, a, imp = m["before"], m["after"], m["improvement_pct"]
+    pr = "n/a" if m["pr_auc"] is None else f"{m['pr_auc']:.3f} / {m['f1_max']:.3f}"
+    lines = [
+        f"# {m['method']} on {m['sequence']} ({m['mode']} loops)", "",
+        f"{m['frames']} frames -> {m['keyframes']} keyframes; {m['candidates']} loop candidates "
+        f"(similarity >= {result.config.similarity_threshold}), {m['verified']} verified, "
+        f"{m['false_loops']} false (ground-truth distance > {result.config.loop_radius} m).", "",
+        "| metric | odometry | optimised | improvement |", "|---|---|---|---|",
+        f"| ATE translation [m] | {b['ate_translation_m']:.3f} | {a['ate_translation_m']:.3f} | "
+        f"{imp['translation']:.1f} % |",
+        f"| ATE rotation [deg] | {b['ate_rotation_deg']:.3f} | {a['ate_rotation_deg']:.3f} | {imp['rotation']:.1f} % |",
+        f"| RPE translation [m] (consecutive keyframes) | {b['rpe_translation_m']:.3f} | "
+        f"{a['rpe_translation_m']:.3f} | |",
+        f"| RPE rotation [deg] | {b['rpe_rotation_deg']:.3f} | {a['rpe_rotation_deg']:.3f} | |", "",
+        "| PR-AUC / F1-max | memory (keyframes + graph) | peak RSS | back-end time |", "|---|---|---|---|",
+        f"| {pr} | {_mib(m['memory_bytes']['total'])} | {_mib(m['peak_rss_bytes'])} | "
+        f"{m['time_s']['backend_total']:.2f} s |", "",
+        "Stage times [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in {**m['frontend_time_s'], **m['time_s']}.items())
+        + ("  (front end from cache)" if all(m["frontend_cached"].values()) else ""), "",
+    ]
+    lines += [f"![{name}](figures/{name})" for name in figures]
+    lines += ["", "Files: config.yaml (re-run with `msa-slam run --config`), metrics.json, frames.csv, loops.csv, "
+              "trajectories/ (KITTI and TUM formats).", f"msa-slam {msa_slam.__version__}", ""]
+    return "\n".join(lines)
+
+
+def write_run_files(result: BatchResult, folder: Path) -> None:
+    """Write all outputs of `result` into an existing (temporary) folder."""
+    (folder / "config.yaml").write_text(yaml.safe_dump(result.config.dump(), sort_keys=False))
+    write_json(folder / "metrics.json", {**result.metrics, "msa_slam_version": msa_slam.__version__,
+                                         "keyframe_frames": result.keyframes.tolist()})
+    (folder / "frames.csv").write_text(_frames_csv(result))
+    (folder / "loops.csv").write_text(_loops_csv(result))
+    _write_trajectories(result, folder / "trajectories")
+    figures = _write_figures(result, folder / "figures")
+    (folder / "report.md").write_text(_report(result, figures))
+
+
+def write_run(result: BatchResult, out: str | os.PathLike) -> Path:
+    """Write the result folder `out` atomically; return the path of its report.md."""
+    with atomic_dir(out) as tmp:
+        write_run_files(result, tmp)
+    return Path(out) / "report.md"
