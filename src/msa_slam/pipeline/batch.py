@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from msa_slam.backend import GraphNoise, PoseGraph
 from msa_slam.errors import InputError
@@ -78,11 +79,20 @@ def _improvement(before: float, after: float) -> float:
 
 
 def run_batch(config: BatchConfig, frontend: Frontend | None = None, quiet: bool = True) -> BatchResult:
-    """Run one sampler through the batch protocol; pass `frontend` to reuse odometry and descriptors."""
+    """Run one sampler through the batch protocol; pass `frontend` to reuse odometry and descriptors.
+
+    BLAS runs single-threaded: the descriptor searches are many small matrix products, which OpenBLAS
+    threads slow down ~10x on a busy 2-core machine.
+    """
     if frontend is None:
         frontend = prepare_frontend(config, quiet)
     elif not frontend.matches(config):
         raise InputError("run_batch: the given front end was built with other odometry/descriptor settings")
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _run_backend(config, frontend, quiet)
+
+
+def _run_backend(config: BatchConfig, frontend: Frontend, quiet: bool) -> BatchResult:
     timer = StageTimer()
     with timer.stage("sampling"):
         keyframes, sampler_stats = sample_keyframes(config, frontend, quiet)

@@ -1,0 +1,149 @@
+"""The paper's method set on one sequence (Table I): all samples, constant 1/2/3 m, entropy, spaciousness, MSA.
+
+Odometry and descriptors are computed once and shared; each method gets its own run folder under runs/,
+and the comparison (Markdown + CSV + figures + report.md) sits at the top of the output folder.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+from pathlib import Path
+from typing import Any, Sequence
+
+from msa_slam.pipeline.batch import BatchResult, run_batch
+from msa_slam.pipeline.config import BatchConfig, make_config
+from msa_slam.pipeline.frontend import prepare_frontend
+from msa_slam.pipeline.progress import progress_bar
+from msa_slam.pipeline.results import atomic_dir, trajectory_panels, write_json, write_run_files
+from msa_slam.place_recognition.figures import plot_pr_curves
+from msa_slam.viz import plot_metric_bars, plot_trajectories
+
+# (label, sampler, parameters) as in the paper's section V.
+PAPER_METHODS: tuple[tuple[str, str, dict[str, Any]], ...] = (
+    ("all", "all", {}),
+    ("constant-1m", "constant", {"distance": 1.0}),
+    ("constant-2m", "constant", {"distance": 2.0}),
+    ("constant-3m", "constant", {"distance": 3.0}),
+    ("entropy", "entropy", {}),
+    ("spaciousness", "spaciousness", {}),
+    ("msa", "msa", {}),
+)
+
+COLUMNS = ("method", "keyframes", "candidates", "verified", "false_loops", "ate_before_m", "ate_after_m",
+           "improvement_t_pct", "improvement_r_pct", "pr_auc", "f1_max", "memory_mib", "time_s")
+
+
+def table_row(metrics: dict[str, Any]) -> dict[str, Any]:
+    """One Table-I row from a run's metrics (memory: keyframes + graph; time: back-end stages)."""
+    m = metrics
+    return {
+        "method": m["method"], "keyframes": m["keyframes"], "candidates": m["candidates"], "verified": m["verified"],
+        "false_loops": m["false_loops"], "ate_before_m": m["before"]["ate_translation_m"],
+        "ate_after_m": m["after"]["ate_translation_m"], "improvement_t_pct": m["improvement_pct"]["translation"],
+        "improvement_r_pct": m["improvement_pct"]["rotation"], "pr_auc": m["pr_auc"], "f1_max": m["f1_max"],
+        "memory_mib": m["memory_bytes"]["total"] / 2**20, "time_s": m["time_s"]["backend_total"],
+    }
+
+
+def _fmt(value: Any) -> str:
+    if value is None:
+        return "n/a"
+    if isinstance(value, float):
+        return f"{value:.3f}" if abs(value) < 10 else f"{value:.1f}"
+    return str(value)
+
+
+def table_markdown(rows: Sequence[dict[str, Any]]) -> str:
+    head = ["method", "keyframes", "candidates", "verified", "false loops", "ATE before [m]", "ATE after [m]",
+            "t. ATE impr. [%]", "R. ATE impr. [%]", "PR-AUC", "F1-max", "memory [MiB]", "time [s]"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join(_fmt(r[c]) for c in COLUMNS) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def table_csv(rows: Sequence[dict[str, Any]]) -> str:
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=COLUMNS)
+    writer.writeheader()
+    writer.writerows(rows)
+    return buf.getvalue()
+
+
+def _figures(results: Sequence[BatchResult], folder: Path) -> list[str]:
+    folder.mkdir()
+    labels = [r.config.name for r in results]
+    rows = [table_row(r.metrics) for r in results]
+    plot_metric_bars(folder / "metrics.png", labels, {
+        "ATE translation [m]": {"odometry": [r["ate_before_m"] for r in rows],
+                                "optimised": [r["ate_after_m"] for r in rows]},
+        "ATE improvement [%]": {"translation": [r["improvement_t_pct"] for r in rows],
+                                "rotation": [r["improvement_r_pct"] for r in rows]},
+        "memory [MiB]": {"keyframes + graph": [r["memory_mib"] for r in rows]},
+        "back-end time [s]": {"time": [r["time_s"] for r in rows]},
+    }, title=f"{results[0].metrics['sequence']} ({results[0].config.mode} loops)")
+    gt_xy = results[0].frontend.gt_poses[:, :2, 3]
+    panels = [trajectory_panels(r)[1] for r in results]
+    plot_trajectories(folder / "trajectories.png", gt_xy, [trajectory_panels(results[0])[0], *panels],
+                      title="keyframe trajectories after optimisation (coloured by ATE)", columns=4)
+    curves = {r.config.name: r.pr for r in results if r.pr is not None}
+    names = ["metrics.png", "trajectories.png"]
+    if curves:
+        plot_pr_curves(curves, folder / "pr_curves.png", title="loop candidates per method")
+        names.append("pr_curves.png")
+    return names
+
+
+def _report(results: Sequence[BatchResult], table: str, figures: list[str]) -> str:
+    first = results[0]
+    fe, cfg = first.frontend, first.config
+    cached = " (from cache)" if all(fe.cached.values()) else ""
+    front = ", ".join(f"{k} {v:.1f} s" for k, v in fe.timer.seconds.items())
+    lines = [f"# Sampler comparison on {fe.name}", "",
+             f"Dataset `{cfg.dataset}`: {len(fe)} frames. Odometry `{cfg.odometry}`, descriptor `{cfg.descriptor}`, "
+             f"loops: similarity >= {cfg.similarity_threshold}, {cfg.mode} verification (small_gicp residual < "
+             f"{cfg.verifier.max_residual} m), GTSAM Levenberg-Marquardt. Shared front end: {front}{cached}.", "",
+             "ATE: keyframe trajectory vs ground truth after SE(3) alignment, before (odometry) and after pose-graph "
+             "optimisation; improvement = 100 (before - after) / before. False loops: verified loops whose "
+             f"ground-truth distance exceeds {cfg.loop_radius} m. Memory: accounted bytes of keyframe descriptors, "
+             "downsampled keyframe clouds and the graph. Time: sampling + keyframe store + loop search + "
+             "verification + optimisation.", "", table, ""]
+    lines += [f"![{n}](figures/{n})" for n in figures]
+    lines += ["", "Per-method results: " + ", ".join(f"[{r.config.name}](runs/{r.config.name}/report.md)"
+                                                  for r in results), ""]
+    return "\n".join(lines)
+
+
+def method_configs(base: BatchConfig, methods: Sequence[tuple[str, str, dict[str, Any]]] = PAPER_METHODS
+                   ) -> list[BatchConfig]:
+    """One validated config per method: `base` with the method's sampler, parameters and label."""
+    data = base.dump()
+    return [make_config({**data, "sampler": s, "sampler_params": p, "label": label}) for label, s, p in methods]
+
+
+def run_compare(base: BatchConfig, out: str | os.PathLike, quiet: bool = True,
+                methods: Sequence[tuple[str, str, dict[str, Any]]] = PAPER_METHODS) -> Path:
+    """Run every method on the sequence of `base` and write the comparison folder; return its report.md."""
+    configs = method_configs(base, methods)
+    frontend = prepare_frontend(configs[0], quiet)
+    results = []
+    with atomic_dir(out) as tmp:
+        (tmp / "runs").mkdir()
+        with progress_bar(quiet, transient=False) as bar:
+            task = bar.add_task("methods", total=len(configs))
+            for cfg in configs:
+                bar.update(task, description=f"method {cfg.name}")
+                result = run_batch(cfg, frontend, quiet)
+                (tmp / "runs" / cfg.name).mkdir()
+                write_run_files(result, tmp / "runs" / cfg.name)
+                results.append(result)
+                bar.advance(task)
+        rows = [table_row(r.metrics) for r in results]
+        table = table_markdown(rows)
+        (tmp / "comparison.md").write_text(table)
+        (tmp / "comparison.csv").write_text(table_csv(rows))
+        write_json(tmp / "comparison.json", [r.metrics for r in results])
+        figures = _figures(results, tmp / "figures")
+        (tmp / "report.md").write_text(_report(results, table, figures))
+    return Path(out) / "report.md"
