@@ -81,7 +81,8 @@ class Lidar:
     def scan(self, pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         pose = validate_pose(pose, "sensor pose")
         rot, origin = pose[:3, :3], pose[:3, 3]
-        dirs_world = self._dirs @ np.ascontiguousarray(rot.T)  # a transposed view is 10x slower here
+        # einsum, not matmul: BLAS threads for this small product stall badly on a busy machine
+        dirs_world = np.einsum("ij,kj->ki", rot, self._dirs)
         hit_tri, ray_idx, ranges = self.world.cast(origin, dirs_world)  # ray order: beam-major
         m = self.model
         keep = (ranges >= m.min_range) & (ranges <= m.max_range)
