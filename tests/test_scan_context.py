@@ -131,6 +131,8 @@ def test_bad_input_raises_clear_errors():
     sc = ScanContext()
     with pytest.raises(InputError, match="shape"):
         sc.compute(np.zeros((10, 2)))
+    with pytest.raises(InputError, match=r"frame 7: points: expected shape \(P, 3\)"):
+        sc.compute(np.zeros((4, 2)), frame=7)
     with pytest.raises(InputError, match="point 1 has NaN"):
         sc.compute(np.array([[0.0, 1.0, 2.0], [0.0, 1.0, np.nan]]))
     with pytest.raises(InputError, match="NaN"):

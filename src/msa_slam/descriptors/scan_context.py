@@ -93,9 +93,12 @@ class ScanContext:
 
     def compute(self, points: np.ndarray | None, frame: int | None = None) -> np.ndarray:
         """Descriptor (n_ring, n_sector) of a raw scan: voxel downsampling, then binning."""
-        if self.voxel_size is not None:
-            points = voxel_downsample(points, self.voxel_size)
-        return self.bin(points)
+        try:
+            if self.voxel_size is not None:
+                points = voxel_downsample(points, self.voxel_size)
+            return self.bin(points)
+        except InputError as exc:
+            raise InputError(f"scan_context: frame {frame}: {exc}" if frame is not None else str(exc)) from exc
 
     def bin(self, points: np.ndarray) -> np.ndarray:
         """Binning step alone, for clouds that are already downsampled."""
