@@ -8,6 +8,7 @@ import typer
 
 from msa_slam.errors import InputError
 from msa_slam.sampling.cli import sample_command
+from msa_slam.pipeline.cli import compare_command, demo_command, run_command
 from msa_slam.sim.cli import simulate_command
 
 app = typer.Typer(
@@ -26,6 +27,9 @@ def _main() -> None:
 
 # Command registrations (one line per command; the functions live with their stage).
 app.command("simulate")(simulate_command)
+app.command("run")(run_command)
+app.command("compare")(compare_command)
+app.command("demo")(demo_command)
 app.command("sample")(sample_command)
 # -- end of command registrations --
 
