@@ -210,3 +210,18 @@ def test_neighbours_bring_old_keyframes_into_the_window_at_revisits():
     sampler.run(poses, desc)
     baseline = make_sampler("msa", window=8, neighbours=0).run(poses, desc)
     assert sampler.keyframes != baseline
+
+
+@pytest.mark.parametrize("shape", [(48,), (6, 12)])
+def test_batched_exact_equals_one_at_a_time_transcription(shape):
+    from msa_slam.sampling.msa_literal import literal_optimise_window
+
+    rng = np.random.default_rng(11)
+    for trial in range(6):
+        n = 7 + trial % 3
+        t = np.zeros((n, 3))
+        t[:, :2] = np.cumsum(rng.uniform(0.2, 1.0, (n, 2)), axis=0)
+        desc = np.cumsum(rng.standard_normal((n, *shape)), axis=0)
+        for weights in (ScoreWeights(), ScoreWeights(alpha=10.0), ScoreWeights(use_rho=False)):
+            expected = literal_optimise_window(t, desc, 0.1, 2.5, weights)
+            assert optimise_window(t, desc, 0.1, 2.5, weights, "exact") == expected

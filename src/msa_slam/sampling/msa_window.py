@@ -308,36 +308,42 @@ def _information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nd
 
 
 @njit(cache=True)
-def _fast_scores(table: np.ndarray, sizes: np.ndarray, dist: np.ndarray, sim: np.ndarray,
-                 gram: np.ndarray, dmin: float, dmax: float, use_rho: bool,
-                 use_pi: bool):  # pragma: no cover
-    """rho and pi of every feasible candidate, compiled (no per-size Python round trips)."""
+def _feasible_and_redundancy(table: np.ndarray, sizes: np.ndarray, dist: np.ndarray, sim: np.ndarray,
+                             dmin: float, dmax: float):  # pragma: no cover
+    """Rows of the subsets whose consecutive steps lie in [dmin, dmax], and their rho."""
     count = len(table)
     keep = np.zeros(count, dtype=np.bool_)
     rho = np.zeros(count)
-    pi = np.zeros(count)
-    width = table.shape[1] + 1
-    scratch = np.empty((6 + 2 * width, width))
     for row in range(count):
         m = sizes[row]
         members = table[row]
         feasible = True
+        total = 0.0
         for k in range(m - 1):
             d = dist[members[k], members[k + 1]]
             if d < dmin or d > dmax:
                 feasible = False
                 break
-        if not feasible:
-            continue
-        keep[row] = True
-        if use_rho:
-            total = 0.0
-            for k in range(m - 1):
-                total += sim[members[k + 1], members[k]]
+            total += sim[members[k + 1], members[k]]
+        if feasible:
+            keep[row] = True
             rho[row] = total / (m - 1)
-        if use_pi and m > 2:
-            pi[row] = _information_gram(members, m, dist, gram, scratch)
-    return keep, rho, pi
+    rows = np.flatnonzero(keep)
+    return rows, rho[rows]
+
+
+@njit(cache=True)
+def _information_many(table: np.ndarray, sizes: np.ndarray, rows: np.ndarray, dist: np.ndarray,
+                      gram: np.ndarray) -> np.ndarray:  # pragma: no cover
+    """pi of the given candidate rows."""
+    pi = np.zeros(len(rows))
+    width = table.shape[1] + 1
+    scratch = np.empty((6 + 2 * width, width))
+    for i in range(len(rows)):
+        m = sizes[rows[i]]
+        if m > 2:
+            pi[i] = _information_gram(table[rows[i]], m, dist, gram, scratch)
+    return pi
 
 
 def _optimise_fast(translations: np.ndarray, descriptors: np.ndarray, dmin: float, dmax: float,
@@ -345,15 +351,16 @@ def _optimise_fast(translations: np.ndarray, descriptors: np.ndarray, dmin: floa
     n = len(translations)
     blocks = descriptors.reshape(n, -1, 1) if descriptors.ndim == 2 else descriptors
     dist, sim = _pairwise_fast(np.ascontiguousarray(translations), np.ascontiguousarray(blocks))
-    flat = descriptors.reshape(n, -1)
     table, sizes = padded_subsets(n)
-    keep, rho, pi = _fast_scores(table, sizes, dist, sim, flat @ flat.T, dmin, dmax,
-                                 weights.use_rho, weights.use_pi)
-    rows = np.flatnonzero(keep)
+    rows, rho = _feasible_and_redundancy(table, sizes, dist, sim, dmin, dmax)
     if rows.size == 0:
         return WindowResult((0, n - 1), 1)
-    rho_hat = _minmax(rho[rows]) if weights.use_rho else np.zeros(rows.size)
-    pi_hat = _minmax(pi[rows]) if weights.use_pi else np.zeros(rows.size)
+    if weights.use_pi:
+        flat = descriptors.reshape(n, -1)
+        pi_hat = _minmax(_information_many(table, sizes, rows, dist, flat @ flat.T))
+    else:
+        pi_hat = np.zeros(rows.size)
+    rho_hat = _minmax(rho) if weights.use_rho else np.zeros(rows.size)
     best = rows[int(np.argmin((weights.alpha + rho_hat) / (weights.beta + pi_hat)))]
     return WindowResult(tuple(int(p) for p in table[best, :sizes[best]]), int(rows.size))
 

@@ -1,0 +1,125 @@
+"""MSA speed: window optimisation time per mode, window size and descriptor shape, plus parity counts.
+
+Streams are random walks in pose and descriptor space (256-d vectors and 20x60 Scan-Context-shaped
+arrays), 240 frames, lambda_u = 3 (paper). The "one-at-a-time" column times a plain transcription of
+the reference (msa_slam.sampling.msa_literal) on the same windows at N = 10, the reference's shape
+of computation, so the speed-up is measured on this machine rather than quoted.
+
+Usage: python benchmarks/bench_msa.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from msa_slam.sampling import make_sampler
+from msa_slam.sampling.msa_literal import literal_optimise_window
+from msa_slam.sampling.msa_window import ScoreWeights, optimise_window
+
+PARITY_DIR = Path(__file__).resolve().parents[2] / "shared" / "parity"
+MSA_NAME = re.compile(r"msa_N(\d+)_nn(\d+)_a([\d.]+)_b([\d.]+)_l([\d.]+)_u([\d.]+)$")
+
+
+def random_walk_stream(shape: tuple[int, ...], frames: int, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    poses = np.tile(np.eye(4), (frames, 1, 1))
+    heading = np.cumsum(rng.normal(0, 0.1, frames))
+    step = rng.uniform(0.6, 1.4, frames)
+    poses[:, 0, 3] = np.cumsum(step * np.cos(heading))
+    poses[:, 1, 3] = np.cumsum(step * np.sin(heading))
+    desc = np.abs(np.cumsum(rng.standard_normal((frames, *shape)) * 0.3, axis=0))
+    return poses, desc
+
+
+def time_sampler(poses, desc, window: int, mode: str):
+    sampler = make_sampler("msa", window=window, lambda_u=3.0, mode=mode)
+    sampler.run(poses, desc)
+    ms = np.array(sampler.stats.optimisation_ms)
+    cands = sampler.stats.candidates_evaluated / max(sampler.stats.window_optimisations, 1)
+    return float(np.median(ms)), float(np.percentile(ms, 95)), cands, float(np.median(ms)) * 1e3 / cands
+
+
+def literal_speedup(poses, desc, window: int = 10, windows: int = 12):
+    """Median ms per window: one-at-a-time transcription vs exact vs fast on the same windows."""
+    t = poses[:, :3, 3]
+    weights = ScoreWeights()
+    results = {"literal": [], "exact": [], "fast": []}
+    starts = np.linspace(0, len(poses) - window, windows).astype(int)
+    for s in starts:
+        args = (t[s:s + window], desc[s:s + window], 0.1, 3.0)
+        for name, call in (("literal", lambda: literal_optimise_window(*args, weights)),
+                           ("exact", lambda: optimise_window(*args, weights, "exact")),
+                           ("fast", lambda: optimise_window(*args, weights, "fast"))):
+            t0 = time.perf_counter()
+            call()
+            results[name].append((time.perf_counter() - t0) * 1e3)
+    return {k: float(np.median(v)) for k, v in results.items()}
+
+
+def parity_counts():
+    counts = {}
+    for mode in ("exact", "fast"):
+        total = matched = 0
+        for path in sorted(PARITY_DIR.glob("stream_*.npz")):
+            data = np.load(path)
+            for name, keyframes in json.loads(str(data["expected"])).items():
+                match = MSA_NAME.match(name)
+                if not match:
+                    continue
+                n, nb, a, b, lo, hi = match.groups()
+                sampler = make_sampler("msa", window=int(n), neighbours=int(nb), alpha=float(a),
+                                       beta=float(b), lambda_l=float(lo), lambda_u=float(hi), mode=mode)
+                total += 1
+                matched += sampler.run(data["poses"], data["descriptors"]) == keyframes
+        counts[mode] = (matched, total)
+    return counts
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="N = 8, 10, 12 only; skip parity")
+    args = parser.parse_args()
+    sizes = [8, 10, 12] if args.quick else list(range(8, 17))
+    shapes = {"vec256": (256,), "sc20x60": (20, 60)}
+    warm = random_walk_stream((16,), 40)
+    for mode in ("exact", "fast"):  # compile the kernels before timing
+        time_sampler(*warm, 8, mode)
+
+    print("MSA window optimisation (random-walk streams, lambda_u = 3)")
+    print(f"{'mode':6} {'shape':8} {'N':>3} {'median ms':>10} {'p95 ms':>9} {'cand/window':>12} {'us/cand':>8}")
+    for mode in ("exact", "fast"):
+        for shape_name, shape in shapes.items():
+            for n in sizes:
+                frames = 240 if n <= 12 else 120
+                med, p95, cands, us = time_sampler(*random_walk_stream(shape, frames), n, mode)
+                print(f"{mode:6} {shape_name:8} {n:>3} {med:>10.3f} {p95:>9.3f} {cands:>12.0f} {us:>8.2f}",
+                      flush=True)
+
+    print("\nSpeed-up at N = 10 over a one-candidate-at-a-time transcription (same windows, median ms)")
+    print(f"{'shape':8} {'one-at-a-time':>14} {'exact':>8} {'fast':>8} {'exact x':>8} {'fast x':>8}")
+    for shape_name, shape in shapes.items():
+        r = literal_speedup(*random_walk_stream(shape, 240))
+        print(f"{shape_name:8} {r['literal']:>14.2f} {r['exact']:>8.2f} {r['fast']:>8.3f} "
+              f"{r['literal'] / r['exact']:>8.1f} {r['literal'] / r['fast']:>8.1f}")
+
+    if args.quick:
+        return 0
+    if not PARITY_DIR.exists():
+        print("\nparity: ../shared/parity not found, skipped")
+        return 0
+    counts = parity_counts()
+    print("\nParity with the reference vectors (MSA configurations)")
+    for mode, (matched, total) in counts.items():
+        print(f"{mode:6} {matched}/{total} ({100.0 * matched / total:.1f} %)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
