@@ -65,7 +65,7 @@ def frontend(base):
 
 
 # Loose gates and threshold: many candidates, and verification accepts nearly anything it registers.
-PERMISSIVE = {"similarity_threshold": 0.3,
+PERMISSIVE = {"similarity_threshold": 0.4,
               "verifier": {"max_residual": 10.0, "min_inliers": 1, "min_inlier_fraction": 0.0}}
 
 

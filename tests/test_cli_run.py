@@ -1,0 +1,78 @@
+"""`msa-slam run` end to end on the small simulated sequence: every output of a result folder."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from msa_slam.cli import app
+from msa_slam.errors import InputError
+from msa_slam.io.poses import read_poses
+from msa_slam.pipeline import load_config
+from test_pipeline import cache_dir, odometry_file, sequence  # noqa: F401  (shared session fixtures)
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def run_folder(sequence, odometry_file, cache_dir, tmp_path_factory):  # noqa: F811
+    out = tmp_path_factory.mktemp("cli") / "run"
+    result = runner.invoke(app, ["run", "--dataset", str(sequence), "--odometry", str(odometry_file),
+                                 "--sampler", "constant", "--param", "distance=3", "--param", "graph.robust=huber",
+                                 "--descriptor", "sc", "--mode", "oracle", "--cache-dir", str(cache_dir),
+                                 "--out", str(out), "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert result.output.strip() == str(out / "report.md")
+    return out
+
+
+def test_run_writes_config_and_metrics(run_folder, sequence):  # noqa: F811
+    cfg = load_config(run_folder / "config.yaml")
+    assert cfg.sampler == "constant" and cfg.sampler_params == {"distance": 3}
+    assert cfg.graph.robust == "huber" and cfg.dataset == str(sequence)
+    metrics = json.loads((run_folder / "metrics.json").read_text())
+    for key in ("keyframes", "candidates", "verified", "false_loops", "before", "after", "improvement_pct",
+                "pr_auc", "f1_max", "memory_bytes", "peak_rss_bytes", "time_s"):
+        assert key in metrics
+    assert metrics["after"]["ate_translation_m"] < metrics["before"]["ate_translation_m"]
+    assert len(metrics["keyframe_frames"]) == metrics["keyframes"]
+
+
+def test_run_writes_frames_and_trajectories(run_folder):
+    metrics = json.loads((run_folder / "metrics.json").read_text())
+    rows = list(csv.DictReader((run_folder / "frames.csv").open()))
+    assert len(rows) == metrics["frames"]
+    keyframes = [r for r in rows if r["is_keyframe"] == "1"]
+    assert [int(r["frame"]) for r in keyframes] == metrics["keyframe_frames"]
+    assert all(r["opt_x"] and r["ate_opt_m"] for r in keyframes)
+    assert not any(r["opt_x"] for r in rows if r["is_keyframe"] == "0")
+    for name, length in (("optimised_keyframes", metrics["keyframes"]), ("gt_keyframes", metrics["keyframes"]),
+                         ("odometry", metrics["frames"])):
+        kitti, _ = read_poses(run_folder / "trajectories" / f"{name}.kitti", "kitti")
+        tum, times = read_poses(run_folder / "trajectories" / f"{name}.tum", "tum")
+        assert len(kitti) == len(tum) == length
+        assert abs(kitti[:, :3, 3] - tum[:, :3, 3]).max() < 1e-6
+    loops = list(csv.DictReader((run_folder / "loops.csv").open()))
+    assert len(loops) == metrics["candidates"]
+    assert sum(int(r["accepted"]) for r in loops) == metrics["verified"]
+
+
+def test_run_writes_figures_and_report(run_folder):
+    for name in ("trajectories.png", "pr_curve.png"):
+        assert (run_folder / "figures" / name).read_bytes()[:4] == b"\x89PNG"
+    report = (run_folder / "report.md").read_text()
+    assert "| ATE translation [m] |" in report and "figures/trajectories.png" in report
+    assert not [p for p in run_folder.parent.iterdir() if p.name.startswith(".")]  # no partial folders left
+
+
+def test_run_reports_bad_input(tmp_path, cache_dir):  # noqa: F811
+    result = runner.invoke(app, ["run", "--dataset", str(tmp_path / "missing"), "--cache-dir", str(cache_dir),
+                                 "--out", str(tmp_path / "out"), "--quiet"])
+    assert isinstance(result.exception, InputError) and "missing" in str(result.exception)
+    result = runner.invoke(app, ["run", "--dataset", "sim:test", "--param", "thresold=0.5", "--quiet"])
+    assert isinstance(result.exception, InputError) and "thresold" in str(result.exception)
+    assert not (tmp_path / "out").exists()
