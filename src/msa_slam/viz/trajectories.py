@@ -90,7 +90,7 @@ def plot_metric_bars(path: str | Path, labels: Sequence[str], series: Mapping[st
             ax.tick_params(axis="y", labelsize=7)
             ax.grid(axis="y", alpha=0.3)
             if len(groups) > 1:
-                ax.legend(fontsize=7)
+                ax.legend(fontsize=7, loc="lower right")
         if title:
             fig.suptitle(title, fontsize=10)
         fig.tight_layout()
