@@ -63,6 +63,18 @@ def literal_speedup(poses, desc, window: int = 10, windows: int = 12):
     return {k: float(np.median(v)) for k, v in results.items()}
 
 
+def parity_stream_timings():
+    """Median ms per window at N = 10 on the parity streams, where the reference's cost is documented
+    (../shared/docs/performance-notes.md: 55-61 ms on 256-d streams, 76 ms on the sc20x60 stream)."""
+    rows = []
+    for name in ("stream_s0_vec256.npz", "stream_s0_sc20x60.npz"):
+        data = np.load(PARITY_DIR / name)
+        for mode in ("exact", "fast"):
+            med, p95, cands, us = time_sampler(data["poses"], data["descriptors"], 10, mode)
+            rows.append((name, mode, med, p95, cands))
+    return rows
+
+
 def parity_counts():
     counts = {}
     for mode in ("exact", "fast"):
@@ -114,6 +126,11 @@ def main() -> int:
     if not PARITY_DIR.exists():
         print("\nparity: ../shared/parity not found, skipped")
         return 0
+    print("\nN = 10 on the parity streams (reference: 55-61 ms for 256-d, 76 ms for sc20x60)")
+    print(f"{'stream':22} {'mode':6} {'median ms':>10} {'p95 ms':>9} {'cand/window':>12} {'vs reference':>13}")
+    for name, mode, med, p95, cands in parity_stream_timings():
+        reference = 76.0 if "sc20x60" in name else 55.0
+        print(f"{name:22} {mode:6} {med:>10.3f} {p95:>9.3f} {cands:>12.0f} {reference / med:>12.1f}x")
     counts = parity_counts()
     print("\nParity with the reference vectors (MSA configurations)")
     for mode, (matched, total) in counts.items():

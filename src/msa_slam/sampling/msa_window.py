@@ -15,6 +15,8 @@ Implements section IV of the paper (eqs. 3-8) with the reference implementation'
 from __future__ import annotations
 
 import itertools
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -24,6 +26,9 @@ from numba import njit
 MODES = ("exact", "fast")
 EIGENVALUE_FLOOR = 1e-6
 C_CLIP = 1e6
+PARALLEL_MIN_CANDIDATES = 1500  # below this a thread hand-off costs more than it saves
+MAX_THREADS = 4
+_POOL: ThreadPoolExecutor | None = None
 
 
 @dataclass(frozen=True)
@@ -210,7 +215,7 @@ def _information_exact_batch(subsets: np.ndarray, x: np.ndarray, flat: np.ndarra
                              ws: ExactWorkspace) -> np.ndarray:
     count, m = subsets.shape
     width = flat.shape[1]
-    f = np.take(flat, subsets, axis=0, out=ws.get("f", (count, m, width)))  # the reference's F, (m, M)
+    f = np.take(flat, subsets, axis=0, out=ws.get("f", (count, m, width)), mode="clip")  # F, unbuffered
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         jt = _gradient_exact(f, x, ws.get("jt", (count, m, width)))
         c = _sanitize(jt @ jt.transpose(0, 2, 1))  # C = J^T J
@@ -332,7 +337,7 @@ def _feasible_and_redundancy(table: np.ndarray, sizes: np.ndarray, dist: np.ndar
     return rows, rho[rows]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _information_many(table: np.ndarray, sizes: np.ndarray, rows: np.ndarray, dist: np.ndarray,
                       gram: np.ndarray) -> np.ndarray:  # pragma: no cover
     """pi of the given candidate rows."""
@@ -346,6 +351,19 @@ def _information_many(table: np.ndarray, sizes: np.ndarray, rows: np.ndarray, di
     return pi
 
 
+def _information_threaded(table: np.ndarray, sizes: np.ndarray, rows: np.ndarray, dist: np.ndarray,
+                          gram: np.ndarray) -> np.ndarray:
+    """pi of all rows; large windows (N >= ~13) are split across threads (the kernel releases the GIL)."""
+    workers = min(os.cpu_count() or 1, MAX_THREADS)
+    if workers < 2 or len(rows) < PARALLEL_MIN_CANDIDATES:
+        return _information_many(table, sizes, rows, dist, gram)
+    global _POOL
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="msa-fast")
+    parts = np.array_split(rows, workers)
+    return np.concatenate(list(_POOL.map(lambda part: _information_many(table, sizes, part, dist, gram), parts)))
+
+
 def _optimise_fast(translations: np.ndarray, descriptors: np.ndarray, dmin: float, dmax: float,
                    weights: ScoreWeights) -> WindowResult:
     n = len(translations)
@@ -357,7 +375,7 @@ def _optimise_fast(translations: np.ndarray, descriptors: np.ndarray, dmin: floa
         return WindowResult((0, n - 1), 1)
     if weights.use_pi:
         flat = descriptors.reshape(n, -1)
-        pi_hat = _minmax(_information_many(table, sizes, rows, dist, flat @ flat.T))
+        pi_hat = _minmax(_information_threaded(table, sizes, rows, dist, flat @ flat.T))
     else:
         pi_hat = np.zeros(rows.size)
     rho_hat = _minmax(rho) if weights.use_rho else np.zeros(rows.size)
