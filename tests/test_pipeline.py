@@ -170,3 +170,18 @@ def test_apply_params_routes_keys():
     assert cfg.sampler_params == {"lambda_u": 5}
     assert cfg.verifier.max_residual == 0.2 and cfg.graph.robust == "cauchy"
     assert cfg.similarity_threshold == 0.7 and cfg.odometry_params == {"max_range": 80}
+
+
+def test_unregistrable_candidate_is_rejected_not_fatal():
+    from msa_slam.descriptors import ScanContext
+    from msa_slam.pipeline.loops import LoopCandidate, verify_candidates
+    from msa_slam.registration import KeyframeCloudStore, Verifier
+
+    clouds = KeyframeCloudStore(0.5)
+    rng = np.random.default_rng(0)
+    clouds.add(0, rng.uniform(-20, 20, (5000, 3)))
+    clouds.add(1, rng.uniform(-1, 1, (4, 3)))  # a handful of points: too sparse to register
+    descriptors = np.zeros((2, 20, 60))
+    out = verify_candidates([LoopCandidate(1, 0, 0.9, 1.0)], clouds, Verifier(), ScanContext(), descriptors,
+                            "realistic", 3.0)
+    assert out[0].verified and not out[0].accepted and out[0].residual == float("inf")

@@ -51,6 +51,10 @@ class BatchConfig(_Section):
     `dataset` is a sequence folder (KITTI layout, scan folder) or `sim:NAME` (NAME = demo, test, or a
     simulator trajectory such as kitti-05, optionally with simulator fields: `sim:kitti-05,stride=3`).
     `odometry` is "kiss" (KISS-ICP) or the path of a KITTI/TUM pose file (LiDAR frame, one pose per scan).
+    Keyframes are sampled on `sample_on` poses (`flush` adds what MSA still holds at the end). A keyframe's
+    loop candidates are older keyframes more than `min_frame_gap` frames back and not among the
+    `exclude_recent` newest, with descriptor similarity >= `similarity_threshold` (best `top_k`).
+    `loop_radius` (3 m) defines a true loop: oracle verification, false loops and the PR curve.
     """
 
     dataset: str

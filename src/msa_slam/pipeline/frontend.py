@@ -118,7 +118,7 @@ def compute_descriptors(sequence: ScanSequence, descriptor: Descriptor, cache: P
 def prepare_frontend(config: BatchConfig, quiet: bool = True) -> Frontend:
     """Open the dataset, then odometry and descriptors for all frames (cached per sequence)."""
     timer = StageTimer()
-    with timer.stage("load"):
+    with timer.stage("dataset"):
         sequence = open_sequence(config.dataset, config.dataset_kind, config.cache_dir, progress=not quiet)
     cache = pipeline_cache(config)
     n = len(sequence)

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from msa_slam.descriptors import Descriptor
+from msa_slam.errors import InputError
 from msa_slam.place_recognition import KeyframeDatabase
 from msa_slam.registration import KeyframeCloudStore, Verifier
 
@@ -88,7 +89,13 @@ def verify_candidates(candidates: list[LoopCandidate], clouds: KeyframeCloudStor
             advance()
             continue
         guess = _yaw_guess(descriptor, descriptors[cand.query], descriptors[cand.match])
-        result = verifier.verify(clouds[cand.match], clouds[cand.query], initial_guess=guess)
+        try:
+            result = verifier.verify(clouds[cand.match], clouds[cand.query], initial_guess=guess)
+        except InputError:  # clouds too sparse to register: the candidate is rejected, not the run
+            out.append(LoopCandidate(cand.query, cand.match, cand.similarity, cand.gt_distance, True, False,
+                                     float("inf")))
+            advance()
+            continue
         out.append(LoopCandidate(cand.query, cand.match, cand.similarity, cand.gt_distance, True,
                                  result.accepted, result.residual, result.T_target_source))
         advance()
