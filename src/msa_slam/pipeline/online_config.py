@@ -1,0 +1,54 @@
+"""Configuration of the online pipeline: the batch config (same loop, verifier and graph knobs) plus what
+only a frame-by-frame run needs (where keyframe clouds live, iSAM2 iterations, sensor rate, noise seed).
+
+Unknown keys are an error listing the valid ones, as for the batch config.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal, Mapping
+
+from pydantic import Field, ValidationError
+
+from msa_slam.errors import InputError
+from msa_slam.pipeline.config import BatchConfig, GraphSettings, VerifierSettings
+
+CLOUD_STORES = ("memory", "disk")
+
+
+class OnlineConfig(BatchConfig):
+    """One online run (the paper's section V-B protocol).
+
+    `dataset` also accepts `live:NAME[,field=value...,laps=K]`: scans simulated in memory as the run
+    needs them (no files), K passes over the trajectory driven forth and back (see online_source).
+    `odometry` also accepts "gt-noise": ground-truth motions with random noise (odometry_params
+    translation_noise, rotation_noise_deg; seeded by `seed`), for long runs where KISS-ICP would dominate.
+    `cloud_store="disk"` keeps downsampled keyframe clouds as .npy files in `store_dir` (memory-mapped
+    when read) instead of in RAM.
+    """
+
+    cloud_store: Literal["memory", "disk"] = "memory"
+    store_dir: str | None = None
+    update_iterations: int = Field(2, ge=0)
+    sensor_rate_hz: float = Field(10.0, gt=0)
+    max_frames: int | None = Field(None, ge=3)
+    seed: int = 0
+
+
+def _problem(error: Mapping[str, Any]) -> str:
+    loc = tuple(error["loc"])
+    where = ".".join(map(str, loc)) or "config"
+    if error["type"] == "extra_forbidden":
+        section = {"verifier": VerifierSettings, "graph": GraphSettings}.get(loc[0] if len(loc) > 1 else "",
+                                                                            OnlineConfig)
+        return f"unknown key {where!r}; valid keys: {', '.join(section.model_fields)}"
+    return f"{where}: {error['msg']}"
+
+
+def make_online_config(data: Mapping[str, Any] | None = None, **overrides: Any) -> OnlineConfig:
+    """A validated OnlineConfig from a mapping plus keyword overrides; problems become one InputError."""
+    merged = {**(dict(data) if data else {}), **overrides}
+    try:
+        return OnlineConfig(**merged)
+    except ValidationError as exc:
+        raise InputError("online config: " + "; ".join(_problem(e) for e in exc.errors())) from None
