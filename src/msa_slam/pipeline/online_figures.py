@@ -1,0 +1,89 @@
+"""Figures of online runs, as in the paper's Figs. 7-8: memory over time, per-step time distributions,
+and the box plot of ATE differences to all samples (matplotlib, Agg)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from msa_slam.viz import save_figure  # noqa: E402
+
+
+def _save(fig, path: str | Path) -> Path:
+    try:
+        return save_figure(fig, path)
+    finally:
+        plt.close(fig)
+
+
+def plot_memory(path: str | Path, series: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
+                title: str = "memory over time") -> Path:
+    """series: label -> (frames, accounted bytes (keyframes + graph), RSS bytes); two panels in MiB."""
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for label, (frames, accounted, rss) in series.items():
+        axes[0].plot(frames, np.asarray(accounted) / 2**20, label=label)
+        axes[1].plot(frames, np.asarray(rss) / 2**20, label=label)
+    axes[0].set(xlabel="frame", ylabel="MiB", title="keyframes + graph (accounted)")
+    axes[1].set(xlabel="frame", ylabel="MiB", title="process RSS")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(title)
+    return _save(fig, path)
+
+
+def plot_step_times(path: str | Path, steps: Mapping[str, Mapping[str, np.ndarray]],
+                    title: str = "per-step time") -> Path:
+    """steps: step name -> (label -> per-step ms); one box-plot panel per step (log scale, as Fig. 8)."""
+    names = list(steps)
+    fig, axes = plt.subplots(1, len(names), figsize=(4.5 * len(names), 4), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        labels = list(steps[name])
+        data = [np.asarray(steps[name][lab], dtype=float) for lab in labels]
+        data = [d[d > 0] if (d > 0).any() else np.array([np.nan]) for d in data]
+        ax.boxplot(data, showfliers=True, flierprops={"markersize": 2})
+        ax.set_xticks(range(1, len(labels) + 1), labels, rotation=30, ha="right", fontsize=8)
+        ax.set_yscale("log")
+        ax.set(ylabel="ms", title=name)
+        ax.grid(alpha=0.3, axis="y")
+    fig.suptitle(title)
+    return _save(fig, path)
+
+
+def plot_ate_difference(path: str | Path, differences: Mapping[str, Sequence[float]],
+                        title: str = "ATE difference to all samples") -> Path:
+    """Box plot per method of ATE(method) - ATE(all samples) [m] over datasets/seeds (negative: better)."""
+    labels = list(differences)
+    fig, ax = plt.subplots(figsize=(max(5.0, 0.9 * len(labels) + 2), 4))
+    ax.boxplot([np.asarray(differences[k], dtype=float) for k in labels])
+    ax.set_xticks(range(1, len(labels) + 1), labels, rotation=30, ha="right", fontsize=8)
+    ax.axhline(0.0, color="grey", lw=0.8)
+    ax.set(ylabel="ATE - ATE(all) [m]", title=title)
+    ax.grid(alpha=0.3, axis="y")
+    return _save(fig, path)
+
+
+def plot_sweeps(path: str | Path, sweeps: Mapping[str, Mapping[str, tuple[Sequence[float], Sequence[float]]]],
+                title: str = "distance-bound ablation") -> Path:
+    """sweeps: swept parameter -> (metric -> (values, metric means)); one row per parameter (paper Fig. 9)."""
+    params = list(sweeps)
+    metrics = sorted({m for p in params for m in sweeps[p]})
+    fig, axes = plt.subplots(len(params), len(metrics), figsize=(3.6 * len(metrics), 3.0 * len(params)),
+                             squeeze=False)
+    for r, param in enumerate(params):
+        for c, metric in enumerate(metrics):
+            ax = axes[r][c]
+            if metric in sweeps[param]:
+                x, y = sweeps[param][metric]
+                ax.plot(x, y, "o-")
+            ax.set(xlabel=param, title=metric if r == 0 else "")
+            ax.grid(alpha=0.3)
+    fig.suptitle(title)
+    fig.tight_layout()
+    return _save(fig, path)

@@ -1,0 +1,146 @@
+"""Result folder of one online run (built under a temporary name, renamed when complete):
+config.yaml, metrics.json, steps.csv (per frame: step times, memory), loops.csv, trajectories (KITTI + TUM),
+figures (trajectories, memory over time, per-step times, PR curve) and report.md.
+
+Reuses the batch pipeline's atomic folder and JSON writer (msa_slam.pipeline.results).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+import msa_slam
+from msa_slam.evaluation import align_se3
+from msa_slam.io.poses import write_poses
+from msa_slam.pipeline.online import MEMORY, STEPS, OnlineResult
+from msa_slam.pipeline.online_figures import plot_memory, plot_step_times
+from msa_slam.pipeline.results import atomic_dir, write_json
+from msa_slam.place_recognition.figures import plot_pr_curves
+from msa_slam.viz import TrajectoryPanel, plot_trajectories
+
+
+def accounted_bytes(memory: dict[str, np.ndarray]) -> np.ndarray:
+    """Per-frame accounted memory: keyframe clouds (RAM and disk), descriptors and graph."""
+    return (memory["cloud_bytes"] + memory["cloud_disk_bytes"] + memory["descriptor_bytes"]
+            + memory["graph_bytes"])
+
+
+def steps_csv(result: OnlineResult) -> str:
+    buf = io.StringIO()
+    writer = csv.writer(buf)
+    writer.writerow(["frame", *(f"{s}_ms" for s in STEPS), "backend_ms", *MEMORY])
+    backend = result.backend_ms
+    for i in range(len(result.odometry)):
+        writer.writerow([i, *(f"{result.steps_ms[s][i]:.3f}" for s in STEPS), f"{backend[i]:.3f}",
+                         *(int(result.memory[m][i]) for m in MEMORY)])
+    return buf.getvalue()
+
+
+def _loops_csv(result: OnlineResult) -> str:
+    buf = io.StringIO()
+    writer = csv.writer(buf)
+    writer.writerow(["query_frame", "match_frame", "similarity", "gt_distance_m", "registered", "accepted",
+                     "residual_m", "false_loop"])
+    radius = result.config.loop_radius
+    for c in result.loops:
+        writer.writerow([c.query, c.match, f"{c.similarity:.6f}", f"{c.gt_distance:.4f}", int(c.verified),
+                         int(c.accepted), f"{c.residual:.4f}", int(c.accepted and c.gt_distance > radius)])
+    return buf.getvalue()
+
+
+def _trajectories(result: OnlineResult, folder: Path) -> None:
+    folder.mkdir()
+    kf = result.keyframes
+    stamps = np.arange(len(result.odometry)) / result.config.sensor_rate_hz
+    for name, poses, t in (("optimised_keyframes", result.optimised, stamps[kf]),
+                           ("odometry_keyframes", result.odometry[kf], stamps[kf]),
+                           ("gt_keyframes", result.gt_poses[kf], stamps[kf]),
+                           ("odometry", result.odometry, stamps)):
+        write_poses(folder / f"{name}.kitti", poses, "kitti")
+        write_poses(folder / f"{name}.tum", poses, "tum", t)
+
+
+def _figures(result: OnlineResult, folder: Path) -> list[str]:
+    folder.mkdir()
+    m, kf = result.metrics, result.keyframes
+    gt = result.gt_poses[kf]
+    row = {int(k): i for i, k in enumerate(kf)}
+    radius = result.config.loop_radius
+    good = [(row[c.match], row[c.query]) for c in result.accepted_loops if c.gt_distance <= radius]
+    bad = [(row[c.match], row[c.query]) for c in result.accepted_loops if c.gt_distance > radius]
+    panels = [TrajectoryPanel(f"odometry, ATE {m['before']['ate_translation_m']:.2f} m",
+                              align_se3(result.odometry[kf], gt)[:, :2, 3], result.ate_errors["odometry"], good, bad),
+              TrajectoryPanel(f"{m['method']} iSAM2, ATE {m['after']['ate_translation_m']:.2f} m",
+                              align_se3(result.optimised, gt)[:, :2, 3], result.ate_errors["optimised"], good, bad)]
+    plot_trajectories(folder / "trajectories.png", result.gt_poses[:, :2, 3], panels,
+                      title=f"{m['sequence']}: {m['method']} online ({m['keyframes']} keyframes, {m['verified']} loops)")
+    frames = np.arange(len(result.odometry))
+    plot_memory(folder / "memory.png", {m["method"]: (frames, accounted_bytes(result.memory),
+                                                      result.memory["rss_bytes"])},
+                title=f"{m['sequence']}: memory over time")
+    new_kf = np.diff(result.memory["keyframes"], prepend=0) > 0
+    plot_step_times(folder / "step_times.png", {
+        "graph update (iSAM2)": {m["method"]: result.steps_ms["graph_update"][new_kf]},
+        "loop detection": {m["method"]: result.steps_ms["loop_detection"][new_kf]},
+        "back-end per frame": {m["method"]: result.backend_ms},
+    }, title=f"{m['sequence']}: per-step time")
+    names = ["trajectories.png", "memory.png", "step_times.png"]
+    if result.pr is not None:
+        plot_pr_curves({m["method"]: result.pr}, folder / "pr_curve.png", title=f"{m['sequence']}: loop candidates")
+        names.append("pr_curve.png")
+    return names
+
+
+def _mib(n: float) -> str:
+    return f"{n / 2**20:.2f} MiB"
+
+
+def _report(result: OnlineResult, figures: list[str]) -> str:
+    m = result.metrics
+    b, a, imp, lat = m["before"], m["after"], m["improvement_pct"], m["latency_ms"]
+    f1 = "n/a" if m["f1_max"] is None else f"{m['f1_max']:.3f}"
+    lines = [
+        f"# {m['method']} online on {m['sequence']} ({m['mode']} loops)", "",
+        f"{m['frames']} frames -> {m['keyframes']} keyframes; {m['candidates']} loop candidates, {m['verified']} "
+        f"verified, {m['false_loops']} false. iSAM2 updated at every frame that finalised keyframes.", "",
+        "| metric | odometry | iSAM2 | improvement |", "|---|---|---|---|",
+        f"| ATE translation [m] | {b['ate_translation_m']:.3f} | {a['ate_translation_m']:.3f} | "
+        f"{imp['translation']:.1f} % |",
+        f"| ATE rotation [deg] | {b['ate_rotation_deg']:.3f} | {a['ate_rotation_deg']:.3f} | {imp['rotation']:.1f} % |",
+        "", "| F1-max | memory (keyframes + graph) | bytes / keyframe | peak RSS | frames/s | back-end frames/s | "
+        "real-time factor | back-end p99 [ms] |", "|---|---|---|---|---|---|---|---|",
+        f"| {f1} | {_mib(m['memory_bytes']['total'])} ({m['memory_bytes']['cloud_store']}) | "
+        f"{m['bytes_per_keyframe']:.0f} | {_mib(m['peak_rss_bytes'])} | {m['fps']:.1f} | {m['backend_fps']:.1f} | "
+        f"{m['realtime_factor']:.2f} | {lat['backend']['p99']:.1f} |", "",
+        "Step totals [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in m["time_s"].items())
+        + ("  (odometry replayed from cache)" if m.get("odometry_cached") else ""), "",
+    ]
+    lines += [f"![{name}](figures/{name})" for name in figures]
+    lines += ["", "Files: config.yaml, metrics.json, steps.csv (per frame), loops.csv, trajectories/ (KITTI, TUM).",
+              f"msa-slam {msa_slam.__version__}", ""]
+    return "\n".join(lines)
+
+
+def write_online_files(result: OnlineResult, folder: Path, figures: bool = True) -> None:
+    """Write all outputs of `result` into an existing (temporary) folder."""
+    (folder / "config.yaml").write_text(yaml.safe_dump(result.config.dump(), sort_keys=False))
+    write_json(folder / "metrics.json", {**result.metrics, "msa_slam_version": msa_slam.__version__,
+                                         "keyframe_frames": result.keyframes.tolist()})
+    (folder / "steps.csv").write_text(steps_csv(result))
+    (folder / "loops.csv").write_text(_loops_csv(result))
+    _trajectories(result, folder / "trajectories")
+    names = _figures(result, folder / "figures") if figures else []
+    (folder / "report.md").write_text(_report(result, names))
+
+
+def write_online(result: OnlineResult, out: str | os.PathLike, figures: bool = True) -> Path:
+    """Write the result folder `out` atomically; return the path of its report.md."""
+    with atomic_dir(out) as tmp:
+        write_online_files(result, tmp, figures)
+    return Path(out) / "report.md"
