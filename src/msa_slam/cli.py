@@ -9,6 +9,7 @@ import typer
 from msa_slam.errors import InputError
 from msa_slam.sampling.cli import sample_command
 from msa_slam.pipeline.online_cli import online_command
+from msa_slam.experiments.cli import experiment_command, report_command
 from msa_slam.pipeline.cli import compare_command, demo_command, run_command
 from msa_slam.sim.cli import simulate_command
 
@@ -33,6 +34,8 @@ app.command("compare")(compare_command)
 app.command("demo")(demo_command)
 app.command("sample")(sample_command)
 app.command("online")(online_command)
+app.command("experiment")(experiment_command)
+app.command("report")(report_command)
 # -- end of command registrations --
 
 

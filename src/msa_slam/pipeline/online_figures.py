@@ -53,6 +53,7 @@ def plot_step_times(path: str | Path, steps: Mapping[str, Mapping[str, np.ndarra
         ax.set(ylabel="ms", title=name)
         ax.grid(alpha=0.3, axis="y")
     fig.suptitle(title)
+    fig.tight_layout()
     return _save(fig, path)
 
 
@@ -69,9 +70,11 @@ def plot_ate_difference(path: str | Path, differences: Mapping[str, Sequence[flo
     return _save(fig, path)
 
 
-def plot_sweeps(path: str | Path, sweeps: Mapping[str, Mapping[str, tuple[Sequence[float], Sequence[float]]]],
+def plot_sweeps(path: str | Path,
+                sweeps: Mapping[str, Mapping[str, Mapping[str, tuple[Sequence[float], Sequence[float]]]]],
                 title: str = "distance-bound ablation") -> Path:
-    """sweeps: swept parameter -> (metric -> (values, metric means)); one row per parameter (paper Fig. 9)."""
+    """sweeps: swept parameter -> metric -> line label (e.g. dataset) -> (values, metric means);
+    one row per parameter, one column per metric (the paper's Fig. 9)."""
     params = list(sweeps)
     metrics = sorted({m for p in params for m in sweeps[p]})
     fig, axes = plt.subplots(len(params), len(metrics), figsize=(3.6 * len(metrics), 3.0 * len(params)),
@@ -79,11 +82,11 @@ def plot_sweeps(path: str | Path, sweeps: Mapping[str, Mapping[str, tuple[Sequen
     for r, param in enumerate(params):
         for c, metric in enumerate(metrics):
             ax = axes[r][c]
-            if metric in sweeps[param]:
-                x, y = sweeps[param][metric]
-                ax.plot(x, y, "o-")
+            for label, (x, y) in sweeps[param].get(metric, {}).items():
+                ax.plot(x, y, "o-", label=label)
             ax.set(xlabel=param, title=metric if r == 0 else "")
             ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=7)
     fig.suptitle(title)
     fig.tight_layout()
     return _save(fig, path)

@@ -1,0 +1,221 @@
+"""Aggregate a grid's finished cells into results.csv, results.md (the paper's Table II layout: per dataset,
+one row per method with t./R. ATE improvement, F1-max, memory and time; means over seeds) and figures:
+ATE difference to all samples (box plots), memory over time, per-step time distributions, and the
+distance-bound ablation (metrics against swept parameters, the paper's Fig. 9)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import re
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from msa_slam.errors import InputError
+from msa_slam.io.atomic import write_text_atomic
+from msa_slam.pipeline.online_figures import plot_ate_difference, plot_memory, plot_step_times, plot_sweeps
+
+COLUMNS = ("cell", "pipeline", "dataset", "descriptor", "method", "sampler", "seed", "parameters", "frames",
+           "keyframes", "candidates", "verified", "false_loops", "ate_before_m", "ate_after_m", "improvement_t_pct",
+           "improvement_r_pct", "pr_auc", "f1_max", "memory_mib", "memory_vs_reference_pct", "bytes_per_keyframe",
+           "time_s", "fps", "backend_fps", "backend_p99_ms", "peak_rss_mib")
+SWEEP_METRICS = {"t. ATE impr. [%]": "improvement_t_pct", "R. ATE impr. [%]": "improvement_r_pct",
+                 "F1-max": "f1_max", "memory vs reference [%]": "memory_vs_reference_pct"}
+
+
+def load_cells(results_dir: str | os.PathLike) -> list[dict[str, Any]]:
+    """(cell info + metrics) of every finished cell, sorted by cell id."""
+    cells_dir = Path(results_dir) / "cells"
+    if not cells_dir.is_dir():
+        raise InputError(f"{results_dir}: not an experiment results folder (no cells/ inside)")
+    out = []
+    for folder in sorted(p for p in cells_dir.iterdir() if p.is_dir() and not p.name.startswith(".")):
+        try:
+            info = json.loads((folder / "cell.json").read_text())
+            metrics = json.loads((folder / "metrics.json").read_text())
+        except (OSError, ValueError):
+            continue
+        out.append({"info": info, "metrics": metrics, "folder": folder})
+    return out
+
+
+def _group(info: dict[str, Any]) -> tuple:
+    """Cells compared with each other: same dataset, descriptor, grid parameters and seed."""
+    return info["dataset"], info["descriptor"], json.dumps(info["parameters"], sort_keys=True), info["seed"]
+
+
+def make_rows(cells: list[dict[str, Any]], reference: str = "all") -> list[dict[str, Any]]:
+    """One flat row per cell (COLUMNS); memory relative to the reference method of the same group."""
+    ref_memory = {_group(c["info"]): c["metrics"]["memory_bytes"]["total"] for c in cells
+                  if c["info"]["method"] == reference}
+    rows = []
+    for c in cells:
+        info, m = c["info"], c["metrics"]
+        ref = ref_memory.get(_group(info))
+        latency = m.get("latency_ms", {}).get("backend", {})
+        rows.append({
+            "cell": info["id"], "pipeline": info["pipeline"], "dataset": info["dataset"],
+            "descriptor": info["descriptor"], "method": info["method"], "sampler": info["sampler"],
+            "seed": info["seed"], "parameters": json.dumps(info["parameters"], sort_keys=True) if info["parameters"]
+            else "", "frames": m["frames"], "keyframes": m["keyframes"], "candidates": m["candidates"],
+            "verified": m["verified"], "false_loops": m["false_loops"],
+            "ate_before_m": m["before"]["ate_translation_m"], "ate_after_m": m["after"]["ate_translation_m"],
+            "improvement_t_pct": m["improvement_pct"]["translation"],
+            "improvement_r_pct": m["improvement_pct"]["rotation"], "pr_auc": m["pr_auc"], "f1_max": m["f1_max"],
+            "memory_mib": m["memory_bytes"]["total"] / 2**20,
+            "memory_vs_reference_pct": None if not ref else 100.0 * m["memory_bytes"]["total"] / ref,
+            "bytes_per_keyframe": m["memory_bytes"]["total"] / max(1, m["keyframes"]),
+            "time_s": m["time_s"]["backend_total"], "fps": m.get("fps"), "backend_fps": m.get("backend_fps"),
+            "backend_p99_ms": latency.get("p99"), "peak_rss_mib": m["peak_rss_bytes"] / 2**20,
+        })
+    return rows
+
+
+def rows_csv(rows: list[dict[str, Any]]) -> str:
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=COLUMNS)
+    writer.writeheader()
+    writer.writerows(rows)
+    return buf.getvalue()
+
+
+def _mean(rows: list[dict[str, Any]], key: str) -> tuple[float, float] | None:
+    values = [r[key] for r in rows if r[key] is not None]
+    return (float(np.mean(values)), float(np.std(values))) if values else None
+
+
+def _cell(stat: tuple[float, float] | None, fmt: str, n: int) -> str:
+    if stat is None:
+        return "n/a"
+    return format(stat[0], fmt) + (f" ± {format(stat[1], fmt)}" if n > 1 else "")
+
+
+def table2_markdown(rows: list[dict[str, Any]]) -> str:
+    """The paper's Table II layout, one section per dataset/descriptor (and grid parameters); means over seeds."""
+    sections: dict[tuple, dict[str, list]] = defaultdict(lambda: defaultdict(list))
+    for r in rows:
+        sections[(r["dataset"], r["descriptor"], r["parameters"])][r["method"]].append(r)
+    head = ["method", "keyframes", "t. ATE impr.", "R. ATE impr.", "F1-max", "mem.", "mem. vs ref.", "time",
+            "frames/s", "back-end p99"]
+    lines = []
+    for (dataset, descriptor, params), methods in sections.items():
+        seeds = max(len(v) for v in methods.values())
+        lines += [f"### {dataset} ({descriptor}{', ' + params if params else ''}; {seeds} seed(s))", "",
+                  "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for method, rs in methods.items():
+            n = len(rs)
+            lines.append("| " + " | ".join([
+                method, _cell(_mean(rs, "keyframes"), ".0f", n), _cell(_mean(rs, "improvement_t_pct"), ".1f", n) + " %",
+                _cell(_mean(rs, "improvement_r_pct"), ".1f", n) + " %", _cell(_mean(rs, "f1_max"), ".3f", n),
+                _cell(_mean(rs, "memory_mib"), ".2f", n) + " MiB", _cell(_mean(rs, "memory_vs_reference_pct"), ".0f", n)
+                + " %", _cell(_mean(rs, "time_s"), ".1f", n) + " s", _cell(_mean(rs, "fps"), ".1f", n),
+                _cell(_mean(rs, "backend_p99_ms"), ".1f", n) + " ms"]) + " |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9.=-]+", "_", text).strip("_")[:50]
+
+
+def _read_steps(folder: Path) -> dict[str, np.ndarray] | None:
+    path = folder / "steps.csv"
+    if not path.is_file():
+        return None
+    data = np.genfromtxt(path, delimiter=",", names=True)
+    return {name: np.atleast_1d(data[name]) for name in data.dtype.names}
+
+
+def _figures(cells: list[dict[str, Any]], rows: list[dict[str, Any]], reference: str, folder: Path) -> list[str]:
+    names = []
+    folder.mkdir(parents=True, exist_ok=True)
+    ref_ate = {(r["dataset"], r["descriptor"], r["parameters"], r["seed"]): r["ate_after_m"] for r in rows
+               if r["method"] == reference}
+    diffs: dict[str, list[float]] = defaultdict(list)
+    for r in rows:
+        ref = ref_ate.get((r["dataset"], r["descriptor"], r["parameters"], r["seed"]))
+        if ref is not None and r["method"] != reference:
+            diffs[r["method"]].append(r["ate_after_m"] - ref)
+    if diffs:
+        plot_ate_difference(folder / "ate_difference.png", diffs, title=f"ATE after optimisation minus {reference}")
+        names.append("ate_difference.png")
+    by_dataset: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    for c in cells:
+        if c["info"]["pipeline"] == "online":
+            by_dataset[c["info"]["dataset"]].append(c)
+    for dataset, group in by_dataset.items():
+        first_seed = min(c["info"]["seed"] for c in group)
+        memory, graph, loops = {}, {}, {}
+        for c in group:
+            steps = _read_steps(c["folder"])
+            if steps is None:
+                continue
+            label = c["info"]["method"] + (f" {c['info']['parameters']}" if c["info"]["parameters"] else "")
+            new_kf = np.diff(steps["keyframes"], prepend=0) > 0
+            graph.setdefault(label, []).append(steps["graph_update_ms"][new_kf])
+            loops.setdefault(label, []).append(steps["loop_detection_ms"][new_kf])
+            if c["info"]["seed"] == first_seed:
+                accounted = (steps["cloud_bytes"] + steps["cloud_disk_bytes"] + steps["descriptor_bytes"]
+                             + steps["graph_bytes"])
+                memory[label] = (steps["frame"], accounted, steps["rss_bytes"])
+        if not memory:
+            continue
+        slug = _slug(dataset)
+        plot_memory(folder / f"memory_{slug}.png", memory, title=f"{dataset}: memory over time")
+        plot_step_times(folder / f"step_times_{slug}.png", {
+            "incremental PGO (iSAM2) per keyframe step": {k: np.concatenate(v) for k, v in graph.items()},
+            "loop closure detection per keyframe step": {k: np.concatenate(v) for k, v in loops.items()}},
+            title=f"{dataset}: per-step time")
+        names += [f"memory_{slug}.png", f"step_times_{slug}.png"]
+    sweeps: dict[str, dict[str, dict[str, tuple[list, list]]]] = {}
+    swept_rows = [(c["info"], r) for c, r in zip(cells, rows) if c["info"].get("swept")]
+    for key in sorted({k for info, _ in swept_rows for k in info["swept"]}):
+        sweeps[key] = {}
+        for title, column in SWEEP_METRICS.items():
+            lines: dict[str, dict[float, list[float]]] = defaultdict(lambda: defaultdict(list))
+            for info, r in swept_rows:
+                if key in info["swept"] and r[column] is not None:
+                    lines[info["dataset"]][float(info["swept"][key])].append(r[column])
+            sweeps[key][title] = {ds: (sorted(pts), [float(np.mean(pts[x])) for x in sorted(pts)])
+                                  for ds, pts in lines.items()}
+    if sweeps:
+        plot_sweeps(folder / "distance_bounds.png", sweeps, title="swept parameters (means over seeds)")
+        names.append("distance_bounds.png")
+    return names
+
+
+def write_report(results_dir: str | os.PathLike, reference: str | None = None) -> Path:
+    """Write results.csv, results.md, figures/ and report.md into `results_dir`; return report.md."""
+    out = Path(results_dir)
+    if reference is None:
+        reference = _grid_reference(out)
+    cells = load_cells(out)
+    rows = make_rows(cells, reference)
+    write_text_atomic(out / "results.csv", rows_csv(rows))
+    table = table2_markdown(rows)
+    write_text_atomic(out / "results.md", table)
+    figures = _figures(cells, rows, reference, out / "figures") if rows else []
+    errors = sorted(p.stem for p in (out / "errors").glob("*.txt")) if (out / "errors").is_dir() else []
+    lines = [f"# Experiment results: {out.name}", "",
+             f"{len(rows)} finished cell(s)" + (f", {len(errors)} failed (see errors/)" if errors else "") + ". "
+             "ATE improvement: 100 (before - after) / before of the keyframe trajectory (SE(3)-aligned); memory: "
+             f"accounted bytes of keyframe clouds, descriptors and graph (vs the `{reference}` method); time: "
+             "back-end seconds (everything after odometry); p99: per-frame back-end latency.", "", table]
+    lines += [f"![{n}](figures/{n})" for n in figures]
+    lines += ["", "Per-cell results: cells/<id>/report.md; all rows: results.csv.", ""]
+    write_text_atomic(out / "report.md", "\n".join(lines))
+    return out / "report.md"
+
+
+def _grid_reference(out: Path) -> str:
+    import yaml
+
+    try:
+        return str((yaml.safe_load((out / "grid.yaml").read_text()) or {}).get("reference", "all"))
+    except (OSError, ValueError, AttributeError):
+        return "all"
