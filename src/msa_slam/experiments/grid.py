@@ -24,10 +24,10 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, Mapping, Union
+from typing import Any, Literal, Mapping
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from msa_slam.errors import InputError
 
@@ -62,18 +62,25 @@ class GridSpec(_Strict):
     pipeline: Literal["online", "batch"] = "online"
     datasets: list[str] = Field(min_length=1)
     descriptors: list[str] = Field(default_factory=lambda: ["sc"], min_length=1)
-    samplers: list[Union[str, SamplerSpec]] = Field(min_length=1)
+    samplers: list[SamplerSpec] = Field(min_length=1)
     parameters: dict[str, list[Any]] = Field(default_factory=dict)
     seeds: list[int] = Field(default_factory=lambda: [0], min_length=1)
     base: dict[str, Any] = Field(default_factory=dict)
     reference: str = "all"
     figures: bool = False
 
+    @model_validator(mode="before")
+    @classmethod
+    def _sampler_names(cls, data: Any) -> Any:
+        """A bare sampler name stands for {sampler: NAME}."""
+        if isinstance(data, dict) and isinstance(data.get("samplers"), list):
+            data = {**data, "samplers": [{"sampler": s} if isinstance(s, str) else s for s in data["samplers"]]}
+        return data
+
     def methods(self) -> list[tuple[str, str, dict[str, Any], dict[str, Any]]]:
         """(label, sampler, params, swept values) of every method after expanding sweeps."""
         out = []
         for spec in self.samplers:
-            spec = SamplerSpec(sampler=spec) if isinstance(spec, str) else spec
             label = spec.label or spec.sampler
             keys = list(spec.sweep)
             for values in itertools.product(*(spec.sweep[k] for k in keys)):
