@@ -1,0 +1,151 @@
+"""Online pipeline throughput per sampler on the HDL-64 simulated KITTI-05 trajectory.
+
+Scans are simulated once into memory (by default the demo's setting: every 3rd frame of the whole
+trajectory, 921 scans with its three revisit stretches, 720 azimuth steps) so the timings cover only the
+pipeline. Odometry is ground truth with seeded noise: KISS-ICP is timed apart on the first scans, since
+it alone takes ~0.2 s a scan here. Reported per sampler (median over --repeats runs): back-end frames per
+second (everything after odometry: descriptor, sampler, keyframe store, loop detection, verification,
+iSAM2), real-time factor at 10 Hz, milliseconds per frame of each stage, and per-frame latency p50/p99.
+Target: >= 20 back-end frames per second with MSA + Scan Context.
+
+    .venv/bin/python benchmarks/bench_online.py [--frames N] [--stride 3] [--repeats 3] [--samplers msa,all]
+
+`--scale` instead runs the long online runs once each, with MSA + Scan Context, keyframe clouds on disk and
+ground-truth + noise odometry: the whole KITTI-00 trajectory (4541 scans, 3.7 km) and the city tour driven
+10 times forth and back (25,900 scans, 22 km, every street revisited 9 times), scans simulated as the run
+goes (360 azimuth steps, to keep the ray casting short); it reports bytes per keyframe, accounted memory,
+RSS at 10 % and at the end of the run, and peak RSS.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+
+from msa_slam.datasets import Frame
+from msa_slam.odometry import KissOdometry
+from msa_slam.pipeline.online import BACKEND_STEPS, run_online
+from msa_slam.pipeline.online_config import make_online_config
+from msa_slam.pipeline.online_source import FrameSource, open_source
+
+SAMPLERS = {
+    "all": ("all", {}),
+    "constant-3m": ("constant", {"distance": 3.0}),
+    "entropy": ("entropy", {}),
+    "spaciousness": ("spaciousness", {}),
+    "msa": ("msa", {}),
+    "msa-fast": ("msa", {"mode": "fast"}),
+}
+
+
+def in_memory(spec: str, frames: int | None) -> FrameSource:
+    source = open_source(spec)
+    scans = []
+    t0 = time.perf_counter()
+    for i, frame in enumerate(source.frames()):
+        if frames is not None and i >= frames:
+            break
+        scans.append(frame)
+    print(f"simulated {len(scans)} scans of {spec} in {time.perf_counter() - t0:.0f} s "
+          f"({np.mean([len(f.points) for f in scans]):.0f} points each)")
+    gt = source.gt_poses[:len(scans)]
+    return FrameSource(source.name, gt, lambda: (Frame(f.index, f.time, f.points, f.gt_pose) for f in scans))
+
+
+def kiss_rate(source: FrameSource, n: int) -> float:
+    odometry = KissOdometry()
+    times = []
+    for i, frame in enumerate(source.frames()):
+        if i >= n:
+            break
+        t0 = time.perf_counter()
+        odometry.register(frame.points)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times[1:]))
+
+
+SCALE_RUNS = ("live:kitti-00,sensor=hdl64,azimuth_steps=360", "live:city-tour,sensor=hdl64,azimuth_steps=360,laps=10")
+
+
+def scale(quiet: bool) -> None:
+    import tempfile
+
+    head = ["run", "frames", "km", "keyframes", "loops", "false", "ATE odom -> iSAM2 [m]", "F1-max",
+            "bytes/keyframe (RAM + disk)", "accounted RAM MiB", "clouds on disk MiB", "RSS @10% MiB",
+            "RSS end MiB", "peak RSS MiB", "back-end fps", "p99 ms", "wall s"]
+    rows = []
+    for spec in SCALE_RUNS:
+        with tempfile.TemporaryDirectory(prefix="msa-scale-") as store:
+            cfg = make_online_config(dataset=spec, odometry="gt-noise", sampler="msa", cloud_store="disk",
+                                     store_dir=store)
+            t0 = time.perf_counter()
+            r = run_online(cfg, quiet=quiet)
+            wall = time.perf_counter() - t0
+        m, mem = r.metrics, r.memory
+        km = float(np.linalg.norm(np.diff(r.gt_poses[:, :3, 3], axis=0), axis=1).sum()) / 1e3
+        ram = mem["descriptor_bytes"][-1] + mem["graph_bytes"][-1] + mem["cloud_bytes"][-1]
+        mib = lambda b: f"{b / 2**20:.0f}"  # noqa: E731
+        rows.append([r.name, m["frames"], f"{km:.1f}", m["keyframes"], m["verified"], m["false_loops"],
+                     f"{m['before']['ate_translation_m']:.2f} -> {m['after']['ate_translation_m']:.2f}",
+                     f"{m['f1_max']:.3f}", f"{m['bytes_per_keyframe']:.0f}", mib(ram),
+                     mib(m["memory_bytes"]["keyframe_clouds_on_disk"]), mib(mem["rss_bytes"][len(mem["rss_bytes"]) // 10]),
+                     mib(mem["rss_bytes"][-1]), mib(m["peak_rss_bytes"]), f"{m['backend_fps']:.1f}",
+                     f"{m['latency_ms']['backend']['p99']:.1f}", f"{wall:.0f}"])
+        print("| " + " | ".join(head) + " |\n|" + "---|" * len(head) + "\n| " + " | ".join(map(str, rows[-1])) + " |",
+              flush=True)
+    print("\n| " + " | ".join(head) + " |")
+    print("|" + "---|" * len(head))
+    for row in rows:
+        print("| " + " | ".join(str(v) for v in row) + " |")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--frames", type=int, default=None, help="first N scans (default: all)")
+    parser.add_argument("--stride", type=int, default=3)
+    parser.add_argument("--azimuth-steps", type=int, default=720)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--kiss-frames", type=int, default=30)
+    parser.add_argument("--samplers", default=",".join(SAMPLERS))
+    parser.add_argument("--scale", action="store_true", help="the long runs (KITTI-00, 22 km tour) instead")
+    parser.add_argument("--quiet", action="store_true")
+    args = parser.parse_args()
+    if args.scale:
+        scale(args.quiet)
+        return
+    spec = f"live:kitti-05,sensor=hdl64,stride={args.stride},azimuth_steps={args.azimuth_steps}"
+    source = in_memory(spec, args.frames)
+    n = len(source)
+    kiss = kiss_rate(source, args.kiss_frames)
+    print(f"KISS-ICP alone: {kiss * 1e3:.0f} ms per scan = {1 / kiss:.1f} frames/s (median of {args.kiss_frames - 1})")
+    warm = make_online_config(dataset=spec, odometry="gt-noise", sampler="msa", max_frames=30)
+    run_online(warm, source)  # compile the numba kernels outside the measured runs
+    head = ["sampler", "keyframes", "loops", "back-end fps", "RTF", *[f"{s} ms" for s in BACKEND_STEPS],
+            "p50 ms", "p99 ms", "max ms"]
+    rows = []
+    for label in args.samplers.split(","):
+        sampler, params = SAMPLERS[label]
+        cfg = make_online_config(dataset=spec, odometry="gt-noise", sampler=sampler, sampler_params=params,
+                                 label=label)
+        runs = [run_online(cfg, source) for _ in range(args.repeats)]
+        pick = sorted(runs, key=lambda r: r.metrics["backend_fps"])[len(runs) // 2]  # the median run
+        m = pick.metrics
+        per_step = [statistics.median(float(r.steps_ms[s].sum()) / n for r in runs) for s in BACKEND_STEPS]
+        lat = m["latency_ms"]["backend"]
+        rows.append([label, m["keyframes"], m["verified"], f"{m['backend_fps']:.1f}",
+                     f"{m['backend_fps'] / 10:.2f}", *[f"{v:.2f}" for v in per_step],
+                     f"{lat['p50']:.1f}", f"{lat['p99']:.1f}", f"{lat['max']:.0f}"])
+        print(f"  {label}: {m['backend_fps']:.1f} fps (runs: "
+              + ", ".join(f"{r.metrics['backend_fps']:.1f}" for r in runs) + ")", flush=True)
+    print(f"\n{n} frames of {spec} (odometry: ground truth + noise; KISS-ICP: {1 / kiss:.1f} fps apart)\n")
+    print("| " + " | ".join(head) + " |")
+    print("|" + "---|" * len(head))
+    for row in rows:
+        print("| " + " | ".join(str(v) for v in row) + " |")
+
+
+if __name__ == "__main__":
+    main()
