@@ -161,3 +161,15 @@ def test_pr_figure_written(tmp_path):
     data = out.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000
     assert [p.name for p in (tmp_path / "figs").iterdir()] == ["pr.png"]
+
+
+def test_query_with_no_eligible_keyframe_returns_nothing():
+    db = KeyframeDatabase(ScanContext())
+    desc = np.ones((20, 60))
+    other = np.zeros((20, 60))
+    other[:, :5] = 1.0
+    db.add(0, np.eye(4), other)
+    db.add(1, np.eye(4), desc)
+    assert db.query(2, desc, exclude_frames=5) == []
+    assert db.query(2, desc, exclude_recent=2) == []
+    assert [m.keyframe_id for m in db.query(9, desc, exclude_frames=5)] == [1]

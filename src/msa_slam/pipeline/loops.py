@@ -61,10 +61,6 @@ def search_loops(keyframes: np.ndarray, descriptors: np.ndarray, odometry: np.nd
     best_sim, best_dist, candidates = [], [], []
     for frame in keyframes:
         frame = int(frame)
-        older = database.ids[: max(0, len(database) - exclude_recent)]
-        if not np.any(frame - older > min_frame_gap):  # nothing eligible yet (the search needs a bank)
-            database.add(frame, odometry[frame], descriptors[frame])
-            continue
         matches = database.query(frame, descriptors[frame], exclude_frames=min_frame_gap,
                                  exclude_recent=exclude_recent, threshold=0.0, top_k=max(1, top_k))
         for rank, match in enumerate(matches):

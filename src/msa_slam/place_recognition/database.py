@@ -166,9 +166,13 @@ class KeyframeDatabase:
         if self._n == 0:
             return []
         eligible = self._eligible(frame_id, exclude_frames, exclude_recent)
+        if not eligible.any():
+            return []
         if self._uses_two_stage(search):
             key = self.descriptor.search_key(descriptor)
             rows = self._index.candidates(self._keys[: self._n], key, eligible, n_candidates)
+            if len(rows) == 0:
+                return []
         else:
             rows = np.flatnonzero(eligible)
             if len(rows) == self._n:
