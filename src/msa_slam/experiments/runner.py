@@ -153,7 +153,7 @@ def _run_dask(todo: list[Cell], out: Path, figures: bool, scheduler: str | None,
     try:
         if client is None:
             if scheduler is not None:
-                client = own_client = Client(scheduler)
+                client = own_client = Client(scheduler, timeout="15s")
             else:
                 own_cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                            dashboard_address=None)
