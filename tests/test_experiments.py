@@ -95,7 +95,7 @@ def test_failing_cell_is_recorded_and_retried(tmp_path):
 def test_dask_local_cluster_runs_two_cells(tmp_path):
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
-                                  dashboard_address=None) as cluster, distributed.Client(cluster) as client:
+                                  dashboard_address=":0") as cluster, distributed.Client(cluster) as client:
         run = run_grid(parse_grid(TINY), tmp_path, client=client)
     assert sorted(run.ran) == sorted(c.id for c in expand(parse_grid(TINY))) and not run.failed
     assert len((tmp_path / "results.csv").read_text().splitlines()) == 3

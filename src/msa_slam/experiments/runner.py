@@ -156,7 +156,7 @@ def _run_dask(todo: list[Cell], out: Path, figures: bool, scheduler: str | None,
                 client = own_client = Client(scheduler, timeout="15s")
             else:
                 own_cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                           dashboard_address=None)
+                                           dashboard_address=":0")
                 client = own_client = Client(own_cluster)
         futures = {client.submit(run_cell, c.info(), c.config, str(out.resolve()), figures, key=f"cell-{c.id}",
                                  pure=False): c for c in todo}
