@@ -21,7 +21,7 @@ import numpy as np
 
 from msa_slam.sampling import make_sampler
 from msa_slam.sampling.msa_literal import literal_optimise_window
-from msa_slam.sampling.msa_window import ScoreWeights, optimise_window
+from msa_slam.sampling.msa_window import ExactWorkspace, ScoreWeights, optimise_window
 
 PARITY_DIR = Path(__file__).resolve().parents[2] / "shared" / "parity"
 MSA_NAME = re.compile(r"msa_N(\d+)_nn(\d+)_a([\d.]+)_b([\d.]+)_l([\d.]+)_u([\d.]+)$")
@@ -50,12 +50,13 @@ def literal_speedup(poses, desc, window: int = 10, windows: int = 12):
     """Median ms per window: one-at-a-time transcription vs exact vs fast on the same windows."""
     t = poses[:, :3, 3]
     weights = ScoreWeights()
+    workspace = ExactWorkspace()  # as the sampler keeps one across windows
     results = {"literal": [], "exact": [], "fast": []}
     starts = np.linspace(0, len(poses) - window, windows).astype(int)
     for s in starts:
         args = (t[s:s + window], desc[s:s + window], 0.1, 3.0)
         for name, call in (("literal", lambda: literal_optimise_window(*args, weights)),
-                           ("exact", lambda: optimise_window(*args, weights, "exact")),
+                           ("exact", lambda: optimise_window(*args, weights, "exact", workspace)),
                            ("fast", lambda: optimise_window(*args, weights, "fast"))):
             t0 = time.perf_counter()
             call()

@@ -225,3 +225,16 @@ def test_batched_exact_equals_one_at_a_time_transcription(shape):
         for weights in (ScoreWeights(), ScoreWeights(alpha=10.0), ScoreWeights(use_rho=False)):
             expected = literal_optimise_window(t, desc, 0.1, 2.5, weights)
             assert optimise_window(t, desc, 0.1, 2.5, weights, "exact") == expected
+
+
+def test_threaded_fast_path_equals_single_thread(monkeypatch):
+    from msa_slam.sampling import msa_window
+
+    rng = np.random.default_rng(4)
+    t = np.zeros((12, 3))
+    t[:, :2] = np.cumsum(rng.uniform(0.3, 1.0, (12, 2)), axis=0)
+    desc = np.cumsum(rng.standard_normal((12, 32)), axis=0)
+    single = optimise_window(t, desc, 0.1, 3.0, ScoreWeights(), "fast")
+    monkeypatch.setattr(msa_window, "PARALLEL_MIN_CANDIDATES", 1)
+    monkeypatch.setattr(msa_window.os, "cpu_count", lambda: 2)
+    assert optimise_window(t, desc, 0.1, 3.0, ScoreWeights(), "fast") == single
