@@ -154,10 +154,8 @@ class OnlinePipeline:
             self.clouds.add(k, points)
             self.graph.add_keyframe(k, self.odom[k])
             t = self._timed("keyframe_store", i, t)
-            older = self.database.ids[: max(0, len(self.database) - cfg.exclude_recent)]
-            matches = [] if not np.any(k - older > cfg.min_frame_gap) else self.database.query(
-                k, desc, exclude_frames=cfg.min_frame_gap, exclude_recent=cfg.exclude_recent, threshold=0.0,
-                top_k=cfg.top_k)
+            matches = self.database.query(k, desc, exclude_frames=cfg.min_frame_gap,
+                                          exclude_recent=cfg.exclude_recent, threshold=0.0, top_k=cfg.top_k)
             candidates = []
             for rank, match in enumerate(matches):
                 dist = float(np.linalg.norm(self.gt[k, :3, 3] - self.gt[match.keyframe_id, :3, 3]))
