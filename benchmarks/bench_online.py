@@ -91,7 +91,8 @@ def scale(quiet: bool) -> None:
         rows.append([r.name, m["frames"], f"{km:.1f}", m["keyframes"], m["verified"], m["false_loops"],
                      f"{m['before']['ate_translation_m']:.2f} -> {m['after']['ate_translation_m']:.2f}",
                      f"{m['f1_max']:.3f}", f"{m['bytes_per_keyframe']:.0f}", mib(ram),
-                     mib(m["memory_bytes"]["keyframe_clouds_on_disk"]), mib(mem["rss_bytes"][len(mem["rss_bytes"]) // 10]),
+                     mib(m["memory_bytes"]["keyframe_clouds_on_disk"]),
+                     mib(mem["rss_bytes"][len(mem["rss_bytes"]) // 10]),
                      mib(mem["rss_bytes"][-1]), mib(m["peak_rss_bytes"]), f"{m['backend_fps']:.1f}",
                      f"{m['latency_ms']['backend']['p99']:.1f}", f"{wall:.0f}"])
         print("| " + " | ".join(head) + " |\n|" + "---|" * len(head) + "\n| " + " | ".join(map(str, rows[-1])) + " |",

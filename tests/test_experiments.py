@@ -26,7 +26,8 @@ TINY = {
 
 @pytest.mark.parametrize("change, message", [
     ({"dataset": ["x"]}, r"unknown key 'dataset'; valid keys: name, pipeline, datasets, descriptors, samplers"),
-    ({"samplers": [{"sampler": "msa", "parms": {}}]}, r"g.yaml: unknown key 'samplers.0.parms'; valid keys: sampler, label"),
+    ({"samplers": [{"sampler": "msa", "parms": {}}]},
+     r"g.yaml: unknown key 'samplers.0.parms'; valid keys: sampler, label"),
     ({"samplers": [{"sampler": "msa", "params": {"alpha_": 2}}]}, r"unknown parameter\(s\) alpha_; it takes: window"),
     ({"samplers": ["nope"]}, "unknown sampler 'nope'"),
     ({"base": {"odometry": "gt-noise", "colud_store": "disk"}}, "unknown key 'colud_store'; valid keys: .*cloud_store"),

@@ -74,7 +74,8 @@ def test_online_step_times_and_latency(msa_run):
 def test_disk_store_gives_the_same_run_without_clouds_in_ram(coarse_runs):
     memory, disk, store = coarse_runs
     assert memory.keyframes.tolist() == disk.keyframes.tolist()
-    assert [(c.query, c.match, c.accepted) for c in memory.loops] == [(c.query, c.match, c.accepted) for c in disk.loops]
+    pairs = lambda run: [(c.query, c.match, c.accepted) for c in run.loops]  # noqa: E731
+    assert pairs(memory) == pairs(disk)
     assert memory.metrics["verified"] > 0
     np.testing.assert_allclose(memory.optimised, disk.optimised, atol=1e-6)
     assert disk.memory["cloud_bytes"].max() == 0
@@ -110,7 +111,8 @@ def test_noisy_odometry_is_exact_without_noise_and_seeded_with_it():
     exact = NoisyOdometry(gt, 0.0, 0.0)
     np.testing.assert_allclose(np.stack([exact.register() for _ in range(30)]), gt, atol=1e-9)
     a, b = NoisyOdometry(gt, seed=3), NoisyOdometry(gt, seed=3)
-    np.testing.assert_array_equal(np.stack([a.register() for _ in range(30)]), np.stack([b.register() for _ in range(30)]))
+    np.testing.assert_array_equal(np.stack([a.register() for _ in range(30)]),
+                                  np.stack([b.register() for _ in range(30)]))
     with pytest.raises(InputError, match="frame 30 requested"):
         a.register()
 

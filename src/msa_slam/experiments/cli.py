@@ -9,7 +9,8 @@ import typer
 
 
 def experiment_command(
-    grid: str = typer.Argument(..., help="grid YAML file, or a shipped preset: table2, ablation, distance_bounds, tiny"),
+    grid: str = typer.Argument(..., help="grid YAML file, or a shipped preset: table2, ablation, "
+                                          "distance_bounds, tiny"),
     scheduler: Optional[str] = typer.Option(None, help="Dask scheduler address (tcp://host:port); the output "
                                                        "folder must be on a file system the workers share"),
     workers: int = typer.Option(1, help="local worker processes (Dask LocalCluster) when no --scheduler"),

@@ -89,10 +89,10 @@ def _mean(rows: list[dict[str, Any]], key: str) -> tuple[float, float] | None:
     return (float(np.mean(values)), float(np.std(values))) if values else None
 
 
-def _cell(stat: tuple[float, float] | None, fmt: str, n: int) -> str:
+def _cell(stat: tuple[float, float] | None, fmt: str, n: int, unit: str = "") -> str:
     if stat is None:
         return "n/a"
-    return format(stat[0], fmt) + (f" ± {format(stat[1], fmt)}" if n > 1 else "")
+    return format(stat[0], fmt) + (f" ± {format(stat[1], fmt)}" if n > 1 else "") + unit
 
 
 def table2_markdown(rows: list[dict[str, Any]]) -> str:
@@ -110,11 +110,12 @@ def table2_markdown(rows: list[dict[str, Any]]) -> str:
         for method, rs in methods.items():
             n = len(rs)
             lines.append("| " + " | ".join([
-                method, _cell(_mean(rs, "keyframes"), ".0f", n), _cell(_mean(rs, "improvement_t_pct"), ".1f", n) + " %",
-                _cell(_mean(rs, "improvement_r_pct"), ".1f", n) + " %", _cell(_mean(rs, "f1_max"), ".3f", n),
-                _cell(_mean(rs, "memory_mib"), ".2f", n) + " MiB", _cell(_mean(rs, "memory_vs_reference_pct"), ".0f", n)
-                + " %", _cell(_mean(rs, "time_s"), ".1f", n) + " s", _cell(_mean(rs, "fps"), ".1f", n),
-                _cell(_mean(rs, "backend_p99_ms"), ".1f", n) + " ms"]) + " |")
+                method, _cell(_mean(rs, "keyframes"), ".0f", n), _cell(_mean(rs, "improvement_t_pct"), ".1f", n, " %"),
+                _cell(_mean(rs, "improvement_r_pct"), ".1f", n, " %"), _cell(_mean(rs, "f1_max"), ".3f", n),
+                _cell(_mean(rs, "memory_mib"), ".2f", n, " MiB"),
+                _cell(_mean(rs, "memory_vs_reference_pct"), ".0f", n, " %"),
+                _cell(_mean(rs, "time_s"), ".1f", n, " s"), _cell(_mean(rs, "fps"), ".1f", n),
+                _cell(_mean(rs, "backend_p99_ms"), ".1f", n, " ms")]) + " |")
         lines.append("")
     return "\n".join(lines)
 

@@ -40,9 +40,11 @@ def is_finished(out: Path, cell: Cell) -> bool:
 
 
 def clean_partials(out: Path) -> list[Path]:
-    """Remove temporary folders of cells interrupted by a crash or kill; return what was removed."""
+    """Remove temporary folders of cells interrupted by a crash or kill (and their on-disk keyframe stores);
+    return what was removed."""
     cells = Path(out) / "cells"
     stale = [p for p in cells.glob(".*.partial-*")] if cells.is_dir() else []
+    stale += [Path(out) / "stores"] if (Path(out) / "stores").is_dir() else []
     for path in stale:
         shutil.rmtree(path, ignore_errors=True)
     return stale

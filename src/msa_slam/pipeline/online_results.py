@@ -79,7 +79,8 @@ def _figures(result: OnlineResult, folder: Path) -> list[str]:
               TrajectoryPanel(f"{m['method']} iSAM2, ATE {m['after']['ate_translation_m']:.2f} m",
                               align_se3(result.optimised, gt)[:, :2, 3], result.ate_errors["optimised"], good, bad)]
     plot_trajectories(folder / "trajectories.png", result.gt_poses[:, :2, 3], panels,
-                      title=f"{m['sequence']}: {m['method']} online ({m['keyframes']} keyframes, {m['verified']} loops)")
+                      title=f"{m['sequence']}: {m['method']} online ({m['keyframes']} keyframes, "
+                            f"{m['verified']} loops)")
     frames = np.arange(len(result.odometry))
     plot_memory(folder / "memory.png", {m["method"]: (frames, accounted_bytes(result.memory),
                                                       result.memory["rss_bytes"])},
