@@ -108,9 +108,10 @@ class Cell:
     parameters: dict[str, Any]
     seed: int
     config: dict[str, Any]
+    index: int = 0  # position in the grid's expansion (report order)
 
     def info(self) -> dict[str, Any]:
-        return {"id": self.id, "pipeline": self.pipeline, "dataset": self.dataset, "descriptor": self.descriptor,
+        return {"id": self.id, "index": self.index, "pipeline": self.pipeline, "dataset": self.dataset, "descriptor": self.descriptor,
                 "method": self.method, "sampler": self.sampler, "swept": self.swept, "parameters": self.parameters,
                 "seed": self.seed}
 
@@ -196,7 +197,7 @@ def expand(grid: GridSpec, where: str = "grid") -> list[Cell]:
         name = _slug(f"{dataset.split(',')[0]}-{descriptor}-{label}"
                      + "".join(f"-{k}={v}" for k, v in parameters.items()) + f"-s{seed}")
         cells.append(Cell(f"{name}-{digest}", grid.pipeline, dataset, descriptor, label, sampler, swept, parameters,
-                          seed, config))
+                          seed, config, len(cells)))
     ids = [c.id for c in cells]
     if len(set(ids)) != len(ids):
         raise InputError(f"{where}: some cells have identical configs (repeated datasets, seeds or methods)")

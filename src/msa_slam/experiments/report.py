@@ -29,7 +29,7 @@ SWEEP_METRICS = {"t. ATE impr. [%]": "improvement_t_pct", "R. ATE impr. [%]": "i
 
 
 def load_cells(results_dir: str | os.PathLike) -> list[dict[str, Any]]:
-    """(cell info + metrics) of every finished cell, sorted by cell id."""
+    """(cell info + metrics) of every finished cell, in the grid's order (then by cell id)."""
     cells_dir = Path(results_dir) / "cells"
     if not cells_dir.is_dir():
         raise InputError(f"{results_dir}: not an experiment results folder (no cells/ inside)")
@@ -41,7 +41,7 @@ def load_cells(results_dir: str | os.PathLike) -> list[dict[str, Any]]:
         except (OSError, ValueError):
             continue
         out.append({"info": info, "metrics": metrics, "folder": folder})
-    return out
+    return sorted(out, key=lambda c: (c["info"].get("index", 0), c["info"]["id"]))
 
 
 def _group(info: dict[str, Any]) -> tuple:

@@ -67,6 +67,7 @@ def plot_ate_difference(path: str | Path, differences: Mapping[str, Sequence[flo
     ax.axhline(0.0, color="grey", lw=0.8)
     ax.set(ylabel="ATE - ATE(all) [m]", title=title)
     ax.grid(alpha=0.3, axis="y")
+    fig.tight_layout()
     return _save(fig, path)
 
 
