@@ -77,7 +77,7 @@ def plot_sweeps(path: str | Path,
     """sweeps: swept parameter -> metric -> line label (e.g. dataset) -> (values, metric means);
     one row per parameter, one column per metric (the paper's Fig. 9)."""
     params = list(sweeps)
-    metrics = sorted({m for p in params for m in sweeps[p]})
+    metrics = list(dict.fromkeys(m for p in params for m in sweeps[p]))
     fig, axes = plt.subplots(len(params), len(metrics), figsize=(3.6 * len(metrics), 3.0 * len(params)),
                              squeeze=False)
     for r, param in enumerate(params):
