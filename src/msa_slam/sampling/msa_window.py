@@ -325,7 +325,10 @@ def _information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nd
             total += d[i] * row
         e[j] = np.sqrt(max(total, 0.0))
     lo, hi = e.min(), e.max()
-    return np.mean((e - lo) / (hi - lo + EIGENVALUE_FLOOR))
+    total = 0.0
+    for j in range(m - 1):
+        total += (e[j] - lo) / (hi - lo + EIGENVALUE_FLOOR)
+    return total / (m - 1)
 
 
 @njit(cache=True)
