@@ -4,7 +4,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
+
+from msa_slam.io.poses import read_poses, write_poses
+from msa_slam.sim import DEFAULT_CONFIGS, simulate_sequence
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DIR = REPO_ROOT.parent / "shared"
@@ -21,3 +26,39 @@ def shared_path(*parts: str) -> Path:
 @pytest.fixture
 def shared() -> callable:
     return shared_path
+
+
+# Small simulated sequence shared by the pipeline tests (simulated once per session).
+
+def drifted(gt: np.ndarray, yaw_per_frame: float = 0.002, scale: float = 1.01) -> np.ndarray:
+    """Odometry with a known drift: every relative motion scaled and followed by a small yaw."""
+    rel = np.linalg.inv(gt[:-1]) @ gt[1:]
+    bias = np.eye(4)
+    bias[:3, :3] = Rotation.from_euler("z", yaw_per_frame).as_matrix()
+    out = [gt[0]]
+    for motion in rel:
+        step = motion.copy()
+        step[:3, 3] *= scale
+        out.append(out[-1] @ step @ bias)
+    return np.stack(out)
+
+
+@pytest.fixture(scope="session")
+def cache_dir(tmp_path_factory) -> Path:
+    path = tmp_path_factory.getbasetemp() / "msa-pipeline-cache"
+    path.mkdir(exist_ok=True)
+    return path
+
+
+@pytest.fixture(scope="session")
+def sequence(cache_dir) -> Path:
+    return simulate_sequence(DEFAULT_CONFIGS["test"], cache_dir=cache_dir)
+
+
+@pytest.fixture(scope="session")
+def odometry_file(sequence, cache_dir) -> Path:
+    gt, _ = read_poses(sequence / "poses.txt")
+    path = cache_dir / "drifted_odometry.txt"
+    if not path.exists():
+        write_poses(path, drifted(gt))
+    return path

@@ -6,20 +6,18 @@ import csv
 import json
 
 import pytest
-import yaml
 from typer.testing import CliRunner
 
 from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses
 from msa_slam.pipeline import load_config
-from test_pipeline import cache_dir, odometry_file, sequence  # noqa: F401  (shared session fixtures)
 
 runner = CliRunner()
 
 
 @pytest.fixture(scope="module")
-def run_folder(sequence, odometry_file, cache_dir, tmp_path_factory):  # noqa: F811
+def run_folder(sequence, odometry_file, cache_dir, tmp_path_factory):
     out = tmp_path_factory.mktemp("cli") / "run"
     result = runner.invoke(app, ["run", "--dataset", str(sequence), "--odometry", str(odometry_file),
                                  "--sampler", "constant", "--param", "distance=3", "--param", "graph.robust=huber",
@@ -30,7 +28,7 @@ def run_folder(sequence, odometry_file, cache_dir, tmp_path_factory):  # noqa: F
     return out
 
 
-def test_run_writes_config_and_metrics(run_folder, sequence):  # noqa: F811
+def test_run_writes_config_and_metrics(run_folder, sequence):
     cfg = load_config(run_folder / "config.yaml")
     assert cfg.sampler == "constant" and cfg.sampler_params == {"distance": 3}
     assert cfg.graph.robust == "huber" and cfg.dataset == str(sequence)
@@ -69,7 +67,7 @@ def test_run_writes_figures_and_report(run_folder):
     assert not [p for p in run_folder.parent.iterdir() if p.name.startswith(".")]  # no partial folders left
 
 
-def test_run_reports_bad_input(tmp_path, cache_dir):  # noqa: F811
+def test_run_reports_bad_input(tmp_path, cache_dir):
     result = runner.invoke(app, ["run", "--dataset", str(tmp_path / "missing"), "--cache-dir", str(cache_dir),
                                  "--out", str(tmp_path / "out"), "--quiet"])
     assert isinstance(result.exception, InputError) and "missing" in str(result.exception)

@@ -17,10 +17,9 @@ import yaml
 
 import msa_slam
 from msa_slam.evaluation import align_se3
-from msa_slam.io.poses import write_poses
 from msa_slam.pipeline.online import MEMORY, STEPS, OnlineResult
 from msa_slam.pipeline.online_figures import plot_memory, plot_step_times
-from msa_slam.pipeline.results import atomic_dir, write_json
+from msa_slam.pipeline.results import atomic_dir, loops_csv, write_json, write_trajectory_files
 from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.viz import TrajectoryPanel, plot_trajectories
 
@@ -40,30 +39,6 @@ def steps_csv(result: OnlineResult) -> str:
         writer.writerow([i, *(f"{result.steps_ms[s][i]:.3f}" for s in STEPS), f"{backend[i]:.3f}",
                          *(int(result.memory[m][i]) for m in MEMORY)])
     return buf.getvalue()
-
-
-def _loops_csv(result: OnlineResult) -> str:
-    buf = io.StringIO()
-    writer = csv.writer(buf)
-    writer.writerow(["query_frame", "match_frame", "similarity", "gt_distance_m", "registered", "accepted",
-                     "residual_m", "false_loop"])
-    radius = result.config.loop_radius
-    for c in result.loops:
-        writer.writerow([c.query, c.match, f"{c.similarity:.6f}", f"{c.gt_distance:.4f}", int(c.verified),
-                         int(c.accepted), f"{c.residual:.4f}", int(c.accepted and c.gt_distance > radius)])
-    return buf.getvalue()
-
-
-def _trajectories(result: OnlineResult, folder: Path) -> None:
-    folder.mkdir()
-    kf = result.keyframes
-    stamps = np.arange(len(result.odometry)) / result.config.sensor_rate_hz
-    for name, poses, t in (("optimised_keyframes", result.optimised, stamps[kf]),
-                           ("odometry_keyframes", result.odometry[kf], stamps[kf]),
-                           ("gt_keyframes", result.gt_poses[kf], stamps[kf]),
-                           ("odometry", result.odometry, stamps)):
-        write_poses(folder / f"{name}.kitti", poses, "kitti")
-        write_poses(folder / f"{name}.tum", poses, "tum", t)
 
 
 def _figures(result: OnlineResult, folder: Path) -> list[str]:
@@ -134,8 +109,10 @@ def write_online_files(result: OnlineResult, folder: Path, figures: bool = True)
     write_json(folder / "metrics.json", {**result.metrics, "msa_slam_version": msa_slam.__version__,
                                          "keyframe_frames": result.keyframes.tolist()})
     (folder / "steps.csv").write_text(steps_csv(result))
-    (folder / "loops.csv").write_text(_loops_csv(result))
-    _trajectories(result, folder / "trajectories")
+    (folder / "loops.csv").write_text(loops_csv(result.loops, result.config.loop_radius))
+    stamps = np.arange(len(result.odometry)) / result.config.sensor_rate_hz
+    write_trajectory_files(folder / "trajectories", result.keyframes, result.optimised, result.odometry,
+                           result.gt_poses, stamps)
     names = _figures(result, folder / "figures") if figures else []
     (folder / "report.md").write_text(_report(result, names))
 

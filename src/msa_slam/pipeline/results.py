@@ -77,26 +77,27 @@ def _frames_csv(result: BatchResult) -> str:
     return buf.getvalue()
 
 
-def _loops_csv(result: BatchResult) -> str:
+def loops_csv(loops, loop_radius: float) -> str:
+    """One row per loop candidate: match, similarity, GT distance, registration outcome, false-loop flag."""
     buf = io.StringIO()
     writer = csv.writer(buf)
     writer.writerow(["query_frame", "match_frame", "similarity", "gt_distance_m", "registered", "accepted",
                      "residual_m", "false_loop"])
-    radius = result.config.loop_radius
-    for c in result.loops:
+    for c in loops:
         writer.writerow([c.query, c.match, f"{c.similarity:.6f}", f"{c.gt_distance:.4f}", int(c.verified),
-                         int(c.accepted), f"{c.residual:.4f}", int(c.accepted and c.gt_distance > radius)])
+                         int(c.accepted), f"{c.residual:.4f}", int(c.accepted and c.gt_distance > loop_radius)])
     return buf.getvalue()
 
 
-def _write_trajectories(result: BatchResult, folder: Path) -> None:
-    fe, kf = result.frontend, result.keyframes
+def write_trajectory_files(folder: Path, keyframes: np.ndarray, optimised: np.ndarray, odometry: np.ndarray,
+                           gt_poses: np.ndarray, times: np.ndarray) -> None:
+    """Optimised, odometry and GT keyframe trajectories plus the full odometry, in KITTI and TUM formats."""
     folder.mkdir()
-    times = np.asarray(fe.sequence.times, dtype=np.float64)
-    for name, poses, stamps in (("optimised_keyframes", result.optimised, times[kf]),
-                                ("odometry_keyframes", fe.odometry[kf], times[kf]),
-                                ("gt_keyframes", fe.gt_poses[kf], times[kf]),
-                                ("odometry", fe.odometry, times)):
+    times = np.asarray(times, dtype=np.float64)
+    for name, poses, stamps in (("optimised_keyframes", optimised, times[keyframes]),
+                                ("odometry_keyframes", odometry[keyframes], times[keyframes]),
+                                ("gt_keyframes", gt_poses[keyframes], times[keyframes]),
+                                ("odometry", odometry, times)):
         write_poses(folder / f"{name}.kitti", poses, "kitti")
         write_poses(folder / f"{name}.tum", poses, "tum", stamps)
 
@@ -169,8 +170,10 @@ def write_run_files(result: BatchResult, folder: Path) -> None:
     write_json(folder / "metrics.json", {**result.metrics, "msa_slam_version": msa_slam.__version__,
                                          "keyframe_frames": result.keyframes.tolist()})
     (folder / "frames.csv").write_text(_frames_csv(result))
-    (folder / "loops.csv").write_text(_loops_csv(result))
-    _write_trajectories(result, folder / "trajectories")
+    (folder / "loops.csv").write_text(loops_csv(result.loops, result.config.loop_radius))
+    fe = result.frontend
+    write_trajectory_files(folder / "trajectories", result.keyframes, result.optimised, fe.odometry, fe.gt_poses,
+                           fe.sequence.times)
     figures = _write_figures(result, folder / "figures")
     (folder / "report.md").write_text(_report(result, figures))
 
