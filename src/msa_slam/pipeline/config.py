@@ -13,6 +13,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from msa_slam.errors import InputError
+from msa_slam.io.params import parse_key_value
 
 MODES = ("oracle", "realistic")
 
@@ -141,36 +142,34 @@ def apply_params(config: BatchConfig, params: list[str]) -> BatchConfig:
     `graph.robust=cauchy`), a stage parameter (`sampler.lambda_u=5`, `descriptor.n_sector=60`,
     `odometry.max_range=80`), or a bare sampler parameter (`lambda_u=5`).
     """
-    data = config.dump()
+    return make_config(apply_overrides(config.dump(), params, BatchConfig))
+
+
+def apply_overrides(data: dict, params: list[str], model: type[BaseModel]) -> dict:
+    """The config mapping `data` (fields of `model`) with each `key=value` override applied."""
+    data = dict(data)
     for item in params:
-        key, sep, raw = item.partition("=")
-        key = key.strip()
-        if not sep or not key:
-            raise InputError(f"--param {item!r}: expected key=value")
-        try:
-            value = yaml.safe_load(raw)
-        except yaml.YAMLError:
-            value = raw
+        key, value = parse_key_value(item)
         head, dot, tail = key.partition(".")
         if dot and head in _SECTIONS:
             data[_SECTIONS[head]] = {**data[_SECTIONS[head]], tail: value}
         elif dot and head in ("verifier", "graph"):
             data[head] = {**data[head], tail: value}
-        elif not dot and key in BatchConfig.model_fields:
+        elif not dot and key in model.model_fields:
             data[key] = value
         elif not dot:
-            _check_sampler_param(config.sampler, key)
+            _check_sampler_param(data["sampler"], key, model)
             data["sampler_params"] = {**data["sampler_params"], key: value}
         else:
             raise InputError(f"--param {key!r}: unknown section {head!r}; use one of "
                              f"{', '.join([*_SECTIONS, 'verifier', 'graph'])}")
-    return make_config(data)
+    return data
 
 
-def _check_sampler_param(sampler: str, key: str) -> None:
+def _check_sampler_param(sampler: str, key: str, model: type[BaseModel]) -> None:
     from msa_slam.sampling import sampler_parameters
 
     known = sampler_parameters(sampler)
     if key not in known:
-        raise InputError(f"--param {key!r}: not a config key ({', '.join(_fields(BatchConfig))}) nor a "
+        raise InputError(f"--param {key!r}: not a config key ({', '.join(_fields(model))}) nor a "
                          f"parameter of sampler {sampler!r} ({', '.join(known) or 'none'})")

@@ -16,36 +16,10 @@ ONLINE_PARAM_HELP = ("override as key=value (repeatable): a config key (cloud_st
 
 def apply_online_params(data: dict, params: List[str]):
     """`key=value` overrides (YAML values) on an online config mapping; returns a validated OnlineConfig."""
-    import yaml
-
-    from msa_slam.errors import InputError
-    from msa_slam.pipeline.config import _SECTIONS
+    from msa_slam.pipeline.config import apply_overrides
     from msa_slam.pipeline.online_config import OnlineConfig, make_online_config
-    from msa_slam.sampling import sampler_parameters
 
-    data = make_online_config(data).dump()
-    for item in params:
-        key, sep, raw = item.partition("=")
-        key = key.strip()
-        if not sep or not key:
-            raise InputError(f"--param {item!r}: expected key=value")
-        try:
-            value = yaml.safe_load(raw)
-        except yaml.YAMLError:
-            value = raw
-        head, dot, tail = key.partition(".")
-        if dot and head in _SECTIONS:
-            data[_SECTIONS[head]] = {**data[_SECTIONS[head]], tail: value}
-        elif dot and head in ("verifier", "graph"):
-            data[head] = {**data[head], tail: value}
-        elif not dot and key in OnlineConfig.model_fields:
-            data[key] = value
-        elif not dot and key in sampler_parameters(data["sampler"]):
-            data["sampler_params"] = {**data["sampler_params"], key: value}
-        else:
-            raise InputError(f"--param {key!r}: not a config key ({', '.join(OnlineConfig.model_fields)}), a "
-                             f"section field or a parameter of sampler {data['sampler']!r}")
-    return make_online_config(data)
+    return make_online_config(apply_overrides(make_online_config(data).dump(), params, OnlineConfig))
 
 
 def online_command(

@@ -8,7 +8,6 @@ from typing import Optional
 
 import numpy as np
 import typer
-import yaml
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
 
 from msa_slam import __version__
@@ -17,6 +16,7 @@ from msa_slam.datasets.sequences import folder_sequence
 from msa_slam.descriptors.precomputed import load_descriptor_file
 from msa_slam.errors import InputError
 from msa_slam.io.atomic import write_text_atomic
+from msa_slam.io.params import parse_key_value
 from msa_slam.io.poses import read_poses
 from msa_slam.sampling.figure import plot_keyframes
 from msa_slam.sampling.registry import SAMPLERS, make_sampler
@@ -24,13 +24,7 @@ from msa_slam.sampling.registry import SAMPLERS, make_sampler
 
 def parse_params(items: list[str]) -> dict:
     """`key=value` pairs; values parsed as YAML scalars (3 -> int, 0.5 -> float, true -> bool)."""
-    params = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise InputError(f"--param {item!r}: expected key=value")
-        params[key.strip()] = yaml.safe_load(value)
-    return params
+    return dict(parse_key_value(item) for item in items)
 
 
 def load_clouds(source: Path, n_frames: int) -> list[np.ndarray]:
