@@ -40,9 +40,9 @@ app.command("report")(report_command)
 
 
 def main() -> None:
-    """Entry point that turns InputError into one clear line and exit code 2."""
+    """Entry point: usage errors as click prints them; InputError as one clear line with exit code 2."""
     try:
-        app(standalone_mode=False)
+        app()
     except InputError as exc:
         typer.echo(f"error: {exc}", err=True)
         sys.exit(2)
