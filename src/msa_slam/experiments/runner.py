@@ -114,7 +114,7 @@ def run_grid(grid: GridSpec, out: str | os.PathLike, scheduler: str | None = Non
     `workers` single-threaded processes.
     """
     from msa_slam.experiments.report import write_report
-    from msa_slam.pipeline.progress import progress_bar
+    from msa_slam.progress import progress_bar
 
     if workers < 1:
         raise InputError(f"--workers must be >= 1, got {workers}")

@@ -9,9 +9,9 @@ from pathlib import Path
 from typing import Any, Mapping, Protocol, Sequence
 
 import numpy as np
-from rich.progress import Progress
 
 from msa_slam.io.atomic import atomic_path
+from msa_slam.progress import progress_bar
 from msa_slam.types import validate_poses
 
 
@@ -72,7 +72,7 @@ def sequence_odometry(frames: Sequence, odometry: Odometry, cache: OdometryCache
         if cached is not None:
             return cached
     poses = np.empty((len(frames), 4, 4))
-    with Progress(disable=quiet, transient=True) as progress:
+    with progress_bar(quiet) as progress:
         task = progress.add_task("odometry", total=len(frames))
         for i in range(len(frames)):
             poses[i] = odometry.register(frames[i].points)

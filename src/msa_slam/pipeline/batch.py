@@ -20,7 +20,7 @@ from msa_slam.evaluation import StageTimer, ate, improvement, peak_rss_bytes, rp
 from msa_slam.pipeline.config import BatchConfig
 from msa_slam.pipeline.frontend import Frontend, prepare_frontend
 from msa_slam.pipeline.loops import LoopCandidate, LoopSearch, search_loops, verify_candidates
-from msa_slam.pipeline.progress import progress_bar
+from msa_slam.progress import progress_bar
 from msa_slam.place_recognition import PRCurve, precision_recall
 from msa_slam.registration import KeyframeCloudStore, Verifier, VerifierConfig
 from msa_slam.sampling import make_sampler

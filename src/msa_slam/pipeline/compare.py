@@ -15,7 +15,7 @@ from typing import Any, Sequence
 from msa_slam.pipeline.batch import BatchResult, run_batch
 from msa_slam.pipeline.config import BatchConfig, make_config
 from msa_slam.pipeline.frontend import prepare_frontend
-from msa_slam.pipeline.progress import progress_bar
+from msa_slam.progress import progress_bar
 from msa_slam.pipeline.results import atomic_dir, trajectory_panels, write_json, write_run_files
 from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.viz import plot_metric_bars, plot_trajectories

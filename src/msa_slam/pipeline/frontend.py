@@ -22,7 +22,7 @@ from msa_slam.evaluation import StageTimer
 from msa_slam.io.atomic import atomic_path
 from msa_slam.odometry import KissOdometry, OdometryCache, PosesFromFile, sequence_odometry
 from msa_slam.pipeline.config import BatchConfig
-from msa_slam.pipeline.progress import progress_bar
+from msa_slam.progress import progress_bar
 from msa_slam.pipeline.source import open_sequence
 from msa_slam.sim.sequence import cache_root
 

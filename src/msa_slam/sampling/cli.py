@@ -8,7 +8,6 @@ from typing import Optional
 
 import numpy as np
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
 
 from msa_slam import __version__
 from msa_slam.datasets.clouds import read_cloud
@@ -18,6 +17,7 @@ from msa_slam.errors import InputError
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.params import parse_key_value
 from msa_slam.io.poses import read_poses
+from msa_slam.progress import progress_bar
 from msa_slam.sampling.figure import plot_keyframes
 from msa_slam.sampling.registry import SAMPLERS, make_sampler
 
@@ -69,8 +69,7 @@ def sample_command(
     if cloud_list is None and chosen.needs_points:
         raise InputError(f"sampler {sampler!r} needs --clouds (a folder of scans or an .npy array)")
 
-    with Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
-                  TimeRemainingColumn(), disable=quiet) as progress:
+    with progress_bar(quiet, transient=False) as progress:
         task = progress.add_task(f"sampling ({sampler})", total=n)
         for i in range(n):
             chosen.push(pose_stack[i], None if desc is None else desc[i],
