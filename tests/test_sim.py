@@ -272,7 +272,9 @@ def test_cli_simulate(tmp_path, monkeypatch, capsys):
     out = tmp_path / "cli"
     monkeypatch.setattr(sys, "argv", ["msa-slam", "simulate", "--trajectory", "kitti-07", "--end", "3",
                                       "--azimuth-steps", "64", "--out", str(out), "--quiet"])
-    main()
+    with pytest.raises(SystemExit) as done:
+        main()
+    assert done.value.code == 0
     assert capsys.readouterr().out.strip() == str(out) and len(os.listdir(out / "velodyne")) == 3
     monkeypatch.setattr(sys, "argv", ["msa-slam", "simulate", "--trajectory", "kitti-42", "-q"])
     with pytest.raises(SystemExit) as exc:
