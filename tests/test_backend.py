@@ -7,6 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from msa_slam.backend import GraphNoise, IncrementalPoseGraph, PoseGraph
+from msa_slam.backend.graph import FACTOR_BYTES
 from msa_slam.errors import InputError
 from msa_slam.evaluation import ate
 
@@ -131,3 +132,14 @@ def test_bad_noise_raises():
         GraphNoise(robust="tukey-ish")
     with pytest.raises(InputError, match="odometry_translation"):
         GraphNoise(odometry_translation=-1.0)
+
+
+def test_isam2_accounting_counts_loop_fill_in(square):
+    gt, odom = square
+    chain, looped = IncrementalPoseGraph(), IncrementalPoseGraph()
+    _build(chain, odom, gt, loop=False)
+    _build(looped, odom, gt, loop=True)
+    chain.update()
+    looped.update()
+    # one more factor alone adds FACTOR_BYTES; the loop's fill-in of the Bayes tree adds far more
+    assert looped.nbytes - chain.nbytes > 10 * FACTOR_BYTES

@@ -201,4 +201,7 @@ class IncrementalPoseGraph(_KeyframeGraph):
 
     @property
     def nbytes(self) -> int:
-        return super().nbytes + len(self._keys) * ISAM2_VARIABLE_BYTES
+        """Factors and values as in PoseGraph, per-variable iSAM2 state, and the Bayes tree's
+        conditional matrices as GTSAM counts them (treeNnz doubles), which grow with loop fill-in."""
+        return (super().nbytes + len(self._keys) * ISAM2_VARIABLE_BYTES
+                + (self._isam.treeNnz() * 8 if self._num_updated else 0))
