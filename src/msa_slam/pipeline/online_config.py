@@ -13,8 +13,6 @@ from pydantic import Field, ValidationError
 from msa_slam.errors import InputError
 from msa_slam.pipeline.config import BatchConfig, GraphSettings, VerifierSettings
 
-CLOUD_STORES = ("memory", "disk")
-
 
 class OnlineConfig(BatchConfig):
     """One online run (the paper's section V-B protocol).

@@ -84,12 +84,6 @@ def open_source(spec: str, kind: str = "auto", cache_dir: str | os.PathLike | No
     return FrameSource(sequence.name, sequence.gt_poses, lambda: iter(sequence), sequence.path)
 
 
-def constant_source(name: str, gt_poses: np.ndarray, scans: Callable[[int], np.ndarray]) -> FrameSource:
-    """A source from ground-truth poses and a function frame -> points (constructed streams, tests)."""
-    gt = validate_poses(gt_poses, f"source {name} poses")
-    return FrameSource(name, gt, lambda: (Frame(i, i * 0.1, scans(i), gt[i]) for i in range(len(gt))))
-
-
 class NoisyOdometry:
     """Odometry = ground-truth relative motions, each perturbed: step length scaled by 1 + N(0, t_noise),
     rotation by a random small rotation (std `rotation_noise_deg` per axis). Drift grows as a random walk."""

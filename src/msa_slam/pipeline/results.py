@@ -23,9 +23,6 @@ from msa_slam.pipeline.batch import BatchResult
 from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.viz import TrajectoryPanel, plot_trajectories
 
-RUN_FILES = ("config.yaml", "metrics.json", "frames.csv", "loops.csv", "report.md")
-
-
 @contextlib.contextmanager
 def atomic_dir(target: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary folder next to `target`; on success it replaces `target` (an older result)."""

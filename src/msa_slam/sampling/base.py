@@ -27,10 +27,6 @@ class SamplerStats:
     candidates_evaluated: int = 0
     optimisation_ms: list[float] = field(default_factory=list)
 
-    @property
-    def median_optimisation_ms(self) -> float:
-        return float(np.median(self.optimisation_ms)) if self.optimisation_ms else 0.0
-
     def as_dict(self) -> dict:
         times = np.asarray(self.optimisation_ms)
         return {
