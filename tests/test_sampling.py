@@ -238,3 +238,8 @@ def test_threaded_fast_path_equals_single_thread(monkeypatch):
     monkeypatch.setattr(msa_window, "PARALLEL_MIN_CANDIDATES", 1)
     monkeypatch.setattr(msa_window.os, "cpu_count", lambda: 2)
     assert optimise_window(t, desc, 0.1, 3.0, ScoreWeights(), "fast") == single
+
+
+def test_msa_without_descriptor_is_named():
+    with pytest.raises(InputError, match="msa: frame 0 needs a descriptor"):
+        make_sampler("msa").push(np.eye(4))

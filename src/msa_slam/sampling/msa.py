@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from msa_slam.errors import InputError
 from msa_slam.sampling.base import Sampler, Timer
 from msa_slam.sampling.msa_window import MODES, ExactWorkspace, ScoreWeights, optimise_window
 
@@ -74,7 +75,7 @@ class MSASampler(Sampler):
 
     def _push(self, index, pose, descriptor, points):
         if descriptor is None:
-            raise ValueError(f"msa: frame {index} needs a descriptor")
+            raise InputError(f"msa: frame {index} needs a descriptor")
         self._translation[index] = pose[:3, 3].copy()
         self._descriptor[index] = descriptor
         new: list[int] = []
