@@ -19,7 +19,7 @@ import msa_slam
 from msa_slam.evaluation import align_se3
 from msa_slam.pipeline.online import MEMORY, STEPS, OnlineResult
 from msa_slam.pipeline.online_figures import plot_memory, plot_step_times
-from msa_slam.pipeline.results import atomic_dir, loops_csv, write_json, write_trajectory_files
+from msa_slam.pipeline.results import atomic_dir, loops_csv, mib, write_json, write_trajectory_files
 from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.viz import TrajectoryPanel, plot_trajectories
 
@@ -73,10 +73,6 @@ def _figures(result: OnlineResult, folder: Path) -> list[str]:
     return names
 
 
-def _mib(n: float) -> str:
-    return f"{n / 2**20:.2f} MiB"
-
-
 def _report(result: OnlineResult, figures: list[str]) -> str:
     m = result.metrics
     b, a, imp, lat = m["before"], m["after"], m["improvement_pct"], m["latency_ms"]
@@ -91,8 +87,8 @@ def _report(result: OnlineResult, figures: list[str]) -> str:
         f"| ATE rotation [deg] | {b['ate_rotation_deg']:.3f} | {a['ate_rotation_deg']:.3f} | {imp['rotation']:.1f} % |",
         "", "| F1-max | memory (keyframes + graph) | bytes / keyframe | peak RSS | frames/s | back-end frames/s | "
         "real-time factor | back-end p99 [ms] |", "|---|---|---|---|---|---|---|---|",
-        f"| {f1} | {_mib(m['memory_bytes']['total'])} ({m['memory_bytes']['cloud_store']}) | "
-        f"{m['bytes_per_keyframe']:.0f} | {_mib(m['peak_rss_bytes'])} | {m['fps']:.1f} | {m['backend_fps']:.1f} | "
+        f"| {f1} | {mib(m['memory_bytes']['total'])} ({m['memory_bytes']['cloud_store']}) | "
+        f"{m['bytes_per_keyframe']:.0f} | {mib(m['peak_rss_bytes'])} | {m['fps']:.1f} | {m['backend_fps']:.1f} | "
         f"{m['realtime_factor']:.2f} | {lat['backend']['p99']:.1f} |", "",
         "Step totals [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in m["time_s"].items())
         + ("  (odometry replayed from cache)" if m.get("odometry_cached") else ""), "",

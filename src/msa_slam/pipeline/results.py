@@ -129,7 +129,8 @@ def _write_figures(result: BatchResult, folder: Path) -> list[str]:
     return names
 
 
-def _mib(n: float) -> str:
+def mib(n: float) -> str:
+    """Bytes as a MiB string for reports."""
     return f"{n / 2**20:.2f} MiB"
 
 
@@ -150,7 +151,7 @@ def _report(result: BatchResult, figures: list[str]) -> str:
         f"{a['rpe_translation_m']:.3f} | |",
         f"| RPE rotation [deg] | {b['rpe_rotation_deg']:.3f} | {a['rpe_rotation_deg']:.3f} | |", "",
         "| PR-AUC / F1-max | memory (keyframes + graph) | peak RSS | back-end time |", "|---|---|---|---|",
-        f"| {pr} | {_mib(m['memory_bytes']['total'])} | {_mib(m['peak_rss_bytes'])} | "
+        f"| {pr} | {mib(m['memory_bytes']['total'])} | {mib(m['peak_rss_bytes'])} | "
         f"{m['time_s']['backend_total']:.2f} s |", "",
         "Stage times [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in {**m['frontend_time_s'], **m['time_s']}.items())
         + ("  (front end from cache)" if all(m["frontend_cached"].values()) else ""), "",
