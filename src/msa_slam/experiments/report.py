@@ -5,8 +5,6 @@ distance-bound ablation (metrics against swept parameters, the paper's Fig. 9)."
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import os
 import re
@@ -19,6 +17,7 @@ import numpy as np
 from msa_slam.errors import InputError
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.pipeline.online_figures import plot_ate_difference, plot_memory, plot_step_times, plot_sweeps
+from msa_slam.pipeline.results import rows_csv
 
 COLUMNS = ("cell", "pipeline", "dataset", "descriptor", "method", "sampler", "seed", "parameters", "frames",
            "keyframes", "candidates", "verified", "false_loops", "ate_before_m", "ate_after_m", "improvement_t_pct",
@@ -74,14 +73,6 @@ def make_rows(cells: list[dict[str, Any]], reference: str = "all") -> list[dict[
             "backend_p99_ms": latency.get("p99"), "peak_rss_mib": m["peak_rss_bytes"] / 2**20,
         })
     return rows
-
-
-def rows_csv(rows: list[dict[str, Any]]) -> str:
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=COLUMNS)
-    writer.writeheader()
-    writer.writerows(rows)
-    return buf.getvalue()
 
 
 def _mean(rows: list[dict[str, Any]], key: str) -> tuple[float, float] | None:
@@ -197,7 +188,7 @@ def write_report(results_dir: str | os.PathLike, reference: str | None = None) -
         reference = _grid_reference(out)
     cells = load_cells(out)
     rows = make_rows(cells, reference)
-    write_text_atomic(out / "results.csv", rows_csv(rows))
+    write_text_atomic(out / "results.csv", rows_csv(rows, COLUMNS))
     table = table2_markdown(rows)
     write_text_atomic(out / "results.md", table)
     figures = _figures(cells, rows, reference, out / "figures") if rows else []

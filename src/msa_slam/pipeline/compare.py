@@ -6,8 +6,6 @@ and the comparison (Markdown + CSV + figures + report.md) sits at the top of the
 
 from __future__ import annotations
 
-import csv
-import io
 import os
 from pathlib import Path
 from typing import Any, Sequence
@@ -16,7 +14,7 @@ from msa_slam.pipeline.batch import BatchResult, run_batch
 from msa_slam.pipeline.config import BatchConfig, make_config
 from msa_slam.pipeline.frontend import prepare_frontend
 from msa_slam.progress import progress_bar
-from msa_slam.pipeline.results import atomic_dir, trajectory_panels, write_json, write_run_files
+from msa_slam.pipeline.results import atomic_dir, rows_csv, trajectory_panels, write_json, write_run_files
 from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.viz import plot_metric_bars, plot_trajectories
 
@@ -61,14 +59,6 @@ def table_markdown(rows: Sequence[dict[str, Any]]) -> str:
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     lines += ["| " + " | ".join(_fmt(r[c]) for c in COLUMNS) + " |" for r in rows]
     return "\n".join(lines) + "\n"
-
-
-def table_csv(rows: Sequence[dict[str, Any]]) -> str:
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=COLUMNS)
-    writer.writeheader()
-    writer.writerows(rows)
-    return buf.getvalue()
 
 
 def _figures(results: Sequence[BatchResult], folder: Path) -> list[str]:
@@ -142,7 +132,7 @@ def run_compare(base: BatchConfig, out: str | os.PathLike, quiet: bool = True,
         rows = [table_row(r.metrics) for r in results]
         table = table_markdown(rows)
         (tmp / "comparison.md").write_text(table)
-        (tmp / "comparison.csv").write_text(table_csv(rows))
+        (tmp / "comparison.csv").write_text(rows_csv(rows, COLUMNS))
         write_json(tmp / "comparison.json", [r.metrics for r in results])
         figures = _figures(results, tmp / "figures")
         (tmp / "report.md").write_text(_report(results, table, figures))

@@ -19,7 +19,7 @@ import msa_slam
 from msa_slam.evaluation import align_se3
 from msa_slam.pipeline.online import MEMORY, STEPS, OnlineResult
 from msa_slam.pipeline.online_figures import plot_memory, plot_step_times
-from msa_slam.pipeline.results import atomic_dir, loops_csv, mib, write_json, write_trajectory_files
+from msa_slam.pipeline.results import atomic_dir, loop_edges, loops_csv, mib, write_json, write_trajectory_files
 from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.viz import TrajectoryPanel, plot_trajectories
 
@@ -45,10 +45,7 @@ def _figures(result: OnlineResult, folder: Path) -> list[str]:
     folder.mkdir()
     m, kf = result.metrics, result.keyframes
     gt = result.gt_poses[kf]
-    row = {int(k): i for i, k in enumerate(kf)}
-    radius = result.config.loop_radius
-    good = [(row[c.match], row[c.query]) for c in result.accepted_loops if c.gt_distance <= radius]
-    bad = [(row[c.match], row[c.query]) for c in result.accepted_loops if c.gt_distance > radius]
+    good, bad = loop_edges(kf, result.accepted_loops, result.config.loop_radius)
     panels = [TrajectoryPanel(f"odometry, ATE {m['before']['ate_translation_m']:.2f} m",
                               align_se3(result.odometry[kf], gt)[:, :2, 3], result.ate_errors["odometry"], good, bad),
               TrajectoryPanel(f"{m['method']} iSAM2, ATE {m['after']['ate_translation_m']:.2f} m",

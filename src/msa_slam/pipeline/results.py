@@ -99,14 +99,28 @@ def write_trajectory_files(folder: Path, keyframes: np.ndarray, optimised: np.nd
         write_poses(folder / f"{name}.tum", poses, "tum", stamps)
 
 
+def loop_edges(keyframes: np.ndarray, accepted_loops, loop_radius: float) -> tuple[list, list]:
+    """Accepted loops as (match row, query row) pairs into the keyframe list: true ones, then false ones."""
+    row = {int(k): i for i, k in enumerate(keyframes)}
+    good = [(row[c.match], row[c.query]) for c in accepted_loops if c.gt_distance <= loop_radius]
+    bad = [(row[c.match], row[c.query]) for c in accepted_loops if c.gt_distance > loop_radius]
+    return good, bad
+
+
+def rows_csv(rows, columns) -> str:
+    """A table of dict rows as CSV with the given column order."""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=columns)
+    writer.writeheader()
+    writer.writerows(rows)
+    return buf.getvalue()
+
+
 def trajectory_panels(result: BatchResult) -> tuple[TrajectoryPanel, TrajectoryPanel]:
     """Odometry and optimised keyframe trajectories (SE(3)-aligned to GT) with their loops."""
     kf, fe = result.keyframes, result.frontend
     gt = fe.gt_poses[kf]
-    row = {int(k): i for i, k in enumerate(kf)}
-    radius = result.config.loop_radius
-    good = [(row[c.match], row[c.query]) for c in result.accepted_loops if c.gt_distance <= radius]
-    bad = [(row[c.match], row[c.query]) for c in result.accepted_loops if c.gt_distance > radius]
+    good, bad = loop_edges(kf, result.accepted_loops, result.config.loop_radius)
     m = result.metrics
     odom = align_se3(fe.odometry[kf], gt)[:, :2, 3]
     opt = align_se3(result.optimised, gt)[:, :2, 3]
