@@ -18,6 +18,6 @@ def test_input_error_is_one_line_without_traceback(tmp_path):
 
 
 def test_usage_error_names_the_missing_option():
-    result = run_cli("compare", "--dataset", "sim:test")
+    result = run_cli("sample", "--descriptors", "d.npy")
     assert result.returncode == 2
-    assert "Missing option '--out'" in result.stderr and "Traceback" not in result.stderr
+    assert "Missing option '--poses'" in result.stderr and "Traceback" not in result.stderr

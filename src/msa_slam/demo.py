@@ -11,19 +11,23 @@ import os
 import time
 from pathlib import Path
 
+from msa_slam.io.outputs import DEFAULT_RESULTS
 from msa_slam.pipeline.compare import run_compare
 from msa_slam.pipeline.config import make_config
 
 DEMO_DATASET = "sim:demo"
 
 
-def run_demo(out: str | os.PathLike = Path("msa_slam_results") / "demo", cache_dir: str | os.PathLike | None = None,
-             quiet: bool = False) -> Path:
-    """Run the comparison with the paper's settings (KISS-ICP, Scan Context, oracle loops); return report.md."""
+def run_demo(out: str | os.PathLike | None = None, cache_dir: str | os.PathLike | None = None,
+             quiet: bool = False, overwrite: bool = False) -> Path:
+    """Run the comparison with the paper's settings (KISS-ICP, Scan Context, oracle loops); return report.md.
+
+    `out=None` writes a new timestamped folder under msa_slam_results/demo (linked as `latest`)."""
     start = time.perf_counter()
     config = make_config(dataset=DEMO_DATASET, odometry="kiss", descriptor="sc", mode="oracle",
                          cache_dir=None if cache_dir is None else str(cache_dir))
-    report = run_compare(config, out, quiet=quiet)
+    report = run_compare(config, out, quiet=quiet, overwrite=overwrite,
+                         default_parent=DEFAULT_RESULTS / "demo")
     if not quiet:
         print(f"demo finished in {time.perf_counter() - start:.0f} s")
     return report

@@ -37,6 +37,7 @@ import msa_slam
 from msa_slam.errors import InputError
 
 MARKER = ".msa-slam-result"
+DEFAULT_RESULTS = Path("msa_slam_results")  # parent of the default timestamped output folders
 LATEST = "latest"
 _NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
 

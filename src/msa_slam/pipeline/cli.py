@@ -8,6 +8,15 @@ from typing import List, Optional
 import typer
 
 DATASET_HELP = "sequence folder (KITTI layout, scan folder) or sim:NAME (sim:demo, sim:test, sim:kitti-05,...)"
+OVERWRITE_HELP = "replace a previous msa-slam result in --out (never anything msa-slam did not write)"
+
+
+def out_help(command: str) -> str:
+    """--out help text: what the default is and what is refused."""
+    return (f"result folder (default: a new ./msa_slam_results/{command}/<date_time>, linked as latest); an existing "
+            "folder must be empty or a previous result (with --overwrite)")
+
+
 PARAM_HELP = ("override as key=value (repeatable): a config key (similarity_threshold=0.7), a section field "
               "(verifier.max_residual=0.2, graph.robust=cauchy), a stage parameter (sampler.lambda_u=5, "
               "odometry.max_range=80) or a bare sampler parameter")
@@ -38,18 +47,22 @@ def run_command(
     mode: Optional[str] = typer.Option(None, help="oracle (default, the paper) or realistic"),
     param: List[str] = typer.Option([], "--param", "-p", help=PARAM_HELP),
     config: Optional[Path] = typer.Option(None, help="YAML config (e.g. a result's config.yaml)"),
-    out: Optional[Path] = typer.Option(None, help="result folder (default ./msa_slam_results/<sequence>_<sampler>)"),
+    out: Optional[Path] = typer.Option(None, help=out_help("run")),
+    overwrite: bool = typer.Option(False, "--overwrite", help=OVERWRITE_HELP),
     cache_dir: Optional[Path] = typer.Option(None, help="cache root (default $MSA_SLAM_CACHE or ~/.cache/msa-slam)"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bars"),
 ) -> None:
     """Run one sampler through the batch experiment and write its result folder; prints its report.md."""
+    from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
     from msa_slam.pipeline.batch import run_batch
-    from msa_slam.pipeline.results import write_run
+    from msa_slam.pipeline.results import write_run_files
 
     cfg = _config(config, dataset, sampler, descriptor, odometry, mode, cache_dir, param)
-    result = run_batch(cfg, quiet=quiet)
-    target = out or Path("msa_slam_results") / f"{result.frontend.name}_{cfg.name}_{cfg.mode}"
-    typer.echo(str(write_run(result, target)))
+    with open_result_folder(out, "run", DEFAULT_RESULTS / "run", overwrite=overwrite) as folder:
+        result = run_batch(cfg, quiet=quiet)
+        with folder.staging() as tmp:
+            write_run_files(result, tmp)
+    typer.echo(str(folder.path / "report.md"))
 
 
 def compare_command(
@@ -59,7 +72,8 @@ def compare_command(
     mode: Optional[str] = typer.Option(None, help="oracle (default, the paper) or realistic"),
     param: List[str] = typer.Option([], "--param", "-p", help=PARAM_HELP),
     config: Optional[Path] = typer.Option(None, help="YAML config (its sampler is replaced by the method set)"),
-    out: Path = typer.Option(..., help="output folder of the comparison"),
+    out: Optional[Path] = typer.Option(None, help=out_help("compare")),
+    overwrite: bool = typer.Option(False, "--overwrite", help=OVERWRITE_HELP),
     cache_dir: Optional[Path] = typer.Option(None, help="cache root (default $MSA_SLAM_CACHE or ~/.cache/msa-slam)"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bars"),
 ) -> None:
@@ -68,11 +82,12 @@ def compare_command(
     from msa_slam.pipeline.compare import run_compare
 
     cfg = _config(config, dataset, None, descriptor, odometry, mode, cache_dir, param)
-    typer.echo(str(run_compare(cfg, out, quiet=quiet)))
+    typer.echo(str(run_compare(cfg, out, quiet=quiet, overwrite=overwrite)))
 
 
 def demo_command(
-    out: Path = typer.Option(Path("msa_slam_results") / "demo", help="output folder"),
+    out: Optional[Path] = typer.Option(None, help=out_help("demo")),
+    overwrite: bool = typer.Option(False, "--overwrite", help=OVERWRITE_HELP),
     cache_dir: Optional[Path] = typer.Option(None, help="cache root (default $MSA_SLAM_CACHE or ~/.cache/msa-slam)"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bars"),
 ) -> None:
@@ -80,5 +95,5 @@ def demo_command(
     processed with KISS-ICP on first use, then cached); prints the path of its report.md."""
     from msa_slam.demo import run_demo
 
-    report = run_demo(out, cache_dir=cache_dir, quiet=quiet)
+    report = run_demo(out, cache_dir=cache_dir, quiet=quiet, overwrite=overwrite)
     typer.echo(f"report: {report}")

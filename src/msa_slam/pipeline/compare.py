@@ -10,11 +10,12 @@ import os
 from pathlib import Path
 from typing import Any, Sequence
 
+from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
 from msa_slam.pipeline.batch import BatchResult, run_batch
 from msa_slam.pipeline.config import BatchConfig, make_config
 from msa_slam.pipeline.frontend import prepare_frontend
 from msa_slam.progress import progress_bar
-from msa_slam.pipeline.results import atomic_dir, rows_csv, trajectory_panels, write_json, write_run_files
+from msa_slam.pipeline.results import rows_csv, trajectory_panels, write_json, write_run_files
 from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.viz import plot_metric_bars, plot_trajectories
 
@@ -112,28 +113,40 @@ def method_configs(base: BatchConfig, methods: Sequence[tuple[str, str, dict[str
     return [make_config({**data, "sampler": s, "sampler_params": p, "label": label}) for label, s, p in methods]
 
 
-def run_compare(base: BatchConfig, out: str | os.PathLike, quiet: bool = True,
-                methods: Sequence[tuple[str, str, dict[str, Any]]] = PAPER_METHODS) -> Path:
-    """Run every method on the sequence of `base` and write the comparison folder; return its report.md."""
+def run_compare(base: BatchConfig, out: str | os.PathLike | None, quiet: bool = True,
+                methods: Sequence[tuple[str, str, dict[str, Any]]] = PAPER_METHODS, overwrite: bool = False,
+                default_parent: Path = DEFAULT_RESULTS / "compare") -> Path:
+    """Run every method on the sequence of `base` and write the comparison folder; return its report.md.
+
+    `out` is checked before any work (msa_slam.io.outputs; None: a new timestamped folder under
+    `default_parent`) and appears only when complete.
+    """
     configs = method_configs(base, methods)
-    frontend = prepare_frontend(configs[0], quiet)
+    with open_result_folder(out, "compare", default_parent, overwrite=overwrite) as folder:
+        frontend = prepare_frontend(configs[0], quiet)
+        with folder.staging() as tmp:
+            results = _run_methods(configs, frontend, tmp / "runs", quiet)
+            rows = [table_row(r.metrics) for r in results]
+            table = table_markdown(rows)
+            (tmp / "comparison.md").write_text(table)
+            (tmp / "comparison.csv").write_text(rows_csv(rows, COLUMNS))
+            write_json(tmp / "comparison.json", [r.metrics for r in results])
+            figures = _figures(results, tmp / "figures")
+            (tmp / "report.md").write_text(_report(results, table, figures))
+    return folder.path / "report.md"
+
+
+def _run_methods(configs: Sequence[BatchConfig], frontend, runs: Path, quiet: bool) -> list[BatchResult]:
+    """Each method's run folder under `runs`, in order."""
+    runs.mkdir()
     results = []
-    with atomic_dir(out) as tmp:
-        (tmp / "runs").mkdir()
-        with progress_bar(quiet, transient=False) as bar:
-            task = bar.add_task("methods", total=len(configs))
-            for cfg in configs:
-                bar.update(task, description=f"method {cfg.name}")
-                result = run_batch(cfg, frontend, quiet)
-                (tmp / "runs" / cfg.name).mkdir()
-                write_run_files(result, tmp / "runs" / cfg.name)
-                results.append(result)
-                bar.advance(task)
-        rows = [table_row(r.metrics) for r in results]
-        table = table_markdown(rows)
-        (tmp / "comparison.md").write_text(table)
-        (tmp / "comparison.csv").write_text(rows_csv(rows, COLUMNS))
-        write_json(tmp / "comparison.json", [r.metrics for r in results])
-        figures = _figures(results, tmp / "figures")
-        (tmp / "report.md").write_text(_report(results, table, figures))
-    return Path(out) / "report.md"
+    with progress_bar(quiet, transient=False) as bar:
+        task = bar.add_task("methods", total=len(configs))
+        for cfg in configs:
+            bar.update(task, description=f"method {cfg.name}")
+            result = run_batch(cfg, frontend, quiet)
+            (runs / cfg.name).mkdir()
+            write_run_files(result, runs / cfg.name)
+            results.append(result)
+            bar.advance(task)
+    return results

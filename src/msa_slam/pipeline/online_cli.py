@@ -7,6 +7,8 @@ from typing import List, Optional
 
 import typer
 
+from msa_slam.pipeline.cli import OVERWRITE_HELP, out_help
+
 ONLINE_DATASET_HELP = ("sequence folder, sim:NAME (cached on disk) or live:NAME[,field=value...,laps=K] "
                        "(simulated in memory, e.g. live:city-tour,laps=10)")
 ONLINE_PARAM_HELP = ("override as key=value (repeatable): a config key (cloud_store=disk, max_frames=500), "
@@ -31,7 +33,8 @@ def online_command(
     cloud_store: Optional[str] = typer.Option(None, help="memory (default) or disk (keyframe clouds as .npy)"),
     param: List[str] = typer.Option([], "--param", "-p", help=ONLINE_PARAM_HELP),
     config: Optional[Path] = typer.Option(None, help="YAML config (e.g. an online result's config.yaml)"),
-    out: Optional[Path] = typer.Option(None, help="result folder (default ./msa_slam_results/online_<seq>_<sampler>)"),
+    out: Optional[Path] = typer.Option(None, help=out_help("online")),
+    overwrite: bool = typer.Option(False, "--overwrite", help=OVERWRITE_HELP),
     cache_dir: Optional[Path] = typer.Option(None, help="cache root (default $MSA_SLAM_CACHE or ~/.cache/msa-slam)"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
 ) -> None:
@@ -41,7 +44,8 @@ def online_command(
 
     from msa_slam.errors import InputError
     from msa_slam.pipeline.online import run_online
-    from msa_slam.pipeline.online_results import write_online
+    from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
+    from msa_slam.pipeline.online_results import write_online_files
 
     data = {}
     if config is not None:
@@ -58,6 +62,8 @@ def online_command(
     if "dataset" not in data:
         raise InputError("--dataset is required (a sequence folder, sim:NAME or live:NAME), or give --config")
     cfg = apply_online_params(data, param)
-    result = run_online(cfg, quiet=quiet)
-    target = out or Path("msa_slam_results") / f"online_{result.name}_{cfg.name}_{cfg.mode}"
-    typer.echo(str(write_online(result, target)))
+    with open_result_folder(out, "online", DEFAULT_RESULTS / "online", overwrite=overwrite) as folder:
+        result = run_online(cfg, quiet=quiet)
+        with folder.staging() as tmp:
+            write_online_files(result, tmp)
+    typer.echo(str(folder.path / "report.md"))

@@ -2,7 +2,7 @@
 config.yaml, metrics.json, steps.csv (per frame: step times, memory), loops.csv, trajectories (KITTI + TUM),
 figures (trajectories, memory over time, per-step times, PR curve) and report.md.
 
-Reuses the batch pipeline's atomic folder and JSON writer (msa_slam.pipeline.results).
+Reuses the batch pipeline's writers (msa_slam.pipeline.results); folders appear atomically (msa_slam.io.outputs).
 """
 
 from __future__ import annotations
@@ -17,9 +17,10 @@ import yaml
 
 import msa_slam
 from msa_slam.evaluation import align_se3
+from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
 from msa_slam.pipeline.online import MEMORY, STEPS, OnlineResult
 from msa_slam.pipeline.online_figures import plot_memory, plot_step_times
-from msa_slam.pipeline.results import atomic_dir, loop_edges, loops_csv, mib, write_json, write_trajectory_files
+from msa_slam.pipeline.results import loop_edges, loops_csv, mib, write_json, write_trajectory_files
 from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.viz import TrajectoryPanel, plot_trajectories
 
@@ -110,8 +111,11 @@ def write_online_files(result: OnlineResult, folder: Path, figures: bool = True)
     (folder / "report.md").write_text(_report(result, names))
 
 
-def write_online(result: OnlineResult, out: str | os.PathLike, figures: bool = True) -> Path:
-    """Write the result folder `out` atomically; return the path of its report.md."""
-    with atomic_dir(out) as tmp:
-        write_online_files(result, tmp, figures)
-    return Path(out) / "report.md"
+def write_online(result: OnlineResult, out: str | os.PathLike | None, figures: bool = True,
+                 overwrite: bool = False) -> Path:
+    """Write the result folder `out` atomically (checked as `open_result_folder` does; None: a new timestamped
+    folder under msa_slam_results/online); return the path of its report.md."""
+    with open_result_folder(out, "online", DEFAULT_RESULTS / "online", overwrite=overwrite) as folder:
+        with folder.staging() as tmp:
+            write_online_files(result, tmp, figures)
+    return folder.path / "report.md"

@@ -1,46 +1,26 @@
 """Result folder of one run: config.yaml, metrics.json, frames.csv, loops.csv, trajectories (KITTI + TUM),
-figures and report.md. The folder is built under a temporary name and renamed when complete."""
+figures and report.md. The folder is built under a temporary name and moved into place when complete
+(msa_slam.io.outputs)."""
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import io
 import json
 import os
-import shutil
-import tempfile
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 import yaml
 
 import msa_slam
 from msa_slam.evaluation import align_se3
+from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
 from msa_slam.io.poses import write_poses
 from msa_slam.pipeline.batch import BatchResult
 from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.viz import TrajectoryPanel, plot_trajectories
-
-@contextlib.contextmanager
-def atomic_dir(target: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary folder next to `target`; on success it replaces `target` (an older result)."""
-    target = Path(target)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=target.parent))
-    try:
-        yield tmp
-        if target.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
-            os.replace(target, old / "previous")
-            os.replace(tmp, target)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, target)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-
 
 def _json_default(value: Any) -> Any:
     if isinstance(value, (np.integer, np.floating)):
@@ -190,8 +170,10 @@ def write_run_files(result: BatchResult, folder: Path) -> None:
     (folder / "report.md").write_text(_report(result, figures))
 
 
-def write_run(result: BatchResult, out: str | os.PathLike) -> Path:
-    """Write the result folder `out` atomically; return the path of its report.md."""
-    with atomic_dir(out) as tmp:
-        write_run_files(result, tmp)
-    return Path(out) / "report.md"
+def write_run(result: BatchResult, out: str | os.PathLike | None, overwrite: bool = False) -> Path:
+    """Write the result folder `out` atomically (checked as `open_result_folder` does; None: a new timestamped
+    folder under msa_slam_results/run); return the path of its report.md."""
+    with open_result_folder(out, "run", DEFAULT_RESULTS / "run", overwrite=overwrite) as folder:
+        with folder.staging() as tmp:
+            write_run_files(result, tmp)
+    return folder.path / "report.md"

@@ -14,7 +14,7 @@ from msa_slam.datasets.clouds import read_cloud
 from msa_slam.datasets.sequences import folder_sequence
 from msa_slam.descriptors.precomputed import load_descriptor_file
 from msa_slam.errors import InputError
-from msa_slam.io.atomic import write_text_atomic
+from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
 from msa_slam.io.params import parse_key_value
 from msa_slam.io.poses import read_poses
 from msa_slam.progress import progress_bar
@@ -53,7 +53,10 @@ def sample_command(
     sampler: str = typer.Option("msa", "--sampler", help=f"One of: {', '.join(SAMPLERS)}."),
     param: list[str] = typer.Option([], "--param", "-p", help="Sampler parameter key=value (repeatable)."),
     pose_format: str = typer.Option("auto", "--pose-format", help="auto, kitti or tum."),
-    out: Path = typer.Option(Path("msa_slam_results/sample"), "--out", help="Output folder."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Output folder (default: a new ./msa_slam_results/sample/"
+                                       "<date_time>, linked as latest); an existing folder must be empty or a "
+                                       "previous result (with --overwrite)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a previous msa-slam result in --out."),
     flush: bool = typer.Option(False, "--flush", help="Flush the last window at the end (reported apart)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
@@ -69,25 +72,26 @@ def sample_command(
     if cloud_list is None and chosen.needs_points:
         raise InputError(f"sampler {sampler!r} needs --clouds (a folder of scans or an .npy array)")
 
-    with progress_bar(quiet, transient=False) as progress:
-        task = progress.add_task(f"sampling ({sampler})", total=n)
-        for i in range(n):
-            chosen.push(pose_stack[i], None if desc is None else desc[i],
-                        None if cloud_list is None else cloud_list[i])
-            progress.advance(task)
-    flushed = chosen.finish() if flush else []
-
-    out.mkdir(parents=True, exist_ok=True)
-    keyframes = chosen.keyframes
-    write_text_atomic(out / "keyframes.txt", "".join(f"{k}\n" for k in keyframes))
-    record = {
-        "version": __version__, "sampler": sampler, "params": params,
-        "inputs": {"poses": str(poses), "descriptors": str(descriptors) if descriptors else None,
-                   "clouds": str(clouds) if clouds else None},
-        "frames": n, "keyframes": keyframes, "online_keyframes": chosen.online_keyframes,
-        "flushed_keyframes": flushed, "stats": chosen.stats.as_dict(),
-    }
-    write_text_atomic(out / "keyframes.json", json.dumps(record, indent=2) + "\n")
-    plot_keyframes(pose_stack, keyframes, out / "keyframes.png",
-                   title=f"{sampler}: {len(keyframes)} of {n} frames", flushed=flushed)
-    typer.echo(f"{len(keyframes)} keyframes of {n} frames -> {out}/keyframes.txt, keyframes.json, keyframes.png")
+    with open_result_folder(out, "sample", DEFAULT_RESULTS / "sample", overwrite=overwrite) as folder:
+        with progress_bar(quiet, transient=False) as progress:
+            task = progress.add_task(f"sampling ({sampler})", total=n)
+            for i in range(n):
+                chosen.push(pose_stack[i], None if desc is None else desc[i],
+                            None if cloud_list is None else cloud_list[i])
+                progress.advance(task)
+        flushed = chosen.finish() if flush else []
+        keyframes = chosen.keyframes
+        record = {
+            "version": __version__, "sampler": sampler, "params": params,
+            "inputs": {"poses": str(poses), "descriptors": str(descriptors) if descriptors else None,
+                       "clouds": str(clouds) if clouds else None},
+            "frames": n, "keyframes": keyframes, "online_keyframes": chosen.online_keyframes,
+            "flushed_keyframes": flushed, "stats": chosen.stats.as_dict(),
+        }
+        with folder.staging() as tmp:  # the three files appear together or not at all
+            (tmp / "keyframes.txt").write_text("".join(f"{k}\n" for k in keyframes))
+            (tmp / "keyframes.json").write_text(json.dumps(record, indent=2) + "\n")
+            plot_keyframes(pose_stack, keyframes, tmp / "keyframes.png",
+                           title=f"{sampler}: {len(keyframes)} of {n} frames", flushed=flushed)
+    target = folder.path
+    typer.echo(f"{len(keyframes)} keyframes of {n} frames -> {target}/keyframes.txt, keyframes.json, keyframes.png")
