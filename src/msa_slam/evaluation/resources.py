@@ -1,4 +1,9 @@
-"""Memory and time accounting: bytes of what a stage keeps, peak RSS of the process, wall time per stage."""
+"""Memory and time accounting: bytes of what a stage keeps, peak RSS of the process, wall time per stage.
+
+Per-method memory is the accounted bytes (`array_bytes` and the stores' `nbytes`). Peak RSS is the whole
+process's high-water mark since it started: methods run one after another in one process all see the
+largest of them (and the front end), so reports print it once, as a process figure (PROCESS_RSS_LABEL).
+"""
 
 from __future__ import annotations
 
@@ -10,6 +15,8 @@ from typing import Iterator
 
 import numpy as np
 
+PROCESS_RSS_LABEL = "process peak RSS (whole process, not this method)"
+
 
 def array_bytes(*arrays: np.ndarray | None) -> int:
     """Accounted memory of numpy arrays (their data buffers); None entries count as zero."""
@@ -17,7 +24,8 @@ def array_bytes(*arrays: np.ndarray | None) -> int:
 
 
 def peak_rss_bytes() -> int:
-    """Peak resident set size of this process so far (ru_maxrss is KiB on Linux, bytes on macOS)."""
+    """Peak resident set size of the whole process so far, not of one stage or method (ru_maxrss is KiB on
+    Linux, bytes on macOS)."""
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return int(peak if sys.platform == "darwin" else peak * 1024)
 

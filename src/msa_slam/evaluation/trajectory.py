@@ -1,7 +1,11 @@
 """Trajectory error metrics through evo (Grupp, 2017): ATE after SE(3) Umeyama alignment, RPE, % improvement.
 
 ATE translation is the RMSE of position errors in metres; ATE rotation the RMSE of the rotation-angle
-errors in degrees, both after aligning the estimate to the reference with a rigid (no scale) Umeyama fit.
+errors in degrees, both after aligning the estimate to the reference with a rigid (no scale) Umeyama fit
+(ATE_ALIGNMENT). That fit needs reference positions spread in at least two directions: a stationary or
+rotation-only trajectory (or a perfectly straight one) leaves it undetermined (AlignmentError), and a short or
+nearly straight one leaves the rotation about the direction of travel poorly determined, so the rotation ATE
+mostly measures that fit (`alignment_warnings`).
 """
 
 from __future__ import annotations
@@ -10,7 +14,7 @@ import copy
 from dataclasses import dataclass
 
 import numpy as np
-from evo.core import filters, metrics
+from evo.core import filters, geometry, metrics
 from evo.core.trajectory import PosePath3D
 from evo.core.units import Unit
 
@@ -18,6 +22,18 @@ from msa_slam.errors import InputError
 from msa_slam.types import validate_poses
 
 RPE_UNITS = {"frames": Unit.frames, "meters": Unit.meters}
+ATE_ALIGNMENT = "SE(3) Umeyama (rotation + translation, no scale)"
+# Standard deviation of the reference positions along their second principal axis, metres: below
+# DEGENERATE_SPREAD_M the fit is undetermined; below STABLE_SPREAD_M its rotation about the travel direction
+# rests on a few centimetres of lateral spread.
+DEGENERATE_SPREAD_M = 1e-3
+STABLE_SPREAD_M = 2.0
+STABLE_POSES = 10
+STABLE_PATH_M = 10.0
+
+
+class AlignmentError(InputError):
+    """The Umeyama fit is undetermined (reference positions on a point or a line)."""
 
 
 @dataclass(frozen=True)
@@ -53,19 +69,57 @@ def _summary(trans: np.ndarray, rot: np.ndarray) -> TrajectoryError:
     return TrajectoryError(float(np.sqrt(np.mean(trans**2))), float(np.sqrt(np.mean(rot**2))), trans, rot)
 
 
+def second_spread(positions: np.ndarray) -> float:
+    """Standard deviation (m) of (N, 3) positions along their second principal axis: 0 on a point or a line."""
+    centred = positions - positions.mean(axis=0)
+    singular = np.linalg.svd(centred, compute_uv=False)
+    return float(singular[1] / np.sqrt(len(positions))) if len(singular) > 1 else 0.0
+
+
+def alignment_warnings(reference: np.ndarray) -> list[str]:
+    """Why an SE(3) fit to these reference poses would leave the rotation poorly determined (empty if stable)."""
+    ref = validate_poses(reference, "reference trajectory")
+    positions = ref[:, :3, 3]
+    path = float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum())
+    spread = second_spread(positions)
+    out = []
+    if len(ref) < STABLE_POSES:
+        out.append(f"only {len(ref)} poses (fewer than {STABLE_POSES})")
+    if path < STABLE_PATH_M:
+        out.append(f"ground-truth path {path:.1f} m (shorter than {STABLE_PATH_M:g} m)")
+    if spread < STABLE_SPREAD_M:
+        out.append(f"nearly straight: ground-truth positions spread {spread:.3f} m across the main direction "
+                   f"(less than {STABLE_SPREAD_M:g} m)")
+    return out
+
+
+def _align(est: PosePath3D, ref: PosePath3D) -> PosePath3D:
+    spread = second_spread(ref.positions_xyz)
+    if spread < DEGENERATE_SPREAD_M:
+        raise AlignmentError(f"SE(3) alignment undetermined: the {ref.num_poses} ground-truth positions lie on a "
+                             f"point or a line (spread {spread:.2g} m across it; stationary, rotation-only or "
+                             "straight trajectory)")
+    est = copy.deepcopy(est)
+    try:
+        est.align(ref, correct_scale=False)
+    except geometry.GeometryException as exc:
+        raise AlignmentError(f"SE(3) alignment undetermined: {exc}") from exc
+    return est
+
+
 def align_se3(estimate: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """`estimate` moved by the rigid transform that best fits its positions to `reference` (Umeyama)."""
+    """`estimate` moved by the rigid transform that best fits its positions to `reference` (Umeyama);
+    AlignmentError when the reference positions do not determine that transform."""
     est, ref = _paths(estimate, reference, minimum=3)
-    est.align(ref, correct_scale=False)
-    return np.stack(est.poses_se3)
+    return np.stack(_align(est, ref).poses_se3)
 
 
 def ate(estimate: np.ndarray, reference: np.ndarray, align: bool = True) -> TrajectoryError:
-    """Absolute trajectory error of matching (N, 4, 4) pose stacks; SE(3)-aligned first when `align`."""
+    """Absolute trajectory error of matching (N, 4, 4) pose stacks; SE(3)-aligned first when `align`
+    (AlignmentError when the reference positions do not determine the alignment)."""
     est, ref = _paths(estimate, reference, minimum=3 if align else 1)
     if align:
-        est = copy.deepcopy(est)
-        est.align(ref, correct_scale=False)
+        est = _align(est, ref)
     return _summary(*_errors(ref, est, metrics.APE))
 
 

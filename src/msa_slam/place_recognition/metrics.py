@@ -5,6 +5,10 @@ thresholds 0.00..0.99: TP = sim >= thr and dist <= max_distance; FP = sim > thr 
 max_distance (the reference uses a strict '>' here; `strict_false_positive=False` uses '>=');
 FN = sim < thr and dist <= max_distance. Precision is 1 when nothing is predicted, recall 0 when
 nothing is positive, F1 0 when both are 0. PR-AUC = trapezoid area under precision over recall.
+
+PR-AUC and F1-max are None (with the reason in `unavailable`) when they would only restate those
+conventions: no recorded match, no match within `max_distance` (recall undefined: the score would read
+0), no match beyond it (nothing to reject: it would read 1) or no match reaching any threshold.
 """
 
 from __future__ import annotations
@@ -21,21 +25,23 @@ DEFAULT_THRESHOLDS = np.arange(100) / 100.0
 
 @dataclass(frozen=True)
 class PRCurve:
-    """Precision, recall and F1 per threshold, with PR-AUC and F1-max."""
+    """Precision, recall and F1 per threshold, with PR-AUC and F1-max (None, and why, when uninformative)."""
 
     thresholds: np.ndarray
     precision: np.ndarray
     recall: np.ndarray
     f1: np.ndarray
-    auc: float
-    f1_max: float
-    f1_max_threshold: float
+    auc: float | None
+    f1_max: float | None
+    f1_max_threshold: float | None
+    unavailable: str | None = None
 
     def as_dict(self) -> dict:
         return {
             "pr_auc": self.auc,
             "f1_max": self.f1_max,
             "f1_max_threshold": self.f1_max_threshold,
+            "unavailable": self.unavailable,
             "thresholds": self.thresholds.tolist(),
             "precision": self.precision.tolist(),
             "recall": self.recall.tolist(),
@@ -69,6 +75,24 @@ def precision_recall(
     recall = np.where(tp + fn > 0, tp / np.maximum(tp + fn, 1), 0.0)
     denom = precision + recall
     f1 = np.where(denom > 0, 2 * precision * recall / np.where(denom > 0, denom, 1.0), 0.0)
+    reason = _unavailable(near, tp + fp, max_distance)
+    if reason is not None:
+        return PRCurve(thr, precision, recall, f1, None, None, None, reason)
     best = int(np.argmax(f1))
-    auc = float(-trapezoid(precision, recall))
+    auc = float(-trapezoid(precision, recall)) + 0.0  # + 0.0: no negative zero
     return PRCurve(thr, precision, recall, f1, auc, float(f1[best]), float(thr[best]))
+
+
+def _unavailable(near: np.ndarray, predicted: np.ndarray, max_distance: float) -> str | None:
+    """Why PR-AUC and F1-max carry no information about these matches (None when they do)."""
+    if near.size == 0:
+        return "no loop query had a match to score"
+    if not near.any():
+        return (f"none of the {near.size} queries' best matches lies within {max_distance:g} m in ground truth "
+                "(no revisit): recall is undefined")
+    if near.all():
+        return (f"all {near.size} queries' best matches lie within {max_distance:g} m in ground truth "
+                "(no wrong match to reject): precision is 1 by construction")
+    if not predicted.any():
+        return "no match reached the lowest similarity threshold"
+    return None

@@ -1,0 +1,30 @@
+"""How reports print metrics: "n/a" for a missing value (its reason goes next to the table), never "-0.0"."""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping
+
+NA = "n/a"
+
+
+def fmt(value: float | None, spec: str = ".3f", unit: str = "") -> str:
+    """`value` formatted with `spec` plus `unit`; "n/a" for None or NaN; a result that rounds to zero unsigned."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return NA
+    text = format(value, spec)
+    if text.startswith("-") and not any(c in "123456789" for c in text.split("e")[0]):
+        text = text[1:]
+    return text + unit
+
+
+NOTE_LABELS = {"ate": "ATE (and its % improvement)", "ate_odometry": "ATE of the odometry",
+               "ate_optimised": "ATE after optimisation", "improvement_translation": "translation ATE improvement",
+               "improvement_rotation": "rotation ATE improvement", "pr": "PR-AUC / F1-max"}
+
+
+def notes(metrics: Mapping[str, Any]) -> list[str]:
+    """One sentence per n/a metric (why it is unavailable) and per warning of a run's metrics."""
+    unavailable = metrics.get("unavailable") or {}
+    return ([f"{NOTE_LABELS.get(key, key)} n/a: {reason}" for key, reason in unavailable.items()]
+            + [f"warning: {text}" for text in metrics.get("warnings") or []])

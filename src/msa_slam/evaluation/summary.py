@@ -1,0 +1,80 @@
+"""Trajectory metrics as the result folders store them: a number, or None with the reason it is unavailable.
+
+Both pipelines report ATE/RPE of the keyframe trajectory before (odometry) and after optimisation and the
+paper's % improvement. A trajectory whose SE(3) alignment is undetermined (stationary, rotation-only) gets
+ATE None and a reason instead of an exception; a short or nearly straight one keeps its numbers with a
+warning that its rotation ATE mostly measures the alignment.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from msa_slam.evaluation.trajectory import (ATE_ALIGNMENT, AlignmentError, alignment_warnings, ate, improvement,
+                                            rpe)
+
+ESTIMATES = {"before": "odometry", "after": "optimised"}
+
+
+@dataclass
+class TrajectoryEvaluation:
+    """JSON-ready metrics (`before`, `after`, `improvement_pct`, `ate_alignment`, `ate_rotation_reliable`,
+    `unavailable`: metric -> why it is None), `warnings` about numbers that are present, and the per-keyframe
+    ATE translation errors of each estimate (None where ATE is unavailable)."""
+
+    metrics: dict[str, Any]
+    warnings: list[str] = field(default_factory=list)
+    errors: dict[str, np.ndarray | None] = field(default_factory=dict)
+
+
+def improvement_pct(before: float | None, after: float | None) -> float | None:
+    """The paper's % improvement, or None when either error is unavailable or `before` is 0 (undefined)."""
+    if before is None or after is None or not before > 0:
+        return None
+    return improvement(before, after)
+
+
+def _errors(estimate: np.ndarray, reference: np.ndarray) -> tuple[dict[str, Any], np.ndarray | None, str | None]:
+    out: dict[str, Any] = {"ate_translation_m": None, "ate_rotation_deg": None}
+    errors, reason = None, None
+    try:
+        a = ate(estimate, reference)
+    except AlignmentError as exc:
+        reason = str(exc)
+    else:
+        out.update(ate_translation_m=a.translation_rmse, ate_rotation_deg=a.rotation_rmse)
+        errors = a.translation_errors
+    r = rpe(estimate, reference, delta=1, unit="frames")
+    out.update(rpe_translation_m=r.translation_rmse, rpe_rotation_deg=r.rotation_rmse)
+    return out, errors, reason
+
+
+def evaluate_trajectories(odometry: np.ndarray, optimised: np.ndarray, reference: np.ndarray,
+                          frames: np.ndarray) -> TrajectoryEvaluation:
+    """ATE/RPE of the odometry and optimised keyframe poses against ground truth at keyframe `frames`."""
+    blocks, errors, unavailable = {}, {}, {}
+    for (key, name), estimate in zip(ESTIMATES.items(), (odometry, optimised)):
+        blocks[key], errors[name], reason = _errors(estimate, reference)
+        if reason is not None:
+            unavailable[f"ate_{name}"] = reason
+    if unavailable.get("ate_odometry") and unavailable.get("ate_odometry") == unavailable.get("ate_optimised"):
+        unavailable = {"ate": unavailable["ate_odometry"]}
+    improvements = {}
+    for part, key in (("translation", "ate_translation_m"), ("rotation", "ate_rotation_deg")):
+        before, after = blocks["before"][key], blocks["after"][key]
+        improvements[part] = improvement_pct(before, after)
+        if improvements[part] is None and before is not None and after is not None:
+            unavailable[f"improvement_{part}"] = f"odometry ATE {part} is {before:g}: % improvement undefined"
+    frames = np.asarray(frames)
+    alignment = (f"{ATE_ALIGNMENT}, fitted separately for each estimate on the positions of all {len(frames)} "
+                 f"keyframes (frames {int(frames[0])}..{int(frames[-1])}) against ground truth")
+    unstable = alignment_warnings(reference) if "ate" not in unavailable else []
+    warnings = (["rotation ATE unreliable: the SE(3) alignment's rotation is poorly determined ("
+                 + "; ".join(unstable) + ")"] if unstable else [])
+    metrics = {"before": blocks["before"], "after": blocks["after"], "improvement_pct": improvements,
+               "ate_alignment": alignment, "ate_rotation_reliable": not unstable and "ate" not in unavailable,
+               "unavailable": unavailable}
+    return TrajectoryEvaluation(metrics, warnings, errors)
