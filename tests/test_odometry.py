@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from conftest import shared_path
+from msa_slam.datasets import folder_sequence
 from msa_slam.errors import InputError
 from msa_slam.io.poses import write_poses
 from msa_slam.odometry import KissOdometry, OdometryCache, PosesFromFile, sequence_odometry
@@ -93,28 +92,35 @@ class _CountingOdometry:
         return pose
 
 
-def test_sequence_odometry_is_cached_by_sequence_and_config(tmp_path):
-    frames = [SimpleNamespace(points=np.zeros((5, 3)))] * 4
+def _scan_folder(path, n: int = 4):
+    """A folder of n tiny .bin scans (what the odometry cache keys on)."""
+    path.mkdir(parents=True)
+    for k in range(n):
+        np.full((5, 4), k, dtype=np.float32).tofile(path / f"{k:06d}.bin")
+    return folder_sequence(path)
+
+
+def test_sequence_odometry_is_cached_by_scans_and_config(tmp_path, caplog):
+    seq = _scan_folder(tmp_path / "seq")
     cache = OdometryCache(tmp_path / "cache")
     first = _CountingOdometry()
-    poses = sequence_odometry(frames, first, cache, sequence=tmp_path / "seq", quiet=True)
-    assert first.calls == 4 and poses[3, 0, 3] == 3.0
+    poses, cached = sequence_odometry(seq, first, cache, quiet=True)
+    assert first.calls == 4 and poses[3, 0, 3] == 3.0 and not cached
     again = _CountingOdometry()
-    np.testing.assert_array_equal(sequence_odometry(frames, again, cache, sequence=tmp_path / "seq", quiet=True), poses)
-    assert again.calls == 0
+    poses_again, cached = sequence_odometry(seq, again, cache, quiet=True)
+    np.testing.assert_array_equal(poses_again, poses)
+    assert again.calls == 0 and cached
     other_config = _CountingOdometry("b")
-    sequence_odometry(frames, other_config, cache, sequence=tmp_path / "seq", quiet=True)
+    sequence_odometry(seq, other_config, cache, quiet=True)
     assert other_config.calls == 4
-    other_sequence = _CountingOdometry()
-    sequence_odometry(frames, other_sequence, cache, sequence=tmp_path / "seq2", quiet=True)
-    assert other_sequence.calls == 4
+    other_scans = _CountingOdometry()
+    sequence_odometry(_scan_folder(tmp_path / "seq2", n=3), other_scans, cache, quiet=True)
+    assert other_scans.calls == 3
     assert sorted(p.suffix for p in (tmp_path / "cache").iterdir()) == [".npy"] * 3  # no temp files left
-    # A corrupt or wrong-length cache entry is recomputed, not trusted.
-    key = OdometryCache.key(tmp_path / "seq", first.config)
+    # A corrupt cache entry is recomputed, not trusted, with a warning naming it.
+    key = OdometryCache.key(seq, first.config)
     cache.path(key).write_bytes(b"garbage")
     recomputed = _CountingOdometry()
-    sequence_odometry(frames, recomputed, cache, sequence=tmp_path / "seq", quiet=True)
-    assert recomputed.calls == 4
-    shorter = _CountingOdometry()
-    sequence_odometry(frames[:2], shorter, cache, sequence=tmp_path / "seq", quiet=True)
-    assert shorter.calls == 2
+    _, cached = sequence_odometry(seq, recomputed, cache, quiet=True)
+    assert recomputed.calls == 4 and not cached
+    assert str(cache.path(key)) in caplog.text

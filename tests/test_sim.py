@@ -3,14 +3,18 @@
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
+import msa_slam.io.cache
 from msa_slam.errors import InputError
+from msa_slam.io.cache import partial_dir
 from msa_slam.io.poses import read_poses
 from msa_slam.sim import (
     DEFAULT_CONFIGS, Lidar, World, build_world, default_sequence, get_sensor, iter_frames, load_trajectory,
@@ -231,12 +235,47 @@ def test_sequence_layout_readers_and_cache(tmp_path):
     # an incomplete sequence is never taken for a cached one
     (path / "velodyne" / "000005.bin").unlink()
     assert not is_complete(path, cfg.key())
-    with pytest.raises(InputError, match="not a complete simulation"):
-        simulate_sequence(cfg, cache_dir=tmp_path)
     other = tmp_path / "other"
     (other / "velodyne").mkdir(parents=True)
     with pytest.raises(InputError, match=f"{other}: exists"):
         simulate_sequence(cfg, out=other)
+
+
+def test_damaged_simulation_is_simulated_again(tmp_path, caplog):
+    """A scan truncated or lost after sim.json was written (a full disk, a killed copy) makes the sequence
+    incomplete: the next use warns and simulates it again, never serving the short scan."""
+    cfg = make_config(**SMALL)
+    path = simulate_sequence(cfg, cache_dir=tmp_path)
+    scan = path / "velodyne" / "000003.bin"
+    good = scan.read_bytes()
+    scan.write_bytes(good[: len(good) // 2])
+    assert not is_complete(path, cfg.key())
+    assert simulate_sequence(cfg, cache_dir=tmp_path) == path
+    assert scan.read_bytes() == good and is_complete(path, cfg.key())
+    assert f"{path}: a scan is missing or truncated" in caplog.text
+    (path / "velodyne" / "000005.bin").unlink()
+    assert simulate_sequence(cfg, cache_dir=tmp_path) == path and is_complete(path, cfg.key())
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], "temporary directory left behind"
+    # a folder simulated from another config is not ours to replace
+    with pytest.raises(InputError, match="not a complete simulation"):
+        simulate_sequence(make_config(**SMALL, seed=3), out=path)
+
+
+def test_partial_simulation_of_a_killed_writer_is_removed(tmp_path, monkeypatch):
+    cfg = make_config(**SMALL)
+    name = f"{cfg.trajectory}_{cfg.sensor}_{cfg.key()}"
+    code = ("import os, sys; from pathlib import Path; from msa_slam.io.cache import partial_dir\n"
+            "with partial_dir(Path(sys.argv[1]), sys.argv[2]) as tmp:\n"
+            "    (tmp / 'seq').mkdir(); os._exit(9)\n")
+    killed = subprocess.run([sys.executable, "-c", code, str(tmp_path), name])
+    assert killed.returncode == 9
+    with partial_dir(tmp_path, name) as alive:  # a writer that is still running keeps its folder
+        left = [p for p in tmp_path.iterdir() if p.name.startswith(f".{name}.partial-") and p != alive]
+        assert len(left) == 1
+        monkeypatch.setattr(msa_slam.io.cache, "RUN_START_NS", time.time_ns())  # a later run
+        path = simulate_sequence(cfg, cache_dir=tmp_path)
+        assert not left[0].exists() and alive.is_dir() and is_complete(path, cfg.key())
+    assert sorted(p.name for p in tmp_path.iterdir()) == [name]
 
 
 def test_failed_simulation_leaves_nothing(tmp_path):

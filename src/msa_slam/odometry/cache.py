@@ -1,18 +1,20 @@
-"""Odometry of a whole sequence, computed once and cached on disk by sequence and configuration."""
+"""Odometry of a whole sequence, computed once and cached on disk by its scans' identity and configuration."""
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
 from pathlib import Path
-from typing import Any, Mapping, Protocol, Sequence
+from typing import Any, Iterable, Mapping, Protocol
 
 import numpy as np
 
-from msa_slam.io.atomic import atomic_path
+from msa_slam.datasets import ScanSequence, open_dataset
+from msa_slam.errors import InputError
+from msa_slam.io.cache import CacheDir, cache_key, check_entry, input_identity, sequence_identity
 from msa_slam.progress import progress_bar
 from msa_slam.types import validate_poses
+
+ODOMETRY_LIBRARIES = ("kiss-icp", "numpy")
 
 
 class Odometry(Protocol):
@@ -22,61 +24,60 @@ class Odometry(Protocol):
 
 
 class OdometryCache:
-    """A folder of `<key>.npy` pose stacks; the key hashes the sequence path and odometry configuration."""
+    """`odometry-<key>.npy` pose stacks in a cache folder (see msa_slam.io.cache: verified, atomic, optional)."""
 
-    def __init__(self, cache_dir: str | os.PathLike) -> None:
-        self.cache_dir = Path(cache_dir)
+    def __init__(self, cache: CacheDir | str | os.PathLike) -> None:
+        self.store = cache if isinstance(cache, CacheDir) else CacheDir(cache)
 
     @staticmethod
-    def key(sequence: str | os.PathLike, config: Mapping[str, Any]) -> str:
-        text = json.dumps({"sequence": os.path.abspath(os.fspath(sequence)), "config": config},
-                          sort_keys=True, default=str)
-        return hashlib.sha256(text.encode()).hexdigest()[:24]
+    def key(sequence: ScanSequence | str | os.PathLike, config: Mapping[str, Any],
+            extra_inputs: Iterable[str | os.PathLike] = ()) -> str | None:
+        """Key of the odometry of `sequence` (its scans' identity) with `config` and `extra_inputs` (e.g. the
+        pose file the odometry reads). Given only a folder, it is opened to list its scans; None when that fails."""
+        if not isinstance(sequence, ScanSequence):
+            try:
+                sequence = open_dataset(sequence)
+            except InputError:
+                return None
+        inputs = {"scans": sequence_identity(sequence), "files": input_identity(extra_inputs)}
+        return cache_key("odometry", inputs, dict(config), ODOMETRY_LIBRARIES)
 
     def path(self, key: str) -> Path:
-        return self.cache_dir / f"odometry-{key}.npy"
+        return self.store.path(f"odometry-{key}")
 
-    def load(self, key: str, expected_length: int | None = None) -> np.ndarray | None:
-        """Cached poses, or None when absent, unreadable or of the wrong length (then recomputed)."""
-        path = self.path(key)
-        if not path.is_file():
+    def load(self, key: str | None, expected_length: int | None = None) -> np.ndarray | None:
+        """Cached poses, or None when absent or bad (truncated, NaN, not rigid, wrong length: then recomputed)."""
+        if key is None:
             return None
-        try:
-            poses = validate_poses(np.load(path, allow_pickle=False), str(path))
-        except (OSError, ValueError):
-            return None
-        if expected_length is not None and len(poses) != expected_length:
-            return None
-        return poses
 
-    def save(self, key: str, poses: np.ndarray) -> Path:
-        poses = validate_poses(poses, "odometry poses")
-        path = self.path(key)
-        with atomic_path(path) as tmp, open(tmp, "wb") as handle:
-            np.save(handle, poses)
-        return path
+        def check(poses: np.ndarray) -> np.ndarray:
+            return validate_poses(check_entry(poses, expected_length), "odometry poses")
+
+        return self.store.load(f"odometry-{key}", check)
+
+    def save(self, key: str, poses: np.ndarray) -> Path | None:
+        """Store the poses; None when the cache cannot be written (warned once)."""
+        return self.store.save(f"odometry-{key}", validate_poses(poses, "odometry poses"))
 
 
-def sequence_odometry(frames: Sequence, odometry: Odometry, cache: OdometryCache | None = None,
-                      sequence: str | os.PathLike | None = None, quiet: bool = False) -> np.ndarray:
-    """(N, 4, 4) odometry poses of `frames` (objects with `.points`), from `cache` when it has them.
+def sequence_odometry(sequence: ScanSequence, odometry: Odometry, cache: OdometryCache | None = None,
+                      quiet: bool = False, extra_inputs: Iterable[str | os.PathLike] = ()) -> tuple[np.ndarray, bool]:
+    """(N, 4, 4) odometry poses of every frame of `sequence` and whether they came from `cache`.
 
-    `sequence` names the data for the cache key (required with a cache).
+    `extra_inputs`: files the odometry reads besides the scans (they are part of the cache key).
     """
     key = None
     if cache is not None:
-        if sequence is None:
-            raise ValueError("sequence_odometry: a cache needs the sequence path for its key")
-        key = OdometryCache.key(sequence, odometry.config)
-        cached = cache.load(key, expected_length=len(frames))
+        key = OdometryCache.key(sequence, odometry.config, extra_inputs)
+        cached = cache.load(key, expected_length=len(sequence))
         if cached is not None:
-            return cached
-    poses = np.empty((len(frames), 4, 4))
+            return cached, True
+    poses = np.empty((len(sequence), 4, 4))
     with progress_bar(quiet) as progress:
-        task = progress.add_task("odometry", total=len(frames))
-        for i in range(len(frames)):
-            poses[i] = odometry.register(frames[i].points)
+        task = progress.add_task("odometry", total=len(sequence))
+        for i in range(len(sequence)):
+            poses[i] = odometry.register(sequence[i].points)
             progress.advance(task)
     if cache is not None and key is not None:
         cache.save(key, poses)
-    return poses
+    return poses, False

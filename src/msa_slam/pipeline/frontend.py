@@ -1,13 +1,12 @@
 """The per-sequence front end: odometry and descriptors of every frame, computed once and cached on disk.
 
 These are the expensive stages that do not depend on the sampler, so `compare` runs them once and every
-sampler reuses them; a re-run finds them in the cache (keyed by sequence path, frame count and settings).
+sampler reuses them; a re-run finds them in the cache (keyed by the scans' identity, settings and library
+versions: see msa_slam.io.cache).
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,7 +18,7 @@ from msa_slam.datasets import ScanSequence
 from msa_slam.descriptors import Descriptor, make_descriptor
 from msa_slam.errors import InputError
 from msa_slam.evaluation import StageTimer
-from msa_slam.io.atomic import atomic_path
+from msa_slam.io.cache import CacheDir, cache_key, check_entry, input_identity, sequence_identity
 from msa_slam.odometry import KissOdometry, OdometryCache, PosesFromFile, sequence_odometry
 from msa_slam.pipeline.config import BatchConfig
 from msa_slam.progress import progress_bar
@@ -83,23 +82,25 @@ def make_odometry(config: BatchConfig, n_frames: int):
     return odometry
 
 
-def _descriptor_key(sequence: ScanSequence, name: str, params: dict[str, Any]) -> str:
-    blob = json.dumps({"sequence": os.path.abspath(sequence.path), "frames": len(sequence),
-                       "descriptor": name, "params": params}, sort_keys=True, default=str)
-    return hashlib.sha256(blob.encode()).hexdigest()[:24]
+DESCRIPTOR_LIBRARIES = ("numpy", "numba", "torch")
 
 
-def compute_descriptors(sequence: ScanSequence, descriptor: Descriptor, cache: Path | None, key: str,
+def descriptor_key(sequence: ScanSequence, name: str, params: dict[str, Any]) -> str:
+    """Cache key of a sequence's descriptors: its scans' identity, files named in `params` (e.g. network
+    weights), the descriptor settings and library versions."""
+    files = [v for v in params.values() if isinstance(v, (str, os.PathLike)) and os.path.isfile(v)]
+    inputs = {"scans": sequence_identity(sequence), "files": input_identity(files)}
+    return cache_key("descriptors", inputs, {"descriptor": name, "params": params}, DESCRIPTOR_LIBRARIES)
+
+
+def compute_descriptors(sequence: ScanSequence, descriptor: Descriptor, cache: CacheDir | None, key: str,
                         quiet: bool = True) -> tuple[np.ndarray, bool]:
-    """(N, *shape) descriptors of every frame, from `cache/descriptors-<key>.npy` when present."""
-    path = None if cache is None else cache / f"descriptors-{key}.npy"
-    if path is not None and path.is_file():
-        try:
-            cached = np.load(path, allow_pickle=False)
-            if len(cached) == len(sequence):
-                return cached, True
-        except (OSError, ValueError):
-            pass
+    """(N, *shape) descriptors of every frame and whether they came from `cache` (entry `descriptors-<key>`)."""
+    name = f"descriptors-{key}"
+    if cache is not None:
+        cached = cache.load(name, lambda a: check_entry(a, len(sequence)))
+        if cached is not None:
+            return cached, True
     first = np.asarray(descriptor.compute(sequence[0].points, frame=0), dtype=np.float64)
     out = np.empty((len(sequence), *first.shape))
     out[0] = first
@@ -109,9 +110,8 @@ def compute_descriptors(sequence: ScanSequence, descriptor: Descriptor, cache: P
         for i in range(1, len(sequence)):
             out[i] = descriptor.compute(sequence[i].points, frame=i)
             bar.advance(task)
-    if path is not None:
-        with atomic_path(path) as tmp, open(tmp, "wb") as handle:
-            np.save(handle, out)
+    if cache is not None:
+        cache.save(name, out)
     return out, False
 
 
@@ -120,7 +120,7 @@ def prepare_frontend(config: BatchConfig, quiet: bool = True) -> Frontend:
     timer = StageTimer()
     with timer.stage("dataset"):
         sequence = open_sequence(config.dataset, config.dataset_kind, config.cache_dir, progress=not quiet)
-    cache = pipeline_cache(config)
+    cache = CacheDir(pipeline_cache(config))
     n = len(sequence)
     odometry = make_odometry(config, n)
     params = dict(config.descriptor_params)
@@ -129,12 +129,11 @@ def prepare_frontend(config: BatchConfig, quiet: bool = True) -> Frontend:
     descriptor = make_descriptor(config.descriptor, **params)
     cached: dict[str, bool] = {}
     with timer.stage("odometry"):
-        store = OdometryCache(cache)
-        cached["odometry"] = store.load(OdometryCache.key(sequence.path, odometry.config), n) is not None
-        poses = sequence_odometry(sequence, odometry, store, sequence=sequence.path, quiet=quiet)
+        pose_file = [] if config.odometry == "kiss" else [odometry.path]
+        poses, cached["odometry"] = sequence_odometry(sequence, odometry, OdometryCache(cache), quiet, pose_file)
     with timer.stage("descriptors"):
         use_cache = config.descriptor != "precomputed"
-        key = _descriptor_key(sequence, config.descriptor, config.descriptor_params)
+        key = descriptor_key(sequence, config.descriptor, config.descriptor_params)
         descriptors, cached["descriptors"] = compute_descriptors(sequence, descriptor, cache if use_cache else None,
                                                                  key, quiet)
     frontend = Frontend(sequence, sequence.gt_poses, poses, descriptors, descriptor,

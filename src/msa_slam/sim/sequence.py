@@ -4,17 +4,16 @@ A sequence directory holds velodyne/NNNNNN.bin (float32 x, y, z, intensity), pos
 LiDAR frame, KITTI 12-number lines), times.txt, calib.txt (Tr = identity, so readers that convert cam0
 poses get the same) and sim.json (the config, its hash and provenance). For kiss-icp's KITTI loader it
 also holds sequences/00/ and poses/00.txt as relative links: `KITTIOdometryDataset(DIR, "00")`.
-Directories are written under a temporary name and renamed when complete, so a partial one is never
-mistaken for a cached sequence.
+Directories are written under a locked temporary name (`.NAME.partial-*`, removed by the next run if
+its writer was killed) and renamed when complete, so a partial one is never mistaken for a cached sequence;
+sim.json records every scan's size, so a truncated scan makes the sequence incomplete (simulated again).
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
+import logging
 import os
-import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator, NamedTuple
@@ -24,6 +23,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
 
 import msa_slam
 from msa_slam.errors import InputError
+from msa_slam.io.cache import cache_key, partial_dir, remove_orphans
 from msa_slam.io.poses import format_kitti
 from msa_slam.sim.layout import STYLES
 from msa_slam.sim.sensors import SENSORS, Lidar, LidarModel, get_sensor
@@ -31,7 +31,9 @@ from msa_slam.sim.trajectories import TRAJECTORY_NAMES, frame_indices, load_traj
 from msa_slam.sim.world import World, build_world
 
 SIM_VERSION = "2"  # bump when generated worlds or scans change, so stale caches are not reused
+SIM_LIBRARIES = ("trimesh", "embreex", "numpy")  # ray casting and noise: part of the cache key
 META_FILE = "sim.json"
+log = logging.getLogger(__name__)
 KITTI_CITATION = ("Trajectory: KITTI odometry ground truth (Geiger, Lenz, Urtasun, CVPR 2012), "
                   "CC BY-NC-SA 3.0")
 
@@ -75,9 +77,9 @@ class SimConfig(BaseModel):
         return v
 
     def key(self) -> str:
-        """Hash of the config and simulator version: the cache key."""
-        blob = json.dumps({"config": self.model_dump(), "sim_version": SIM_VERSION}, sort_keys=True)
-        return hashlib.sha256(blob.encode()).hexdigest()[:16]
+        """The cache key: hash of the config, the simulator version and the versions of msa-slam and of the
+        libraries that ray-cast the scans."""
+        return cache_key("simulation", [], {"config": self.model_dump(), "sim_version": SIM_VERSION}, SIM_LIBRARIES)
 
 
 def make_config(**fields: object) -> SimConfig:
@@ -156,14 +158,30 @@ def _read_meta(seq_dir: Path) -> dict | None:
         return None
 
 
+def _scan_size(path: Path) -> int | None:
+    try:
+        return path.stat().st_size
+    except OSError:
+        return None
+
+
 def is_complete(seq_dir: Path, key: str) -> bool:
-    """True when `seq_dir` is a finished simulation of the config with this key, all scans present."""
+    """True when `seq_dir` is a finished simulation of the config with this key, all scans present and of the
+    size sim.json records."""
     meta = _read_meta(seq_dir)
     if meta is None or meta.get("key") != key:
         return False
-    n = meta.get("frames", -1)
-    return (len(list((seq_dir / "velodyne").glob("*.bin"))) == n
+    sizes = meta.get("scan_bytes", [])
+    velodyne = seq_dir / "velodyne"
+    return (meta.get("frames") == len(sizes) == len(list(velodyne.glob("*.bin")))
+            and all(_scan_size(velodyne / f"{k:06d}.bin") == size for k, size in enumerate(sizes))
             and (seq_dir / "poses.txt").is_file() and (seq_dir / "times.txt").is_file())
+
+
+def _is_ours(seq_dir: Path, key: str) -> bool:
+    """True when sim.json says `seq_dir` was simulated from this config (complete or since damaged)."""
+    meta = _read_meta(seq_dir)
+    return meta is not None and meta.get("key") == key
 
 
 CALIB_TEXT = "".join(f"P{k}: 1 0 0 0 0 1 0 0 0 0 1 0\n" for k in range(4)) + "Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n"
@@ -176,8 +194,11 @@ def _write(sim: Simulation, target: Path, progress: bool) -> None:
     with Progress(TextColumn("[bold]simulating[/] {task.description}"), BarColumn(), MofNCompleteColumn(),
                   TimeRemainingColumn(), disable=not progress, transient=False) as bar:
         task = bar.add_task(f"{sim.config.trajectory} / {sim.config.sensor}", total=len(sim))
+        sizes = []
         for k in range(len(sim)):
-            sim.scan(k).tofile(target / "velodyne" / f"{k:06d}.bin")
+            scan = sim.scan(k)
+            scan.tofile(target / "velodyne" / f"{k:06d}.bin")
+            sizes.append(scan.nbytes)
             bar.advance(task)
     (target / "poses.txt").write_text(format_kitti(sim.poses))
     (target / "times.txt").write_text("".join(f"{t:.6e}\n" for t in sim.times))
@@ -190,7 +211,8 @@ def _write(sim: Simulation, target: Path, progress: bool) -> None:
     (target / "poses" / "00.txt").symlink_to(Path("..", "poses.txt"))
     meta = {
         "key": sim.config.key(), "sim_version": SIM_VERSION, "msa_slam_version": msa_slam.__version__,
-        "config": sim.config.model_dump(), "frames": len(sim), "source_frames": sim.frames.tolist(),
+        "config": sim.config.model_dump(), "frames": len(sim), "scan_bytes": sizes,
+        "source_frames": sim.frames.tolist(),
         "sensor": {"beams": sim.lidar.model.beams, "azimuth_steps": sim.lidar.model.azimuth_steps,
                    "max_range": sim.lidar.model.max_range},
         "world_triangles": sim.world.triangles,
@@ -204,28 +226,36 @@ def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
     """Write (or reuse) the sequence of `config`; returns its directory.
 
     Without `out` the directory is <cache>/<trajectory>_<sensor>_<key>. An existing complete
-    simulation of the same config is returned as is; any other existing non-empty `out` is an error.
+    simulation of the same config is returned as is; one of the same config with a missing or truncated
+    scan is simulated again (with a warning); any other existing non-empty `out` is an error.
     """
     key = config.key()
     target = Path(out) if out is not None else cache_root(cache_dir) / f"{config.trajectory}_{config.sensor}_{key}"
+    remove_orphans(target.parent, f".{target.name}.partial-*")
     if is_complete(target, key):
         return target
-    if target.exists() and (not target.is_dir() or any(target.iterdir())):
+    damaged = _is_ours(target, key)
+    if damaged:
+        log.warning("%s: a scan is missing or truncated (sizes differ from %s); simulating it again",
+                    target, META_FILE)
+    elif target.exists() and (not target.is_dir() or any(target.iterdir())):
         raise InputError(f"{target}: exists and is not a complete simulation of this config (key {key}); "
                          "remove it or choose another output directory")
-    target.parent.mkdir(parents=True, exist_ok=True)
     sim = prepare(config)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=target.parent))
     try:
-        _write(sim, tmp / "seq", progress)
-        if target.exists():
-            target.rmdir()  # an empty directory (checked above) is replaced
-        os.replace(tmp / "seq", target)
-    except OSError:
-        if not is_complete(target, key):  # not a concurrent writer that finished first
-            raise
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        with partial_dir(target.parent, target.name) as tmp:
+            _write(sim, tmp / "seq", progress)
+            if damaged:
+                os.replace(target, tmp / "damaged")  # removed with the scratch folder
+            elif target.exists():
+                target.rmdir()  # an empty directory (checked above) is replaced
+            os.replace(tmp / "seq", target)
+    except OSError as exc:
+        if is_complete(target, key):  # a concurrent writer finished first
+            return target
+        raise InputError(f"{target}: cannot write the simulated sequence ({exc.strerror or exc}); "
+                         "choose a writable --out or cache folder (MSA_SLAM_CACHE)") from None
     return target
 
 
