@@ -14,6 +14,9 @@ from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.experiments import (expand, is_finished, load_cells, load_grid, make_rows, parse_grid, run_cell,
                                   run_grid, write_report)
+from msa_slam.experiments.folder import write_grid
+from msa_slam.io.outputs import OutputError, open_result_folder, write_marker
+from test_cli_main import run_cli
 
 TINY = {
     "name": "t",
@@ -35,6 +38,8 @@ TINY = {
     ({"pipeline": "offline"}, "pipeline: Input should be 'online' or 'batch'"),
     ({"seeds": []}, "seeds: List should have at least 1 item"),
     ({"samplers": ["msa", "msa"]}, "method labels repeat"),
+    ({"parameters": {"similarity_threshold": []}}, "parameters 'similarity_threshold' has no values"),
+    ({"reference": "msa"}, "reference 'msa' is not a method of the grid; methods: all, const-2m"),
 ])
 def test_grid_validation_errors(change, message):
     with pytest.raises(InputError, match=message):
@@ -65,6 +70,7 @@ def test_shipped_presets_validate():
 def test_resume_skips_finished_cells_and_clears_half_written_ones(tmp_path):
     grid = parse_grid(TINY)
     first, second = expand(grid)
+    write_marker(tmp_path, "experiment")
     run_cell(first.info(), first.config, str(tmp_path))  # finished before the "crash"
     finished = tmp_path / "cells" / first.id / "metrics.json"
     stamp = finished.stat().st_mtime_ns
@@ -102,25 +108,39 @@ def test_dask_local_cluster_runs_two_cells(tmp_path):
     assert len((tmp_path / "results.csv").read_text().splitlines()) == 3
 
 
-def _fake_cell(root: Path, cid: str, method: str, memory: int, ate_after: float, swept: dict) -> None:
-    folder = root / "cells" / cid
-    folder.mkdir(parents=True)
-    info = {"id": cid, "pipeline": "online", "dataset": "d", "descriptor": "sc", "method": method,
-            "sampler": method.split()[0], "swept": swept, "parameters": {}, "seed": 0}
-    metrics = {"frames": 100, "keyframes": 50, "candidates": 4, "verified": 3, "false_loops": 0,
-               "before": {"ate_translation_m": 2.0}, "after": {"ate_translation_m": ate_after},
-               "improvement_pct": {"translation": 100 * (2.0 - ate_after) / 2.0, "rotation": 10.0},
-               "pr_auc": 0.9, "f1_max": 0.8, "memory_bytes": {"total": memory}, "peak_rss_bytes": 2**20,
-               "time_s": {"backend_total": 1.0}, "fps": 50.0, "backend_fps": 60.0,
-               "latency_ms": {"backend": {"p99": 12.0}}}
-    (folder / "cell.json").write_text(json.dumps(info))
-    (folder / "metrics.json").write_text(json.dumps(metrics))
+SWEEP = {**TINY, "samplers": ["all", {"sampler": "msa", "sweep": {"lambda_l": [0.0, 1.0]}}]}
+
+
+def _fake_experiment(root: Path, grid_data: dict, memory: dict[str, int], ate_after: dict[str, float]) -> list:
+    """An experiment folder whose grid.yaml is `grid_data` and whose cells are finished with made-up metrics
+    (per method); returns the cells."""
+    grid = parse_grid(grid_data)
+    root.mkdir(exist_ok=True)
+    write_marker(root, "experiment")
+    write_grid(root, grid)
+    cells = expand(grid)
+    for cell in cells:
+        folder = root / "cells" / cell.id
+        folder.mkdir(parents=True)
+        ate = ate_after[cell.method]
+        metrics = {"frames": 100, "keyframes": 50, "candidates": 4, "verified": 3, "false_loops": 0,
+                   "before": {"ate_translation_m": 2.0}, "after": {"ate_translation_m": ate},
+                   "improvement_pct": {"translation": 100 * (2.0 - ate) / 2.0, "rotation": 10.0},
+                   "pr_auc": 0.9, "f1_max": 0.8, "memory_bytes": {"total": memory[cell.method]},
+                   "peak_rss_bytes": 2**20, "time_s": {"backend_total": 1.0}, "fps": 50.0, "backend_fps": 60.0,
+                   "latency_ms": {"backend": {"p99": 12.0}}}
+        (folder / "cell.json").write_text(json.dumps(cell.info()))
+        (folder / "metrics.json").write_text(json.dumps(metrics))
+    return cells
+
+
+def _sweep_experiment(root: Path) -> list:
+    return _fake_experiment(root, SWEEP, {"all": 4000, "msa lambda_l=0.0": 2000, "msa lambda_l=1.0": 1000},
+                            {"all": 0.5, "msa lambda_l=0.0": 0.6, "msa lambda_l=1.0": 0.9})
 
 
 def test_report_relative_memory_ate_difference_and_sweep_figure(tmp_path):
-    _fake_cell(tmp_path, "a", "all", 4000, 0.5, {})
-    _fake_cell(tmp_path, "b", "msa lambda_l=0.0", 2000, 0.6, {"lambda_l": 0.0})
-    _fake_cell(tmp_path, "c", "msa lambda_l=1.0", 1000, 0.9, {"lambda_l": 1.0})
+    _sweep_experiment(tmp_path)
     (tmp_path / "cells" / ".x.partial-1").mkdir()  # ignored
     result = CliRunner().invoke(app, ["report", str(tmp_path)])
     assert result.exit_code == 0, result.output
@@ -130,6 +150,119 @@ def test_report_relative_memory_ate_difference_and_sweep_figure(tmp_path):
     for name in ("ate_difference.png", "distance_bounds.png"):
         assert (tmp_path / "figures" / name).is_file()
     assert "| msa lambda_l=1.0 | 50 | 55.0 % |" in (tmp_path / "results.md").read_text()
+
+
+def test_report_reference_must_be_a_method_of_the_experiment(tmp_path):
+    _sweep_experiment(tmp_path)
+    with pytest.raises(InputError, match=r"--reference 'foo': not a method of this experiment; available: all, "
+                                         r"msa lambda_l=0.0, msa lambda_l=1.0"):
+        write_report(tmp_path, "foo")
+    assert not (tmp_path / "report.md").exists()
+    rows = {r["method"]: r for r in make_rows(load_cells(tmp_path), "msa lambda_l=0.0")}
+    assert rows["all"]["memory_vs_reference_pct"] == pytest.approx(200.0)
+
+
+def test_changed_grid_into_same_out_reports_only_its_own_cells(tmp_path):
+    old = _fake_experiment(tmp_path, TINY, {"all": 4000, "const-2m": 1000}, {"all": 0.5, "const-2m": 0.7})
+    changed = {**TINY, "samplers": ["all"], "base": {**TINY["base"], "min_frame_gap": 25}}
+    run = run_grid(parse_grid(changed), tmp_path)
+    (new,) = expand(parse_grid(changed))
+    assert run.ran == [new.id] and not run.skipped and not run.failed
+    assert run.stale == sorted(c.id for c in old)
+    assert [c["info"]["id"] for c in load_cells(tmp_path)] == [new.id]
+    assert len((tmp_path / "results.csv").read_text().splitlines()) == 2
+    assert "1 seed(s)" in (tmp_path / "results.md").read_text() and "const-2m" not in (tmp_path / "results.md").read_text()
+    report = (tmp_path / "report.md").read_text()
+    assert "1 of 1 cell(s) finished" in report
+    assert all(c.id in report.split("Stale cells")[1].splitlines()[0] for c in old)
+    assert all((tmp_path / "cells" / c.id).is_dir() for c in old)  # kept (ours, but only --overwrite discards)
+    result = CliRunner().invoke(app, ["report", str(tmp_path)])
+    assert result.exit_code == 0 and "2 stale cell(s) from an earlier grid" in result.output
+    assert all(c.id in result.output for c in old)
+
+
+def test_corrupt_cell_is_rerun_not_dropped(tmp_path):
+    grid = {**TINY, "samplers": ["all"]}
+    (cell,) = _fake_experiment(tmp_path, grid, {"all": 4000}, {"all": 0.5})
+    metrics = tmp_path / "cells" / cell.id / "metrics.json"
+    metrics.write_text('{"frames": 10')  # truncated by a full disk or a crash of an older version
+    assert not is_finished(tmp_path, cell) and load_cells(tmp_path) == []
+    run = run_grid(parse_grid(grid), tmp_path)
+    assert run.ran == [cell.id] and not run.skipped
+    assert json.loads(metrics.read_text())["frames"] > 10 and is_finished(tmp_path, cell)
+
+
+def _user_folder(root: Path) -> dict[Path, bytes]:
+    (root / "sub").mkdir(parents=True)
+    (root / "thesis.tex").write_text("\\chapter{}")
+    (root / "sub" / "a.bin").write_bytes(b"\0\1")
+    return {p: p.read_bytes() for p in root.rglob("*") if p.is_file()}
+
+
+def test_output_not_written_by_an_experiment_is_refused_untouched(tmp_path):
+    user = tmp_path / "user"
+    before = _user_folder(user)
+    with pytest.raises(OutputError, match="not a msa-slam result folder"):
+        run_grid(parse_grid(TINY), user)
+    assert {p: p.read_bytes() for p in user.rglob("*") if p.is_file()} == before
+    file = tmp_path / "notes.txt"
+    file.write_text("mine")
+    with pytest.raises(OutputError, match="is a file"):
+        run_grid(parse_grid(TINY), file)
+    assert file.read_text() == "mine"
+    other = tmp_path / "run"
+    other.mkdir()
+    write_marker(other, "run")
+    (other / "metrics.json").write_text("{}")
+    with pytest.raises(OutputError, match="previous msa-slam result; pass --overwrite"):
+        run_grid(parse_grid(TINY), other)
+    assert sorted(p.name for p in other.iterdir()) == [".msa-slam-result", "metrics.json"]
+    result = CliRunner().invoke(app, ["report", str(user)])
+    assert isinstance(result.exception, InputError) and "not a folder written by `msa-slam experiment`" in str(
+        result.exception)
+    assert {p: p.read_bytes() for p in user.rglob("*") if p.is_file()} == before
+
+
+def test_second_run_on_a_locked_experiment_refuses(tmp_path):
+    out = tmp_path / "exp"
+    with open_result_folder(out, kind="experiment", default_parent=tmp_path, resume=True) as folder:
+        folder.prepare_in_place()
+        with pytest.raises(OutputError, match="another msa-slam run is writing"):
+            run_grid(parse_grid(TINY), out)
+        assert sorted(p.name for p in out.iterdir()) == [".msa-slam-result"]
+
+
+def test_overwrite_discards_the_previous_experiment(tmp_path):
+    old = _fake_experiment(tmp_path / "exp", TINY, {"all": 4000, "const-2m": 1000}, {"all": 0.5, "const-2m": 0.7})
+    missing = {**TINY, "datasets": [str(tmp_path / "no-such-sequence")], "samplers": ["all"]}
+    run = run_grid(parse_grid(missing), tmp_path / "exp", overwrite=True)
+    assert len(run.failed) == 1 and not run.stale
+    assert not any((tmp_path / "exp" / "cells" / c.id).exists() for c in old)
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no .exp.old-* or lock left
+
+
+def test_experiment_exit_code_names_failed_cells_and_keeps_their_log(tmp_path):
+    grid_file = tmp_path / "g.yaml"
+    grid_file.write_text(yaml.safe_dump({**TINY, "datasets": [str(tmp_path / "no-such-sequence")]}))
+    result = run_cli("experiment", str(grid_file), "--out", str(tmp_path / "o"), "--quiet")
+    cells = expand(load_grid(grid_file))
+    assert result.returncode == 1, result.stderr
+    failed = [line for line in result.stderr.splitlines() if line.startswith("failed: ")]
+    assert [line.split(": ")[1] for line in failed] == [c.id for c in cells]
+    assert all("no-such-sequence" in line for line in failed)
+    assert all((tmp_path / "o" / "errors" / f"{c.id}.txt").is_file() for c in cells)
+    assert result.stdout.strip() == str(tmp_path / "o" / "report.md")
+    assert "0 of 2 cell(s) finished, 2 failed" in (tmp_path / "o" / "report.md").read_text()
+
+
+def test_grid_without_cells_is_an_error_before_any_work(tmp_path):
+    grid_file = tmp_path / "g.yaml"
+    grid_file.write_text(yaml.safe_dump({**TINY, "parameters": {"similarity_threshold": []}}))
+    result = CliRunner().invoke(app, ["experiment", str(grid_file), "--out", str(tmp_path / "o"), "--quiet"])
+    assert result.exit_code != 0 and isinstance(result.exception, InputError)
+    assert str(result.exception) == (f"{grid_file}: parameters: Value error, parameters 'similarity_threshold' "
+                                     "has no values (the grid would have no cells)")
+    assert not (tmp_path / "o").exists()
 
 
 def test_report_and_experiment_cli_errors(tmp_path):

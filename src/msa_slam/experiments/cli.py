@@ -14,22 +14,27 @@ def experiment_command(
     scheduler: Optional[str] = typer.Option(None, help="Dask scheduler address (tcp://host:port); the output "
                                                        "folder must be on a file system the workers share"),
     workers: int = typer.Option(1, help="local worker processes (Dask LocalCluster) when no --scheduler"),
-    out: Optional[Path] = typer.Option(None, help="results folder (default ./msa_slam_results/experiments/<name>)"),
+    out: Optional[Path] = typer.Option(None, help="results folder: new, empty, or a previous experiment's "
+                                                  "(resumed) (default: a new ./msa_slam_results/experiments/"
+                                                  "<timestamp>, linked as latest)"),
+    overwrite: bool = typer.Option(False, "--overwrite", help="replace a previous result in --out instead of "
+                                                              "resuming it (its finished cells are discarded)"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
 ) -> None:
     """Run every unfinished cell of an experiment grid (finished cells are kept and skipped), then write the
-    aggregate report; prints the path of its report.md."""
+    aggregate report; prints the path of its report.md. Exits with 1 when a cell failed."""
     from msa_slam.experiments.grid import load_grid
     from msa_slam.experiments.runner import run_grid
 
-    spec = load_grid(grid)
-    target = out or Path("msa_slam_results") / "experiments" / spec.name
-    run = run_grid(spec, target, scheduler=scheduler, workers=workers, quiet=quiet)
+    run = run_grid(load_grid(grid), out, scheduler=scheduler, workers=workers, quiet=quiet, overwrite=overwrite)
     typer.echo(f"{len(run.ran)} cell(s) run, {len(run.skipped)} already finished, {len(run.failed)} failed",
                err=True)
-    for cell, error in run.failed.items():
-        typer.echo(f"failed: {cell}: {error}", err=True)
-    typer.echo(str(target / "report.md"))
+    _echo_stale(run.stale)
+    for cell, reason in run.failed.items():
+        typer.echo(f"failed: {cell}: {reason} (traceback: {run.out / 'errors' / (cell + '.txt')})", err=True)
+    typer.echo(str(run.report))
+    if run.failed:
+        raise typer.Exit(1)
 
 
 def report_command(
@@ -37,7 +42,24 @@ def report_command(
     reference: Optional[str] = typer.Option(None, help="method the memory and ATE differences compare to "
                                                        "(default: the grid's reference, usually all)"),
 ) -> None:
-    """(Re)write results.csv, results.md, figures and report.md from the finished cells of an experiment."""
+    """(Re)write results.csv, results.md, figures and report.md from the finished cells of the experiment's
+    current grid.yaml (cells of an earlier grid are listed and left out)."""
+    from msa_slam.errors import InputError
+    from msa_slam.experiments.folder import KIND, grid_cells, stale_cells
     from msa_slam.experiments.report import write_report
+    from msa_slam.experiments.runner import DEFAULT_PARENT
+    from msa_slam.io.outputs import MARKER, is_result_folder, open_result_folder
 
-    typer.echo(str(write_report(results_dir, reference)))
+    if not is_result_folder(results_dir, KIND):
+        raise InputError(f"{results_dir}: not a folder written by `msa-slam experiment` (no {MARKER} of an "
+                         "experiment); nothing written")
+    with open_result_folder(results_dir, kind=KIND, default_parent=DEFAULT_PARENT, resume=True):
+        report = write_report(results_dir, reference)
+        _echo_stale(stale_cells(results_dir, grid_cells(results_dir)[1]))
+    typer.echo(str(report))
+
+
+def _echo_stale(stale: list[str]) -> None:
+    if stale:
+        typer.echo(f"{len(stale)} stale cell(s) from an earlier grid, left out of the report: "
+                   + ", ".join(stale), err=True)

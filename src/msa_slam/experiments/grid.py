@@ -34,6 +34,14 @@ from msa_slam.errors import InputError
 GRID_DIR = Path(__file__).parent / "grids"
 
 
+def _every_key_has_values(what: str, v: dict[str, list[Any]]) -> dict[str, list[Any]]:
+    """An empty value list would expand the grid to no cells at all."""
+    for key, values in v.items():
+        if not values:
+            raise ValueError(f"{what} {key!r} has no values (the grid would have no cells)")
+    return v
+
+
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
@@ -49,10 +57,7 @@ class SamplerSpec(_Strict):
     @field_validator("sweep")
     @classmethod
     def _non_empty(cls, v: dict[str, list[Any]]) -> dict[str, list[Any]]:
-        for key, values in v.items():
-            if not values:
-                raise ValueError(f"sweep {key!r} has no values")
-        return v
+        return _every_key_has_values("sweep", v)
 
 
 class GridSpec(_Strict):
@@ -66,8 +71,13 @@ class GridSpec(_Strict):
     parameters: dict[str, list[Any]] = Field(default_factory=dict)
     seeds: list[int] = Field(default_factory=lambda: [0], min_length=1)
     base: dict[str, Any] = Field(default_factory=dict)
-    reference: str = "all"
+    reference: str | None = None  # default: `all` when the grid has it, else its first method
     figures: bool = False
+
+    @field_validator("parameters")
+    @classmethod
+    def _non_empty(cls, v: dict[str, list[Any]]) -> dict[str, list[Any]]:
+        return _every_key_has_values("parameters", v)
 
     @model_validator(mode="before")
     @classmethod
@@ -92,6 +102,15 @@ class GridSpec(_Strict):
         if duplicates:
             raise InputError(f"grid {self.name!r}: method labels repeat ({', '.join(duplicates)}); give each a label")
         return out
+
+    def labels(self) -> list[str]:
+        """The method labels (what `reference` and `report --reference` may name)."""
+        return [m[0] for m in self.methods()]
+
+    def reference_method(self) -> str:
+        """The method memory and ATE differences are relative to."""
+        labels = self.labels()
+        return self.reference or ("all" if "all" in labels else labels[0])
 
 
 @dataclass(frozen=True)
@@ -137,6 +156,10 @@ def parse_grid(data: Any, where: str = "grid") -> GridSpec:
     except ValidationError as exc:
         raise InputError(f"{where}: " + "; ".join(_problem(e) for e in exc.errors())) from None
     expand(grid, where)  # every cell must be a valid config before anything runs
+    methods = grid.labels()
+    if grid.reference is not None and grid.reference not in methods:
+        raise InputError(f"{where}: reference {grid.reference!r} is not a method of the grid; methods: "
+                         f"{', '.join(methods)} (set `reference:` to one of them)")
     return grid
 
 

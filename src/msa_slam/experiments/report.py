@@ -15,6 +15,8 @@ from typing import Any
 import numpy as np
 
 from msa_slam.errors import InputError
+from msa_slam.experiments.folder import GRID_FILE, cell_dir, grid_cells, read_cell, stale_cells
+from msa_slam.experiments.grid import Cell, GridSpec
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.pipeline.online_figures import plot_ate_difference, plot_memory, plot_step_times, plot_sweeps
 from msa_slam.pipeline.results import rows_csv
@@ -28,19 +30,25 @@ SWEEP_METRICS = {"t. ATE impr. [%]": "improvement_t_pct", "R. ATE impr. [%]": "i
 
 
 def load_cells(results_dir: str | os.PathLike) -> list[dict[str, Any]]:
-    """(cell info + metrics) of every finished cell, in the grid's order (then by cell id)."""
-    cells_dir = Path(results_dir) / "cells"
-    if not cells_dir.is_dir():
-        raise InputError(f"{results_dir}: not an experiment results folder (no cells/ inside)")
-    out = []
-    for folder in sorted(p for p in cells_dir.iterdir() if p.is_dir() and not p.name.startswith(".")):
-        try:
-            info = json.loads((folder / "cell.json").read_text())
-            metrics = json.loads((folder / "metrics.json").read_text())
-        except (OSError, ValueError):
-            continue
-        out.append({"info": info, "metrics": metrics, "folder": folder})
-    return sorted(out, key=lambda c: (c["info"].get("index", 0), c["info"]["id"]))
+    """(cell info + metrics) of every finished cell of the grid recorded in `results_dir` (grid.yaml), in the
+    grid's order; cell folders of an earlier, different grid are left out (see `stale_cells`)."""
+    return _finished(Path(results_dir), _grid_of(Path(results_dir))[1])
+
+
+def _grid_of(out: Path) -> tuple[GridSpec, list[Cell]]:
+    if not (out / "cells").is_dir():
+        raise InputError(f"{out}: not an experiment results folder (no cells/ inside)")
+    return grid_cells(out)
+
+
+def _finished(out: Path, cells: list[Cell]) -> list[dict[str, Any]]:
+    found = []
+    for cell in cells:
+        folder = cell_dir(out, cell.id)
+        read = read_cell(folder)
+        if read is not None:
+            found.append({"info": {**read[0], "index": cell.index}, "metrics": read[1], "folder": folder})
+    return found
 
 
 def _group(info: dict[str, Any]) -> tuple:
@@ -182,32 +190,38 @@ def _figures(cells: list[dict[str, Any]], rows: list[dict[str, Any]], reference:
 
 
 def write_report(results_dir: str | os.PathLike, reference: str | None = None) -> Path:
-    """Write results.csv, results.md, figures/ and report.md into `results_dir`; return report.md."""
+    """Write results.csv, results.md, figures/ and report.md into `results_dir` from the finished cells of its
+    grid.yaml; return report.md. `reference` (default: the grid's) must be one of the grid's methods."""
     out = Path(results_dir)
+    grid, expected = _grid_of(out)
+    methods = grid.labels()
     if reference is None:
-        reference = _grid_reference(out)
-    cells = load_cells(out)
+        reference = grid.reference_method()
+    elif reference not in methods:
+        raise InputError(f"--reference {reference!r}: not a method of this experiment; available: "
+                         f"{', '.join(methods)}")
+    cells = _finished(out, expected)
     rows = make_rows(cells, reference)
     write_text_atomic(out / "results.csv", rows_csv(rows, COLUMNS))
     table = table2_markdown(rows)
     write_text_atomic(out / "results.md", table)
     figures = _figures(cells, rows, reference, out / "figures") if rows else []
-    errors = sorted(p.stem for p in (out / "errors").glob("*.txt")) if (out / "errors").is_dir() else []
+    done = {c["info"]["id"] for c in cells}
+    failed = [c.id for c in expected if c.id not in done and (out / "errors" / f"{c.id}.txt").is_file()]
+    stale = stale_cells(out, expected)
     lines = [f"# Experiment results: {out.name}", "",
-             f"{len(rows)} finished cell(s)" + (f", {len(errors)} failed (see errors/)" if errors else "") + ". "
+             f"{len(rows)} of {len(expected)} cell(s) finished"
+             + (f", {len(failed)} failed (see errors/)" if failed else "") + ". "
              "ATE improvement: 100 (before - after) / before of the keyframe trajectory (SE(3)-aligned); memory: "
              f"accounted bytes of keyframe clouds, descriptors and graph (vs the `{reference}` method); time: "
-             "back-end seconds (everything after odometry); p99: per-frame back-end latency.", "", table]
+             "back-end seconds (everything after odometry); p99: per-frame back-end latency.", ""]
+    if failed:
+        lines += ["Failed cells: " + ", ".join(failed), ""]
+    if stale:
+        lines += [f"Stale cells (from an earlier grid, not in {GRID_FILE}; left out of every aggregate): "
+                  + ", ".join(stale), ""]
+    lines.append(table)
     lines += [f"![{n}](figures/{n})" for n in figures]
     lines += ["", "Per-cell results: cells/<id>/report.md; all rows: results.csv.", ""]
     write_text_atomic(out / "report.md", "\n".join(lines))
     return out / "report.md"
-
-
-def _grid_reference(out: Path) -> str:
-    import yaml
-
-    try:
-        return str((yaml.safe_load((out / "grid.yaml").read_text()) or {}).get("reference", "all"))
-    except (OSError, ValueError, AttributeError):
-        return "all"

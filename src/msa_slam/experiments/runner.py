@@ -1,12 +1,10 @@
 """Run the cells of a grid in this process, in local worker processes, or on a Dask cluster, resumably.
 
-Output folder layout:
-    grid.yaml                 the grid as run
-    cells/<cell id>/          one finished run folder per cell (metrics.json, cell.json, ...), written
-                              under a temporary name and renamed when complete, so a crash or kill never
-                              leaves a half cell that looks finished; a re-run skips the finished ones
-    errors/<cell id>.txt      the traceback of a cell that failed (retried on the next run)
-    results.csv, results.md, figures/, report.md    the aggregate (msa_slam.experiments.report)
+The output folder (layout: msa_slam.experiments.folder) is checked and locked before any work
+(msa_slam.io.outputs): a folder msa-slam did not write is refused, a previous experiment folder is resumed
+(its finished cells of the current grid are skipped), and a second run on the same folder refuses while the
+first holds the lock. Each cell folder is written under a temporary name and moved into place when complete,
+so a crash or kill never leaves a half cell that looks finished.
 
 With `--scheduler tcp://host:port` the workers write into the same folder, so it must be on a file
 system they share (the usual NFS/cluster set-up).
@@ -16,34 +14,31 @@ from __future__ import annotations
 
 import os
 import shutil
+import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from msa_slam.errors import InputError
+from msa_slam.experiments.folder import CELL_FILE, KIND, cell_dir, read_cell, stale_cells, write_grid
 from msa_slam.experiments.grid import Cell, GridSpec, expand
+from msa_slam.io.atomic import write_text_atomic
+from msa_slam.io.outputs import DEFAULT_RESULTS, is_result_folder, open_result_folder, staged_dir
 
-CELL_FILE = "cell.json"
-
-
-def cell_dir(out: Path, cell: Cell) -> Path:
-    return Path(out) / "cells" / cell.id
+DEFAULT_PARENT = DEFAULT_RESULTS / "experiments"
 
 
-def is_finished(out: Path, cell: Cell) -> bool:
-    """True when the cell's folder is complete (it only appears, by rename, once everything is written)."""
-    folder = cell_dir(out, cell)
-    return (folder / "metrics.json").is_file() and (folder / CELL_FILE).is_file()
+def is_finished(out: str | os.PathLike, cell: Cell) -> bool:
+    """True when the cell's folder is complete and readable (it only appears, by rename, once written)."""
+    return read_cell(cell_dir(out, cell.id)) is not None
 
 
-def clean_partials(out: Path) -> list[Path]:
+def clean_partials(out: str | os.PathLike) -> list[Path]:
     """Remove temporary folders of cells interrupted by a crash or kill (and their on-disk keyframe stores);
     return what was removed."""
     cells = Path(out) / "cells"
-    stale = [p for p in cells.glob(".*.partial-*")] if cells.is_dir() else []
+    stale = sorted(list(cells.glob(".*.partial-*")) + list(cells.glob(".*.old-*"))) if cells.is_dir() else []
     stale += [Path(out) / "stores"] if (Path(out) / "stores").is_dir() else []
     for path in stale:
         shutil.rmtree(path, ignore_errors=True)
@@ -53,9 +48,9 @@ def clean_partials(out: Path) -> list[Path]:
 def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bool = False) -> dict[str, Any]:
     """Run one cell and write its folder atomically; returns its metrics (a top-level function so Dask and
     process pools can ship it)."""
-    from msa_slam.pipeline.results import atomic_dir, write_json
+    from msa_slam.pipeline.results import write_json
 
-    target = Path(out) / "cells" / info["id"]
+    target = cell_dir(out, info["id"])
     if info["pipeline"] == "online":
         from msa_slam.pipeline.online import run_online
         from msa_slam.pipeline.online_config import make_online_config
@@ -65,7 +60,7 @@ def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bo
         if cfg.cloud_store == "disk" and cfg.store_dir is None:
             cfg = make_online_config({**config, "store_dir": str(Path(out) / "stores" / info["id"])})
         result = run_online(cfg, quiet=True)
-        with atomic_dir(target) as tmp:
+        with staged_dir(target) as tmp:
             write_online_files(result, tmp, figures)
             write_json(tmp / CELL_FILE, info)
         if cfg.store_dir and Path(out) in Path(cfg.store_dir).parents:
@@ -76,7 +71,7 @@ def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bo
         from msa_slam.pipeline.results import write_run_files
 
         result = run_batch(make_config(config), quiet=True)
-        with atomic_dir(target) as tmp:
+        with staged_dir(target) as tmp:
             write_run_files(result, tmp)
             write_json(tmp / CELL_FILE, info)
     return result.metrics
@@ -84,12 +79,18 @@ def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bo
 
 @dataclass
 class GridRun:
-    """What a run of the grid did: cells finished now, skipped (finished earlier) and failed."""
+    """What a run of the grid did: cells finished now, skipped (finished earlier) and failed (id: reason),
+    and the cell folders of an earlier, different grid left out of the report."""
 
     out: Path
     ran: list[str] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
     failed: dict[str, str] = field(default_factory=dict)
+    stale: list[str] = field(default_factory=list)
+
+    @property
+    def report(self) -> Path:
+        return self.out / "report.md"
 
 
 def _record(run: GridRun, cell: Cell, error: BaseException | None) -> None:
@@ -100,51 +101,74 @@ def _record(run: GridRun, cell: Cell, error: BaseException | None) -> None:
         path.unlink(missing_ok=True)
         return
     errors.mkdir(exist_ok=True)
-    text = "".join(traceback.format_exception(type(error), error, error.__traceback__))
-    path.write_text(text)
-    run.failed[cell.id] = f"{type(error).__name__}: {error}"
+    write_text_atomic(path, "".join(traceback.format_exception(type(error), error, error.__traceback__)))
+    reason = (str(error).strip().splitlines() or [""])[0]
+    run.failed[cell.id] = f"{type(error).__name__}: {reason}"
 
 
-def run_grid(grid: GridSpec, out: str | os.PathLike, scheduler: str | None = None, workers: int = 1,
-             client=None, quiet: bool = True) -> GridRun:
+def _discard_previous(folder: Path) -> None:
+    """--overwrite: remove a previous msa-slam result at `folder` (moved aside first, so a kill leaves either
+    the old result, put back by the next run, or none; never half of one)."""
+    if not is_result_folder(folder):
+        return
+    old = folder.parent / f".{folder.name}.old-{os.getpid()}-{time.monotonic_ns()}"
+    os.replace(folder, old)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | None = None, workers: int = 1,
+             client=None, quiet: bool = True, overwrite: bool = False) -> GridRun:
     """Run the unfinished cells of `grid` into `out`, then write the aggregate report.
 
+    `out` is checked and locked first (msa_slam.io.outputs): None picks a new timestamped folder under
+    msa_slam_results/experiments; a previous experiment folder is resumed, or with `overwrite` replaced.
     In this process when `workers == 1` and no scheduler/client; otherwise through Dask: `client` (any
     distributed.Client, e.g. on a LocalCluster), else the cluster at `scheduler`, else a LocalCluster of
     `workers` single-threaded processes.
     """
     from msa_slam.experiments.report import write_report
-    from msa_slam.progress import progress_bar
 
     if workers < 1:
         raise InputError(f"--workers must be >= 1, got {workers}")
-    out = Path(out)
-    (out / "cells").mkdir(parents=True, exist_ok=True)
-    (out / "grid.yaml").write_text(yaml.safe_dump(grid.model_dump(mode="json"), sort_keys=False))
-    clean_partials(out)
     cells = expand(grid)
-    run = GridRun(out)
-    todo = []
-    for cell in cells:
-        if is_finished(out, cell):
-            run.skipped.append(cell.id)
-        else:
-            todo.append(cell)
+    with open_result_folder(out, kind=KIND, default_parent=DEFAULT_PARENT, overwrite=overwrite,
+                            resume=True) as folder:
+        if overwrite:
+            _discard_previous(folder.path)
+        folder.prepare_in_place()
+        run = GridRun(folder.path)
+        (run.out / "cells").mkdir(exist_ok=True)
+        write_grid(run.out, grid)
+        clean_partials(run.out)
+        run.stale = stale_cells(run.out, cells)
+        todo = []
+        for cell in cells:
+            if is_finished(run.out, cell):
+                run.skipped.append(cell.id)
+            else:
+                todo.append(cell)
+        _run_cells(grid, todo, run, scheduler, workers, client, quiet)
+        write_report(run.out)
+    return run
+
+
+def _run_cells(grid: GridSpec, todo: list[Cell], run: GridRun, scheduler: str | None, workers: int, client,
+               quiet: bool) -> None:
+    from msa_slam.progress import progress_bar
+
     with progress_bar(quiet, transient=False) as bar:
         task = bar.add_task(f"grid {grid.name} ({len(run.skipped)} done before)", total=len(todo))
         if todo and client is None and scheduler is None and workers == 1:
             for cell in todo:
                 bar.update(task, description=f"{cell.method} on {cell.dataset}")
                 try:
-                    run_cell(cell.info(), cell.config, str(out), grid.figures)
+                    run_cell(cell.info(), cell.config, str(run.out), grid.figures)
                     _record(run, cell, None)
                 except Exception as exc:  # a failing cell must not stop the grid
                     _record(run, cell, exc)
                 bar.advance(task)
         elif todo:
-            _run_dask(todo, out, grid.figures, scheduler, workers, client, run, lambda: bar.advance(task))
-    write_report(out)
-    return run
+            _run_dask(todo, run.out, grid.figures, scheduler, workers, client, run, lambda: bar.advance(task))
 
 
 def _run_dask(todo: list[Cell], out: Path, figures: bool, scheduler: str | None, workers: int, client,
@@ -155,7 +179,10 @@ def _run_dask(todo: list[Cell], out: Path, figures: bool, scheduler: str | None,
     try:
         if client is None:
             if scheduler is not None:
-                client = own_client = Client(scheduler, timeout="15s")
+                try:
+                    client = own_client = Client(scheduler, timeout="15s")
+                except OSError as exc:
+                    raise InputError(f"Dask scheduler {scheduler!r}: cannot connect ({exc})") from None
             else:
                 own_cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                            dashboard_address=":0")
@@ -170,8 +197,6 @@ def _run_dask(todo: list[Cell], out: Path, figures: bool, scheduler: str | None,
             except Exception as exc:
                 _record(run, cell, exc)
             advance()
-    except OSError as exc:
-        raise InputError(f"Dask scheduler {scheduler!r}: cannot connect ({exc})") from None
     finally:
         if own_client is not None:
             own_client.close()

@@ -1,0 +1,72 @@
+"""Layout of an experiment results folder and what belongs to its report.
+
+    .msa-slam-result          marker (msa_slam.io.outputs): the folder was written by `msa-slam experiment`
+    grid.yaml                 the grid as last run: the only cells reported are the ones it expands to
+    cells/<cell id>/          one finished run per cell (cell.json, metrics.json, ...); ids hash the config,
+                              so a cell left by an earlier, different grid is recognised as stale
+    errors/<cell id>.txt      the traceback of a cell that failed (removed when it later succeeds)
+    results.csv, results.md, figures/, report.md    the aggregate (msa_slam.experiments.report)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from msa_slam.errors import InputError
+from msa_slam.experiments.grid import Cell, GridSpec, expand, parse_grid
+from msa_slam.io.atomic import write_text_atomic
+
+KIND = "experiment"  # the result-folder kind of msa_slam.io.outputs
+GRID_FILE = "grid.yaml"
+CELL_FILE = "cell.json"
+METRICS_FILE = "metrics.json"
+
+
+def cell_dir(out: str | os.PathLike, cell_id: str) -> Path:
+    return Path(out) / "cells" / cell_id
+
+
+def read_cell(folder: Path) -> tuple[dict[str, Any], dict[str, Any]] | None:
+    """(cell info, metrics) of a finished cell folder; None when either file is missing or unreadable
+    (a corrupt cell counts as unfinished and is rerun, never silently dropped)."""
+    try:
+        info = json.loads((folder / CELL_FILE).read_text())
+        metrics = json.loads((folder / METRICS_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(info, dict) or not isinstance(metrics, dict) or info.get("id") != folder.name:
+        return None
+    return info, metrics
+
+
+def write_grid(out: Path, grid: GridSpec) -> None:
+    write_text_atomic(out / GRID_FILE, yaml.safe_dump(grid.model_dump(mode="json"), sort_keys=False))
+
+
+def grid_cells(out: str | os.PathLike) -> tuple[GridSpec, list[Cell]]:
+    """The grid recorded in `out` and its cells (the cells a report of `out` may use)."""
+    path = Path(out) / GRID_FILE
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the experiment's grid ({exc.strerror}); "
+                         "rerun `msa-slam experiment` into this folder") from None
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: not valid YAML ({exc})") from None
+    grid = parse_grid(data, str(path))
+    return grid, expand(grid, str(path))
+
+
+def stale_cells(out: str | os.PathLike, cells: list[Cell]) -> list[str]:
+    """Ids of cell folders in `out` that the current grid does not contain (left by an earlier grid)."""
+    folder = Path(out) / "cells"
+    if not folder.is_dir():
+        return []
+    current = {c.id for c in cells}
+    return sorted(p.name for p in folder.iterdir()
+                  if p.is_dir() and not p.name.startswith(".") and p.name not in current)
