@@ -1,0 +1,187 @@
+"""Caches never serve stale or damaged data and never break a run (msa_slam.io.cache and its users).
+
+The data is a 12-scan KITTI-layout copy of part of the simulated "test" sequence (conftest.py), run through
+the real front end: KISS-ICP odometry and Scan Context descriptors.
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import os
+import shutil
+import subprocess
+import sys
+import time
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import msa_slam
+import msa_slam.io.cache
+from msa_slam.datasets import open_dataset
+from msa_slam.io.cache import CacheDir, locked_temp
+from msa_slam.io.poses import read_poses, write_poses
+from msa_slam.odometry import KissOdometry, OdometryCache
+from msa_slam.pipeline import make_config, prepare_frontend
+from msa_slam.sim.sequence import CALIB_TEXT
+
+N_SCANS = 12
+
+
+def _fill(data: Path, source: Path, first: int) -> Path:
+    """Write scans first..first+11 of `source` (and their poses) into the KITTI-layout folder `data`, in place."""
+    (data / "velodyne").mkdir(parents=True, exist_ok=True)
+    gt, _ = read_poses(source / "poses.txt")
+    for i in range(N_SCANS):
+        (data / "velodyne" / f"{i:06d}.bin").write_bytes((source / "velodyne" / f"{first + i:06d}.bin").read_bytes())
+    write_poses(data / "poses.txt", gt[first:first + N_SCANS])
+    (data / "calib.txt").write_text(CALIB_TEXT)
+    return data
+
+
+@pytest.fixture
+def data(sequence, tmp_path) -> Path:
+    return _fill(tmp_path / "data", sequence, 0)
+
+
+def _config(data: Path, cache: Path, **fields):
+    return make_config(dataset=str(data), cache_dir=str(cache), **fields)
+
+
+def test_scans_replaced_in_place_are_recomputed(sequence, data, tmp_path):
+    cfg = _config(data, tmp_path / "cache")
+    first = prepare_frontend(cfg)
+    assert first.cached == {"odometry": False, "descriptors": False}
+    _fill(data, sequence, 100)  # same path, same number of scans, other data
+    again = prepare_frontend(cfg)
+    assert again.cached == {"odometry": False, "descriptors": False}
+    assert np.abs(again.odometry[-1, :3, 3] - first.odometry[-1, :3, 3]).max() > 1.0
+    fresh = prepare_frontend(_config(data, tmp_path / "fresh"))
+    np.testing.assert_allclose(again.odometry, fresh.odometry, atol=1e-6)
+    np.testing.assert_array_equal(again.descriptors, fresh.descriptors)
+
+
+def test_same_data_elsewhere_is_a_hit_and_settings_are_part_of_the_key(data, tmp_path):
+    cache = tmp_path / "cache"
+    first = prepare_frontend(_config(data, cache))
+    copy = Path(shutil.copytree(data, tmp_path / "elsewhere" / "copy"))  # copy2 keeps sizes and mtimes
+    moved = prepare_frontend(_config(copy, cache))
+    assert moved.cached == {"odometry": True, "descriptors": True}
+    np.testing.assert_array_equal(moved.odometry, first.odometry)
+    np.testing.assert_array_equal(moved.descriptors, first.descriptors)
+    other = prepare_frontend(_config(copy, cache, descriptor_params={"n_sector": 30}))
+    assert other.cached == {"odometry": True, "descriptors": False}
+    other = prepare_frontend(_config(copy, cache, odometry_params={"max_range": 60.0}))
+    assert other.cached == {"odometry": False, "descriptors": True}
+
+
+def test_odometry_key_covers_threads_and_versions(data, monkeypatch):
+    seq = open_dataset(data)
+    config = KissOdometry().config
+    key = OdometryCache.key(seq, config)
+    assert OdometryCache.key(data, config) == key  # a caller holding only the folder (online) finds it
+    threads = {**config, "registration": {**config["registration"], "max_num_threads": 7}}
+    assert OdometryCache.key(seq, threads) != key
+    real_version = metadata.version
+    monkeypatch.setattr(metadata, "version", lambda name: "0.0.1" if name == "kiss-icp" else real_version(name))
+    assert OdometryCache.key(seq, config) != key
+    monkeypatch.undo()
+    monkeypatch.setattr(msa_slam, "__version__", "99.0")
+    assert OdometryCache.key(seq, config) != key
+
+
+def test_truncated_or_nan_entries_are_recomputed_with_a_warning(data, tmp_path, caplog):
+    cfg = _config(data, tmp_path / "cache")
+    first = prepare_frontend(cfg)
+    entries = {p.name.split("-")[0]: p for p in (tmp_path / "cache" / "pipeline").glob("*.npy")}
+    assert sorted(entries) == ["descriptors", "odometry"]
+    odometry = entries["odometry"]
+    odometry.write_bytes(odometry.read_bytes()[:300])
+    poisoned = np.load(entries["descriptors"])
+    poisoned[3] = np.nan
+    np.save(entries["descriptors"], poisoned)
+    with caplog.at_level(logging.WARNING):
+        again = prepare_frontend(cfg)
+    assert again.cached == {"odometry": False, "descriptors": False}
+    assert f"ignoring {odometry}" in caplog.text
+    assert f"ignoring {entries['descriptors']} (NaN or infinite values)" in caplog.text
+    np.testing.assert_allclose(again.odometry, first.odometry, atol=1e-6)
+    np.testing.assert_array_equal(again.descriptors, first.descriptors)
+    assert prepare_frontend(cfg).cached == {"odometry": True, "descriptors": True}  # rewritten
+
+
+def test_rotated_poses_entry_is_not_trusted(tmp_path, caplog):
+    cache = OdometryCache(tmp_path)
+    poses = np.tile(np.eye(4), (3, 1, 1))
+    cache.save("k", poses)
+    skewed = poses.copy()
+    skewed[1, :3, :3] *= 2.0
+    np.save(cache.path("k"), skewed)
+    assert cache.load("k", 3) is None and "not a rigid transform" in caplog.text
+    np.save(cache.path("k"), poses)
+    assert cache.load("k", 4) is None and "3 rows, expected 4" in caplog.text
+
+
+def test_unwritable_cache_only_costs_the_cache(data, tmp_path, caplog):
+    root = tmp_path / "cache"
+    root.mkdir()
+    if os.geteuid() == 0:  # root ignores permissions: a file where the folder should be fails the same way
+        (root / "pipeline").write_text("not a folder")
+    else:
+        root.chmod(0o500)
+    try:
+        with caplog.at_level(logging.WARNING):
+            frontend = prepare_frontend(_config(data, root))
+    finally:
+        root.chmod(0o700)
+    warnings = [r.getMessage() for r in caplog.records if "cannot write" in r.getMessage()]
+    assert len(warnings) == 1 and str(root / "pipeline") in warnings[0] and "without the cache" in warnings[0]
+    assert frontend.cached == {"odometry": False, "descriptors": False}
+    reference = prepare_frontend(_config(data, tmp_path / "ok"))
+    np.testing.assert_allclose(frontend.odometry, reference.odometry, atol=1e-6)
+
+
+def test_full_disk_warns_once_and_leaves_no_temp(tmp_path, monkeypatch, caplog):
+    def no_space(handle, array):
+        handle.write(b"partial")
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    store = CacheDir(tmp_path)
+    monkeypatch.setattr(np, "save", no_space)
+    assert store.save("a", np.zeros(10)) is None and store.save("b", np.zeros(10)) is None
+    assert [r.getMessage() for r in caplog.records] == [
+        f"cache: cannot write {tmp_path / 'a.npy'} (No space left on device; needs 0.0 MiB); "
+        "continuing without the cache"]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_entries_respect_the_umask(tmp_path):
+    old = os.umask(0o027)
+    try:
+        path = CacheDir(tmp_path / "c").save("a", np.zeros(3))
+    finally:
+        os.umask(old)
+    assert path.stat().st_mode & 0o777 == 0o640 and path.parent.stat().st_mode & 0o777 == 0o750
+
+
+def test_temporaries_of_killed_writers_are_removed(tmp_path, monkeypatch):
+    code = ("import os, sys; from pathlib import Path; from msa_slam.io.cache import locked_temp\n"
+            "with locked_temp(Path(sys.argv[1])) as handle:\n"
+            "    handle.write(b'half an entry'); handle.flush(); os._exit(9)\n")
+    killed = subprocess.run([sys.executable, "-c", code, str(tmp_path / "odometry-k.npy")])
+    assert killed.returncode == 9
+    (orphan,) = tmp_path.glob(".*.tmp")
+    user_file = tmp_path / "notes.tmp"
+    user_file.write_text("not ours: no leading dot")
+    with locked_temp(tmp_path / "descriptors-k.npy"):  # a writer still at work
+        (live,) = tmp_path.glob(".descriptors-k.npy.*.tmp")
+        monkeypatch.setattr(msa_slam.io.cache, "RUN_START_NS", time.time_ns())  # a later run starts
+        young = tmp_path / ".young.npy.x.tmp"  # unlocked but newer than this run: maybe a writer just starting
+        young.write_bytes(b"")
+        os.utime(young, ns=(msa_slam.io.cache.RUN_START_NS + 10**9,) * 2)
+        CacheDir(tmp_path)
+        assert not orphan.exists()
+        assert live.exists() and young.exists() and user_file.exists()
