@@ -21,9 +21,9 @@ ESTIMATES = {"before": "odometry", "after": "optimised"}
 
 @dataclass
 class TrajectoryEvaluation:
-    """JSON-ready metrics (`before`, `after`, `improvement_pct`, `ate_alignment`, `ate_rotation_reliable`,
-    `unavailable`: metric -> why it is None), `warnings` about numbers that are present, and the per-keyframe
-    ATE translation errors of each estimate (None where ATE is unavailable)."""
+    """JSON-ready metrics (`before`, `after`, `improvement_pct`, `ate_alignment`, `ate_rotation_reliable`
+    (None without ATE), `unavailable`: metric -> why it is None), `warnings` about numbers that are present,
+    and the per-keyframe ATE translation errors of each estimate (None where ATE is unavailable)."""
 
     metrics: dict[str, Any]
     warnings: list[str] = field(default_factory=list)
@@ -75,6 +75,6 @@ def evaluate_trajectories(odometry: np.ndarray, optimised: np.ndarray, reference
     warnings = (["rotation ATE unreliable: the SE(3) alignment's rotation is poorly determined ("
                  + "; ".join(unstable) + ")"] if unstable else [])
     metrics = {"before": blocks["before"], "after": blocks["after"], "improvement_pct": improvements,
-               "ate_alignment": alignment, "ate_rotation_reliable": not unstable and "ate" not in unavailable,
+               "ate_alignment": alignment, "ate_rotation_reliable": None if "ate" in unavailable else not unstable,
                "unavailable": unavailable}
     return TrajectoryEvaluation(metrics, warnings, errors)

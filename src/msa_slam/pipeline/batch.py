@@ -4,6 +4,8 @@ odometry + descriptors (shared front end, cached) -> keyframe sampling -> loop c
 keyframes (descriptor similarity >= 0.8, recent keyframes excluded) -> small_gicp verification
 (oracle or realistic) -> GTSAM pose graph (odometry between consecutive keyframes, verified loops, LM)
 -> ATE/RPE before and after, % improvement, PR-AUC/F1-max, loop counts, memory and time.
+A metric that cannot be computed (ATE of a rotation-only trajectory, PR-AUC without revisits) is None
+with its reason under `unavailable`; caveats about computed ones are listed under `warnings`.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from threadpoolctl import threadpool_limits
 
 from msa_slam.backend import GraphNoise, PoseGraph
 from msa_slam.errors import InputError
-from msa_slam.evaluation import StageTimer, ate, improvement, peak_rss_bytes, rpe
+from msa_slam.evaluation import StageTimer, TrajectoryEvaluation, evaluate_trajectories, peak_rss_bytes
 from msa_slam.pipeline.config import BatchConfig
 from msa_slam.pipeline.frontend import Frontend, prepare_frontend
 from msa_slam.pipeline.loops import LoopCandidate, LoopSearch, search_loops, verify_candidates
@@ -39,7 +41,7 @@ class BatchResult:
     search: LoopSearch
     loops: list[LoopCandidate]
     pr: PRCurve | None
-    ate_errors: dict[str, np.ndarray] = field(default_factory=dict)
+    ate_errors: dict[str, np.ndarray | None] = field(default_factory=dict)
     metrics: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -63,19 +65,6 @@ def sample_keyframes(config: BatchConfig, frontend: Frontend, quiet: bool = True
     stats = {**sampler.stats.as_dict(), "online_keyframes": len(sampler.online_keyframes),
              "flushed_keyframes": len(sampler.flushed_keyframes)}
     return keyframes, stats
-
-
-def _trajectory_metrics(estimate: np.ndarray, reference: np.ndarray) -> dict[str, Any]:
-    a = ate(estimate, reference)
-    out = {"ate_translation_m": a.translation_rmse, "ate_rotation_deg": a.rotation_rmse,
-           "ate_translation_errors": a.translation_errors}
-    r = rpe(estimate, reference, delta=1, unit="frames")
-    out.update(rpe_translation_m=r.translation_rmse, rpe_rotation_deg=r.rotation_rmse)
-    return out
-
-
-def _improvement(before: float, after: float) -> float:
-    return improvement(before, after) if before > 0 else 0.0
 
 
 def run_batch(config: BatchConfig, frontend: Frontend | None = None, quiet: bool = True) -> BatchResult:
@@ -130,22 +119,22 @@ def _run_backend(config: BatchConfig, frontend: Frontend, quiet: bool) -> BatchR
     with timer.stage("evaluation"):
         pr = (precision_recall(search.best_similarity, search.best_distance, config.loop_radius)
               if len(search.best_similarity) else None)
-        before = _trajectory_metrics(odom[keyframes], gt[keyframes])
-        after = _trajectory_metrics(optimised, gt[keyframes])
-    errors = {"odometry": before["ate_translation_errors"], "optimised": after["ate_translation_errors"]}
-    result = BatchResult(config, frontend, keyframes, optimised, search, loops, pr, errors)
-    result.metrics = _metrics(result, before, after, sampler_stats, database.nbytes, clouds.nbytes,
+        evaluation = evaluate_trajectories(odom[keyframes], optimised, gt[keyframes], keyframes)
+    result = BatchResult(config, frontend, keyframes, optimised, search, loops, pr, evaluation.errors)
+    result.metrics = _metrics(result, evaluation, sampler_stats, database.nbytes, clouds.nbytes,
                               graph.nbytes, timer)
     return result
 
 
-def _metrics(result: BatchResult, before: dict, after: dict, sampler_stats: dict, descriptor_bytes: int,
+def _metrics(result: BatchResult, evaluation: TrajectoryEvaluation, sampler_stats: dict, descriptor_bytes: int,
              cloud_bytes: int, graph_bytes: int, timer: StageTimer) -> dict[str, Any]:
-    cfg, loops = result.config, result.loops
+    cfg, loops, pr = result.config, result.loops, result.pr
     accepted = [c for c in loops if c.accepted]
     backend_time = sum(timer.seconds.get(s, 0.0) for s in BACKEND_STAGES)
     frontend = result.frontend
-    scalar = lambda d: {k: v for k, v in d.items() if not isinstance(v, np.ndarray)}  # noqa: E731
+    unavailable = dict(evaluation.metrics["unavailable"])
+    if pr is None or pr.unavailable:
+        unavailable["pr"] = "no keyframe had an older keyframe to query" if pr is None else pr.unavailable
     return {
         "sequence": frontend.name,
         "dataset": cfg.dataset,
@@ -160,14 +149,11 @@ def _metrics(result: BatchResult, before: dict, after: dict, sampler_stats: dict
         "verified": len(accepted),
         "registrations": int(sum(c.verified for c in loops)),
         "false_loops": int(sum(c.gt_distance > cfg.loop_radius for c in accepted)),
-        "before": scalar(before),
-        "after": scalar(after),
-        "improvement_pct": {
-            "translation": _improvement(before["ate_translation_m"], after["ate_translation_m"]),
-            "rotation": _improvement(before["ate_rotation_deg"], after["ate_rotation_deg"]),
-        },
-        "pr_auc": None if result.pr is None else result.pr.auc,
-        "f1_max": None if result.pr is None else result.pr.f1_max,
+        **evaluation.metrics,
+        "unavailable": unavailable,
+        "warnings": list(evaluation.warnings),
+        "pr_auc": None if pr is None else pr.auc,
+        "f1_max": None if pr is None else pr.f1_max,
         "pr_queries": int(len(result.search.best_similarity)),
         "memory_bytes": {
             "keyframe_descriptors": int(descriptor_bytes),
@@ -175,7 +161,8 @@ def _metrics(result: BatchResult, before: dict, after: dict, sampler_stats: dict
             "graph": int(graph_bytes),
             "total": int(descriptor_bytes + cloud_bytes + graph_bytes),
         },
-        "peak_rss_bytes": peak_rss_bytes(),
+        "peak_rss_bytes": peak_rss_bytes(),  # the whole process's high-water mark, not this method's
+        "peak_rss_scope": "process",
         "time_s": {**{k: round(v, 4) for k, v in timer.seconds.items()}, "backend_total": round(backend_time, 4)},
         "frontend_time_s": {k: round(v, 4) for k, v in frontend.timer.seconds.items()},
         "frontend_cached": dict(frontend.cached),

@@ -10,12 +10,13 @@ import os
 from pathlib import Path
 from typing import Any, Sequence
 
+from msa_slam.evaluation import ATE_ALIGNMENT, NA, fmt, notes
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
 from msa_slam.pipeline.batch import BatchResult, run_batch
 from msa_slam.pipeline.config import BatchConfig, make_config
 from msa_slam.pipeline.frontend import prepare_frontend
 from msa_slam.progress import progress_bar
-from msa_slam.pipeline.results import rows_csv, trajectory_panels, write_json, write_run_files
+from msa_slam.pipeline.results import mib, rows_csv, trajectory_panels, write_json, write_run_files
 from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.viz import plot_metric_bars, plot_trajectories
 
@@ -47,11 +48,9 @@ def table_row(metrics: dict[str, Any]) -> dict[str, Any]:
 
 
 def _fmt(value: Any) -> str:
-    if value is None:
-        return "n/a"
     if isinstance(value, float):
-        return f"{value:.3f}" if abs(value) < 10 else f"{value:.1f}"
-    return str(value)
+        return fmt(value, ".3f" if abs(value) < 10 else ".1f")
+    return NA if value is None else str(value)
 
 
 def table_markdown(rows: Sequence[dict[str, Any]]) -> str:
@@ -65,7 +64,7 @@ def table_markdown(rows: Sequence[dict[str, Any]]) -> str:
 def _figures(results: Sequence[BatchResult], folder: Path) -> list[str]:
     folder.mkdir()
     labels = [r.config.name for r in results]
-    rows = [table_row(r.metrics) for r in results]
+    rows = [{k: float("nan") if v is None else v for k, v in table_row(r.metrics).items()} for r in results]
     plot_metric_bars(folder / "metrics.png", labels, {
         "ATE translation [m]": {"odometry": [r["ate_before_m"] for r in rows],
                                 "optimised": [r["ate_after_m"] for r in rows]},
@@ -78,7 +77,7 @@ def _figures(results: Sequence[BatchResult], folder: Path) -> list[str]:
     panels = [trajectory_panels(r)[1] for r in results]
     plot_trajectories(folder / "trajectories.png", gt_xy, [trajectory_panels(results[0])[0], *panels],
                       title="keyframe trajectories after optimisation (coloured by ATE)", columns=4)
-    curves = {r.config.name: r.pr for r in results if r.pr is not None}
+    curves = {r.config.name: r.pr for r in results if r.pr is not None and r.pr.auc is not None}
     names = ["metrics.png", "trajectories.png"]
     if curves:
         plot_pr_curves(curves, folder / "pr_curves.png", title="loop candidates per method")
@@ -95,11 +94,17 @@ def _report(results: Sequence[BatchResult], table: str, figures: list[str]) -> s
              f"Dataset `{cfg.dataset}`: {len(fe)} frames. Odometry `{cfg.odometry}`, descriptor `{cfg.descriptor}`, "
              f"loops: similarity >= {cfg.similarity_threshold}, {cfg.mode} verification (small_gicp residual < "
              f"{cfg.verifier.max_residual} m), GTSAM Levenberg-Marquardt. Shared front end: {front}{cached}.", "",
-             "ATE: keyframe trajectory vs ground truth after SE(3) alignment, before (odometry) and after pose-graph "
-             "optimisation; improvement = 100 (before - after) / before. False loops: verified loops whose "
-             f"ground-truth distance exceeds {cfg.loop_radius} m. Memory: accounted bytes of keyframe descriptors, "
-             "downsampled keyframe clouds and the graph. Time: sampling + keyframe store + loop search + "
-             "verification + optimisation.", "", table, ""]
+             f"ATE: keyframe trajectory vs ground truth after {ATE_ALIGNMENT} alignment (fitted on all keyframes of "
+             "each estimate), before (odometry) and after pose-graph optimisation; improvement = 100 (before - "
+             "after) / before. False loops: verified loops whose ground-truth distance exceeds "
+             f"{cfg.loop_radius} m. Memory: accounted bytes of keyframe descriptors, downsampled keyframe clouds "
+             "and the graph, per method. Time: sampling + keyframe store + loop search + verification + "
+             "optimisation.", "", table, "",
+             f"Process peak RSS: {mib(max(r.metrics['peak_rss_bytes'] for r in results))} (whole process: "
+             "every method and the shared front end; not a per-method figure).", ""]
+    method_notes = [f"- {r.config.name}: {note}" for r in results for note in notes(r.metrics)]
+    if method_notes:
+        lines += ["Notes (n/a values and warnings):", "", *method_notes, ""]
     lines += [f"![{n}](figures/{n})" for n in figures]
     lines += ["", "Per-method results: " + ", ".join(f"[{r.config.name}](runs/{r.config.name}/report.md)"
                                                   for r in results), ""]

@@ -16,13 +16,14 @@ import numpy as np
 import yaml
 
 import msa_slam
-from msa_slam.evaluation import align_se3
+from msa_slam.evaluation import PROCESS_RSS_LABEL, fmt
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
 from msa_slam.pipeline.online import MEMORY, STEPS, OnlineResult
 from msa_slam.pipeline.online_figures import plot_memory, plot_step_times
-from msa_slam.pipeline.results import loop_edges, loops_csv, mib, write_json, write_trajectory_files
+from msa_slam.pipeline.results import (loop_edges, loops_csv, mib, notes_markdown, trajectory_panel, write_json,
+                                       write_trajectory_files)
 from msa_slam.place_recognition.figures import plot_pr_curves
-from msa_slam.viz import TrajectoryPanel, plot_trajectories
+from msa_slam.viz import plot_trajectories
 
 
 def accounted_bytes(memory: dict[str, np.ndarray]) -> np.ndarray:
@@ -46,11 +47,11 @@ def _figures(result: OnlineResult, folder: Path) -> list[str]:
     folder.mkdir()
     m, kf = result.metrics, result.keyframes
     gt = result.gt_poses[kf]
-    good, bad = loop_edges(kf, result.accepted_loops, result.config.loop_radius)
-    panels = [TrajectoryPanel(f"odometry, ATE {m['before']['ate_translation_m']:.2f} m",
-                              align_se3(result.odometry[kf], gt)[:, :2, 3], result.ate_errors["odometry"], good, bad),
-              TrajectoryPanel(f"{m['method']} iSAM2, ATE {m['after']['ate_translation_m']:.2f} m",
-                              align_se3(result.optimised, gt)[:, :2, 3], result.ate_errors["optimised"], good, bad)]
+    loops = loop_edges(kf, result.accepted_loops, result.config.loop_radius)
+    panels = [trajectory_panel("odometry", m["before"]["ate_translation_m"], result.odometry[kf], gt,
+                               result.ate_errors["odometry"], loops),
+              trajectory_panel(f"{m['method']} iSAM2", m["after"]["ate_translation_m"], result.optimised, gt,
+                               result.ate_errors["optimised"], loops)]
     plot_trajectories(folder / "trajectories.png", result.gt_poses[:, :2, 3], panels,
                       title=f"{m['sequence']}: {m['method']} online ({m['keyframes']} keyframes, "
                             f"{m['verified']} loops)")
@@ -65,7 +66,7 @@ def _figures(result: OnlineResult, folder: Path) -> list[str]:
         "back-end per frame": {m["method"]: result.backend_ms},
     }, title=f"{m['sequence']}: per-step time")
     names = ["trajectories.png", "memory.png", "step_times.png"]
-    if result.pr is not None:
+    if result.pr is not None and result.pr.auc is not None:
         plot_pr_curves({m["method"]: result.pr}, folder / "pr_curve.png", title=f"{m['sequence']}: loop candidates")
         names.append("pr_curve.png")
     return names
@@ -74,20 +75,24 @@ def _figures(result: OnlineResult, folder: Path) -> list[str]:
 def _report(result: OnlineResult, figures: list[str]) -> str:
     m = result.metrics
     b, a, imp, lat = m["before"], m["after"], m["improvement_pct"], m["latency_ms"]
-    f1 = "n/a" if m["f1_max"] is None else f"{m['f1_max']:.3f}"
+    rot = " (unreliable: see notes)" if m.get("ate_rotation_reliable") is False else ""
     lines = [
         f"# {m['method']} online on {m['sequence']} ({m['mode']} loops)", "",
         f"{m['frames']} frames -> {m['keyframes']} keyframes; {m['candidates']} loop candidates, {m['verified']} "
         f"verified, {m['false_loops']} false. iSAM2 updated at every frame that finalised keyframes.", "",
         "| metric | odometry | iSAM2 | improvement |", "|---|---|---|---|",
-        f"| ATE translation [m] | {b['ate_translation_m']:.3f} | {a['ate_translation_m']:.3f} | "
-        f"{imp['translation']:.1f} % |",
-        f"| ATE rotation [deg] | {b['ate_rotation_deg']:.3f} | {a['ate_rotation_deg']:.3f} | {imp['rotation']:.1f} % |",
-        "", "| F1-max | memory (keyframes + graph) | bytes / keyframe | peak RSS | frames/s | back-end frames/s | "
-        "real-time factor | back-end p99 [ms] |", "|---|---|---|---|---|---|---|---|",
-        f"| {f1} | {mib(m['memory_bytes']['total'])} ({m['memory_bytes']['cloud_store']}) | "
-        f"{m['bytes_per_keyframe']:.0f} | {mib(m['peak_rss_bytes'])} | {m['fps']:.1f} | {m['backend_fps']:.1f} | "
+        f"| ATE translation [m] | {fmt(b['ate_translation_m'])} | {fmt(a['ate_translation_m'])} | "
+        f"{fmt(imp['translation'], '.1f', ' %')} |",
+        f"| ATE rotation [deg]{rot} | {fmt(b['ate_rotation_deg'])} | {fmt(a['ate_rotation_deg'])} | "
+        f"{fmt(imp['rotation'], '.1f', ' %')} |", "",
+        *([f"ATE alignment: {m['ate_alignment']}.", ""] if "ate_alignment" in m else []),
+        *notes_markdown(m),
+        "| F1-max | memory (keyframes + graph) | bytes / keyframe | frames/s | back-end frames/s | "
+        "real-time factor | back-end p99 [ms] |", "|---|---|---|---|---|---|---|",
+        f"| {fmt(m['f1_max'])} | {mib(m['memory_bytes']['total'])} ({m['memory_bytes']['cloud_store']}) | "
+        f"{m['bytes_per_keyframe']:.0f} | {m['fps']:.1f} | {m['backend_fps']:.1f} | "
         f"{m['realtime_factor']:.2f} | {lat['backend']['p99']:.1f} |", "",
+        f"{PROCESS_RSS_LABEL}: {mib(m['peak_rss_bytes'])}", "",
         "Step totals [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in m["time_s"].items())
         + ("  (odometry replayed from cache)" if m.get("odometry_cached") else ""), "",
     ]

@@ -15,7 +15,7 @@ import numpy as np
 import yaml
 
 import msa_slam
-from msa_slam.evaluation import align_se3
+from msa_slam.evaluation import NA, PROCESS_RSS_LABEL, AlignmentError, align_se3, fmt, notes
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
 from msa_slam.io.poses import write_poses
 from msa_slam.pipeline.batch import BatchResult
@@ -49,7 +49,8 @@ def _frames_csv(result: BatchResult) -> str:
             row += [""] * 5
         else:
             row += [f"{v:.6f}" for v in result.optimised[k, :3, 3]]
-            row += [f"{result.ate_errors['odometry'][k]:.6f}", f"{result.ate_errors['optimised'][k]:.6f}"]
+            row += [NA if result.ate_errors[e] is None else f"{result.ate_errors[e][k]:.6f}"
+                    for e in ("odometry", "optimised")]
         writer.writerow(row)
     return buf.getvalue()
 
@@ -96,18 +97,28 @@ def rows_csv(rows, columns) -> str:
     return buf.getvalue()
 
 
+def trajectory_panel(name: str, ate_m: float | None, estimate: np.ndarray, gt: np.ndarray,
+                     errors: np.ndarray | None, loops: tuple[list, list]) -> TrajectoryPanel:
+    """A keyframe trajectory SE(3)-aligned to `gt` and coloured by its ATE; drawn as estimated (error 0)
+    when the alignment is undetermined."""
+    try:
+        xy = align_se3(estimate, gt)[:, :2, 3]
+    except AlignmentError:
+        xy, name = estimate[:, :2, 3], f"{name} (not aligned)"
+    shown = np.zeros(len(estimate)) if errors is None else errors
+    return TrajectoryPanel(f"{name}, ATE {fmt(ate_m, '.2f', ' m')}", xy, shown, *loops)
+
+
 def trajectory_panels(result: BatchResult) -> tuple[TrajectoryPanel, TrajectoryPanel]:
     """Odometry and optimised keyframe trajectories (SE(3)-aligned to GT) with their loops."""
     kf, fe = result.keyframes, result.frontend
     gt = fe.gt_poses[kf]
-    good, bad = loop_edges(kf, result.accepted_loops, result.config.loop_radius)
+    loops = loop_edges(kf, result.accepted_loops, result.config.loop_radius)
     m = result.metrics
-    odom = align_se3(fe.odometry[kf], gt)[:, :2, 3]
-    opt = align_se3(result.optimised, gt)[:, :2, 3]
-    return (TrajectoryPanel(f"odometry, ATE {m['before']['ate_translation_m']:.2f} m", odom,
-                            result.ate_errors["odometry"], good, bad),
-            TrajectoryPanel(f"{m['method']} optimised, ATE {m['after']['ate_translation_m']:.2f} m", opt,
-                            result.ate_errors["optimised"], good, bad))
+    return (trajectory_panel("odometry", m["before"]["ate_translation_m"], fe.odometry[kf], gt,
+                             result.ate_errors["odometry"], loops),
+            trajectory_panel(f"{m['method']} optimised", m["after"]["ate_translation_m"], result.optimised, gt,
+                             result.ate_errors["optimised"], loops))
 
 
 def _write_figures(result: BatchResult, folder: Path) -> list[str]:
@@ -117,7 +128,7 @@ def _write_figures(result: BatchResult, folder: Path) -> list[str]:
                       title=f"{m['sequence']}: {m['method']} ({m['keyframes']} keyframes, {m['verified']} loops, "
                             f"{m['mode']})")
     names = ["trajectories.png"]
-    if result.pr is not None:
+    if result.pr is not None and result.pr.auc is not None:
         plot_pr_curves({m["method"]: result.pr}, folder / "pr_curve.png", title=f"{m['sequence']}: loop candidates")
         names.append("pr_curve.png")
     return names
@@ -128,25 +139,35 @@ def mib(n: float) -> str:
     return f"{n / 2**20:.2f} MiB"
 
 
+def notes_markdown(metrics: dict[str, Any]) -> list[str]:
+    """report.md lines: why each n/a metric is unavailable, then the warnings (nothing when all is well)."""
+    items = notes(metrics)
+    return ["Notes:", "", *(f"- {item}" for item in items), ""] if items else []
+
+
 def _report(result: BatchResult, figures: list[str]) -> str:
     m = result.metrics
     b, a, imp = m["before"], m["after"], m["improvement_pct"]
-    pr = "n/a" if m["pr_auc"] is None else f"{m['pr_auc']:.3f} / {m['f1_max']:.3f}"
+    pr = f"{fmt(m['pr_auc'])} / {fmt(m['f1_max'])}"
+    rot = " (unreliable: see notes)" if m.get("ate_rotation_reliable") is False else ""
     lines = [
         f"# {m['method']} on {m['sequence']} ({m['mode']} loops)", "",
         f"{m['frames']} frames -> {m['keyframes']} keyframes; {m['candidates']} loop candidates "
         f"(similarity >= {result.config.similarity_threshold}), {m['verified']} verified, "
         f"{m['false_loops']} false (ground-truth distance > {result.config.loop_radius} m).", "",
         "| metric | odometry | optimised | improvement |", "|---|---|---|---|",
-        f"| ATE translation [m] | {b['ate_translation_m']:.3f} | {a['ate_translation_m']:.3f} | "
-        f"{imp['translation']:.1f} % |",
-        f"| ATE rotation [deg] | {b['ate_rotation_deg']:.3f} | {a['ate_rotation_deg']:.3f} | {imp['rotation']:.1f} % |",
-        f"| RPE translation [m] (consecutive keyframes) | {b['rpe_translation_m']:.3f} | "
-        f"{a['rpe_translation_m']:.3f} | |",
-        f"| RPE rotation [deg] | {b['rpe_rotation_deg']:.3f} | {a['rpe_rotation_deg']:.3f} | |", "",
-        "| PR-AUC / F1-max | memory (keyframes + graph) | peak RSS | back-end time |", "|---|---|---|---|",
-        f"| {pr} | {mib(m['memory_bytes']['total'])} | {mib(m['peak_rss_bytes'])} | "
-        f"{m['time_s']['backend_total']:.2f} s |", "",
+        f"| ATE translation [m] | {fmt(b['ate_translation_m'])} | {fmt(a['ate_translation_m'])} | "
+        f"{fmt(imp['translation'], '.1f', ' %')} |",
+        f"| ATE rotation [deg]{rot} | {fmt(b['ate_rotation_deg'])} | {fmt(a['ate_rotation_deg'])} | "
+        f"{fmt(imp['rotation'], '.1f', ' %')} |",
+        f"| RPE translation [m] (consecutive keyframes) | {fmt(b['rpe_translation_m'])} | "
+        f"{fmt(a['rpe_translation_m'])} | |",
+        f"| RPE rotation [deg] | {fmt(b['rpe_rotation_deg'])} | {fmt(a['rpe_rotation_deg'])} | |", "",
+        f"ATE alignment: {m['ate_alignment']}.", "",
+        *notes_markdown(m),
+        "| PR-AUC / F1-max | memory (keyframes + graph) | back-end time |", "|---|---|---|",
+        f"| {pr} | {mib(m['memory_bytes']['total'])} | {m['time_s']['backend_total']:.2f} s |", "",
+        f"{PROCESS_RSS_LABEL}: {mib(m['peak_rss_bytes'])}", "",
         "Stage times [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in {**m['frontend_time_s'], **m['time_s']}.items())
         + ("  (front end from cache)" if all(m["frontend_cached"].values()) else ""), "",
     ]
