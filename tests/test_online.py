@@ -3,17 +3,25 @@ are revisits), with drifting odometry from ground truth plus seeded noise, so no
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import tempfile
+
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
 from msa_slam.cli import app
+from msa_slam.datasets import Frame
+from msa_slam.descriptors import make_descriptor
 from msa_slam.errors import InputError
 from msa_slam.pipeline.online import STEPS, run_online
 from msa_slam.pipeline.online_config import make_online_config
-from msa_slam.pipeline.online_source import NoisyOdometry, open_source
+from msa_slam.pipeline.online_source import FrameSource, NoisyOdometry, open_source
 from msa_slam.pipeline.online_store import DiskCloudStore
 from msa_slam.registration import downsample
+from msa_slam.sampling import make_sampler
 
 EIGHT = "live:figure-eight,stride=2,azimuth_steps=360"
 COARSE = "live:figure-eight,stride=4,azimuth_steps=180"
@@ -54,8 +62,8 @@ def test_online_memory_accounting_is_monotone_and_matches_totals(msa_run):
     assert m["bytes_per_keyframe"] == pytest.approx(m["memory_bytes"]["total"] / m["keyframes"])
     assert (mem["rss_bytes"] > 0).all() and m["peak_rss_bytes"] >= mem["rss_bytes"].max() * 0.99
     # the sampler's pending frames are forgotten: the buffer never holds more than ~a window of scans
-    scan_bytes = mem["buffer_bytes"][mem["buffer_bytes"] > 0].min()
-    assert mem["buffer_bytes"].max() <= 16 * scan_bytes
+    scan_bytes = mem["pending_bytes"][mem["pending_bytes"] > 0].min()
+    assert mem["pending_bytes"].max() <= 16 * scan_bytes
 
 
 def test_online_step_times_and_latency(msa_run):
@@ -80,7 +88,7 @@ def test_disk_store_gives_the_same_run_without_clouds_in_ram(coarse_runs):
     np.testing.assert_allclose(memory.optimised, disk.optimised, atol=1e-6)
     assert disk.memory["cloud_bytes"].max() == 0
     assert disk.metrics["memory_bytes"]["keyframe_clouds_on_disk"] == memory.metrics["memory_bytes"]["keyframe_clouds"]
-    assert len(list(store.glob("kf_*.npy"))) == disk.metrics["keyframes"]
+    assert list(store.iterdir()) == []  # the clouds' folder went at the end of the run; store_dir itself stays
 
 
 def test_disk_cloud_store_round_trip(tmp_path):
@@ -93,6 +101,86 @@ def test_disk_cloud_store_round_trip(tmp_path):
     assert 7 in store and len(store) == 1 and store.nbytes == 0 and store.disk_bytes == stored.nbytes
     with pytest.raises(InputError, match="keyframe 8 has no stored cloud"):
         store[8]
+
+
+def _pausing_source(pause: int) -> tuple[FrameSource, list[Frame], list[int]]:
+    """The first 30 scans of COARSE with a stop of `pause` frames at frame 4 (same pose, a fresh scan array
+    each frame, as a sensor gives); also the 30 scans and which one each frame shows."""
+    scans = [f for _, f in zip(range(30), open_source(COARSE).frames())]
+    order = list(range(5)) + [4] * pause + list(range(5, 30))
+    gt = np.stack([scans[k].gt_pose for k in order])
+    frames = lambda: (Frame(i, i / 10, scans[k].points.copy(), gt[i]) for i, k in enumerate(order))  # noqa: E731
+    return FrameSource("pause", gt, frames), scans, order
+
+
+def test_pending_scans_stay_bounded_while_standing_still():
+    """A robot that stops: frames the MSA window skips cannot become keyframes and are not kept, so pending
+    data stays within a window of scans, and the keyframes are those of the sampler run on its own."""
+    window = 10
+    source, scans, order = _pausing_source(pause=300)
+    cfg = make_online_config(dataset=COARSE, odometry="gt-noise", sampler="msa", sampler_params={"window": window},
+                             odometry_params={"translation_noise": 0.0, "rotation_noise_deg": 0.0})
+    result = run_online(cfg, source)
+    descriptor = make_descriptor(cfg.descriptor, **cfg.descriptor_params)
+    descriptors = [np.asarray(descriptor.compute(s.points, frame=k), dtype=np.float64) for k, s in enumerate(scans)]
+    largest_scan = max(s.points.nbytes for s in scans) + descriptors[0].nbytes
+    pending = result.memory["pending_bytes"]
+    assert pending.max() > 0 and pending.max() <= (window + 1) * largest_scan
+    alone = make_sampler("msa", window=window).run(source.gt_poses, np.stack([descriptors[k] for k in order]),
+                                                   flush=True)
+    assert result.keyframes.tolist() == sorted(alone) and result.keyframes[-1] > 300
+
+
+def test_disk_store_folder_is_private_and_removed_on_close(tmp_path, monkeypatch):
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # the system temp folder, for this test
+    store = DiskCloudStore(0.5)
+    store.add(1, np.random.default_rng(0).uniform(-20, 20, (500, 3)))
+    assert store.folder.parent == tmp_path and store.folder.name.startswith(f"msa-kf-clouds-{os.getpid()}-")
+    assert [p.name for p in store.folder.iterdir()] == ["kf_1.npy"]
+    store.close()
+    assert list(tmp_path.iterdir()) == []
+    user = tmp_path / "user"
+    user.mkdir()
+    (user / "notes.txt").write_text("mine")
+    created = tmp_path / "new" / "deeper"
+    for parent in (user, created):
+        store = DiskCloudStore(0.5, parent)
+        store.add(1, np.random.default_rng(0).uniform(-20, 20, (500, 3)))
+        store.close()
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["notes.txt", "user"]  # made for the store: gone
+
+
+def test_online_run_removes_its_cloud_folder_even_when_it_fails(tmp_path, monkeypatch):
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    base = dict(dataset=COARSE, odometry="gt-noise", cloud_store="disk", max_frames=40)
+    run_online(make_online_config(base, sampler="constant", sampler_params={"distance": 2.0}))
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(InputError, match="kept 1 keyframes") as failed:
+        run_online(make_online_config(base, sampler="constant", sampler_params={"distance": 1e6}))
+    assert failed.traceback and list(tmp_path.iterdir()) == []  # closed by the run, not left to the collector
+
+
+def test_stale_cloud_folders_of_ended_runs_are_removed(tmp_path):
+    ended = subprocess.Popen([sys.executable, "-c", "pass"])
+    ended.wait()
+    stale, live, foreign = (tmp_path / f"msa-kf-clouds-{ended.pid}-a", tmp_path / f"msa-kf-clouds-{os.getpid()}-b",
+                            tmp_path / f"msa-kf-clouds-{ended.pid}-c")
+    for folder, name in ((stale, "kf_3.npy"), (stale, ".kf_4.npy.x1y2.tmp"), (live, "kf_3.npy"),
+                         (foreign, "thesis.tex")):
+        folder.mkdir(exist_ok=True)
+        (folder / name).write_bytes(b"x")
+    (tmp_path / "notes.txt").write_text("mine")
+    store = DiskCloudStore(0.5, tmp_path)
+    assert not stale.exists()
+    assert (live / "kf_3.npy").is_file() and (foreign / "thesis.tex").is_file() and (tmp_path / "notes.txt").is_file()
+    store.close()
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([live.name, foreign.name, "notes.txt"])
+
+
+def test_store_dir_that_is_a_file_is_refused(tmp_path):
+    (tmp_path / "clouds").write_text("not a folder")
+    with pytest.raises(InputError, match="store_dir .*clouds.* is a file"):
+        DiskCloudStore(0.5, tmp_path / "clouds")
 
 
 def test_live_source_laps_drive_back_and_forth():

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import time
+from contextlib import closing
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -37,7 +38,7 @@ from msa_slam.sampling import make_sampler
 
 STEPS = ("odometry", "descriptor", "sampling", "keyframe_store", "loop_detection", "verification", "graph_update")
 BACKEND_STEPS = STEPS[1:]  # everything after odometry
-MEMORY = ("keyframes", "cloud_bytes", "cloud_disk_bytes", "descriptor_bytes", "graph_bytes", "buffer_bytes",
+MEMORY = ("keyframes", "cloud_bytes", "cloud_disk_bytes", "descriptor_bytes", "graph_bytes", "pending_bytes",
           "rss_bytes")
 
 
@@ -104,7 +105,6 @@ class OnlinePipeline:
         self.best_distance: list[float] = []
         self._pending: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # frames the sampler may still choose
         self._keyframes: list[int] = []
-        self._keyframe_set: set[int] = set()
         self._row: dict[int, int] = {}  # keyframe -> row in the database
         self._frames = 0
 
@@ -149,6 +149,9 @@ class OnlinePipeline:
         accepted_any = False
         for k in new:
             k = int(k)
+            if k not in self._pending:
+                raise RuntimeError(f"sampler {self.config.sampler!r} chose frame {k} at frame {i}, but frame {k} "
+                                   "had left its window (online keyframes must be window members)")
             desc, points = self._pending.pop(k)
             t = time.perf_counter()
             self.clouds.add(k, points)
@@ -179,18 +182,18 @@ class OnlinePipeline:
                 self.loops.extend(verified)
                 self._timed("verification", i, t)
             self._keyframes.append(k)
-            self._keyframe_set.add(k)
         if new:
             t = time.perf_counter()
             self.graph.update(cfg.update_iterations if accepted_any else 0)
             self._timed("graph_update", i, t)
 
     def _prune(self) -> None:
-        """Forget buffered frames the sampler can no longer choose (older than its open window)."""
-        window = getattr(self.sampler, "window", None)
-        open_frames = [f for f in (window or []) if f not in self._keyframe_set]
-        lowest = min(open_frames) if open_frames else self._frames
-        for f in [f for f in self._pending if f < lowest]:
+        """Forget buffered frames the sampler can no longer choose, so pending scans stay bounded however
+        the robot moves: only members of MSA's window (at most N + 1 frames) may still become keyframes;
+        a frame the window skipped (it moved < MIN_WINDOW_STEP, e.g. standing still) never joins it later,
+        and samplers without a window decide each frame as it arrives."""
+        selectable = set(getattr(self.sampler, "window", ()))
+        for f in [f for f in self._pending if f not in selectable]:
             del self._pending[f]
 
     def _record_memory(self, i: int) -> None:
@@ -200,7 +203,7 @@ class OnlinePipeline:
         mem["cloud_disk_bytes"][i] = getattr(self.clouds, "disk_bytes", 0)
         mem["descriptor_bytes"][i] = self.database.nbytes
         mem["graph_bytes"][i] = self.graph.nbytes
-        mem["buffer_bytes"][i] = sum(d.nbytes + p.nbytes for d, p in self._pending.values())
+        mem["pending_bytes"][i] = sum(d.nbytes + p.nbytes for d, p in self._pending.values())
         mem["rss_bytes"][i] = current_rss_bytes()
 
     def finish(self) -> OnlineResult:
@@ -230,9 +233,14 @@ class OnlinePipeline:
         result.metrics = _metrics(result, before, after, self.sampler.stats.as_dict(), final_ms,
                                   getattr(self.clouds, "disk_bytes", 0))
         result.metrics["pr_queries"] = len(self.best_similarity)
-        if hasattr(self.clouds, "close") and self.config.store_dir is None:
-            self.clouds.close()
+        self.close()
         return result
+
+    def close(self) -> None:
+        """Release the keyframe clouds (a disk store removes the files it wrote); safe to call twice."""
+        close = getattr(self.clouds, "close", None)
+        if close is not None:
+            close()
 
 
 def _trajectory_metrics(estimate: np.ndarray, reference: np.ndarray) -> dict[str, Any]:
@@ -345,7 +353,7 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     n = len(source) if config.max_frames is None else min(len(source), config.max_frames)
     odometry, cached = make_online_odometry(config, source, n)
     pipe = OnlinePipeline(config, odometry, n, source.name)
-    with threadpool_limits(limits=1, user_api="blas"), online_progress(quiet) as bar:
+    with threadpool_limits(limits=1, user_api="blas"), online_progress(quiet) as bar, closing(pipe):
         task = bar.add_task(f"online {config.name}", total=n, fps=0.0, rtf=0.0, kf=0, loops=0)
         start = time.perf_counter()
         for i, frame in enumerate(source.frames()):

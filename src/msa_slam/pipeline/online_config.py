@@ -21,8 +21,9 @@ class OnlineConfig(BatchConfig):
     needs them (no files), K passes over the trajectory driven forth and back (see online_source).
     `odometry` also accepts "gt-noise": ground-truth motions with random noise (odometry_params
     translation_noise, rotation_noise_deg; seeded by `seed`), for long runs where KISS-ICP would dominate.
-    `cloud_store="disk"` keeps downsampled keyframe clouds as .npy files in `store_dir` (memory-mapped
-    when read) instead of in RAM.
+    `cloud_store="disk"` keeps downsampled keyframe clouds as .npy files (memory-mapped when read) instead of
+    in RAM, in a private folder under `store_dir` (default: the system temporary folder) that is removed when
+    the run ends; pick a `store_dir` on a real disk when the temporary folder is in RAM (tmpfs).
     """
 
     cloud_store: Literal["memory", "disk"] = "memory"

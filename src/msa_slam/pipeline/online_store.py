@@ -3,12 +3,21 @@
 Same interface as msa_slam.registration.KeyframeCloudStore (add / [] / in / len / nbytes), so long runs
 keep only the keyframe bookkeeping in RAM; `nbytes` is what sits in RAM (zero for clouds on disk) and
 `disk_bytes` what the files hold.
+
+The files go to a private folder `msa-kf-clouds-<pid>-<random>` under `store_dir` (the system temporary
+folder by default), so two runs never share files. It is removed on close (and at interpreter exit if
+never closed); a folder left by a killed run is removed by the next store opened in the same place once
+its process is gone. Nothing else in `store_dir` is touched; `store_dir` itself is removed only if the
+store created it and it is empty at close.
 """
 
 from __future__ import annotations
 
 import os
+import re
+import shutil
 import tempfile
+import weakref
 from pathlib import Path
 from typing import Hashable
 
@@ -18,18 +27,74 @@ from msa_slam.errors import InputError
 from msa_slam.io.atomic import atomic_path
 from msa_slam.registration import KeyframeCloudStore, downsample
 
+PREFIX = "msa-kf-clouds-"
+_OWNED = re.compile(re.escape(PREFIX) + r"(\d+)-[^/]+")
+_STORE_FILE = re.compile(r"kf_.+\.npy|\.kf_.+\.npy\..+\.tmp")  # clouds and atomic_path's partial files
+
+
+def process_alive(pid: int) -> bool:
+    """Whether process `pid` exists (signal 0 checks without sending; another user's process counts)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_stale_stores(parent: Path) -> list[Path]:
+    """Remove the store folders in `parent` left by runs whose process is gone; return them.
+
+    Only folders named by this module, owned by this user and holding nothing but cloud files qualify.
+    POSIX only: elsewhere os.kill(pid, 0) does not test for existence.
+    """
+    if os.name != "posix" or not parent.is_dir():
+        return []
+    removed = []
+    for path in parent.iterdir():
+        match = _OWNED.fullmatch(path.name)
+        if match is None or path.is_symlink() or not path.is_dir() or process_alive(int(match.group(1))):
+            continue
+        try:
+            if path.stat().st_uid != os.getuid() or not all(_STORE_FILE.fullmatch(f.name) for f in path.iterdir()):
+                continue
+            shutil.rmtree(path)
+        except OSError:  # removed meanwhile by another run, or not ours to remove
+            continue
+        removed.append(path)
+    return removed
+
+
+def _remove_store(folder: Path, created: list[Path], owner: int) -> None:
+    """Remove the store's folder, then the folders made for it (deepest first) while they are empty;
+    only in the process that made them (a forked child's copy of the store must not delete them)."""
+    if os.getpid() != owner:
+        return
+    shutil.rmtree(folder, ignore_errors=True)
+    for path in created:
+        try:
+            path.rmdir()  # fails if not empty: never removes what someone else put there meanwhile
+        except OSError:
+            return
+
 
 class DiskCloudStore:
-    """Downsampled keyframe clouds as `<dir>/kf_<key>.npy` (a temporary folder when `folder` is None)."""
+    """Downsampled keyframe clouds as `<private folder>/kf_<key>.npy` under `store_dir` (temp folder if None)."""
 
-    def __init__(self, voxel_size: float = 0.5, folder: str | os.PathLike | None = None) -> None:
+    def __init__(self, voxel_size: float = 0.5, store_dir: str | os.PathLike | None = None) -> None:
         if not voxel_size > 0:
             raise InputError(f"voxel_size must be > 0, got {voxel_size}")
         self.voxel_size = float(voxel_size)
-        self._tmp = None if folder is not None else tempfile.TemporaryDirectory(prefix="msa-kf-clouds-")
-        self.folder = Path(folder if folder is not None else self._tmp.name)
-        self.folder.mkdir(parents=True, exist_ok=True)
+        parent = Path(store_dir if store_dir is not None else tempfile.gettempdir()).absolute()
+        if parent.exists() and not parent.is_dir():
+            raise InputError(f"store_dir {str(parent)!r} is a file; give a folder for the keyframe clouds")
+        created = [p for p in (parent, *parent.parents) if not p.exists()]  # deepest first
+        parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_stores(parent)
+        self.folder = Path(tempfile.mkdtemp(prefix=f"{PREFIX}{os.getpid()}-", dir=parent))
         self._sizes: dict[Hashable, int] = {}
+        self._cleanup = weakref.finalize(self, _remove_store, self.folder, created, os.getpid())
 
     def _path(self, key: Hashable) -> Path:
         return self.folder / f"kf_{key}.npy"
@@ -64,15 +129,15 @@ class DiskCloudStore:
         return int(sum(self._sizes.values()))
 
     def close(self) -> None:
-        """Remove the folder if it was a temporary one."""
-        if self._tmp is not None:
-            self._tmp.cleanup()
+        """Remove the clouds' folder (and `store_dir` if the store created it and nothing else is there)."""
+        self._cleanup()
+        self._sizes.clear()
 
 
-def make_cloud_store(kind: str, voxel_size: float, folder: str | os.PathLike | None = None):
-    """`memory`: KeyframeCloudStore in RAM; `disk`: DiskCloudStore in `folder` (temporary if None)."""
+def make_cloud_store(kind: str, voxel_size: float, store_dir: str | os.PathLike | None = None):
+    """`memory`: KeyframeCloudStore in RAM; `disk`: DiskCloudStore under `store_dir` (temporary if None)."""
     if kind == "memory":
         return KeyframeCloudStore(voxel_size)
     if kind == "disk":
-        return DiskCloudStore(voxel_size, folder)
+        return DiskCloudStore(voxel_size, store_dir)
     raise InputError(f"unknown cloud store {kind!r}; choose memory or disk")
