@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+import msa_slam.evaluation.resources as resources
 from msa_slam.errors import InputError
-from msa_slam.evaluation import StageTimer, align_se3, array_bytes, ate, improvement, peak_rss_bytes, rpe
+from msa_slam.evaluation import (AlignmentError, StageTimer, align_se3, alignment_warnings, array_bytes, ate,
+                                 evaluate_trajectories, fmt, improvement, improvement_pct, notes, peak_rss_bytes, rpe)
 
 
 def _curve(n: int = 40) -> np.ndarray:
@@ -102,20 +102,103 @@ def test_bad_trajectories_raise():
         ate(ref[:2], ref[:2])
 
 
-def test_memory_and_stage_timer():
+def test_memory_accounting():
     a = np.zeros((100, 3), dtype=np.float32)
     b = np.zeros(10, dtype=np.float64)
     assert array_bytes(a, b, None) == 1200 + 80
     before = peak_rss_bytes()
     big = np.ones(30_000_000 // 8)  # ~30 MB touched
     assert big.sum() > 0 and peak_rss_bytes() >= before > 1_000_000
+
+
+def test_stage_timer_accumulates_and_records_failing_stages(monkeypatch):
+    clock = iter([10.0, 10.5, 20.0, 20.25, 30.0, 31.0])
+    monkeypatch.setattr(resources.time, "perf_counter", lambda: next(clock))
     timer = StageTimer()
     with timer.stage("a"):
-        time.sleep(0.02)
+        pass
     with timer.stage("a"):
-        time.sleep(0.02)
+        pass
     with pytest.raises(RuntimeError):
         with timer.stage("b"):
             raise RuntimeError("boom")
-    assert 0.04 <= timer.seconds["a"] < 0.5 and "b" in timer.seconds
-    assert timer.total == pytest.approx(sum(timer.seconds.values()))
+    assert timer.seconds == {"a": 0.75, "b": 1.0} and timer.total == 1.75
+
+
+def _spin(n: int = 30, step: np.ndarray | None = None) -> np.ndarray:
+    """Poses turning about z on the spot (or moving by `step` per pose)."""
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    poses[:, :3, :3] = Rotation.from_euler("z", np.linspace(0, 2 * np.pi, n)[:, None]).as_matrix()
+    if step is not None:
+        poses[:, :3, 3] = np.arange(n)[:, None] * step
+    return poses
+
+
+@pytest.mark.parametrize("reference", [_spin(), np.tile(np.eye(4), (30, 1, 1)), _spin(step=np.array([1.0, 0, 0]))],
+                         ids=["rotation-only", "stationary", "straight"])
+def test_undetermined_alignment_gives_ate_none_with_reason(reference):
+    estimate = reference.copy()
+    estimate[:, :3, :3] = estimate[:, :3, :3] @ Rotation.from_euler("z", 1.0, degrees=True).as_matrix()
+    with pytest.raises(AlignmentError, match="alignment undetermined.*point or a line"):
+        ate(estimate, reference)
+    with pytest.raises(AlignmentError):
+        align_se3(estimate, reference)
+    assert ate(estimate, reference, align=False).rotation_rmse == pytest.approx(1.0)  # unaligned ATE still works
+    ev = evaluate_trajectories(estimate, reference, reference, np.arange(len(reference)))
+    m = ev.metrics
+    assert m["before"]["ate_translation_m"] is None and m["before"]["ate_rotation_deg"] is None
+    assert m["after"]["ate_translation_m"] == m["after"]["ate_rotation_deg"] is None
+    assert m["improvement_pct"] == {"translation": None, "rotation": None}
+    assert list(m["unavailable"]) == ["ate"] and "undetermined" in m["unavailable"]["ate"]
+    assert ev.errors == {"odometry": None, "optimised": None} and m["ate_rotation_reliable"] is None
+    # RPE needs no alignment: a constant 1 degree offset leaves the relative motions exact
+    assert m["before"]["rpe_rotation_deg"] == pytest.approx(0.0, abs=1e-6)
+    assert notes(m)[0].startswith("ATE (and its % improvement) n/a: SE(3) alignment undetermined")
+
+
+def test_short_straight_run_warns_that_rotation_ate_is_unreliable():
+    n = 30
+    ref = np.tile(np.eye(4), (n, 1, 1))
+    ref[:, 0, 3] = np.arange(n) * 1.0
+    ref[:, 1, 3] = 0.05 * np.sin(np.arange(n))  # 5 cm of lateral wobble over 29 m
+    est = ref.copy()
+    est[:, 2, 3] += 0.01 * (-1.0) ** np.arange(n)  # 1 cm of vertical noise
+    assert alignment_warnings(ref) == [
+        f"nearly straight: ground-truth positions spread {0.05 * np.std(np.sin(np.arange(n))):.3f} m across the "
+        "main direction (less than 2 m)"]
+    ev = evaluate_trajectories(est, ref, ref, np.arange(n))
+    assert ev.metrics["before"]["ate_translation_m"] == pytest.approx(0.01, rel=0.05)
+    assert ev.metrics["ate_rotation_reliable"] is False
+    assert len(ev.warnings) == 1 and ev.warnings[0].startswith("rotation ATE unreliable") and "nearly straight" in \
+        ev.warnings[0]
+    assert "all 30 keyframes (frames 0..29)" in ev.metrics["ate_alignment"]
+    small = _curve(8)
+    small[:, :3, 3] *= 0.05  # a 5 m stretch of the helix
+    short = alignment_warnings(small)
+    assert any("only 8 poses" in w for w in short) and any("path" in w and "shorter than 10 m" in w for w in short)
+
+
+def test_well_spread_run_has_no_alignment_warning():
+    ref = _curve(41)
+    odometry = ref.copy()
+    odometry[:, 2, 3] += 0.2 * (-1.0) ** np.arange(41)
+    ev = evaluate_trajectories(_rigid(10, [1, 2, 3]) @ odometry, ref, ref, np.arange(41))
+    m = ev.metrics
+    assert alignment_warnings(ref) == [] and ev.warnings == [] and m["unavailable"] == {}
+    assert m["ate_rotation_reliable"] is True and m["before"]["ate_translation_m"] == pytest.approx(0.2, abs=0.005)
+    assert m["improvement_pct"]["translation"] == pytest.approx(100.0)
+    perfect = evaluate_trajectories(ref, ref, ref, np.arange(41)).metrics
+    assert perfect["improvement_pct"] == {"translation": None, "rotation": None}
+    assert "odometry ATE translation is 0" in perfect["unavailable"]["improvement_translation"]
+
+
+def test_improvement_pct_is_none_when_undefined():
+    assert improvement_pct(2.0, 0.5) == pytest.approx(75.0)
+    assert improvement_pct(None, 0.5) is None and improvement_pct(0.5, None) is None
+    assert improvement_pct(0.0, 0.0) is None
+
+
+def test_fmt_prints_na_and_never_negative_zero():
+    assert fmt(-0.04, ".1f", " %") == "0.0 %" and fmt(-0.0) == "0.000" and fmt(-0.0004, ".3f") == "0.000"
+    assert fmt(-1.25, ".1f") == "-1.2" and fmt(-0.0004, ".1e") == "-4.0e-04"
+    assert fmt(None) == fmt(float("nan")) == "n/a" and fmt(3, "d") == "3"

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -173,3 +175,25 @@ def test_query_with_no_eligible_keyframe_returns_nothing():
     assert db.query(2, desc, exclude_frames=5) == []
     assert db.query(2, desc, exclude_recent=2) == []
     assert [m.keyframe_id for m in db.query(9, desc, exclude_frames=5)] == [1]
+
+
+@pytest.mark.parametrize("sims, dists, reason", [
+    ([0.9, 0.5, 0.3], [10.0, 20.0, 5.0], "no best match of the 3 queries lies within 3 m.*recall is undefined"),
+    ([0.9, 0.5], [1.0, 2.0], "the best match of each of the 2 queries lies within 3 m.*precision is 1 by construction"),
+    ([-0.5, -0.2], [1.0, 10.0], "no match reached the lowest similarity threshold"),
+    ([], [], "no loop query had a match to score"),
+], ids=["no-revisit", "only-revisits", "below-thresholds", "empty"])
+def test_uninformative_pr_metrics_are_none_with_reason(sims, dists, reason):
+    curve = precision_recall(sims, dists)
+    assert curve.auc is None and curve.f1_max is None and curve.f1_max_threshold is None
+    assert re.fullmatch(reason, curve.unavailable)
+    assert curve.as_dict()["unavailable"] == curve.unavailable
+    assert len(curve.precision) == len(curve.thresholds) == 100  # the curve itself is still there
+
+
+def test_informative_pr_metrics_have_no_reason_and_no_negative_zero():
+    curve = precision_recall([0.9, 0.5, 0.95], [1.0, 1.0, 10.0])
+    assert curve.unavailable is None and curve.auc > 0
+    # recall stays 1 over both thresholds: zero area, which the trapezoid over falling recall signs negative
+    worst = precision_recall([0.9, 0.95], [1.0, 10.0], thresholds=[0.0, 0.5])
+    assert worst.auc == 0.0 and str(worst.auc) == "0.0"

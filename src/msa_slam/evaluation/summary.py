@@ -17,6 +17,7 @@ from msa_slam.evaluation.trajectory import (ATE_ALIGNMENT, AlignmentError, align
                                             rpe)
 
 ESTIMATES = {"before": "odometry", "after": "optimised"}
+ZERO_ERROR = 1e-9  # metres or degrees: an ATE this small is an exact fit
 
 
 @dataclass
@@ -31,8 +32,9 @@ class TrajectoryEvaluation:
 
 
 def improvement_pct(before: float | None, after: float | None) -> float | None:
-    """The paper's % improvement, or None when either error is unavailable or `before` is 0 (undefined)."""
-    if before is None or after is None or not before > 0:
+    """The paper's % improvement, or None when either error is unavailable or `before` is 0 (up to rounding
+    noise, ZERO_ERROR: the ratio of two rounding errors would be a random percentage)."""
+    if before is None or after is None or not before > ZERO_ERROR:
         return None
     return improvement(before, after)
 
@@ -67,7 +69,7 @@ def evaluate_trajectories(odometry: np.ndarray, optimised: np.ndarray, reference
         before, after = blocks["before"][key], blocks["after"][key]
         improvements[part] = improvement_pct(before, after)
         if improvements[part] is None and before is not None and after is not None:
-            unavailable[f"improvement_{part}"] = f"odometry ATE {part} is {before:g}: % improvement undefined"
+            unavailable[f"improvement_{part}"] = f"odometry ATE {part} is 0 ({before:.1g}): % improvement undefined"
     frames = np.asarray(frames)
     alignment = (f"{ATE_ALIGNMENT}, fitted separately for each estimate on the positions of all {len(frames)} "
                  f"keyframes (frames {int(frames[0])}..{int(frames[-1])}) against ground truth")

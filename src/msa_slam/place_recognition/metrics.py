@@ -87,12 +87,13 @@ def _unavailable(near: np.ndarray, predicted: np.ndarray, max_distance: float) -
     """Why PR-AUC and F1-max carry no information about these matches (None when they do)."""
     if near.size == 0:
         return "no loop query had a match to score"
+    queries = "1 query" if near.size == 1 else f"{near.size} queries"
     if not near.any():
-        return (f"none of the {near.size} queries' best matches lies within {max_distance:g} m in ground truth "
-                "(no revisit): recall is undefined")
+        return (f"no best match of the {queries} lies within {max_distance:g} m in ground truth (no revisit): "
+                "recall is undefined")
     if near.all():
-        return (f"all {near.size} queries' best matches lie within {max_distance:g} m in ground truth "
-                "(no wrong match to reject): precision is 1 by construction")
+        return (f"the best match of each of the {queries} lies within {max_distance:g} m in ground truth (no wrong "
+                "match to reject): precision is 1 by construction")
     if not predicted.any():
         return "no match reached the lowest similarity threshold"
     return None
