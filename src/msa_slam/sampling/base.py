@@ -18,6 +18,20 @@ from msa_slam.errors import InputError
 from msa_slam.types import validate_pose
 
 
+@dataclass(frozen=True)
+class AmbiguousWindow:
+    """A window optimisation whose choice rounding could change (see sampling/msa_ambiguity.py).
+
+    frame: the frame whose arrival closed the window; members: the frames that were candidates;
+    keyframes_before: how many keyframes had been selected before it (they do not depend on it).
+    """
+
+    frame: int
+    members: tuple[int, ...]
+    keyframes_before: int
+    margin: float
+
+
 @dataclass
 class SamplerStats:
     """Work counters of a sampler; `optimisation_ms` holds one entry per window optimisation."""
@@ -26,6 +40,12 @@ class SamplerStats:
     window_optimisations: int = 0
     candidates_evaluated: int = 0
     optimisation_ms: list[float] = field(default_factory=list)
+    ambiguous: list[AmbiguousWindow] = field(default_factory=list)
+
+    @property
+    def ambiguous_windows(self) -> int:
+        """Window optimisations whose choice is not reproducible bit for bit on every machine."""
+        return len(self.ambiguous)
 
     def as_dict(self) -> dict:
         times = np.asarray(self.optimisation_ms)
@@ -33,6 +53,8 @@ class SamplerStats:
             "frames": self.frames,
             "window_optimisations": self.window_optimisations,
             "candidates_evaluated": self.candidates_evaluated,
+            "ambiguous_windows": self.ambiguous_windows,
+            "ambiguous_frames": [a.frame for a in self.ambiguous],
             "optimisation_ms_median": float(np.median(times)) if times.size else 0.0,
             "optimisation_ms_p95": float(np.percentile(times, 95)) if times.size else 0.0,
             "optimisation_ms_total": float(times.sum()),

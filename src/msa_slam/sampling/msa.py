@@ -17,7 +17,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from msa_slam.errors import InputError
-from msa_slam.sampling.base import Sampler, Timer
+from msa_slam.sampling.base import AmbiguousWindow, Sampler, Timer
 from msa_slam.sampling.msa_window import MODES, ExactWorkspace, ScoreWeights, optimise_window
 
 MIN_WINDOW_STEP = 0.01  # a frame joins the window only if it moved this far from the last member
@@ -146,6 +146,9 @@ class MSASampler(Sampler):
         self.stats.window_optimisations += 1
         self.stats.candidates_evaluated += result.candidates
         self.stats.optimisation_ms.append(timer.ms)
+        if result.ambiguous:
+            self.stats.ambiguous.append(AmbiguousWindow(self.stats.frames - 1, tuple(members),
+                                                        len(self._online), result.margin))
         new: list[int] = []
         for pos in result.positions[1:]:
             new += self._add_keyframe(self._window[pos])

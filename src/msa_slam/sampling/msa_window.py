@@ -17,15 +17,19 @@ from __future__ import annotations
 import itertools
 import os
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
 from numba import njit
 
+from msa_slam.sampling.msa_ambiguity import decision_margin
+
 MODES = ("exact", "fast")
 EIGENVALUE_FLOOR = 1e-6
 C_CLIP = 1e6
+PROBES = 3  # rounding-level perturbations of each candidate's C for the ambiguity check (msa_ambiguity)
+PROBE_SCALE = 1e-13  # their relative size: ~450 ulp, beyond any reordering of a BLAS kernel's sums
 PARALLEL_MIN_CANDIDATES = 1500  # below this a thread hand-off costs more than it saves
 MAX_THREADS = 4
 _POOL: tuple[int, ThreadPoolExecutor] | None = None
@@ -33,10 +37,17 @@ _POOL: tuple[int, ThreadPoolExecutor] | None = None
 
 @dataclass(frozen=True)
 class WindowResult:
-    """The chosen subset (positions into the window, starting with 0) and the work done."""
+    """The chosen subset (positions into the window, starting with 0) and the work done.
+
+    `ambiguous` is True when rounding-level changes of pi could change the choice (msa_ambiguity);
+    `margin` is the runner-up's relative score excess over the winner (inf with one candidate).
+    Neither takes part in equality: two results are equal when they choose the same subset.
+    """
 
     positions: tuple[int, ...]
     candidates: int
+    ambiguous: bool = field(default=False, compare=False)
+    margin: float = field(default=float("inf"), compare=False)
 
 
 @dataclass(frozen=True)
@@ -262,14 +273,14 @@ def padded_subsets(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 @njit(cache=True)
 def _information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.ndarray,
-                      scratch: np.ndarray) -> float:  # pragma: no cover
+                      scratch: np.ndarray, probes: int):  # pragma: no cover
     """pi of one candidate through the window's Gram matrix G: C = A G_S A^T, e_j^2 = d_j^T G_S d_j.
 
     A is numpy.gradient's (tridiagonal) stencil for the candidate's spacing, so J^T = A F; its three
-    diagonals are `lower`, `diag`, `upper` (row k uses columns k-1, k, k+1).
+    diagonals are `lower`, `diag`, `upper` (row k uses columns k-1, k, k+1). Returns (pi, lowest, highest):
+    the extremes of pi over `probes` eigen-decompositions of C perturbed by PROBE_SCALE (and pi itself).
     """
-    lower, diag, upper, scale, d = scratch[0, :m], scratch[1, :m], scratch[2, :m], scratch[3, :m], scratch[4, :m]
-    e = scratch[5, :m - 1]
+    lower, diag, upper = scratch[0, :m], scratch[1, :m], scratch[2, :m]
     g, h = scratch[6:6 + m, :m], scratch[6 + m:6 + 2 * m, :m]
     lower[0] = 0.0
     upper[m - 1] = 0.0
@@ -311,6 +322,23 @@ def _information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nd
             for k in range(m):
                 v = 0.0 if np.isnan(c[i, k]) else c[i, k]
                 c[i, k] = min(max(v, -C_CLIP), C_CLIP)
+    pi = _pi_of_information(c, g, m, scratch)
+    lowest, highest = pi, pi
+    probe = np.empty((m, m))
+    for p in range(probes):
+        for i in range(m):
+            for k in range(m):  # a fixed symmetric pattern in [-1, 1], different per probe
+                probe[i, k] = c[i, k] * (1.0 + PROBE_SCALE * np.sin(12.9898 * (p + 1) + 78.233 * (i + k)
+                                                                    + 37.719 * i * k))
+        value = _pi_of_information(probe, g, m, scratch)
+        lowest, highest = min(lowest, value), max(highest, value)
+    return pi, lowest, highest
+
+
+@njit(cache=True)
+def _pi_of_information(c: np.ndarray, g: np.ndarray, m: int, scratch: np.ndarray) -> float:  # pragma: no cover
+    """pi from the information matrix C and the candidate's Gram block G_S (e_j^2 = d_j^T G_S d_j)."""
+    scale, d, e = scratch[3, :m], scratch[4, :m], scratch[5, :m - 1]
     lam, vec = np.linalg.eigh(c)
     for j in range(m):
         scale[j] = np.sqrt(max(lam[j], 0.0) + EIGENVALUE_FLOOR)
@@ -358,16 +386,16 @@ def _feasible_and_redundancy(table: np.ndarray, sizes: np.ndarray, dist: np.ndar
 
 @njit(cache=True, nogil=True)
 def _information_many(table: np.ndarray, sizes: np.ndarray, rows: np.ndarray, dist: np.ndarray,
-                      gram: np.ndarray) -> np.ndarray:  # pragma: no cover
-    """pi of the given candidate rows."""
-    pi = np.zeros(len(rows))
+                      gram: np.ndarray, probes: int) -> np.ndarray:  # pragma: no cover
+    """(3, rows): pi of the given candidate rows, and its lowest and highest value over the probes."""
+    out = np.zeros((3, len(rows)))
     width = table.shape[1] + 1
     scratch = np.empty((6 + 2 * width, width))
     for i in range(len(rows)):
         m = sizes[rows[i]]
         if m > 2:
-            pi[i] = _information_gram(table[rows[i]], m, dist, gram, scratch)
-    return pi
+            out[0, i], out[1, i], out[2, i] = _information_gram(table[rows[i]], m, dist, gram, scratch, probes)
+    return out
 
 
 def _thread_pool(workers: int) -> ThreadPoolExecutor:
@@ -379,14 +407,15 @@ def _thread_pool(workers: int) -> ThreadPoolExecutor:
 
 
 def _information_threaded(table: np.ndarray, sizes: np.ndarray, rows: np.ndarray, dist: np.ndarray,
-                          gram: np.ndarray) -> np.ndarray:
-    """pi of all rows; large windows (N >= ~13) are split across threads (the kernel releases the GIL)."""
+                          gram: np.ndarray, probes: int = PROBES) -> np.ndarray:
+    """`_information_many` of all rows; large windows (N >= ~13) are split across threads (no GIL)."""
     workers = min(os.cpu_count() or 1, MAX_THREADS)
     if workers < 2 or len(rows) < PARALLEL_MIN_CANDIDATES:
-        return _information_many(table, sizes, rows, dist, gram)
+        return _information_many(table, sizes, rows, dist, gram, probes)
     pool = _thread_pool(workers)
     parts = np.array_split(rows, workers)
-    return np.concatenate(list(pool.map(lambda part: _information_many(table, sizes, part, dist, gram), parts)))
+    return np.concatenate(list(pool.map(lambda part: _information_many(table, sizes, part, dist, gram, probes),
+                                        parts)), axis=1)
 
 
 def _optimise_fast(translations: np.ndarray, descriptors: np.ndarray, dmin: float, dmax: float,
@@ -398,14 +427,11 @@ def _optimise_fast(translations: np.ndarray, descriptors: np.ndarray, dmin: floa
     rows, rho = _feasible_and_redundancy(table, sizes, dist, sim, dmin, dmax)
     if rows.size == 0:
         return WindowResult((0, n - 1), 1)
-    if weights.use_pi:
-        flat = descriptors.reshape(n, -1)
-        pi_hat = _minmax(_information_threaded(table, sizes, rows, dist, flat @ flat.T))
-    else:
-        pi_hat = np.zeros(rows.size)
-    rho_hat = _minmax(rho) if weights.use_rho else np.zeros(rows.size)
-    best = rows[int(np.argmin((weights.alpha + rho_hat) / (weights.beta + pi_hat)))]
-    return WindowResult(tuple(int(p) for p in table[best, :sizes[best]]), int(rows.size))
+    probed = _information_threaded(table, sizes, rows, dist, _gram(descriptors)) if weights.use_pi else None
+    pi, pi_low, pi_high = probed if probed is not None else (None, None, None)
+    best, ambiguous, margin = _decide(int(rows.size), rho if weights.use_rho else None, pi, pi_low, pi_high, weights)
+    row = rows[best]
+    return WindowResult(tuple(int(p) for p in table[row, :sizes[row]]), int(rows.size), ambiguous, margin)
 
 
 def _optimise_exact(translations: np.ndarray, descriptors: np.ndarray, dmin: float, dmax: float,
@@ -422,23 +448,50 @@ def _optimise_exact(translations: np.ndarray, descriptors: np.ndarray, dmin: flo
         return WindowResult((0, n - 1), 1)
     count = sum(len(g) for g in groups)
     flat = descriptors.reshape(n, -1)
-    rho_parts, pi_parts = [], []
-    for subsets in groups:
-        if weights.use_rho:
-            rho_parts.append(_redundancy(subsets, sim))
-        if weights.use_pi:
-            if subsets.shape[1] == 2:
-                pi_parts.append(np.zeros(len(subsets)))
-            else:
-                pi_parts.append(_information_exact(subsets, dist[0, subsets], flat, workspace))
-    rho_hat = _minmax(np.concatenate(rho_parts)) if weights.use_rho else np.zeros(count)
-    pi_hat = _minmax(np.concatenate(pi_parts)) if weights.use_pi else np.zeros(count)
-    best = int(np.argmin((weights.alpha + rho_hat) / (weights.beta + pi_hat)))
+    rho = np.concatenate([_redundancy(subsets, sim) for subsets in groups]) if weights.use_rho else None
+    pi = pi_low = pi_high = None
+    if weights.use_pi:
+        pi = np.concatenate([np.zeros(len(subsets)) if subsets.shape[1] == 2 else
+                             _information_exact(subsets, dist[0, subsets], flat, workspace) for subsets in groups])
+        pi_low, pi_high = _fast_path_extremes(pi, dist, sim, dmin, dmax, _gram(descriptors))
+    best, ambiguous, margin = _decide(count, rho, pi, pi_low, pi_high, weights)
     for subsets in groups:
         if best < len(subsets):
-            return WindowResult(tuple(int(p) for p in subsets[best]), count)
+            return WindowResult(tuple(int(p) for p in subsets[best]), count, ambiguous, margin)
         best -= len(subsets)
     raise AssertionError("unreachable: best index beyond the candidate list")
+
+
+def _gram(descriptors: np.ndarray) -> np.ndarray:
+    flat = descriptors.reshape(len(descriptors), -1)
+    return flat @ flat.T
+
+
+def _fast_path_extremes(pi: np.ndarray, dist: np.ndarray, sim: np.ndarray, dmin: float, dmax: float,
+                        gram: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Extremes of the exact pi under rounding: the fast path's value and its probes' shifts.
+
+    The fast path computes pi by another floating-point route (the Gram shortcut); where it or its
+    perturbed eigen-decompositions land elsewhere, the exact value could too on another machine.
+    """
+    table, sizes = padded_subsets(len(dist))
+    rows, _ = _feasible_and_redundancy(table, sizes, dist, sim, dmin, dmax)
+    fast, low, high = _information_threaded(table, sizes, rows, dist, gram)
+    return np.minimum(fast, pi + (low - fast)), np.maximum(fast, pi + (high - fast))
+
+
+def _decide(count: int, rho: np.ndarray | None, pi: np.ndarray | None, pi_low: np.ndarray | None,
+            pi_high: np.ndarray | None, weights: ScoreWeights) -> tuple[int, bool, float]:
+    """The first candidate with the smallest eq. (8) score, whether rounding could change it, its margin.
+
+    rho or pi is None when its ablation is on (its normalised value is then 0 for every candidate).
+    """
+    rho_hat = _minmax(rho) if rho is not None else np.zeros(count)
+    pi_hat = _minmax(pi) if pi is not None else np.zeros(count)
+    score = (weights.alpha + rho_hat) / (weights.beta + pi_hat)
+    best = int(np.argmin(score))
+    ambiguous, margin = decision_margin(score, rho, pi, pi_low, pi_high, weights.alpha, weights.beta, best)
+    return best, ambiguous, margin
 
 
 def optimise_window(translations: np.ndarray, descriptors: np.ndarray, dmin: float, dmax: float,
