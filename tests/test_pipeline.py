@@ -7,13 +7,23 @@ trajectory back.
 
 from __future__ import annotations
 
+import csv
+import json
+import shutil
+from pathlib import Path
+
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
+from typer.testing import CliRunner
 
+from conftest import drifted
+from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses, write_poses
 from msa_slam.pipeline import apply_params, make_config, prepare_frontend, run_batch
-from msa_slam.pipeline.compare import COLUMNS, run_compare
+from msa_slam.pipeline.compare import COLUMNS, run_compare, table_markdown, table_row
+from msa_slam.pipeline.results import write_run
 
 
 @pytest.fixture(scope="session")
@@ -91,6 +101,12 @@ def test_compare_writes_table(base, frontend, tmp_path):
     report = run_compare(base, tmp_path / "cmp", methods=methods)
     folder = report.parent
     assert report.is_file() and "| constant-3m |" in report.read_text()
+    # peak RSS is one process figure: a single line, no per-method column; per-run reports say whose it is
+    rss = [line for line in report.read_text().splitlines() if "rss" in line.lower()]
+    assert len(rss) == 1 and rss[0].startswith("Process peak RSS: ") and "not a per-method figure" in rss[0]
+    run_report = (folder / "runs" / "msa" / "report.md").read_text()
+    assert "process peak RSS (whole process, not this method): " in run_report
+    assert "| memory (keyframes + graph) | back-end time |" in run_report
     lines = (folder / "comparison.csv").read_text().splitlines()
     assert lines[0].split(",") == list(COLUMNS) and len(lines) == 3
     assert {p.name for p in (folder / "runs").iterdir()} == {"constant-3m", "msa"}
@@ -148,3 +164,82 @@ def test_unregistrable_candidate_is_rejected_not_fatal():
     out = verify_candidates([LoopCandidate(1, 0, 0.9, 1.0)], clouds, Verifier(), ScanContext(), descriptors,
                             "realistic", 3.0)
     assert out[0].verified and not out[0].accepted and out[0].residual == float("inf")
+
+
+def _posed_sequence(folder: Path, sequence: Path, gt: np.ndarray, odometry: np.ndarray) -> tuple[Path, Path]:
+    """The first len(gt) scans of `sequence` (linked) with ground truth `gt`, and an odometry pose file."""
+    (folder / "velodyne").mkdir(parents=True)
+    for i in range(len(gt)):
+        (folder / "velodyne" / f"{i:06d}.bin").symlink_to(sequence / "velodyne" / f"{i:06d}.bin")
+    times = (sequence / "times.txt").read_text().splitlines()[:len(gt)]
+    (folder / "times.txt").write_text("\n".join(times) + "\n")
+    shutil.copy(sequence / "calib.txt", folder / "calib.txt")  # Tr = identity: poses are LiDAR poses
+    write_poses(folder / "poses.txt", gt)
+    write_poses(folder / "odometry.txt", odometry)
+    return folder, folder / "odometry.txt"
+
+
+def _spin(n: int) -> np.ndarray:
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    poses[:, :3, :3] = Rotation.from_euler("z", np.linspace(0, 2 * np.pi, n)[:, None]).as_matrix()
+    return poses
+
+
+def test_rotation_only_run_reports_ate_na_through_the_cli(sequence, cache_dir, tmp_path):
+    gt = _spin(30)
+    dataset, odometry = _posed_sequence(tmp_path / "spin", sequence, gt, drifted(gt, yaw_per_frame=0.01))
+    out = tmp_path / "run"
+    result = CliRunner().invoke(app, ["run", "--dataset", str(dataset), "--odometry", str(odometry), "--sampler",
+                                      "all", "--cache-dir", str(cache_dir), "--out", str(out), "--quiet"])
+    assert result.exit_code == 0, result.output
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["before"]["ate_translation_m"] is None and m["after"]["ate_rotation_deg"] is None
+    assert m["improvement_pct"] == {"translation": None, "rotation": None}
+    assert m["unavailable"]["ate"].startswith("SE(3) alignment undetermined")
+    assert m["before"]["rpe_rotation_deg"] == pytest.approx(np.degrees(0.01), rel=1e-3)  # RPE needs no alignment
+    rows = [r for r in csv.DictReader((out / "frames.csv").open()) if r["is_keyframe"] == "1"]
+    assert len(rows) == 30 and {(r["ate_odom_m"], r["ate_opt_m"]) for r in rows} == {("n/a", "n/a")}
+    report = (out / "report.md").read_text()
+    assert "| ATE translation [m] | n/a | n/a | n/a |" in report
+    assert f"- ATE (and its % improvement) n/a: {m['unavailable']['ate']}" in report
+    assert (out / "figures" / "trajectories.png").is_file()
+
+
+def test_stationary_run_gives_ate_none(sequence, cache_dir, tmp_path):
+    gt = np.tile(np.eye(4), (30, 1, 1))
+    dataset, odometry = _posed_sequence(tmp_path / "still", sequence, gt, gt)
+    cfg = make_config(dataset=str(dataset), odometry=str(odometry), cache_dir=str(cache_dir), sampler="all")
+    m = run_batch(cfg).metrics
+    assert m["before"]["ate_translation_m"] is None and "point or a line" in m["unavailable"]["ate"]
+
+
+def test_short_straight_run_warns_and_has_no_pr(sequence, cache_dir, tmp_path):
+    n = 30
+    gt = np.tile(np.eye(4), (n, 1, 1))
+    gt[:, 0, 3] = np.arange(n) * 1.0
+    gt[:, 1, 3] = 0.05 * np.sin(np.arange(n))
+    dataset, odometry = _posed_sequence(tmp_path / "straight", sequence, gt, drifted(gt))
+    cfg = make_config(dataset=str(dataset), odometry=str(odometry), cache_dir=str(cache_dir), sampler="all",
+                      min_frame_gap=5, exclude_recent=2)
+    result = run_batch(cfg)
+    m = result.metrics
+    assert m["before"]["ate_rotation_deg"] is not None and m["ate_rotation_reliable"] is False
+    assert len(m["warnings"]) == 1 and "rotation ATE unreliable" in m["warnings"][0]
+    assert "nearly straight" in m["warnings"][0]
+    assert m["ate_alignment"].startswith("SE(3) Umeyama (rotation + translation, no scale)")
+    assert m["pr_queries"] > 0 and m["pr_auc"] is None and m["f1_max"] is None
+    assert "no revisit" in m["unavailable"]["pr"]
+    report = write_run(result, tmp_path / "out").read_text()
+    assert "| ATE rotation [deg] (unreliable: see notes) |" in report and "| n/a / n/a |" in report
+    assert f"- warning: {m['warnings'][0]}" in report and f"- PR-AUC / F1-max n/a: {m['unavailable']['pr']}" in report
+    assert f"ATE alignment: {m['ate_alignment']}." in report
+
+
+def test_improvement_rounding_to_zero_prints_unsigned(base, frontend, tmp_path):
+    result = run_batch(base, frontend)
+    result.metrics["improvement_pct"] = {"translation": -0.04, "rotation": -0.0004}
+    report = write_run(result, tmp_path / "out").read_text()
+    assert "-0.0" not in report and report.count(" 0.0 % |") == 2
+    result.metrics["improvement_pct"] = {"translation": -0.0004, "rotation": -0.0001}
+    table = table_markdown([table_row(result.metrics)])
+    assert "-0.0" not in table and "| 0.000 | 0.000 |" in table
