@@ -153,7 +153,7 @@ def test_full_disk_warns_once_and_leaves_no_temp(tmp_path, monkeypatch, caplog):
     monkeypatch.setattr(np, "save", no_space)
     assert store.save("a", np.zeros(10)) is None and store.save("b", np.zeros(10)) is None
     assert [r.getMessage() for r in caplog.records] == [
-        f"cache: cannot write {tmp_path / 'a.npy'} (No space left on device; needs 0.0 MiB); "
+        f"cache: cannot write {tmp_path / 'a.npy'} (No space left on device; needs 0.00 MiB); "
         "continuing without the cache"]
     assert list(tmp_path.iterdir()) == []
 

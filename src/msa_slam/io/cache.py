@@ -192,7 +192,8 @@ class CacheDir:
                 np.save(handle, array)
         except OSError as exc:
             self.writable = False
-            log.warning("cache: cannot write %s (%s; needs %.1f MiB); continuing without the cache",
-                        path, exc.strerror or exc, array.nbytes / 2**20)
+            culprit = exc.filename and Path(os.fsdecode(exc.filename)).parent != path.parent  # e.g. a parent folder
+            log.warning("cache: cannot write %s (%s%s; needs %.2f MiB); continuing without the cache", path,
+                        f"{os.fsdecode(exc.filename)}: " if culprit else "", exc.strerror or exc, array.nbytes / 2**20)
             return None
         return path
