@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from conftest import shared_path
-from msa_slam.descriptors.range_image import range_projection
+from msa_slam.descriptors.range_image import projection_coordinates, range_projection
 from msa_slam.errors import InputError
 
 
@@ -22,14 +22,71 @@ def golden():
     return np.load(shared_path("parity", "overlap_transformer_golden.npz"))
 
 
-def test_range_images_match_golden_exactly(golden):
-    scans = [load_scan(n) for n in ("000000", "000005", "000015")]
+BORDER_ULPS = 8  # float32 ulps of a row/column value within which a point counts as on a pixel border
+
+
+def border_tolerant_mismatches(image: np.ndarray, golden: np.ndarray, points: np.ndarray) -> list:
+    """Pixels where `golden` differs from `image` in a way a point on a pixel border cannot explain.
+
+    A point whose float32 row or column is within BORDER_ULPS of an integer may land on either side
+    (CPUs round arctan2 differently: 668.99994 -> 668 or 669). At a pixel such points can reach, the
+    nearest point wins, so the golden value must be the nearest of the points certainly there and
+    any of the border points that can land there (or -1 when none is certainly there).
+    """
+    row, col, depth = projection_coordinates(points)
+    height, width = image.shape
+
+    def options(value, size):
+        near = np.abs(value - np.round(value)) <= BORDER_ULPS * np.spacing(np.abs(value))
+        low = np.clip(np.floor(value), 0, size - 1).astype(int)
+        other = np.clip(np.where(value - np.round(value) < 0, low + 1, low - 1), 0, size - 1)
+        return low, np.where(near, other, low), near
+
+    row_a, row_b, row_near = options(row, height)
+    col_a, col_b, col_near = options(col, width)
+    border = row_near | col_near
+    bad = []
+    for r, c in np.argwhere(image != golden):
+        certain = depth[~border & (row_a == r) & (col_a == c)]
+        reach = border & (((row_a == r) | (row_b == r)) & ((col_a == c) | (col_b == c)))
+        floor = certain.min() if certain.size else np.inf
+        allowed = {float(floor) if certain.size else -1.0} | {float(d) for d in depth[reach] if d < floor}
+        if not reach.any() or float(golden[r, c]) not in allowed:
+            bad.append((int(r), int(c), float(image[r, c]), float(golden[r, c])))
+    return bad
+
+
+def golden_scans():
+    scans = [load_scan(n)[:, :3] for n in ("000000", "000005", "000015")]
     c, s = 0.0, 1.0  # 90 deg about z, applied in float32 like the golden's generator
-    turned = scans[0][:, :3] @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]], dtype=np.float32).T
-    for k, points in enumerate([*scans, turned]):
+    turned = scans[0] @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]], dtype=np.float32).T
+    return [*scans, turned]
+
+
+def test_range_images_match_golden_up_to_border_points(golden):
+    for k, points in enumerate(golden_scans()):
         image = range_projection(points)
         assert image.dtype == np.float32 and image.shape == (64, 900)
-        np.testing.assert_array_equal(image, golden["range_images"][k])
+        assert border_tolerant_mismatches(image, golden["range_images"][k], points) == []
+        assert np.count_nonzero(image != golden["range_images"][k]) <= 2  # at most the known border pixel
+
+
+def test_border_tolerance_accepts_only_border_points():
+    yaw = (669.0 / 450.0 - 1.0) * np.pi  # column 669.0 exactly, up to float32 rounding
+    points = np.array([[10 * np.cos(-yaw), 10 * np.sin(-yaw), 0.0], [20.0, 0.0, 0.0]], dtype=np.float32)
+    _, col, _ = projection_coordinates(points)
+    assert abs(col[0] - 669.0) <= BORDER_ULPS * np.spacing(np.float32(669.0))
+    image = range_projection(points)
+    (r, c), = np.argwhere(image == image[:, 668:670].max())
+    other = image.copy()  # another CPU's outcome: the border point on the other side of column 669
+    other[r, c], other[r, 1337 - c] = -1.0, image[r, c]
+    assert border_tolerant_mismatches(image, other, points) == []
+    wrong = image.copy()  # the ordinary point (column 450) must match exactly
+    wrong[:, 450] = np.roll(image[:, 450], 1)
+    assert border_tolerant_mismatches(image, wrong, points) != []
+    wrong = image.copy()  # and the border point may only move by one column
+    wrong[r, c], wrong[r, 671] = -1.0, image[r, c]
+    assert border_tolerant_mismatches(image, wrong, points) != []
 
 
 def test_range_projection_keeps_nearest_and_drops_out_of_range():
