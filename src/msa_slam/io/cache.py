@@ -39,16 +39,14 @@ LOCK_FILE = ".writer.lock"  # inside a partial folder: held by its writer while 
 def input_identity(files: Iterable[str | os.PathLike], root: str | os.PathLike | None = None) -> list[list]:
     """[name, size, mtime_ns] of every file; the name is relative to `root` when the file is under it, so the
     identity follows the data, not where it is (a moved or copied folder keeps it, files rewritten in place do not)."""
+    prefix = None if root is None else os.path.join(os.fspath(root), "")
     out = []
-    for file in map(Path, files):
+    for file in map(os.fspath, files):
         try:
-            st = file.stat()
+            st = os.stat(file)
         except OSError as exc:
             raise InputError(f"{file}: cannot read this input file ({exc.strerror})") from None
-        try:
-            name = file.relative_to(root).as_posix() if root is not None else file.name
-        except ValueError:
-            name = file.name
+        name = file[len(prefix):] if prefix and file.startswith(prefix) else os.path.basename(file)
         out.append([name, st.st_size, st.st_mtime_ns])
     return out
 
