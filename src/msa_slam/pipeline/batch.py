@@ -134,7 +134,9 @@ def _metrics(result: BatchResult, evaluation: TrajectoryEvaluation, sampler_stat
     frontend = result.frontend
     unavailable = dict(evaluation.metrics["unavailable"])
     if pr is None or pr.unavailable:
-        unavailable["pr"] = "no keyframe had an older keyframe to query" if pr is None else pr.unavailable
+        unavailable["pr"] = pr.unavailable if pr is not None else (
+            f"no keyframe had an older keyframe to query (more than min_frame_gap={cfg.min_frame_gap} frames back "
+            f"and not among the exclude_recent={cfg.exclude_recent} newest)")
     return {
         "sequence": frontend.name,
         "dataset": cfg.dataset,
