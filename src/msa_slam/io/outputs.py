@@ -294,7 +294,7 @@ def open_result_folder(out: str | os.PathLike | None, kind: str, default_parent:
         folder = ResultFolder(timestamped(parent), kind, timestamped=True)
     else:
         target = Path(out)
-        if target.name in ("", ".", ".."):
+        if target.name in ("", ".", "..") or target.is_symlink():  # lock and check the folder itself, not a link
             target = target.resolve()
         folder = ResultFolder(target, kind)
         _check_target(target, kind, overwrite, resume)
