@@ -76,16 +76,89 @@ def test_kitti_errors_name_the_file(tmp_path):
         open_dataset(tmp_path / "nowhere")
 
 
-def test_corrupt_and_empty_scans(tmp_path):
+def test_corrupt_and_empty_scans_stop_the_open(tmp_path):
+    # Sizes are checked for every .bin when the sequence opens, not when frame 1 is reached after odometry.
     seq = _kitti(tmp_path)
     bad = seq / "velodyne" / "000001.bin"
     bad.write_bytes(b"\x00" * 20)
     with pytest.raises(InputError, match="000001.bin: 20 bytes is not a whole number"):
-        open_dataset(seq)[1]
+        open_dataset(seq)
     bad.write_bytes(b"")
     with pytest.raises(InputError, match="000001.bin: scan file is empty"):
-        open_dataset(seq)[1]
-    assert len(open_dataset(seq)[0].points) == 50  # other frames still read
+        open_dataset(seq)
+
+
+def _as_float64(path: Path, points: np.ndarray) -> None:
+    """The mistake of issue 11.4: x, y, z, r stored as float64 (32 bytes a point, still a multiple of 16)."""
+    np.hstack([points, np.ones((len(points), 1))]).astype(np.float64).tofile(path)
+
+
+@pytest.mark.parametrize("values", ["from_float32", "float64"])
+def test_float64_scans_are_refused_at_open_naming_the_file(tmp_path, values):
+    seq = _kitti(tmp_path)
+    for k in range(3):
+        points = _points(k) if values == "from_float32" else np.random.default_rng(k).normal(size=(50, 3)) * 10
+        _as_float64(seq / "velodyne" / f"{k:06d}.bin", points)
+    with pytest.raises(InputError, match=r"000000.bin: coordinate .* beyond any sensor's range .*float32"):
+        open_dataset(seq)
+
+
+def test_each_scan_is_checked_when_read(tmp_path):
+    seq = _kitti(tmp_path)
+    opened = open_dataset(seq)
+    _as_float64(seq / "velodyne" / "000002.bin", _points(2))
+    assert len(opened[1].points) == 50
+    with pytest.raises(InputError, match="000002.bin: coordinate"):
+        opened[2]
+
+
+def test_implausible_scan_values(tmp_path):
+    path = tmp_path / "scan.bin"
+    millimetres = (np.random.default_rng(0).normal(size=(50, 4)) * 5000).astype(np.int32)
+    millimetres.tofile(path)  # integers read as float32 are subnormal numbers
+    with pytest.raises(InputError, match=r"scan.bin: 100 % of the points have coordinates below 1e-20"):
+        read_cloud(path)
+    points = _points(0)
+    points[3, 1] = np.inf
+    _write_bin(path, points)
+    with pytest.raises(InputError, match="scan.bin: coordinate inf m is beyond"):
+        read_cloud(path)
+    points[:, 0] = np.nan
+    _write_bin(path, points)
+    with pytest.raises(InputError, match="scan.bin: scan has no finite points"):
+        read_cloud(path)
+    points = _points(0)
+    points[[4, 7]] = np.nan  # missing returns marked NaN are dropped, the rest is a valid scan
+    _write_bin(path, points)
+    np.testing.assert_array_equal(read_cloud(path), np.delete(_points(0), [4, 7], axis=0))
+
+
+@pytest.mark.parametrize(("times", "line", "problem"), [
+    (["0.0", "nan", "0.2"], 2, "time nan is not a finite number"),
+    (["0.0", "0.1", "0.1"], 3, r"time 0.1 repeats the previous one \(0.1\)"),
+    (["0.0", "0.2", "0.1"], 3, r"time 0.1 is before the previous one \(0.2\)"),
+    (["0.0", "", "0.1", "abc"], 4, "'abc' is not a time in seconds"),
+])
+def test_bad_times_name_the_line(tmp_path, times, line, problem):
+    seq = _kitti(tmp_path)
+    (seq / "times.txt").write_text("\n".join(times) + "\n")
+    with pytest.raises(InputError, match=rf"times.txt:{line}: {problem}"):
+        open_dataset(seq)
+
+
+def test_times_must_match_the_scans(tmp_path):
+    seq = _kitti(tmp_path)
+    (seq / "times.txt").write_text("0.0\n0.1\n")
+    with pytest.raises(InputError, match=r"times.txt: 2 times but .*velodyne has 3 scans"):
+        open_dataset(seq)
+
+
+def test_pose_file_times_must_increase(tmp_path):
+    for k in range(3):
+        _write_bin(tmp_path / f"{k}.bin", _points(k))
+    write_poses(tmp_path / "poses.tum", _lidar_poses(3), fmt="tum", times=np.array([1.0, 1.1, 1.1]))
+    with pytest.raises(InputError, match=r"poses.tum: pose 3: time 1.1 repeats the previous one"):
+        open_dataset(tmp_path / "", poses=tmp_path / "poses.tum")
 
 
 def test_folder_of_ply_with_tum_poses(tmp_path):

@@ -14,25 +14,50 @@ _PCD_TYPES = {("F", 4): "<f4", ("F", 8): "<f8", ("I", 1): "<i1", ("I", 2): "<i2"
               ("I", 8): "<i8", ("U", 1): "<u1", ("U", 2): "<u2", ("U", 4): "<u4", ("U", 8): "<u8"}
 
 
+MAX_COORDINATE = 1e4  # metres: beyond any LiDAR's range, so a larger value means the file is misread
+TINY = 1e-20  # metres: magnitudes no measurement has (the bit patterns of other types read as float32)
+
+
 def _checked(points: np.ndarray, path: Path) -> np.ndarray:
+    """Finite points of a scan, or an InputError naming `path` when it is empty or cannot be a LiDAR scan.
+
+    NaN rows are dropped (drivers mark missing returns so); infinite or larger-than-sensor coordinates, or
+    most points at sub-1e-20 magnitudes, mean the bytes were read as the wrong type (e.g. float64 scans).
+    """
     if len(points) == 0:
         raise InputError(f"{path}: scan has no points")
-    if not np.isfinite(points).all():
-        keep = np.isfinite(points).all(axis=1)  # drivers mark missing returns with NaN: drop those rows
-        points = points[keep]
-        if len(points) == 0:
-            raise InputError(f"{path}: scan has no finite points")
+    points = points[~np.isnan(points).any(axis=1)]
+    if len(points) == 0:
+        raise InputError(f"{path}: scan has no finite points")
+    magnitude = np.abs(points)
+    hint = "; KITTI .bin scans are float32 x, y, z, reflectance" if path.suffix.lower() == ".bin" else ""
+    largest = float(magnitude.max())
+    if not largest <= MAX_COORDINATE:
+        raise InputError(f"{path}: coordinate {largest:.3g} m is beyond any sensor's range (|x| <= "
+                         f"{MAX_COORDINATE:g} m){hint}")
+    tiny = float(((magnitude > 0) & (magnitude < TINY)).any(axis=1).mean())
+    if tiny > 0.5:
+        raise InputError(f"{path}: {100 * tiny:.0f} % of the points have coordinates below {TINY:g} m in "
+                         f"magnitude, which no LiDAR measures{hint}")
     return points
+
+
+def check_bin_size(path: Path) -> None:
+    """InputError unless the .bin file at `path` holds a whole, non-zero number of 16-byte points."""
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read scan file ({exc.strerror})") from None
+    if size == 0:
+        raise InputError(f"{path}: scan file is empty")
+    if size % 16:
+        raise InputError(f"{path}: {size} bytes is not a whole number of 16-byte (x, y, z, r) float32 points")
 
 
 def read_bin(path: str | os.PathLike) -> np.ndarray:
     """KITTI Velodyne scan: float32 records of x, y, z, reflectance (16 bytes each)."""
     path = Path(path)
-    size = path.stat().st_size
-    if size == 0:
-        raise InputError(f"{path}: scan file is empty")
-    if size % 16:
-        raise InputError(f"{path}: {size} bytes is not a whole number of 16-byte (x, y, z, r) float32 points")
+    check_bin_size(path)
     return _checked(np.fromfile(path, dtype=np.float32).reshape(-1, 4)[:, :3], path)
 
 

@@ -8,7 +8,7 @@ from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
-from msa_slam.datasets.clouds import CLOUD_SUFFIXES, read_cloud
+from msa_slam.datasets.clouds import CLOUD_SUFFIXES, check_bin_size, read_cloud
 from msa_slam.datasets.frame import Frame
 from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses
@@ -16,7 +16,11 @@ from msa_slam.types import validate_poses
 
 
 class ScanSequence:
-    """Scans read lazily from files, with optional times and ground-truth poses (LiDAR frame)."""
+    """Scans read lazily from files, with optional times and ground-truth poses (LiDAR frame).
+
+    Opening checks what is cheap to check before any long work: .bin file sizes, the first scan, and that
+    times increase strictly; every scan is checked again as it is read.
+    """
 
     def __init__(self, path: Path, scan_files: Sequence[Path], gt_poses: np.ndarray | None = None,
                  times: np.ndarray | None = None, reader: Callable[[Path], np.ndarray] = read_cloud) -> None:
@@ -29,8 +33,14 @@ class ScanSequence:
             if values is not None and len(values) != len(self.scan_files):
                 raise InputError(f"{self.path}: {len(values)} {what} but {len(self.scan_files)} scans")
         self.gt_poses = None if gt_poses is None else validate_poses(gt_poses, f"{self.path} poses")
-        self.times = np.arange(len(self.scan_files), dtype=np.float64) if times is None else np.asarray(times)
+        if times is None:
+            times = np.arange(len(self.scan_files), dtype=np.float64)
+        self.times = check_times(times, lambda i: f"{self.path}: timestamp of scan {self.scan_files[i].name}")
         self._reader = reader
+        for scan in self.scan_files:
+            if scan.suffix.lower() == ".bin":
+                check_bin_size(scan)
+        reader(self.scan_files[0])
 
     def __len__(self) -> int:
         return len(self.scan_files)
@@ -44,6 +54,46 @@ class ScanSequence:
 
     def __iter__(self) -> Iterator[Frame]:
         return (self[i] for i in range(len(self)))
+
+
+def check_times(times: Sequence[float], where: Callable[[int], str]) -> np.ndarray:
+    """`times` as a float64 array if finite and strictly increasing, else an InputError naming `where(i)`.
+
+    Frames are matched to evaluation tools by time, so a NaN, repeated or backward time would silently
+    break the TUM outputs rather than fail here.
+    """
+    times = np.asarray(times, dtype=np.float64).ravel()
+    bad = np.flatnonzero(~np.isfinite(times))
+    if len(bad):
+        raise InputError(f"{where(int(bad[0]))}: time {times[bad[0]]} is not a finite number")
+    steps = np.flatnonzero(np.diff(times) <= 0)
+    if len(steps):
+        i = int(steps[0]) + 1
+        what = "repeats" if times[i] == times[i - 1] else "is before"
+        raise InputError(f"{where(i)}: time {float(times[i])!r} {what} the previous one ({float(times[i - 1])!r}); "
+                         "times must increase strictly")
+    return times
+
+
+def read_times(path: Path) -> np.ndarray:
+    """A KITTI times.txt: one time in seconds a line (blank and '#' lines skipped); errors name the line."""
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read ({exc})") from None
+    values, lines = [], []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        try:
+            values.append(float(line))
+        except ValueError:
+            raise InputError(f"{path}:{lineno}: {line!r} is not a time in seconds (one number a line)") from None
+        lines.append(lineno)
+    if not values:
+        raise InputError(f"{path}: no times")
+    return check_times(values, lambda i: f"{path}:{lines[i]}")
 
 
 def read_kitti_calibration(path: Path) -> np.ndarray:
@@ -77,10 +127,9 @@ def kitti_sequence(path: str | os.PathLike) -> ScanSequence:
         raise InputError(f"{velodyne}: no .bin scans")
     times = None
     if (path / "times.txt").is_file():
-        try:
-            times = np.loadtxt(path / "times.txt", ndmin=1).ravel()
-        except ValueError as exc:
-            raise InputError(f"{path / 'times.txt'}: not a column of numbers ({exc})") from exc
+        times = read_times(path / "times.txt")
+        if len(times) != len(scans):
+            raise InputError(f"{path / 'times.txt'}: {len(times)} times but {velodyne} has {len(scans)} scans")
     gt = None
     candidates = [path / "poses.txt", path.parent.parent / "poses" / f"{path.name}.txt"]
     pose_file = next((p for p in candidates if p.is_file()), None)
@@ -112,6 +161,8 @@ def folder_sequence(path: str | os.PathLike, poses: str | os.PathLike | None = N
         gt, times = read_poses(poses, pose_format)
         if len(gt) != len(files):
             raise InputError(f"{poses}: {len(gt)} poses but {path} has {len(files)} scans")
+        if times is not None:
+            times = check_times(times, lambda i: f"{poses}: pose {i + 1}")
     return ScanSequence(path, files, gt, times)
 
 
