@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -42,15 +44,73 @@ def test_unknown_parameter_lists_known_ones():
 
 
 @pytest.mark.parametrize("name, params, fragment", [
-    ("msa", {"window": 2}, "window must be an integer >= 3"),
-    ("msa", {"mode": "quick"}, "mode must be one of exact, fast"),
-    ("msa", {"alpha": 0}, "alpha and beta must be > 0"),
-    ("msa", {"lambda_l": 4.0, "lambda_u": 3.0}, "lambda_l <= lambda_u"),
-    ("constant", {"distance": -1}, "distance must be >= 0"),
+    ("msa", {"window": 2}, "window=2 is not allowed; expected an integer >= 3"),
+    ("msa", {"window": "abc"}, "window='abc' is not allowed; expected an integer >= 3"),
+    ("msa", {"window": 9.5}, "window=9.5 is not allowed"),
+    ("msa", {"mode": "quick"}, "mode='quick' is not allowed; expected one of exact, fast"),
+    ("msa", {"alpha": 0}, "alpha=0 is not allowed; expected a finite number > 0"),
+    ("msa", {"alpha": float("nan")}, "alpha=nan is not allowed; expected a finite number > 0"),
+    ("msa", {"beta": float("inf")}, "beta=inf is not allowed; expected a finite number > 0"),
+    ("msa", {"lambda_u": float("inf")}, "lambda_u=inf is not allowed; expected a finite number > 0"),
+    ("msa", {"lambda_l": "0.1"}, "lambda_l='0.1' is not allowed; expected a finite number >= 0"),
+    ("msa", {"lambda_l": 4.0, "lambda_u": 3.0}, "lambda_l=4.0 > lambda_u=3.0 is not allowed; expected lambda_l <= lambda_u"),
+    ("msa", {"use_rho": "maybe"}, "use_rho='maybe' is not allowed; expected true or false"),
+    ("msa", {"use_pi": 1}, "use_pi=1 is not allowed; expected true or false"),
+    ("msa", {"neighbours": -1}, "neighbours=-1 is not allowed; expected an integer >= 0"),
+    ("msa", {"neighbours": True}, "neighbours=True is not allowed"),
+    ("constant", {"distance": -1}, "distance=-1 is not allowed; expected a finite number >= 0"),
+    ("constant", {"distance": "abc"}, "distance='abc' is not allowed; expected a finite number >= 0"),
+    ("entropy", {"bins": 1000}, "bins=1000 is not allowed; expected an integer >= 1 and <= 100"),
+    ("entropy", {"max_distance": float("nan")}, "max_distance=nan is not allowed; expected a finite number > 0"),
+    ("spaciousness", {"smoothing": 1.0}, "smoothing=1.0 is not allowed; expected a finite number >= 0 and < 1"),
 ])
 def test_invalid_parameter_values(name, params, fragment):
-    with pytest.raises(InputError, match=fragment):
+    with pytest.raises(InputError, match=re.escape(f"sampler {name!r}: {fragment}")):
         make_sampler(name, **params)
+
+
+def test_valid_parameter_values_are_normalised():
+    sampler = make_sampler("msa", window=12.0, neighbours=2, alpha=10, use_rho=np.bool_(False))
+    assert sampler.window_size == 12 and isinstance(sampler.window_size, int)
+    assert sampler.weights == ScoreWeights(alpha=10.0, use_rho=False)
+
+
+@pytest.mark.parametrize("params, fragment", [
+    ({"window": 30}, "window=30: up to 2^29 - 2 = 536870910 candidates per window optimisation, "
+                     "more than the limit of 32766"),
+    ({"window": 200}, "window=200: up to 2^199 - 2 = about 10^59 candidates"),
+    ({"window": 17}, "window=17: up to 2^16 - 2 = 65534 candidates"),
+    ({"window": 16, "neighbours": 2}, "window=16 (+1 neighbour): up to 2^16 - 2 = 65534 candidates"),
+])
+def test_window_with_too_many_candidates_is_refused(params, fragment):
+    with pytest.raises(InputError, match=re.escape(fragment)):
+        make_sampler("msa", **params)
+
+
+def test_largest_allowed_window_is_accepted():
+    assert make_sampler("msa", window=16).window_size == 16
+    assert make_sampler("msa", window=15, neighbours=2).window_size == 15
+
+
+def test_window_longer_than_the_stream_warns():
+    poses, desc = random_walk(8)
+    sampler = make_sampler("msa", window=10)
+    with pytest.warns(UserWarning, match=r"window=10 is longer than the stream \(8 frames\)"):
+        sampler.expect_frames(8)
+    for pose, d in zip(poses, desc):
+        sampler.push(pose, d)
+    with pytest.warns(UserWarning, match="the window never filled"):
+        sampler.finish()
+    assert sampler.online_keyframes == [0]
+    with pytest.warns(UserWarning, match="longer than the stream"):
+        make_sampler("msa", window=10).run(poses, desc)
+
+
+def test_stream_that_fills_the_window_does_not_warn(recwarn):
+    poses, desc = random_walk(30)
+    sampler = make_sampler("msa", window=8)
+    sampler.run(poses, desc, flush=True)
+    assert not [w for w in recwarn if issubclass(w.category, UserWarning)]
 
 
 def test_constant_distance_on_a_straight_line():

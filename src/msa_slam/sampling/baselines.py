@@ -10,7 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from msa_slam.sampling import checks
 from msa_slam.sampling.base import Sampler
+
+MAX_BINS = 100  # per axis: 10^6 histogram cells, 8 MB (1000 would ask numpy for 8 GB)
 
 
 class _DistanceGated(Sampler):
@@ -40,9 +43,7 @@ class ConstantDistance(_DistanceGated):
 
     def __init__(self, distance: float = 1.0) -> None:
         super().__init__()
-        if not distance >= 0:
-            raise ValueError(f"constant: distance must be >= 0, got {distance}")
-        self.distance = float(distance)
+        self.distance = checks.finite_float(self.name, "distance", distance, 0.0)
 
     def _push(self, index, pose, descriptor, points):
         if self._last_t is None or self._distance_to_last(pose) >= self.distance:
@@ -66,11 +67,9 @@ class Entropy(_DistanceGated):
 
     def __init__(self, threshold: float = 0.05, max_distance: float = 5.0, bins: int = 10) -> None:
         super().__init__()
-        if threshold < 0 or max_distance <= 0 or bins < 1:
-            raise ValueError("entropy: threshold >= 0, max_distance > 0 and bins >= 1 are required")
-        self.threshold = float(threshold)
-        self.max_distance = float(max_distance)
-        self.bins = int(bins)
+        self.threshold = checks.finite_float(self.name, "threshold", threshold, 0.0)
+        self.max_distance = checks.finite_float(self.name, "max_distance", max_distance, 0.0, exclusive=True)
+        self.bins = checks.integer(self.name, "bins", bins, 1, MAX_BINS)
         self._last_entropy = 0.0
 
     def _push(self, index, pose, descriptor, points):
@@ -107,9 +106,7 @@ class Spaciousness(_DistanceGated):
 
     def __init__(self, smoothing: float = 0.85) -> None:
         super().__init__()
-        if not 0.0 <= smoothing < 1.0:
-            raise ValueError(f"spaciousness: smoothing must be in [0, 1), got {smoothing}")
-        self.smoothing = float(smoothing)
+        self.smoothing = checks.finite_float(self.name, "smoothing", smoothing, 0.0, below=1.0)
         self.spaciousness: float | None = None
 
     def _push(self, index, pose, descriptor, points):

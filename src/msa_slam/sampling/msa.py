@@ -13,16 +13,43 @@ keyframes are the same as theirs.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy.spatial import cKDTree
 
 from msa_slam.errors import InputError
+from msa_slam.sampling import checks
 from msa_slam.sampling.base import AmbiguousWindow, Sampler, Timer
 from msa_slam.sampling.msa_window import MODES, ExactWorkspace, ScoreWeights, optimise_window
 
+MAX_CANDIDATES = 2 ** 15 - 2  # per window optimisation, i.e. N <= 16: measured 5 s a window in exact mode
+# (sc20x60, 17811 feasible candidates), 1 s in fast mode; N = 20 took 116 s for 150 frames, N = 30 runs out of memory
 MIN_WINDOW_STEP = 0.01  # a frame joins the window only if it moved this far from the last member
 INITIAL_DMIN, INITIAL_DMAX = 1.0, 5.0
 DMIN_FLOOR, DMAX_CAP = 0.01, 5.0
+
+
+def check_candidate_count(window: int, neighbours: int) -> None:
+    """Refuse windows whose power set is too large to enumerate (time, then memory, explode).
+
+    A window optimisation scores every subset that starts with the window's first member: 2^(n-1) - 2
+    candidates for n members, and n reaches window + neighbours - 1 (old keyframes join a full window).
+    """
+    members = window + max(neighbours - 1, 0)
+    if 2 ** min(members - 1, 64) - 2 > MAX_CANDIDATES:
+        count = f"{2 ** (members - 1) - 2}" if members <= 64 else f"about 10^{int((members - 1) * 0.30103)}"
+        joined = f" (+{neighbours - 1} neighbour{'s' * (neighbours > 2)})" if neighbours > 1 else ""
+        raise InputError(f"sampler 'msa': window={window}{joined}: up to 2^{members - 1} - 2 = {count} candidates "
+                         f"per window optimisation, more than the limit of {MAX_CANDIDATES} "
+                         f"(window + neighbours - 1 <= 16)")
+
+
+def warn_short_stream(frames: int, window: int) -> None:
+    """The window never filled: no subset was ever optimised, so only frame 0 is an online keyframe."""
+    warnings.warn(f"msa: window={window} is longer than the stream ({frames} frames): the window never "
+                  f"filled, so only frame 0 was selected online; use a smaller window or flush at the end",
+                  UserWarning, stacklevel=3)
 
 
 class MSASampler(Sampler):
@@ -30,8 +57,9 @@ class MSASampler(Sampler):
 
     Parameters: window size N, alpha and beta (eq. 8), lambda_l / lambda_u (distance bounds as multiples
     of the running average step), neighbours (old keyframes near the window's end that join it; the
-    authors' example uses 2), use_rho / use_pi (the paper's ablations), mode "exact" (bit-identical to the
-    reference) or "fast" (Gram-matrix formulation, same result on >= 99 % of streams).
+    authors' example uses 2), use_rho / use_pi (the paper's ablations), mode "exact" (the reference's
+    floating-point path) or "fast" (Gram-matrix formulation). Windows whose choice rounding could change
+    are counted in `stats.ambiguous` (sampling/msa_ambiguity.py).
     """
 
     name = "msa"
@@ -40,22 +68,19 @@ class MSASampler(Sampler):
                  lambda_u: float = 3.0, neighbours: int = 0, use_rho: bool = True, use_pi: bool = True,
                  mode: str = "exact") -> None:
         super().__init__()
-        if int(window) != window or window < 3:
-            raise ValueError(f"msa: window must be an integer >= 3, got {window}")
-        if alpha <= 0 or beta <= 0:
-            raise ValueError(f"msa: alpha and beta must be > 0, got alpha={alpha}, beta={beta}")
-        if lambda_l < 0 or lambda_u <= 0 or lambda_l > lambda_u:
-            raise ValueError(f"msa: need 0 <= lambda_l <= lambda_u and lambda_u > 0, "
-                             f"got lambda_l={lambda_l}, lambda_u={lambda_u}")
-        if int(neighbours) != neighbours or neighbours < 0:
-            raise ValueError(f"msa: neighbours must be an integer >= 0, got {neighbours}")
-        if mode not in MODES:
-            raise ValueError(f"msa: mode must be one of {', '.join(MODES)}, got {mode!r}")
-        self.window_size = int(window)
-        self.lambda_l, self.lambda_u = float(lambda_l), float(lambda_u)
-        self.neighbours = int(neighbours)
-        self.mode = mode
-        self.weights = ScoreWeights(float(alpha), float(beta), bool(use_rho), bool(use_pi))
+        self.window_size = checks.integer(self.name, "window", window, 3)
+        self.neighbours = checks.integer(self.name, "neighbours", neighbours, 0)
+        check_candidate_count(self.window_size, self.neighbours)
+        alpha = checks.finite_float(self.name, "alpha", alpha, 0.0, exclusive=True)
+        beta = checks.finite_float(self.name, "beta", beta, 0.0, exclusive=True)
+        self.lambda_l = checks.finite_float(self.name, "lambda_l", lambda_l, 0.0)
+        self.lambda_u = checks.finite_float(self.name, "lambda_u", lambda_u, 0.0, exclusive=True)
+        if self.lambda_l > self.lambda_u:
+            raise InputError(f"sampler 'msa': lambda_l={lambda_l!r} > lambda_u={lambda_u!r} is not allowed; "
+                             f"expected lambda_l <= lambda_u")
+        self.mode = checks.choice(self.name, "mode", mode, MODES)
+        self.weights = ScoreWeights(alpha, beta, checks.boolean(self.name, "use_rho", use_rho),
+                                    checks.boolean(self.name, "use_pi", use_pi))
         self._window: list[int] = []
         self._keyframe_set: set[int] = set()
         self._translation: dict[int, np.ndarray] = {}
@@ -67,6 +92,11 @@ class MSASampler(Sampler):
         self._tree: cKDTree | None = None
         self._tree_size = 0
         self._workspace = ExactWorkspace()
+
+    def expect_frames(self, frames: int) -> None:
+        """Warn up front when the stream is too short for the window ever to fill."""
+        if frames < self.window_size:
+            warn_short_stream(frames, self.window_size)
 
     @property
     def window(self) -> list[int]:
@@ -98,6 +128,8 @@ class MSASampler(Sampler):
 
     def _finish(self) -> list[int]:
         """Flush: optimise whatever is left in the window over all its members (not in the reference)."""
+        if self.stats.window_optimisations == 0 and self.stats.frames > 0:
+            warn_short_stream(self.stats.frames, self.window_size)
         if len(self._window) < 2:
             return []
         self._update_bounds()
