@@ -74,3 +74,31 @@ def test_run_reports_bad_input(tmp_path, cache_dir):
     result = runner.invoke(app, ["run", "--dataset", "sim:test", "--param", "thresold=0.5", "--quiet"])
     assert isinstance(result.exception, InputError) and "thresold" in str(result.exception)
     assert not (tmp_path / "out").exists()
+
+
+def test_compare_keeps_finished_methods_when_one_fails(sequence, odometry_file, cache_dir, tmp_path, monkeypatch):
+    """One method failing at run time (here: made to fail) leaves the others' results, the failure marked in
+    report.md with its traceback, and exit code 1 with one line naming the method."""
+    import msa_slam.pipeline.compare as compare
+
+    methods = (("constant-3m", "constant", {"distance": 3.0}), ("entropy", "entropy", {}))
+    monkeypatch.setattr(compare, "PAPER_METHODS", methods)
+    monkeypatch.setattr(compare.run_compare, "__defaults__",
+                        (True, methods, False, compare.DEFAULT_RESULTS / "compare"))
+    real = compare.run_batch
+
+    def failing(cfg, *args, **kwargs):
+        if cfg.name == "entropy":
+            raise RuntimeError("degenerate scan statistics")
+        return real(cfg, *args, **kwargs)
+
+    monkeypatch.setattr(compare, "run_batch", failing)
+    out = tmp_path / "cmp"
+    result = runner.invoke(app, ["compare", "--dataset", str(sequence), "--odometry", str(odometry_file),
+                                 "--cache-dir", str(cache_dir), "--out", str(out), "--quiet"])
+    assert result.exit_code == 1
+    assert "failed: entropy: RuntimeError: degenerate scan statistics" in result.output
+    report = (out / "report.md").read_text()
+    assert "| constant-3m |" in report and "- entropy: RuntimeError: degenerate scan statistics" in report
+    assert (out / "runs" / "constant-3m" / "metrics.json").is_file()
+    assert "degenerate scan statistics" in (out / "runs" / "entropy" / "error.txt").read_text()

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
-from typing import List, Optional
+from typing import Iterator, List, Optional
 
 import typer
 
@@ -20,6 +21,20 @@ def out_help(command: str) -> str:
 PARAM_HELP = ("override as key=value (repeatable): a config key (similarity_threshold=0.7), a section field "
               "(verifier.max_residual=0.2, graph.robust=cauchy), a stage parameter (sampler.lambda_u=5, "
               "odometry.max_range=80) or a bare sampler parameter")
+
+
+@contextlib.contextmanager
+def reporting_failed_methods() -> Iterator[None]:
+    """A comparison with failed methods: print its report path and one line per failure, exit 1."""
+    from msa_slam.pipeline.compare import MethodsFailed
+
+    try:
+        yield
+    except MethodsFailed as exc:
+        typer.echo(str(exc.report))
+        for name, error in exc.failed.items():
+            typer.echo(f"failed: {name}: {error}", err=True)
+        raise typer.Exit(1) from None
 
 
 def _config(config_file: Optional[Path], dataset: Optional[str], sampler: Optional[str],
@@ -82,7 +97,8 @@ def compare_command(
     from msa_slam.pipeline.compare import run_compare
 
     cfg = _config(config, dataset, None, descriptor, odometry, mode, cache_dir, param)
-    typer.echo(str(run_compare(cfg, out, quiet=quiet, overwrite=overwrite)))
+    with reporting_failed_methods():
+        typer.echo(str(run_compare(cfg, out, quiet=quiet, overwrite=overwrite)))
 
 
 def demo_command(
@@ -95,5 +111,6 @@ def demo_command(
     processed with KISS-ICP on first use, then cached); prints the path of its report.md."""
     from msa_slam.demo import run_demo
 
-    report = run_demo(out, cache_dir=cache_dir, quiet=quiet, overwrite=overwrite)
-    typer.echo(f"report: {report}")
+    with reporting_failed_methods():
+        report = run_demo(out, cache_dir=cache_dir, quiet=quiet, overwrite=overwrite)
+        typer.echo(f"report: {report}")

@@ -7,6 +7,7 @@ and the comparison (Markdown + CSV + figures + report.md) sits at the top of the
 from __future__ import annotations
 
 import os
+import traceback
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -118,40 +119,62 @@ def method_configs(base: BatchConfig, methods: Sequence[tuple[str, str, dict[str
     return [make_config({**data, "sampler": s, "sampler_params": p, "label": label}) for label, s, p in methods]
 
 
+class MethodsFailed(Exception):
+    """Some methods of a comparison failed; the others' results were written (`report`), the failures listed."""
+
+    def __init__(self, report: Path, failed: dict[str, str]) -> None:
+        super().__init__(f"{len(failed)} method(s) failed: " + "; ".join(f"{k}: {v}" for k, v in failed.items()))
+        self.report, self.failed = report, failed
+
+
 def run_compare(base: BatchConfig, out: str | os.PathLike | None, quiet: bool = True,
                 methods: Sequence[tuple[str, str, dict[str, Any]]] = PAPER_METHODS, overwrite: bool = False,
                 default_parent: Path = DEFAULT_RESULTS / "compare") -> Path:
     """Run every method on the sequence of `base` and write the comparison folder; return its report.md.
 
     `out` is checked before any work (msa_slam.io.outputs; None: a new timestamped folder under
-    `default_parent`) and appears only when complete.
+    `default_parent`) and appears only when complete. A method that fails does not cost the others: the
+    folder is written with the methods that finished, the failed ones are marked in report.md (their
+    traceback in runs/<method>/error.txt), and MethodsFailed is raised afterwards.
     """
     configs = method_configs(base, methods)
     with open_result_folder(out, "compare", default_parent, overwrite=overwrite) as folder:
         frontend = prepare_frontend(configs[0], quiet)
         with folder.staging() as tmp:
-            results = _run_methods(configs, frontend, tmp / "runs", quiet)
+            results, failed = _run_methods(configs, frontend, tmp / "runs", quiet)
             rows = [table_row(r.metrics) for r in results]
             table = table_markdown(rows)
             (tmp / "comparison.md").write_text(table)
             (tmp / "comparison.csv").write_text(rows_csv(rows, COLUMNS))
             write_json(tmp / "comparison.json", [r.metrics for r in results])
-            figures = _figures(results, tmp / "figures")
-            (tmp / "report.md").write_text(_report(results, table, figures))
+            figures = _figures(results, tmp / "figures") if results else []
+            report = _report(results, table, figures) if results else f"# Sampler comparison on {frontend.name}\n"
+            if failed:
+                report += "\n## Failed methods\n\n" + "".join(f"- {name}: {error} (traceback: runs/{name}/error.txt)\n"
+                                                         for name, error in failed.items())
+            (tmp / "report.md").write_text(report)
+    if failed:
+        raise MethodsFailed(folder.path / "report.md", failed)
     return folder.path / "report.md"
 
 
-def _run_methods(configs: Sequence[BatchConfig], frontend, runs: Path, quiet: bool) -> list[BatchResult]:
-    """Each method's run folder under `runs`, in order."""
+def _run_methods(configs: Sequence[BatchConfig], frontend, runs: Path, quiet: bool
+                 ) -> tuple[list[BatchResult], dict[str, str]]:
+    """Each method's run folder under `runs`, in order; a failing method leaves its error.txt instead."""
     runs.mkdir()
-    results = []
+    results, failed = [], {}
     with progress_bar(quiet, transient=False) as bar:
         task = bar.add_task("methods", total=len(configs))
         for cfg in configs:
             bar.update(task, description=f"method {cfg.name}")
-            result = run_batch(cfg, frontend, quiet)
             (runs / cfg.name).mkdir()
-            write_run_files(result, runs / cfg.name)
-            results.append(result)
+            try:
+                result = run_batch(cfg, frontend, quiet)
+            except Exception as exc:  # one method's failure must not lose the others' results
+                (runs / cfg.name / "error.txt").write_text("".join(traceback.format_exception(exc)))
+                failed[cfg.name] = f"{type(exc).__name__}: {exc}"
+            else:
+                write_run_files(result, runs / cfg.name)
+                results.append(result)
             bar.advance(task)
-    return results
+    return results, failed
