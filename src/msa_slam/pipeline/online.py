@@ -25,7 +25,7 @@ from msa_slam.backend import GraphNoise, IncrementalPoseGraph
 from msa_slam.datasets import Frame
 from msa_slam.descriptors import make_descriptor
 from msa_slam.errors import InputError
-from msa_slam.evaluation import ate, improvement, peak_rss_bytes, rpe
+from msa_slam.evaluation import TrajectoryEvaluation, evaluate_trajectories, peak_rss_bytes
 from msa_slam.odometry import OdometryCache
 from msa_slam.pipeline.frontend import make_odometry, pipeline_cache
 from msa_slam.pipeline.loops import LoopCandidate, verify_candidates
@@ -227,10 +227,9 @@ class OnlinePipeline:
               if self.best_similarity else None)
         result = OnlineResult(self.config, self.name, self.odom, self.gt, keys, optimised, self.loops, pr,
                               self.steps_ms, self.memory)
-        before = _trajectory_metrics(self.odom[keys], self.gt[keys])
-        after = _trajectory_metrics(optimised, self.gt[keys])
-        result.ate_errors = {"odometry": before.pop("errors"), "optimised": after.pop("errors")}
-        result.metrics = _metrics(result, before, after, self.sampler.stats.as_dict(), final_ms,
+        evaluation = evaluate_trajectories(self.odom[keys], optimised, self.gt[keys], keys)
+        result.ate_errors = evaluation.errors
+        result.metrics = _metrics(result, evaluation, self.sampler.stats.as_dict(), final_ms,
                                   getattr(self.clouds, "disk_bytes", 0))
         result.metrics["pr_queries"] = len(self.best_similarity)
         self.close()
@@ -243,18 +242,6 @@ class OnlinePipeline:
             close()
 
 
-def _trajectory_metrics(estimate: np.ndarray, reference: np.ndarray) -> dict[str, Any]:
-    a = ate(estimate, reference)
-    r = rpe(estimate, reference, delta=1, unit="frames")
-    return {"ate_translation_m": a.translation_rmse, "ate_rotation_deg": a.rotation_rmse,
-            "rpe_translation_m": r.translation_rmse, "rpe_rotation_deg": r.rotation_rmse,
-            "errors": a.translation_errors}
-
-
-def _improvement(before: float, after: float) -> float:
-    return improvement(before, after) if before > 0 else 0.0
-
-
 def _percentiles(values: np.ndarray) -> dict[str, float]:
     v = np.asarray(values, dtype=np.float64)
     if not v.size:
@@ -264,7 +251,7 @@ def _percentiles(values: np.ndarray) -> dict[str, float]:
             "max": round(float(v.max()), 3)}
 
 
-def _metrics(result: OnlineResult, before: dict, after: dict, sampler_stats: dict, final_ms: float,
+def _metrics(result: OnlineResult, evaluation: TrajectoryEvaluation, sampler_stats: dict, final_ms: float,
              disk_bytes: int) -> dict[str, Any]:
     """Metrics in the batch pipeline's layout (so tables and reports read both) plus online extras."""
     cfg, loops, mem = result.config, result.loops, result.memory
@@ -276,6 +263,10 @@ def _metrics(result: OnlineResult, before: dict, after: dict, sampler_stats: dic
     k = len(result.keyframes)
     cloud_bytes = int(mem["cloud_bytes"][-1]) + int(disk_bytes)
     desc_bytes, graph_bytes = int(mem["descriptor_bytes"][-1]), int(mem["graph_bytes"][-1])
+    unavailable = dict(evaluation.metrics["unavailable"])
+    if result.pr is None or result.pr.unavailable:
+        unavailable["pr"] = result.pr.unavailable if result.pr is not None else (
+            f"no keyframe had an older keyframe to query (more than min_frame_gap={cfg.min_frame_gap} frames back)")
     graph_steps = result.steps_ms["graph_update"][mem["keyframes"] > np.concatenate([[0], mem["keyframes"][:-1]])]
     return {
         "pipeline": "online",
@@ -285,18 +276,17 @@ def _metrics(result: OnlineResult, before: dict, after: dict, sampler_stats: dic
         "true_candidates": int(sum(c.gt_distance <= cfg.loop_radius for c in loops)),
         "verified": len(accepted), "registrations": int(sum(c.verified for c in loops)),
         "false_loops": int(sum(c.gt_distance > cfg.loop_radius for c in accepted)),
-        "before": before, "after": after,
-        "improvement_pct": {
-            "translation": _improvement(before["ate_translation_m"], after["ate_translation_m"]),
-            "rotation": _improvement(before["ate_rotation_deg"], after["ate_rotation_deg"]),
-        },
+        **evaluation.metrics,
+        "unavailable": unavailable,
+        "warnings": list(evaluation.warnings),
         "pr_auc": None if result.pr is None else result.pr.auc,
         "f1_max": None if result.pr is None else result.pr.f1_max,
         "memory_bytes": {"keyframe_descriptors": desc_bytes, "keyframe_clouds": cloud_bytes, "graph": graph_bytes,
                          "total": desc_bytes + cloud_bytes + graph_bytes,
                          "keyframe_clouds_on_disk": int(disk_bytes), "cloud_store": cfg.cloud_store},
         "bytes_per_keyframe": (desc_bytes + cloud_bytes + graph_bytes) / k,
-        "peak_rss_bytes": peak_rss_bytes(),
+        "peak_rss_bytes": peak_rss_bytes(),  # the whole process's high-water mark, not this run's
+        "peak_rss_scope": "process",
         "time_s": {**{s: round(v, 4) for s, v in totals.items()}, "final_optimisation": round(final_ms / 1e3, 4),
                    "backend_total": round(backend, 4)},
         "fps": n / wall if wall > 0 else float("inf"),
