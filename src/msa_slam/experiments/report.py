@@ -17,6 +17,7 @@ import numpy as np
 from msa_slam.errors import InputError
 from msa_slam.experiments.folder import GRID_FILE, cell_dir, grid_cells, read_cell, stale_cells
 from msa_slam.experiments.grid import Cell, GridSpec
+from msa_slam.evaluation import NA, fmt
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.pipeline.online_figures import plot_ate_difference, plot_memory, plot_step_times, plot_sweeps
 from msa_slam.pipeline.results import rows_csv
@@ -24,7 +25,7 @@ from msa_slam.pipeline.results import rows_csv
 COLUMNS = ("cell", "pipeline", "dataset", "descriptor", "method", "sampler", "seed", "parameters", "frames",
            "keyframes", "candidates", "verified", "false_loops", "ate_before_m", "ate_after_m", "improvement_t_pct",
            "improvement_r_pct", "pr_auc", "f1_max", "memory_mib", "memory_vs_reference_pct", "bytes_per_keyframe",
-           "time_s", "fps", "backend_fps", "backend_p99_ms", "peak_rss_mib")
+           "time_s", "fps", "backend_fps", "backend_p99_ms", "process_peak_rss_mib")
 SWEEP_METRICS = {"t. ATE impr. [%]": "improvement_t_pct", "R. ATE impr. [%]": "improvement_r_pct",
                  "F1-max": "f1_max", "memory vs reference [%]": "memory_vs_reference_pct"}
 
@@ -78,7 +79,8 @@ def make_rows(cells: list[dict[str, Any]], reference: str = "all") -> list[dict[
             "memory_vs_reference_pct": None if not ref else 100.0 * m["memory_bytes"]["total"] / ref,
             "bytes_per_keyframe": m["memory_bytes"]["total"] / max(1, m["keyframes"]),
             "time_s": m["time_s"]["backend_total"], "fps": m.get("fps"), "backend_fps": m.get("backend_fps"),
-            "backend_p99_ms": latency.get("p99"), "peak_rss_mib": m["peak_rss_bytes"] / 2**20,
+            "backend_p99_ms": latency.get("p99"),
+            "process_peak_rss_mib": m["peak_rss_bytes"] / 2**20,  # the cell's whole process, not the method
         })
     return rows
 
@@ -88,10 +90,10 @@ def _mean(rows: list[dict[str, Any]], key: str) -> tuple[float, float] | None:
     return (float(np.mean(values)), float(np.std(values))) if values else None
 
 
-def _cell(stat: tuple[float, float] | None, fmt: str, n: int, unit: str = "") -> str:
+def _cell(stat: tuple[float, float] | None, spec: str, n: int, unit: str = "") -> str:
     if stat is None:
-        return "n/a"
-    return format(stat[0], fmt) + (f" ± {format(stat[1], fmt)}" if n > 1 else "") + unit
+        return NA
+    return fmt(stat[0], spec) + (f" ± {fmt(stat[1], spec)}" if n > 1 else "") + unit
 
 
 def table2_markdown(rows: list[dict[str, Any]]) -> str:
