@@ -5,12 +5,13 @@ Unknown keys are an error that lists the valid ones, so a typo never silently ru
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
-from typing import Any, Literal, Mapping
+from typing import Any, Literal, Mapping, get_args
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
 from msa_slam.errors import InputError
 from msa_slam.io.params import parse_key_value
@@ -19,7 +20,7 @@ MODES = ("oracle", "realistic")
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
 
 
 class VerifierSettings(_Section):
@@ -113,9 +114,35 @@ def make_config(data: Mapping[str, Any] | None = None, **overrides: Any) -> Batc
     """A validated BatchConfig from a mapping plus keyword overrides; problems become one InputError."""
     merged = {**(dict(data) if data else {}), **overrides}
     try:
-        return BatchConfig(**merged)
+        config = BatchConfig(**merged)
     except ValidationError as exc:
         raise InputError("config: " + "; ".join(_problem(e) for e in exc.errors())) from None
+    for section in _SECTIONS.values():
+        check_finite(getattr(config, section), section)
+    _check_sampler(config.sampler, config.sampler_params)
+    return config
+
+
+def check_finite(value: Any, where: str) -> None:
+    """NaN or infinity anywhere in a stage's parameters is an error: YAML would save it as null."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise InputError(f"config: {where}={value!r} is not allowed; expected a finite number")
+    if isinstance(value, Mapping):
+        for key, item in value.items():
+            check_finite(item, f"{where}.{key}")
+    elif isinstance(value, (list, tuple)):
+        for k, item in enumerate(value):
+            check_finite(item, f"{where}[{k}]")
+
+
+def _check_sampler(sampler: str, params: Mapping[str, Any]) -> None:
+    """Build the sampler once: its constructor checks every parameter before any work starts."""
+    from msa_slam.sampling import make_sampler
+
+    try:
+        make_sampler(sampler, **params)
+    except InputError as exc:
+        raise InputError(f"config: {exc}") from None
 
 
 def load_config(path: str | os.PathLike) -> BatchConfig:
@@ -156,6 +183,7 @@ def apply_overrides(data: dict, params: list[str], model: type[BaseModel]) -> di
         elif dot and head in ("verifier", "graph"):
             data[head] = {**data[head], tail: value}
         elif not dot and key in model.model_fields:
+            _check_not_a_sampler_param(data.get("sampler"), key, value, model)
             data[key] = value
         elif not dot:
             _check_sampler_param(data["sampler"], key, model)
@@ -164,6 +192,31 @@ def apply_overrides(data: dict, params: list[str], model: type[BaseModel]) -> di
             raise InputError(f"--param {key!r}: unknown section {head!r}; use one of "
                              f"{', '.join([*_SECTIONS, 'verifier', 'graph'])}")
     return data
+
+
+def _check_not_a_sampler_param(sampler: str | None, key: str, value: Any, model: type[BaseModel]) -> None:
+    """A bare key naming both a config field and a sampler parameter (`mode`) sets the config field;
+    a value that only the sampler accepts (`mode=fast`) is refused with the spelling that reaches it."""
+    from msa_slam.sampling import make_sampler, sampler_parameters
+
+    if sampler is None or key not in sampler_parameters(sampler):
+        return
+    try:
+        TypeAdapter(model.model_fields[key].annotation).validate_python(value)
+        return
+    except ValidationError:
+        pass
+    try:
+        make_sampler(sampler, **{key: value})
+    except InputError:
+        return  # valid for neither: the config field's own error follows
+    raise InputError(f"--param {key}={value}: `{key}` is the config's {key} ({_allowed(model, key)}); "
+                     f"for the {sampler} sampler's {key} write sampler.{key}={value}")
+
+
+def _allowed(model: type[BaseModel], key: str) -> str:
+    args = get_args(model.model_fields[key].annotation)
+    return ", ".join(map(str, args)) if args else str(model.model_fields[key].annotation)
 
 
 def _check_sampler_param(sampler: str, key: str, model: type[BaseModel]) -> None:

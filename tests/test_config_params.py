@@ -1,0 +1,68 @@
+"""Batch config: `-p key=value` routing and the checks that keep a bad value from becoming a run."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+import yaml
+
+from msa_slam.errors import InputError
+from msa_slam.pipeline.config import apply_params, load_config, make_config
+
+
+@pytest.fixture
+def base():
+    return make_config(dataset="sim:test")
+
+
+def test_bare_mode_with_a_sampler_mode_says_how_to_reach_the_sampler(base):
+    with pytest.raises(InputError, match=re.escape("--param mode=fast: `mode` is the config's mode (oracle, realistic); "
+                                                   "for the msa sampler's mode write sampler.mode=fast")):
+        apply_params(base, ["mode=fast"])
+    routed = apply_params(base, ["sampler.mode=fast", "mode=realistic"])
+    assert routed.sampler_params == {"mode": "fast"} and routed.mode == "realistic"
+
+
+def test_bare_mode_valid_for_neither_gets_the_config_error(base):
+    with pytest.raises(InputError, match=r"config: mode: Input should be 'oracle' or 'realistic'"):
+        apply_params(base, ["mode=psychic"])
+
+
+@pytest.mark.parametrize("override, fragment", [
+    ("alpha=.nan", "sampler_params.alpha=nan is not allowed; expected a finite number"),
+    ("beta=.inf", "sampler_params.beta=inf is not allowed; expected a finite number"),
+    ("sampler.beta=-.inf", "sampler_params.beta=-inf is not allowed; expected a finite number"),
+    ("use_rho=maybe", "sampler 'msa': use_rho='maybe' is not allowed; expected true or false"),
+    ("lambda_u=inf", "sampler 'msa': lambda_u='inf' is not allowed; expected a finite number > 0"),
+    ("window=abc", "sampler 'msa': window='abc' is not allowed; expected an integer >= 3"),
+    ("window=30", "window=30: up to 2^29 - 2 = 536870910 candidates"),
+    ("descriptor.max_radius=.nan", "descriptor_params.max_radius=nan is not allowed"),
+    ("loop_radius=.inf", "loop_radius: Input should be a finite number"),
+    ("verifier.max_residual=.nan", "verifier.max_residual: Input should be a finite number"),
+])
+def test_bad_values_are_refused_naming_the_key(base, override, fragment):
+    with pytest.raises(InputError, match=re.escape(fragment)):
+        apply_params(base, [override])
+
+
+def test_constant_sampler_distance_must_be_a_number():
+    config = make_config(dataset="sim:test", sampler="constant")
+    with pytest.raises(InputError, match=re.escape("sampler 'constant': distance='abc' is not allowed; "
+                                                   "expected a finite number >= 0")):
+        apply_params(config, ["distance=abc"])
+
+
+def test_config_yaml_round_trips(base, tmp_path):
+    config = apply_params(base, ["alpha=2.5", "sampler.mode=fast", "use_rho=false", "loop_radius=4"])
+    path = tmp_path / "config.yaml"
+    path.write_text(yaml.safe_dump(config.dump()))
+    assert "null" not in yaml.safe_dump(config.sampler_params)
+    assert load_config(path) == config
+
+
+def test_nan_in_a_config_file_is_refused(tmp_path):
+    path = tmp_path / "config.yaml"
+    path.write_text("dataset: sim:test\nsampler_params:\n  alpha: .nan\n")
+    with pytest.raises(InputError, match=re.escape("sampler_params.alpha=nan is not allowed")):
+        load_config(path)
