@@ -1,0 +1,81 @@
+"""Plausibility of the front end's trajectories: warnings, not errors, for results that would mislead.
+
+A KISS-ICP run that never moves (a ground-plane-only world, scans of the wrong type) or a ground-truth
+file with a teleport still produce an ATE; these checks say why that number is not an odometry error.
+Steps are judged against what a platform can do: MAX_SPEED_MPS and MAX_ROTATION_RATE_DPS given the
+frame times (seconds; with frame indices as times the limits are per frame, so only gross jumps show),
+and STEP_FACTOR times the median step, which catches a jump even without meaningful times.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from msa_slam.types import validate_poses
+
+MAX_SPEED_MPS = 60.0  # 216 km/h: beyond cars, robots and hand-held rigs
+MAX_ROTATION_RATE_DPS = 180.0  # half a turn a second
+STEP_FACTOR = 10.0  # a step this many times the median step is a jump...
+MIN_JUMP_M = 5.0  # ...when it is also at least this long (stationary data has a median step of ~0)
+MOVING_STEP_M = 0.05  # a ground-truth step this long means the platform moves
+STALLED_FRACTION = 0.1  # odometry moving less than this fraction of the ground truth's step is stalled
+MAX_STALLED_SHARE = 0.2  # warn when more than this share of the moving frames is stalled
+START_FRAMES = 20  # frames of the "stalled start" check
+MIN_START_PATH_M = 1.0  # ground-truth path over START_FRAMES needed to judge a start
+
+
+def _steps(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Translation (m) and rotation (deg) of every frame-to-frame motion (independent of the world frame)."""
+    relative = np.linalg.inv(poses[:-1]) @ poses[1:]
+    cos = np.clip((np.trace(relative[:, :3, :3], axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    return np.linalg.norm(relative[:, :3, 3], axis=1), np.degrees(np.arccos(cos))
+
+
+def implausible_steps(poses: np.ndarray, times: np.ndarray, what: str) -> list[str]:
+    """Warnings for steps of `poses` faster than a platform moves or far beyond the median step."""
+    poses = validate_poses(poses, what)
+    if len(poses) < 2:
+        return []
+    dt = np.diff(np.asarray(times, dtype=np.float64))
+    moves, turns = _steps(poses)
+    speed, rate = moves / dt, turns / dt
+    jump = (moves > STEP_FACTOR * np.median(moves)) & (moves >= MIN_JUMP_M)
+    bad = np.flatnonzero((speed > MAX_SPEED_MPS) | (rate > MAX_ROTATION_RATE_DPS) | jump)
+    if not len(bad):
+        return []
+    i = int(bad[np.argmax(moves[bad])])
+    return [f"{what}: {len(bad)} implausible step(s); the largest, frames {i} -> {i + 1}: {moves[i]:.2f} m and "
+            f"{turns[i]:.1f} deg in {dt[i]:.3g} s ({speed[i]:.1f} m/s, {rate[i]:.0f} deg/s; a platform moves at "
+            f"most {MAX_SPEED_MPS:g} m/s and {MAX_ROTATION_RATE_DPS:g} deg/s; the median step is "
+            f"{np.median(moves):.2f} m)"]
+
+
+def stalled_odometry(gt_poses: np.ndarray, odometry: np.ndarray) -> list[str]:
+    """Warnings when the odometry stands (nearly) still while the ground truth moves: at the start, or on a
+    large share of the frames (registration that does not lock on, or scans that cannot be registered)."""
+    gt_moves, _ = _steps(validate_poses(gt_poses, "ground truth"))
+    odom_moves, _ = _steps(validate_poses(odometry, "odometry"))
+    warnings = []
+    start_gt, start_odom = gt_moves[:START_FRAMES].sum(), odom_moves[:START_FRAMES].sum()
+    if start_gt >= MIN_START_PATH_M and start_odom < STALLED_FRACTION * start_gt:
+        warnings.append(f"odometry: stalled start: it moves {start_odom:.2f} m over the first "
+                        f"{min(START_FRAMES, len(gt_moves))} steps while the ground truth moves {start_gt:.1f} m "
+                        "(registration found nothing to lock on to?)")
+    moving = gt_moves >= MOVING_STEP_M
+    stalled = moving & (odom_moves < STALLED_FRACTION * gt_moves)
+    if moving.any() and stalled.sum() > MAX_STALLED_SHARE * moving.sum():
+        warnings.append(f"odometry: (near) zero motion on {int(stalled.sum())} of the {int(moving.sum())} steps "
+                        f"where the ground truth moves (< {100 * STALLED_FRACTION:g} % of its step); its ATE "
+                        "measures a failed registration, not drift")
+    return warnings
+
+
+def frontend_warnings(gt_poses: np.ndarray | None, odometry: np.ndarray, times: np.ndarray) -> list[str]:
+    """Every plausibility warning of a front end: ground-truth jumps, implausible or stalled odometry."""
+    warnings = []
+    if gt_poses is not None:
+        warnings += implausible_steps(gt_poses, times, "ground truth")
+    warnings += implausible_steps(odometry, times, "odometry")
+    if gt_poses is not None:
+        warnings += stalled_odometry(gt_poses, odometry)
+    return warnings
