@@ -123,3 +123,45 @@ def test_unknown_sampler_and_missing_inputs(stream):
     expect_error(invoke("--poses", path / "poses.txt", "-p", "window", "--out", path / "o"),
                  "expected key=value")
     assert not (path / "o").exists()
+
+
+@pytest.mark.parametrize("override, fragment", [
+    ("window=abc", "sampler 'msa': window='abc' is not allowed; expected an integer >= 3"),
+    ("alpha=.nan", "sampler 'msa': alpha=nan is not allowed; expected a finite number > 0"),
+    ("beta=.inf", "sampler 'msa': beta=inf is not allowed; expected a finite number > 0"),
+    ("use_rho=maybe", "sampler 'msa': use_rho='maybe' is not allowed; expected true or false"),
+    ("lambda_u=inf", "sampler 'msa': lambda_u='inf' is not allowed; expected a finite number > 0"),
+    ("window=30", "window=30: up to 2^29 - 2 = 536870910 candidates per window optimisation, more than the limit"),
+])
+def test_bad_sampler_parameter_is_one_clear_error_before_any_work(stream, override, fragment):
+    path, _, _ = stream
+    expect_error(invoke("--poses", path / "poses.txt", "--descriptors", path / "desc.npy", "-p", override,
+                        "--out", path / "o"), fragment)
+    assert not (path / "o").exists()
+
+
+def test_constant_distance_must_be_a_number(stream):
+    path, _, _ = stream
+    expect_error(invoke("--poses", path / "poses.txt", "--sampler", "constant", "-p", "distance=abc",
+                        "--out", path / "o"),
+                 "sampler 'constant': distance='abc' is not allowed; expected a finite number >= 0")
+
+
+def test_window_longer_than_the_stream_warns(stream):
+    path, poses, desc = stream
+    np.save(path / "short.npy", desc[:6])
+    write_poses(path / "short.txt", poses[:6], "kitti")
+    with pytest.warns(UserWarning, match=r"window=10 is longer than the stream \(6 frames\)"):
+        result = invoke("--poses", path / "short.txt", "--descriptors", path / "short.npy", "--flush",
+                        "--out", path / "out")
+    assert result.exit_code == 0, result.output
+
+
+def test_stats_report_ambiguous_windows(stream):
+    path, _, _ = stream
+    np.save(path / "flat.npy", np.zeros((60, 4)))  # every candidate has the same rho: every window is a tie
+    result = invoke("--poses", path / "poses.txt", "--descriptors", path / "flat.npy", "-p", "use_pi=false",
+                    "-p", "window=6", "--out", path / "out")
+    stats = json.loads((path / "out" / "keyframes.json").read_text())["stats"]
+    assert result.exit_code == 0, result.output
+    assert stats["ambiguous_windows"] == stats["window_optimisations"] == len(stats["ambiguous_frames"]) > 0

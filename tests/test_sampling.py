@@ -303,3 +303,45 @@ def test_threaded_fast_path_equals_single_thread(monkeypatch):
 def test_msa_without_descriptor_is_named():
     with pytest.raises(InputError, match="msa: frame 0 needs a descriptor"):
         make_sampler("msa").push(np.eye(4))
+
+
+def test_ambiguity_of_exact_ties_and_clear_choices():
+    poses = straight_line(40, 0.7)
+    tie = make_sampler("msa", window=6, use_pi=False)
+    tie.run(poses, np.zeros((40, 4)))  # all candidates have the same rho: rounding decides
+    assert tie.stats.ambiguous_windows == tie.stats.window_optimisations > 0
+    record = tie.stats.as_dict()
+    assert record["ambiguous_frames"] == [a.frame for a in tie.stats.ambiguous]
+    assert all(a.margin == 0.0 and len(a.members) >= 6 for a in tie.stats.ambiguous)
+    poses, desc = random_walk(120)
+    for mode in ("exact", "fast"):
+        clear = make_sampler("msa", window=8, mode=mode)
+        clear.run(poses, desc)
+        assert clear.stats.ambiguous_windows == 0 and clear.stats.as_dict()["ambiguous_frames"] == []
+
+
+def test_minmax_bounds_are_exact_without_uncertainty_and_widen_with_it():
+    from msa_slam.sampling.msa_ambiguity import minmax_bounds
+    from msa_slam.sampling.msa_window import _minmax
+
+    values = np.array([0.2, 0.5, 0.9, 0.3])
+    low, high = minmax_bounds(values, values)
+    np.testing.assert_allclose(low, _minmax(values), atol=1e-15)
+    np.testing.assert_allclose(high, _minmax(values), atol=1e-15)
+    assert minmax_bounds(np.ones(3), np.ones(3))[0].tolist() == [1.0, 1.0, 1.0]
+    low, high = minmax_bounds(values - [0, 0, 0.3, 0], values)  # the maximum may drop to 0.6
+    assert high[1] == pytest.approx(0.3 / 0.4) and low[1] == pytest.approx(0.3 / 0.7)
+    assert minmax_bounds(np.zeros(2), np.ones(2)) == (pytest.approx([0, 0]), pytest.approx([1, 1]))
+
+
+def test_decision_is_ambiguous_only_when_a_probe_can_reach_the_winner():
+    from msa_slam.sampling.msa_ambiguity import decision_margin
+
+    rho = np.array([0.5, 0.5, 0.1])
+    pi = np.array([0.8, 0.79, 0.0])  # with alpha = 10, candidate 0 wins by ~0.6 %
+    score = (10 + (rho - 0.1) / 0.4) / (1 + pi / 0.8)
+    ambiguous, margin = decision_margin(score, rho, pi, pi, pi, 10.0, 1.0, 0)
+    assert not ambiguous and margin == pytest.approx(score[1] / score[0] - 1)
+    sign_flip = pi + [0, 0.05, 0]  # a probe moved the runner-up's pi past the winner's
+    assert decision_margin(score, rho, pi, pi, sign_flip, 10.0, 1.0, 0)[0]
+    assert not decision_margin(score, rho, pi, pi, pi + [0, 0.001, 0], 10.0, 1.0, 0)[0]
