@@ -18,7 +18,8 @@ MAX_ROTATION_RATE_DPS = 180.0  # half a turn a second
 STEP_FACTOR = 10.0  # a step this many times the median step is a jump...
 MIN_JUMP_M = 5.0  # ...when it is also at least this long (stationary data has a median step of ~0)
 MOVING_STEP_M = 0.05  # a ground-truth step this long means the platform moves
-STALLED_FRACTION = 0.1  # odometry moving less than this fraction of the ground truth's step is stalled
+STALLED_FRACTION = 0.25  # odometry moving less than this share of the ground truth's step is stalled: no
+# working odometry underestimates motion by 75 %
 MAX_STALLED_SHARE = 0.2  # warn when more than this share of the moving frames is stalled
 START_FRAMES = 20  # frames of the "stalled start" check
 MIN_START_PATH_M = 1.0  # ground-truth path over START_FRAMES needed to judge a start
