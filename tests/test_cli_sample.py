@@ -165,3 +165,9 @@ def test_stats_report_ambiguous_windows(stream):
     stats = json.loads((path / "out" / "keyframes.json").read_text())["stats"]
     assert result.exit_code == 0, result.output
     assert stats["ambiguous_windows"] == stats["window_optimisations"] == len(stats["ambiguous_frames"]) > 0
+
+
+def test_parameter_given_twice_is_refused(stream):
+    path, _, _ = stream
+    expect_error(invoke("--poses", path / "poses.txt", "--descriptors", path / "desc.npy", "-p", "window=8",
+                        "-p", "window=9", "--out", path / "o"), "--param window given twice (8 and 9)")

@@ -17,8 +17,9 @@ def base():
 
 
 def test_bare_mode_with_a_sampler_mode_says_how_to_reach_the_sampler(base):
-    with pytest.raises(InputError, match=re.escape("--param mode=fast: `mode` is the config's mode (oracle, realistic); "
-                                                   "for the msa sampler's mode write sampler.mode=fast")):
+    message = ("--param mode=fast: `mode` is the config's mode (oracle, realistic); "
+               "for the msa sampler's mode write sampler.mode=fast")
+    with pytest.raises(InputError, match=re.escape(message)):
         apply_params(base, ["mode=fast"])
     routed = apply_params(base, ["sampler.mode=fast", "mode=realistic"])
     assert routed.sampler_params == {"mode": "fast"} and routed.mode == "realistic"

@@ -23,8 +23,17 @@ from msa_slam.sampling.registry import SAMPLERS, make_sampler
 
 
 def parse_params(items: list[str]) -> dict:
-    """`key=value` pairs; values parsed as YAML scalars (3 -> int, 0.5 -> float, true -> bool)."""
-    return dict(parse_key_value(item) for item in items)
+    """`key=value` pairs; values parsed as YAML scalars (3 -> int, 0.5 -> float, true -> bool).
+
+    A key given twice is an error rather than a silent last-one-wins; the sampler checks the values.
+    """
+    params: dict = {}
+    for item in items:
+        key, value = parse_key_value(item)
+        if key in params:
+            raise InputError(f"--param {key} given twice ({params[key]!r} and {value!r}); give it once")
+        params[key] = value
+    return params
 
 
 def load_clouds(source: Path, n_frames: int) -> list[np.ndarray]:

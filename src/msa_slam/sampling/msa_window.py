@@ -5,7 +5,9 @@ Implements section IV of the paper (eqs. 3-8) with the reference implementation'
 
 - `exact` keeps the reference's floating-point path for pi (numpy.gradient's non-uniform formula in its
   operation order, C = J^T J, numpy.linalg.eigh on that matrix, scaled eigen-directions compared by
-  BLAS dot products), so it selects bit-for-bit the same subsets.
+  BLAS dot products), so it selects the same subsets as the reference on the same machine; where
+  rounding could change the choice (another CPU's BLAS kernel), the window is flagged ambiguous
+  (msa_ambiguity.py, checked against the fast path and perturbed eigen-decompositions).
 - `fast` shares everything that depends only on the window: with A the candidate's gradient operator and
   G_S its block of the window's descriptor Gram matrix, C = A G_S A^T and
   e_j^2 = (a_{j+1} - a_j)^T G_S (a_{j+1} - a_j) with a_j = sqrt(lam_j) v_j, so a candidate costs O(m^3)
