@@ -16,6 +16,7 @@ from kiss_icp.config.parser import KISSConfig
 from msa_slam.datasets import open_dataset
 from msa_slam.errors import InputError
 from msa_slam.odometry import KissOdometry
+from msa_slam.odometry.kiss import PARAMETERS
 
 # sim:test with coarser KISS-ICP voxels: ~4x faster odometry, same keyframes-and-loops pipeline.
 RUN = ["run", "--dataset", "sim:test", "-p", "odometry.voxel_size=1.5", "--quiet"]
@@ -107,3 +108,10 @@ def test_thread_count_cannot_change_within_a_process():
     KissOdometry(num_threads=1)  # msa-slam's default: this process runs KISS-ICP single-threaded
     with pytest.raises(InputError, match="num_threads=0: KISS-ICP already runs with num_threads=1"):
         KissOdometry(num_threads=0)
+
+
+def test_params_rebuild_the_same_odometry():
+    odometry = KissOdometry(max_range=80.0, max_num_iterations=100)
+    assert set(odometry.params) == set(PARAMETERS)
+    assert odometry.params["voxel_size"] == 0.8 and odometry.params["num_threads"] == 1
+    assert KissOdometry(**odometry.params).config == odometry.config

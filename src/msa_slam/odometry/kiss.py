@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import logging
 import math
 import os
@@ -82,6 +83,20 @@ class KissOdometry:
         self.unregistered_frames: list[int] = []  # frames with no points to register: pose extrapolated
 
     @property
+    def params(self) -> dict[str, Any]:
+        """Every constructor argument with its effective value: `KissOdometry(**params)` rebuilds this setup
+        (what a re-loadable config.yaml should record as odometry_params)."""
+        c = self._icp.config
+        return {"max_range": c.data.max_range, "min_range": c.data.min_range, "voxel_size": c.mapping.voxel_size,
+                "deskew": c.data.deskew, "num_threads": c.registration.max_num_threads,
+                "max_points_per_voxel": c.mapping.max_points_per_voxel,
+                "max_num_iterations": c.registration.max_num_iterations,
+                "convergence_criterion": c.registration.convergence_criterion,
+                "initial_threshold": c.adaptive_threshold.initial_threshold,
+                "min_motion_th": c.adaptive_threshold.min_motion_th,
+                "fixed_threshold": c.adaptive_threshold.fixed_threshold}
+
+    @property
     def config(self) -> dict[str, Any]:
         """The full effective KISS-ICP configuration, thread count and version (identifies cached results)."""
         settings = self._icp.config.model_dump()
@@ -111,6 +126,9 @@ class KissOdometry:
             log.warning("KISS-ICP frame %d: none of its %d points lies within %g-%g m, so it was not registered "
                         "(pose extrapolated at constant velocity)%s", self._frames, n_points, data.min_range,
                         data.max_range, more)
+
+
+PARAMETERS = tuple(inspect.signature(KissOdometry).parameters)  # the odometry_params KissOdometry takes
 
 
 def _claim_threads(num_threads: int) -> None:

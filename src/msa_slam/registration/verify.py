@@ -21,7 +21,10 @@ from msa_slam.types import validate_pose
 
 @dataclass(frozen=True)
 class VerifierConfig:
-    """Registration and acceptance parameters (metres, fractions)."""
+    """Registration and acceptance parameters (metres, fractions).
+
+    `num_threads=1` keeps small_gicp's reductions in a fixed order, so identical runs accept identical loops.
+    """
 
     voxel_size: float = 0.5
     max_correspondence_distance: float = 1.0
