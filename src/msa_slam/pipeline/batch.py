@@ -53,6 +53,7 @@ def sample_keyframes(config: BatchConfig, frontend: Frontend, quiet: bool = True
     """Keyframe frame indices (sorted) of the configured sampler on odometry (or GT) poses."""
     sampler = make_sampler(config.sampler, **config.sampler_params)
     poses = frontend.odometry if config.sample_on == "odometry" else frontend.gt_poses
+    sampler.expect_frames(len(frontend))
     with progress_bar(quiet) as bar:
         task = bar.add_task(f"sampling ({config.name})", total=len(frontend))
         for i in range(len(frontend)):

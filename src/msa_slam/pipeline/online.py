@@ -96,6 +96,7 @@ class OnlinePipeline:
             loop_rotation=g.loop_rotation, loop_translation=g.loop_translation, robust=g.robust,
             robust_threshold=g.robust_threshold))
         self.n = int(n_frames)
+        self.sampler.expect_frames(self.n)
         self.odom = np.zeros((self.n, 4, 4))
         self.gt = np.zeros((self.n, 4, 4))
         self.steps_ms = {s: np.zeros(self.n, dtype=np.float32) for s in STEPS}

@@ -74,6 +74,7 @@ def sample_command(
     chosen = make_sampler(sampler, **params)
     pose_stack, _ = read_poses(poses, pose_format)
     n = len(pose_stack)
+    chosen.expect_frames(n)
     desc = load_descriptor_file(descriptors, n) if descriptors is not None else None
     if desc is None and sampler == "msa":
         raise InputError("sampler 'msa' needs --descriptors (an .npy array with one descriptor per pose)")
