@@ -102,3 +102,19 @@ def test_compare_keeps_finished_methods_when_one_fails(sequence, odometry_file, 
     assert "| constant-3m |" in report and "- entropy: RuntimeError: degenerate scan statistics" in report
     assert (out / "runs" / "constant-3m" / "metrics.json").is_file()
     assert "degenerate scan statistics" in (out / "runs" / "entropy" / "error.txt").read_text()
+
+
+def test_run_records_effective_odometry_config_threads_and_degenerate_odometry(sequence, cache_dir, tmp_path):
+    """A stalled KISS-ICP (coarse azimuth: too few points) is named in metrics and report.md, and the full
+    effective odometry configuration with its thread counts is recorded."""
+    out = tmp_path / "stalled"
+    result = runner.invoke(app, ["run", "--dataset", "sim:test,azimuth_steps=180", "--sampler", "all",
+                                 "--cache-dir", str(cache_dir), "--out", str(out), "--quiet"])
+    assert result.exit_code == 0, result.output
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["threads"] == {"odometry": 1, "verification": 1, "blas_backend": 1}
+    assert metrics["odometry_config"]["method"] == "kiss_icp"
+    assert metrics["odometry_config"]["registration"]["max_num_threads"] == 1
+    stalled = [w for w in metrics["warnings"] if "odometry" in w]
+    assert stalled, metrics["warnings"]
+    assert stalled[0] in (out / "report.md").read_text()

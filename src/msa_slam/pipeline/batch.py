@@ -154,7 +154,7 @@ def _metrics(result: BatchResult, evaluation: TrajectoryEvaluation, sampler_stat
         "false_loops": int(sum(c.gt_distance > cfg.loop_radius for c in accepted)),
         **evaluation.metrics,
         "unavailable": unavailable,
-        "warnings": list(evaluation.warnings),
+        "warnings": [*frontend.warnings, *evaluation.warnings],
         "pr_auc": None if pr is None else pr.auc,
         "f1_max": None if pr is None else pr.f1_max,
         "pr_queries": int(len(result.search.best_similarity)),
@@ -169,5 +169,8 @@ def _metrics(result: BatchResult, evaluation: TrajectoryEvaluation, sampler_stat
         "time_s": {**{k: round(v, 4) for k, v in timer.seconds.items()}, "backend_total": round(backend_time, 4)},
         "frontend_time_s": {k: round(v, 4) for k, v in frontend.timer.seconds.items()},
         "frontend_cached": dict(frontend.cached),
+        "odometry_config": frontend.odometry_effective,
+        "threads": {"odometry": frontend.odometry_effective.get("registration", {}).get("max_num_threads"),
+                    "verification": cfg.verifier.num_threads, "blas_backend": 1},
         "sampler_stats": sampler_stats,
     }

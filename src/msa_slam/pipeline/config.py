@@ -33,6 +33,7 @@ class VerifierSettings(_Section):
     min_inliers: int = Field(100, ge=0)
     coarse_to_fine: bool = True
     max_iterations: int = Field(50, ge=1)
+    num_threads: int = Field(1, ge=1)  # 1: small_gicp's reductions in a fixed order (identical runs, identical loops)
 
 
 class GraphSettings(_Section):

@@ -7,6 +7,7 @@ versions: see msa_slam.io.cache).
 
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,12 +19,16 @@ from msa_slam.datasets import ScanSequence
 from msa_slam.descriptors import Descriptor, make_descriptor
 from msa_slam.errors import InputError
 from msa_slam.evaluation import StageTimer
+from msa_slam.evaluation.sanity import frontend_warnings
 from msa_slam.io.cache import CacheDir, cache_key, check_entry, input_identity, sequence_identity
 from msa_slam.odometry import KissOdometry, OdometryCache, PosesFromFile, sequence_odometry
+from msa_slam.odometry.kiss import PARAMETERS as KISS_PARAMETERS
 from msa_slam.pipeline.config import BatchConfig
 from msa_slam.progress import progress_bar
 from msa_slam.pipeline.source import open_sequence
 from msa_slam.sim.sequence import cache_root
+
+logger = logging.getLogger(__name__)
 
 
 @dataclass
@@ -39,6 +44,8 @@ class Frontend:
     timer: StageTimer = field(default_factory=StageTimer)
     cached: dict[str, bool] = field(default_factory=dict)
     descriptor_settings: tuple = (None, None)
+    odometry_effective: dict[str, Any] = field(default_factory=dict)  # the odometry's full effective config
+    warnings: list[str] = field(default_factory=list)  # degenerate odometry or ground truth (evaluation.sanity)
 
     def __len__(self) -> int:
         return len(self.sequence)
@@ -70,7 +77,7 @@ def make_odometry(config: BatchConfig, n_frames: int):
             return KissOdometry(**config.odometry_params)
         except TypeError as exc:
             raise InputError(f"odometry kiss: bad parameters {sorted(config.odometry_params)} ({exc}); "
-                             "it takes max_range, min_range, voxel_size, deskew, num_threads") from None
+                             f"it takes {', '.join(KISS_PARAMETERS)}") from None
     if config.odometry_params:
         raise InputError(f"odometry from a pose file takes no parameters, got {sorted(config.odometry_params)}")
     path = Path(config.odometry).expanduser()
@@ -137,6 +144,9 @@ def prepare_frontend(config: BatchConfig, quiet: bool = True) -> Frontend:
         descriptors, cached["descriptors"] = compute_descriptors(sequence, descriptor, cache if use_cache else None,
                                                                  key, quiet)
     frontend = Frontend(sequence, sequence.gt_poses, poses, descriptors, descriptor,
-                        _odometry_config(config, n), timer, cached)
+                        _odometry_config(config, n), timer, cached, odometry_effective=dict(odometry.config),
+                        warnings=frontend_warnings(sequence.gt_poses, poses, sequence.times))
+    for warning in frontend.warnings:
+        logger.warning(warning)
     frontend.descriptor_settings = (config.descriptor, config.descriptor_params)
     return frontend
