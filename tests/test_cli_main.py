@@ -21,3 +21,49 @@ def test_usage_error_names_the_missing_option():
     result = run_cli("sample", "--descriptors", "d.npy")
     assert result.returncode == 2
     assert "Missing option '--poses'" in result.stderr and "Traceback" not in result.stderr
+
+
+HEAVY = ("numpy", "scipy", "gtsam", "matplotlib", "trimesh", "embreex", "torch", "dask", "kiss_icp", "small_gicp",
+         "pydantic", "yaml")
+
+
+def test_help_imports_no_heavy_library():
+    code = ("import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', '--help']\n"
+            "try:\n    main()\nexcept SystemExit:\n    pass\n"
+            f"print(sorted(m for m in {HEAVY!r} if m in sys.modules))")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert "Usage: msa-slam" in result.stdout
+    assert result.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_version_prints_the_package_version():
+    from msa_slam import __version__
+
+    result = run_cli("--version")
+    assert result.returncode == 0
+    assert result.stdout.strip() == f"msa-slam {__version__}"
+
+
+def test_sampler_names_in_help_are_the_registry():
+    from msa_slam.cli.options import SAMPLER_NAMES
+    from msa_slam.sampling.registry import SAMPLERS
+
+    assert SAMPLER_NAMES == tuple(SAMPLERS)
+
+
+def test_no_library_module_imports_the_cli():
+    import ast
+    from pathlib import Path
+
+    import msa_slam
+
+    root = Path(msa_slam.__file__).parent
+    offenders = []
+    for path in root.rglob("*.py"):
+        if path.is_relative_to(root / "cli"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            offenders += [f"{path.relative_to(root)}: {n}" for n in names if n.split(".")[:2] == ["msa_slam", "cli"]]
+    assert offenders == []

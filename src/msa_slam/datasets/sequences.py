@@ -166,6 +166,25 @@ def folder_sequence(path: str | os.PathLike, poses: str | os.PathLike | None = N
     return ScanSequence(path, files, gt, times)
 
 
+def load_cloud_stack(source: str | os.PathLike, n_frames: int) -> list[np.ndarray]:
+    """Per-frame clouds from a folder of scans (.bin/.ply/.pcd) or one .npy array (N, P, 3); the count must
+    match the `n_frames` poses they go with."""
+    source = Path(source)
+    if source.suffix == ".npy":
+        try:
+            clouds = np.load(source, allow_pickle=False)
+        except (OSError, ValueError, EOFError) as exc:
+            raise InputError(f"{source}: not a readable .npy array ({exc})") from exc
+        if clouds.ndim != 3 or clouds.shape[2] < 3:
+            raise InputError(f"{source}: clouds must have shape (N, P, 3), got {clouds.shape}")
+        items = list(clouds)
+    else:
+        items = [read_cloud(f) for f in folder_sequence(source).scan_files]
+    if len(items) != n_frames:
+        raise InputError(f"{source}: {len(items)} clouds, but the pose file has {n_frames} poses")
+    return items
+
+
 def _natural_key(path: Path) -> list:
     import re
 

@@ -185,7 +185,7 @@ def _slug(text: str) -> str:
 def _config_for(grid: GridSpec, dataset: str, descriptor: str, sampler: str, params: dict[str, Any],
                 parameters: dict[str, Any], seed: int, label: str, where: str) -> dict[str, Any]:
     from msa_slam.pipeline.config import make_config
-    from msa_slam.pipeline.online_cli import apply_online_params
+    from msa_slam.pipeline.online_config import apply_online_params
     from msa_slam.pipeline.config import apply_params
 
     data = {**grid.base, "dataset": dataset.replace("{seed}", str(seed)), "descriptor": descriptor,

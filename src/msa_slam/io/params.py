@@ -19,3 +19,14 @@ def parse_key_value(item: str) -> tuple[str, Any]:
         return key, yaml.safe_load(raw)
     except yaml.YAMLError:
         return key, raw
+
+
+def parse_params(items: list[str]) -> dict[str, Any]:
+    """`key=value` pairs into a mapping; a key given twice is an error rather than a silent last-one-wins."""
+    params: dict[str, Any] = {}
+    for item in items:
+        key, value = parse_key_value(item)
+        if key in params:
+            raise InputError(f"--param {key} given twice ({params[key]!r} and {value!r}); give it once")
+        params[key] = value
+    return params

@@ -11,7 +11,7 @@ from typing import Any, Literal, Mapping
 from pydantic import Field, ValidationError
 
 from msa_slam.errors import InputError
-from msa_slam.pipeline.config import BatchConfig, GraphSettings, VerifierSettings
+from msa_slam.pipeline.config import BatchConfig, GraphSettings, VerifierSettings, apply_overrides
 
 
 class OnlineConfig(BatchConfig):
@@ -51,3 +51,8 @@ def make_online_config(data: Mapping[str, Any] | None = None, **overrides: Any) 
         return OnlineConfig(**merged)
     except ValidationError as exc:
         raise InputError("online config: " + "; ".join(_problem(e) for e in exc.errors())) from None
+
+
+def apply_online_params(data: Mapping[str, Any], params: list[str]) -> OnlineConfig:
+    """`key=value` overrides (YAML values) on an online config mapping; returns a validated OnlineConfig."""
+    return make_online_config(apply_overrides(make_online_config(data).dump(), params, OnlineConfig))

@@ -1,4 +1,4 @@
-"""`msa-slam experiment GRID.yaml` and `msa-slam report RESULTS_DIR`."""
+"""`msa-slam experiment GRID.yaml`: every unfinished cell of a grid, then the aggregate report."""
 
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ def experiment_command(
     run = run_grid(load_grid(grid), out, scheduler=scheduler, workers=workers, quiet=quiet, overwrite=overwrite)
     typer.echo(f"{len(run.ran)} cell(s) run, {len(run.skipped)} already finished, {len(run.failed)} failed",
                err=True)
-    _echo_stale(run.stale)
+    echo_stale(run.stale)
     for cell, reason in run.failed.items():
         typer.echo(f"failed: {cell}: {reason} (traceback: {run.out / 'errors' / (cell + '.txt')})", err=True)
     typer.echo(str(run.report))
@@ -37,29 +37,8 @@ def experiment_command(
         raise typer.Exit(1)
 
 
-def report_command(
-    results_dir: Path = typer.Argument(..., help="folder written by `msa-slam experiment`"),
-    reference: Optional[str] = typer.Option(None, help="method the memory and ATE differences compare to "
-                                                       "(default: the grid's reference, usually all)"),
-) -> None:
-    """(Re)write results.csv, results.md, figures and report.md from the finished cells of the experiment's
-    current grid.yaml (cells of an earlier grid are listed and left out)."""
-    from msa_slam.errors import InputError
-    from msa_slam.experiments.folder import KIND, grid_cells, stale_cells
-    from msa_slam.experiments.report import write_report
-    from msa_slam.experiments.runner import DEFAULT_PARENT
-    from msa_slam.io.outputs import MARKER, is_result_folder, open_result_folder
-
-    if not is_result_folder(results_dir, KIND):
-        raise InputError(f"{results_dir}: not a folder written by `msa-slam experiment` (no {MARKER} of an "
-                         "experiment); nothing written")
-    with open_result_folder(results_dir, kind=KIND, default_parent=DEFAULT_PARENT, resume=True):
-        report = write_report(results_dir, reference)
-        _echo_stale(stale_cells(results_dir, grid_cells(results_dir)[1]))
-    typer.echo(str(report))
-
-
-def _echo_stale(stale: list[str]) -> None:
+def echo_stale(stale: list[str]) -> None:
+    """One stderr line listing the cells of an earlier grid that the aggregates leave out."""
     if stale:
         typer.echo(f"{len(stale)} stale cell(s) from an earlier grid, left out of the report: "
                    + ", ".join(stale), err=True)

@@ -7,6 +7,8 @@ from typing import Optional
 
 import typer
 
+from msa_slam.cli.options import CACHE_HELP
+
 
 def simulate_command(
     trajectory: str = typer.Option("kitti-05", help="kitti-00/05/06/07/09, figure-eight, city-tour, campus-walk"),
@@ -21,7 +23,7 @@ def simulate_command(
     range_noise: float = typer.Option(0.02, help="Gaussian range noise sigma, metres"),
     dropout: float = typer.Option(0.0, help="fraction of returns dropped at random"),
     style: Optional[str] = typer.Option(None, help="world style: city or campus (default from the platform)"),
-    cache_dir: Optional[Path] = typer.Option(None, help="cache root (default $MSA_SLAM_CACHE or ~/.cache/msa-slam)"),
+    cache_dir: Optional[Path] = typer.Option(None, help=CACHE_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
 ) -> None:
     """Simulate a LiDAR sequence (velodyne/*.bin, poses.txt, times.txt, calib.txt) and print its folder."""

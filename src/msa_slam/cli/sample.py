@@ -2,55 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Optional
 
-import numpy as np
 import typer
 
-from msa_slam import __version__
-from msa_slam.datasets.clouds import read_cloud
-from msa_slam.datasets.sequences import folder_sequence
-from msa_slam.descriptors.precomputed import load_descriptor_file
-from msa_slam.errors import InputError
-from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
-from msa_slam.io.params import parse_key_value
-from msa_slam.io.poses import read_poses
-from msa_slam.progress import progress_bar
-from msa_slam.sampling.figure import plot_keyframes
-from msa_slam.sampling.registry import SAMPLERS, make_sampler
-
-
-def parse_params(items: list[str]) -> dict:
-    """`key=value` pairs; values parsed as YAML scalars (3 -> int, 0.5 -> float, true -> bool).
-
-    A key given twice is an error rather than a silent last-one-wins; the sampler checks the values.
-    """
-    params: dict = {}
-    for item in items:
-        key, value = parse_key_value(item)
-        if key in params:
-            raise InputError(f"--param {key} given twice ({params[key]!r} and {value!r}); give it once")
-        params[key] = value
-    return params
-
-
-def load_clouds(source: Path, n_frames: int) -> list[np.ndarray]:
-    """Per-frame clouds from a folder of scans (.bin/.ply/.pcd) or one .npy array (N, P, 3)."""
-    if source.suffix == ".npy":
-        try:
-            clouds = np.load(source, allow_pickle=False)
-        except (OSError, ValueError, EOFError) as exc:
-            raise InputError(f"{source}: not a readable .npy array ({exc})") from exc
-        if clouds.ndim != 3 or clouds.shape[2] < 3:
-            raise InputError(f"{source}: clouds must have shape (N, P, 3), got {clouds.shape}")
-        items = list(clouds)
-    else:
-        items = [read_cloud(f) for f in folder_sequence(source).scan_files]
-    if len(items) != n_frames:
-        raise InputError(f"{source}: {len(items)} clouds, but the pose file has {n_frames} poses")
-    return items
+from msa_slam.cli.options import SAMPLER_NAMES
 
 
 def sample_command(
@@ -59,7 +16,7 @@ def sample_command(
                                                help=".npy array (N, ...) of per-frame descriptors (msa)."),
     clouds: Optional[Path] = typer.Option(None, "--clouds",
                                           help="Folder of scans or .npy (N, P, 3) (entropy, spaciousness)."),
-    sampler: str = typer.Option("msa", "--sampler", help=f"One of: {', '.join(SAMPLERS)}."),
+    sampler: str = typer.Option("msa", "--sampler", help=f"One of: {', '.join(SAMPLER_NAMES)}."),
     param: list[str] = typer.Option([], "--param", "-p", help="Sampler parameter key=value (repeatable)."),
     pose_format: str = typer.Option("auto", "--pose-format", help="auto, kitti or tum."),
     out: Optional[Path] = typer.Option(None, "--out", help="Output folder (default: a new ./msa_slam_results/sample/"
@@ -70,6 +27,19 @@ def sample_command(
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Select keyframes from a pose stream; write keyframes.txt, keyframes.json and keyframes.png."""
+    import json
+
+    from msa_slam import __version__
+    from msa_slam.datasets.sequences import load_cloud_stack
+    from msa_slam.descriptors.precomputed import load_descriptor_file
+    from msa_slam.errors import InputError
+    from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
+    from msa_slam.io.params import parse_params
+    from msa_slam.io.poses import read_poses
+    from msa_slam.progress import progress_bar
+    from msa_slam.sampling.figure import plot_keyframes
+    from msa_slam.sampling.registry import make_sampler
+
     params = parse_params(param)
     chosen = make_sampler(sampler, **params)
     pose_stack, _ = read_poses(poses, pose_format)
@@ -78,7 +48,7 @@ def sample_command(
     desc = load_descriptor_file(descriptors, n) if descriptors is not None else None
     if desc is None and sampler == "msa":
         raise InputError("sampler 'msa' needs --descriptors (an .npy array with one descriptor per pose)")
-    cloud_list = load_clouds(clouds, n) if clouds is not None else None
+    cloud_list = load_cloud_stack(clouds, n) if clouds is not None else None
     if cloud_list is None and chosen.needs_points:
         raise InputError(f"sampler {sampler!r} needs --clouds (a folder of scans or an .npy array)")
 
@@ -103,5 +73,5 @@ def sample_command(
             (tmp / "keyframes.json").write_text(json.dumps(record, indent=2) + "\n")
             plot_keyframes(pose_stack, keyframes, tmp / "keyframes.png",
                            title=f"{sampler}: {len(keyframes)} of {n} frames", flushed=flushed)
-    target = folder.path
-    typer.echo(f"{len(keyframes)} keyframes of {n} frames -> {target}/keyframes.txt, keyframes.json, keyframes.png")
+    typer.echo(f"{len(keyframes)} keyframes of {n} frames -> {folder.path}/keyframes.txt, keyframes.json, "
+               "keyframes.png")

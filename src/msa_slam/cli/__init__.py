@@ -1,0 +1,57 @@
+"""The `msa-slam` command line: one module per command over the library.
+
+Each command imports its library inside the function, so `msa-slam --help` loads typer and nothing heavy
+(no numpy, gtsam, matplotlib, trimesh); the library never imports this package.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Optional
+
+import typer
+
+from msa_slam import __version__
+from msa_slam.cli import compare, demo, experiment, online, report, run, sample, simulate
+from msa_slam.errors import InputError
+
+app = typer.Typer(
+    name="msa-slam",
+    help="Informed keyframe sampling (Minimal Subset Approach) for LiDAR SLAM, with a measured back-end.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        typer.echo(f"msa-slam {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: Optional[bool] = typer.Option(None, "--version", callback=_print_version, is_eager=True,
+                                           help="print the version and exit"),
+) -> None:
+    """msa-slam command line."""
+
+
+app.command("simulate")(simulate.simulate_command)
+app.command("run")(run.run_command)
+app.command("compare")(compare.compare_command)
+app.command("demo")(demo.demo_command)
+app.command("sample")(sample.sample_command)
+app.command("online")(online.online_command)
+app.command("experiment")(experiment.experiment_command)
+app.command("report")(report.report_command)
+
+
+def main() -> None:
+    """Entry point: usage errors as click prints them; InputError as one clear line with exit code 2."""
+    try:
+        app()
+    except InputError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        sys.exit(2)

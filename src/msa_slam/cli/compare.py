@@ -1,0 +1,36 @@
+"""`msa-slam compare`: the paper's method set on one sequence (Table I layout)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from msa_slam.cli.options import (CACHE_HELP, DATASET_HELP, DESCRIPTOR_HELP, MODE_HELP, OVERWRITE_HELP,
+                                  PARAM_HELP, out_help, reporting_failed_methods)
+
+
+def compare_command(
+    dataset: Optional[str] = typer.Option(None, "--dataset", "-d", help=DATASET_HELP),
+    descriptor: Optional[str] = typer.Option(None, help=DESCRIPTOR_HELP),
+    odometry: Optional[str] = typer.Option(None, help="kiss (default) or a KITTI/TUM pose file"),
+    mode: Optional[str] = typer.Option(None, help=MODE_HELP),
+    param: List[str] = typer.Option([], "--param", "-p", help=PARAM_HELP),
+    config: Optional[Path] = typer.Option(None, help="YAML config (its sampler is replaced by the method set)"),
+    out: Optional[Path] = typer.Option(None, help=out_help("compare")),
+    overwrite: bool = typer.Option(False, "--overwrite", help=OVERWRITE_HELP),
+    cache_dir: Optional[Path] = typer.Option(None, help=CACHE_HELP),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bars"),
+) -> None:
+    """Run the paper's method set (all, constant 1/2/3 m, entropy, spaciousness, MSA) on one sequence and
+    write the Table-I-style comparison; prints its report.md."""
+    from msa_slam.cli.config import cache_option
+    from msa_slam.cli.run import batch_config
+    from msa_slam.pipeline.compare import run_compare
+
+    given = {"dataset": dataset, "descriptor": descriptor, "odometry": odometry, "mode": mode,
+             "cache_dir": cache_option(cache_dir)}
+    cfg = batch_config(config, given, param)
+    with reporting_failed_methods():
+        typer.echo(str(run_compare(cfg, out, quiet=quiet, overwrite=overwrite)))

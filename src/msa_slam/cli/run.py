@@ -1,0 +1,50 @@
+"""`msa-slam run`: one sampler through the batch pipeline (the paper's Table I protocol)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from msa_slam.cli.options import (CACHE_HELP, DATASET_HELP, DESCRIPTOR_HELP, MODE_HELP, OVERWRITE_HELP,
+                                  PARAM_HELP, SAMPLER_HELP, out_help)
+
+
+def batch_config(config_file: Optional[Path], given: dict, params: List[str]):
+    """The BatchConfig of `run` / `compare`: the options over --config, then the --param overrides."""
+    from msa_slam.cli.config import merge_options
+    from msa_slam.pipeline.config import apply_params, load_config, make_config
+
+    base = load_config(config_file).dump() if config_file else {}
+    data = merge_options(base, given, "a sequence folder or sim:NAME")
+    return apply_params(make_config(data), params)
+
+
+def run_command(
+    dataset: Optional[str] = typer.Option(None, "--dataset", "-d", help=DATASET_HELP),
+    sampler: Optional[str] = typer.Option(None, help=SAMPLER_HELP),
+    descriptor: Optional[str] = typer.Option(None, help=DESCRIPTOR_HELP),
+    odometry: Optional[str] = typer.Option(None, help="kiss (default) or a KITTI/TUM pose file"),
+    mode: Optional[str] = typer.Option(None, help=MODE_HELP),
+    param: List[str] = typer.Option([], "--param", "-p", help=PARAM_HELP),
+    config: Optional[Path] = typer.Option(None, help="YAML config (e.g. a result's config.yaml)"),
+    out: Optional[Path] = typer.Option(None, help=out_help("run")),
+    overwrite: bool = typer.Option(False, "--overwrite", help=OVERWRITE_HELP),
+    cache_dir: Optional[Path] = typer.Option(None, help=CACHE_HELP),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bars"),
+) -> None:
+    """Run one sampler through the batch experiment and write its result folder; prints its report.md."""
+    from msa_slam.cli.config import cache_option
+    from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
+    from msa_slam.pipeline.batch import run_batch
+    from msa_slam.pipeline.results import write_run_files
+
+    given = {"dataset": dataset, "sampler": sampler, "descriptor": descriptor, "odometry": odometry,
+             "mode": mode, "cache_dir": cache_option(cache_dir)}
+    cfg = batch_config(config, given, param)
+    with open_result_folder(out, "run", DEFAULT_RESULTS / "run", overwrite=overwrite) as folder:
+        result = run_batch(cfg, quiet=quiet)
+        with folder.staging() as tmp:
+            write_run_files(result, tmp)
+    typer.echo(str(folder.path / "report.md"))
