@@ -365,3 +365,132 @@ def test_scan_context_separates_revisits_from_other_places(test_sequence):
     assert len(revisits) >= 5 and len(far) > 300
     assert np.median(revisits) > np.median(far) + 0.25
     assert np.median(revisits) > np.percentile(far, 99)
+
+
+# --- trajectory files -------------------------------------------------------------------------------
+
+TR = np.array([[0.0, -1.0, 0.0, -0.01], [0.0, 0.0, -1.0, -0.08], [1.0, 0.0, 0.0, -0.27], [0.0, 0.0, 0.0, 1.0]])
+
+
+def _write_camera_trajectory(folder, lidar_poses: np.ndarray, dt: float = 0.1):
+    """KITTI-style files of `lidar_poses`: cam0 poses (Tr P Tr^-1), calib.txt with Tr, times.txt."""
+    from msa_slam.io.poses import format_kitti
+
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "poses.txt").write_text(format_kitti(TR @ lidar_poses @ np.linalg.inv(TR)))
+    (folder / "calib.txt").write_text("P0: 1 0 0 0 0 1 0 0 0 0 1 0\nTr: " + " ".join(map(str, TR[:3].ravel())) + "\n")
+    (folder / "times.txt").write_text("".join(f"{k * dt:.6f}\n" for k in range(len(lidar_poses))))
+    return folder / "poses.txt", folder / "times.txt", folder / "calib.txt"
+
+
+def _arc_poses(n: int = 40) -> np.ndarray:
+    """A LiDAR-frame drive along a gentle left curve, 1 m a frame, offset from the origin."""
+    from scipy.spatial.transform import Rotation
+
+    yaw = np.linspace(0.0, 0.6, n)
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    poses[:, :3, :3] = Rotation.from_euler("z", yaw[:, None]).as_matrix()
+    poses[:, 0, 3] = 500.0 + np.cumsum(np.cos(yaw))
+    poses[:, 1, 3] = -200.0 + np.cumsum(np.sin(yaw))
+    return poses
+
+
+def test_simulate_a_kitti_trajectory_file_through_the_cli(tmp_path, monkeypatch, capsys):
+    from msa_slam.cli import main
+
+    lidar = _arc_poses()
+    poses_file, times_file, calib_file = _write_camera_trajectory(tmp_path / "drive", lidar, dt=0.1037)
+    out = tmp_path / "sim"
+    monkeypatch.setattr(sys, "argv", ["msa-slam", "simulate", "--trajectory", str(poses_file), "--times",
+                                      str(times_file), "--calib", str(calib_file), "--end", "4",
+                                      "--azimuth-steps", "64", "--out", str(out), "--quiet"])
+    with pytest.raises(SystemExit) as done:
+        main()
+    assert done.value.code == 0 and capsys.readouterr().out.strip() == str(out)
+    written, _ = read_poses(out / "poses.txt")
+    expected = lidar[:4].copy()
+    expected[:, :3, 3] -= lidar[0, :3, 3]  # shifted so the first pose is at the origin
+    assert np.allclose(written, expected, atol=1e-6)
+    assert np.allclose(np.loadtxt(out / "times.txt"), np.arange(4) * 0.1037, atol=1e-6)
+    assert len(list((out / "velodyne").glob("*.bin"))) == 4
+
+
+def test_trajectory_file_is_keyed_by_content_and_usable_as_sim_spec(tmp_path):
+    from msa_slam.pipeline.source import resolve_dataset
+
+    poses_file, times_file, _ = _write_camera_trajectory(tmp_path / "a", _arc_poses())
+    lidar_file = tmp_path / "a" / "lidar.txt"
+    from msa_slam.io.poses import format_kitti
+    lidar_file.write_text(format_kitti(_arc_poses()))
+    copy = tmp_path / "b" / "moved.txt"
+    copy.parent.mkdir()
+    copy.write_bytes(lidar_file.read_bytes())
+    key = make_config(trajectory=str(lidar_file), end=3).key()
+    assert make_config(trajectory=str(copy), end=3).key() == key
+    assert make_config(trajectory=str(copy), times=str(times_file), end=3).key() != key
+    copy.write_text(format_kitti(_arc_poses()[:-1]))
+    assert make_config(trajectory=str(copy), end=3).key() != key
+    path = resolve_dataset(f"sim:trajectory={lidar_file},end=3,azimuth_steps=64", cache_dir=tmp_path / "cache")
+    assert path.name.startswith("file-lidar_hdl64_") and len(list((path / "velodyne").glob("*.bin"))) == 3
+    assert path.name.endswith(make_config(trajectory=str(copy.parent.parent / "a" / "lidar.txt"), end=3,
+                                          azimuth_steps=64).key())
+
+
+def _tum_lines(poses: np.ndarray, times: np.ndarray) -> list[str]:
+    from msa_slam.io.poses import format_tum
+
+    return format_tum(poses, times).splitlines()
+
+
+@pytest.mark.parametrize("defect, line", [
+    ("columns", 5), ("nan", 7), ("shear", 9), ("few", 1), ("backward", 12), ("quaternion", 4),
+])
+def test_bad_trajectory_files_name_the_line(tmp_path, defect, line):
+    from msa_slam.io.poses import format_kitti
+
+    poses = _arc_poses(20)
+    path = tmp_path / "traj.txt"
+    rows = format_kitti(poses).splitlines()
+    if defect == "columns":
+        rows[4] += " 1.0"
+    elif defect == "nan":
+        rows[6] = " ".join(["nan", *rows[6].split()[1:]])
+    elif defect == "shear":
+        rows[8] = " ".join(["1.3", *rows[8].split()[1:]])
+    elif defect == "few":
+        rows = rows[:1]
+    else:
+        rows = ["# t x y z qx qy qz qw", *_tum_lines(poses, np.arange(20) * 0.1)]
+        if defect == "backward":
+            rows[11] = " ".join(["0.5", *rows[11].split()[1:]])
+        else:
+            rows[3] = " ".join([*rows[3].split()[:4], "0.5", "0.5", "0.5", "0.9"])
+    path.write_text("\n".join(rows) + "\n")
+    pattern = f"{path}: 1 pose" if defect == "few" else f"{path}:{line}: "
+    with pytest.raises(InputError, match=pattern):
+        make_config(trajectory=str(path))
+
+
+def test_trajectory_file_options_are_checked():
+    with pytest.raises(InputError, match="times, calib and trajectory_format apply to a trajectory file"):
+        make_config(trajectory="kitti-05", calib=__file__)
+    with pytest.raises(InputError, match="times: /no/such/times.txt: file not found"):
+        make_config(trajectory="kitti-05", times="/no/such/times.txt")
+
+
+def test_camera_poses_without_calib_are_refused(tmp_path):
+    poses_file, _, calib_file = _write_camera_trajectory(tmp_path, _arc_poses())
+    with pytest.raises(InputError, match=f"{poses_file}:1: the sensor moves along its z axis.*--calib"):
+        make_config(trajectory=str(poses_file))
+    assert make_config(trajectory=str(poses_file), calib=str(calib_file)).is_file
+
+
+def test_pose_interpolation_between_and_beyond_the_poses():
+    traj = load_trajectory("kitti-07")
+    assert np.allclose(traj.pose_at(traj.times[:20]), traj.poses[:20], atol=1e-9)
+    mid = traj.pose_at((traj.times[10:12].sum() / 2)[None])[0]
+    assert np.allclose(mid[:3, 3], traj.poses[10:12, :3, 3].mean(0), atol=1e-9)
+    assert np.allclose(mid[:3, :3] @ mid[:3, :3].T, np.eye(3), atol=1e-9)
+    before = traj.pose_at(np.array([-0.05]))[0]  # constant velocity before the first pose
+    step = traj.poses[1, :3, 3] - traj.poses[0, :3, 3]
+    assert np.allclose(before[:3, 3], traj.poses[0, :3, 3] - step * 0.05 / (traj.times[1] - traj.times[0]))

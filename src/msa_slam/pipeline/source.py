@@ -11,6 +11,7 @@ from msa_slam.datasets import ScanSequence, open_dataset
 from msa_slam.errors import InputError
 
 SIM_PREFIX = "sim:"
+PATH_FIELDS = ("trajectory", "times", "calib")  # taken verbatim: a file named 1e3 stays a path
 
 
 def resolve_dataset(spec: str, cache_dir: str | os.PathLike | None = None, progress: bool = False) -> Path:
@@ -18,6 +19,9 @@ def resolve_dataset(spec: str, cache_dir: str | os.PathLike | None = None, progr
 
     `sim:demo` / `sim:test` are the simulator's embedded defaults; `sim:TRAJECTORY` (e.g. sim:kitti-05)
     simulates that trajectory with the simulator's defaults, overridable as `sim:kitti-05,stride=3,end=900`.
+    A spec whose first item is a field (`sim:trajectory=/data/poses.txt,times=/data/times.txt,stride=2`)
+    starts from the simulator's defaults; `trajectory=` takes a shipped name or a pose file (KITTI or TUM;
+    with `calib=` a KITTI calib.txt for cam0 poses). Items are split at commas, so paths cannot hold one.
     """
     if not spec.startswith(SIM_PREFIX):
         path = Path(spec).expanduser()
@@ -26,21 +30,26 @@ def resolve_dataset(spec: str, cache_dir: str | os.PathLike | None = None, progr
         return path
     from msa_slam.sim import DEFAULT_CONFIGS, TRAJECTORY_NAMES, default_sequence, make_config, simulate_sequence
 
-    name, *fields = spec[len(SIM_PREFIX):].split(",")
+    items = spec[len(SIM_PREFIX):].split(",")
+    name, fields = ("", items) if "=" in items[0] else (items[0], items[1:])
     if name in DEFAULT_CONFIGS and not fields:
         return default_sequence(name, cache_dir=cache_dir, progress=progress)
     if name in DEFAULT_CONFIGS:
         base = DEFAULT_CONFIGS[name].model_dump()
     elif name in TRAJECTORY_NAMES:
         base = {"trajectory": name}
+    elif not name:
+        base = {}
     else:
         raise InputError(f"dataset {spec!r}: unknown simulated sequence {name!r}; choose one of "
-                         f"{', '.join([*DEFAULT_CONFIGS, *TRAJECTORY_NAMES])}")
+                         f"{', '.join([*DEFAULT_CONFIGS, *TRAJECTORY_NAMES])}, or give fields only "
+                         "(sim:trajectory=/path/poses.txt,...)")
     for item in fields:
         key, sep, raw = item.partition("=")
         if not sep:
-            raise InputError(f"dataset {spec!r}: expected field=value after the name, got {item!r}")
-        base[key.strip()] = yaml.safe_load(raw)
+            raise InputError(f"dataset {spec!r}: expected field=value, got {item!r}")
+        value = yaml.safe_load(raw)
+        base[key.strip()] = raw.strip() if key.strip() in PATH_FIELDS else value
     return simulate_sequence(make_config(**base), cache_dir=cache_dir, progress=progress)
 
 

@@ -11,6 +11,7 @@ sim.json records every scan's size, so a truncated scan makes the sequence incom
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import os
@@ -19,15 +20,15 @@ from pathlib import Path
 from typing import Iterator, NamedTuple
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, PrivateAttr, ValidationError, field_validator, model_validator
 
 import msa_slam
 from msa_slam.errors import InputError
 from msa_slam.io.cache import cache_key, partial_dir, remove_orphans
-from msa_slam.io.poses import format_kitti
+from msa_slam.io.poses import POSE_FORMATS, format_kitti
 from msa_slam.sim.layout import STYLES
 from msa_slam.sim.sensors import SENSORS, Lidar, LidarModel, get_sensor
-from msa_slam.sim.trajectories import TRAJECTORY_NAMES, frame_indices, load_trajectory
+from msa_slam.sim.trajectories import TRAJECTORY_NAMES, Trajectory, frame_indices, load_trajectory, read_trajectory
 from msa_slam.sim.world import World, build_world
 
 SIM_VERSION = "2"  # bump when generated worlds or scans change, so stale caches are not reused
@@ -43,7 +44,10 @@ class SimConfig(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    trajectory: str = "kitti-05"
+    trajectory: str = "kitti-05"  # a shipped name, or a pose file (KITTI or TUM format)
+    trajectory_format: str = "auto"  # of a trajectory file: auto, kitti or tum
+    times: str | None = None  # of a KITTI-format trajectory file: one time a line (default 10 Hz)
+    calib: str | None = None  # a KITTI calib.txt whose Tr line converts cam0 poses to the LiDAR frame
     sensor: str = "hdl64"
     start: int = 0
     end: int | None = None
@@ -54,13 +58,65 @@ class SimConfig(BaseModel):
     range_noise: float = 0.02
     dropout: float = 0.0
     style: str | None = None  # None: "city" for vehicles, "campus" for walking platforms
+    _files_sha256: str | None = PrivateAttr(default=None)  # content of the trajectory files: the cache key
 
     @field_validator("trajectory")
     @classmethod
     def _known_trajectory(cls, v: str) -> str:
-        if v not in TRAJECTORY_NAMES:
-            raise ValueError(f"unknown trajectory {v!r}; choose one of {', '.join(TRAJECTORY_NAMES)}")
+        if v in TRAJECTORY_NAMES:
+            return v
+        path = Path(v).expanduser()
+        if not path.is_file():
+            raise ValueError(f"unknown trajectory {v!r}; choose one of {', '.join(TRAJECTORY_NAMES)} "
+                             "or give a pose file (KITTI or TUM format)")
+        return str(path.resolve())
+
+    @field_validator("times", "calib")
+    @classmethod
+    def _existing_file(cls, v: str | None) -> str | None:
+        if v is None:
+            return v
+        path = Path(v).expanduser()
+        if not path.is_file():
+            raise ValueError(f"{v}: file not found")
+        return str(path.resolve())
+
+    @field_validator("trajectory_format")
+    @classmethod
+    def _known_format(cls, v: str) -> str:
+        if v not in POSE_FORMATS:
+            raise ValueError(f"unknown trajectory format {v!r}; choose one of {', '.join(POSE_FORMATS)}")
         return v
+
+    @model_validator(mode="after")
+    def _read_trajectory_file(self) -> "SimConfig":
+        """Check a trajectory file whole now (errors name its line, before any long work) and hash the files."""
+        if self.trajectory in TRAJECTORY_NAMES:
+            if self.times is not None or self.calib is not None or self.trajectory_format != "auto":
+                raise ValueError(f"times, calib and trajectory_format apply to a trajectory file, not to the "
+                                 f"shipped trajectory {self.trajectory!r}")
+            return self
+        self.load_trajectory()
+        parts = [f"{what}:{hashlib.sha256(Path(f).read_bytes()).hexdigest() if f else '-'}"
+                 for what, f in (("poses", self.trajectory), ("times", self.times), ("calib", self.calib))]
+        self._files_sha256 = ",".join(parts)
+        return self
+
+    @property
+    def is_file(self) -> bool:
+        """True when the trajectory comes from a pose file rather than a shipped name."""
+        return self.trajectory not in TRAJECTORY_NAMES
+
+    @property
+    def label(self) -> str:
+        """A short name for folders and progress: the shipped name or the pose file's stem."""
+        return f"file-{Path(self.trajectory).stem}" if self.is_file else self.trajectory
+
+    def load_trajectory(self) -> Trajectory:
+        """The whole source trajectory (shipped, or read from the files)."""
+        if not self.is_file:
+            return load_trajectory(self.trajectory)
+        return read_trajectory(self.trajectory, self.trajectory_format, self.times, self.calib)
 
     @field_validator("sensor")
     @classmethod
@@ -79,7 +135,10 @@ class SimConfig(BaseModel):
     def key(self) -> str:
         """The cache key: hash of the config, the simulator version and the versions of msa-slam and of the
         libraries that ray-cast the scans."""
-        return cache_key("simulation", [], {"config": self.model_dump(), "sim_version": SIM_VERSION}, SIM_LIBRARIES)
+        config = self.model_dump()
+        if self.is_file:  # the files' content, not where they are
+            config.update(trajectory="file", times=None, calib=None, trajectory_files=self._files_sha256)
+        return cache_key("simulation", [], {"config": config, "sim_version": SIM_VERSION}, SIM_LIBRARIES)
 
 
 def make_config(**fields: object) -> SimConfig:
@@ -87,8 +146,8 @@ def make_config(**fields: object) -> SimConfig:
     try:
         return SimConfig(**fields)
     except ValidationError as exc:
-        problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg'].removeprefix('Value error, ')}"
-                             for e in exc.errors())
+        problems = "; ".join(": ".join([*(['.'.join(map(str, e['loc']))] if e['loc'] else []),
+                                         e['msg'].removeprefix('Value error, ')]) for e in exc.errors())
         raise InputError(f"simulation config: {problems}") from None
 
 
@@ -124,8 +183,8 @@ class Simulation:
 def prepare(config: SimConfig) -> Simulation:
     """Load the trajectory, select frames and build the world around the whole selected range (unstrided,
     so every stride of the same range sees the same world)."""
-    traj = load_trajectory(config.trajectory)
-    frames = frame_indices(len(traj), config.start, config.end, config.stride, config.trajectory)
+    traj = config.load_trajectory()
+    frames = frame_indices(len(traj), config.start, config.end, config.stride, config.label)
     span = traj.poses[frames[0]:frames[-1] + 1]
     style = config.style or ("campus" if traj.platform == "walk" else "city")
     world = build_world(span, style, config.seed, traj.sensor_height)
@@ -193,7 +252,7 @@ def _write(sim: Simulation, target: Path, progress: bool) -> None:
     (target / "velodyne").mkdir(parents=True)
     with Progress(TextColumn("[bold]simulating[/] {task.description}"), BarColumn(), MofNCompleteColumn(),
                   TimeRemainingColumn(), disable=not progress, transient=False) as bar:
-        task = bar.add_task(f"{sim.config.trajectory} / {sim.config.sensor}", total=len(sim))
+        task = bar.add_task(f"{sim.config.label} / {sim.config.sensor}", total=len(sim))
         sizes = []
         for k in range(len(sim)):
             scan = sim.scan(k)
@@ -216,7 +275,9 @@ def _write(sim: Simulation, target: Path, progress: bool) -> None:
         "sensor": {"beams": sim.lidar.model.beams, "azimuth_steps": sim.lidar.model.azimuth_steps,
                    "max_range": sim.lidar.model.max_range},
         "world_triangles": sim.world.triangles,
-        "source": KITTI_CITATION if sim.config.trajectory.startswith("kitti") else "procedural",
+        "trajectory_files_sha256": sim.config._files_sha256,
+        "source": (f"trajectory file {sim.config.trajectory}" if sim.config.is_file
+                   else KITTI_CITATION if sim.config.trajectory.startswith("kitti") else "procedural"),
     }
     (target / META_FILE).write_text(json.dumps(meta, indent=1))  # written last: marks completeness
 
@@ -230,7 +291,7 @@ def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
     scan is simulated again (with a warning); any other existing non-empty `out` is an error.
     """
     key = config.key()
-    target = Path(out) if out is not None else cache_root(cache_dir) / f"{config.trajectory}_{config.sensor}_{key}"
+    target = Path(out) if out is not None else cache_root(cache_dir) / f"{config.label}_{config.sensor}_{key}"
     remove_orphans(target.parent, f".{target.name}.partial-*")
     if is_complete(target, key):
         return target

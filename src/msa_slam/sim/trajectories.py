@@ -1,22 +1,30 @@
-"""Named sensor trajectories for the simulator: real KITTI ground truth and procedural paths.
+"""Sensor trajectories for the simulator: real KITTI ground truth, procedural paths and user files.
 
 KITTI paths (Geiger et al., CVPR 2012; CC BY-NC-SA 3.0) come from the package's compact data files
 (see `kitti_data`). Procedural paths are generated at 10 Hz: a figure-eight, a city tour on a street grid
 with revisits, and a slow handheld-like campus walk (about 0.1 m per frame, like Newer College).
+Any other path comes from a pose file (KITTI 12 numbers a line or TUM `t x y z qx qy qz qw`), see
+`read_trajectory`. `Trajectory.pose_at` interpolates the full-rate poses for motion distortion.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from msa_slam.datasets.sequences import check_times, read_kitti_calibration, read_times
 from msa_slam.errors import InputError
-from msa_slam.sim.kitti_data import DATA_DIR, KITTI_SEQUENCES
+from msa_slam.io.poses import POSE_FORMATS, _read_rows
+from msa_slam.sim.kitti_data import DATA_DIR, KITTI_SEQUENCES, cam0_to_lidar
+from msa_slam.types import ROTATION_TOLERANCE
 
 FRAME_RATE_HZ = 10.0
+MIN_POSES = 2
+QUATERNION_TOLERANCE = 1e-2  # TUM files often print quaternions with 4-6 decimals
 
 
 @dataclass(frozen=True)
@@ -32,6 +40,26 @@ class Trajectory:
 
     def __len__(self) -> int:
         return len(self.poses)
+
+    def pose_at(self, times: np.ndarray) -> np.ndarray:
+        """(k, 4, 4) world-from-sensor poses at `times` (s, the trajectory's clock), interpolated between the
+        two nearest poses (rotation by slerp, translation linearly) and extrapolated at constant velocity
+        from the first/last segment outside the trajectory (a sweep that starts before the first pose)."""
+        return interpolate_poses(self.poses, self.times, np.asarray(times, dtype=np.float64))
+
+
+def interpolate_poses(poses: np.ndarray, stamps: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Poses of an (N, 4, 4) stack stamped `stamps` (N >= 2, increasing) at `times`; see Trajectory.pose_at."""
+    times = np.atleast_1d(times)
+    seg = np.clip(np.searchsorted(stamps, times, side="right") - 1, 0, len(stamps) - 2)
+    t0, t1 = stamps[seg], stamps[seg + 1]
+    s = (times - t0) / (t1 - t0)
+    a, b = poses[seg], poses[seg + 1]
+    delta = Rotation.from_matrix(np.einsum("kji,kjl->kil", a[:, :3, :3], b[:, :3, :3])).as_rotvec()
+    out = np.tile(np.eye(4), (len(times), 1, 1))
+    out[:, :3, :3] = np.einsum("kij,kjl->kil", a[:, :3, :3], Rotation.from_rotvec(delta * s[:, None]).as_matrix())
+    out[:, :3, 3] = a[:, :3, 3] + s[:, None] * (b[:, :3, 3] - a[:, :3, 3])
+    return out
 
 
 def _poses(positions: np.ndarray, rotations: Rotation) -> np.ndarray:
@@ -147,6 +175,90 @@ _PROCEDURAL: dict[str, Callable[[], Trajectory]] = {
     "campus-walk": campus_walk,
 }
 TRAJECTORY_NAMES: tuple[str, ...] = tuple(f"kitti-{s}" for s in KITTI_SEQUENCES) + tuple(_PROCEDURAL)
+
+
+def _orthonormal(rot: np.ndarray) -> np.ndarray:
+    """The nearest rotations (SVD) of nearly rigid (N, 3, 3) matrices: printed files round their digits."""
+    u, _, vt = np.linalg.svd(rot)
+    return u @ vt
+
+
+def _steps(poses: np.ndarray) -> np.ndarray:
+    """Indices k of the poses that move over 1 cm to pose k + 1."""
+    return np.flatnonzero(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1) > 0.01)
+
+
+def _moving_along_z(poses: np.ndarray) -> np.ndarray:
+    """Indices of the moving steps whose motion, in the sensor frame, is mostly along z (a camera's forward)."""
+    k = _steps(poses)
+    local = np.einsum("kji,kj->ki", poses[k, :3, :3], poses[k + 1, :3, 3] - poses[k, :3, 3])
+    return k[np.abs(local[:, 2]) > 0.7 * np.linalg.norm(local, axis=1)]
+
+
+def read_trajectory(path: str | Path, fmt: str = "auto", times_file: str | Path | None = None,
+                    calib_file: str | Path | None = None) -> Trajectory:
+    """A trajectory from a pose file: KITTI (12 numbers a line, times from `times_file` or 10 Hz) or TUM
+    (`t x y z qx qy qz qw`; its own times). With `calib_file` (a KITTI calib.txt with a `Tr:` line) the poses
+    are cam0 poses, converted to the LiDAR frame as inv(Tr) P Tr. Positions are shifted so the first pose
+    sits at the origin (Embree casts in float32); the poses must be LiDAR-like (x forward, z up: the world
+    is built with its ground below each pose), so a path driven along the sensor's z axis is refused.
+    Every problem is one InputError naming the file and line."""
+    path = Path(path)
+    if fmt not in POSE_FORMATS:
+        raise InputError(f"{path}: unknown trajectory format {fmt!r}; choose one of {', '.join(POSE_FORMATS)}")
+    rows = _read_rows(path)
+    lines = [lineno for lineno, _ in rows]
+    if fmt == "auto":
+        fmt = {12: "kitti", 8: "tum"}.get(len(rows[0][1]), "")
+        if not fmt:
+            raise InputError(f"{path}:{lines[0]}: {len(rows[0][1])} values a line; expected 12 (KITTI: a 3x4 "
+                             "pose matrix, row-major) or 8 (TUM: t x y z qx qy qz qw)")
+    width = 12 if fmt == "kitti" else 8
+    for lineno, vals in rows:
+        if len(vals) != width:
+            raise InputError(f"{path}:{lineno}: {len(vals)} values, expected {width} ({fmt} format)")
+    if len(rows) < MIN_POSES:
+        raise InputError(f"{path}: {len(rows)} pose(s); a trajectory needs at least {MIN_POSES}")
+    data = np.array([vals for _, vals in rows], dtype=np.float64)
+    bad = np.flatnonzero(~np.isfinite(data).all(axis=1))
+    if len(bad):
+        raise InputError(f"{path}:{lines[bad[0]]}: NaN or infinite value in {data[bad[0]].tolist()}")
+    poses = np.tile(np.eye(4), (len(data), 1, 1))
+    if fmt == "kitti":
+        poses[:, :3, :4] = data.reshape(-1, 3, 4)
+        rot = poses[:, :3, :3]
+        err = np.maximum(np.abs(rot @ rot.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2)),
+                         np.abs(np.linalg.det(rot) - 1.0))
+        tolerance = max(ROTATION_TOLERANCE, 1e-3)
+    else:
+        err = np.abs(np.linalg.norm(data[:, 4:8], axis=1) - 1.0)
+        tolerance = QUATERNION_TOLERANCE
+        poses[:, :3, 3] = data[:, 1:4]
+        poses[:, :3, :3] = Rotation.from_quat(data[:, 4:8]).as_matrix() if err.max() <= tolerance else np.eye(3)
+    bad = np.flatnonzero(err > tolerance)
+    if len(bad):
+        what = "rotation is not orthonormal with det 1" if fmt == "kitti" else "quaternion is not of unit norm"
+        raise InputError(f"{path}:{lines[bad[0]]}: not a rigid pose: the {what} (error {err[bad[0]]:.2e}, "
+                         f"allowed {tolerance:g})")
+    poses[:, :3, :3] = _orthonormal(poses[:, :3, :3])
+    if fmt == "tum":
+        if times_file is not None:
+            raise InputError(f"{times_file}: a TUM trajectory ({path}) carries its own times; give no times file")
+        times = check_times(data[:, 0], lambda i: f"{path}:{lines[i]}")
+    elif times_file is not None:
+        times = read_times(Path(times_file))
+        if len(times) != len(poses):
+            raise InputError(f"{times_file}: {len(times)} times for the {len(poses)} poses of {path}")
+    else:
+        times = np.arange(len(poses)) / FRAME_RATE_HZ
+    if calib_file is not None:
+        poses = cam0_to_lidar(poses, read_kitti_calibration(Path(calib_file)))
+    along_z = _moving_along_z(poses)
+    if len(along_z) > 0.5 * max(1, len(_steps(poses))):
+        raise InputError(f"{path}:{lines[along_z[0]]}: the sensor moves along its z axis (camera poses, z forward?) "
+                         "while a LiDAR frame has x forward, z up; give --calib with the KITTI calib.txt (Tr line)")
+    poses[:, :3, 3] -= poses[0, :3, 3]
+    return Trajectory(path.stem, poses, times - times[0], "car")
 
 
 def load_trajectory(name: str) -> Trajectory:
