@@ -11,7 +11,13 @@ from msa_slam.cli.options import CACHE_HELP
 
 
 def simulate_command(
-    trajectory: str = typer.Option("kitti-05", help="kitti-00/05/06/07/09, figure-eight, city-tour, campus-walk"),
+    trajectory: str = typer.Option("kitti-05", help="kitti-00/05/06/07/09, figure-eight, city-tour, campus-walk, "
+                                   "or a pose file: KITTI (12 numbers a line) or TUM (t x y z qx qy qz qw), "
+                                   "LiDAR frame (x forward, z up) unless --calib"),
+    times: Optional[Path] = typer.Option(None, help="times of a KITTI-format file, one a line (default 10 Hz)"),
+    calib: Optional[Path] = typer.Option(None, help="KITTI calib.txt: its Tr line converts the file's cam0 poses to "
+                                         "the LiDAR frame (inv(Tr) P Tr)"),
+    trajectory_format: str = typer.Option("auto", help="format of a trajectory file: auto, kitti or tum"),
     sensor: str = typer.Option("hdl64", help="hdl64, os1-64 or os1-128"),
     out: Optional[Path] = typer.Option(None, help="output directory (default: the cache, keyed by config hash)"),
     start: int = typer.Option(0, help="first trajectory frame"),
@@ -31,6 +37,7 @@ def simulate_command(
 
     config = make_config(trajectory=trajectory, sensor=sensor, start=start, end=end, stride=stride, seed=seed,
                          azimuth_steps=azimuth_steps, max_range=max_range, range_noise=range_noise,
-                         dropout=dropout, style=style)
+                         dropout=dropout, style=style, trajectory_format=trajectory_format,
+                         times=None if times is None else str(times), calib=None if calib is None else str(calib))
     path = simulate_sequence(config, out=out, cache_dir=cache_dir, progress=not quiet)
     typer.echo(str(path))
