@@ -5,17 +5,22 @@ facade that faces the path), then a gap (empty, a wall, or trees); poles, trees 
 between. Every object is rejected if its footprint comes closer than a clearance to ANY trajectory point
 (so the road stays clear where the path crosses or doubles back) or if it overlaps an object already
 placed (so a revisited place keeps what was built on the first pass: same place, same look).
+With a `plan` (see `plan`), designed and hard stretches are laid first and the block walk skips them;
+parked cars may be transient (kept apart for `dynamic`, present only in some time windows).
 """
 
 from __future__ import annotations
 
+import bisect
+from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from msa_slam.sim.shapes import MeshBuilder
+from msa_slam.sim.plan import DESIGN, Design, Stretch
+from msa_slam.sim.shapes import Material, MeshBuilder
 
 
 @dataclass(frozen=True)
@@ -38,13 +43,15 @@ class Style:
     furniture_clearance: float
     ground_radius: float          # ground extends this far from the path
     ground_cell: float
+    car_lanes: tuple[float, float] = (0.0, 1.6)          # moving cars' offsets: with / against the path
+    pedestrian_offset: tuple[float, float] = (5.3, 6.6)  # walkers' distance from the path
 
 
 STYLES: dict[str, Style] = {
     "city": Style("city", 5.0, (7.0, 12.0), (6.0, 24.0), (8.0, 20.0), (4.0, 25.0), (2.0, 8.0), 0.3, 0.35,
                   30.0, 14.0, 0.5, (3.3, 4.3), 2.3, 70.0, 2.5),
     "campus": Style("campus", 2.0, (3.5, 7.0), (8.0, 30.0), (6.0, 14.0), (4.0, 15.0), (2.0, 8.0), 0.2, 0.3,
-                    18.0, 7.0, 0.0, (1.6, 2.2), 1.2, 45.0, 1.5),
+                    18.0, 7.0, 0.0, (1.6, 2.2), 1.2, 45.0, 1.5, pedestrian_offset=(0.8, 2.2)),
 }
 
 
@@ -84,10 +91,14 @@ class Footprints:
                     seen.add(idx)
                     if self._overlap(rect, self.rects[idx], margin):
                         return False
-        self.rects.append(rect)
-        for c in cells:
-            self.grid.setdefault(c, []).append(len(self.rects) - 1)
+        self.add(center, half, yaw, margin)
         return True
+
+    def add(self, center: np.ndarray, half: np.ndarray, yaw: float, margin: float = 0.3) -> None:
+        """Register a rectangle without checking (pieces of one continuous wall touch each other)."""
+        self.rects.append((np.asarray(center, float), np.asarray(half, float), float(yaw)))
+        for c in self._cells(self.rects[-1][0], float(np.hypot(*half)) + margin):
+            self.grid.setdefault(c, []).append(len(self.rects) - 1)
 
 
 def _frame(yaw: float) -> tuple[np.ndarray, np.ndarray]:
@@ -101,6 +112,7 @@ class PathClearance:
         seg = np.linalg.norm(np.diff(xy, axis=0), axis=1)
         extra = [np.linspace(a, b, int(np.ceil(s / 0.5)) + 1)[1:] for a, b, s in zip(xy[:-1], xy[1:], seg)]
         self.points = np.concatenate([xy[:1], *extra]) if extra else xy
+        self.arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(self.points, axis=0), axis=1))])
         self.tree = cKDTree(self.points)
 
     def is_clear(self, center: np.ndarray, half: np.ndarray, yaw: float, clearance: float) -> bool:
@@ -113,18 +125,36 @@ class PathClearance:
         dy = np.maximum(np.abs(rel @ ey) - half[1], 0.0)
         return bool(np.all(dx * dx + dy * dy >= clearance * clearance))
 
+    def only_within(self, center: np.ndarray, half: np.ndarray, yaw: float, start: float, end: float) -> bool:
+        """True when every path point under the rectangle lies in the arc interval [start, end] (a tunnel
+        roof may cover its own stretch of road, never another one)."""
+        idx = self.tree.query_ball_point(center, float(np.hypot(*half)) + 1.0)
+        if not idx:
+            return True
+        ex, ey = _frame(yaw)
+        rel = self.points[idx] - center
+        under = (np.abs(rel @ ex) <= half[0] + 1.0) & (np.abs(rel @ ey) <= half[1] + 1.0)
+        arc = self.arc[idx][under]
+        return bool(np.all((arc >= start) & (arc <= end)))
+
 
 class StreetLayout:
     """Places blocks and street furniture along a path; primitives go to a MeshBuilder."""
 
     def __init__(self, xy: np.ndarray, style: Style, rng: np.random.Generator,
-                 ground_height: Callable[[np.ndarray], float]) -> None:
+                 ground_height: Callable[[np.ndarray], float], plan: Sequence[Stretch] = (),
+                 catalogue: Sequence[Design] = (), transient: float = 0.0) -> None:
         self.style = style
         self.rng = rng
         self.ground = ground_height
         self.clear = PathClearance(xy)
         self.taken = Footprints()
-        self.boxes: list[tuple[float, ...]] = []   # cx, cy, cz, hx, hy, hz, yaw, refl
+        self.plan = tuple(plan)
+        self._starts = [p.start for p in self.plan]
+        self.catalogue = tuple(catalogue)
+        self.transient_share = transient
+        self.transient: list[tuple[float, ...]] = []  # parked cars that come and go, see `dynamic`
+        self.boxes: list[tuple[float, ...]] = []   # cx, cy, cz, hx, hy, hz, yaw, refl, material
         self.trunks: list[tuple[float, ...]] = []  # x, y, z, radius, height, refl
         self.crowns: list[tuple[float, ...]] = []  # x, y, z, rx, ry, rz, refl
         seg = np.linalg.norm(np.diff(xy, axis=0), axis=1)
@@ -146,11 +176,26 @@ class StreetLayout:
     def _u(self, lo_hi: tuple[float, float]) -> float:
         return float(self.rng.uniform(*lo_hi))
 
+    def _special(self, s: float) -> Stretch | None:
+        """The planned stretch containing arc length s, if any."""
+        k = bisect.bisect_right(self._starts, s) - 1
+        return self.plan[k] if k >= 0 and s < self.plan[k].end else None
+
     def build(self) -> None:
         total = self.arc[-1]
+        for stretch in self.plan:
+            if stretch.kind == DESIGN:
+                for side in (1.0, -1.0):
+                    self._design_row(stretch, self.catalogue[stretch.design], side)
+            else:
+                self._hard(stretch)
         for side in (1.0, -1.0):
             s = self._u((0.0, 10.0))
             while s < total:
+                special = self._special(s) if self.plan else None
+                if special is not None:
+                    s = special.end
+                    continue
                 s += self._block_or_gap(s, side)
         self._furniture(total)
 
@@ -167,7 +212,7 @@ class StreetLayout:
                               self._u((0.3, 0.6)), st.road_clearance)
             elif kind < 0.65 and length > 2:
                 self._add_box(p + side * n * off, (length / 2, 0.5), yaw, self._u((0.8, 1.6)), 0.2,
-                              st.road_clearance)
+                              st.road_clearance, material=Material.VEGETATION)  # a hedge
             elif kind < 0.85:
                 for x in np.arange(1.0, length, self._u((3.0, 5.0))):
                     q, _, m = self._at(s + x)
@@ -187,20 +232,24 @@ class StreetLayout:
         return length + self._u((0.3, 1.5))
 
     def _add_box(self, center: np.ndarray, half_xy: tuple[float, float], yaw: float, height: float,
-                 refl: float, clearance: float, sink: float = 0.5) -> bool:
+                 refl: float, clearance: float, sink: float = 0.5, material: int = Material.SOLID) -> bool:
         half = np.asarray(half_xy, float)
         if not self._try(center, half, yaw, clearance):
             return False
         z0 = self.ground(center) - sink
-        self.boxes.append((*center, z0 + (height + sink) / 2, *half, (height + sink) / 2, yaw, refl))
+        self.boxes.append((*center, z0 + (height + sink) / 2, *half, (height + sink) / 2, yaw, refl, material))
         return True
 
     def _building(self, center: np.ndarray, yaw: float, side: float, length: float, depth: float,
-                  clearance: float, height_scale: float = 1.0) -> bool:
-        """A block with relief on the facade facing the path: pilasters, balconies, a stepped top."""
+                  clearance: float, height_scale: float = 1.0, height: float | None = None,
+                  refl: float | None = None) -> bool:
+        """A block with relief on the facade facing the path: pilasters, balconies, a stepped top.
+        Height and reflectance are drawn unless given (a catalogue design fixes them)."""
         st = self.style
-        height = min(self._u(st.height) * height_scale, st.height[1] * 1.4)
-        refl = self._u((0.35, 0.75))
+        if height is None:
+            height = min(self._u(st.height) * height_scale, st.height[1] * 1.4)
+        if refl is None:
+            refl = self._u((0.35, 0.75))
         if not self._add_box(center, (length / 2, depth / 2), yaw, height, refl, clearance):
             return False
         ex, ey = _frame(yaw)
@@ -211,7 +260,7 @@ class StreetLayout:
             w, d = self._u((0.3, 0.9)), self._u((0.25, 0.8))
             top = height if self.rng.random() < 0.6 else self._u((2.5, height))
             c = near + ex * x - side * ey * d / 2
-            self.boxes.append((*c, base + top / 2, w / 2, d / 2, top / 2, yaw, refl * 0.9))
+            self.boxes.append((*c, base + top / 2, w / 2, d / 2, top / 2, yaw, refl * 0.9, Material.SOLID))
             x += self._u((1.8, 6.0))
         floors = int(height // 3.0)
         if floors >= 2 and self.rng.random() < 0.5:  # balconies on a few floors
@@ -220,11 +269,13 @@ class StreetLayout:
                     continue
                 for x in np.arange(-length / 2 + 2.0, length / 2 - 2.0, self._u((4.0, 8.0))):
                     c = near + ex * x - side * ey * 0.6
-                    self.boxes.append((*c, base + 0.5 + 3.0 * k, self._u((0.8, 1.8)), 0.6, 0.5, yaw, refl))
+                    self.boxes.append((*c, base + 0.5 + 3.0 * k, self._u((0.8, 1.8)), 0.6, 0.5, yaw, refl,
+                                       Material.SOLID))
         if height > 8 and self.rng.random() < 0.5:  # stepped upper storey
             c = center + side * ey * depth * 0.15
             extra = self._u((2.0, 6.0))
-            self.boxes.append((*c, base + height + extra / 2, length * 0.35, depth * 0.3, extra / 2, yaw, refl))
+            self.boxes.append((*c, base + height + extra / 2, length * 0.35, depth * 0.3, extra / 2, yaw, refl,
+                               Material.SOLID))
         return True
 
     def _tree(self, c: np.ndarray, clearance: float) -> None:
@@ -237,11 +288,109 @@ class StreetLayout:
             self.crowns.append((*c, z + trunk_h + crown * 0.8, crown, crown * self._u((0.8, 1.2)),
                                 crown * self._u((0.7, 1.3)), 0.25))
 
+    @contextmanager
+    def _seeded(self, *seed: int) -> Iterator[None]:
+        """Draw from a fixed stream meanwhile: every instance of a design gets the same details."""
+        saved, self.rng = self.rng, np.random.default_rng(list(seed))
+        try:
+            yield
+        finally:
+            self.rng = saved
+
+    def _design_row(self, stretch: Stretch, design: Design, side: float) -> None:
+        """Identical houses at the design's pitch from the stretch start, the same on both sides, with
+        the design's back-row blocks, fence, front-garden trees and street lights."""
+        st = self.style
+        s, k = stretch.start, 0
+        while s + design.pitch <= stretch.end:
+            p, h, n = self._at(s + design.length / 2)
+            yaw = float(np.arctan2(h[1], h[0]))
+            center = p + side * n * (design.setback + design.depth / 2)
+            with self._seeded(design.detail_seed, 0):
+                built = self._building(center, yaw, side, design.length, design.depth, st.road_clearance,
+                                       height=design.height, refl=design.refl)
+                if built and design.back is not None:
+                    length, depth, height = design.back
+                    back = center + side * n * (design.depth / 2 + 4.0 + depth / 2)
+                    self._building(back, yaw, side, length, depth, st.road_clearance, height=height,
+                                   refl=design.refl * 0.9)
+            if design.fence > 0:
+                q, _, m = self._at(s + design.pitch / 2)
+                self._add_box(q + side * m * (design.setback - 1.0), (design.pitch / 2 - 0.2, 0.08), yaw,
+                              design.fence, 0.5, st.road_clearance - 1.0)
+            if design.tree_pitch and k % design.tree_pitch == 0:
+                q, _, m = self._at(s + design.pitch - (design.pitch - design.length) / 2)
+                with self._seeded(design.detail_seed, 1):
+                    self._tree(q + side * m * (design.setback + 1.0), st.road_clearance)
+            if design.light_pitch and k % design.light_pitch == 0:
+                q, _, m = self._at(s)
+                c = q + side * m * (st.car_offset[1] + 0.7)
+                if self._try(c, np.array([0.2, 0.2]), 0.0, st.furniture_clearance):
+                    self.trunks.append((*c, self.ground(c) - 0.3, 0.12, 6.5, 0.8))
+            s += design.pitch
+            k += 1
+
+    def _segments(self, stretch: Stretch, step: float) -> Iterator[tuple[float, np.ndarray, np.ndarray, float]]:
+        """(arc length, point, left normal, yaw) every `step` m along the stretch (segment centres)."""
+        for s in np.arange(stretch.start + step / 2, stretch.end, step):
+            p, h, n = self._at(float(s))
+            yield float(s), p, n, float(np.arctan2(h[1], h[0]))
+
+    def _wall_piece(self, center: np.ndarray, half: tuple[float, float], yaw: float, z0: float, height: float,
+                    refl: float, material: int = Material.SOLID) -> None:
+        """One piece of a continuous structure: kept off every other road, registered without an overlap
+        check against its neighbours."""
+        h = np.asarray(half, float)
+        if self.clear.is_clear(center, h, yaw, self.style.furniture_clearance) and self.taken.add_if_free(
+                center, h, yaw, margin=-0.05):
+            self.boxes.append((*center, z0 + height / 2, *h, height / 2, yaw, refl, material))
+
+    def _hard(self, stretch: Stretch) -> None:
+        """Structure that constrains little along the path: an open field with a few far trees, plain walls,
+        a tunnel (walls and a roof) or a highway between low barriers."""
+        st = self.style
+        kind = stretch.kind
+        if kind == "field":
+            s = stretch.start + self._u((5.0, 30.0))
+            while s < stretch.end:
+                p, _, n = self._at(s)
+                side = 1.0 if self.rng.random() < 0.5 else -1.0
+                self._tree(p + side * n * self._u((18.0, 45.0)), st.road_clearance)
+                s += self._u((20.0, 45.0))
+            return
+        step = 4.0
+        lateral = st.road_clearance + 0.5
+        wall_h = self._u((3.0, 6.0))
+        roof = self._u((4.5, 5.5)) if st.p_parked > 0 else self._u((2.8, 3.4))
+        refl = self._u((0.3, 0.6))
+        for s, p, n, yaw in self._segments(stretch, step):
+            z = self.ground(p)
+            if kind in ("wall", "tunnel"):
+                for side in (1.0, -1.0):
+                    self._wall_piece(p + side * n * (lateral + 0.15), (step / 2, 0.15), yaw, z - 0.5,
+                                     (roof if kind == "tunnel" else wall_h) + 0.5, refl)
+                if kind == "tunnel":
+                    half = np.array([step / 2, lateral + 0.5])
+                    if self.clear.only_within(p, half, yaw, stretch.start - 10.0, stretch.end + 10.0):
+                        self.boxes.append((*p, z + roof + 1.5, *half, 1.5, yaw, refl, Material.SOLID))
+            else:  # highway: a concrete barrier each side, a light pole on the left every 40 m
+                for side, off in ((1.0, lateral + 0.3), (-1.0, st.car_offset[0])):
+                    self._wall_piece(p + side * n * off, (step / 2, 0.3), yaw, z - 0.2, 1.0, 0.45)
+                if int(s // 40.0) != int((s - step) // 40.0):
+                    c = p + n * (lateral + 1.2)
+                    if self._try(c, np.array([0.2, 0.2]), 0.0, st.furniture_clearance):
+                        self.trunks.append((*c, z - 0.3, 0.12, 9.0, 0.8))
+
     def _furniture(self, total: float) -> None:
+        """Poles, trees and parked cars; designed stretches bring their own poles and trees, hard
+        stretches have none of these."""
         st = self.style
         for side in (1.0, -1.0):
             s = self._u((0.0, st.pole_spacing))
             while s < total:  # poles
+                if self.plan and self._special(s) is not None:
+                    s += st.pole_spacing
+                    continue
                 p, h, n = self._at(s)
                 c = p + side * n * self._u((st.car_offset[1] + 0.7, st.setback[0] - 0.5))
                 if self._try(c, np.array([0.2, 0.2]), 0.0, st.furniture_clearance):
@@ -249,6 +398,9 @@ class StreetLayout:
                 s += st.pole_spacing * self._u((0.6, 1.4))
             s = self._u((0.0, st.tree_spacing))
             while s < total:  # trees
+                if self.plan and self._special(s) is not None:
+                    s += st.tree_spacing
+                    continue
                 if self.rng.random() < 0.6:
                     p, h, n = self._at(s)
                     c = p + side * n * self._u((st.car_offset[1] + 1.0, st.setback[1]))
@@ -257,25 +409,39 @@ class StreetLayout:
             if st.p_parked <= 0:
                 continue
             s = self._u((0.0, 10.0))
-            while s < total:  # parked cars: body and cabin
-                if self.rng.random() < st.p_parked:
-                    p, h, n = self._at(s)
-                    yaw = float(np.arctan2(h[1], h[0]))
-                    c = p + side * n * self._u(st.car_offset)
-                    half = np.array([self._u((1.9, 2.4)), self._u((0.8, 0.95))])
-                    if self._try(c, half, yaw, st.furniture_clearance):
-                        z = self.ground(c)
-                        refl = self._u((0.3, 0.9))
-                        self.boxes.append((*c, z + 0.2 + 0.4, *half, 0.45, yaw, refl))
-                        cab = self._u((1.3, 1.5))
-                        self.boxes.append((*c, z + 1.05 + cab * 0.25, half[0] * 0.55, half[1] * 0.9,
-                                           cab * 0.25, yaw, refl))
+            while s < total:  # parked cars
+                special = self._special(s) if self.plan else None
+                if special is None or special.kind == DESIGN:
+                    if self.rng.random() < st.p_parked:
+                        self._parked_car(s, side, self.transient_share > 0 and self.rng.random() < self.transient_share)
+                    elif self.transient_share > 0 and self.rng.random() < self.transient_share * st.p_parked:
+                        self._parked_car(s, side, True)  # an empty slot, taken at some times
                 s += self._u((5.0, 7.5))
+
+    def _parked_car(self, s: float, side: float, transient: bool) -> None:
+        """Body and cabin; a transient car goes to `self.transient` (x, y, z, yaw, body half length and width,
+        cabin centre height above ground and half extents, reflectance) and keeps its footprint reserved."""
+        st = self.style
+        p, h, n = self._at(s)
+        yaw = float(np.arctan2(h[1], h[0]))
+        c = p + side * n * self._u(st.car_offset)
+        half = np.array([self._u((1.9, 2.4)), self._u((0.8, 0.95))])
+        if not self._try(c, half, yaw, st.furniture_clearance):
+            return
+        z = self.ground(c)
+        refl = self._u((0.3, 0.9))
+        cab = self._u((1.3, 1.5))
+        cabin = (1.05 + cab * 0.25, half[0] * 0.55, half[1] * 0.9, cab * 0.25)
+        if transient:
+            self.transient.append((*c, z, yaw, *half, *cabin, refl))
+            return
+        self.boxes.append((*c, z + 0.2 + 0.4, *half, 0.45, yaw, refl, Material.VEHICLE))
+        self.boxes.append((*c, z + 1.05 + cab * 0.25, *cabin[1:], yaw, refl, Material.VEHICLE))
 
     def emit(self, builder: MeshBuilder) -> None:
         if self.boxes:
             b = np.array(self.boxes)
-            builder.boxes(b[:, :3], b[:, 3:6], b[:, 6], b[:, 7])
+            builder.boxes(b[:, :3], b[:, 3:6], b[:, 6], b[:, 7], b[:, 8].astype(np.uint8))
         if self.trunks:
             t = np.array(self.trunks)
             builder.prisms(t[:, :3], t[:, 3], t[:, 4], t[:, 5])

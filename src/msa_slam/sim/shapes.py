@@ -7,9 +7,20 @@ concatenating once is orders of magnitude faster than one trimesh object per pri
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import IntEnum
 
 import numpy as np
 import trimesh
+
+
+class Material(IntEnum):
+    """What a surface is, per face and per hit: the sensor treats vegetation and moving things apart."""
+
+    SOLID = 0       # buildings, walls, poles, trunks, barriers
+    GROUND = 1
+    VEGETATION = 2  # tree crowns, hedges: porous, their returns vary from scan to scan
+    VEHICLE = 3     # parked or moving cars
+    PERSON = 4
 
 _BOX_CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
 # Outward-facing triangles of the unit cube whose corners are ordered as above (x major, z minor).
@@ -29,28 +40,34 @@ def _yaw_matrices(yaw: np.ndarray) -> np.ndarray:
 
 @dataclass
 class MeshBuilder:
-    """Accumulates primitive batches with a reflectance per primitive; `build()` gives one mesh."""
+    """Accumulates primitive batches with a reflectance and a `Material` per primitive; `build()` gives
+    one mesh."""
 
     vertices: list[np.ndarray] = field(default_factory=list)
     faces: list[np.ndarray] = field(default_factory=list)
     reflectance: list[np.ndarray] = field(default_factory=list)
+    material: list[np.ndarray] = field(default_factory=list)
     _count: int = 0
 
-    def _add(self, verts: np.ndarray, faces: np.ndarray, refl: np.ndarray) -> None:
+    def _add(self, verts: np.ndarray, faces: np.ndarray, refl: np.ndarray,
+             material: np.ndarray | int = Material.SOLID) -> None:
         self.vertices.append(verts.reshape(-1, 3))
         self.faces.append(faces.reshape(-1, 3) + self._count)
         self.reflectance.append(refl)
+        self.material.append(np.broadcast_to(np.asarray(material, dtype=np.uint8), refl.shape).copy())
         self._count += len(self.vertices[-1])
 
-    def boxes(self, centers: np.ndarray, half: np.ndarray, yaw: np.ndarray, refl: np.ndarray) -> None:
-        """Boxes (K,) given centres (K, 3), half extents (K, 3), yaw about z (K,), reflectance (K,)."""
+    def boxes(self, centers: np.ndarray, half: np.ndarray, yaw: np.ndarray, refl: np.ndarray,
+              material: np.ndarray | int = Material.SOLID) -> None:
+        """Boxes (K,) given centres (K, 3), half extents (K, 3), yaw about z (K,), reflectance (K,) and
+        material (scalar or (K,))."""
         k = len(centers)
         if k == 0:
             return
         local = _BOX_CORNERS[None] * half[:, None, :]
         verts = np.einsum("kij,kvj->kvi", _yaw_matrices(yaw), local) + centers[:, None, :]
         faces = _BOX_FACES[None] + 8 * np.arange(k)[:, None, None]
-        self._add(verts, faces, np.repeat(refl, 12))
+        self._add(verts, faces, np.repeat(refl, 12), np.repeat(material, 12) if np.ndim(material) else material)
 
     def prisms(self, bases: np.ndarray, radius: np.ndarray, height: np.ndarray, refl: np.ndarray,
                sides: int = 8) -> None:
@@ -83,7 +100,7 @@ class MeshBuilder:
         jitter = 1.0 + 0.18 * rng.standard_normal((k, len(sphere.vertices), 1))
         verts = sphere.vertices[None] * jitter * radii[:, None, :] + centers[:, None, :]
         faces = sphere.faces[None] + len(sphere.vertices) * np.arange(k)[:, None, None]
-        self._add(verts, faces, np.repeat(refl, len(sphere.faces)))
+        self._add(verts, faces, np.repeat(refl, len(sphere.faces)), Material.VEGETATION)
 
     def height_field(self, origin: np.ndarray, cell: float, heights: np.ndarray, keep: np.ndarray,
                      refl: float) -> None:
@@ -95,9 +112,10 @@ class MeshBuilder:
         v00 = cy * (nx + 1) + cx
         v10, v01, v11 = v00 + 1, v00 + nx + 1, v00 + nx + 2
         faces = np.concatenate([np.column_stack([v00, v10, v11]), np.column_stack([v00, v11, v01])])
-        self._add(verts, faces, np.full(len(faces), refl))
+        self._add(verts, faces, np.full(len(faces), refl), Material.GROUND)
 
-    def build(self) -> tuple[trimesh.Trimesh, np.ndarray]:
-        """One mesh (no vertex merging, so faces keep their order) and its per-face reflectance."""
+    def build(self) -> tuple[trimesh.Trimesh, np.ndarray, np.ndarray]:
+        """One mesh (no vertex merging, so faces keep their order), its per-face reflectance (float32) and
+        per-face `Material` codes (uint8)."""
         mesh = trimesh.Trimesh(np.concatenate(self.vertices), np.concatenate(self.faces), process=False)
-        return mesh, np.concatenate(self.reflectance).astype(np.float32)
+        return mesh, np.concatenate(self.reflectance).astype(np.float32), np.concatenate(self.material)

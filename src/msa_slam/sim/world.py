@@ -1,44 +1,173 @@
-"""A simulated world: one triangle mesh around a trajectory, with Embree ray casting.
+"""A simulated world: one static triangle mesh around a trajectory plus optional dynamic objects, with
+Embree ray casting.
 
 The ground follows the trajectory (sensor height below each pose, so slopes and bridges of real paths
-are respected) with mild relief away from the road; street structure comes from `layout`.
+are respected) with mild relief away from the road; street structure comes from `layout`, its plan of
+reused designs and hard stretches from `plan`, moving and transient objects from `dynamic`.
+`WorldRealism` holds every knob; its defaults are off and reproduce the plain world byte for byte.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterator
 
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
-from msa_slam.sim.layout import STYLES, StreetLayout
-from msa_slam.sim.shapes import MeshBuilder
 from msa_slam.errors import InputError
+from msa_slam.sim.dynamic import DynamicObjects, DynamicRecipe, PathFrame, make_dynamic, unit_hash
+from msa_slam.sim.layout import STYLES, StreetLayout
+from msa_slam.sim.plan import HARD_KINDS, make_catalogue, plan_stretches
+from msa_slam.sim.shapes import Material, MeshBuilder
+
+DYNAMIC_RADIUS = 120.0  # dynamic objects farther than this from the rays' origins are not cast against
+
+
+@dataclass(frozen=True)
+class WorldRealism:
+    """World knobs (issue 12); every default is "off". Densities per 100 m of path, shares of path length."""
+
+    moving_cars: float = 0.0        # cars driving along the path in both directions
+    pedestrians: float = 0.0        # people walking back and forth beside the path
+    transient_parking: float = 0.0  # share of parking slots whose car comes and goes
+    turnover_period: float = 60.0   # s: a transient car is there or not per epoch of this length
+    catalogue_designs: int = 0      # street designs reused in different places (perceptual aliasing)
+    catalogue_share: float = 0.0    # share of the path laid out from the catalogue
+    hard_share: float = 0.0         # share of the path in stretches where ICP degenerates along the path
+    hard_kinds: tuple[str, ...] = HARD_KINDS
+    foliage_gap: float = 0.0        # share of rays that pass a crown's surface, drawn per scan and ray
+
+    def __post_init__(self) -> None:
+        for name in ("moving_cars", "pedestrians"):
+            if not 0.0 <= getattr(self, name) <= 20.0:
+                raise InputError(f"world realism: {name} must be in [0, 20] per 100 m, got {getattr(self, name)}")
+        for name in ("transient_parking", "catalogue_share", "hard_share", "foliage_gap"):
+            if not 0.0 <= getattr(self, name) < 1.0:
+                raise InputError(f"world realism: {name} must be in [0, 1), got {getattr(self, name)}")
+        if self.catalogue_share + self.hard_share > 0.9:
+            raise InputError(f"world realism: catalogue_share + hard_share must be <= 0.9, got "
+                             f"{self.catalogue_share} + {self.hard_share}")
+        if not self.turnover_period > 0:
+            raise InputError(f"world realism: turnover_period must be > 0 s, got {self.turnover_period}")
+        if self.catalogue_designs < 0 or (self.catalogue_share > 0 and self.catalogue_designs < 1):
+            raise InputError(f"world realism: catalogue_designs must be >= 1 when catalogue_share > 0, got "
+                             f"{self.catalogue_designs}")
+        unknown = sorted(set(self.hard_kinds) - set(HARD_KINDS))
+        if unknown or (self.hard_share > 0 and not self.hard_kinds):
+            raise InputError(f"world realism: hard_kinds {list(self.hard_kinds)} must be a non-empty subset of "
+                             f"{', '.join(HARD_KINDS)}")
+
+    @classmethod
+    def clean(cls) -> "WorldRealism":
+        """Everything off: the plain world."""
+        return cls()
+
+
+@dataclass(frozen=True)
+class Hits:
+    """First hits of a cast, one row per ray that hit: static face (-1 on a dynamic object), ray index,
+    distance, unit face normal, reflectance and `Material` code. Unpacks as (tri, ray, dist), the
+    values `World.cast` returned before dynamic objects existed."""
+
+    tri: np.ndarray
+    ray: np.ndarray
+    dist: np.ndarray
+    normal: np.ndarray
+    reflectance: np.ndarray
+    material: np.ndarray
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        return iter((self.tri, self.ray, self.dist))
+
+    def __len__(self) -> int:
+        return len(self.ray)
 
 
 class World:
-    """A mesh with per-face reflectance; `cast` gives the first hit (triangle, ray index, distance)."""
+    """A static mesh with per-face reflectance and material, and optional dynamic objects; `cast` gives
+    the first hit of each ray at a time."""
 
-    def __init__(self, mesh: trimesh.Trimesh, reflectance: np.ndarray) -> None:
+    def __init__(self, mesh: trimesh.Trimesh, reflectance: np.ndarray, material: np.ndarray | None = None,
+                 dynamic: DynamicObjects | None = None, realism: WorldRealism = WorldRealism(),
+                 seed: int = 0) -> None:
         self.mesh = mesh
         self.reflectance = reflectance
+        self.material = (np.full(len(mesh.faces), Material.SOLID, dtype=np.uint8) if material is None
+                         else np.asarray(material, dtype=np.uint8))
+        self.dynamic = dynamic
+        self.realism = realism
+        self.seed = seed
         self.face_normals = np.asarray(mesh.face_normals)
         self._face_origins = np.asarray(mesh.triangles[:, 0, :])
         self._intersector = RayMeshIntersector(mesh)
 
     @property
     def triangles(self) -> int:
+        """Triangles of the static mesh."""
         return len(self.mesh.faces)
 
-    def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """First hits of unit `directions` (R, 3) from `origins` ((3,) or (R, 3)): the distance comes from the
-        hit triangle's plane, cheaper than asking trimesh for hit locations."""
-        origins = np.broadcast_to(np.asarray(origins, dtype=np.float64), directions.shape)
+    def _cast_static(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The distance comes from the hit triangle's plane, cheaper than asking trimesh for hit locations."""
         tri, ray = self._intersector.intersects_id(origins, directions, multiple_hits=False)
         normals = self.face_normals[tri]
         num = np.einsum("ij,ij->i", self._face_origins[tri] - origins[ray], normals)
         dist = num / np.einsum("ij,ij->i", directions[ray], normals)
         return tri, ray, dist
+
+    def cast(self, origins: np.ndarray, directions: np.ndarray, time: float = 0.0) -> Hits:
+        """First hits of unit `directions` (R, 3) from `origins` ((3,) or (R, 3)) against the static mesh
+        and the dynamic objects as they are at `time` (s on the trajectory's clock)."""
+        origins = np.broadcast_to(np.asarray(origins, dtype=np.float64), directions.shape)
+        tri, ray, dist = self._cast_static(origins, directions)
+        if self.realism.foliage_gap > 0:
+            tri, ray, dist = self._through_foliage(origins, directions, tri, ray, dist, time)
+        hits = Hits(tri, ray, dist, self.face_normals[tri], self.reflectance[tri], self.material[tri])
+        if self.dynamic is not None:
+            hits = self._with_dynamic(hits, origins, directions, time)
+        return hits
+
+    def _through_foliage(self, origins: np.ndarray, directions: np.ndarray, tri: np.ndarray, ray: np.ndarray,
+                         dist: np.ndarray, time: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A seeded share of the rays that hit a crown pass its surface (a gap in the leaves, different at
+        every scan) and return from what lies behind: the crown's far side or beyond."""
+        veg = np.flatnonzero(self.material[tri] == Material.VEGETATION)
+        epoch = np.full(len(veg), int(round(time * 1000.0)))
+        veg = veg[unit_hash(ray[veg], epoch, self.seed + 7) < self.realism.foliage_gap]
+        if len(veg) == 0:
+            return tri, ray, dist
+        rays = ray[veg]
+        start = origins[rays] + directions[rays] * (dist[veg, None] + 0.05)
+        tri2, sub, dist2 = self._cast_static(start, directions[rays])
+        keep = np.ones(len(ray), dtype=bool)
+        keep[veg] = False
+        tri = np.concatenate([tri[keep], tri2])
+        ray_all = np.concatenate([ray[keep], rays[sub]])
+        dist = np.concatenate([dist[keep], dist[veg][sub] + 0.05 + dist2])
+        order = np.argsort(ray_all, kind="stable")
+        return tri[order], ray_all[order], dist[order]
+
+    def _with_dynamic(self, hits: Hits, origins: np.ndarray, directions: np.ndarray, time: float) -> Hits:
+        """Static hits replaced by nearer hits on the dynamic objects (and rays that only hit those)."""
+        ray_d, dist_d, normal_d, refl_d, mat_d = self.dynamic.cast(origins, directions, time, DYNAMIC_RADIUS)
+        if len(ray_d) == 0:
+            return hits
+        best = np.full(len(directions), np.inf)
+        best[hits.ray] = hits.dist
+        nearer = dist_d < best[ray_d]
+        ray_d, dist_d, normal_d, refl_d, mat_d = ray_d[nearer], dist_d[nearer], normal_d[nearer], refl_d[nearer], mat_d[nearer]
+        covered = np.zeros(len(directions), dtype=bool)
+        covered[ray_d] = True
+        keep = ~covered[hits.ray]
+        ray = np.concatenate([hits.ray[keep], ray_d])
+        order = np.argsort(ray, kind="stable")
+        return Hits(np.concatenate([hits.tri[keep], np.full(len(ray_d), -1, dtype=hits.tri.dtype)])[order], ray[order],
+                    np.concatenate([hits.dist[keep], dist_d])[order],
+                    np.concatenate([hits.normal[keep], normal_d])[order],
+                    np.concatenate([hits.reflectance[keep], refl_d.astype(hits.reflectance.dtype)])[order],
+                    np.concatenate([hits.material[keep], mat_d])[order])
 
 
 class GroundModel:
@@ -82,15 +211,21 @@ def extend_path(xy: np.ndarray, length: float) -> np.ndarray:
     return np.concatenate([before, xy, after])
 
 
-def build_world(poses: np.ndarray, style: str = "city", seed: int = 0, sensor_height: float = 1.73) -> World:
-    """The world around `poses` (N, 4, 4): same seed and poses give the same world, triangle for triangle."""
+def build_world(poses: np.ndarray, style: str = "city", seed: int = 0, sensor_height: float = 1.73,
+                realism: WorldRealism = WorldRealism()) -> World:
+    """The world around `poses` (N, 4, 4): same seed, poses and realism give the same world, triangle for
+    triangle and object for object. The realism features draw from their own seeded streams."""
     if style not in STYLES:
         raise InputError(f"unknown world style {style!r}; choose one of {', '.join(STYLES)}")
     st = STYLES[style]
     rng = np.random.default_rng(seed)
     ground = GroundModel(poses, sensor_height, rng)
     xy = extend_path(poses[:, :2, 3], 80.0)
-    layout = StreetLayout(xy, st, rng, ground)
+    path = PathFrame.of(xy)
+    plan = plan_stretches(path.length, realism.catalogue_share, realism.hard_share, realism.hard_kinds,
+                          realism.catalogue_designs, np.random.default_rng([seed, 12, 1]))
+    catalogue = make_catalogue(realism.catalogue_designs, st, np.random.default_rng([seed, 12, 2]))
+    layout = StreetLayout(xy, st, rng, ground, plan, catalogue, realism.transient_parking)
     layout.build()
     builder = MeshBuilder()
     layout.emit(builder)
@@ -102,5 +237,9 @@ def build_world(poses: np.ndarray, style: str = "city", seed: int = 0, sensor_he
     near, _ = layout.clear.tree.query(centres.reshape(-1, 2), distance_upper_bound=st.ground_radius)
     keep = np.isfinite(near).reshape(n[1], n[0])
     builder.height_field(lo, st.ground_cell, ground(grid).reshape(n[1] + 1, n[0] + 1), keep, 0.25)
-    mesh, reflectance = builder.build()
-    return World(mesh, reflectance)
+    mesh, reflectance, material = builder.build()
+    recipe = DynamicRecipe(realism.moving_cars if st.p_parked > 0 else 0.0, realism.pedestrians, st.car_lanes,
+                           st.pedestrian_offset, realism.turnover_period)
+    dynamic = make_dynamic(path, ground, recipe, np.array(layout.transient).reshape(-1, 11),
+                           np.random.default_rng([seed, 12, 3]), seed)
+    return World(mesh, reflectance, material, dynamic, realism, seed)
