@@ -18,7 +18,7 @@ MAX_COORDINATE = 1e4  # metres: beyond any LiDAR's range, so a larger value mean
 TINY = 1e-20  # metres: magnitudes no measurement has (the bit patterns of other types read as float32)
 
 
-def _checked(points: np.ndarray, path: Path) -> np.ndarray:
+def checked_points(points: np.ndarray, path: Path) -> np.ndarray:
     """Finite points of a scan, or an InputError naming `path` when it is empty or cannot be a LiDAR scan.
 
     NaN rows are dropped (drivers mark missing returns so); infinite or larger-than-sensor coordinates, or
@@ -54,11 +54,16 @@ def check_bin_size(path: Path) -> None:
         raise InputError(f"{path}: {size} bytes is not a whole number of 16-byte (x, y, z, r) float32 points")
 
 
+def read_bin_records(path: Path) -> np.ndarray:
+    """Every (x, y, z) record of a KITTI .bin scan, NaN rows included (per-point times align with these)."""
+    check_bin_size(path)
+    return np.fromfile(path, dtype=np.float32).reshape(-1, 4)[:, :3]
+
+
 def read_bin(path: str | os.PathLike) -> np.ndarray:
     """KITTI Velodyne scan: float32 records of x, y, z, reflectance (16 bytes each)."""
     path = Path(path)
-    check_bin_size(path)
-    return _checked(np.fromfile(path, dtype=np.float32).reshape(-1, 4)[:, :3], path)
+    return checked_points(read_bin_records(path), path)
 
 
 def read_ply(path: str | os.PathLike) -> np.ndarray:
@@ -70,7 +75,7 @@ def read_ply(path: str | os.PathLike) -> np.ndarray:
     except Exception as exc:  # trimesh raises many types for malformed files
         raise InputError(f"{path}: cannot read PLY ({exc})") from exc
     vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=np.float64)
-    return _checked(vertices.reshape(-1, 3), path)
+    return checked_points(vertices.reshape(-1, 3), path)
 
 
 def read_pcd(path: str | os.PathLike) -> np.ndarray:
@@ -120,7 +125,7 @@ def read_pcd(path: str | os.PathLike) -> np.ndarray:
         xyz = np.stack([table[a].astype(np.float64) for a in "xyz"], axis=1)
     else:
         raise InputError(f"{path}: PCD DATA {mode!r} is not supported (use ascii or binary)")
-    return _checked(xyz, path)
+    return checked_points(xyz, path)
 
 
 def read_cloud(path: str | os.PathLike) -> np.ndarray:
