@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from functools import partial
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
@@ -10,6 +11,7 @@ import numpy as np
 
 from msa_slam.datasets.clouds import CLOUD_SUFFIXES, check_bin_size, read_cloud
 from msa_slam.datasets.frame import Frame
+from msa_slam.datasets.point_times import TIMES_FOLDER, read_timed_scan, stored_times_path
 from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses
 from msa_slam.types import validate_poses
@@ -19,11 +21,13 @@ class ScanSequence:
     """Scans read lazily from files, with optional times and ground-truth poses (LiDAR frame).
 
     Opening checks what is cheap to check before any long work: .bin file sizes, the first scan, and that
-    times increase strictly; every scan is checked again as it is read.
+    times increase strictly; every scan is checked again as it is read. A `timed_reader` (instead of
+    `reader`) also gives each scan's per-point times, which frames then carry as `timestamps`.
     """
 
     def __init__(self, path: Path, scan_files: Sequence[Path], gt_poses: np.ndarray | None = None,
-                 times: np.ndarray | None = None, reader: Callable[[Path], np.ndarray] = read_cloud) -> None:
+                 times: np.ndarray | None = None, reader: Callable[[Path], np.ndarray] = read_cloud,
+                 timed_reader: Callable[[Path], tuple[np.ndarray, np.ndarray]] | None = None) -> None:
         self.path = Path(path)
         self.name = self.path.name
         self.scan_files = [Path(f) for f in scan_files]
@@ -37,10 +41,11 @@ class ScanSequence:
             times = np.arange(len(self.scan_files), dtype=np.float64)
         self.times = check_times(times, lambda i: f"{self.path}: timestamp of scan {self.scan_files[i].name}")
         self._reader = reader
+        self._timed_reader = timed_reader
         for scan in self.scan_files:
             if scan.suffix.lower() == ".bin":
                 check_bin_size(scan)
-        reader(self.scan_files[0])
+        self._read(self.scan_files[0])
 
     def __len__(self) -> int:
         return len(self.scan_files)
@@ -50,7 +55,13 @@ class ScanSequence:
             raise IndexError(f"frame {index} out of range for {len(self)} scans")
         index %= len(self)
         gt = None if self.gt_poses is None else self.gt_poses[index]
-        return Frame(index, float(self.times[index]), self._reader(self.scan_files[index]), gt)
+        points, stamps = self._read(self.scan_files[index])
+        return Frame(index, float(self.times[index]), points, gt, stamps)
+
+    def _read(self, scan: Path) -> tuple[np.ndarray, np.ndarray | None]:
+        if self._timed_reader is not None:
+            return self._timed_reader(scan)
+        return self._reader(scan), None
 
     def __iter__(self) -> Iterator[Frame]:
         return (self[i] for i in range(len(self)))
@@ -117,6 +128,8 @@ def kitti_sequence(path: str | os.PathLike) -> ScanSequence:
 
     Poses come from `poses.txt` in the sequence folder or from the benchmark's `../../poses/NN.txt`; they
     are cam0 poses, converted to the LiDAR frame as inv(Tr) P Tr (identity Tr for simulator output).
+    Frames carry per-point times: those stored in velodyne_times/ (then one file per scan), else derived
+    from azimuth (see `point_times`).
     """
     path = Path(path)
     velodyne = path / "velodyne"
@@ -142,7 +155,13 @@ def kitti_sequence(path: str | os.PathLike) -> ScanSequence:
         if len(cam) != len(scans):
             raise InputError(f"{pose_file}: {len(cam)} poses but {velodyne} has {len(scans)} scans")
         gt = np.linalg.inv(tr) @ cam @ tr
-    return ScanSequence(path, scans, gt, times)
+    stored = (path / TIMES_FOLDER).is_dir()
+    if stored:
+        missing = next((stored_times_path(s) for s in scans if not stored_times_path(s).is_file()), None)
+        if missing is not None:
+            raise InputError(f"{missing}: missing; {path / TIMES_FOLDER} must hold the per-point times of "
+                             "every scan (or be removed to derive them from azimuth)")
+    return ScanSequence(path, scans, gt, times, timed_reader=partial(read_timed_scan, stored=stored))
 
 
 def folder_sequence(path: str | os.PathLike, poses: str | os.PathLike | None = None,

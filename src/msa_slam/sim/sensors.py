@@ -1,20 +1,27 @@
-"""Spinning LiDAR models ray cast with Embree: beam elevations, azimuth steps, range limits and noise.
+"""Spinning LiDAR models ray cast with Embree: beam elevations, azimuth steps, range limits, noise, and the
+imperfections of a real sensor.
 
 HDL-64E-like (KITTI: 64 beams from +2 to -24.8 deg), Ouster OS1-64 / OS1-128-like (+-22.5 deg).
-A scan casts every (beam, azimuth) ray from the sensor origin against the world mesh, keeps the first
-hit within [min_range, max_range], perturbs its range with Gaussian noise, drops a random fraction,
-and returns float32 points in the sensor frame with an intensity from surface reflectance and incidence.
+A sweep casts every (beam, azimuth) ray against the world in one batched call, each column from the pose
+at its firing time when motion distortion is on, keeps the first hit within [min_range, max_range],
+applies the `SensorRealism` effects, perturbs ranges with noise, drops a random fraction, and returns
+float32 points as the sensor reports them (each in the sensor frame at its own firing time, not deskewed)
+with an intensity from surface reflectance and incidence, and each point's time from the sweep start.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
 from msa_slam.errors import InputError
+from msa_slam.sim.scan import PoseAt, column_times, fixed_pose, lost_returns, mixed_pixels, range_sigma, sweep_rays
+from msa_slam.sim.shapes import Material
 from msa_slam.sim.world import World
-from msa_slam.types import validate_pose
+from msa_slam.types import validate_pose, validate_poses
+
+CALIBRATION_STREAM = 2**40  # seeds the per-sequence calibration errors apart from any per-frame stream
 
 
 @dataclass(frozen=True)
@@ -28,6 +35,7 @@ class LidarModel:
     min_range: float = 1.0
     range_noise: float = 0.02
     dropout: float = 0.0
+    sweep_period: float = 0.1  # s per revolution (10 Hz)
 
     def __post_init__(self) -> None:
         if self.azimuth_steps < 8:
@@ -39,18 +47,67 @@ class LidarModel:
             raise InputError(f"sensor {self.name}: range_noise must be >= 0, got {self.range_noise}")
         if not 0 <= self.dropout < 1:
             raise InputError(f"sensor {self.name}: dropout must be in [0, 1), got {self.dropout}")
+        if not self.sweep_period > 0:
+            raise InputError(f"sensor {self.name}: sweep_period must be > 0 s, got {self.sweep_period}")
 
     @property
     def beams(self) -> int:
         return len(self.elevations_deg)
 
-    def directions(self) -> np.ndarray:
-        """(beams * azimuth_steps, 3) unit ray directions in the sensor frame (x forward, z up)."""
-        elev = np.radians(np.asarray(self.elevations_deg))[:, None]
+    def directions(self, elevation_offsets_deg: np.ndarray | None = None,
+                   azimuth_offsets_deg: np.ndarray | None = None) -> np.ndarray:
+        """(beams * azimuth_steps, 3) unit ray directions in the sensor frame (x forward, z up), beam-major,
+        optionally with per-beam angle offsets (degrees)."""
+        elev = np.asarray(self.elevations_deg, dtype=np.float64)
+        if elevation_offsets_deg is not None:
+            elev = elev + elevation_offsets_deg
+        elev = np.radians(elev)[:, None]
         azim = np.linspace(0.0, 2 * np.pi, self.azimuth_steps, endpoint=False)[None, :]
+        if azimuth_offsets_deg is not None:
+            azim = azim + np.radians(azimuth_offsets_deg)[:, None]
         dirs = np.stack(np.broadcast_arrays(np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim),
                                             np.sin(elev)), axis=-1)
         return dirs.reshape(-1, 3)
+
+
+@dataclass(frozen=True)
+class SensorRealism:
+    """Every sensor imperfection (issue 12); each default is "off", and all off give today's scans.
+
+    Calibration errors are drawn once per sequence (from the Lidar's seed); the rest per scan.
+    """
+
+    motion_distortion: bool = False   # cast each azimuth column from the pose at its firing time
+    elevation_bias_deg: float = 0.0   # reported minus true elevation, all beams (KITTI's HDL-64: ~ -0.22)
+    elevation_sigma_deg: float = 0.0  # per-beam elevation errors (std)
+    azimuth_sigma_deg: float = 0.0    # per-beam azimuth errors (std)
+    range_bias_sigma: float = 0.0     # m: per-beam range bias (std)
+    range_noise_per_m: float = 0.0    # noise std added per metre of range (on top of the model's range_noise)
+    incidence_noise: float = 0.0      # noise std per metre of range per unit tan(incidence)
+    min_return_power: float = 0.0     # returns at this relative power are lost half the time (dark, grazing)
+    mixed_pixel_prob: float = 0.0     # chance a return at a depth edge reports a range between both surfaces
+    mixed_pixel_edge: float = 0.5     # m: range jump to an azimuth neighbour that makes a depth edge
+    vegetation_dropout: float = 0.0   # chance a return from foliage is lost, per scan and ray
+    vegetation_depth: float = 0.0     # m: mean extra range of foliage returns (the beam enters the crown)
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name != "elevation_bias_deg" and not isinstance(value, bool) and not value >= 0:
+                raise InputError(f"sensor realism: {f.name} must be >= 0, got {value}")
+        for name in ("mixed_pixel_prob", "vegetation_dropout"):
+            if not getattr(self, name) < 1:
+                raise InputError(f"sensor realism: {name} must be in [0, 1), got {getattr(self, name)}")
+        if not abs(self.elevation_bias_deg) < 5:
+            raise InputError(f"sensor realism: elevation_bias_deg must be within +-5 deg, got "
+                             f"{self.elevation_bias_deg}")
+        if not self.mixed_pixel_edge > 0:
+            raise InputError(f"sensor realism: mixed_pixel_edge must be > 0 m, got {self.mixed_pixel_edge}")
+
+    @classmethod
+    def clean(cls) -> "SensorRealism":
+        """Everything off: the ideal sensor of the plain simulator."""
+        return cls()
 
 
 # HDL-64E: an upper block of 32 lasers at ~1/3 deg spacing down to -8.33 deg and a lower block of 32 at
@@ -71,30 +128,76 @@ def get_sensor(name: str, **overrides: float | int | None) -> LidarModel:
 
 
 class Lidar:
-    """A sensor model bound to a world; `scan(pose, rng)` returns (P, 4) float32 x, y, z, intensity."""
+    """A sensor model bound to a world, with its per-sequence calibration errors drawn from `seed`.
 
-    def __init__(self, model: LidarModel, world: World) -> None:
+    `sweep(pose_at, t, rng)` gives a scan of a moving sensor and its per-point times; `scan(pose, rng)`
+    the scan from one fixed pose.
+    """
+
+    def __init__(self, model: LidarModel, world: World, realism: SensorRealism = SensorRealism(),
+                 seed: int = 0) -> None:
         self.model = model
         self.world = world
-        self._dirs = model.directions()
+        self.realism = realism
+        self._dirs = model.directions()  # as reported: the nominal beam angles
+        cal = np.random.default_rng([seed, CALIBRATION_STREAM])
+        elev_err = realism.elevation_bias_deg + realism.elevation_sigma_deg * cal.standard_normal(model.beams)
+        azim_err = realism.azimuth_sigma_deg * cal.standard_normal(model.beams)
+        self.range_bias = realism.range_bias_sigma * cal.standard_normal(model.beams)
+        calibrated = not (elev_err.any() or azim_err.any())
+        # the rays really leave at the nominal angles minus the errors the driver does not know about
+        self._cast_dirs = self._dirs if calibrated else model.directions(-elev_err, -azim_err)
+        self.column_times = column_times(model.azimuth_steps, model.sweep_period)
 
     def scan(self, pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        pose = validate_pose(pose, "sensor pose")
-        rot, origin = pose[:3, :3], pose[:3, 3]
-        # einsum, not matmul: BLAS threads for this small product stall badly on a busy machine
-        dirs_world = np.einsum("ij,kj->ki", rot, self._dirs)
-        hit_tri, ray_idx, ranges = self.world.cast(origin, dirs_world)  # ray order: beam-major
-        m = self.model
+        """(P, 4) float32 x, y, z, intensity of a sensor standing still at `pose`."""
+        return self.sweep(fixed_pose(validate_pose(pose, "sensor pose")), 0.0, rng)[0]
+
+    def sweep(self, pose_at: PoseAt, t: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """One revolution whose forward-facing column fires at `t` (the scan's timestamp, as in KITTI), so it
+        runs from t - period / 2: (P, 4) float32 x, y, z, intensity as reported (each point in the sensor
+        frame at its firing time) and (P,) float64 firing times in seconds from the sweep start.
+        `pose_at(times)` gives (k, 4, 4) world-from-sensor poses on the trajectory's clock."""
+        m, r = self.model, self.realism
+        if r.motion_distortion:
+            start = t - m.sweep_period / 2
+            poses = validate_poses(pose_at(start + self.column_times), "sensor poses")
+            origins, dirs_world = sweep_rays(poses, self._cast_dirs)
+        else:
+            pose = validate_pose(pose_at(np.array([t]))[0], "sensor pose")
+            origins = pose[:3, 3]
+            # einsum, not matmul: BLAS threads for this small product stall badly on a busy machine
+            dirs_world = np.einsum("ij,kj->ki", pose[:3, :3], self._cast_dirs)
+        hits = self.world.cast(origins, dirs_world, t)  # ray order: beam-major
+        ranges, ray_idx = hits.dist, hits.ray
         keep = (ranges >= m.min_range) & (ranges <= m.max_range)
         if m.dropout > 0:
             keep &= rng.random(len(ranges)) >= m.dropout
-        ranges, ray_idx, hit_tri = ranges[keep], ray_idx[keep], hit_tri[keep]
-        if m.range_noise > 0:
-            ranges = ranges + rng.normal(0.0, m.range_noise, len(ranges))
-        dirs = self._dirs[ray_idx]
-        cos_inc = np.abs(np.einsum("ij,ij->i", self.world.face_normals[hit_tri], dirs_world[ray_idx]))
-        intensity = self.world.reflectance[hit_tri] * (0.3 + 0.7 * cos_inc)
+        cos_inc = np.abs(np.einsum("ij,ij->i", hits.normal, dirs_world[ray_idx]))
+        reflectance, material = hits.reflectance, hits.material
+        ranges, ray_idx, cos_inc, reflectance, material = (a[keep] for a in (ranges, ray_idx, cos_inc,
+                                                                              reflectance, material))
+        lost = np.zeros(len(ranges), dtype=bool)
+        if r.min_return_power > 0:
+            lost |= lost_returns(reflectance, cos_inc, ranges, r.min_return_power, rng)
+        foliage = material == Material.VEGETATION
+        if r.vegetation_dropout > 0:
+            lost |= foliage & (rng.random(len(ranges)) < r.vegetation_dropout)
+        if lost.any():
+            ranges, ray_idx, cos_inc, reflectance, foliage = (a[~lost] for a in (ranges, ray_idx, cos_inc,
+                                                                                  reflectance, foliage))
+        if r.vegetation_depth > 0:
+            ranges = ranges + foliage * rng.exponential(r.vegetation_depth, len(ranges))
+        if r.mixed_pixel_prob > 0:
+            ranges = mixed_pixels(ranges, ray_idx, (m.beams, m.azimuth_steps), r.mixed_pixel_edge,
+                                  r.mixed_pixel_prob, rng)
+        sigma = (range_sigma(m.range_noise, r.range_noise_per_m, r.incidence_noise, ranges, cos_inc)
+                 if r.range_noise_per_m > 0 or r.incidence_noise > 0 else m.range_noise)
+        if np.any(sigma > 0):
+            ranges = ranges + rng.normal(0.0, sigma, len(ranges))
+        if r.range_bias_sigma > 0:
+            ranges = ranges + self.range_bias[ray_idx // m.azimuth_steps]
         out = np.empty((len(ranges), 4), dtype=np.float32)
-        out[:, :3] = dirs * ranges[:, None]
-        out[:, 3] = intensity
-        return out
+        out[:, :3] = self._dirs[ray_idx] * ranges[:, None]
+        out[:, 3] = reflectance * (0.3 + 0.7 * cos_inc)
+        return out, self.column_times[ray_idx % m.azimuth_steps]
