@@ -42,9 +42,11 @@ def per_scan(config, write_dir: Path | None = None) -> tuple[float, float]:
     times, points = [], []
     for k in picks:
         t = time.perf_counter()
-        pts = sim.scan(int(k))
+        pts, point_times = sim.scan(int(k))
         if write_dir is not None:
             pts.tofile(write_dir / f"{k:06d}.bin")
+            if point_times is not None:
+                np.save(write_dir / f"{k:06d}.npy", point_times.astype(np.float32))
         times.append(time.perf_counter() - t)
         points.append(len(pts))
     return statistics.median(times), float(np.mean(points))

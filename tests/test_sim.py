@@ -165,8 +165,8 @@ def test_worlds_are_seeded_and_structured():
 
 
 def test_scans_see_structure_and_ground():
-    sim = prepare(make_config(trajectory="kitti-05", start=500, end=501, azimuth_steps=512))
-    pts = sim.scan(0)
+    sim = prepare(make_config(trajectory="kitti-05", start=500, end=501, azimuth_steps=512, realism="clean"))
+    pts, _ = sim.scan(0)
     ground = np.abs(pts[:, 2] + 1.73) < 0.4
     assert 0.2 < ground.mean() < 0.8, "a scan should be part ground, part structure (KITTI-like)"
     assert (pts[:, 2] > -1.0).mean() > 0.2, "buildings, walls, cars, poles and trees"
@@ -310,11 +310,12 @@ def test_cli_simulate(tmp_path, monkeypatch, capsys):
 
     out = tmp_path / "cli"
     monkeypatch.setattr(sys, "argv", ["msa-slam", "simulate", "--trajectory", "kitti-07", "--end", "3",
-                                      "--azimuth-steps", "64", "--out", str(out), "--quiet"])
+                                      "--azimuth-steps", "64", "--realism", "clean", "--out", str(out), "--quiet"])
     with pytest.raises(SystemExit) as done:
         main()
     assert done.value.code == 0
     assert capsys.readouterr().out.strip() == str(out) and len(os.listdir(out / "velodyne")) == 3
+    assert not (out / "velodyne_times").exists()
     monkeypatch.setattr(sys, "argv", ["msa-slam", "simulate", "--trajectory", "kitti-42", "-q"])
     with pytest.raises(SystemExit) as exc:
         main()
@@ -412,7 +413,7 @@ def test_simulate_a_kitti_trajectory_file_through_the_cli(tmp_path, monkeypatch,
     expected[:, :3, 3] -= lidar[0, :3, 3]  # shifted so the first pose is at the origin
     assert np.allclose(written, expected, atol=1e-6)
     assert np.allclose(np.loadtxt(out / "times.txt"), np.arange(4) * 0.1037, atol=1e-6)
-    assert len(list((out / "velodyne").glob("*.bin"))) == 4
+    assert len(list((out / "velodyne").glob("*.bin"))) == 4 == len(list((out / "velodyne_times").glob("*.npy")))
 
 
 def test_trajectory_file_is_keyed_by_content_and_usable_as_sim_spec(tmp_path):
@@ -494,3 +495,61 @@ def test_pose_interpolation_between_and_beyond_the_poses():
     before = traj.pose_at(np.array([-0.05]))[0]  # constant velocity before the first pose
     step = traj.poses[1, :3, 3] - traj.poses[0, :3, 3]
     assert np.allclose(before[:3, 3], traj.poses[0, :3, 3] - step * 0.05 / (traj.times[1] - traj.times[0]))
+
+
+# --- realism presets --------------------------------------------------------------------------------
+
+# sha256 of the float32 scans of kitti-07 frames 300-302 at 64 x 96, made by the simulator before presets
+# existed (SIM_VERSION 2, commit 4476763): the clean preset must keep producing them byte for byte.
+SIM_V2_SCANS_SHA256 = "437a76cfd966730214d18c0068d2a49da7f7a8cd7c1304d9d16e11601a7e3f75"
+
+
+def test_clean_preset_reproduces_the_plain_simulator():
+    import hashlib
+
+    digest = hashlib.sha256()
+    cfg = make_config(trajectory="kitti-07", start=300, end=303, azimuth_steps=96, realism="clean")
+    for frame in iter_frames(cfg, with_intensity=True):
+        digest.update(frame.points.tobytes())
+    assert digest.hexdigest() == SIM_V2_SCANS_SHA256
+
+
+def test_realism_preset_is_in_the_cache_key_and_stores_point_times(tmp_path):
+    from msa_slam.datasets.sequences import kitti_sequence
+    from msa_slam.sim.realism import REALISM
+
+    assert make_config(**SMALL).realism == "kitti" and DEFAULT_CONFIGS["test"].realism == "clean"
+    keys = {name: make_config(**SMALL, realism=name).key() for name in REALISM}
+    assert len(set(keys.values())) == len(REALISM)
+    with pytest.raises(InputError, match="realism: unknown realism preset 'noisy'.*clean, kitti"):
+        make_config(**SMALL, realism="noisy")
+    real = simulate_sequence(make_config(**SMALL), cache_dir=tmp_path)
+    clean = simulate_sequence(make_config(**SMALL, realism="clean"), cache_dir=tmp_path)
+    assert real != clean and not (clean / "velodyne_times").exists()
+    for k in range(6):
+        points = np.fromfile(real / "velodyne" / f"{k:06d}.bin", dtype=np.float32).reshape(-1, 4)
+        times = np.load(real / "velodyne_times" / f"{k:06d}.npy")
+        assert times.dtype == np.float32 and times.shape == (len(points),)
+        assert 0.0 <= times.min() and times.max() < 0.1 and np.ptp(times) > 0.09
+    frame = kitti_sequence(real)[3]
+    assert np.allclose(frame.timestamps, np.load(real / "velodyne_times" / "000003.npy"))
+    (real / "velodyne_times" / "000004.npy").unlink()  # a lost times file makes the sequence incomplete
+    assert not is_complete(real, keys["kitti"])
+
+
+def test_motion_distortion_follows_the_trajectory_clock(monkeypatch):
+    """A realistic scan of source frame k is a sweep centred on the trajectory's time of k (its forward column,
+    at mid-sweep, fires from frame k's pose), interpolating the full-rate poses even when frames are strided."""
+    sim = prepare(make_config(trajectory="kitti-05", start=700, end=709, stride=4, azimuth_steps=360))
+    calls = []
+    monkeypatch.setattr(sim.lidar, "sweep", lambda pose_at, t, rng: calls.append((pose_at, t)) or (None, None))
+    sim.scan(1)
+    (pose_at, t), traj = calls[0], sim.trajectory
+    assert t == traj.times[704]
+    assert np.allclose(pose_at(np.array([t]))[0], traj.poses[704])
+    assert np.allclose(pose_at(traj.times[705:706])[0], traj.poses[705])  # between output frames: full rate
+    points, times = prepare(make_config(trajectory="kitti-05", start=700, end=701, azimuth_steps=360)).scan(0)
+    ahead = np.abs(np.arctan2(points[:, 1], points[:, 0])) < 0.05
+    assert np.median(times[ahead]) == pytest.approx(0.05, abs=2e-3)
+    assert prepare(make_config(trajectory="kitti-05", start=700, end=701, azimuth_steps=64,
+                               realism="clean")).scan(0)[1] is None

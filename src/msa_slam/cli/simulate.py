@@ -29,6 +29,8 @@ def simulate_command(
     range_noise: float = typer.Option(0.02, help="Gaussian range noise sigma, metres"),
     dropout: float = typer.Option(0.0, help="fraction of returns dropped at random"),
     style: Optional[str] = typer.Option(None, help="world style: city or campus (default from the platform)"),
+    realism: str = typer.Option("kitti", help="realism preset: kitti (calibrated against KITTI: motion distortion, "
+                                "sensor imperfections, a changing world) or clean (static world, ideal sensor)"),
     cache_dir: Optional[Path] = typer.Option(None, help=CACHE_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
 ) -> None:
@@ -37,7 +39,7 @@ def simulate_command(
 
     config = make_config(trajectory=trajectory, sensor=sensor, start=start, end=end, stride=stride, seed=seed,
                          azimuth_steps=azimuth_steps, max_range=max_range, range_noise=range_noise,
-                         dropout=dropout, style=style, trajectory_format=trajectory_format,
+                         dropout=dropout, style=style, realism=realism, trajectory_format=trajectory_format,
                          times=None if times is None else str(times), calib=None if calib is None else str(calib))
     path = simulate_sequence(config, out=out, cache_dir=cache_dir, progress=not quiet)
     typer.echo(str(path))

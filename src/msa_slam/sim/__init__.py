@@ -1,6 +1,7 @@
-"""LiDAR simulator: procedural worlds around real (KITTI) or procedural trajectories, Embree ray casting,
-and cached sequences in the KITTI odometry layout (the project's embedded default data)."""
+"""LiDAR simulator: procedural worlds around real (KITTI), procedural or user-file trajectories, Embree ray
+casting, realism presets, and cached sequences in the KITTI odometry layout (the project's embedded default data)."""
 
+from msa_slam.sim.realism import REALISM, Realism, get_realism
 from msa_slam.sim.sensors import SENSORS, Lidar, LidarModel, get_sensor
 from msa_slam.sim.sequence import (
     DEFAULT_CONFIGS,
@@ -13,11 +14,11 @@ from msa_slam.sim.sequence import (
     prepare,
     simulate_sequence,
 )
-from msa_slam.sim.trajectories import TRAJECTORY_NAMES, Trajectory, load_trajectory
+from msa_slam.sim.trajectories import TRAJECTORY_NAMES, Trajectory, load_trajectory, read_trajectory
 from msa_slam.sim.world import World, build_world
 
 __all__ = [
-    "DEFAULT_CONFIGS", "SENSORS", "TRAJECTORY_NAMES", "Lidar", "LidarModel", "SimConfig", "SimFrame",
-    "Simulation", "Trajectory", "World", "build_world", "default_sequence", "get_sensor", "iter_frames",
-    "load_trajectory", "make_config", "prepare", "simulate_sequence",
+    "DEFAULT_CONFIGS", "REALISM", "SENSORS", "TRAJECTORY_NAMES", "Lidar", "LidarModel", "Realism", "SimConfig",
+    "SimFrame", "Simulation", "Trajectory", "World", "build_world", "default_sequence", "get_realism", "get_sensor",
+    "iter_frames", "load_trajectory", "make_config", "prepare", "read_trajectory", "simulate_sequence",
 ]

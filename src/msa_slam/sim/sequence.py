@@ -2,7 +2,12 @@
 
 A sequence directory holds velodyne/NNNNNN.bin (float32 x, y, z, intensity), poses.txt (ground truth,
 LiDAR frame, KITTI 12-number lines), times.txt, calib.txt (Tr = identity, so readers that convert cam0
-poses get the same) and sim.json (the config, its hash and provenance). For kiss-icp's KITTI loader it
+poses get the same) and sim.json (the config, its hash and provenance). With motion distortion (realism
+presets other than "clean") it also holds velodyne_times/NNNNNN.npy: float32 seconds of each point from its
+sweep's start (datasets.point_times). KITTI's convention: scan k's timestamp t_k (times.txt) and ground-truth
+pose are those of the forward-facing column, which fires at mid-sweep; the sweep turns clockwise from the
+back over [t_k - 0.05 s, t_k + 0.05 s], each column cast from the pose interpolated (trajectories.pose_at)
+at its firing time, and each point is reported in the sensor frame of its own firing time (not deskewed). For kiss-icp's KITTI loader it
 also holds sequences/00/ and poses/00.txt as relative links: `KITTIOdometryDataset(DIR, "00")`.
 Directories are written under a locked temporary name (`.NAME.partial-*`, removed by the next run if
 its writer was killed) and renamed when complete, so a partial one is never mistaken for a cached sequence;
@@ -26,12 +31,14 @@ import msa_slam
 from msa_slam.errors import InputError
 from msa_slam.io.cache import cache_key, partial_dir, remove_orphans
 from msa_slam.io.poses import POSE_FORMATS, format_kitti
+from msa_slam.datasets.point_times import TIMES_FOLDER
 from msa_slam.sim.layout import STYLES
+from msa_slam.sim.realism import DEFAULT_REALISM, REALISM, Realism
 from msa_slam.sim.sensors import SENSORS, Lidar, LidarModel, get_sensor
 from msa_slam.sim.trajectories import TRAJECTORY_NAMES, Trajectory, frame_indices, load_trajectory, read_trajectory
 from msa_slam.sim.world import World, build_world
 
-SIM_VERSION = "2"  # bump when generated worlds or scans change, so stale caches are not reused
+SIM_VERSION = "3"  # bump when generated worlds or scans change, so stale caches are not reused
 SIM_LIBRARIES = ("trimesh", "embreex", "numpy")  # ray casting and noise: part of the cache key
 META_FILE = "sim.json"
 log = logging.getLogger(__name__)
@@ -58,6 +65,7 @@ class SimConfig(BaseModel):
     range_noise: float = 0.02
     dropout: float = 0.0
     style: str | None = None  # None: "city" for vehicles, "campus" for walking platforms
+    realism: str = DEFAULT_REALISM  # a preset of sim.realism: "kitti" (calibrated) or "clean"
     _files_sha256: str | None = PrivateAttr(default=None)  # content of the trajectory files: the cache key
 
     @field_validator("trajectory")
@@ -125,6 +133,13 @@ class SimConfig(BaseModel):
             raise ValueError(f"unknown sensor {v!r}; choose one of {', '.join(SENSORS)}")
         return v
 
+    @field_validator("realism")
+    @classmethod
+    def _known_realism(cls, v: str) -> str:
+        if v not in REALISM:
+            raise ValueError(f"unknown realism preset {v!r}; choose one of {', '.join(REALISM)}")
+        return v
+
     @field_validator("style")
     @classmethod
     def _known_style(cls, v: str | None) -> str | None:
@@ -162,22 +177,36 @@ class SimFrame(NamedTuple):
 
 @dataclass
 class Simulation:
-    """A resolved config: the selected poses, the world built around them and the bound sensor."""
+    """A resolved config: the selected frames, the full-rate trajectory they come from, the world built
+    around them and the bound sensor."""
 
     config: SimConfig
     frames: np.ndarray  # source-trajectory indices of the output frames
-    poses: np.ndarray
-    times: np.ndarray
+    trajectory: Trajectory  # full rate: motion distortion interpolates between its poses
     world: World
     lidar: Lidar
+    realism: Realism
 
     def __len__(self) -> int:
         return len(self.frames)
 
-    def scan(self, k: int) -> np.ndarray:
-        """(P, 4) float32 scan of output frame k; its noise is seeded by (seed, source frame)."""
-        rng = np.random.default_rng([self.config.seed, int(self.frames[k])])
-        return self.lidar.scan(self.poses[k], rng)
+    @property
+    def poses(self) -> np.ndarray:
+        return self.trajectory.poses[self.frames]
+
+    @property
+    def times(self) -> np.ndarray:
+        """Output frame times, seconds from the first output frame."""
+        return self.trajectory.times[self.frames] - self.trajectory.times[self.frames[0]]
+
+    def scan(self, k: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """(P, 4) float32 scan of output frame k and its per-point times (float64 s from the sweep start;
+        None for a clean preset, whose sensor stands still); noise is seeded by (seed, source frame)."""
+        frame = int(self.frames[k])
+        rng = np.random.default_rng([self.config.seed, frame])
+        if self.realism.is_clean:
+            return self.lidar.scan(self.trajectory.poses[frame], rng), None
+        return self.lidar.sweep(self.trajectory.pose_at, float(self.trajectory.times[frame]), rng)
 
 
 def prepare(config: SimConfig) -> Simulation:
@@ -187,18 +216,18 @@ def prepare(config: SimConfig) -> Simulation:
     frames = frame_indices(len(traj), config.start, config.end, config.stride, config.label)
     span = traj.poses[frames[0]:frames[-1] + 1]
     style = config.style or ("campus" if traj.platform == "walk" else "city")
-    world = build_world(span, style, config.seed, traj.sensor_height)
+    realism = REALISM[config.realism]
+    world = build_world(span, style, config.seed, traj.sensor_height, realism.world)
     model: LidarModel = get_sensor(config.sensor, azimuth_steps=config.azimuth_steps, max_range=config.max_range,
                                    range_noise=config.range_noise, dropout=config.dropout)
-    times = traj.times[frames] - traj.times[frames[0]]
-    return Simulation(config, frames, traj.poses[frames], times, world, Lidar(model, world))
+    return Simulation(config, frames, traj, world, Lidar(model, world, realism.sensor, config.seed), realism)
 
 
 def iter_frames(config: SimConfig, with_intensity: bool = False) -> Iterator[SimFrame]:
     """Simulate in memory: yields SimFrame(index, time, points (P,3) or (P,4) float32, gt_pose)."""
     sim = prepare(config)
     for k in range(len(sim)):
-        pts = sim.scan(k)
+        pts, _ = sim.scan(k)
         yield SimFrame(k, float(sim.times[k]), pts if with_intensity else pts[:, :3].copy(), sim.poses[k])
 
 
@@ -230,10 +259,11 @@ def is_complete(seq_dir: Path, key: str) -> bool:
     meta = _read_meta(seq_dir)
     if meta is None or meta.get("key") != key:
         return False
-    sizes = meta.get("scan_bytes", [])
-    velodyne = seq_dir / "velodyne"
+    sizes, times_sizes = meta.get("scan_bytes", []), meta.get("point_times_bytes") or []
+    velodyne, point_times = seq_dir / "velodyne", seq_dir / TIMES_FOLDER
     return (meta.get("frames") == len(sizes) == len(list(velodyne.glob("*.bin")))
             and all(_scan_size(velodyne / f"{k:06d}.bin") == size for k, size in enumerate(sizes))
+            and all(_scan_size(point_times / f"{k:06d}.npy") == size for k, size in enumerate(times_sizes))
             and (seq_dir / "poses.txt").is_file() and (seq_dir / "times.txt").is_file())
 
 
@@ -253,24 +283,30 @@ def _write(sim: Simulation, target: Path, progress: bool) -> None:
     with Progress(TextColumn("[bold]simulating[/] {task.description}"), BarColumn(), MofNCompleteColumn(),
                   TimeRemainingColumn(), disable=not progress, transient=False) as bar:
         task = bar.add_task(f"{sim.config.label} / {sim.config.sensor}", total=len(sim))
-        sizes = []
+        sizes, times_sizes = [], []
         for k in range(len(sim)):
-            scan = sim.scan(k)
+            scan, point_times = sim.scan(k)
             scan.tofile(target / "velodyne" / f"{k:06d}.bin")
             sizes.append(scan.nbytes)
+            if point_times is not None:
+                (target / TIMES_FOLDER).mkdir(exist_ok=True)
+                times_file = target / TIMES_FOLDER / f"{k:06d}.npy"
+                np.save(times_file, point_times.astype(np.float32))
+                times_sizes.append(times_file.stat().st_size)
             bar.advance(task)
     (target / "poses.txt").write_text(format_kitti(sim.poses))
     (target / "times.txt").write_text("".join(f"{t:.6e}\n" for t in sim.times))
     (target / "calib.txt").write_text(CALIB_TEXT)
     kiss = target / "sequences" / "00"
     kiss.mkdir(parents=True)
-    for name in ("velodyne", "calib.txt", "times.txt", "poses.txt"):
+    for name in ("velodyne", "calib.txt", "times.txt", "poses.txt", *([TIMES_FOLDER] if times_sizes else [])):
         (kiss / name).symlink_to(Path("..", "..", name))
     (target / "poses").mkdir()
     (target / "poses" / "00.txt").symlink_to(Path("..", "poses.txt"))
     meta = {
         "key": sim.config.key(), "sim_version": SIM_VERSION, "msa_slam_version": msa_slam.__version__,
         "config": sim.config.model_dump(), "frames": len(sim), "scan_bytes": sizes,
+        "point_times_bytes": times_sizes or None,
         "source_frames": sim.frames.tolist(),
         "sensor": {"beams": sim.lidar.model.beams, "azimuth_steps": sim.lidar.model.azimuth_steps,
                    "max_range": sim.lidar.model.max_range},
@@ -323,7 +359,7 @@ def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
 # The embedded defaults (see docs in `default_sequence`).
 DEFAULT_CONFIGS: dict[str, SimConfig] = {
     "demo": SimConfig(trajectory="kitti-05", sensor="hdl64", stride=3, azimuth_steps=720),
-    "test": SimConfig(trajectory="figure-eight", sensor="hdl64", stride=2, azimuth_steps=360),
+    "test": SimConfig(trajectory="figure-eight", sensor="hdl64", stride=2, azimuth_steps=360, realism="clean"),
 }
 
 

@@ -1,0 +1,51 @@
+"""Realism presets of the simulator: which sensor imperfections and world changes a simulated sequence has.
+
+"clean" is the plain simulator (ideal sensor standing still for each scan, static world: the scans of
+SIM_VERSION 2, byte for byte). "kitti", the default, is calibrated so that KISS-ICP drift, Scan Context
+aliasing and the samplers' spread resemble real KITTI (issue 12; benchmarks/bench_realism.py measures it):
+motion distortion over the 10 Hz sweep, KITTI's HDL-64 elevation error (about -0.22 deg, which kiss-icp's
+KITTI loader corrects) with per-beam angle and range errors, range noise growing with range and incidence,
+lost dark/grazing returns, mixed pixels, foliage, moving and coming-and-going objects, repeated block designs
+and stretches with little structure along the road.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from msa_slam.errors import InputError
+from msa_slam.sim.sensors import SensorRealism
+from msa_slam.sim.world import WorldRealism
+
+
+@dataclass(frozen=True)
+class Realism:
+    """A preset: the sensor's imperfections (sensors.SensorRealism) and the world's (world.WorldRealism)."""
+
+    sensor: SensorRealism
+    world: WorldRealism
+
+    @property
+    def is_clean(self) -> bool:
+        return self.sensor == SensorRealism.clean() and self.world == WorldRealism.clean()
+
+
+REALISM: dict[str, Realism] = {
+    "clean": Realism(SensorRealism.clean(), WorldRealism.clean()),
+    "kitti": Realism(
+        SensorRealism(motion_distortion=True, elevation_bias_deg=-0.22, elevation_sigma_deg=0.05,
+                      azimuth_sigma_deg=0.05, range_bias_sigma=0.02, range_noise_per_m=0.0005,
+                      incidence_noise=0.002, min_return_power=0.02, mixed_pixel_prob=0.3, mixed_pixel_edge=0.5,
+                      vegetation_dropout=0.3, vegetation_depth=0.2),
+        WorldRealism(moving_cars=2.0, pedestrians=2.0, transient_parking=0.4, catalogue_designs=4,
+                     catalogue_share=0.4, hard_share=0.15, foliage_gap=0.3),
+    ),
+}
+DEFAULT_REALISM = "kitti"
+
+
+def get_realism(name: str) -> Realism:
+    """The named preset; unknown names raise InputError listing the presets."""
+    if name not in REALISM:
+        raise InputError(f"unknown realism preset {name!r}; choose one of {', '.join(REALISM)}")
+    return REALISM[name]
