@@ -252,3 +252,59 @@ def test_apollo_layout_without_open3d(tmp_path):
     assert [f.name for f in seq.scan_files] == ["1.pcd", "2.pcd", "3.pcd"]
     np.testing.assert_allclose(seq[2].points, _points(2, n=5), atol=1e-5)
     np.testing.assert_allclose(seq[2].gt_pose[:3, 3], [4.0, 0.0, 0.0])  # relative to the first pose
+
+
+# --- per-point times (issue 12) ---------------------------------------------------------------------
+
+def test_kitti_frames_derive_point_times_from_azimuth(tmp_path):
+    seq = _kitti(tmp_path)
+    ahead_left_right_behind = np.array([[10, 0, 0], [0, 10, 0], [0, -10, 0], [-10, 1e-3, 0], [-10, -1e-3, 0]],
+                                       np.float32)
+    _write_bin(seq / "velodyne" / "000001.bin", ahead_left_right_behind)
+    frame = open_dataset(seq)[1]
+    # HDL-64 at 10 Hz, clockwise from the back: forward at mid-sweep (the scan's timestamp), as kiss-icp
+    np.testing.assert_allclose(frame.timestamps, [0.05, 0.025, 0.075, 0.0, 0.1], atol=1e-5)
+    times = open_dataset(seq)[0].timestamps
+    assert times.shape == (50,) and times.dtype == np.float64 and np.all((times >= 0) & (times < 0.1))
+
+
+def test_kitti_frames_read_stored_point_times(tmp_path):
+    seq = _kitti(tmp_path)
+    stored = [np.linspace(0.0, 0.099, 50, dtype=np.float32) + k * 1e-4 for k in range(3)]
+    (seq / "velodyne_times").mkdir()
+    for k, times in enumerate(stored):
+        np.save(seq / "velodyne_times" / f"{k:06d}.npy", times)
+    frames = list(open_dataset(seq))
+    for frame, times in zip(frames, stored):
+        assert frame.timestamps.dtype == np.float64
+        np.testing.assert_array_equal(frame.timestamps, times)
+    np.testing.assert_array_equal(frames[2].points, _points(2))
+
+
+def test_kitti_stored_point_times_errors_name_the_file(tmp_path):
+    seq = _kitti(tmp_path)
+    (seq / "velodyne_times").mkdir()
+    for k in range(3):
+        np.save(seq / "velodyne_times" / f"{k:06d}.npy", np.zeros(50 if k != 1 else 49, np.float32))
+    data = open_dataset(seq)
+    with pytest.raises(InputError, match=r"000001.npy: \(49,\) per-point times for a scan of 50 points"):
+        data[1]
+    (seq / "velodyne_times" / "000002.npy").unlink()
+    with pytest.raises(InputError, match=r"velodyne_times/000002.npy: missing"):
+        open_dataset(seq)
+    (seq / "velodyne_times" / "000002.npy").write_text("not numpy")
+    with pytest.raises(InputError, match="000002.npy: cannot read per-point times"):
+        open_dataset(seq)[2]
+
+
+def test_stored_point_times_follow_the_points_a_reader_keeps(tmp_path):
+    seq = _kitti(tmp_path)
+    points = _points(0, n=4)
+    points[2] = np.nan  # drivers mark missing returns so; the reader drops the row
+    _write_bin(seq / "velodyne" / "000000.bin", points)
+    (seq / "velodyne_times").mkdir()
+    for k in range(3):
+        np.save(seq / "velodyne_times" / f"{k:06d}.npy", np.arange(4 if k == 0 else 50, dtype=np.float32) * 1e-3)
+    frame = open_dataset(seq)[0]
+    assert len(frame.points) == 3
+    np.testing.assert_allclose(frame.timestamps, [0.0, 1e-3, 3e-3])
