@@ -2,7 +2,7 @@
 
 Streams are random walks in pose and descriptor space (256-d vectors and 20x60 Scan-Context-shaped
 arrays), 240 frames, lambda_u = 3 (paper). The "one-at-a-time" column times a plain transcription of
-the reference (msa_slam.sampling.msa_literal) on the same windows at N = 10, the reference's shape
+the reference (msa_slam.sampling.msa.terms) on the same windows at N = 10, the reference's shape
 of computation, so the speed-up is measured on this machine rather than quoted.
 
 Usage: python benchmarks/bench_msa.py [--quick]
@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from msa_slam.sampling import make_sampler
-from msa_slam.sampling.msa_literal import literal_optimise_window
-from msa_slam.sampling.msa_window import ExactWorkspace, ScoreWeights, optimise_window
+from msa_slam.sampling.msa import ScoreWeights, optimise_window
+from msa_slam.sampling.msa.exact import ExactWorkspace
+from msa_slam.sampling.msa.terms import optimise_window_literal
 
 PARITY_DIR = Path(__file__).resolve().parents[2] / "shared" / "parity"
 MSA_NAME = re.compile(r"msa_N(\d+)_nn(\d+)_a([\d.]+)_b([\d.]+)_l([\d.]+)_u([\d.]+)$")
@@ -55,7 +56,7 @@ def literal_speedup(poses, desc, window: int = 10, windows: int = 12):
     starts = np.linspace(0, len(poses) - window, windows).astype(int)
     for s in starts:
         args = (t[s:s + window], desc[s:s + window], 0.1, 3.0)
-        for name, call in (("literal", lambda: literal_optimise_window(*args, weights)),
+        for name, call in (("literal", lambda: optimise_window_literal(*args, weights)),
                            ("exact", lambda: optimise_window(*args, weights, "exact", workspace)),
                            ("fast", lambda: optimise_window(*args, weights, "fast"))):
             t0 = time.perf_counter()
@@ -66,7 +67,7 @@ def literal_speedup(poses, desc, window: int = 10, windows: int = 12):
 
 def parity_stream_timings():
     """Median ms per window at N = 10 on the parity streams, where the reference's cost is documented
-    (../shared/docs/performance-notes.md: 55-61 ms on 256-d streams, 76 ms on the sc20x60 stream)."""
+    (docs/msa.md, Performance: 55-61 ms on 256-d streams, 76 ms on the sc20x60 stream)."""
     rows = []
     for name in ("stream_s0_vec256.npz", "stream_s0_sc20x60.npz"):
         data = np.load(PARITY_DIR / name)
@@ -140,7 +141,7 @@ def main() -> int:
         print(f"{name:22} {mode:6} {med:>10.3f} {p95:>9.3f} {cands:>12.0f} {reference / med:>12.1f}x")
     counts = parity_counts()
     print("\nParity with the reference vectors (144 MSA configurations; ambiguous = a window whose choice")
-    print("rounding could change, see sampling/msa_ambiguity.py)")
+    print("rounding could change, see sampling/msa/decision.py)")
     print(f"{'mode':6} {'identical':>10} {'ambiguous':>10} {'(of which match)':>17} {'differing':>10}")
     for mode, c in counts.items():
         print(f"{mode:6} {c['identical']:>10} {c['ambiguous']:>10} {c['ambiguous_matching']:>17} {c['differing']:>10}")

@@ -3,7 +3,7 @@
 The baselines must reproduce every keyframe list. MSA's pi depends on eigenvector signs that LAPACK
 fixes through rounding-level ties, so the reference itself gives other keyframes on another CPU
 (77 instead of 73 on stream_s2_sc20x60 / msa_N10_nn2_a10_b1_l0.1_u5 with OpenBLAS's Haswell kernel).
-Hence, in exact and in fast mode: a configuration without an ambiguous window (sampling/msa_ambiguity.py)
+Hence, in exact and in fast mode: a configuration without an ambiguous window (sampling/msa/decision.py)
 must reproduce the reference exactly; one with an ambiguous window is listed (a warning) and must
 agree up to its first ambiguous window. `.ci/run` runs this file again with numpy's SIMD dispatch
 limited to its baseline.
@@ -20,8 +20,7 @@ import pytest
 
 from conftest import SHARED_DIR, shared_path
 from msa_slam.sampling import make_sampler
-from msa_slam.sampling import msa as msa_module
-from msa_slam.sampling import msa_window
+from msa_slam.sampling.msa import exact, sampler as msa_module, window
 
 MSA_NAME = re.compile(r"msa_N(\d+)_nn(\d+)_a([\d.]+)_b([\d.]+)_l([\d.]+)_u([\d.]+)$")
 STREAMS = sorted((SHARED_DIR / "parity").glob("stream_*.npz")) if SHARED_DIR.exists() else []
@@ -114,11 +113,11 @@ def capture_windows(config: str, poses, descriptors, monkeypatch) -> list[tuple]
 
 
 def flipped_windows(windows, monkeypatch, name: str, perturb) -> set[int]:
-    """Indices of the windows whose choice changes when `name` in msa_window is wrapped by `perturb`."""
-    monkeypatch.setattr(msa_window, name, perturb(getattr(msa_window, name)))
+    """Indices of the windows whose choice changes when `name` in msa/exact.py is wrapped by `perturb`."""
+    monkeypatch.setattr(exact, name, perturb(getattr(exact, name)))
     try:
         return {k for k, (args, result) in enumerate(windows)
-                if msa_window.optimise_window(*args, "exact").positions != result.positions}
+                if window.optimise_window(*args, "exact").positions != result.positions}
     finally:
         monkeypatch.undo()
 
@@ -148,6 +147,6 @@ def test_cross_cpu_difference_is_flagged_and_only_flagged_windows_flip(monkeypat
             information(*args))
 
     flips = [flipped_windows(windows, monkeypatch, "_sanitize", perturb_information(seed)) for seed in range(8)]
-    flips += [flipped_windows(windows, monkeypatch, "_information_exact", perturb_pi(seed)) for seed in range(2)]
+    flips += [flipped_windows(windows, monkeypatch, "_information", perturb_pi(seed)) for seed in range(2)]
     assert set().union(*flips) <= flagged
     assert set().union(*flips) == flagged  # the perturbation is at the level that matters: it flips the window

@@ -10,7 +10,8 @@ import pytest
 from msa_slam.errors import InputError
 from msa_slam.sampling import SAMPLERS, make_sampler, sampler_parameters
 from msa_slam.sampling.baselines import histogram_entropy, spaciousness_threshold
-from msa_slam.sampling.msa_window import ScoreWeights, optimise_window, subsets_by_size
+from msa_slam.sampling.msa import ScoreWeights, optimise_window
+from msa_slam.sampling.msa.powerset import subsets_by_size
 
 
 def straight_line(n: int, step: float = 1.0) -> np.ndarray:
@@ -275,7 +276,7 @@ def test_neighbours_bring_old_keyframes_into_the_window_at_revisits():
 
 @pytest.mark.parametrize("shape", [(48,), (6, 12)])
 def test_batched_exact_equals_one_at_a_time_transcription(shape):
-    from msa_slam.sampling.msa_literal import literal_optimise_window
+    from msa_slam.sampling.msa.terms import optimise_window_literal
 
     rng = np.random.default_rng(11)
     for trial in range(6):
@@ -284,21 +285,8 @@ def test_batched_exact_equals_one_at_a_time_transcription(shape):
         t[:, :2] = np.cumsum(rng.uniform(0.2, 1.0, (n, 2)), axis=0)
         desc = np.cumsum(rng.standard_normal((n, *shape)), axis=0)
         for weights in (ScoreWeights(), ScoreWeights(alpha=10.0), ScoreWeights(use_rho=False)):
-            expected = literal_optimise_window(t, desc, 0.1, 2.5, weights)
+            expected = optimise_window_literal(t, desc, 0.1, 2.5, weights)
             assert optimise_window(t, desc, 0.1, 2.5, weights, "exact") == expected
-
-
-def test_threaded_fast_path_equals_single_thread(monkeypatch):
-    from msa_slam.sampling import msa_window
-
-    rng = np.random.default_rng(4)
-    t = np.zeros((12, 3))
-    t[:, :2] = np.cumsum(rng.uniform(0.3, 1.0, (12, 2)), axis=0)
-    desc = np.cumsum(rng.standard_normal((12, 32)), axis=0)
-    single = optimise_window(t, desc, 0.1, 3.0, ScoreWeights(), "fast")
-    monkeypatch.setattr(msa_window, "PARALLEL_MIN_CANDIDATES", 1)
-    monkeypatch.setattr(msa_window.os, "cpu_count", lambda: 2)
-    assert optimise_window(t, desc, 0.1, 3.0, ScoreWeights(), "fast") == single
 
 
 def test_msa_without_descriptor_is_named():
@@ -322,13 +310,13 @@ def test_ambiguity_of_exact_ties_and_clear_choices():
 
 
 def test_minmax_bounds_are_exact_without_uncertainty_and_widen_with_it():
-    from msa_slam.sampling.msa_ambiguity import minmax_bounds
-    from msa_slam.sampling.msa_window import _minmax
+    from msa_slam.sampling.msa.decision import minmax_bounds
+    from msa_slam.sampling.msa.terms import minmax
 
     values = np.array([0.2, 0.5, 0.9, 0.3])
     low, high = minmax_bounds(values, values)
-    np.testing.assert_allclose(low, _minmax(values), atol=1e-15)
-    np.testing.assert_allclose(high, _minmax(values), atol=1e-15)
+    np.testing.assert_allclose(low, minmax(values), atol=1e-15)
+    np.testing.assert_allclose(high, minmax(values), atol=1e-15)
     assert minmax_bounds(np.ones(3), np.ones(3))[0].tolist() == [1.0, 1.0, 1.0]
     low, high = minmax_bounds(values - [0, 0, 0.3, 0], values)  # the maximum may drop to 0.6
     assert high[1] == pytest.approx(0.3 / 0.4) and low[1] == pytest.approx(0.3 / 0.7)
@@ -336,7 +324,7 @@ def test_minmax_bounds_are_exact_without_uncertainty_and_widen_with_it():
 
 
 def test_decision_is_ambiguous_only_when_a_probe_can_reach_the_winner():
-    from msa_slam.sampling.msa_ambiguity import decision_margin
+    from msa_slam.sampling.msa.decision import decision_margin
 
     rho = np.array([0.5, 0.5, 0.1])
     pi = np.array([0.8, 0.79, 0.0])  # with alpha = 10, candidate 0 wins by ~0.6 %
@@ -346,3 +334,38 @@ def test_decision_is_ambiguous_only_when_a_probe_can_reach_the_winner():
     sign_flip = pi + [0, 0.05, 0]  # a probe moved the runner-up's pi past the winner's
     assert decision_margin(score, rho, pi, pi, sign_flip, 10.0, 1.0, 0)[0]
     assert not decision_margin(score, rho, pi, pi, pi + [0, 0.001, 0], 10.0, 1.0, 0)[0]
+
+
+def test_batched_terms_equal_the_one_subset_definitions():
+    """exact.py's pi is bit-identical to terms.information; fast.py's agrees to rounding."""
+    from msa_slam.sampling.msa import exact, fast, terms
+    from msa_slam.sampling.msa.powerset import padded_subsets
+
+    rng = np.random.default_rng(5)
+    n = 8
+    t = np.zeros((n, 3))
+    t[:, :2] = np.cumsum(rng.uniform(0.2, 1.0, (n, 2)), axis=0)
+    desc = np.cumsum(rng.standard_normal((n, 24)), axis=0)
+    subsets = subsets_by_size(n)[3]  # every subset of 5 members
+    dist, _ = exact.pairwise(t, desc)
+    batched = exact._information(subsets, dist[0, subsets], desc, exact.ExactWorkspace())
+    one_by_one = [terms.information(t[s], desc[s]) for s in subsets]
+    assert batched.tolist() == one_by_one
+    table, sizes = padded_subsets(n)
+    rows = np.flatnonzero(sizes == 5)
+    gram_pi = fast.information_rows(table, sizes, rows, dist, fast.gram(desc), 0)[0]
+    np.testing.assert_allclose(gram_pi, one_by_one, atol=1e-6)
+
+
+def test_fast_mode_runs_in_a_forked_child_after_the_parent_used_it():
+    import multiprocessing
+
+    poses, desc = random_walk(60)
+    parent = make_sampler("msa", window=13, mode="fast").run(poses, desc)
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        child = pool.apply(_run_fast_msa, (poses, desc))
+    assert child == parent
+
+
+def _run_fast_msa(poses, desc):
+    return make_sampler("msa", window=13, mode="fast").run(poses, desc)

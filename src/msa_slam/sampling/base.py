@@ -20,7 +20,7 @@ from msa_slam.types import validate_pose
 
 @dataclass(frozen=True)
 class AmbiguousWindow:
-    """A window optimisation whose choice rounding could change (see sampling/msa_ambiguity.py).
+    """A window optimisation whose choice rounding could change (see sampling/msa/decision.py).
 
     frame: the frame whose arrival closed the window; members: the frames that were candidates;
     keyframes_before: how many keyframes had been selected before it (they do not depend on it).

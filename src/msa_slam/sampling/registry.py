@@ -8,7 +8,7 @@ from typing import Any
 from msa_slam.errors import InputError
 from msa_slam.sampling.base import Sampler
 from msa_slam.sampling.baselines import AllSamples, ConstantDistance, Entropy, Spaciousness
-from msa_slam.sampling.msa import MSASampler
+from msa_slam.sampling.msa.sampler import MSASampler
 
 SAMPLERS: dict[str, type[Sampler]] = {
     "all": AllSamples,

@@ -1,0 +1,197 @@
+"""Fast mode: pi through the window's descriptor Gram matrix, compiled, one candidate after another.
+
+With A the candidate's gradient operator (numpy.gradient's tridiagonal stencil, J^T = A F) and G_S its
+block of the window's Gram matrix G = F F^T: C = A G_S A^T and e_j^2 = (a_{j+1} - a_j)^T G_S (a_{j+1} - a_j)
+with a_j = sqrt(lam_j) v_j. A candidate then costs O(m^3) instead of O(m^2 M). Algebraically equal to
+terms.information, numerically not bit-identical (pi is ill-conditioned; docs/msa.md). The same kernels
+give exact mode the extremes of pi under rounding (exact.fast_path_extremes).
+
+Runs on one thread: the default window (N = 10, 510 candidates) takes a few ms, and a process-global
+thread pool (or numba's OpenMP layer) is not safe across fork.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from msa_slam.sampling.msa.decision import decide
+from msa_slam.sampling.msa.powerset import padded_subsets
+from msa_slam.sampling.msa.terms import C_CLIP, EIGENVALUE_FLOOR, ScoreWeights, WindowResult
+
+PROBES = 3  # rounding-level perturbations of each candidate's C for the ambiguity screen (decision.py)
+PROBE_SCALE = 1e-13  # their relative size: ~450 ulp, beyond any reordering of a BLAS kernel's sums
+
+
+@njit(cache=True)
+def pairwise(translations: np.ndarray, descriptors: np.ndarray):  # pragma: no cover
+    """Distances and similarities for all pairs (terms.similarity's values up to rounding).
+
+    descriptors is (n, rings, sectors); a 1-D descriptor is passed as (n, dim, 1).
+    """
+    n, rows, cols = descriptors.shape
+    dist = np.zeros((n, n))
+    sim = np.zeros((n, n))
+    for i in range(n):
+        for j in range(i + 1, n):
+            d = 0.0
+            for k in range(3):
+                d += (translations[i, k] - translations[j, k]) ** 2
+            dist[i, j] = dist[j, i] = np.sqrt(d)
+            total = 0.0
+            for col in range(cols):
+                sq = 0.0
+                for row in range(rows):
+                    sq += (descriptors[i, row, col] - descriptors[j, row, col]) ** 2
+                total += 1.0 / (1.0 + np.sqrt(sq))
+            sim[i, j] = sim[j, i] = total
+    return dist, sim
+
+
+@njit(cache=True)
+def feasible_and_redundancy(table: np.ndarray, sizes: np.ndarray, dist: np.ndarray, sim: np.ndarray,
+                            dmin: float, dmax: float):  # pragma: no cover
+    """Rows of the subsets whose consecutive steps lie in [dmin, dmax] (eq. 7), and their rho (eq. 3)."""
+    count = len(table)
+    keep = np.zeros(count, dtype=np.bool_)
+    rho = np.zeros(count)
+    for row in range(count):
+        m = sizes[row]
+        members = table[row]
+        feasible = True
+        total = 0.0
+        for k in range(m - 1):
+            d = dist[members[k], members[k + 1]]
+            if d < dmin or d > dmax:
+                feasible = False
+                break
+            total += sim[members[k + 1], members[k]]
+        if feasible:
+            keep[row] = True
+            rho[row] = total / (m - 1)
+    rows = np.flatnonzero(keep)
+    return rows, rho[rows]
+
+
+@njit(cache=True)
+def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.ndarray,
+                     scratch: np.ndarray, probes: int):  # pragma: no cover
+    """pi of one candidate through G: returns (pi, lowest, highest), the extremes of pi over `probes`
+    eigen-decompositions of C perturbed by PROBE_SCALE (and pi itself).
+
+    A's three diagonals are `lower`, `diag`, `upper` (row k uses columns k-1, k, k+1).
+    """
+    lower, diag, upper = scratch[0, :m], scratch[1, :m], scratch[2, :m]
+    g, h = scratch[6:6 + m, :m], scratch[6 + m:6 + 2 * m, :m]
+    lower[0] = 0.0
+    upper[m - 1] = 0.0
+    first = dist[0, members[1]] - dist[0, members[0]]
+    last = dist[0, members[m - 1]] - dist[0, members[m - 2]]
+    diag[0], upper[0] = -1.0 / first, 1.0 / first
+    lower[m - 1], diag[m - 1] = -1.0 / last, 1.0 / last
+    for k in range(1, m - 1):
+        dx1 = dist[0, members[k]] - dist[0, members[k - 1]]
+        dx2 = dist[0, members[k + 1]] - dist[0, members[k]]
+        lower[k] = -dx2 / (dx1 * (dx1 + dx2))
+        diag[k] = (dx2 - dx1) / (dx1 * dx2)
+        upper[k] = dx1 / (dx2 * (dx1 + dx2))
+    for i in range(m):
+        for j in range(m):
+            g[i, j] = gram[members[i], members[j]]
+    for k in range(m):  # h = A G
+        for j in range(m):
+            v = diag[k] * g[k, j]
+            if k > 0:
+                v += lower[k] * g[k - 1, j]
+            if k < m - 1:
+                v += upper[k] * g[k + 1, j]
+            h[k, j] = v
+    c = np.empty((m, m))  # C = (A G) A^T
+    finite = True
+    for i in range(m):
+        for k in range(m):
+            v = diag[k] * h[i, k]
+            if k > 0:
+                v += lower[k] * h[i, k - 1]
+            if k < m - 1:
+                v += upper[k] * h[i, k + 1]
+            c[i, k] = v
+            finite = finite and np.isfinite(v)
+    if not finite:  # the reference's guard for coincident distances
+        for i in range(m):
+            for k in range(m):
+                v = 0.0 if np.isnan(c[i, k]) else c[i, k]
+                c[i, k] = min(max(v, -C_CLIP), C_CLIP)
+    pi = _pi_of_information(c, g, m, scratch)
+    lowest, highest = pi, pi
+    probe = np.empty((m, m))
+    for p in range(probes):
+        for i in range(m):
+            for k in range(m):  # a fixed symmetric pattern in [-1, 1], different per probe
+                probe[i, k] = c[i, k] * (1.0 + PROBE_SCALE * np.sin(12.9898 * (p + 1) + 78.233 * (i + k)
+                                                                    + 37.719 * i * k))
+        value = _pi_of_information(probe, g, m, scratch)
+        lowest, highest = min(lowest, value), max(highest, value)
+    return pi, lowest, highest
+
+
+@njit(cache=True)
+def _pi_of_information(c: np.ndarray, g: np.ndarray, m: int, scratch: np.ndarray) -> float:  # pragma: no cover
+    """pi from the information matrix C and the candidate's Gram block G_S (e_j^2 = d_j^T G_S d_j)."""
+    scale, d, e = scratch[3, :m], scratch[4, :m], scratch[5, :m - 1]
+    lam, vec = np.linalg.eigh(c)
+    for j in range(m):
+        scale[j] = np.sqrt(max(lam[j], 0.0) + EIGENVALUE_FLOOR)
+    for j in range(m - 1):
+        for i in range(m):
+            d[i] = vec[i, j + 1] * scale[j + 1] - vec[i, j] * scale[j]
+        total = 0.0
+        for i in range(m):
+            row = 0.0
+            for k in range(m):
+                row += g[i, k] * d[k]
+            total += d[i] * row
+        e[j] = np.sqrt(max(total, 0.0))
+    lo, hi = e.min(), e.max()
+    total = 0.0
+    for j in range(m - 1):
+        total += (e[j] - lo) / (hi - lo + EIGENVALUE_FLOOR)
+    return total / (m - 1)
+
+
+@njit(cache=True)
+def information_rows(table: np.ndarray, sizes: np.ndarray, rows: np.ndarray, dist: np.ndarray,
+                     gram: np.ndarray, probes: int) -> np.ndarray:  # pragma: no cover
+    """(3, rows): pi of the given candidate rows, and its lowest and highest value over the probes."""
+    out = np.zeros((3, len(rows)))
+    width = table.shape[1] + 1
+    scratch = np.empty((6 + 2 * width, width))
+    for i in range(len(rows)):
+        m = sizes[rows[i]]
+        if m > 2:
+            out[0, i], out[1, i], out[2, i] = information_gram(table[rows[i]], m, dist, gram, scratch, probes)
+    return out
+
+
+def gram(descriptors: np.ndarray) -> np.ndarray:
+    """G = F F^T of the window's flattened descriptors."""
+    flat = descriptors.reshape(len(descriptors), -1)
+    return flat @ flat.T
+
+
+def optimise_fast(translations: np.ndarray, descriptors: np.ndarray, dmin: float, dmax: float,
+                  weights: ScoreWeights) -> WindowResult:
+    """The window's choice with pi through the Gram matrix (and its ambiguity from the probes)."""
+    n = len(translations)
+    blocks = descriptors.reshape(n, -1, 1) if descriptors.ndim == 2 else descriptors
+    dist, sim = pairwise(np.ascontiguousarray(translations), np.ascontiguousarray(blocks))
+    table, sizes = padded_subsets(n)
+    rows, rho = feasible_and_redundancy(table, sizes, dist, sim, dmin, dmax)
+    if rows.size == 0:
+        return WindowResult((0, n - 1), 1)
+    pi = pi_low = pi_high = None
+    if weights.use_pi:
+        pi, pi_low, pi_high = information_rows(table, sizes, rows, dist, gram(descriptors), PROBES)
+    best, ambiguous, margin = decide(int(rows.size), rho if weights.use_rho else None, pi, pi_low, pi_high, weights)
+    row = rows[best]
+    return WindowResult(tuple(int(p) for p in table[row, :sizes[row]]), int(rows.size), ambiguous, margin)
