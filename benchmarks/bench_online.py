@@ -27,9 +27,10 @@ import numpy as np
 
 from msa_slam.datasets import Frame
 from msa_slam.odometry import KissOdometry
-from msa_slam.pipeline.online import BACKEND_STEPS, run_online
+from msa_slam.pipeline.online import STEPS, run_online
 from msa_slam.pipeline.online_config import make_online_config
-from msa_slam.pipeline.online_source import FrameSource, open_source
+from msa_slam.pipeline.source import open_source
+from msa_slam.types import FrameSource
 
 SAMPLERS = {
     "all": ("all", {}),
@@ -124,7 +125,7 @@ def main() -> None:
     print(f"KISS-ICP alone: {kiss * 1e3:.0f} ms per scan = {1 / kiss:.1f} frames/s (median of {args.kiss_frames - 1})")
     warm = make_online_config(dataset=spec, odometry="gt-noise", sampler="msa", max_frames=30)
     run_online(warm, source)  # compile the numba kernels outside the measured runs
-    head = ["sampler", "keyframes", "loops", "back-end fps", "RTF", *[f"{s} ms" for s in BACKEND_STEPS],
+    head = ["sampler", "keyframes", "loops", "back-end fps", "RTF", *[f"{s} ms" for s in STEPS[1:]],
             "p50 ms", "p99 ms", "max ms"]
     rows = []
     for label in args.samplers.split(","):
@@ -134,7 +135,7 @@ def main() -> None:
         runs = [run_online(cfg, source) for _ in range(args.repeats)]
         pick = sorted(runs, key=lambda r: r.metrics["backend_fps"])[len(runs) // 2]  # the median run
         m = pick.metrics
-        per_step = [statistics.median(float(r.steps_ms[s].sum()) / n for r in runs) for s in BACKEND_STEPS]
+        per_step = [statistics.median(float(r.steps_ms[s].sum()) / n for r in runs) for s in STEPS[1:]]
         lat = m["latency_ms"]["backend"]
         rows.append([label, m["keyframes"], m["verified"], f"{m['backend_fps']:.1f}",
                      f"{m['backend_fps'] / 10:.2f}", *[f"{v:.2f}" for v in per_step],

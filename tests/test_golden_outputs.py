@@ -115,7 +115,6 @@ def produce(root: Path) -> dict[str, Any]:
     from msa_slam.pipeline import make_config, run_batch, run_compare
     from msa_slam.pipeline.online import run_online
     from msa_slam.pipeline.online_config import make_online_config
-    from msa_slam.pipeline.online_results import write_online_files
     from msa_slam.pipeline.results import write_run_files
 
     seq, odometry = make_input(root)
@@ -135,19 +134,20 @@ def produce(root: Path) -> dict[str, Any]:
 
     online_dir = root / "online"
     online_dir.mkdir()
-    write_online_files(run_online(make_online_config(settings)), online_dir, figures=False)
+    write_run_files(run_online(make_online_config(settings)), online_dir, figures=False)
     out["online"] = _summary(online_dir, json.loads((online_dir / "metrics.json").read_text()))
     return out
 
 
 def close_differences(a: Any, b: Any, path: str = "") -> list[str]:
-    """Leaf paths where `a` and `b` differ; floats compare to TOLERANCE (relative and absolute)."""
+    """Leaf paths where the output `a` differs from the golden `b`; floats compare to TOLERANCE (relative and
+    absolute). A metric the golden lacks is an addition, not a change: only the golden's keys are compared."""
     if isinstance(a, float) and isinstance(b, (int, float)) or isinstance(b, float) and isinstance(a, (int, float)):
         if math.isnan(a) and math.isnan(b) or math.isclose(a, b, rel_tol=TOLERANCE, abs_tol=TOLERANCE):
             return []
         return [f"{path}: {a!r} != {b!r}"]
     if isinstance(a, dict) and isinstance(b, dict):
-        return [d for k in sorted(set(a) | set(b)) for d in close_differences(a.get(k), b.get(k), f"{path}/{k}")]
+        return [d for k in sorted(b) for d in close_differences(a.get(k), b[k], f"{path}/{k}")]
     if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
         return [d for i, (x, y) in enumerate(zip(a, b)) for d in close_differences(x, y, f"{path}[{i}]")]
     return differences(a, b, path)
@@ -176,7 +176,8 @@ def test_outputs_equal_the_golden(golden_run):
 def test_close_differences_sees_a_change_beyond_tolerance():
     assert close_differences({"a": [1.0, 2]}, {"a": [1.0 + 1e-12, 2]}) == []
     assert close_differences({"a": [1.0, 2]}, {"a": [1.0 + 1e-6, 2]}) == ["/a[0]: 1.0 != 1.000001"]
-    assert close_differences({"a": 1}, {"a": 2, "b": 3}) != []
+    assert close_differences({"a": 1}, {"a": 1, "b": 3}) == ["/b: 'None' != '3'"]  # a key lost
+    assert close_differences({"a": 1, "c": 4}, {"a": 1}) == []  # a metric added
 
 
 if __name__ == "__main__":  # regenerate the golden

@@ -18,8 +18,10 @@ from msa_slam.descriptors import make_descriptor
 from msa_slam.errors import InputError
 from msa_slam.pipeline.online import STEPS, run_online
 from msa_slam.pipeline.online_config import make_online_config
-from msa_slam.pipeline.online_source import FrameSource, NoisyOdometry, open_source
-from msa_slam.pipeline.online_store import DiskCloudStore
+from msa_slam.odometry import NoisyOdometry
+from msa_slam.pipeline.source import open_source
+from msa_slam.registration import DiskCloudStore
+from msa_slam.types import FrameSource
 from msa_slam.registration import downsample
 from msa_slam.sampling import make_sampler
 

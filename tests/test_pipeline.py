@@ -153,16 +153,16 @@ def test_apply_params_routes_keys():
 
 def test_unregistrable_candidate_is_rejected_not_fatal():
     from msa_slam.descriptors import ScanContext
-    from msa_slam.pipeline.loops import LoopCandidate, verify_candidates
     from msa_slam.registration import KeyframeCloudStore, Verifier
+    from msa_slam.slam import KeyframeStore, LoopCloser, LoopClosure
 
-    clouds = KeyframeCloudStore(0.5)
+    store = KeyframeStore(ScanContext(), KeyframeCloudStore(0.5))
     rng = np.random.default_rng(0)
-    clouds.add(0, rng.uniform(-20, 20, (5000, 3)))
-    clouds.add(1, rng.uniform(-1, 1, (4, 3)))  # a handful of points: too sparse to register
-    descriptors = np.zeros((2, 20, 60))
-    out = verify_candidates([LoopCandidate(1, 0, 0.9, 1.0)], clouds, Verifier(), ScanContext(), descriptors,
-                            "realistic", 3.0)
+    for k, points in enumerate((rng.uniform(-20, 20, (5000, 3)), rng.uniform(-1, 1, (4, 3)))):  # 4: too sparse
+        store.add_cloud(k, points)
+        store.add(k, np.eye(4), np.zeros((20, 60)))
+    out = LoopCloser(store, Verifier(), make_config(dataset="x", mode="realistic")).verify(
+        [LoopClosure(1, 0, 0.9, 1.0)])
     assert out[0].verified and not out[0].accepted and out[0].residual == float("inf")
 
 

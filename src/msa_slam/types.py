@@ -6,9 +6,16 @@ Points are (P, 3) float32/float64 in the sensor frame.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable, Iterator
+
 import numpy as np
 
 from msa_slam.errors import InputError
+
+if TYPE_CHECKING:
+    from msa_slam.datasets.frame import Frame
 
 ROTATION_TOLERANCE = 1e-4
 
@@ -47,3 +54,32 @@ def validate_poses(poses: np.ndarray, where: str = "poses") -> np.ndarray:
 def translations(poses: np.ndarray) -> np.ndarray:
     """(N, 3) translations of an (N, 4, 4) pose stack."""
     return np.asarray(poses)[:, :3, 3]
+
+
+@dataclass(frozen=True)
+class LoopClosure:
+    """A descriptor match between keyframes `query` (newer) and `match` (older), in frame indices, and the
+    outcome of its verification: `T_match_query` maps query-frame points into the match frame."""
+
+    query: int
+    match: int
+    similarity: float
+    gt_distance: float
+    verified: bool = False
+    accepted: bool = False
+    residual: float = float("nan")
+    T_match_query: np.ndarray | None = None
+
+
+@dataclass
+class FrameSource:
+    """A stream of frames with known length and ground truth (what the online pipeline reads); `path`
+    identifies the sequence for cached odometry (None for scans made in memory)."""
+
+    name: str
+    gt_poses: np.ndarray
+    frames: Callable[[], Iterator["Frame"]]
+    path: Path | None = None
+
+    def __len__(self) -> int:
+        return len(self.gt_poses)

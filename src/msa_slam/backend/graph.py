@@ -135,7 +135,8 @@ class PoseGraph(_KeyframeGraph):
     def __init__(self, noise: GraphNoise | None = None, max_iterations: int = 100) -> None:
         super().__init__(noise)
         self.max_iterations = max_iterations
-        self._graph = gtsam.NonlinearFactorGraph()
+        self._graph = gtsam.NonlinearFactorGraph()  # prior and odometry factors, in keyframe order
+        self._loops = gtsam.NonlinearFactorGraph()  # loop factors, in the order they were added
         self._values = gtsam.Values()
 
     def add_keyframe(self, key: int, pose: np.ndarray) -> None:
@@ -146,23 +147,34 @@ class PoseGraph(_KeyframeGraph):
 
     def add_loop(self, target_key: int, source_key: int, T_target_source: np.ndarray) -> None:
         """Add a verified loop: the pose of `source_key` seen from `target_key`."""
-        self._graph.push_back(self._loop_factor(target_key, source_key, T_target_source))
+        self._loops.push_back(self._loop_factor(target_key, source_key, T_target_source))
+
+    def update(self, extra_iterations: int = 0) -> None:
+        """Nothing to do while frames arrive: the batch graph is optimised once, by `optimize`."""
 
     def optimize(self) -> np.ndarray:
-        """Optimised (N, 4, 4) keyframe poses in insertion order, starting from the odometry poses."""
+        """Optimised (N, 4, 4) keyframe poses in insertion order, starting from the odometry poses.
+
+        Odometry factors come before loop factors whatever order they were added in, so streaming keyframes
+        and loops as they are found gives the same optimisation as adding all keyframes first."""
         if not self._keys:
             raise InputError("pose graph has no keyframes to optimise")
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(self.max_iterations)
-        result = gtsam.LevenbergMarquardtOptimizer(self._graph, self._values, params).optimize()
+        graph = gtsam.NonlinearFactorGraph()
+        graph.push_back(self._graph)
+        graph.push_back(self._loops)
+        result = gtsam.LevenbergMarquardtOptimizer(graph, self._values, params).optimize()
         return self._poses(result)
 
 
 class IncrementalPoseGraph(_KeyframeGraph):
     """Online pose graph on iSAM2 (Kaess et al., IJRR 2012): same interface, factors enter as they arrive."""
 
-    def __init__(self, noise: GraphNoise | None = None, relinearize_threshold: float = 0.01) -> None:
+    def __init__(self, noise: GraphNoise | None = None, relinearize_threshold: float = 0.01,
+                 final_iterations: int = 10) -> None:
         super().__init__(noise)
+        self.final_iterations = int(final_iterations)
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(relinearize_threshold)
         self._isam = gtsam.ISAM2(params)
@@ -194,9 +206,10 @@ class IncrementalPoseGraph(_KeyframeGraph):
         values = self._isam.calculateEstimate()
         return np.stack([values.atPose3(k).matrix() for k in self._keys[: self._num_updated]])
 
-    def optimize(self, extra_iterations: int = 10) -> np.ndarray:
-        """Update with everything pending, then return the current estimate."""
-        self.update(extra_iterations)
+    def optimize(self, extra_iterations: int | None = None) -> np.ndarray:
+        """Update with everything pending (and `extra_iterations`, default `final_iterations`), then return
+        the current estimate."""
+        self.update(self.final_iterations if extra_iterations is None else extra_iterations)
         return self.estimate()
 
     @property

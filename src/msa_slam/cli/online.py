@@ -50,7 +50,7 @@ def online_command(
     from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
     from msa_slam.pipeline.online import run_online
     from msa_slam.pipeline.online_config import apply_online_params
-    from msa_slam.pipeline.online_results import write_online_files
+    from msa_slam.pipeline.results import write_run_files
 
     base = _read_config(config) if config is not None else {}
     given = {"dataset": dataset, "sampler": sampler, "descriptor": descriptor, "odometry": odometry, "mode": mode,
@@ -59,5 +59,5 @@ def online_command(
     with open_result_folder(out, "online", DEFAULT_RESULTS / "online", overwrite=overwrite) as folder:
         result = run_online(cfg, quiet=quiet)
         with folder.staging() as tmp:
-            write_online_files(result, tmp)
+            write_run_files(result, tmp)
     typer.echo(str(folder.path / "report.md"))

@@ -19,8 +19,8 @@ from msa_slam.experiments.folder import GRID_FILE, cell_dir, grid_cells, read_ce
 from msa_slam.experiments.grid import Cell, GridSpec
 from msa_slam.evaluation import NA, fmt
 from msa_slam.io.atomic import write_text_atomic
-from msa_slam.pipeline.online_figures import plot_ate_difference, plot_memory, plot_step_times, plot_sweeps
-from msa_slam.pipeline.results import rows_csv
+from msa_slam.viz import plot_ate_difference, plot_memory, plot_step_times, plot_sweeps
+from msa_slam.io.tables import rows_csv
 
 COLUMNS = ("cell", "pipeline", "dataset", "descriptor", "method", "sampler", "seed", "parameters", "frames",
            "keyframes", "candidates", "verified", "false_loops", "ate_before_m", "ate_after_m", "improvement_t_pct",

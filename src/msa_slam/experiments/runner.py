@@ -48,27 +48,26 @@ def clean_partials(out: str | os.PathLike) -> list[Path]:
 def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bool = False) -> dict[str, Any]:
     """Run one cell and write its folder atomically; returns its metrics (a top-level function so Dask and
     process pools can ship it)."""
-    from msa_slam.pipeline.results import write_json
+    from msa_slam.io.tables import write_json
+    from msa_slam.pipeline.results import write_run_files
 
     target = cell_dir(out, info["id"])
     if info["pipeline"] == "online":
         from msa_slam.pipeline.online import run_online
         from msa_slam.pipeline.online_config import make_online_config
-        from msa_slam.pipeline.online_results import write_online_files
 
         cfg = make_online_config(config)
         if cfg.cloud_store == "disk" and cfg.store_dir is None:
             cfg = make_online_config({**config, "store_dir": str(Path(out) / "stores" / info["id"])})
         result = run_online(cfg, quiet=True)
         with staged_dir(target) as tmp:
-            write_online_files(result, tmp, figures)
+            write_run_files(result, tmp, figures)
             write_json(tmp / CELL_FILE, info)
         if cfg.store_dir and Path(out) in Path(cfg.store_dir).parents:
             shutil.rmtree(cfg.store_dir, ignore_errors=True)
     else:
         from msa_slam.pipeline.batch import run_batch
         from msa_slam.pipeline.config import make_config
-        from msa_slam.pipeline.results import write_run_files
 
         result = run_batch(make_config(config), quiet=True)
         with staged_dir(target) as tmp:

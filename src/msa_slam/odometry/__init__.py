@@ -1,6 +1,8 @@
-"""Odometry: KISS-ICP or poses from a file, with a per-sequence on-disk cache."""
+"""Odometry: KISS-ICP, poses from a file, noisy ground truth or replayed poses, with a per-sequence cache."""
 
 from msa_slam.odometry.cache import Odometry, OdometryCache, sequence_odometry
 from msa_slam.odometry.kiss import KissOdometry, PosesFromFile
+from msa_slam.odometry.noisy import NoisyOdometry, ReplayedOdometry
 
-__all__ = ["KissOdometry", "Odometry", "OdometryCache", "PosesFromFile", "sequence_odometry"]
+__all__ = ["KissOdometry", "NoisyOdometry", "Odometry", "OdometryCache", "PosesFromFile", "ReplayedOdometry",
+           "sequence_odometry"]

@@ -13,12 +13,14 @@ from typing import Any, Sequence
 
 from msa_slam.evaluation import ATE_ALIGNMENT, NA, fmt, notes
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
-from msa_slam.pipeline.batch import BatchResult, run_batch
+from msa_slam.io.tables import mib, rows_csv, write_json
+from msa_slam.pipeline.batch import run_batch
 from msa_slam.pipeline.config import BatchConfig, make_config
-from msa_slam.pipeline.frontend import prepare_frontend
-from msa_slam.progress import progress_bar
-from msa_slam.pipeline.results import mib, rows_csv, trajectory_panels, write_json, write_run_files
+from msa_slam.pipeline.frontend import Frontend, prepare_frontend
+from msa_slam.pipeline.results import trajectory_panels, write_run_files
 from msa_slam.place_recognition.figures import plot_pr_curves
+from msa_slam.progress import progress_bar
+from msa_slam.slam import RunResult
 from msa_slam.viz import plot_metric_bars, plot_trajectories
 
 # (label, sampler, parameters) as in the paper's section V.
@@ -62,7 +64,7 @@ def table_markdown(rows: Sequence[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _figures(results: Sequence[BatchResult], folder: Path) -> list[str]:
+def _figures(results: Sequence[RunResult], folder: Path) -> list[str]:
     folder.mkdir()
     labels = [r.config.name for r in results]
     rows = [{k: float("nan") if v is None else v for k, v in table_row(r.metrics).items()} for r in results]
@@ -74,7 +76,7 @@ def _figures(results: Sequence[BatchResult], folder: Path) -> list[str]:
         "memory [MiB]": {"keyframes + graph": [r["memory_mib"] for r in rows]},
         "back-end time [s]": {"time": [r["time_s"] for r in rows]},
     }, title=f"{results[0].metrics['sequence']} ({results[0].config.mode} loops)")
-    gt_xy = results[0].frontend.gt_poses[:, :2, 3]
+    gt_xy = results[0].gt_poses[:, :2, 3]
     panels = [trajectory_panels(r)[1] for r in results]
     plot_trajectories(folder / "trajectories.png", gt_xy, [trajectory_panels(results[0])[0], *panels],
                       title="keyframe trajectories after optimisation (coloured by ATE)", columns=4)
@@ -86,9 +88,8 @@ def _figures(results: Sequence[BatchResult], folder: Path) -> list[str]:
     return names
 
 
-def _report(results: Sequence[BatchResult], table: str, figures: list[str]) -> str:
-    first = results[0]
-    fe, cfg = first.frontend, first.config
+def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: list[str]) -> str:
+    cfg = results[0].config
     cached = " (from cache)" if all(fe.cached.values()) else ""
     front = ", ".join(f"{k} {v:.1f} s" for k, v in fe.timer.seconds.items())
     lines = [f"# Sampler comparison on {fe.name}", "",
@@ -148,7 +149,7 @@ def run_compare(base: BatchConfig, out: str | os.PathLike | None, quiet: bool = 
             (tmp / "comparison.csv").write_text(rows_csv(rows, COLUMNS))
             write_json(tmp / "comparison.json", [r.metrics for r in results])
             figures = _figures(results, tmp / "figures") if results else []
-            report = _report(results, table, figures) if results else f"# Sampler comparison on {frontend.name}\n"
+            report = _report(frontend, results, table, figures) if results else f"# Sampler comparison on {frontend.name}\n"
             if failed:
                 report += "\n## Failed methods\n\n" + "".join(f"- {name}: {error} (traceback: runs/{name}/error.txt)\n"
                                                          for name, error in failed.items())
@@ -159,7 +160,7 @@ def run_compare(base: BatchConfig, out: str | os.PathLike | None, quiet: bool = 
 
 
 def _run_methods(configs: Sequence[BatchConfig], frontend, runs: Path, quiet: bool
-                 ) -> tuple[list[BatchResult], dict[str, str]]:
+                 ) -> tuple[list[RunResult], dict[str, str]]:
     """Each method's run folder under `runs`, in order; a failing method leaves its error.txt instead."""
     runs.mkdir()
     results, failed = [], {}

@@ -18,7 +18,7 @@ class OnlineConfig(BatchConfig):
     """One online run (the paper's section V-B protocol).
 
     `dataset` also accepts `live:NAME[,field=value...,laps=K]`: scans simulated in memory as the run
-    needs them (no files), K passes over the trajectory driven forth and back (see online_source).
+    needs them (no files), K passes over the trajectory driven forth and back (msa_slam.sim.live).
     `odometry` also accepts "gt-noise": ground-truth motions with random noise (odometry_params
     translation_noise, rotation_noise_deg; seeded by `seed`), for long runs where KISS-ICP would dominate.
     `cloud_store="disk"` keeps downsampled keyframe clouds as .npy files (memory-mapped when read) instead of

@@ -1,49 +1,39 @@
-"""Result folder of one run: config.yaml, metrics.json, frames.csv, loops.csv, trajectories (KITTI + TUM),
-figures and report.md. The folder is built under a temporary name and moved into place when complete
-(msa_slam.io.outputs)."""
+"""Result folder of one run, batch or online: config.yaml, metrics.json, frames.csv, loops.csv, trajectories
+(KITTI + TUM, the frames' own timestamps), figures and report.md; an online run adds steps.csv (per frame:
+step times, memory) and its memory and step-time figures. The folder is built under a temporary name and
+moved into place when complete (msa_slam.io.outputs)."""
 
 from __future__ import annotations
 
 import csv
 import io
-import json
 import os
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import yaml
 
 import msa_slam
-from msa_slam.evaluation import NA, PROCESS_RSS_LABEL, AlignmentError, align_se3, fmt, notes
+from msa_slam.evaluation import NA, AlignmentError, align_se3, fmt
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
 from msa_slam.io.poses import write_poses
-from msa_slam.pipeline.batch import BatchResult
+from msa_slam.io.tables import write_json
+from msa_slam.pipeline.report import report_markdown
 from msa_slam.place_recognition.figures import plot_pr_curves
-from msa_slam.viz import TrajectoryPanel, plot_trajectories
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, (np.integer, np.floating)):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+from msa_slam.slam import RunResult
+from msa_slam.viz import TrajectoryPanel, plot_memory, plot_step_times, plot_trajectories
 
 
-def write_json(path: Path, data: Any) -> None:
-    path.write_text(json.dumps(data, indent=1, default=_json_default) + "\n")
-
-
-def _frames_csv(result: BatchResult) -> str:
-    fe = result.frontend
+def frames_csv(result: RunResult) -> str:
+    """One row per frame: time, keyframe flag, odometry / GT / optimised positions, ATE of keyframes."""
     row_of = {int(k): i for i, k in enumerate(result.keyframes)}
     buf = io.StringIO()
     writer = csv.writer(buf)
     writer.writerow(["frame", "time", "is_keyframe", "odom_x", "odom_y", "odom_z", "gt_x", "gt_y", "gt_z",
                      "opt_x", "opt_y", "opt_z", "ate_odom_m", "ate_opt_m"])
-    for i in range(len(fe)):
-        row = [i, f"{fe.sequence.times[i]:.6f}", int(i in row_of)]
-        row += [f"{v:.6f}" for v in fe.odometry[i, :3, 3]] + [f"{v:.6f}" for v in fe.gt_poses[i, :3, 3]]
+    for i in range(len(result)):
+        row = [i, f"{result.times[i]:.6f}", int(i in row_of)]
+        row += [f"{v:.6f}" for v in result.odometry[i, :3, 3]] + [f"{v:.6f}" for v in result.gt_poses[i, :3, 3]]
         k = row_of.get(i)
         if k is None:
             row += [""] * 5
@@ -55,46 +45,56 @@ def _frames_csv(result: BatchResult) -> str:
     return buf.getvalue()
 
 
-def loops_csv(loops, loop_radius: float) -> str:
+def loops_csv(result: RunResult) -> str:
     """One row per loop candidate: match, similarity, GT distance, registration outcome, false-loop flag."""
+    radius = result.config.loop_radius
     buf = io.StringIO()
     writer = csv.writer(buf)
     writer.writerow(["query_frame", "match_frame", "similarity", "gt_distance_m", "registered", "accepted",
                      "residual_m", "false_loop"])
-    for c in loops:
+    for c in result.loops:
         writer.writerow([c.query, c.match, f"{c.similarity:.6f}", f"{c.gt_distance:.4f}", int(c.verified),
-                         int(c.accepted), f"{c.residual:.4f}", int(c.accepted and c.gt_distance > loop_radius)])
+                         int(c.accepted), f"{c.residual:.4f}", int(c.accepted and c.gt_distance > radius)])
     return buf.getvalue()
 
 
-def write_trajectory_files(folder: Path, keyframes: np.ndarray, optimised: np.ndarray, odometry: np.ndarray,
-                           gt_poses: np.ndarray, times: np.ndarray) -> None:
+def steps_csv(result: RunResult) -> str:
+    """Online runs: per frame, each step's time (ms), the back-end's total and the memory series."""
+    steps, memory = list(result.steps_ms), list(result.memory)
+    backend = backend_ms(result)
+    buf = io.StringIO()
+    writer = csv.writer(buf)
+    writer.writerow(["frame", *(f"{s}_ms" for s in steps), "backend_ms", *memory])
+    for i in range(len(result)):
+        writer.writerow([i, *(f"{result.steps_ms[s][i]:.3f}" for s in steps), f"{backend[i]:.3f}",
+                         *(int(result.memory[m][i]) for m in memory)])
+    return buf.getvalue()
+
+
+def backend_ms(result: RunResult) -> np.ndarray:
+    """Per-frame time of everything after odometry (ms)."""
+    return sum(v for s, v in result.steps_ms.items() if s != "odometry")
+
+
+def write_trajectory_files(folder: Path, result: RunResult) -> None:
     """Optimised, odometry and GT keyframe trajectories plus the full odometry, in KITTI and TUM formats."""
     folder.mkdir()
-    times = np.asarray(times, dtype=np.float64)
-    for name, poses, stamps in (("optimised_keyframes", optimised, times[keyframes]),
-                                ("odometry_keyframes", odometry[keyframes], times[keyframes]),
-                                ("gt_keyframes", gt_poses[keyframes], times[keyframes]),
-                                ("odometry", odometry, times)):
+    kf, times = result.keyframes, np.asarray(result.times, dtype=np.float64)
+    for name, poses, stamps in (("optimised_keyframes", result.optimised, times[kf]),
+                                ("odometry_keyframes", result.odometry[kf], times[kf]),
+                                ("gt_keyframes", result.gt_poses[kf], times[kf]),
+                                ("odometry", result.odometry, times)):
         write_poses(folder / f"{name}.kitti", poses, "kitti")
         write_poses(folder / f"{name}.tum", poses, "tum", stamps)
 
 
-def loop_edges(keyframes: np.ndarray, accepted_loops, loop_radius: float) -> tuple[list, list]:
+def loop_edges(result: RunResult) -> tuple[list, list]:
     """Accepted loops as (match row, query row) pairs into the keyframe list: true ones, then false ones."""
-    row = {int(k): i for i, k in enumerate(keyframes)}
-    good = [(row[c.match], row[c.query]) for c in accepted_loops if c.gt_distance <= loop_radius]
-    bad = [(row[c.match], row[c.query]) for c in accepted_loops if c.gt_distance > loop_radius]
+    row = {int(k): i for i, k in enumerate(result.keyframes)}
+    radius = result.config.loop_radius
+    good = [(row[c.match], row[c.query]) for c in result.accepted_loops if c.gt_distance <= radius]
+    bad = [(row[c.match], row[c.query]) for c in result.accepted_loops if c.gt_distance > radius]
     return good, bad
-
-
-def rows_csv(rows, columns) -> str:
-    """A table of dict rows as CSV with the given column order."""
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=columns)
-    writer.writeheader()
-    writer.writerows(rows)
-    return buf.getvalue()
 
 
 def trajectory_panel(name: str, ate_m: float | None, estimate: np.ndarray, gt: np.ndarray,
@@ -109,92 +109,67 @@ def trajectory_panel(name: str, ate_m: float | None, estimate: np.ndarray, gt: n
     return TrajectoryPanel(f"{name}, ATE {fmt(ate_m, '.2f', ' m')}", xy, shown, *loops)
 
 
-def trajectory_panels(result: BatchResult) -> tuple[TrajectoryPanel, TrajectoryPanel]:
+def trajectory_panels(result: RunResult) -> tuple[TrajectoryPanel, TrajectoryPanel]:
     """Odometry and optimised keyframe trajectories (SE(3)-aligned to GT) with their loops."""
-    kf, fe = result.keyframes, result.frontend
-    gt = fe.gt_poses[kf]
-    loops = loop_edges(kf, result.accepted_loops, result.config.loop_radius)
-    m = result.metrics
-    return (trajectory_panel("odometry", m["before"]["ate_translation_m"], fe.odometry[kf], gt,
+    kf, m = result.keyframes, result.metrics
+    gt, loops = result.gt_poses[kf], loop_edges(result)
+    optimiser = "iSAM2" if m.get("pipeline") == "online" else "optimised"
+    return (trajectory_panel("odometry", m["before"]["ate_translation_m"], result.odometry[kf], gt,
                              result.ate_errors["odometry"], loops),
-            trajectory_panel(f"{m['method']} optimised", m["after"]["ate_translation_m"], result.optimised, gt,
+            trajectory_panel(f"{m['method']} {optimiser}", m["after"]["ate_translation_m"], result.optimised, gt,
                              result.ate_errors["optimised"], loops))
 
 
-def _write_figures(result: BatchResult, folder: Path) -> list[str]:
+def accounted_bytes(memory: dict[str, np.ndarray]) -> np.ndarray:
+    """Per-frame accounted memory: keyframe clouds (RAM and disk), descriptors and graph."""
+    return (memory["cloud_bytes"] + memory["cloud_disk_bytes"] + memory["descriptor_bytes"]
+            + memory["graph_bytes"])
+
+
+def _write_figures(result: RunResult, folder: Path) -> list[str]:
     folder.mkdir()
     m = result.metrics
-    plot_trajectories(folder / "trajectories.png", result.frontend.gt_poses[:, :2, 3], trajectory_panels(result),
-                      title=f"{m['sequence']}: {m['method']} ({m['keyframes']} keyframes, {m['verified']} loops, "
-                            f"{m['mode']})")
+    online = " online" if m.get("pipeline") == "online" else ""
+    plot_trajectories(folder / "trajectories.png", result.gt_poses[:, :2, 3], trajectory_panels(result),
+                      title=f"{m['sequence']}: {m['method']}{online} ({m['keyframes']} keyframes, "
+                            f"{m['verified']} loops, {m['mode']})")
     names = ["trajectories.png"]
+    if result.memory:
+        plot_memory(folder / "memory.png", {m["method"]: (np.arange(len(result)), accounted_bytes(result.memory),
+                                                          result.memory["rss_bytes"])},
+                    title=f"{m['sequence']}: memory over time")
+        new_kf = np.diff(result.memory["keyframes"], prepend=0) > 0
+        plot_step_times(folder / "step_times.png", {
+            "graph update (iSAM2)": {m["method"]: result.steps_ms["graph_update"][new_kf]},
+            "loop detection": {m["method"]: result.steps_ms["loop_detection"][new_kf]},
+            "back-end per frame": {m["method"]: backend_ms(result)},
+        }, title=f"{m['sequence']}: per-step time")
+        names += ["memory.png", "step_times.png"]
     if result.pr is not None and result.pr.auc is not None:
         plot_pr_curves({m["method"]: result.pr}, folder / "pr_curve.png", title=f"{m['sequence']}: loop candidates")
         names.append("pr_curve.png")
     return names
 
 
-def mib(n: float) -> str:
-    """Bytes as a MiB string for reports."""
-    return f"{n / 2**20:.2f} MiB"
-
-
-def notes_markdown(metrics: dict[str, Any]) -> list[str]:
-    """report.md lines: why each n/a metric is unavailable, then the warnings (nothing when all is well)."""
-    items = notes(metrics)
-    return ["Notes:", "", *(f"- {item}" for item in items), ""] if items else []
-
-
-def _report(result: BatchResult, figures: list[str]) -> str:
-    m = result.metrics
-    b, a, imp = m["before"], m["after"], m["improvement_pct"]
-    pr = f"{fmt(m['pr_auc'])} / {fmt(m['f1_max'])}"
-    rot = " (unreliable: see notes)" if m.get("ate_rotation_reliable") is False else ""
-    lines = [
-        f"# {m['method']} on {m['sequence']} ({m['mode']} loops)", "",
-        f"{m['frames']} frames -> {m['keyframes']} keyframes; {m['candidates']} loop candidates "
-        f"(similarity >= {result.config.similarity_threshold}), {m['verified']} verified, "
-        f"{m['false_loops']} false (ground-truth distance > {result.config.loop_radius} m).", "",
-        "| metric | odometry | optimised | improvement |", "|---|---|---|---|",
-        f"| ATE translation [m] | {fmt(b['ate_translation_m'])} | {fmt(a['ate_translation_m'])} | "
-        f"{fmt(imp['translation'], '.1f', ' %')} |",
-        f"| ATE rotation [deg]{rot} | {fmt(b['ate_rotation_deg'])} | {fmt(a['ate_rotation_deg'])} | "
-        f"{fmt(imp['rotation'], '.1f', ' %')} |",
-        f"| RPE translation [m] (consecutive keyframes) | {fmt(b['rpe_translation_m'])} | "
-        f"{fmt(a['rpe_translation_m'])} | |",
-        f"| RPE rotation [deg] | {fmt(b['rpe_rotation_deg'])} | {fmt(a['rpe_rotation_deg'])} | |", "",
-        f"ATE alignment: {m['ate_alignment']}.", "",
-        *notes_markdown(m),
-        "| PR-AUC / F1-max | memory (keyframes + graph) | back-end time |", "|---|---|---|",
-        f"| {pr} | {mib(m['memory_bytes']['total'])} | {m['time_s']['backend_total']:.2f} s |", "",
-        f"{PROCESS_RSS_LABEL}: {mib(m['peak_rss_bytes'])}", "",
-        "Stage times [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in {**m['frontend_time_s'], **m['time_s']}.items())
-        + ("  (front end from cache)" if all(m["frontend_cached"].values()) else ""), "",
-    ]
-    lines += [f"![{name}](figures/{name})" for name in figures]
-    lines += ["", "Files: config.yaml (re-run with `msa-slam run --config`), metrics.json, frames.csv, loops.csv, "
-              "trajectories/ (KITTI and TUM formats).", f"msa-slam {msa_slam.__version__}", ""]
-    return "\n".join(lines)
-
-
-def write_run_files(result: BatchResult, folder: Path) -> None:
+def write_run_files(result: RunResult, folder: Path, figures: bool = True) -> None:
     """Write all outputs of `result` into an existing (temporary) folder."""
     (folder / "config.yaml").write_text(yaml.safe_dump(result.config.dump(), sort_keys=False))
     write_json(folder / "metrics.json", {**result.metrics, "msa_slam_version": msa_slam.__version__,
                                          "keyframe_frames": result.keyframes.tolist()})
-    (folder / "frames.csv").write_text(_frames_csv(result))
-    (folder / "loops.csv").write_text(loops_csv(result.loops, result.config.loop_radius))
-    fe = result.frontend
-    write_trajectory_files(folder / "trajectories", result.keyframes, result.optimised, fe.odometry, fe.gt_poses,
-                           fe.sequence.times)
-    figures = _write_figures(result, folder / "figures")
-    (folder / "report.md").write_text(_report(result, figures))
+    (folder / "frames.csv").write_text(frames_csv(result))
+    (folder / "loops.csv").write_text(loops_csv(result))
+    if result.memory:
+        (folder / "steps.csv").write_text(steps_csv(result))
+    write_trajectory_files(folder / "trajectories", result)
+    names = _write_figures(result, folder / "figures") if figures else []
+    (folder / "report.md").write_text(report_markdown(result, names))
 
 
-def write_run(result: BatchResult, out: str | os.PathLike | None, overwrite: bool = False) -> Path:
+def write_run(result: RunResult, out: str | os.PathLike | None, overwrite: bool = False) -> Path:
     """Write the result folder `out` atomically (checked as `open_result_folder` does; None: a new timestamped
-    folder under msa_slam_results/run); return the path of its report.md."""
-    with open_result_folder(out, "run", DEFAULT_RESULTS / "run", overwrite=overwrite) as folder:
+    folder under msa_slam_results/run, or /online for an online run); return the path of its report.md."""
+    command = "online" if result.memory else "run"
+    with open_result_folder(out, command, DEFAULT_RESULTS / command, overwrite=overwrite) as folder:
         with folder.staging() as tmp:
             write_run_files(result, tmp)
     return folder.path / "report.md"

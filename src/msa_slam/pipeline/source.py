@@ -1,4 +1,5 @@
-"""Resolve a dataset argument: a sequence folder, or `sim:NAME[,field=value...]` built by msa_slam.sim."""
+"""Resolve a dataset argument: a sequence folder, `sim:NAME[,field=value...]` built by msa_slam.sim, or (as
+a frame source for the online pipeline) `live:NAME` simulated in memory."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import yaml
 
 from msa_slam.datasets import ScanSequence, open_dataset
 from msa_slam.errors import InputError
+from msa_slam.types import FrameSource
 
 SIM_PREFIX = "sim:"
 PATH_FIELDS = ("trajectory", "times", "calib")  # taken verbatim: a file named 1e3 stays a path
@@ -63,3 +65,14 @@ def open_sequence(spec: str, kind: str = "auto", cache_dir: str | os.PathLike | 
     if len(sequence) < 3:
         raise InputError(f"dataset {spec!r}: {len(sequence)} scans; the batch experiment needs at least 3")
     return sequence
+
+
+def open_source(spec: str, kind: str = "auto", cache_dir: str | os.PathLike | None = None,
+                progress: bool = False) -> FrameSource:
+    """The frame source named by `spec` (folder, sim:NAME or live:NAME); it must have ground truth."""
+    from msa_slam.sim.live import LIVE_PREFIX, live_source
+
+    if spec.startswith(LIVE_PREFIX):
+        return live_source(spec)
+    sequence = open_sequence(spec, kind, cache_dir, progress)
+    return FrameSource(sequence.name, sequence.gt_poses, lambda: iter(sequence), sequence.path)

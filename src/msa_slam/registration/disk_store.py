@@ -1,6 +1,6 @@
 """Keyframe clouds on disk: one downsampled .npy per keyframe, memory-mapped when verification reads it.
 
-Same interface as msa_slam.registration.KeyframeCloudStore (add / [] / in / len / nbytes), so long runs
+Same interface as KeyframeCloudStore (add / [] / in / len / nbytes), so long runs
 keep only the keyframe bookkeeping in RAM; `nbytes` is what sits in RAM (zero for clouds on disk) and
 `disk_bytes` what the files hold.
 
@@ -25,7 +25,7 @@ import numpy as np
 
 from msa_slam.errors import InputError
 from msa_slam.io.atomic import atomic_path
-from msa_slam.registration import KeyframeCloudStore, downsample
+from msa_slam.registration.clouds import KeyframeCloudStore, downsample
 
 PREFIX = "msa-kf-clouds-"
 _OWNED = re.compile(re.escape(PREFIX) + r"(\d+)-[^/]+")

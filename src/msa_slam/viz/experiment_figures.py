@@ -1,4 +1,4 @@
-"""Figures of online runs, as in the paper's Figs. 7-8: memory over time, per-step time distributions,
+"""Figures of online runs and experiment grids, as in the paper's Figs. 7-8: memory over time, per-step time distributions,
 and the box plot of ATE differences to all samples (matplotlib, Agg)."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from msa_slam.viz import save_figure  # noqa: E402
+from msa_slam.viz.save import save_figure  # noqa: E402
 
 
 def _save(fig, path: str | Path) -> Path:

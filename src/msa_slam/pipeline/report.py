@@ -1,0 +1,77 @@
+"""report.md of one run, batch or online: what was run, ATE before/after, notes on n/a metrics and warnings,
+memory and time, the figures."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import msa_slam
+from msa_slam.evaluation import PROCESS_RSS_LABEL, fmt, notes
+from msa_slam.io.tables import mib
+from msa_slam.slam import RunResult
+
+
+def notes_markdown(metrics: dict[str, Any]) -> list[str]:
+    """report.md lines: why each n/a metric is unavailable, then the warnings (nothing when all is well)."""
+    items = notes(metrics)
+    return ["Notes:", "", *(f"- {item}" for item in items), ""] if items else []
+
+
+def _batch_lines(result: RunResult) -> list[str]:
+    m = result.metrics
+    return [
+        "| PR-AUC / F1-max | memory (keyframes + graph) | back-end time |", "|---|---|---|",
+        f"| {fmt(m['pr_auc'])} / {fmt(m['f1_max'])} | {mib(m['memory_bytes']['total'])} | "
+        f"{m['time_s']['backend_total']:.2f} s |", "",
+        f"{PROCESS_RSS_LABEL}: {mib(m['peak_rss_bytes'])}", "",
+        "Stage times [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in {**m['frontend_time_s'], **m['time_s']}.items())
+        + ("  (front end from cache)" if all(m["frontend_cached"].values()) else ""), "",
+    ]
+
+
+def _online_lines(result: RunResult) -> list[str]:
+    m = result.metrics
+    lat = m["latency_ms"]
+    return [
+        "| F1-max | memory (keyframes + graph) | bytes / keyframe | frames/s | back-end frames/s | "
+        "real-time factor | back-end p99 [ms] |", "|---|---|---|---|---|---|---|",
+        f"| {fmt(m['f1_max'])} | {mib(m['memory_bytes']['total'])} ({m['memory_bytes']['cloud_store']}) | "
+        f"{m['bytes_per_keyframe']:.0f} | {m['fps']:.1f} | {m['backend_fps']:.1f} | "
+        f"{m['realtime_factor']:.2f} | {lat['backend']['p99']:.1f} |", "",
+        f"{PROCESS_RSS_LABEL}: {mib(m['peak_rss_bytes'])}", "",
+        "Step totals [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in m["time_s"].items())
+        + ("  (odometry replayed from cache)" if m.get("odometry_cached") else ""), "",
+    ]
+
+
+def report_markdown(result: RunResult, figures: list[str]) -> str:
+    """The run's report.md text; `figures` are file names under figures/."""
+    m, cfg = result.metrics, result.config
+    online = m.get("pipeline") == "online"
+    b, a, imp = m["before"], m["after"], m["improvement_pct"]
+    rot = " (unreliable: see notes)" if m.get("ate_rotation_reliable") is False else ""
+    after = "iSAM2" if online else "optimised"
+    lines = [
+        f"# {m['method']}{' online' if online else ''} on {m['sequence']} ({m['mode']} loops)", "",
+        f"{m['frames']} frames -> {m['keyframes']} keyframes; {m['candidates']} loop candidates "
+        f"(similarity >= {cfg.similarity_threshold}), {m['verified']} verified, "
+        f"{m['false_loops']} false (ground-truth distance > {cfg.loop_radius} m)."
+        + (" iSAM2 updated at every frame that finalised keyframes." if online else ""), "",
+        f"| metric | odometry | {after} | improvement |", "|---|---|---|---|",
+        f"| ATE translation [m] | {fmt(b['ate_translation_m'])} | {fmt(a['ate_translation_m'])} | "
+        f"{fmt(imp['translation'], '.1f', ' %')} |",
+        f"| ATE rotation [deg]{rot} | {fmt(b['ate_rotation_deg'])} | {fmt(a['ate_rotation_deg'])} | "
+        f"{fmt(imp['rotation'], '.1f', ' %')} |",
+        f"| RPE translation [m] (consecutive keyframes) | {fmt(b['rpe_translation_m'])} | "
+        f"{fmt(a['rpe_translation_m'])} | |",
+        f"| RPE rotation [deg] | {fmt(b['rpe_rotation_deg'])} | {fmt(a['rpe_rotation_deg'])} | |", "",
+        f"ATE alignment: {m['ate_alignment']}.", "",
+        *notes_markdown(m),
+        *(_online_lines(result) if online else _batch_lines(result)),
+    ]
+    lines += [f"![{name}](figures/{name})" for name in figures]
+    files = "steps.csv (per-frame step times and memory), " if online else ""
+    lines += ["", f"Files: config.yaml (re-run with `msa-slam {'online' if online else 'run'} --config`), "
+              f"metrics.json, frames.csv, {files}loops.csv, trajectories/ (KITTI and TUM formats).",
+              f"msa-slam {msa_slam.__version__}", ""]
+    return "\n".join(lines)

@@ -1,0 +1,182 @@
+"""The per-frame SLAM core both protocols drive (batch: cached front end, LM at the end; online: live
+frames, iSAM2 at every keyframe step).
+
+For each frame: sampler.push -> for every keyframe it finalises: store its cloud, add it to the pose graph,
+look for loop candidates among the older keyframes, store its pose and descriptor, verify the candidates
+and add the accepted loops -> update the graph (iSAM2 relinearises; batch LM waits for `finish`).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Callable, Protocol, Union
+
+import numpy as np
+
+from msa_slam.errors import InputError
+from msa_slam.evaluation import evaluate_trajectories
+from msa_slam.sampling.base import Sampler
+from msa_slam.slam.keyframes import KeyframeStore
+from msa_slam.slam.loop_closing import LoopCloser
+from msa_slam.slam.result import RunResult, RunSettings
+from msa_slam.types import LoopClosure
+
+BACKEND_STEPS = ("sampling", "keyframe_store", "loop_detection", "verification", "graph_update")
+Points = Union[np.ndarray, Callable[[], np.ndarray]]  # a scan, or how to read it when it becomes a keyframe
+
+
+class Graph(Protocol):
+    """A keyframe pose graph (msa_slam.backend: PoseGraph for batch LM, IncrementalPoseGraph for iSAM2)."""
+
+    keys: list[int]
+    nbytes: int
+
+    def add_keyframe(self, key: int, pose: np.ndarray) -> None: ...
+    def add_loop(self, target_key: int, source_key: int, T_target_source: np.ndarray) -> None: ...
+    def update(self, extra_iterations: int = 0) -> None: ...
+    def optimize(self) -> np.ndarray: ...
+
+
+class Recorder(Protocol):
+    """Called after every frame (and after the end-of-stream flush) with the frame's index."""
+
+    def record(self, backend: "SlamBackend", frame: int) -> None: ...
+
+
+def _scan(points: Points) -> np.ndarray:
+    return points() if callable(points) else points
+
+
+class SlamBackend:
+    """Frames in, keyframes, loops and a pose graph out: `add_frame` per frame, then `finish()` -> RunResult."""
+
+    def __init__(self, settings: RunSettings, sampler: Sampler, store: KeyframeStore, loop_closer: LoopCloser,
+                 graph: Graph, n_frames: int, name: str = "sequence", update_iterations: int = 0,
+                 recorder: Recorder | None = None) -> None:
+        self.settings, self.sampler, self.store, self.loop_closer, self.graph = settings, sampler, store, loop_closer, graph
+        self.name, self.update_iterations, self.recorder = name, int(update_iterations), recorder
+        self.n = int(n_frames)
+        self.sampler.expect_frames(self.n)
+        self.odometry = np.zeros((self.n, 4, 4))
+        self.gt = np.zeros((self.n, 4, 4))
+        self.times = np.zeros(self.n)
+        self.steps_ms = {s: np.zeros(self.n, dtype=np.float32) for s in BACKEND_STEPS}
+        self.loops: list[LoopClosure] = []
+        self._pending: dict[int, tuple[np.ndarray, Points]] = {}  # frames the sampler may still choose
+        self._frames = 0
+
+    def __len__(self) -> int:
+        return self._frames
+
+    @property
+    def keyframes(self) -> list[int]:
+        return self.graph.keys
+
+    @property
+    def pending_bytes(self) -> int:
+        """Bytes of descriptors and scans buffered for frames the sampler may still choose."""
+        return sum(d.nbytes + getattr(p, "nbytes", 0) for d, p in self._pending.values())
+
+    def memory_bytes(self) -> dict[str, int]:
+        """Accounted bytes now: keyframe clouds (RAM, disk), descriptors and graph."""
+        return {"cloud_bytes": self.store.cloud_bytes, "cloud_disk_bytes": self.store.disk_bytes,
+                "descriptor_bytes": self.store.descriptor_bytes, "graph_bytes": int(self.graph.nbytes)}
+
+    def add_frame(self, odom_pose: np.ndarray, descriptor: np.ndarray, points: Points, gt_pose: np.ndarray | None,
+                  time_s: float) -> list[int]:
+        """Process the next frame; return the keyframes it finalised (frame indices)."""
+        i = self._frames
+        if i >= self.n:
+            raise InputError(f"SLAM back-end: frame {i} beyond the announced {self.n} frames")
+        if gt_pose is None:
+            raise InputError(f"SLAM back-end: frame {i} has no ground-truth pose (needed for oracle loops, ATE)")
+        start = time.perf_counter()
+        self.odometry[i], self.gt[i], self.times[i] = odom_pose, gt_pose, time_s
+        if self.sampler.needs_points:
+            points = _scan(points)
+        self._pending[i] = (descriptor, points)
+        sample_pose = self.gt[i] if self.settings.sample_on == "gt" else self.odometry[i]
+        new = self.sampler.push(sample_pose, descriptor, points if self.sampler.needs_points else None)
+        self._timed("sampling", i, start)
+        self._frames += 1
+        self._add_keyframes(new, i)
+        self._prune()
+        if self.recorder is not None:
+            self.recorder.record(self, i)
+        return new
+
+    def _timed(self, step: str, i: int, start: float) -> float:
+        now = time.perf_counter()
+        self.steps_ms[step][i] += (now - start) * 1e3
+        return now
+
+    def _add_keyframes(self, new: list[int], i: int) -> None:
+        accepted_any = False
+        for k in sorted(int(k) for k in new):
+            if k not in self._pending:
+                raise RuntimeError(f"sampler {self.settings.sampler!r} chose frame {k} at frame {i}, but frame {k} "
+                                   "had left its window (keyframes must be window members)")
+            keys = self.graph.keys
+            if keys and k < keys[-1]:
+                raise RuntimeError(f"sampler {self.settings.sampler!r} chose frame {k} after keyframe {keys[-1]} "
+                                   "(keyframes must come in time order)")
+            descriptor, points = self._pending.pop(k)
+            t = time.perf_counter()
+            self.store.add_cloud(k, _scan(points))
+            self.graph.add_keyframe(k, self.odometry[k])
+            t = self._timed("keyframe_store", i, t)
+            candidates = self.loop_closer.candidates(k, descriptor, self.gt)
+            self.store.add(k, self.odometry[k], descriptor)
+            t = self._timed("loop_detection", i, t)
+            if candidates:
+                verified = self.loop_closer.verify(candidates)
+                for loop in verified:
+                    if loop.accepted:
+                        self.graph.add_loop(loop.match, loop.query, loop.T_match_query)
+                        accepted_any = True
+                self.loops.extend(verified)
+                self._timed("verification", i, t)
+        if new:
+            t = time.perf_counter()
+            self.graph.update(self.update_iterations if accepted_any else 0)
+            self._timed("graph_update", i, t)
+
+    def _prune(self) -> None:
+        """Forget buffered frames the sampler can no longer choose, so pending scans stay bounded however
+        the robot moves: only members of MSA's window (at most N + 1 frames) may still become keyframes;
+        a frame the window skipped (it moved < MIN_WINDOW_STEP, e.g. standing still) never joins it later,
+        and samplers without a window decide each frame as it arrives."""
+        selectable = set(getattr(self.sampler, "window", ()))
+        for f in [f for f in self._pending if f not in selectable]:
+            del self._pending[f]
+
+    def finish(self) -> RunResult:
+        """Flush the sampler (if configured), optimise the graph and evaluate the keyframe trajectories."""
+        n = self._frames
+        if n < self.n:  # a shorter stream than announced
+            self.odometry, self.gt, self.times = self.odometry[:n], self.gt[:n], self.times[:n]
+            self.steps_ms = {k: v[:n] for k, v in self.steps_ms.items()}
+        if self.settings.flush and n:
+            self._add_keyframes(self.sampler.finish(), n - 1)
+            if self.recorder is not None:
+                self.recorder.record(self, n - 1)
+        keys = np.array(self.graph.keys, dtype=np.int64)
+        if len(keys) < 3:
+            raise InputError(f"sampler {self.settings.name!r} kept {len(keys)} keyframes of {n} frames; "
+                             "the evaluation needs at least 3")
+        memory = self.memory_bytes()
+        t0 = time.perf_counter()
+        optimised = self.graph.optimize()
+        t1 = time.perf_counter()
+        pr = self.loop_closer.pr_curve()
+        evaluation = evaluate_trajectories(self.odometry[keys], optimised, self.gt[keys], keys)
+        t2 = time.perf_counter()
+        stats = {**self.sampler.stats.as_dict(), "online_keyframes": len(self.sampler.online_keyframes),
+                 "flushed_keyframes": len(self.sampler.flushed_keyframes)}
+        return RunResult(self.settings, self.name, self.times, self.odometry, self.gt, keys, optimised, self.loops,
+                         pr, evaluation, self.steps_ms, memory, stats, len(self.loop_closer.best_similarity),
+                         {"optimisation": t1 - t0, "evaluation": t2 - t1})
+
+    def close(self) -> None:
+        """Release the keyframe clouds (a disk store removes the files it wrote); safe to call twice."""
+        self.store.close()

@@ -1,0 +1,106 @@
+"""What one SLAM run produced (batch or online): trajectories, keyframes, loops, PR curve, timings and the
+metrics both protocols share, in one layout so tables and reports read either.
+
+A metric that cannot be computed (ATE of a rotation-only trajectory, PR-AUC without revisits) is None with
+its reason under `unavailable`; caveats about computed ones are listed under `warnings`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from msa_slam.evaluation import TrajectoryEvaluation, peak_rss_bytes
+from msa_slam.place_recognition import PRCurve
+from msa_slam.types import LoopClosure
+
+
+class RunSettings(Protocol):
+    """The fields of a run's configuration the core reads (msa_slam.pipeline.config.BatchConfig)."""
+
+    dataset: str
+    sampler: str
+    descriptor: str
+    mode: str
+    sample_on: str
+    flush: bool
+    similarity_threshold: float
+    min_frame_gap: int
+    exclude_recent: int
+    top_k: int
+    loop_radius: float
+
+    @property
+    def name(self) -> str: ...
+
+
+@dataclass
+class RunResult:
+    """Everything one run produced. Per-frame arrays cover every frame (`times` are the frames' own);
+    `optimised` holds the keyframes' poses; `steps_ms` the back-end's per-frame step times (online adds
+    odometry and descriptor) and `memory` online's per-frame memory series."""
+
+    config: Any
+    name: str
+    times: np.ndarray
+    odometry: np.ndarray
+    gt_poses: np.ndarray
+    keyframes: np.ndarray
+    optimised: np.ndarray
+    loops: list[LoopClosure]
+    pr: PRCurve | None
+    evaluation: TrajectoryEvaluation
+    steps_ms: dict[str, np.ndarray]
+    memory_bytes: dict[str, int]
+    sampler_stats: dict[str, Any]
+    pr_queries: int  # keyframes that had an older keyframe to query (points of the PR curve)
+    final_s: dict[str, float] = field(default_factory=dict)  # optimisation and evaluation at the end
+    memory: dict[str, np.ndarray] = field(default_factory=dict)
+    metrics: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def accepted_loops(self) -> list[LoopClosure]:
+        return [c for c in self.loops if c.accepted]
+
+    @property
+    def ate_errors(self) -> dict[str, np.ndarray | None]:
+        return self.evaluation.errors
+
+    def __len__(self) -> int:
+        return len(self.odometry)
+
+
+def core_metrics(result: RunResult) -> dict[str, Any]:
+    """The metrics both protocols report: counts, loops, ATE/RPE, PR, accounted memory, sampler statistics."""
+    cfg, loops, ev = result.config, result.loops, result.evaluation
+    accepted = result.accepted_loops
+    unavailable = dict(ev.metrics["unavailable"])
+    pr = result.pr
+    if pr is None or pr.unavailable:
+        unavailable["pr"] = pr.unavailable if pr is not None else (
+            f"no keyframe had an older keyframe to query (more than min_frame_gap={cfg.min_frame_gap} frames back "
+            f"and not among the exclude_recent={cfg.exclude_recent} newest)")
+    mem = result.memory_bytes
+    clouds = mem["cloud_bytes"] + mem["cloud_disk_bytes"]
+    return {
+        "sequence": result.name, "dataset": cfg.dataset, "method": cfg.name, "sampler": cfg.sampler,
+        "descriptor": cfg.descriptor, "mode": cfg.mode, "frames": len(result), "keyframes": int(len(result.keyframes)),
+        "candidates": len(loops),
+        "true_candidates": int(sum(c.gt_distance <= cfg.loop_radius for c in loops)),
+        "verified": len(accepted),
+        "registrations": int(sum(c.verified for c in loops)),
+        "false_loops": int(sum(c.gt_distance > cfg.loop_radius for c in accepted)),
+        **ev.metrics,
+        "unavailable": unavailable,
+        "warnings": list(ev.warnings),
+        "pr_auc": None if pr is None else pr.auc,
+        "f1_max": None if pr is None else pr.f1_max,
+        "pr_queries": result.pr_queries,
+        "memory_bytes": {"keyframe_descriptors": mem["descriptor_bytes"], "keyframe_clouds": clouds,
+                         "graph": mem["graph_bytes"], "total": mem["descriptor_bytes"] + clouds + mem["graph_bytes"]},
+        "peak_rss_bytes": peak_rss_bytes(),  # the whole process's high-water mark, not this run's
+        "peak_rss_scope": "process",
+        "sampler_stats": result.sampler_stats,
+    }
