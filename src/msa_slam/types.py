@@ -51,6 +51,22 @@ def validate_poses(poses: np.ndarray, where: str = "poses") -> np.ndarray:
     return arr
 
 
+def as_points(points: np.ndarray, where: str = "points") -> np.ndarray:
+    """Return `points` as a finite (P, 3) float64 array with P > 0, or raise InputError naming `where`.
+
+    Extra columns (e.g. KITTI reflectance) are dropped; non-finite rows are an error, not silently removed.
+    """
+    arr = np.asarray(points)
+    if arr.ndim != 2 or arr.shape[1] < 3:
+        raise InputError(f"{where}: expected points of shape (P, 3), got {arr.shape}")
+    arr = np.ascontiguousarray(arr[:, :3], dtype=np.float64)
+    if len(arr) == 0:
+        raise InputError(f"{where}: point cloud is empty")
+    if not np.isfinite(arr).all():
+        raise InputError(f"{where}: point cloud has NaN or infinite coordinates")
+    return arr
+
+
 def translations(poses: np.ndarray) -> np.ndarray:
     """(N, 3) translations of an (N, 4, 4) pose stack."""
     return np.asarray(poses)[:, :3, 3]

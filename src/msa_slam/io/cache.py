@@ -36,6 +36,14 @@ TEMP_SUFFIX = ".tmp"
 LOCK_FILE = ".writer.lock"  # inside a partial folder: held by its writer while it is alive
 
 
+def cache_root(cache_dir: str | os.PathLike | None = None) -> Path:
+    """`cache_dir`, else $MSA_SLAM_CACHE, else ~/.cache/msa-slam."""
+    if cache_dir is not None:
+        return Path(cache_dir)
+    env = os.environ.get("MSA_SLAM_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "msa-slam"
+
+
 def input_identity(files: Iterable[str | os.PathLike], root: str | os.PathLike | None = None) -> list[list]:
     """[name, size, mtime_ns] of every file; the name is relative to `root` when the file is under it, so the
     identity follows the data, not where it is (a moved or copied folder keeps it, files rewritten in place do not)."""

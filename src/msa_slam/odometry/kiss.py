@@ -16,7 +16,7 @@ from kiss_icp.kiss_icp import KissICP
 
 from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses
-from msa_slam.registration.clouds import as_points
+from msa_slam.types import as_points
 
 log = logging.getLogger(__name__)
 

@@ -20,13 +20,12 @@ from msa_slam.descriptors import Descriptor, make_descriptor
 from msa_slam.errors import InputError
 from msa_slam.evaluation import StageTimer
 from msa_slam.evaluation.sanity import frontend_warnings
-from msa_slam.io.cache import CacheDir, cache_key, check_entry, input_identity, sequence_identity
+from msa_slam.io.cache import CacheDir, cache_key, cache_root, check_entry, input_identity, sequence_identity
 from msa_slam.odometry import KissOdometry, OdometryCache, PosesFromFile, sequence_odometry
 from msa_slam.odometry.kiss import PARAMETERS as KISS_PARAMETERS
 from msa_slam.pipeline.config import BatchConfig
 from msa_slam.progress import progress_bar
 from msa_slam.pipeline.source import open_sequence
-from msa_slam.sim.sequence import cache_root
 
 logger = logging.getLogger(__name__)
 

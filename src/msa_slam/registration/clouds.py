@@ -1,4 +1,4 @@
-"""Point-cloud checks and the downsampled keyframe-cloud store (what loop verification keeps in memory)."""
+"""Downsampled keyframe clouds in memory (what loop verification keeps) and the voxel downsampling they share."""
 
 from __future__ import annotations
 
@@ -8,22 +8,7 @@ import numpy as np
 import small_gicp
 
 from msa_slam.errors import InputError
-
-
-def as_points(points: np.ndarray, where: str = "points") -> np.ndarray:
-    """Return `points` as a finite (P, 3) float64 array with P > 0, or raise InputError naming `where`.
-
-    Extra columns (e.g. KITTI reflectance) are dropped; non-finite rows are an error, not silently removed.
-    """
-    arr = np.asarray(points)
-    if arr.ndim != 2 or arr.shape[1] < 3:
-        raise InputError(f"{where}: expected points of shape (P, 3), got {arr.shape}")
-    arr = np.ascontiguousarray(arr[:, :3], dtype=np.float64)
-    if len(arr) == 0:
-        raise InputError(f"{where}: point cloud is empty")
-    if not np.isfinite(arr).all():
-        raise InputError(f"{where}: point cloud has NaN or infinite coordinates")
-    return arr
+from msa_slam.types import as_points
 
 
 def downsample(points: np.ndarray, voxel_size: float, where: str = "points") -> np.ndarray:

@@ -15,8 +15,7 @@ import numpy as np
 import small_gicp
 
 from msa_slam.errors import InputError
-from msa_slam.registration.clouds import as_points
-from msa_slam.types import validate_pose
+from msa_slam.types import as_points, validate_pose
 
 
 @dataclass(frozen=True)
