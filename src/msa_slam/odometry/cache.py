@@ -76,7 +76,8 @@ def sequence_odometry(sequence: ScanSequence, odometry: Odometry, cache: Odometr
     with progress_bar(quiet) as progress:
         task = progress.add_task("odometry", total=len(sequence))
         for i in range(len(sequence)):
-            poses[i] = odometry.register(sequence[i].points)
+            frame = sequence[i]  # per-point times: used by KISS-ICP only with deskew on
+            poses[i] = odometry.register(frame.points, frame.timestamps)
             progress.advance(task)
     if cache is not None and key is not None:
         cache.save(key, poses)
