@@ -67,7 +67,7 @@ def literal_speedup(poses, desc, window: int = 10, windows: int = 12):
 
 def parity_stream_timings():
     """Median ms per window at N = 10 on the parity streams, where the reference's cost is documented
-    (docs/msa.md, Performance: 55-61 ms on 256-d streams, 76 ms on the sc20x60 stream)."""
+    (docs/msa.md, "Limits and cost"; the reference: 55-61 ms on 256-d streams, 76 ms on the sc20x60 stream)."""
     rows = []
     for name in ("stream_s0_vec256.npz", "stream_s0_sc20x60.npz"):
         data = np.load(PARITY_DIR / name)

@@ -1,7 +1,7 @@
 """OverlapTransformer network (Ma et al., RA-L 2022) at inference, laid out so the authors' weights load.
 
 Imports torch at module level: only import this through `overlap_transformer.load_network`.
-Layer facts: ../shared/docs/overlap-transformer.md.
+Layer facts: docs/descriptors.md, "OverlapTransformer".
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 20 rings x 60 sectors up to 80 m; a cell holds the highest point (z + 2.0 m lidar height, at least 0)
 of the 0.5 m voxel-centroid cloud. Similarity is the best cosine over the 60 column (yaw) shifts.
-Semantics: ../shared/docs/msa-reference-semantics.md, "Scan Context".
+Semantics: docs/descriptors.md, "Scan Context".
 
 Speed: binning is one numba pass; the shift search is a single matmul of the query's 60 rolled,
 normalised copies against the flattened bank (no per-pair np.roll loop).

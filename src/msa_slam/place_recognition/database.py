@@ -2,8 +2,8 @@
 
 - `query`: the MSA paper's batch pipeline - the query descriptor against every older keyframe
   (exhaustive, or the Scan Context paper's two-stage search for large databases), threshold 0.8, top-k.
-- `query_reference`: the authors' place-recognition example (../shared/docs/msa-reference-semantics.md,
-  last section) - best descriptor match among the 10 keyframes nearest by pose (+ extra candidates),
+- `query_reference`: the authors' place-recognition example (docs/descriptors.md,
+  "Place-recognition protocols") - best descriptor match among the 10 keyframes nearest by pose (+ extra candidates),
   recorded only when more than 10 frames apart.
 """
 

@@ -1,6 +1,6 @@
 """The paper's baseline samplers, exactly as the reference implementation behaves.
 
-All are online and the first frame is always a keyframe (../docs/msa-reference-semantics.md).
+All are online and the first frame is always a keyframe (docs/msa.md, "Baselines").
 - all samples; constant distance d (>= d from the last keyframe);
 - entropy (Zeng et al.): histogram entropy ratio against the last keyframe, or > max distance;
 - spaciousness (as in DLO, Chen et al.): distance threshold from a smoothed mean point range.
