@@ -67,3 +67,23 @@ def test_no_library_module_imports_the_cli():
                      else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
             offenders += [f"{path.relative_to(root)}: {n}" for n in names if n.split(".")[:2] == ["msa_slam", "cli"]]
     assert offenders == []
+
+
+def test_importing_one_module_does_not_import_its_package_siblings():
+    code = ("import sys, msa_slam.experiments.grid, msa_slam.evaluation.display, msa_slam.sampling.checks\n"
+            "print(sorted(m for m in ('matplotlib', 'evo', 'scipy', 'gtsam') if m in sys.modules))")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.stdout.strip() == "[]", result.stderr
+
+
+def test_lazy_package_exports_resolve_and_unknown_names_fail():
+    import pytest
+
+    import msa_slam.evaluation as evaluation
+    import msa_slam.sampling as sampling
+    from msa_slam.sampling.registry import make_sampler
+
+    assert sampling.make_sampler is make_sampler and "make_sampler" in dir(sampling)
+    assert callable(evaluation.ate)
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        sampling.nope

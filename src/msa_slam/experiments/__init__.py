@@ -1,9 +1,12 @@
 """Reproducible experiment grids (datasets x descriptors x samplers x parameters x seeds): validation,
 resumable runs (local or Dask) and aggregate reports (Table II layout, the paper's figures)."""
 
-from msa_slam.experiments.grid import Cell, GridSpec, SamplerSpec, expand, load_grid, parse_grid
-from msa_slam.experiments.report import load_cells, make_rows, table2_markdown, write_report
-from msa_slam.experiments.runner import GridRun, clean_partials, is_finished, run_cell, run_grid
+from msa_slam._lazy import lazy_exports
 
-__all__ = ["Cell", "GridRun", "GridSpec", "SamplerSpec", "clean_partials", "expand", "is_finished", "load_cells",
-           "load_grid", "make_rows", "parse_grid", "run_cell", "run_grid", "table2_markdown", "write_report"]
+_EXPORTS = {
+    **dict.fromkeys(["Cell", "GridSpec", "SamplerSpec", "expand", "load_grid", "parse_grid"], "grid"),
+    **dict.fromkeys(["load_cells", "make_rows", "table2_markdown", "write_report"], "report"),
+    **dict.fromkeys(["GridRun", "clean_partials", "is_finished", "run_cell", "run_grid"], "runner"),
+}
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

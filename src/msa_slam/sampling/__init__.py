@@ -1,11 +1,12 @@
 """Keyframe samplers: MSA (the paper's method) and its baselines, behind one push/finish API."""
 
-from msa_slam.sampling.base import Sampler, SamplerStats
-from msa_slam.sampling.baselines import AllSamples, ConstantDistance, Entropy, Spaciousness
-from msa_slam.sampling.msa import MSASampler
-from msa_slam.sampling.registry import SAMPLERS, make_sampler, sampler_parameters
+from msa_slam._lazy import lazy_exports
 
-__all__ = [
-    "Sampler", "SamplerStats", "AllSamples", "ConstantDistance", "Entropy", "Spaciousness",
-    "MSASampler", "SAMPLERS", "make_sampler", "sampler_parameters",
-]
+_EXPORTS = {
+    "Sampler": "base", "SamplerStats": "base",
+    "AllSamples": "baselines", "ConstantDistance": "baselines", "Entropy": "baselines", "Spaciousness": "baselines",
+    "MSASampler": "msa.sampler",
+    "SAMPLERS": "registry", "make_sampler": "registry", "sampler_parameters": "registry",
+}
+__all__ = list(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
