@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from msa_slam.backend import GraphNoise, IncrementalPoseGraph, PoseGraph
+from msa_slam.backend import GraphConfig, IncrementalPoseGraph, PoseGraph
 from msa_slam.backend.graph import FACTOR_BYTES
 from msa_slam.errors import InputError
 from msa_slam.evaluation import ate
@@ -85,7 +85,7 @@ def test_robust_kernel_limits_a_wrong_loop(square):
     gt, odom = square
     wrong = np.eye(4)
     wrong[:3, 3] = [30.0, -20.0, 0.0]  # a false loop 36 m off
-    plain, robust = PoseGraph(), PoseGraph(GraphNoise(robust="cauchy"))
+    plain, robust = PoseGraph(), PoseGraph(GraphConfig(robust="cauchy"))
     for graph in (plain, robust):
         _build(graph, odom, gt, loop=True)
         graph.add_loop(5, len(gt) - 3, wrong)
@@ -128,10 +128,10 @@ def test_bad_input_raises(make, square):
 
 
 def test_bad_noise_raises():
-    with pytest.raises(InputError, match="robust kernel"):
-        GraphNoise(robust="tukey-ish")
+    with pytest.raises(InputError, match="graph: robust: Input should be"):
+        GraphConfig(robust="tukey-ish")
     with pytest.raises(InputError, match="odometry_translation"):
-        GraphNoise(odometry_translation=-1.0)
+        GraphConfig(odometry_translation=-1.0)
 
 
 def test_isam2_accounting_counts_loop_fill_in(square):

@@ -1,5 +1,5 @@
 """Pose-graph back-end on GTSAM: batch Levenberg-Marquardt and incremental iSAM2 with one interface."""
 
-from msa_slam.backend.graph import GraphNoise, IncrementalPoseGraph, PoseGraph
+from msa_slam.backend.graph import GraphConfig, IncrementalPoseGraph, PoseGraph
 
-__all__ = ["GraphNoise", "IncrementalPoseGraph", "PoseGraph"]
+__all__ = ["GraphConfig", "IncrementalPoseGraph", "PoseGraph"]

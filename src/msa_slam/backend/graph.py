@@ -8,15 +8,16 @@ graph. Tangent-space order in GTSAM's Pose3 is (rotation, translation), so sigma
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import ClassVar, Literal
 
 import gtsam
 import numpy as np
+from pydantic import Field
+
+from msa_slam.config import StageConfig
 
 from msa_slam.errors import InputError
 from msa_slam.types import validate_pose
-
-ROBUST_KERNELS = ("none", "huber", "cauchy")
 
 # Accounted bytes (an estimate of what GTSAM holds, used to compare samplers, not a heap measurement):
 # a Pose3 factor keeps its measurement (12 doubles), two keys and a 6x6 square-root information matrix
@@ -26,27 +27,21 @@ VALUE_BYTES = 12 * 8 + 8
 ISAM2_VARIABLE_BYTES = 2 * 36 * 8
 
 
-@dataclass(frozen=True)
-class GraphNoise:
-    """Standard deviations (radians, metres) of the prior, odometry and loop factors; robust loop kernel."""
+class GraphConfig(StageConfig):
+    """Standard deviations (radians, metres) of the prior, odometry and loop factors, the robust loop kernel
+    and the batch optimiser's iterations; the run configuration's `graph` section."""
 
-    prior_rotation: float = 1e-4
-    prior_translation: float = 1e-4
-    odometry_rotation: float = 0.01
-    odometry_translation: float = 0.1
-    loop_rotation: float = 0.01
-    loop_translation: float = 0.1
-    robust: str = "none"
-    robust_threshold: float = 1.0
+    SECTION: ClassVar[str] = "graph"
 
-    def __post_init__(self) -> None:
-        for name in ("prior_rotation", "prior_translation", "odometry_rotation", "odometry_translation",
-                     "loop_rotation", "loop_translation", "robust_threshold"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise InputError(f"pose graph noise {name} must be a positive number, got {value}")
-        if self.robust not in ROBUST_KERNELS:
-            raise InputError(f"unknown robust kernel {self.robust!r}; choose one of {', '.join(ROBUST_KERNELS)}")
+    prior_rotation: float = Field(1e-4, gt=0)
+    prior_translation: float = Field(1e-4, gt=0)
+    odometry_rotation: float = Field(0.01, gt=0)
+    odometry_translation: float = Field(0.1, gt=0)
+    loop_rotation: float = Field(0.01, gt=0)
+    loop_translation: float = Field(0.1, gt=0)
+    robust: Literal["none", "huber", "cauchy"] = "none"
+    robust_threshold: float = Field(1.0, gt=0)
+    max_iterations: int = Field(100, ge=1)  # Levenberg-Marquardt (batch)
 
 
 def _sigmas(rotation: float, translation: float) -> gtsam.noiseModel.Base:
@@ -56,17 +51,17 @@ def _sigmas(rotation: float, translation: float) -> gtsam.noiseModel.Base:
 class _KeyframeGraph:
     """Bookkeeping shared by both optimisers: keys, initial poses, factor construction, accounting."""
 
-    def __init__(self, noise: GraphNoise | None = None) -> None:
-        self.noise = noise or GraphNoise()
-        self._prior = _sigmas(self.noise.prior_rotation, self.noise.prior_translation)
-        self._odometry = _sigmas(self.noise.odometry_rotation, self.noise.odometry_translation)
-        loop = _sigmas(self.noise.loop_rotation, self.noise.loop_translation)
-        if self.noise.robust == "huber":
+    def __init__(self, config: GraphConfig | None = None) -> None:
+        self.config = config or GraphConfig()
+        self._prior = _sigmas(self.config.prior_rotation, self.config.prior_translation)
+        self._odometry = _sigmas(self.config.odometry_rotation, self.config.odometry_translation)
+        loop = _sigmas(self.config.loop_rotation, self.config.loop_translation)
+        if self.config.robust == "huber":
             loop = gtsam.noiseModel.Robust.Create(
-                gtsam.noiseModel.mEstimator.Huber.Create(self.noise.robust_threshold), loop)
-        elif self.noise.robust == "cauchy":
+                gtsam.noiseModel.mEstimator.Huber.Create(self.config.robust_threshold), loop)
+        elif self.config.robust == "cauchy":
             loop = gtsam.noiseModel.Robust.Create(
-                gtsam.noiseModel.mEstimator.Cauchy.Create(self.noise.robust_threshold), loop)
+                gtsam.noiseModel.mEstimator.Cauchy.Create(self.config.robust_threshold), loop)
         self._loop = loop
         self._keys: list[int] = []
         self._initial: dict[int, np.ndarray] = {}
@@ -132,9 +127,9 @@ class _KeyframeGraph:
 class PoseGraph(_KeyframeGraph):
     """Batch pose graph: collect keyframes and loops, then optimise with Levenberg-Marquardt."""
 
-    def __init__(self, noise: GraphNoise | None = None, max_iterations: int = 100) -> None:
-        super().__init__(noise)
-        self.max_iterations = max_iterations
+    def __init__(self, config: GraphConfig | None = None) -> None:
+        super().__init__(config)
+        self.max_iterations = self.config.max_iterations
         self._graph = gtsam.NonlinearFactorGraph()  # prior and odometry factors, in keyframe order
         self._loops = gtsam.NonlinearFactorGraph()  # loop factors, in the order they were added
         self._values = gtsam.Values()
@@ -171,9 +166,9 @@ class PoseGraph(_KeyframeGraph):
 class IncrementalPoseGraph(_KeyframeGraph):
     """Online pose graph on iSAM2 (Kaess et al., IJRR 2012): same interface, factors enter as they arrive."""
 
-    def __init__(self, noise: GraphNoise | None = None, relinearize_threshold: float = 0.01,
+    def __init__(self, config: GraphConfig | None = None, relinearize_threshold: float = 0.01,
                  final_iterations: int = 10) -> None:
-        super().__init__(noise)
+        super().__init__(config)
         self.final_iterations = int(final_iterations)
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(relinearize_threshold)

@@ -29,6 +29,7 @@ from typing import Any, Literal, Mapping
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from msa_slam.config import validation_message
 from msa_slam.errors import InputError
 
 GRID_DIR = Path(__file__).parent / "grids"
@@ -135,26 +136,14 @@ class Cell:
                 "seed": self.seed}
 
 
-_FIELD_HELP = {"GridSpec": list(GridSpec.model_fields), "SamplerSpec": list(SamplerSpec.model_fields)}
-
-
-def _problem(error: Mapping[str, Any]) -> str:
-    loc = tuple(error["loc"])
-    where = ".".join(map(str, loc)) or "grid"
-    if error["type"] == "extra_forbidden":
-        model = "SamplerSpec" if loc and loc[0] == "samplers" else "GridSpec"
-        return f"unknown key {where!r}; valid keys: {', '.join(_FIELD_HELP[model])}"
-    return f"{where}: {error['msg']}"
-
-
 def parse_grid(data: Any, where: str = "grid") -> GridSpec:
     """A validated GridSpec from a mapping; problems become one InputError naming `where`."""
     if not isinstance(data, Mapping):
-        raise InputError(f"{where}: expected a mapping with keys {', '.join(_FIELD_HELP['GridSpec'])}")
+        raise InputError(f"{where}: expected a mapping with keys {', '.join(GridSpec.model_fields)}")
     try:
         grid = GridSpec(**data)
     except ValidationError as exc:
-        raise InputError(f"{where}: " + "; ".join(_problem(e) for e in exc.errors())) from None
+        raise InputError(f"{where}: {validation_message(exc, GridSpec, 'grid')}") from None
     expand(grid, where)  # every cell must be a valid config before anything runs
     methods = grid.labels()
     if grid.reference is not None and grid.reference not in methods:
@@ -178,7 +167,8 @@ def load_grid(path: str | os.PathLike) -> GridSpec:
     return parse_grid(data, str(path))
 
 
-def _slug(text: str) -> str:
+def slug(text: str) -> str:
+    """`text` as a short file-name-safe word (cell ids, figure names)."""
     return re.sub(r"[^A-Za-z0-9=.+-]+", "_", text).strip("_")[:60]
 
 
@@ -217,7 +207,7 @@ def expand(grid: GridSpec, where: str = "grid") -> list[Cell]:
             raise InputError(f"{where}: method {label!r}: {exc}") from None
         digest = hashlib.sha256(json.dumps({"pipeline": grid.pipeline, "config": config}, sort_keys=True,
                                            default=str).encode()).hexdigest()[:10]
-        name = _slug(f"{dataset.split(',')[0]}-{descriptor}-{label}"
+        name = slug(f"{dataset.split(',')[0]}-{descriptor}-{label}"
                      + "".join(f"-{k}={v}" for k, v in parameters.items()) + f"-s{seed}")
         cells.append(Cell(f"{name}-{digest}", grid.pipeline, dataset, descriptor, label, sampler, swept, parameters,
                           seed, config, len(cells)))

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -16,11 +15,12 @@ import numpy as np
 
 from msa_slam.errors import InputError
 from msa_slam.experiments.folder import GRID_FILE, cell_dir, grid_cells, read_cell, stale_cells
-from msa_slam.experiments.grid import Cell, GridSpec
+from msa_slam.experiments.grid import Cell, GridSpec, slug
 from msa_slam.evaluation import NA, fmt
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.viz import plot_ate_difference, plot_memory, plot_step_times, plot_sweeps
 from msa_slam.io.tables import rows_csv
+from msa_slam.pipeline.results import accounted_bytes
 
 COLUMNS = ("cell", "pipeline", "dataset", "descriptor", "method", "sampler", "seed", "parameters", "frames",
            "keyframes", "candidates", "verified", "false_loops", "ate_before_m", "ate_after_m", "improvement_t_pct",
@@ -121,10 +121,6 @@ def table2_markdown(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def _slug(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9.=-]+", "_", text).strip("_")[:50]
-
-
 def _read_steps(folder: Path) -> dict[str, np.ndarray] | None:
     path = folder / "steps.csv"
     if not path.is_file():
@@ -162,18 +158,16 @@ def _figures(cells: list[dict[str, Any]], rows: list[dict[str, Any]], reference:
             graph.setdefault(label, []).append(steps["graph_update_ms"][new_kf])
             loops.setdefault(label, []).append(steps["loop_detection_ms"][new_kf])
             if c["info"]["seed"] == first_seed:
-                accounted = (steps["cloud_bytes"] + steps["cloud_disk_bytes"] + steps["descriptor_bytes"]
-                             + steps["graph_bytes"])
-                memory[label] = (steps["frame"], accounted, steps["rss_bytes"])
+                memory[label] = (steps["frame"], accounted_bytes(steps), steps["rss_bytes"])
         if not memory:
             continue
-        slug = _slug(dataset)
-        plot_memory(folder / f"memory_{slug}.png", memory, title=f"{dataset}: memory over time")
-        plot_step_times(folder / f"step_times_{slug}.png", {
+        tag = slug(dataset)
+        plot_memory(folder / f"memory_{tag}.png", memory, title=f"{dataset}: memory over time")
+        plot_step_times(folder / f"step_times_{tag}.png", {
             "incremental PGO (iSAM2) per keyframe step": {k: np.concatenate(v) for k, v in graph.items()},
             "loop closure detection per keyframe step": {k: np.concatenate(v) for k, v in loops.items()}},
             title=f"{dataset}: per-step time")
-        names += [f"memory_{slug}.png", f"step_times_{slug}.png"]
+        names += [f"memory_{tag}.png", f"step_times_{tag}.png"]
     sweeps: dict[str, dict[str, dict[str, tuple[list, list]]]] = {}
     swept_rows = [(c["info"], r) for c, r in zip(cells, rows) if c["info"].get("swept")]
     for key in sorted({k for info, _ in swept_rows for k in info["swept"]}):

@@ -13,12 +13,12 @@ from typing import Any
 
 from threadpoolctl import threadpool_limits
 
-from msa_slam.backend import GraphNoise, PoseGraph
+from msa_slam.backend import PoseGraph
 from msa_slam.errors import InputError
 from msa_slam.pipeline.config import BatchConfig
 from msa_slam.pipeline.frontend import Frontend, prepare_frontend
 from msa_slam.progress import progress_bar
-from msa_slam.registration import KeyframeCloudStore, Verifier, VerifierConfig
+from msa_slam.registration import KeyframeCloudStore, Verifier
 from msa_slam.sampling import make_sampler
 from msa_slam.slam import BACKEND_STEPS, KeyframeStore, LoopCloser, RunResult, SlamBackend, core_metrics
 
@@ -30,16 +30,9 @@ def make_backend(config: BatchConfig, descriptor, clouds, graph, n_frames: int, 
     """The SLAM core for `config`: its sampler, a keyframe store over `clouds`, loop closing with the
     configured verifier, and `graph` (batch LM or iSAM2)."""
     store = KeyframeStore(descriptor, clouds)
-    loops = LoopCloser(store, Verifier(VerifierConfig(**config.verifier.model_dump())), config)
+    loops = LoopCloser(store, Verifier(config.verifier), config)
     sampler = make_sampler(config.sampler, **config.sampler_params)
     return SlamBackend(config, sampler, store, loops, graph, n_frames, name, update_iterations, recorder)
-
-
-def graph_noise(config: BatchConfig) -> GraphNoise:
-    g = config.graph
-    return GraphNoise(odometry_rotation=g.odometry_rotation, odometry_translation=g.odometry_translation,
-                      loop_rotation=g.loop_rotation, loop_translation=g.loop_translation, robust=g.robust,
-                      robust_threshold=g.robust_threshold)
 
 
 def run_batch(config: BatchConfig, frontend: Frontend | None = None, quiet: bool = True) -> RunResult:
@@ -57,7 +50,7 @@ def run_batch(config: BatchConfig, frontend: Frontend | None = None, quiet: bool
 
 
 def _run_backend(config: BatchConfig, frontend: Frontend, quiet: bool) -> RunResult:
-    graph = PoseGraph(graph_noise(config), max_iterations=config.graph.max_iterations)
+    graph = PoseGraph(config.graph)
     backend = make_backend(config, frontend.descriptor, KeyframeCloudStore(config.verifier.voxel_size), graph,
                            len(frontend), frontend.name)
     sequence, times = frontend.sequence, frontend.sequence.times

@@ -11,44 +11,18 @@ from pathlib import Path
 from typing import Any, Literal, Mapping, get_args
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+from pydantic import BaseModel, Field, TypeAdapter, ValidationError
 
+from msa_slam.backend.graph import GraphConfig
+from msa_slam.config import StageConfig
 from msa_slam.errors import InputError
 from msa_slam.io.params import parse_key_value
+from msa_slam.registration.verify import VerifierConfig
 
 MODES = ("oracle", "realistic")
 
 
-class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
-
-
-class VerifierSettings(_Section):
-    """small_gicp verification of loop candidates (fields of msa_slam.registration.VerifierConfig)."""
-
-    voxel_size: float = Field(0.5, gt=0)
-    max_correspondence_distance: float = Field(1.0, gt=0)
-    max_residual: float = Field(0.3, gt=0)
-    min_inlier_fraction: float = Field(0.5, ge=0, le=1)
-    min_inliers: int = Field(100, ge=0)
-    coarse_to_fine: bool = True
-    max_iterations: int = Field(50, ge=1)
-    num_threads: int = Field(1, ge=1)  # 1: small_gicp's reductions in a fixed order (identical runs, identical loops)
-
-
-class GraphSettings(_Section):
-    """Pose-graph noise (radians, metres), robust loop kernel and LM iterations (msa_slam.backend)."""
-
-    odometry_rotation: float = Field(0.01, gt=0)
-    odometry_translation: float = Field(0.1, gt=0)
-    loop_rotation: float = Field(0.01, gt=0)
-    loop_translation: float = Field(0.1, gt=0)
-    robust: Literal["none", "huber", "cauchy"] = "none"
-    robust_threshold: float = Field(1.0, gt=0)
-    max_iterations: int = Field(100, ge=1)
-
-
-class BatchConfig(_Section):
+class BatchConfig(StageConfig):
     """One batch run: dataset, odometry, descriptor, sampler, loop closing, verification, graph.
 
     `dataset` is a sequence folder (KITTI layout, scan folder) or `sim:NAME` (NAME = demo, test, or a
@@ -76,8 +50,8 @@ class BatchConfig(_Section):
     exclude_recent: int = Field(10, ge=0)
     top_k: int = Field(1, ge=1)
     loop_radius: float = Field(3.0, gt=0)
-    verifier: VerifierSettings = Field(default_factory=VerifierSettings)
-    graph: GraphSettings = Field(default_factory=GraphSettings)
+    verifier: VerifierConfig = Field(default_factory=VerifierConfig)
+    graph: GraphConfig = Field(default_factory=GraphConfig)
     cache_dir: str | None = None
     label: str | None = None
 
@@ -90,34 +64,9 @@ class BatchConfig(_Section):
         return self.model_dump(mode="json")
 
 
-def _fields(model: type[BaseModel]) -> list[str]:
-    return list(model.model_fields)
-
-
-def _section_of(loc: tuple) -> type[BaseModel]:
-    if loc and loc[0] == "verifier":
-        return VerifierSettings
-    if loc and loc[0] == "graph":
-        return GraphSettings
-    return BatchConfig
-
-
-def _problem(error: Mapping[str, Any]) -> str:
-    loc = tuple(error["loc"])
-    where = ".".join(map(str, loc)) or "config"
-    if error["type"] == "extra_forbidden":
-        section = _section_of(loc[:-1] if len(loc) > 1 else ())
-        return f"unknown key {where!r}; valid keys: {', '.join(_fields(section))}"
-    return f"{where}: {error['msg']}"
-
-
 def make_config(data: Mapping[str, Any] | None = None, **overrides: Any) -> BatchConfig:
     """A validated BatchConfig from a mapping plus keyword overrides; problems become one InputError."""
-    merged = {**(dict(data) if data else {}), **overrides}
-    try:
-        config = BatchConfig(**merged)
-    except ValidationError as exc:
-        raise InputError("config: " + "; ".join(_problem(e) for e in exc.errors())) from None
+    config = BatchConfig(**{**(dict(data) if data else {}), **overrides})
     for section in _SECTIONS.values():
         check_finite(getattr(config, section), section)
     _check_sampler(config.sampler, config.sampler_params)
@@ -225,5 +174,5 @@ def _check_sampler_param(sampler: str, key: str, model: type[BaseModel]) -> None
 
     known = sampler_parameters(sampler)
     if key not in known:
-        raise InputError(f"--param {key!r}: not a config key ({', '.join(_fields(model))}) nor a "
+        raise InputError(f"--param {key!r}: not a config key ({', '.join(model.model_fields)}) nor a "
                          f"parameter of sampler {sampler!r} ({', '.join(known) or 'none'})")

@@ -23,7 +23,7 @@ from msa_slam.descriptors import make_descriptor
 from msa_slam.errors import InputError
 from msa_slam.evaluation import peak_rss_bytes
 from msa_slam.odometry import NoisyOdometry, OdometryCache, ReplayedOdometry
-from msa_slam.pipeline.batch import graph_noise, make_backend
+from msa_slam.pipeline.batch import make_backend
 from msa_slam.pipeline.frontend import make_odometry, pipeline_cache
 from msa_slam.pipeline.online_config import OnlineConfig
 from msa_slam.pipeline.results import backend_ms
@@ -129,7 +129,7 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     odometry, cached = make_online_odometry(config, source, n)
     descriptor = make_descriptor(config.descriptor, **config.descriptor_params)
     clouds = make_cloud_store(config.cloud_store, config.verifier.voxel_size, config.store_dir)
-    graph = IncrementalPoseGraph(graph_noise(config), final_iterations=config.update_iterations)
+    graph = IncrementalPoseGraph(config.graph, final_iterations=config.update_iterations)
     recorder = MemoryRecorder(n)
     backend = make_backend(config, descriptor, clouds, graph, n, source.name, config.update_iterations, recorder)
     front_ms = {s: np.zeros(n, dtype=np.float32) for s in STEPS[:2]}

@@ -10,39 +10,34 @@ inliers, so a cloud that touches the target in a few places cannot pass.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import small_gicp
+from pydantic import Field
 
+from msa_slam.config import StageConfig
 from msa_slam.errors import InputError
 from msa_slam.types import as_points, validate_pose
 
 
-@dataclass(frozen=True)
-class VerifierConfig:
-    """Registration and acceptance parameters (metres, fractions).
+class VerifierConfig(StageConfig):
+    """Registration and acceptance parameters (metres, fractions); the run configuration's `verifier` section.
 
     `num_threads=1` keeps small_gicp's reductions in a fixed order, so identical runs accept identical loops.
     """
 
-    voxel_size: float = 0.5
-    max_correspondence_distance: float = 1.0
-    max_residual: float = 0.3
-    min_inlier_fraction: float = 0.5
-    min_inliers: int = 100
-    coarse_to_fine: bool = True
-    max_iterations: int = 50
-    num_neighbors: int = 10
-    num_threads: int = 1
+    SECTION: ClassVar[str] = "verifier"
 
-    def __post_init__(self) -> None:
-        for name in ("voxel_size", "max_correspondence_distance", "max_residual"):
-            if not getattr(self, name) > 0:
-                raise InputError(f"verifier {name} must be > 0, got {getattr(self, name)}")
-        if not 0 <= self.min_inlier_fraction <= 1:
-            raise InputError(f"verifier min_inlier_fraction must be in [0, 1], got {self.min_inlier_fraction}")
-        if self.max_iterations < 1 or self.num_threads < 1 or self.num_neighbors < 3:
-            raise InputError("verifier max_iterations, num_threads must be >= 1 and num_neighbors >= 3")
+    voxel_size: float = Field(0.5, gt=0)
+    max_correspondence_distance: float = Field(1.0, gt=0)
+    max_residual: float = Field(0.3, gt=0)
+    min_inlier_fraction: float = Field(0.5, ge=0, le=1)
+    min_inliers: int = Field(100, ge=0)
+    coarse_to_fine: bool = True
+    max_iterations: int = Field(50, ge=1)
+    num_neighbors: int = Field(10, ge=3)
+    num_threads: int = Field(1, ge=1)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,71 @@
+"""Configuration models: one pydantic model per stage, consumed by the stage directly (`Verifier(config)`,
+`PoseGraph(config)`), composed into a run's configuration. Unknown keys and bad values become one
+InputError line naming the key and, for an unknown key, the valid ones: a typo never runs the default."""
+
+from __future__ import annotations
+
+import typing
+from contextvars import ContextVar
+from typing import Any, ClassVar, Mapping
+
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from msa_slam.errors import InputError
+
+_nested: ContextVar[bool] = ContextVar("msa_slam_config_nested", default=False)
+
+
+def _inner_model(annotation: Any) -> type[BaseModel] | None:
+    """The model a field holds: itself, or the item model of a list or dict of models."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    for arg in typing.get_args(annotation):
+        inner = _inner_model(arg)
+        if inner is not None:
+            return inner
+    return None
+
+
+def section_model(model: type[BaseModel], path: tuple) -> type[BaseModel]:
+    """The (nested) model at `path` of an error location (list indices and dict keys skipped)."""
+    for part in path:
+        field = model.model_fields.get(part) if isinstance(part, str) else None
+        inner = None if field is None else _inner_model(field.annotation)
+        if inner is not None:
+            model = inner
+    return model
+
+
+def problem(error: Mapping[str, Any], model: type[BaseModel], root: str = "config") -> str:
+    """One pydantic error as text: where it is and what is wrong (for an unknown key: the valid keys)."""
+    loc = tuple(error["loc"])
+    where = ".".join(map(str, loc)) or root
+    if error["type"] == "extra_forbidden":
+        keys = section_model(model, loc[:-1]).model_fields
+        return f"unknown key {where!r}; valid keys: {', '.join(keys)}"
+    return f"{where}: {error['msg']}"
+
+
+def validation_message(exc: ValidationError, model: type[BaseModel], root: str = "config") -> str:
+    """All problems of a failed validation on one line."""
+    return "; ".join(problem(e, model, root) for e in exc.errors())
+
+
+class StageConfig(BaseModel):
+    """Base of every stage's configuration: unknown keys, NaN and infinity are errors; assignments are
+    validated; a failed construction raises one InputError line starting with the model's SECTION."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
+    SECTION: ClassVar[str] = "config"
+
+    def __init__(self, **data: Any) -> None:
+        if _nested.get():  # a section validated inside its parent: the parent reports the problem
+            super().__init__(**data)
+            return
+        token = _nested.set(True)
+        try:
+            super().__init__(**data)
+        except ValidationError as exc:
+            raise InputError(f"{self.SECTION}: {validation_message(exc, type(self), self.SECTION)}") from None
+        finally:
+            _nested.reset(token)
