@@ -1,5 +1,6 @@
 """Online pipeline (iSAM2) on small scans simulated in memory (the figure-eight, whose crossing and closure
-are revisits), with drifting odometry from ground truth plus seeded noise, so no KISS-ICP is needed."""
+are revisits), with drifting odometry from ground truth plus seeded noise, so no KISS-ICP is needed. The scans are the
+simulator's clean ones: these tests are about the pipeline, not the sensor model's imperfections."""
 
 from __future__ import annotations
 
@@ -25,8 +26,8 @@ from msa_slam.types import FrameSource
 from msa_slam.registration import downsample
 from msa_slam.sampling import make_sampler
 
-EIGHT = "live:figure-eight,stride=2,azimuth_steps=360"
-COARSE = "live:figure-eight,stride=4,azimuth_steps=180"
+EIGHT = "live:figure-eight,stride=2,azimuth_steps=360,realism=clean"
+COARSE = "live:figure-eight,stride=4,azimuth_steps=180,realism=clean"
 NOISE = {"translation_noise": 0.02, "rotation_noise_deg": 0.1}
 
 
