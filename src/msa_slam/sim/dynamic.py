@@ -105,8 +105,8 @@ class DynamicObjects:
             walk = self.motion[moving] == WALK
             span = self.span[moving][walk]
             u = np.mod(self.speed[moving][walk] * time / span + self.s0[moving][walk] / total, 2.0)
+            s = np.mod(s, total)  # drivers go round (a car leaving one end stands for one entering the other)
             s[walk] = self.s0[moving][walk] + span * np.minimum(u, 2.0 - u)  # back and forth
-            s = np.mod(s, total)
             p, h = self.path.at(s)
             normal = np.column_stack([-h[:, 1], h[:, 0]])
             xy = p + normal * self.lateral[moving, None]
@@ -144,11 +144,44 @@ class DynamicObjects:
         builder = MeshBuilder()
         builder.boxes(centres, half, yaw, refl, material)
         mesh, face_refl, face_material = builder.build()
-        tri, ray = RayMeshIntersector(mesh).intersects_id(origins, directions, multiple_hits=False)
+        cand = _candidate_rays(origins, directions, centres, np.linalg.norm(half, axis=1))
+        tri, sub = RayMeshIntersector(mesh).intersects_id(origins[cand], directions[cand], multiple_hits=False)
+        ray = cand[sub]
         normals = np.asarray(mesh.face_normals)[tri]
         corner = np.asarray(mesh.triangles[:, 0, :])[tri]
         dist = np.einsum("ij,ij->i", corner - origins[ray], normals) / np.einsum("ij,ij->i", directions[ray], normals)
         return ray, dist, normals, face_refl[tri], face_material[tri]
+
+
+_AZ_BINS, _EL_BINS = 720, 180  # a 0.5 x 1 degree grid of directions
+
+
+def _candidate_rays(origins: np.ndarray, directions: np.ndarray, centres: np.ndarray,
+                    radii: np.ndarray) -> np.ndarray:
+    """Indices of the rays whose direction falls in the angular footprint of some box (its bounding
+    sphere seen from the origins' centre, widened by the origins' spread): casting only those keeps the
+    dynamic cast a small fraction of the static one."""
+    centre = origins.mean(0) if origins.strides[0] else origins[0]
+    spread = float(np.linalg.norm(origins - centre, axis=1).max()) if origins.strides[0] else 0.0
+    rel = centres - centre
+    dist = np.linalg.norm(rel, axis=1)
+    grid = np.zeros((_EL_BINS, _AZ_BINS), dtype=bool)
+    reach = radii + spread + 0.1
+    near = dist <= reach * 1.05
+    if near.any():
+        return np.arange(len(directions))
+    half = np.arcsin(reach / dist)
+    az = np.arctan2(rel[:, 1], rel[:, 0])
+    el = np.arcsin(np.clip(rel[:, 2] / dist, -1.0, 1.0))
+    for a, e, w in zip(az, el, half):
+        e0 = int(np.floor((e - w + np.pi / 2) / np.pi * _EL_BINS))
+        e1 = int(np.floor((e + w + np.pi / 2) / np.pi * _EL_BINS))
+        cols = np.arange(int(np.floor((a - w + np.pi) / (2 * np.pi) * _AZ_BINS)),
+                         int(np.floor((a + w + np.pi) / (2 * np.pi) * _AZ_BINS)) + 1) % _AZ_BINS
+        grid[max(e0, 0):min(e1, _EL_BINS - 1) + 1, cols] = True
+    ray_az = ((np.arctan2(directions[:, 1], directions[:, 0]) + np.pi) / (2 * np.pi) * _AZ_BINS).astype(np.int64)
+    ray_el = ((np.arcsin(np.clip(directions[:, 2], -1.0, 1.0)) + np.pi / 2) / np.pi * _EL_BINS).astype(np.int64)
+    return np.flatnonzero(grid[np.minimum(ray_el, _EL_BINS - 1), ray_az % _AZ_BINS])
 
 
 @dataclass
@@ -207,9 +240,9 @@ def make_dynamic(path: PathFrame, ground: Callable[[np.ndarray], np.ndarray], re
     refl[peds] = rng.uniform(0.15, 0.6, n_ped)
     material[peds] = Material.PERSON
     motion[peds] = WALK
-    s0[peds] = rng.uniform(0.0, total, n_ped)
+    span[peds] = np.minimum(rng.uniform(15.0, 60.0, n_ped), total)
+    s0[peds] = rng.uniform(0.0, 1.0, n_ped) * (total - span[peds])  # the walk stays on the path
     speed[peds] = rng.uniform(0.8, 1.8, n_ped)
-    span[peds] = rng.uniform(15.0, 60.0, n_ped)
     lateral[peds] = np.where(rng.random(n_ped) < 0.5, 1.0, -1.0) * rng.uniform(*recipe.pedestrian_offset, n_ped)
 
     fix = slice(n_car + n_ped, k)

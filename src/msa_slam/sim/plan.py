@@ -17,9 +17,9 @@ if TYPE_CHECKING:
 
 HARD_KINDS: tuple[str, ...] = ("field", "wall", "tunnel", "highway")
 DESIGN = "design"
-_LENGTHS = {DESIGN: (100.0, 200.0), "field": (80.0, 200.0), "wall": (100.0, 250.0), "tunnel": (60.0, 150.0),
+_LENGTHS = {DESIGN: (150.0, 350.0), "field": (80.0, 200.0), "wall": (100.0, 250.0), "tunnel": (60.0, 150.0),
             "highway": (150.0, 300.0)}
-_MEAN_SPECIAL = 150.0
+_MEAN_SPECIAL = 200.0
 
 
 @dataclass(frozen=True)

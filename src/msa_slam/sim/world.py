@@ -20,9 +20,10 @@ from trimesh.ray.ray_pyembree import RayMeshIntersector
 from msa_slam.errors import InputError
 from msa_slam.sim.dynamic import DynamicObjects, DynamicRecipe, PathFrame, make_dynamic, unit_hash
 from msa_slam.sim.layout import STYLES, StreetLayout
-from msa_slam.sim.plan import HARD_KINDS, make_catalogue, plan_stretches
+from msa_slam.sim.plan import HARD_KINDS, Stretch, make_catalogue, plan_stretches
 from msa_slam.sim.shapes import Material, MeshBuilder
 
+PATH_LEAD = 80.0  # m of straight street laid before the first pose and after the last
 DYNAMIC_RADIUS = 120.0  # dynamic objects farther than this from the rays' origins are not cast against
 
 
@@ -88,11 +89,11 @@ class Hits:
 
 class World:
     """A static mesh with per-face reflectance and material, and optional dynamic objects; `cast` gives
-    the first hit of each ray at a time."""
+    the first hit of each ray at a time. Arc lengths in `stretches` start `PATH_LEAD` m before the first pose."""
 
     def __init__(self, mesh: trimesh.Trimesh, reflectance: np.ndarray, material: np.ndarray | None = None,
                  dynamic: DynamicObjects | None = None, realism: WorldRealism = WorldRealism(),
-                 seed: int = 0) -> None:
+                 seed: int = 0, stretches: tuple[Stretch, ...] = ()) -> None:
         self.mesh = mesh
         self.reflectance = reflectance
         self.material = (np.full(len(mesh.faces), Material.SOLID, dtype=np.uint8) if material is None
@@ -100,6 +101,7 @@ class World:
         self.dynamic = dynamic
         self.realism = realism
         self.seed = seed
+        self.stretches = stretches  # the planned designed and hard stretches, arc lengths on the extended path
         self.face_normals = np.asarray(mesh.face_normals)
         self._face_origins = np.asarray(mesh.triangles[:, 0, :])
         self._intersector = RayMeshIntersector(mesh)
@@ -150,24 +152,30 @@ class World:
         return tri[order], ray_all[order], dist[order]
 
     def _with_dynamic(self, hits: Hits, origins: np.ndarray, directions: np.ndarray, time: float) -> Hits:
-        """Static hits replaced by nearer hits on the dynamic objects (and rays that only hit those)."""
+        """Static hits replaced by nearer hits on the dynamic objects (and rays that only hit those);
+        rows stay in ray order."""
         ray_d, dist_d, normal_d, refl_d, mat_d = self.dynamic.cast(origins, directions, time, DYNAMIC_RADIUS)
-        if len(ray_d) == 0:
+        pos = np.minimum(np.searchsorted(hits.ray, ray_d), max(len(hits.ray) - 1, 0))
+        has_static = (hits.ray[pos] == ray_d) if len(hits.ray) else np.zeros(len(ray_d), dtype=bool)
+        swap = has_static & (dist_d < hits.dist[pos] if len(hits.ray) else has_static)
+        new = ~has_static
+        if not swap.any() and not new.any():
             return hits
-        best = np.full(len(directions), np.inf)
-        best[hits.ray] = hits.dist
-        nearer = dist_d < best[ray_d]
-        ray_d, dist_d, normal_d, refl_d, mat_d = ray_d[nearer], dist_d[nearer], normal_d[nearer], refl_d[nearer], mat_d[nearer]
-        covered = np.zeros(len(directions), dtype=bool)
-        covered[ray_d] = True
-        keep = ~covered[hits.ray]
-        ray = np.concatenate([hits.ray[keep], ray_d])
-        order = np.argsort(ray, kind="stable")
-        return Hits(np.concatenate([hits.tri[keep], np.full(len(ray_d), -1, dtype=hits.tri.dtype)])[order], ray[order],
-                    np.concatenate([hits.dist[keep], dist_d])[order],
-                    np.concatenate([hits.normal[keep], normal_d])[order],
-                    np.concatenate([hits.reflectance[keep], refl_d.astype(hits.reflectance.dtype)])[order],
-                    np.concatenate([hits.material[keep], mat_d])[order])
+        tri, dist, normal = hits.tri.copy(), hits.dist.copy(), hits.normal.copy()
+        refl, material = hits.reflectance.copy(), hits.material.copy()
+        at = pos[swap]
+        tri[at], dist[at], normal[at], refl[at], material[at] = -1, dist_d[swap], normal_d[swap], refl_d[swap], mat_d[swap]
+        ray = hits.ray
+        if new.any():  # rays that hit only a dynamic object: merged in ray order
+            ray = np.concatenate([ray, ray_d[new]])
+            order = np.argsort(ray, kind="stable")
+            ray = ray[order]
+            tri = np.concatenate([tri, np.full(new.sum(), -1, dtype=tri.dtype)])[order]
+            dist = np.concatenate([dist, dist_d[new]])[order]
+            normal = np.concatenate([normal, normal_d[new]])[order]
+            refl = np.concatenate([refl, refl_d[new].astype(refl.dtype)])[order]
+            material = np.concatenate([material, mat_d[new]])[order]
+        return Hits(tri, ray, dist, normal, refl, material)
 
 
 class GroundModel:
@@ -220,7 +228,7 @@ def build_world(poses: np.ndarray, style: str = "city", seed: int = 0, sensor_he
     st = STYLES[style]
     rng = np.random.default_rng(seed)
     ground = GroundModel(poses, sensor_height, rng)
-    xy = extend_path(poses[:, :2, 3], 80.0)
+    xy = extend_path(poses[:, :2, 3], PATH_LEAD)
     path = PathFrame.of(xy)
     plan = plan_stretches(path.length, realism.catalogue_share, realism.hard_share, realism.hard_kinds,
                           realism.catalogue_designs, np.random.default_rng([seed, 12, 1]))
@@ -242,4 +250,4 @@ def build_world(poses: np.ndarray, style: str = "city", seed: int = 0, sensor_he
                            st.pedestrian_offset, realism.turnover_period)
     dynamic = make_dynamic(path, ground, recipe, np.array(layout.transient).reshape(-1, 11),
                            np.random.default_rng([seed, 12, 3]), seed)
-    return World(mesh, reflectance, material, dynamic, realism, seed)
+    return World(mesh, reflectance, material, dynamic, realism, seed, plan)

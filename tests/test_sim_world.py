@@ -1,0 +1,241 @@
+"""Simulated world realism (issue 12): the plain world unchanged, moving and transient objects, foliage,
+reused street designs, hard stretches, determinism."""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import pytest
+
+from msa_slam.descriptors.scan_context import ScanContext
+from msa_slam.errors import InputError
+from msa_slam.sim.dynamic import DRIVE, FIXED, WALK
+from msa_slam.sim.sensors import get_sensor
+from msa_slam.sim.shapes import Material
+from msa_slam.sim.world import PATH_LEAD, World, WorldRealism, build_world
+
+BUSY = WorldRealism(moving_cars=3.0, pedestrians=3.0, transient_parking=0.5, turnover_period=10.0,
+                    foliage_gap=0.4)
+
+
+def _path(n: int, bend: float = 40.0) -> np.ndarray:
+    """(n, 4, 4) poses ~1 m apart along a gentle S curve (or a straight line with bend=0), facing along it."""
+    t = np.arange(n, dtype=float)
+    xy = np.column_stack([t, bend * np.sin(t / max(n, 1) * 3.0)])
+    yaw = np.arctan2(np.gradient(xy[:, 1]), np.gradient(xy[:, 0]))
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    poses[:, 0, 0], poses[:, 0, 1], poses[:, 1, 0], poses[:, 1, 1] = np.cos(yaw), -np.sin(yaw), np.sin(yaw), np.cos(yaw)
+    poses[:, :2, 3] = xy
+    return poses
+
+
+def _digest(*arrays: np.ndarray) -> str:
+    h = hashlib.sha256()
+    for a in arrays:
+        h.update(np.ascontiguousarray(np.round(np.asarray(a, dtype=np.float64), 6)).tobytes())
+    return h.hexdigest()[:16]
+
+
+def _directions(n: int = 4000) -> np.ndarray:
+    d = np.random.default_rng(0).normal(size=(n, 3))
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def _scan(world: World, pose: np.ndarray, time: float = 0.0, steps: int = 360) -> np.ndarray:
+    """Noise-free sensor-frame points of an HDL-64-like scan at `time`."""
+    dirs = get_sensor("hdl64", azimuth_steps=steps).directions()
+    hits = world.cast(pose[:3, 3], dirs @ pose[:3, :3].T, time)
+    keep = (hits.dist >= 1.0) & (hits.dist <= 120.0)
+    return dirs[hits.ray[keep]] * hits.dist[keep, None]
+
+
+# --- the plain world --------------------------------------------------------------------------------
+def test_clean_world_is_the_world_before_realism():
+    """Mesh, reflectance and cast results equal those of the code before WorldRealism existed (digests
+    recorded from it, rounded to 1e-6), for the default and the explicit clean realism."""
+    poses = _path(300)
+    for realism in (None, WorldRealism.clean()):
+        world = build_world(poses, "city", seed=5) if realism is None else build_world(poses, "city", 5, realism=realism)
+        assert world.triangles == 36510
+        assert _digest(world.mesh.vertices, world.mesh.faces, world.reflectance) == "306a8ae2f34d00f0"
+        tri, ray, dist = world.cast(poses[150, :3, 3], _directions())
+        assert _digest(tri, ray, dist) == "ce6d46511bef7426"
+        assert world.dynamic is None and world.stretches == ()
+
+
+def test_cast_reports_materials_and_keeps_old_unpacking():
+    world = build_world(_path(200), "city", seed=1)
+    hits = world.cast(_path(200)[100, :3, 3], _directions(20000))
+    tri, ray, dist = hits
+    assert np.array_equal(tri, hits.tri) and len(hits) == len(ray) == len(dist)
+    assert np.array_equal(hits.material, world.material[tri])
+    assert np.allclose(hits.normal, world.face_normals[tri])
+    found = set(np.unique(hits.material).tolist())
+    assert {Material.GROUND, Material.SOLID, Material.VEGETATION} <= found
+
+
+# --- moving and transient objects ----------------------------------------------------------------------
+def test_moving_objects_move_and_parked_ones_stay():
+    world = build_world(_path(400, bend=0.0), "city", seed=2, realism=BUSY)
+    dyn = world.dynamic
+    kinds = set(dyn.motion.tolist())
+    assert kinds == {FIXED, DRIVE, WALK}
+    a, _ = dyn.poses_at(10.0)
+    b, _ = dyn.poses_at(12.0)
+    step = np.linalg.norm(b[:, :2] - a[:, :2], axis=1)
+    fixed = dyn.motion == FIXED
+    assert np.all(step[fixed] == 0.0)
+    cars = dyn.motion == DRIVE  # straight path: distance covered = speed x time (unless wrapped around)
+    wrapped = step[cars] > 100
+    assert np.allclose(step[cars][~wrapped], 2.0 * np.abs(dyn.speed[cars][~wrapped]), atol=1e-6)
+    walk = dyn.motion == WALK
+    assert np.all(step[walk] <= 2.0 * dyn.speed[walk] + 1e-9) and step[walk].max() > 0
+
+
+def _ray_to(world: World, target: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A ray from `target` + `offset` (x, y; 1 m above the ground) towards 0.6 m above `target`."""
+    origin = np.array([*(target[:2] + offset), world.dynamic.ground(target[None, :2])[0] + 1.0])
+    direction = target + np.array([0.0, 0.0, 0.6]) - origin
+    return origin, (direction / np.linalg.norm(direction))[None]
+
+
+def test_transient_cars_are_there_in_some_time_windows_only():
+    world = build_world(_path(400, bend=0.0), "city", seed=3, realism=BUSY)
+    dyn = world.dynamic
+    transient = np.flatnonzero(dyn.period > 0)
+    assert len(transient) > 0
+    times = np.arange(0.0, 400.0, 10.0)
+    present = np.array([dyn.present(t)[transient] for t in times])
+    assert 0.3 < present.mean() < 0.7  # a fair coin per epoch
+    k = transient[np.argmax(present.any(0) & ~present.all(0))]
+    t_on, t_off = times[present[:, list(transient).index(k)]][0], times[~present[:, list(transient).index(k)]][0]
+    car = np.array([*dyn.xy[k], dyn.z[k]])
+    origin, direction = _ray_to(world, car, np.array([0.0, -car[1]]))  # from the road (y = 0)
+    on = world.cast(origin, direction, float(t_on))
+    off = world.cast(origin, direction, float(t_off))
+    assert on.material.tolist() == [Material.VEHICLE] and on.tri[0] == -1
+    assert not (off.tri == -1).any()
+
+
+def test_a_moving_car_is_hit_where_it_is_at_that_time():
+    world = build_world(_path(400, bend=0.0), "city", seed=4, realism=BUSY)
+    dyn = world.dynamic
+    pos, _ = dyn.poses_at(20.0)
+    mid = np.flatnonzero((dyn.motion == DRIVE) & (pos[:, 0] > 60) & (pos[:, 0] < 340))[0]
+    origin, direction = _ray_to(world, pos[mid], np.array([-6.0, 0.0]))  # from behind, along the road
+    now, later = world.cast(origin, direction, 20.0), world.cast(origin, direction, 23.0)
+    assert now.material.tolist() == [Material.VEHICLE] and now.dist[0] < 6.5
+    assert not (later.tri == -1).any()
+
+
+def test_objects_never_sit_on_the_sensor():
+    """Dynamic objects whose footprint reaches the ray origin are left out (a car driving in the ego lane
+    would otherwise swallow the whole scan)."""
+    world = build_world(_path(400, bend=0.0), "city", seed=5, realism=BUSY)
+    pos, _ = world.dynamic.poses_at(30.0)
+    hits = world.cast(pos[0] + np.array([0.0, 0.0, 1.0]), _directions(2000), 30.0)
+    assert np.median(hits.dist) > 3.0
+
+
+def test_foliage_returns_vary_between_scans_but_not_within_one():
+    poses = _path(300)
+    plain = build_world(poses, "city", seed=6)
+    leafy = build_world(poses, "city", seed=6, realism=WorldRealism(foliage_gap=0.5))
+    dirs = _directions(30000)
+    origin = poses[150, :3, 3]
+    base = plain.cast(origin, dirs)
+    veg = base.ray[base.material == Material.VEGETATION]
+    assert len(veg) > 20
+    a, a2, b = leafy.cast(origin, dirs, 1.0), leafy.cast(origin, dirs, 1.0), leafy.cast(origin, dirs, 1.1)
+    assert np.array_equal(a.ray, a2.ray) and np.array_equal(a.dist, a2.dist)
+
+    def dist_of(h):
+        out = np.full(len(dirs), np.inf)
+        out[h.ray] = h.dist
+        return out
+    da, db, d0 = dist_of(a), dist_of(b), dist_of(base)
+    assert np.all(da[veg] >= d0[veg] - 1e-9)  # passing a crown never brings a return closer
+    assert 0.2 < np.mean(da[veg] > d0[veg] + 1e-6) < 0.8
+    assert np.any(da[veg] != db[veg])
+    solid = base.ray[base.material == Material.SOLID]
+    assert np.array_equal(da[solid], d0[solid])
+
+
+# --- reused designs and hard stretches ---------------------------------------------------------------
+def test_two_far_places_of_the_same_design_look_alike():
+    poses = _path(1300, bend=0.0)
+    realism = WorldRealism(catalogue_designs=1, catalogue_share=0.6)
+    world = build_world(poses, "city", seed=7, realism=realism)
+    plain = build_world(poses, "city", seed=7)
+    designed = [s for s in world.stretches if s.kind == "design" and s.end - s.start > 150
+                and PATH_LEAD + 80 < s.start < PATH_LEAD + len(poses) - 230]
+    assert len(designed) >= 2
+    a, b = designed[0], designed[1]
+    frame_a = int(a.start + 60.0 - PATH_LEAD)  # same place relative to each stretch's first house
+    frame_b = int(round(frame_a + (b.start - a.start)))
+    assert abs(frame_b - frame_a) > 100
+    sc = ScanContext()
+
+    def sim(w: World) -> float:
+        return sc.similarity(sc.compute(_scan(w, poses[frame_a])), sc.compute(_scan(w, poses[frame_b])))
+    assert sim(world) > 0.8
+    assert sim(world) > sim(plain) + 0.1
+
+
+@pytest.mark.parametrize("kind", ["field", "wall", "tunnel", "highway"])
+def test_hard_stretches_keep_the_road_open(kind):
+    poses = _path(500)
+    world = build_world(poses, "city", seed=8, realism=WorldRealism(hard_share=0.6, hard_kinds=(kind,)))
+    assert {s.kind for s in world.stretches} == {kind}
+    origins = poses[:-1, :3, 3]
+    step = poses[1:, :3, 3] - origins
+    tri, ray, dist = world.cast(origins, step / np.linalg.norm(step, axis=1, keepdims=True))
+    assert not np.any(dist < np.linalg.norm(step, axis=1)[ray]), "path blocked"
+    if kind == "tunnel":  # a roof over the road inside the stretch
+        s = world.stretches[0]
+        k = int((s.start + s.end) / 2 - PATH_LEAD)
+        up = world.cast(poses[k, :3, 3], np.array([[0.0, 0.0, 1.0]]))
+        assert len(up) == 1 and 2.0 < up.dist[0] < 6.0
+
+
+def test_walls_make_places_along_the_stretch_alike():
+    """Scan Context cannot tell places apart along a long plain wall: the travel direction is unconstrained."""
+    poses = _path(700, bend=0.0)
+    world = build_world(poses, "city", seed=9, realism=WorldRealism(hard_share=0.6, hard_kinds=("wall",)))
+    plain = build_world(poses, "city", seed=9)
+    s = max(world.stretches, key=lambda x: x.end - x.start)
+    k = int((s.start + s.end) / 2 - PATH_LEAD) - 15
+    sc = ScanContext()
+
+    def sim(w: World) -> float:
+        return sc.similarity(sc.compute(_scan(w, poses[k])), sc.compute(_scan(w, poses[k + 30])))
+    assert sim(world) > 0.85 > sim(plain)
+
+
+# --- determinism and knobs ---------------------------------------------------------------------------
+def test_worlds_are_deterministic_per_seed():
+    poses = _path(300)
+    realism = WorldRealism(moving_cars=2.0, pedestrians=2.0, transient_parking=0.3, catalogue_designs=2,
+                           catalogue_share=0.4, hard_share=0.3, foliage_gap=0.3)
+    a, b, c = (build_world(poses, "city", seed=s, realism=realism) for s in (11, 11, 12))
+    dirs = _directions(20000)
+    origin = poses[150, :3, 3]
+    ha, hb, hc = (w.cast(origin, dirs, 7.3) for w in (a, b, c))
+    assert _digest(a.mesh.vertices, a.reflectance, a.material) == _digest(b.mesh.vertices, b.reflectance, b.material)
+    assert a.stretches == b.stretches
+    assert all(np.array_equal(x, y) for x, y in zip(a.dynamic.poses_at(7.3), b.dynamic.poses_at(7.3)))
+    assert all(np.array_equal(getattr(ha, f), getattr(hb, f)) for f in ("tri", "ray", "dist", "material"))
+    assert a.triangles != c.triangles or not np.array_equal(ha.dist, hc.dist)
+
+
+@pytest.mark.parametrize("knob,value,message", [
+    ("moving_cars", -1.0, "moving_cars must be in"),
+    ("foliage_gap", 1.0, "foliage_gap must be in"),
+    ("catalogue_share", 0.5, "catalogue_designs must be >= 1"),
+    ("hard_kinds", ("swamp",), "hard_kinds"),
+    ("turnover_period", 0.0, "turnover_period must be > 0"),
+])
+def test_bad_realism_knobs_are_one_clear_error(knob, value, message):
+    with pytest.raises(InputError, match=message):
+        WorldRealism(**{knob: value})
