@@ -325,7 +325,8 @@ def test_cli_simulate(tmp_path, monkeypatch, capsys):
 # --- realism ----------------------------------------------------------------------------------------
 
 def test_default_sequences_are_the_documented_ones(test_sequence):
-    assert DEFAULT_CONFIGS["demo"].trajectory == "kitti-05" and DEFAULT_CONFIGS["demo"].stride == 3
+    demo = DEFAULT_CONFIGS["demo"]
+    assert (demo.trajectory, demo.stride, demo.realism) == ("kitti-06", 1, "kitti")
     poses, _ = read_poses(test_sequence / "poses.txt")
     assert 150 <= len(poses) <= 250
     assert _revisit_pairs(poses[:, :3, 3], 3.0, 50)

@@ -4,7 +4,9 @@ KITTI (Geiger, Lenz, Urtasun, "Are we ready for autonomous driving?", CVPR 2012;
 gives ground truth as cam0 poses; with the Velodyne->cam0 extrinsic Tr, the LiDAR pose is
 T_world_lidar = Tr^-1 @ P_cam0 @ Tr (the world frame becomes the first LiDAR frame). The shipped files
 store translations and unit quaternions as float32 plus the timestamps, so the five trajectories take a
-few hundred KB. Regenerate with `python -m msa_slam.sim.kitti_data /path/to/kitti_gt`.
+few hundred KB. Regenerate with `python -m msa_slam.sim.kitti_data /path/to/kitti_gt`. Other sequences need
+no conversion: `msa-slam simulate --trajectory NN.txt --times NN_times.txt --calib calib.txt` reads KITTI's
+files directly (sim.trajectories.read_trajectory, the same cam0 -> LiDAR conversion).
 """
 
 from __future__ import annotations
