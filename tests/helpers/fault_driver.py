@@ -52,15 +52,15 @@ def main() -> None:
         return real_replace(src, dst, *a, **k)
 
     os.replace = replace
-    import msa_slam.io.outputs as outputs
+    import msa_slam.io.staging as staging
 
-    real_exchange = outputs._exchange
+    real_exchange = staging._exchange
 
     def exchange(a, b):
         check(b)
         return real_exchange(a, b)
 
-    outputs._exchange = exchange
+    staging._exchange = exchange
     from msa_slam.cli import main as cli_main
 
     sys.argv = ["msa-slam", *args]

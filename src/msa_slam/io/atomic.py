@@ -15,7 +15,7 @@ def atomic_path(target: str | os.PathLike) -> Iterator[Path]:
 
     The file gets 0666 minus the umask (mkstemp's 0600 would hide results from the user's group).
     """
-    from msa_slam.io.outputs import current_umask
+    from msa_slam.io.staging import current_umask
 
     target = Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)

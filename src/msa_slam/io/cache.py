@@ -27,7 +27,7 @@ import numpy as np
 
 import msa_slam
 from msa_slam.errors import InputError
-from msa_slam.io.outputs import current_umask
+from msa_slam.io.staging import current_umask
 
 log = logging.getLogger(__name__)
 
