@@ -9,7 +9,7 @@ import pytest
 
 from msa_slam.descriptors import ScanContext
 from msa_slam.errors import InputError
-from msa_slam.place_recognition import Candidate, KeyframeDatabase, precision_recall
+from msa_slam.place_recognition import ExtraFrame, KeyframeDatabase, precision_recall
 from msa_slam.place_recognition.figures import plot_pr_curves
 
 
@@ -70,7 +70,7 @@ def test_reference_protocol(scalar_db):
     # keyframe 20 matches better but is not among the pose neighbours
     assert scalar_db.query_reference(100, pose_at(62.0), np.array([20.0]), n_nearest=3).keyframe_id == 50
     # an extra candidate (e.g. an MSA window member) that matches better wins
-    extra = [Candidate(75, pose_at(75.0), np.array([48.0]))]
+    extra = [ExtraFrame(75, pose_at(75.0), np.array([48.0]))]
     m = scalar_db.query_reference(100, pose_at(62.0), np.array([48.0]), n_nearest=3, extra=extra)
     assert (m.keyframe_id, m.similarity, m.distance) == (75, 1.0, pytest.approx(13.0))
     # match not more than 10 frames away -> nothing recorded

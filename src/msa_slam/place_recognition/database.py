@@ -24,7 +24,9 @@ SEARCH_MODES = ("auto", "exhaustive", "two_stage")
 
 @dataclass(frozen=True)
 class LoopMatch:
-    """A loop candidate: query frame, matched keyframe, similarity and translation distance (m)."""
+    """A descriptor match found by the database: query frame, matched keyframe, similarity and the distance (m)
+    between their stored poses. The SLAM core turns matches into msa_slam.types.LoopClosure (with the
+    ground-truth distance and the verification outcome)."""
 
     query_id: int
     keyframe_id: int
@@ -33,7 +35,7 @@ class LoopMatch:
 
 
 @dataclass(frozen=True)
-class Candidate:
+class ExtraFrame:
     """A frame outside the database offered to `query_reference` (e.g. an MSA window member)."""
 
     frame_id: int
@@ -201,7 +203,7 @@ class KeyframeDatabase:
         pose: np.ndarray,
         descriptor: np.ndarray,
         n_nearest: int = 10,
-        extra: Iterable[Candidate] = (),
+        extra: Iterable[ExtraFrame] = (),
         min_gap: int = 10,
     ) -> LoopMatch | None:
         """The reference example's protocol: best match among the `n_nearest` keyframes by pose plus
