@@ -56,7 +56,8 @@ def test_clean_world_is_the_world_before_realism():
     recorded from it, rounded to 1e-6), for the default and the explicit clean realism."""
     poses = _path(300)
     for realism in (None, WorldRealism.clean()):
-        world = build_world(poses, "city", seed=5) if realism is None else build_world(poses, "city", 5, realism=realism)
+        world = (build_world(poses, "city", seed=5) if realism is None
+                 else build_world(poses, "city", seed=5, realism=realism))
         assert world.triangles == 36510
         assert _digest(world.mesh.vertices, world.mesh.faces, world.reflectance) == "306a8ae2f34d00f0"
         tri, ray, dist = world.cast(poses[150, :3, 3], _directions())

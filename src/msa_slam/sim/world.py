@@ -164,7 +164,8 @@ class World:
         tri, dist, normal = hits.tri.copy(), hits.dist.copy(), hits.normal.copy()
         refl, material = hits.reflectance.copy(), hits.material.copy()
         at = pos[swap]
-        tri[at], dist[at], normal[at], refl[at], material[at] = -1, dist_d[swap], normal_d[swap], refl_d[swap], mat_d[swap]
+        tri[at], dist[at], normal[at] = -1, dist_d[swap], normal_d[swap]
+        refl[at], material[at] = refl_d[swap], mat_d[swap]
         ray = hits.ray
         if new.any():  # rays that hit only a dynamic object: merged in ray order
             ray = np.concatenate([ray, ray_d[new]])
