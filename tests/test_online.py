@@ -258,3 +258,35 @@ def test_long_tour_keeps_memory_bounded(tmp_path):
     in_ram_per_keyframe = (mem["descriptor_bytes"][-1] + mem["graph_bytes"][-1]) / m["keyframes"]
     growth = mem["rss_bytes"][-1] - mem["rss_bytes"][tenth]
     assert growth < 100 * 2**20 + 4 * in_ram_per_keyframe * m["keyframes"]
+
+
+def test_online_trajectories_carry_the_frames_own_times(tmp_path):
+    """Trajectory files of an online run use each frame's time (it was frame / sensor rate before)."""
+    from msa_slam.pipeline.results import write_run_files
+
+    scans = [f for _, f in zip(range(40), open_source(COARSE).frames())]
+    times = 100.0 + 0.1 * np.arange(40) + 0.03 * (np.arange(40) % 2)  # irregular, not starting at 0
+    gt = np.stack([s.gt_pose for s in scans])
+    source = FrameSource("timed", gt, lambda: (Frame(i, t, s.points, s.gt_pose) for i, (t, s) in
+                                                enumerate(zip(times, scans))))
+    cfg = make_online_config(dataset=COARSE, odometry="gt-noise", sampler="constant", sampler_params={"distance": 1.0})
+    result = run_online(cfg, source)
+    write_run_files(result, tmp_path, figures=False)
+    stamps = np.loadtxt(tmp_path / "trajectories" / "odometry.tum")[:, 0]
+    np.testing.assert_allclose(stamps, times, atol=1e-6)
+    kf_stamps = np.loadtxt(tmp_path / "trajectories" / "optimised_keyframes.tum")[:, 0]
+    np.testing.assert_allclose(kf_stamps, times[result.keyframes], atol=1e-6)
+
+
+def test_online_samples_on_ground_truth_when_asked():
+    """`sample_on: gt` reaches the online pipeline (it sampled odometry poses whatever the setting)."""
+    frames = [f for _, f in zip(range(60), open_source(COARSE).frames())]
+    source = FrameSource("first-60", np.stack([f.gt_pose for f in frames]), lambda: iter(frames))
+    noisy = {"translation_noise": 0.3, "rotation_noise_deg": 2.0}
+    cfg = make_online_config(dataset=COARSE, odometry="gt-noise", odometry_params=noisy, sampler="constant",
+                             sampler_params={"distance": 2.0})
+    expected = sorted(make_sampler("constant", distance=2.0).run(source.gt_poses, None, flush=True))
+    on_gt = run_online(cfg.model_copy(update={"sample_on": "gt"}), source)
+    on_odometry = run_online(cfg, source)
+    assert on_gt.keyframes.tolist() == expected
+    assert on_odometry.keyframes.tolist() != expected  # the noisy odometry moves differently
