@@ -8,14 +8,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
 from msa_slam.errors import InputError
-
-if TYPE_CHECKING:
-    from msa_slam.datasets.frame import Frame
 
 ROTATION_TOLERANCE = 1e-4
 
@@ -94,7 +91,7 @@ class FrameSource:
 
     name: str
     gt_poses: np.ndarray
-    frames: Callable[[], Iterator["Frame"]]
+    frames: Callable[[], Iterator[Any]]  # msa_slam.datasets.Frame objects, in time order
     path: Path | None = None
 
     def __len__(self) -> int:
