@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -522,6 +523,10 @@ def test_realism_preset_is_in_the_cache_key_and_stores_point_times(tmp_path):
     assert make_config(**SMALL).realism == "kitti" and DEFAULT_CONFIGS["test"].realism == "clean"
     keys = {name: make_config(**SMALL, realism=name).key() for name in REALISM}
     assert len(set(keys.values())) == len(REALISM)
+    retuned = dataclasses.replace(REALISM["kitti"], world=dataclasses.replace(REALISM["kitti"].world, pedestrians=0.5))
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setitem(REALISM, "kitti", retuned)
+        assert make_config(**SMALL).key() != keys["kitti"], "a retuned preset must not reuse the cache"
     with pytest.raises(InputError, match="realism: unknown realism preset 'noisy'.*clean, kitti"):
         make_config(**SMALL, realism="noisy")
     real = simulate_sequence(make_config(**SMALL), cache_dir=tmp_path)

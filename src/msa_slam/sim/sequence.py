@@ -20,7 +20,7 @@ import hashlib
 import json
 import logging
 import os
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Iterator, NamedTuple
 
@@ -148,12 +148,14 @@ class SimConfig(BaseModel):
         return v
 
     def key(self) -> str:
-        """The cache key: hash of the config, the simulator version and the versions of msa-slam and of the
-        libraries that ray-cast the scans."""
+        """The cache key: hash of the config (a trajectory file by its content), the realism preset's parameters,
+        the simulator version and the versions of msa-slam and of the libraries that ray-cast the scans."""
         config = self.model_dump()
         if self.is_file:  # the files' content, not where they are
             config.update(trajectory="file", times=None, calib=None, trajectory_files=self._files_sha256)
-        return cache_key("simulation", [], {"config": config, "sim_version": SIM_VERSION}, SIM_LIBRARIES)
+        preset = asdict(REALISM[self.realism])  # its parameters: retuning a preset is a new simulation
+        return cache_key("simulation", [], {"config": config, "realism_preset": preset, "sim_version": SIM_VERSION},
+                         SIM_LIBRARIES)
 
 
 def make_config(**fields: object) -> SimConfig:
