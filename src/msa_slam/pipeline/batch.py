@@ -18,21 +18,10 @@ from msa_slam.errors import InputError
 from msa_slam.pipeline.config import BatchConfig
 from msa_slam.pipeline.frontend import Frontend, prepare_frontend
 from msa_slam.progress import progress_bar
-from msa_slam.registration import KeyframeCloudStore, Verifier
-from msa_slam.sampling import make_sampler
-from msa_slam.slam import BACKEND_STEPS, KeyframeStore, LoopCloser, RunResult, SlamBackend, core_metrics
+from msa_slam.registration import KeyframeCloudStore
+from msa_slam.slam import BACKEND_STEPS, RunResult, build_backend, core_metrics
 
 BACKEND_STAGES = (*BACKEND_STEPS, "optimisation")
-
-
-def make_backend(config: BatchConfig, descriptor, clouds, graph, n_frames: int, name: str,
-                 update_iterations: int = 0, recorder=None) -> SlamBackend:
-    """The SLAM core for `config`: its sampler, a keyframe store over `clouds`, loop closing with the
-    configured verifier, and `graph` (batch LM or iSAM2)."""
-    store = KeyframeStore(descriptor, clouds)
-    loops = LoopCloser(store, Verifier(config.verifier), config)
-    sampler = make_sampler(config.sampler, **config.sampler_params)
-    return SlamBackend(config, sampler, store, loops, graph, n_frames, name, update_iterations, recorder)
 
 
 def run_batch(config: BatchConfig, frontend: Frontend | None = None, quiet: bool = True) -> RunResult:
@@ -51,7 +40,7 @@ def run_batch(config: BatchConfig, frontend: Frontend | None = None, quiet: bool
 
 def _run_backend(config: BatchConfig, frontend: Frontend, quiet: bool) -> RunResult:
     graph = PoseGraph(config.graph)
-    backend = make_backend(config, frontend.descriptor, KeyframeCloudStore(config.verifier.voxel_size), graph,
+    backend = build_backend(config, frontend.descriptor, KeyframeCloudStore(config.verifier.voxel_size), graph,
                            len(frontend), frontend.name)
     sequence, times = frontend.sequence, frontend.sequence.times
     with progress_bar(quiet) as bar:

@@ -23,13 +23,12 @@ from msa_slam.descriptors import make_descriptor
 from msa_slam.errors import InputError
 from msa_slam.evaluation import peak_rss_bytes
 from msa_slam.odometry import NoisyOdometry, OdometryCache, ReplayedOdometry
-from msa_slam.pipeline.batch import make_backend
 from msa_slam.pipeline.frontend import make_odometry, pipeline_cache
 from msa_slam.pipeline.online_config import OnlineConfig
 from msa_slam.pipeline.results import backend_ms
 from msa_slam.pipeline.source import open_source
 from msa_slam.registration import make_cloud_store
-from msa_slam.slam import BACKEND_STEPS, RunResult, SlamBackend, core_metrics
+from msa_slam.slam import BACKEND_STEPS, RunResult, SlamBackend, build_backend, core_metrics
 from msa_slam.types import FrameSource
 
 STEPS = ("odometry", "descriptor", *BACKEND_STEPS)
@@ -131,7 +130,7 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     clouds = make_cloud_store(config.cloud_store, config.verifier.voxel_size, config.store_dir)
     graph = IncrementalPoseGraph(config.graph, final_iterations=config.update_iterations)
     recorder = MemoryRecorder(n)
-    backend = make_backend(config, descriptor, clouds, graph, n, source.name, config.update_iterations, recorder)
+    backend = build_backend(config, descriptor, clouds, graph, n, source.name, config.update_iterations, recorder)
     front_ms = {s: np.zeros(n, dtype=np.float32) for s in STEPS[:2]}
     with threadpool_limits(limits=1, user_api="blas"), online_progress(quiet) as bar, closing(backend):
         task = bar.add_task(f"online {config.name}", total=n, fps=0.0, rtf=0.0, kf=0, loops=0)

@@ -13,10 +13,13 @@ from typing import Callable, Protocol, Union
 
 import numpy as np
 
+from msa_slam.descriptors import Descriptor
 from msa_slam.errors import InputError
 from msa_slam.evaluation import evaluate_trajectories
+from msa_slam.registration import Verifier
+from msa_slam.sampling import make_sampler
 from msa_slam.sampling.base import Sampler
-from msa_slam.slam.keyframes import KeyframeStore
+from msa_slam.slam.keyframes import CloudStore, KeyframeStore
 from msa_slam.slam.loop_closing import LoopCloser
 from msa_slam.slam.result import RunResult, RunSettings
 from msa_slam.types import LoopClosure
@@ -64,9 +67,6 @@ class SlamBackend:
         self.loops: list[LoopClosure] = []
         self._pending: dict[int, tuple[np.ndarray, Points]] = {}  # frames the sampler may still choose
         self._frames = 0
-
-    def __len__(self) -> int:
-        return self._frames
 
     @property
     def keyframes(self) -> list[int]:
@@ -180,3 +180,13 @@ class SlamBackend:
     def close(self) -> None:
         """Release the keyframe clouds (a disk store removes the files it wrote); safe to call twice."""
         self.store.close()
+
+
+def build_backend(config: RunSettings, descriptor: Descriptor, clouds: CloudStore, graph: Graph, n_frames: int, name: str,
+                  update_iterations: int = 0, recorder: Recorder | None = None) -> SlamBackend:
+    """The SLAM core for a run configuration (msa_slam.pipeline.config.BatchConfig): its sampler, a keyframe
+    store over `clouds`, loop closing with its verifier, and `graph` (batch LM or iSAM2)."""
+    store = KeyframeStore(descriptor, clouds)
+    loops = LoopCloser(store, Verifier(config.verifier), config)
+    sampler = make_sampler(config.sampler, **config.sampler_params)
+    return SlamBackend(config, sampler, store, loops, graph, n_frames, name, update_iterations, recorder)

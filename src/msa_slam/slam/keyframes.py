@@ -34,13 +34,6 @@ class KeyframeStore:
     def __len__(self) -> int:
         return len(self._row)
 
-    def __contains__(self, frame: int) -> bool:
-        return frame in self._row
-
-    @property
-    def frames(self) -> list[int]:
-        return list(self._row)
-
     def add_cloud(self, frame: int, points: np.ndarray) -> None:
         self.clouds.add(frame, points)
 

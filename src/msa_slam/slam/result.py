@@ -14,6 +14,7 @@ import numpy as np
 
 from msa_slam.evaluation import TrajectoryEvaluation, peak_rss_bytes
 from msa_slam.place_recognition import PRCurve
+from msa_slam.registration import VerifierConfig
 from msa_slam.types import LoopClosure
 
 
@@ -22,6 +23,8 @@ class RunSettings(Protocol):
 
     dataset: str
     sampler: str
+    sampler_params: dict[str, Any]
+    verifier: VerifierConfig
     descriptor: str
     mode: str
     sample_on: str
