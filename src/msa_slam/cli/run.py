@@ -12,7 +12,7 @@ from msa_slam.cli.options import (CACHE_HELP, DATASET_HELP, DESCRIPTOR_HELP, MOD
 
 
 def batch_config(config_file: Optional[Path], given: dict, params: List[str]):
-    """The BatchConfig of `run` / `compare`: the options over --config, then the --param overrides."""
+    """The RunConfig of `run` / `compare`: the options over --config, then the --param overrides."""
     from msa_slam.cli.config import merge_options
     from msa_slam.pipeline.config import apply_params, load_config, make_config
 

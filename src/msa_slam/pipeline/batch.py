@@ -15,7 +15,7 @@ from threadpoolctl import threadpool_limits
 
 from msa_slam.backend import PoseGraph
 from msa_slam.errors import InputError
-from msa_slam.pipeline.config import BatchConfig
+from msa_slam.pipeline.config import RunConfig
 from msa_slam.pipeline.frontend import Frontend, prepare_frontend
 from msa_slam.progress import progress_bar
 from msa_slam.registration import KeyframeCloudStore
@@ -24,7 +24,7 @@ from msa_slam.slam import BACKEND_STEPS, RunResult, build_backend, core_metrics
 BACKEND_STAGES = (*BACKEND_STEPS, "optimisation")
 
 
-def run_batch(config: BatchConfig, frontend: Frontend | None = None, quiet: bool = True) -> RunResult:
+def run_batch(config: RunConfig, frontend: Frontend | None = None, quiet: bool = True) -> RunResult:
     """Run one sampler through the batch protocol; pass `frontend` to reuse odometry and descriptors.
 
     BLAS runs single-threaded: the descriptor searches are many small matrix products, which OpenBLAS
@@ -38,7 +38,7 @@ def run_batch(config: BatchConfig, frontend: Frontend | None = None, quiet: bool
         return _run_backend(config, frontend, quiet)
 
 
-def _run_backend(config: BatchConfig, frontend: Frontend, quiet: bool) -> RunResult:
+def _run_backend(config: RunConfig, frontend: Frontend, quiet: bool) -> RunResult:
     graph = PoseGraph(config.graph)
     backend = build_backend(config, frontend.descriptor, KeyframeCloudStore(config.verifier.voxel_size), graph,
                            len(frontend), frontend.name)

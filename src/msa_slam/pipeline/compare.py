@@ -15,7 +15,7 @@ from msa_slam.evaluation import ATE_ALIGNMENT, NA, fmt, notes
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
 from msa_slam.io.tables import mib, rows_csv, write_json
 from msa_slam.pipeline.batch import run_batch
-from msa_slam.pipeline.config import BatchConfig, make_config
+from msa_slam.pipeline.config import RunConfig, make_config
 from msa_slam.pipeline.frontend import Frontend, prepare_frontend
 from msa_slam.pipeline.results import trajectory_panels, write_run_files
 from msa_slam.place_recognition.figures import plot_pr_curves
@@ -113,8 +113,8 @@ def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: lis
     return "\n".join(lines)
 
 
-def method_configs(base: BatchConfig, methods: Sequence[tuple[str, str, dict[str, Any]]] = PAPER_METHODS
-                   ) -> list[BatchConfig]:
+def method_configs(base: RunConfig, methods: Sequence[tuple[str, str, dict[str, Any]]] = PAPER_METHODS
+                   ) -> list[RunConfig]:
     """One validated config per method: `base` with the method's sampler, parameters and label."""
     data = base.dump()
     return [make_config({**data, "sampler": s, "sampler_params": p, "label": label}) for label, s, p in methods]
@@ -128,7 +128,7 @@ class MethodsFailed(Exception):
         self.report, self.failed = report, failed
 
 
-def run_compare(base: BatchConfig, out: str | os.PathLike | None, quiet: bool = True,
+def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = True,
                 methods: Sequence[tuple[str, str, dict[str, Any]]] = PAPER_METHODS, overwrite: bool = False,
                 default_parent: Path = DEFAULT_RESULTS / "compare") -> Path:
     """Run every method on the sequence of `base` and write the comparison folder; return its report.md.
@@ -159,7 +159,7 @@ def run_compare(base: BatchConfig, out: str | os.PathLike | None, quiet: bool = 
     return folder.path / "report.md"
 
 
-def _run_methods(configs: Sequence[BatchConfig], frontend, runs: Path, quiet: bool
+def _run_methods(configs: Sequence[RunConfig], frontend, runs: Path, quiet: bool
                  ) -> tuple[list[RunResult], dict[str, str]]:
     """Each method's run folder under `runs`, in order; a failing method leaves its error.txt instead."""
     runs.mkdir()

@@ -1,4 +1,6 @@
-"""The batch experiment's configuration (pydantic): every knob of the paper's section V-A protocol.
+"""A run's configuration (pydantic): every knob of the paper's section V-A protocol, composed of the stages'
+own configs (`verifier`: registration.VerifierConfig, `graph`: backend.GraphConfig); the online protocol
+extends it (online_config.OnlineConfig).
 
 Unknown keys are an error that lists the valid ones, so a typo never silently runs the default.
 """
@@ -19,11 +21,9 @@ from msa_slam.errors import InputError
 from msa_slam.io.params import parse_key_value
 from msa_slam.registration.verify import VerifierConfig
 
-MODES = ("oracle", "realistic")
 
-
-class BatchConfig(StageConfig):
-    """One batch run: dataset, odometry, descriptor, sampler, loop closing, verification, graph.
+class RunConfig(StageConfig):
+    """One run: dataset, odometry, descriptor, sampler, loop closing, verification, graph.
 
     `dataset` is a sequence folder (KITTI layout, scan folder) or `sim:NAME` (NAME = demo, test, or a
     simulator trajectory such as kitti-05, optionally with simulator fields: `sim:kitti-05,stride=3`).
@@ -64,9 +64,9 @@ class BatchConfig(StageConfig):
         return self.model_dump(mode="json")
 
 
-def make_config(data: Mapping[str, Any] | None = None, **overrides: Any) -> BatchConfig:
-    """A validated BatchConfig from a mapping plus keyword overrides; problems become one InputError."""
-    config = BatchConfig(**{**(dict(data) if data else {}), **overrides})
+def make_config(data: Mapping[str, Any] | None = None, **overrides: Any) -> RunConfig:
+    """A validated RunConfig from a mapping plus keyword overrides; problems become one InputError."""
+    config = RunConfig(**{**(dict(data) if data else {}), **overrides})
     for section in _SECTIONS.values():
         check_finite(getattr(config, section), section)
     _check_sampler(config.sampler, config.sampler_params)
@@ -95,7 +95,7 @@ def _check_sampler(sampler: str, params: Mapping[str, Any]) -> None:
         raise InputError(f"config: {exc}") from None
 
 
-def load_config(path: str | os.PathLike) -> BatchConfig:
+def load_config(path: str | os.PathLike) -> RunConfig:
     """Read a YAML config file (the `config.yaml` of a result folder works as input)."""
     path = Path(path)
     if not path.is_file():
@@ -112,14 +112,14 @@ def load_config(path: str | os.PathLike) -> BatchConfig:
 _SECTIONS = {"sampler": "sampler_params", "descriptor": "descriptor_params", "odometry": "odometry_params"}
 
 
-def apply_params(config: BatchConfig, params: list[str]) -> BatchConfig:
+def apply_params(config: RunConfig, params: list[str]) -> RunConfig:
     """Apply `key=value` overrides (values parsed as YAML).
 
     Keys: a config field (`similarity_threshold=0.7`), a section field (`verifier.max_residual=0.2`,
     `graph.robust=cauchy`), a stage parameter (`sampler.lambda_u=5`, `descriptor.n_sector=60`,
     `odometry.max_range=80`), or a bare sampler parameter (`lambda_u=5`).
     """
-    return make_config(apply_overrides(config.dump(), params, BatchConfig))
+    return make_config(apply_overrides(config.dump(), params, RunConfig))
 
 
 def apply_overrides(data: dict, params: list[str], model: type[BaseModel]) -> dict:

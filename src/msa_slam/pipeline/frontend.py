@@ -23,7 +23,7 @@ from msa_slam.evaluation.sanity import frontend_warnings
 from msa_slam.io.cache import CacheDir, cache_key, cache_root, check_entry, input_identity, sequence_identity
 from msa_slam.odometry import KissOdometry, OdometryCache, PosesFromFile, sequence_odometry
 from msa_slam.odometry.kiss import PARAMETERS as KISS_PARAMETERS
-from msa_slam.pipeline.config import BatchConfig
+from msa_slam.pipeline.config import RunConfig
 from msa_slam.progress import progress_bar
 from msa_slam.pipeline.source import open_sequence
 
@@ -53,23 +53,23 @@ class Frontend:
     def name(self) -> str:
         return self.sequence.name
 
-    def matches(self, config: BatchConfig) -> bool:
+    def matches(self, config: RunConfig) -> bool:
         """True when `config` asks for this front end (same odometry and descriptor settings)."""
         return (self.odometry_config == _odometry_config(config, len(self))
                 and self.descriptor_settings == (config.descriptor, config.descriptor_params))
 
 
-def _odometry_config(config: BatchConfig, n_frames: int) -> dict[str, Any]:
+def _odometry_config(config: RunConfig, n_frames: int) -> dict[str, Any]:
     return {"odometry": config.odometry, "params": config.odometry_params, "frames": n_frames}
 
 
-def pipeline_cache(config: BatchConfig) -> Path:
+def pipeline_cache(config: RunConfig) -> Path:
     """Folder of the pipeline's caches: <cache root>/pipeline (root: config.cache_dir, $MSA_SLAM_CACHE
     or ~/.cache/msa-slam)."""
     return cache_root(config.cache_dir) / "pipeline"
 
 
-def make_odometry(config: BatchConfig, n_frames: int):
+def make_odometry(config: RunConfig, n_frames: int):
     """KISS-ICP with `odometry_params`, or the pose file named by `config.odometry` (length checked)."""
     if config.odometry == "kiss":
         try:
@@ -121,7 +121,7 @@ def compute_descriptors(sequence: ScanSequence, descriptor: Descriptor, cache: C
     return out, False
 
 
-def prepare_frontend(config: BatchConfig, quiet: bool = True) -> Frontend:
+def prepare_frontend(config: RunConfig, quiet: bool = True) -> Frontend:
     """Open the dataset, then odometry and descriptors for all frames (cached per sequence)."""
     timer = StageTimer()
     with timer.stage("dataset"):

@@ -10,10 +10,10 @@ from typing import Any, ClassVar, Literal, Mapping
 
 from pydantic import Field
 
-from msa_slam.pipeline.config import BatchConfig, apply_overrides
+from msa_slam.pipeline.config import RunConfig, apply_overrides
 
 
-class OnlineConfig(BatchConfig):
+class OnlineConfig(RunConfig):
     """One online run (the paper's section V-B protocol).
 
     `dataset` also accepts `live:NAME[,field=value...,laps=K]`: scans simulated in memory as the run

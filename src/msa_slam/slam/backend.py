@@ -184,7 +184,7 @@ class SlamBackend:
 
 def build_backend(config: RunSettings, descriptor: Descriptor, clouds: CloudStore, graph: Graph, n_frames: int, name: str,
                   update_iterations: int = 0, recorder: Recorder | None = None) -> SlamBackend:
-    """The SLAM core for a run configuration (msa_slam.pipeline.config.BatchConfig): its sampler, a keyframe
+    """The SLAM core for a run configuration (msa_slam.pipeline.config.RunConfig): its sampler, a keyframe
     store over `clouds`, loop closing with its verifier, and `graph` (batch LM or iSAM2)."""
     store = KeyframeStore(descriptor, clouds)
     loops = LoopCloser(store, Verifier(config.verifier), config)

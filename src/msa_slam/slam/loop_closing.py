@@ -23,7 +23,7 @@ from msa_slam.types import LoopClosure
 
 
 class LoopSettings(Protocol):
-    """The loop-closing fields of the run configuration (msa_slam.pipeline.config.BatchConfig)."""
+    """The loop-closing fields of the run configuration (msa_slam.pipeline.config.RunConfig)."""
 
     similarity_threshold: float
     min_frame_gap: int

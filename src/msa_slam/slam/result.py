@@ -19,7 +19,7 @@ from msa_slam.types import LoopClosure
 
 
 class RunSettings(Protocol):
-    """The fields of a run's configuration the core reads (msa_slam.pipeline.config.BatchConfig)."""
+    """The fields of a run's configuration the core reads (msa_slam.pipeline.config.RunConfig)."""
 
     dataset: str
     sampler: str
