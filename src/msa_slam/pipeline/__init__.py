@@ -1,12 +1,15 @@
 """Batch and online SLAM pipelines (the paper's Table I and Table II protocols) over the shared core
 (msa_slam.slam), the method comparison and the result folders."""
 
-from msa_slam.pipeline.batch import run_batch
-from msa_slam.pipeline.compare import PAPER_METHODS, run_compare
-from msa_slam.pipeline.config import RunConfig, apply_params, load_config, make_config
-from msa_slam.pipeline.frontend import Frontend, prepare_frontend
-from msa_slam.pipeline.results import write_run
-from msa_slam.slam import LoopClosure, RunResult
+from msa_slam._lazy import lazy_exports
 
-__all__ = ["PAPER_METHODS", "RunConfig", "Frontend", "LoopClosure", "RunResult", "apply_params", "load_config",
-           "make_config", "prepare_frontend", "run_batch", "run_compare", "write_run"]
+_EXPORTS = {
+    "run_batch": "batch",
+    **dict.fromkeys(["PAPER_METHODS", "run_compare"], "compare"),
+    **dict.fromkeys(["RunConfig", "apply_params", "load_config", "make_config"], "config"),
+    **dict.fromkeys(["Frontend", "prepare_frontend"], "frontend"),
+    "run_online": "online",
+    "write_run": "results",
+}
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

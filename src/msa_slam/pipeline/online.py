@@ -25,7 +25,6 @@ from msa_slam.evaluation import peak_rss_bytes
 from msa_slam.odometry import NoisyOdometry, OdometryCache, ReplayedOdometry
 from msa_slam.pipeline.frontend import make_odometry, pipeline_cache
 from msa_slam.pipeline.online_config import OnlineConfig
-from msa_slam.pipeline.results import backend_ms
 from msa_slam.pipeline.source import open_source
 from msa_slam.registration import make_cloud_store
 from msa_slam.slam import BACKEND_STEPS, RunResult, SlamBackend, build_backend, core_metrics
@@ -74,7 +73,7 @@ def _metrics(result: RunResult) -> dict[str, Any]:
     cfg, mem, n = result.config, result.memory, len(result)
     totals = {s: float(result.steps_ms[s].sum()) / 1e3 for s in STEPS}
     final_s = result.final_s["optimisation"]
-    backend = float(backend_ms(result).sum()) / 1e3 + final_s
+    backend = float(result.backend_ms.sum()) / 1e3 + final_s
     wall = backend + totals["odometry"]
     metrics = {"pipeline": "online", **core_metrics(result)}
     memory = metrics["memory_bytes"]
@@ -87,7 +86,7 @@ def _metrics(result: RunResult) -> dict[str, Any]:
         "fps": n / wall if wall > 0 else float("inf"),
         "backend_fps": n / backend if backend > 0 else float("inf"),
         "realtime_factor": (n / wall) / cfg.sensor_rate_hz if wall > 0 else float("inf"),
-        "latency_ms": {"backend": _percentiles(backend_ms(result)),
+        "latency_ms": {"backend": _percentiles(result.backend_ms),
                        **{s: _percentiles(result.steps_ms[s]) for s in STEPS},
                        "graph_update_per_keyframe_step": _percentiles(graph_steps)},
     })

@@ -68,6 +68,11 @@ class RunResult:
         return [c for c in self.loops if c.accepted]
 
     @property
+    def backend_ms(self) -> np.ndarray:
+        """Per-frame time of everything after odometry (ms)."""
+        return sum(v for s, v in self.steps_ms.items() if s != "odometry")
+
+    @property
     def ate_errors(self) -> dict[str, np.ndarray | None]:
         return self.evaluation.errors
 

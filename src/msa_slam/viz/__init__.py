@@ -1,9 +1,12 @@
 """Figures (matplotlib, Agg): trajectories coloured by error with keyframes and loops, metric bars, and the
 online / experiment figures (memory over time, per-step times, ATE differences, parameter sweeps)."""
 
-from msa_slam.viz.experiment_figures import plot_ate_difference, plot_memory, plot_step_times, plot_sweeps
-from msa_slam.viz.save import save_figure
-from msa_slam.viz.trajectories import TrajectoryPanel, plot_metric_bars, plot_trajectories
+from msa_slam._lazy import lazy_exports
 
-__all__ = ["TrajectoryPanel", "plot_ate_difference", "plot_memory", "plot_metric_bars", "plot_step_times",
-           "plot_sweeps", "plot_trajectories", "save_figure"]
+_EXPORTS = {
+    **dict.fromkeys(["plot_ate_difference", "plot_memory", "plot_step_times", "plot_sweeps"], "experiment_figures"),
+    "save_figure": "save",
+    **dict.fromkeys(["TrajectoryPanel", "plot_metric_bars", "plot_trajectories"], "trajectories"),
+}
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
