@@ -131,9 +131,9 @@ class Cell:
     index: int = 0  # position in the grid's expansion (report order)
 
     def info(self) -> dict[str, Any]:
-        return {"id": self.id, "index": self.index, "pipeline": self.pipeline, "dataset": self.dataset, "descriptor": self.descriptor,
-                "method": self.method, "sampler": self.sampler, "swept": self.swept, "parameters": self.parameters,
-                "seed": self.seed}
+        return {"id": self.id, "index": self.index, "pipeline": self.pipeline, "dataset": self.dataset,
+                "descriptor": self.descriptor, "method": self.method, "sampler": self.sampler, "swept": self.swept,
+                "parameters": self.parameters, "seed": self.seed}
 
 
 def parse_grid(data: Any, where: str = "grid") -> GridSpec:

@@ -149,7 +149,8 @@ def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = Tr
             (tmp / "comparison.csv").write_text(rows_csv(rows, COLUMNS))
             write_json(tmp / "comparison.json", [r.metrics for r in results])
             figures = _figures(results, tmp / "figures") if results else []
-            report = _report(frontend, results, table, figures) if results else f"# Sampler comparison on {frontend.name}\n"
+            report = (_report(frontend, results, table, figures) if results
+                      else f"# Sampler comparison on {frontend.name}\n")
             if failed:
                 report += "\n## Failed methods\n\n" + "".join(f"- {name}: {error} (traceback: runs/{name}/error.txt)\n"
                                                          for name, error in failed.items())

@@ -56,7 +56,8 @@ class SlamBackend:
     def __init__(self, settings: RunSettings, sampler: Sampler, store: KeyframeStore, loop_closer: LoopCloser,
                  graph: Graph, n_frames: int, name: str = "sequence", update_iterations: int = 0,
                  recorder: Recorder | None = None) -> None:
-        self.settings, self.sampler, self.store, self.loop_closer, self.graph = settings, sampler, store, loop_closer, graph
+        self.settings, self.sampler, self.store = settings, sampler, store
+        self.loop_closer, self.graph = loop_closer, graph
         self.name, self.update_iterations, self.recorder = name, int(update_iterations), recorder
         self.n = int(n_frames)
         self.sampler.expect_frames(self.n)
@@ -182,8 +183,8 @@ class SlamBackend:
         self.store.close()
 
 
-def build_backend(config: RunSettings, descriptor: Descriptor, clouds: CloudStore, graph: Graph, n_frames: int, name: str,
-                  update_iterations: int = 0, recorder: Recorder | None = None) -> SlamBackend:
+def build_backend(config: RunSettings, descriptor: Descriptor, clouds: CloudStore, graph: Graph, n_frames: int,
+                  name: str, update_iterations: int = 0, recorder: Recorder | None = None) -> SlamBackend:
     """The SLAM core for a run configuration (msa_slam.pipeline.config.RunConfig): its sampler, a keyframe
     store over `clouds`, loop closing with its verifier, and `graph` (batch LM or iSAM2)."""
     store = KeyframeStore(descriptor, clouds)

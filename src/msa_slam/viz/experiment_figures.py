@@ -1,5 +1,5 @@
-"""Figures of online runs and experiment grids, as in the paper's Figs. 7-8: memory over time, per-step time distributions,
-and the box plot of ATE differences to all samples (matplotlib, Agg)."""
+"""Figures of online runs and experiment grids, as in the paper's Figs. 7-9: memory over time, per-step time
+distributions, the box plot of ATE differences to all samples and parameter sweeps (matplotlib, Agg)."""
 
 from __future__ import annotations
 
