@@ -33,12 +33,12 @@ class Realism:
 REALISM: dict[str, Realism] = {
     "clean": Realism(SensorRealism.clean(), WorldRealism.clean()),
     "kitti": Realism(
-        SensorRealism(motion_distortion=True, elevation_bias_deg=-0.22, elevation_sigma_deg=0.05,
+        SensorRealism(motion_distortion=True, elevation_bias_deg=-0.22, elevation_sigma_deg=0.03,
                       azimuth_sigma_deg=0.05, range_bias_sigma=0.02, range_noise_per_m=0.0005,
                       incidence_noise=0.002, min_return_power=0.02, mixed_pixel_prob=0.3, mixed_pixel_edge=0.5,
                       vegetation_dropout=0.3, vegetation_depth=0.2),
-        WorldRealism(moving_cars=2.0, pedestrians=2.0, transient_parking=0.4, catalogue_designs=4,
-                     catalogue_share=0.4, hard_share=0.15, foliage_gap=0.3),
+        WorldRealism(moving_cars=2.0, pedestrians=2.0, transient_parking=0.4, catalogue_designs=2,
+                     catalogue_share=0.6, hard_share=0.25, foliage_gap=0.3),
     ),
 }
 DEFAULT_REALISM = "kitti"

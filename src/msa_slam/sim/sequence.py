@@ -201,11 +201,12 @@ class Simulation:
         """Output frame times, seconds from the first output frame."""
         return self.trajectory.times[self.frames] - self.trajectory.times[self.frames[0]]
 
-    def scan(self, k: int) -> tuple[np.ndarray, np.ndarray | None]:
+    def scan(self, k: int, rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray | None]:
         """(P, 4) float32 scan of output frame k and its per-point times (float64 s from the sweep start;
-        None for a clean preset, whose sensor stands still); noise is seeded by (seed, source frame)."""
+        None for a clean preset, whose sensor stands still); noise is seeded by (seed, source frame) unless
+        `rng` is given (a live source drawing each lap's noise apart)."""
         frame = int(self.frames[k])
-        rng = np.random.default_rng([self.config.seed, frame])
+        rng = np.random.default_rng([self.config.seed, frame]) if rng is None else rng
         if self.realism.is_clean:
             return self.lidar.scan(self.trajectory.poses[frame], rng), None
         return self.lidar.sweep(self.trajectory.pose_at, float(self.trajectory.times[frame]), rng)
