@@ -50,6 +50,7 @@ def _run_backend(config: RunConfig, frontend: Frontend, quiet: bool) -> RunResul
                               frontend.gt_poses[i], times[i])
             bar.advance(task)
     result = backend.finish()
+    result.descriptors = frontend.descriptors[:len(result)]
     result.metrics = _metrics(result, frontend)
     return result
 

@@ -21,6 +21,7 @@ from msa_slam.sampling import make_sampler
 from msa_slam.sampling.base import Sampler
 from msa_slam.slam.keyframes import CloudStore, KeyframeStore
 from msa_slam.slam.loop_closing import LoopCloser
+from msa_slam.slam.map import keyframe_map
 from msa_slam.slam.result import RunResult, RunSettings
 from msa_slam.types import LoopClosure
 
@@ -176,7 +177,8 @@ class SlamBackend:
                  "flushed_keyframes": len(self.sampler.flushed_keyframes)}
         return RunResult(self.settings, self.name, self.times, self.odometry, self.gt, keys, optimised, self.loops,
                          pr, evaluation, self.steps_ms, memory, stats, len(self.loop_closer.best_similarity),
-                         {"optimisation": t1 - t0, "evaluation": t2 - t1})
+                         {"optimisation": t1 - t0, "evaluation": t2 - t1},
+                         map_points=keyframe_map(self.store.clouds, keys, optimised, self.settings.verifier.voxel_size))
 
     def close(self) -> None:
         """Release the keyframe clouds (a disk store removes the files it wrote); safe to call twice."""

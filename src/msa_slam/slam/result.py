@@ -62,6 +62,8 @@ class RunResult:
     final_s: dict[str, float] = field(default_factory=dict)  # optimisation and evaluation at the end
     memory: dict[str, np.ndarray] = field(default_factory=dict)
     metrics: dict[str, Any] = field(default_factory=dict)
+    map_points: np.ndarray | None = None  # keyframe clouds at the optimised poses, voxel-merged (world)
+    descriptors: np.ndarray | None = None  # per-frame descriptors, when the pipeline kept them (batch)
 
     @property
     def accepted_loops(self) -> list[LoopClosure]:
