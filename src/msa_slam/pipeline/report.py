@@ -65,13 +65,16 @@ def report_markdown(result: RunResult, figures: list[str]) -> str:
         f"| RPE translation [m] (consecutive keyframes) | {fmt(b['rpe_translation_m'])} | "
         f"{fmt(a['rpe_translation_m'])} | |",
         f"| RPE rotation [deg] | {fmt(b['rpe_rotation_deg'])} | {fmt(a['rpe_rotation_deg'])} | |", "",
-        f"ATE alignment: {m['ate_alignment']}.", "",
+        f"ATE alignment: {m['ate_alignment']}, fitted on all keyframes of each estimate against the ground truth "
+        "at the same frames (evo_ape ... -a on trajectories/*_keyframes.tum reproduces it).", "",
         *notes_markdown(m),
         *(_online_lines(result) if online else _batch_lines(result)),
     ]
     lines += [f"![{name}](figures/{name})" for name in figures]
-    files = "steps.csv (per-frame step times and memory), " if online else ""
+    files = "steps.csv (per-frame step times and memory), " if online else "descriptors.npy (every frame's), "
     lines += ["", f"Files: config.yaml (re-run with `msa-slam {'online' if online else 'run'} --config`), "
-              f"metrics.json, frames.csv, {files}loops.csv, trajectories/ (KITTI and TUM formats).",
-              f"msa-slam {msa_slam.__version__}", ""]
+              "metrics.json (every key explained in docs/metrics.md of msa-slam), frames.csv, loops.csv, pr.csv, "
+              f"{files}trajectories/ (KITTI and TUM with the frames' times: full-rate ground truth and odometry, "
+              "keyframe trajectories), map.ply (keyframe clouds at the optimised poses), pose_graph.g2o, "
+              "provenance.json (versions, command line, date, CPU).", f"msa-slam {msa_slam.__version__}", ""]
     return "\n".join(lines)
