@@ -65,8 +65,8 @@ def report_markdown(result: RunResult, figures: list[str]) -> str:
         f"| RPE translation [m] (consecutive keyframes) | {fmt(b['rpe_translation_m'])} | "
         f"{fmt(a['rpe_translation_m'])} | |",
         f"| RPE rotation [deg] | {fmt(b['rpe_rotation_deg'])} | {fmt(a['rpe_rotation_deg'])} | |", "",
-        f"ATE alignment: {m['ate_alignment']}, fitted on all keyframes of each estimate against the ground truth "
-        "at the same frames (evo_ape ... -a on trajectories/*_keyframes.tum reproduces it).", "",
+        f"ATE alignment: {m['ate_alignment']} (`evo_ape tum trajectories/gt_keyframes.tum "
+        "trajectories/optimised_keyframes.tum -a` reproduces it).", "",
         *notes_markdown(m),
         *(_online_lines(result) if online else _batch_lines(result)),
     ]
