@@ -72,7 +72,10 @@ def translations(poses: np.ndarray) -> np.ndarray:
 @dataclass(frozen=True)
 class LoopClosure:
     """A descriptor match between keyframes `query` (newer) and `match` (older), in frame indices, and the
-    outcome of its verification: `T_match_query` maps query-frame points into the match frame."""
+    outcome of its verification: `T_match_query` maps query-frame points into the match frame, with
+    `covariance` (6x6, rotation then translation) for the loop factor; `rejected` names the gate a
+    registered candidate failed ("" when accepted or not registered); `travelled_m` is the odometry path
+    length between the two keyframes."""
 
     query: int
     match: int
@@ -82,6 +85,9 @@ class LoopClosure:
     accepted: bool = False
     residual: float = float("nan")
     T_match_query: np.ndarray | None = None
+    covariance: np.ndarray | None = None
+    rejected: str = ""
+    travelled_m: float = float("nan")
 
 
 @dataclass
