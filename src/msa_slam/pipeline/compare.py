@@ -22,6 +22,7 @@ from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.progress import progress_bar
 from msa_slam.slam import RunResult
 from msa_slam.viz import plot_metric_bars, plot_trajectories
+from msa_slam.viz.labels import display_name
 
 # (label, sampler, parameters) as in the paper's section V.
 PAPER_METHODS: tuple[tuple[str, str, dict[str, Any]], ...] = (
@@ -75,15 +76,17 @@ def _figures(results: Sequence[RunResult], folder: Path) -> list[str]:
                                 "rotation": [r["improvement_r_pct"] for r in rows]},
         "memory [MiB]": {"keyframes + graph": [r["memory_mib"] for r in rows]},
         "back-end time [s]": {"time": [r["time_s"] for r in rows]},
-    }, title=f"{results[0].metrics['sequence']} ({results[0].config.mode} loops)")
+    }, title=f"{display_name(results[0].metrics['sequence'])} ({results[0].config.mode} loops)")
     gt_xy = results[0].gt_poses[:, :2, 3]
     panels = [trajectory_panels(r)[1] for r in results]
     plot_trajectories(folder / "trajectories.png", gt_xy, [trajectory_panels(results[0])[0], *panels],
-                      title="keyframe trajectories after optimisation (coloured by ATE)", columns=4)
+                      title=f"{display_name(results[0].metrics['sequence'])}: keyframe trajectories of every sampler "
+                      "after optimisation, coloured by ATE", columns=4)
     curves = {r.config.name: r.pr for r in results if r.pr is not None and r.pr.auc is not None}
     names = ["metrics.png", "trajectories.png"]
     if curves:
-        plot_pr_curves(curves, folder / "pr_curves.png", title="loop candidates per method")
+        plot_pr_curves(curves, folder / "pr_curves.png",
+                       title=f"{display_name(results[0].metrics['sequence'])}: loop candidates per method")
         names.append("pr_curves.png")
     return names
 
