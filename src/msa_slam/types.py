@@ -92,13 +92,15 @@ class LoopClosure:
 
 @dataclass
 class FrameSource:
-    """A stream of frames with known length and ground truth (what the online pipeline reads); `path`
-    identifies the sequence for cached odometry (None for scans made in memory)."""
+    """A stream of frames with known length and (when known) ground truth (what the online pipeline reads);
+    `path` identifies the sequence for cached odometry (None for scans made in memory); `length` is needed
+    only without ground truth."""
 
     name: str
-    gt_poses: np.ndarray
+    gt_poses: np.ndarray | None
     frames: Callable[[], Iterator[Any]]  # msa_slam.datasets.Frame objects, in time order
     path: Path | None = None
+    length: int | None = None
 
     def __len__(self) -> int:
-        return len(self.gt_poses)
+        return len(self.gt_poses) if self.length is None else self.length
