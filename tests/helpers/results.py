@@ -11,8 +11,10 @@ from typing import Any
 
 # Keys of measured wall-clock time, memory high-water marks and cache hits: they differ between runs.
 VOLATILE_KEY = re.compile(r"time|(^|_)ms(_|$)|rss|fps|latency|cached|realtime|_s$")
-# Files that carry those figures as text or pixels (report.md, figures, per-step timings).
-VOLATILE_FILE = re.compile(r"(^|/)(report\.md|comparison\.md|results\.md|figures/.*|steps\.csv|.*\.png|errors/.*)$")
+# Files that carry those figures as text or pixels (report.md, figures, per-step timings), and provenance.json
+# (date, command line, machine).
+VOLATILE_FILE = re.compile(r"(^|/)(report\.md|provenance\.json|comparison\.md|results\.md|figures/.*|steps\.csv"
+                           r"|.*\.png|errors/.*)$")
 
 
 def _strip(value: Any) -> Any:

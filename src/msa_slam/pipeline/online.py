@@ -15,7 +15,6 @@ from contextlib import closing
 from typing import Any
 
 import numpy as np
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from threadpoolctl import threadpool_limits
 
 from msa_slam.backend import IncrementalPoseGraph
@@ -26,6 +25,7 @@ from msa_slam.odometry import NoisyOdometry, OdometryCache, ReplayedOdometry
 from msa_slam.pipeline.frontend import make_odometry, pipeline_cache
 from msa_slam.pipeline.online_config import OnlineConfig
 from msa_slam.pipeline.source import open_source
+from msa_slam.progress import LogProgress, Progress, progress_bar
 from msa_slam.registration import make_cloud_store
 from msa_slam.slam import BACKEND_STEPS, RunResult, SlamBackend, build_backend, core_metrics
 from msa_slam.types import FrameSource
@@ -111,12 +111,10 @@ def make_online_odometry(config: OnlineConfig, source: FrameSource, n: int):
     return odometry, False
 
 
-def online_progress(quiet: bool) -> Progress:
-    """Progress bar with frames per second and real-time factor."""
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                    TextColumn("{task.fields[fps]:6.1f} fps  RTF {task.fields[rtf]:5.2f}x  "
-                               "kf {task.fields[kf]}  loops {task.fields[loops]}"),
-                    TimeElapsedColumn(), disable=quiet, transient=False)
+def online_progress(quiet: bool) -> Progress | LogProgress:
+    """Progress with frames per second and real-time factor (a bar on a terminal, log lines elsewhere)."""
+    return progress_bar(quiet, transient=False, fields="{task.fields[fps]:6.1f} fps  RTF {task.fields[rtf]:5.2f}x  "
+                                                      "kf {task.fields[kf]}  loops {task.fields[loops]}")
 
 
 def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: bool = True) -> RunResult:

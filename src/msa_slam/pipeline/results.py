@@ -1,7 +1,9 @@
-"""Result folder of one run, batch or online: config.yaml, metrics.json, frames.csv, loops.csv, trajectories
-(KITTI + TUM, the frames' own timestamps), figures and report.md; an online run adds steps.csv (per frame:
-step times, memory) and its memory and step-time figures. The folder is built under a temporary name and
-moved into place when complete (msa_slam.io.outputs)."""
+"""Result folder of one run, batch or online: config.yaml, metrics.json (keys explained in docs/metrics.md),
+frames.csv, loops.csv, pr.csv, trajectories (KITTI + TUM, the frames' own timestamps: full-rate ground truth
+and odometry, keyframe trajectories), map.ply (keyframe clouds at their optimised poses), pose_graph.g2o,
+descriptors.npy (batch: every frame's descriptor, for `msa-slam sample`), provenance.json, figures and
+report.md; an online run adds steps.csv (per frame: step times, memory) and its memory and step-time figures.
+The folder is built under a temporary name and moved into place when complete (msa_slam.io.outputs)."""
 
 from __future__ import annotations
 
@@ -15,13 +17,17 @@ import yaml
 
 import msa_slam
 from msa_slam.evaluation import NA, AlignmentError, align_se3, fmt
+from msa_slam.io.g2o import format_g2o
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
+from msa_slam.io.ply import write_ply
 from msa_slam.io.poses import write_poses
-from msa_slam.io.tables import write_json
+from msa_slam.io.provenance import provenance
+from msa_slam.io.tables import rows_csv, write_json
 from msa_slam.pipeline.report import report_markdown
 from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.slam import RunResult
 from msa_slam.viz import TrajectoryPanel, plot_memory, plot_step_times, plot_trajectories
+from msa_slam.viz.labels import display_name
 
 
 def frames_csv(result: RunResult) -> str:
@@ -72,15 +78,40 @@ def steps_csv(result: RunResult) -> str:
 
 
 def write_trajectory_files(folder: Path, result: RunResult) -> None:
-    """Optimised, odometry and GT keyframe trajectories plus the full odometry, in KITTI and TUM formats."""
+    """Keyframe trajectories (optimised, odometry, GT) and the full-rate odometry and GT, in KITTI and TUM."""
     folder.mkdir()
     kf, times = result.keyframes, np.asarray(result.times, dtype=np.float64)
-    for name, poses, stamps in (("optimised_keyframes", result.optimised, times[kf]),
-                                ("odometry_keyframes", result.odometry[kf], times[kf]),
-                                ("gt_keyframes", result.gt_poses[kf], times[kf]),
-                                ("odometry", result.odometry, times)):
+    trajectories = [("optimised_keyframes", result.optimised, times[kf]),
+                    ("odometry_keyframes", result.odometry[kf], times[kf]),
+                    ("odometry", result.odometry, times)]
+    if has_ground_truth(result):
+        trajectories += [("gt_keyframes", result.gt_poses[kf], times[kf]), ("gt", result.gt_poses, times)]
+    for name, poses, stamps in trajectories:
         write_poses(folder / f"{name}.kitti", poses, "kitti")
         write_poses(folder / f"{name}.tum", poses, "tum", stamps)
+
+
+def has_ground_truth(result: RunResult) -> bool:
+    """Whether every frame has a ground-truth pose (runs without ground truth carry None or NaN poses)."""
+    return result.gt_poses is not None and bool(np.isfinite(result.gt_poses).all())
+
+
+def pose_graph_g2o(result: RunResult) -> str:
+    """The run's pose graph in g2o: keyframes at their optimised poses, odometry edges between consecutive
+    keyframes and the accepted loops, weighted as the graph configuration weighs them."""
+    graph, keys, odom = result.config.graph, [int(k) for k in result.keyframes], result.odometry
+    odometry_edges = [(a, b, np.linalg.inv(odom[a]) @ odom[b]) for a, b in zip(keys[:-1], keys[1:])]
+    loop_edges = [(c.match, c.query, c.T_match_query) for c in result.accepted_loops]
+    return format_g2o(keys, result.optimised, odometry_edges, loop_edges,
+                      (graph.odometry_rotation, graph.odometry_translation), (graph.loop_rotation, graph.loop_translation))
+
+
+def pr_csv(result: RunResult) -> str:
+    """The PR curve's arrays: one row per similarity threshold (precision, recall, F1)."""
+    pr = result.pr
+    rows = [{"threshold": f"{t:.2f}", "precision": f"{p:.6f}", "recall": f"{r:.6f}", "f1": f"{f:.6f}"}
+            for t, p, r, f in zip(pr.thresholds, pr.precision, pr.recall, pr.f1)]
+    return rows_csv(rows, ("threshold", "precision", "recall", "f1"))
 
 
 def loop_edges(result: RunResult) -> tuple[list, list]:
@@ -125,23 +156,24 @@ def _write_figures(result: RunResult, folder: Path) -> list[str]:
     folder.mkdir()
     m = result.metrics
     online = " online" if m.get("pipeline") == "online" else ""
+    sequence = display_name(m["sequence"])
     plot_trajectories(folder / "trajectories.png", result.gt_poses[:, :2, 3], trajectory_panels(result),
-                      title=f"{m['sequence']}: {m['method']}{online} ({m['keyframes']} keyframes, "
-                            f"{m['verified']} loops, {m['mode']})")
+                      title=f"{sequence}: {m['method']}{online} ({m['keyframes']} keyframes, {m['verified']} loops, "
+                            f"{m['mode']} mode)")
     names = ["trajectories.png"]
     if result.memory:
         plot_memory(folder / "memory.png", {m["method"]: (np.arange(len(result)), accounted_bytes(result.memory),
                                                           result.memory["rss_bytes"])},
-                    title=f"{m['sequence']}: memory over time")
+                    title=f"{sequence}: memory over time")
         new_kf = np.diff(result.memory["keyframes"], prepend=0) > 0
         plot_step_times(folder / "step_times.png", {
             "graph update (iSAM2)": {m["method"]: result.steps_ms["graph_update"][new_kf]},
             "loop detection": {m["method"]: result.steps_ms["loop_detection"][new_kf]},
             "back-end per frame": {m["method"]: result.backend_ms},
-        }, title=f"{m['sequence']}: per-step time")
+        }, title=f"{sequence}: per-step time")
         names += ["memory.png", "step_times.png"]
     if result.pr is not None and result.pr.auc is not None:
-        plot_pr_curves({m["method"]: result.pr}, folder / "pr_curve.png", title=f"{m['sequence']}: loop candidates")
+        plot_pr_curves({m["method"]: result.pr}, folder / "pr_curve.png", title=f"{sequence}: loop candidates")
         names.append("pr_curve.png")
     return names
 
@@ -151,11 +183,19 @@ def write_run_files(result: RunResult, folder: Path, figures: bool = True) -> No
     (folder / "config.yaml").write_text(yaml.safe_dump(result.config.dump(), sort_keys=False))
     write_json(folder / "metrics.json", {**result.metrics, "msa_slam_version": msa_slam.__version__,
                                          "keyframe_frames": result.keyframes.tolist()})
+    write_json(folder / "provenance.json", provenance())
     (folder / "frames.csv").write_text(frames_csv(result))
     (folder / "loops.csv").write_text(loops_csv(result))
+    if result.pr is not None:
+        (folder / "pr.csv").write_text(pr_csv(result))
     if result.memory:
         (folder / "steps.csv").write_text(steps_csv(result))
     write_trajectory_files(folder / "trajectories", result)
+    (folder / "pose_graph.g2o").write_text(pose_graph_g2o(result))
+    if result.map_points is not None:
+        write_ply(folder / "map.ply", result.map_points)
+    if result.descriptors is not None:
+        np.save(folder / "descriptors.npy", result.descriptors)
     names = _write_figures(result, folder / "figures") if figures else []
     (folder / "report.md").write_text(report_markdown(result, names))
 

@@ -1,7 +1,9 @@
-"""PR-curve figure (PNG) comparing samplers or descriptors."""
+"""PR-curve figure (PNG) comparing samplers or descriptors: the full unit square and, when the curves sit in
+a corner of it, a zoom on that corner; overlapping curves stay apart by line style, the legend sits outside."""
 
 from __future__ import annotations
 
+from itertools import cycle
 from pathlib import Path
 from typing import Mapping
 
@@ -9,21 +11,50 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
 
 from msa_slam.io.atomic import atomic_path  # noqa: E402
 from msa_slam.place_recognition.metrics import PRCurve  # noqa: E402
 
+STYLES = ("-", "--", "-.", ":")
+MARKERS = ("o", "s", "^", "v", "D", "P", "X", "*")
+ZOOM_BELOW = 0.6  # draw a zoom when the curves span less than this fraction of recall or precision
+
+
+def zoom_limits(curves: Mapping[str, PRCurve]) -> tuple[tuple[float, float], tuple[float, float]] | None:
+    """(recall range, precision range) around the curves' points that predict something (recall > 0), padded;
+    None when they already fill most of the unit square."""
+    recall = np.concatenate([np.asarray(c.recall, dtype=float) for c in curves.values()])
+    precision = np.concatenate([np.asarray(c.precision, dtype=float) for c in curves.values()])
+    keep = recall > 0
+    if not keep.any():
+        return None
+    (r0, r1), (p0, p1) = (np.min(recall[keep]), np.max(recall[keep])), (np.min(precision[keep]), np.max(precision[keep]))
+    if r1 - r0 >= ZOOM_BELOW and p1 - p0 >= ZOOM_BELOW:
+        return None
+    pad_r, pad_p = max(0.05 * (r1 - r0), 0.02), max(0.05 * (p1 - p0), 0.02)
+    return (max(0.0, r0 - pad_r), min(1.02, r1 + pad_r)), (max(0.0, p0 - pad_p), min(1.02, p1 + pad_p))
+
 
 def plot_pr_curves(curves: Mapping[str, PRCurve], path: str | Path, title: str = "Precision-recall") -> Path:
-    """Write one PR curve per label (legend shows PR-AUC and F1-max) to `path` as PNG."""
-    fig, ax = plt.subplots(figsize=(5, 4), dpi=150)
+    """Write one PR curve per label to `path` as PNG (legend, sorted by PR-AUC, shows PR-AUC and F1-max)."""
+    order = sorted(curves, key=lambda k: -(curves[k].auc or 0.0))
+    zoom = zoom_limits(curves)
+    fig, axes = plt.subplots(1, 2 if zoom else 1, figsize=(11 if zoom else 7.5, 4), dpi=150, squeeze=False,
+                             layout="constrained")
     try:
-        for label, curve in curves.items():
-            ax.plot(curve.recall, curve.precision, label=f"{label} (AUC {curve.auc:.3f}, F1max {curve.f1_max:.3f})")
-        ax.set(xlabel="Recall", ylabel="Precision", xlim=(0, 1.02), ylim=(0, 1.02), title=title)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="lower left")
-        fig.tight_layout()
+        for ax, limits in zip(axes[0], [((0.0, 1.02), (0.0, 1.02)), zoom]):
+            for label, style, marker in zip(order, cycle(STYLES), cycle(MARKERS)):
+                curve = curves[label]
+                auc = "n/a" if curve.auc is None else f"{curve.auc:.3f}"
+                f1 = "n/a" if curve.f1_max is None else f"{curve.f1_max:.3f}"
+                ax.plot(curve.recall, curve.precision, ls=style, marker=marker, ms=3.5, markevery=10, lw=1.4,
+                        alpha=0.85, label=f"{label} (PR-AUC {auc}, F1-max {f1})")
+            ax.set(xlabel="recall", ylabel="precision", xlim=limits[0], ylim=limits[1])
+            ax.set_title("all thresholds" if ax is axes[0][0] else "zoom", fontsize=9)
+            ax.grid(alpha=0.3)
+        fig.legend(*axes[0][0].get_legend_handles_labels(), loc="outside right upper", fontsize=7, frameon=False)
+        fig.suptitle(title, fontsize=10)
         with atomic_path(path) as tmp:
             fig.savefig(tmp, format="png")
     finally:

@@ -1,0 +1,18 @@
+"""Names as a person reads them in figure titles: cache hashes dropped from sequence names
+(`figure-eight_hdl64_32fb48a...` -> `figure-eight (hdl64)`)."""
+
+from __future__ import annotations
+
+import re
+
+_HASHED = re.compile(r"^(?P<name>.+?)(?:_(?P<sensor>[A-Za-z0-9-]+))?_[0-9a-f]{12,}$")
+
+
+def display_name(sequence: str) -> str:
+    """`sequence` without a trailing content hash; a simulated `<trajectory>_<sensor>_<hash>` reads
+    `<trajectory> (<sensor>)`. Names without a hash are returned unchanged."""
+    match = _HASHED.match(sequence)
+    if match is None:
+        return sequence
+    sensor = match["sensor"]
+    return f"{match['name']} ({sensor})" if sensor else match["name"]
