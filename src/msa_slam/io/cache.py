@@ -60,8 +60,11 @@ def input_identity(files: Iterable[str | os.PathLike], root: str | os.PathLike |
 
 
 def sequence_identity(sequence: Any) -> list[list]:
-    """Identity of a ScanSequence's scans (`path`, `scan_files`): what odometry and descriptors are computed from."""
-    return input_identity(sequence.scan_files, sequence.path)
+    """Identity of a ScanSequence's scans (`path`, `scan_files`, and the `selection` within those files a bag
+    sequence has: topic, messages): what odometry and descriptors are computed from."""
+    identity = input_identity(sequence.scan_files, sequence.path)
+    selection = getattr(sequence, "selection", None)
+    return identity if selection is None else [*identity, ["selection", selection]]
 
 
 def library_versions(names: Iterable[str]) -> dict[str, str | None]:

@@ -17,6 +17,7 @@ from pydantic import BaseModel, Field, TypeAdapter, ValidationError
 
 from msa_slam.backend.graph import GraphConfig
 from msa_slam.config import StageConfig
+from msa_slam.datasets.options import SourceOptions
 from msa_slam.errors import InputError
 from msa_slam.io.params import parse_key_value
 from msa_slam.registration.verify import VerifierConfig
@@ -25,8 +26,10 @@ from msa_slam.registration.verify import VerifierConfig
 class RunConfig(StageConfig):
     """One run: dataset, odometry, descriptor, sampler, loop closing, verification, graph.
 
-    `dataset` is a sequence folder (KITTI layout, scan folder) or `sim:NAME` (NAME = demo, test, or a
-    simulator trajectory such as kitti-05, optionally with simulator fields: `sim:kitti-05,stride=3`).
+    `dataset` is a sequence folder (KITTI layout, scan folder, ...) or bag, read by the loader `dataset_kind`
+    (auto: from the layout; msa_slam.datasets.LOADERS) with the `source` options (topic, ground truth, part
+    of the recording), or `sim:NAME` (NAME = demo, test, or a simulator trajectory such as kitti-05,
+    optionally with simulator fields: `sim:kitti-05,stride=3`).
     `odometry` is "kiss" (KISS-ICP) or the path of a KITTI/TUM pose file (LiDAR frame, one pose per scan).
     Keyframes are sampled on `sample_on` poses (`flush` adds what MSA still holds at the end). A keyframe's
     loop candidates are older keyframes more than `min_frame_gap` frames back and not among the
@@ -36,6 +39,7 @@ class RunConfig(StageConfig):
 
     dataset: str
     dataset_kind: str = "auto"
+    source: SourceOptions = Field(default_factory=SourceOptions)
     odometry: str = "kiss"
     odometry_params: dict[str, Any] = Field(default_factory=dict)
     descriptor: str = "sc"
