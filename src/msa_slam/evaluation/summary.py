@@ -54,9 +54,17 @@ def _errors(estimate: np.ndarray, reference: np.ndarray) -> tuple[dict[str, Any]
     return out, errors, reason
 
 
-def evaluate_trajectories(odometry: np.ndarray, optimised: np.ndarray, reference: np.ndarray,
+def evaluate_trajectories(odometry: np.ndarray, optimised: np.ndarray, reference: np.ndarray | None,
                           frames: np.ndarray) -> TrajectoryEvaluation:
-    """ATE/RPE of the odometry and optimised keyframe poses against ground truth at keyframe `frames`."""
+    """ATE/RPE of the odometry and optimised keyframe poses against ground truth at keyframe `frames`
+    (`reference` None: a recording without ground truth, every metric None with that reason)."""
+    if reference is None:
+        block = dict.fromkeys(("ate_translation_m", "ate_rotation_deg", "rpe_translation_m", "rpe_rotation_deg"))
+        return TrajectoryEvaluation({"before": block, "after": dict(block),
+                                     "improvement_pct": {"translation": None, "rotation": None},
+                                     "ate_alignment": None, "ate_rotation_reliable": None,
+                                     "unavailable": {"ate": "no ground truth", "rpe": "no ground truth"}},
+                                    [], {"odometry": None, "optimised": None})
     blocks, errors, unavailable = {}, {}, {}
     for (key, name), estimate in zip(ESTIMATES.items(), (odometry, optimised)):
         blocks[key], errors[name], reason = _errors(estimate, reference)
