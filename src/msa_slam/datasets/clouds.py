@@ -1,4 +1,5 @@
-"""Point-cloud file readers (.bin KITTI float32 x y z r, .ply through trimesh, .pcd) with clear errors."""
+"""Point-cloud file readers (.bin KITTI float32 x y z r, .ply through trimesh, .pcd: see pcd.py) with clear
+errors."""
 
 from __future__ import annotations
 
@@ -10,8 +11,6 @@ import numpy as np
 from msa_slam.errors import InputError
 
 CLOUD_SUFFIXES = (".bin", ".ply", ".pcd")
-_PCD_TYPES = {("F", 4): "<f4", ("F", 8): "<f8", ("I", 1): "<i1", ("I", 2): "<i2", ("I", 4): "<i4",
-              ("I", 8): "<i8", ("U", 1): "<u1", ("U", 2): "<u2", ("U", 4): "<u4", ("U", 8): "<u8"}
 
 
 MAX_COORDINATE = 1e4  # metres: beyond any LiDAR's range, so a larger value means the file is misread
@@ -78,63 +77,21 @@ def read_ply(path: str | os.PathLike) -> np.ndarray:
     return checked_points(vertices.reshape(-1, 3), path)
 
 
-def read_pcd(path: str | os.PathLike) -> np.ndarray:
-    """PCD v0.7 (ascii or binary; not binary_compressed): the x, y, z fields."""
+def read_timed_cloud(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
+    """(P, 3) points of one scan file, by suffix, and its per-point times when the file has them (.pcd)."""
+    from msa_slam.datasets.pcd import read_timed_pcd
+
     path = Path(path)
-    raw = path.read_bytes()
-    header: dict[str, list[str]] = {}
-    offset = 0
-    while True:
-        end = raw.find(b"\n", offset)
-        if end < 0:
-            raise InputError(f"{path}: PCD header has no DATA line")
-        line = raw[offset:end].decode("ascii", errors="replace").strip()
-        offset = end + 1
-        if not line or line.startswith("#"):
-            continue
-        name, *values = line.split()
-        header[name.upper()] = values
-        if name.upper() == "DATA":
-            break
-    try:
-        fields = header["FIELDS"]
-        sizes = [int(v) for v in header["SIZE"]]
-        types = header["TYPE"]
-        counts = [int(v) for v in header.get("COUNT", ["1"] * len(fields))]
-        num_points = int(header["POINTS"][0])
-        mode = header["DATA"][0].lower()
-    except (KeyError, ValueError, IndexError) as exc:
-        raise InputError(f"{path}: malformed PCD header ({exc})") from exc
-    if not {"x", "y", "z"} <= set(fields):
-        raise InputError(f"{path}: PCD has fields {fields}, needs x, y and z")
-    if mode == "ascii":
-        columns = np.cumsum([0] + counts)
-        table = np.loadtxt(raw[offset:].decode("ascii").splitlines(), ndmin=2)
-        if table.shape[0] != num_points or table.shape[1] != columns[-1]:
-            raise InputError(f"{path}: PCD declares {num_points} points but its data has shape {table.shape}")
-        xyz = np.stack([table[:, columns[fields.index(a)]] for a in "xyz"], axis=1)
-    elif mode == "binary":
-        try:
-            dtype = np.dtype([(f, _PCD_TYPES[(t.upper(), s)], (c,) if c > 1 else ())
-                              for f, s, t, c in zip(fields, sizes, types, counts)])
-        except KeyError as exc:
-            raise InputError(f"{path}: unsupported PCD field type {exc}") from exc
-        if len(raw) - offset < num_points * dtype.itemsize:
-            raise InputError(f"{path}: PCD data is truncated ({len(raw) - offset} bytes for {num_points} points)")
-        table = np.frombuffer(raw, dtype=dtype, count=num_points, offset=offset)
-        xyz = np.stack([table[a].astype(np.float64) for a in "xyz"], axis=1)
-    else:
-        raise InputError(f"{path}: PCD DATA {mode!r} is not supported (use ascii or binary)")
-    return checked_points(xyz, path)
+    readers = {".bin": read_bin, ".ply": read_ply}
+    if path.suffix.lower() not in (*readers, ".pcd"):
+        raise InputError(f"{path}: unsupported scan format; use one of {', '.join(CLOUD_SUFFIXES)}")
+    if not path.is_file():
+        raise InputError(f"{path}: scan file not found")
+    if path.suffix.lower() == ".pcd":
+        return read_timed_pcd(path)
+    return readers[path.suffix.lower()](path), None
 
 
 def read_cloud(path: str | os.PathLike) -> np.ndarray:
     """(P, 3) points of one scan file, by suffix."""
-    path = Path(path)
-    readers = {".bin": read_bin, ".ply": read_ply, ".pcd": read_pcd}
-    reader = readers.get(path.suffix.lower())
-    if reader is None:
-        raise InputError(f"{path}: unsupported scan format; use one of {', '.join(CLOUD_SUFFIXES)}")
-    if not path.is_file():
-        raise InputError(f"{path}: scan file not found")
-    return reader(path)
+    return read_timed_cloud(path)[0]

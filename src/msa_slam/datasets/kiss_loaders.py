@@ -1,22 +1,34 @@
-"""The paper's other datasets through kiss_icp's loaders (scan lists and ground-truth conventions).
+"""The paper's other datasets with kiss_icp's conventions (ground-truth frames, file order, point times).
 
-MulRan (Kim et al., ICRA 2020) uses kiss_icp's MulranDataset as is. Apollo-SouthBay (Lu et al., CVPR 2019)
-and Newer College (Ramezani et al., IROS 2020) reuse kiss_icp's pose readers and file ordering but read the
-.pcd scans with our own reader, so open3d and pyntcloud are not needed.
+MulRan (Kim et al., ICRA 2020): `Ouster/*.bin` scans named by nanosecond time, `global_pose.csv` (time and
+a 3x4 pose a row, more rows than scans: the nearest in time is taken, made relative to the first and moved
+to the LiDAR frame with kiss_icp's base-to-Ouster calibration). As it ships the scans are under
+`sensor_data/Ouster/`; kiss-icp's layout has `Ouster/` beside the pose file: both are read. Apollo-SouthBay
+(Lu et al., CVPR 2019) and Newer College (Ramezani et al., IROS 2020) reuse kiss_icp's pose readers and file
+order and take scan times from the pose file (Apollo) or the file names (Newer College); .pcd scans are read
+with our own reader, so open3d and pyntcloud are not needed. MulRan and Newer College scans of 64 x 1024
+points carry kiss_icp's column-major per-point times.
 """
 
 from __future__ import annotations
 
 import os
+import re
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
-from msa_slam.datasets.clouds import read_bin, read_pcd
+from msa_slam.datasets.clouds import read_bin
+from msa_slam.datasets.pcd import read_pcd
 from msa_slam.datasets.sequences import ScanSequence
 from msa_slam.errors import InputError
 
 KISS_DATASETS = ("mulran", "apollo", "ncd")
+OUSTER_ROWS, OUSTER_COLUMNS = 64, 1024
+SWEEP_PERIOD = 0.1  # s: MulRan's and Newer College's Ousters turn at 10 Hz
+MULRAN_SCANS = ("sensor_data/Ouster", "Ouster")  # as shipped, kiss-icp's layout
+_NCD_NAME = re.compile(r"^cloud_(\d+)_(\d+)")
 
 
 def _require(path: Path, what: str) -> Path:
@@ -25,29 +37,76 @@ def _require(path: Path, what: str) -> Path:
     return path
 
 
+def ouster_times(n_points: int) -> np.ndarray | None:
+    """kiss_icp's per-point times (s) of a 64 x 1024 Ouster scan stored column by column; None for another size."""
+    if n_points != OUSTER_ROWS * OUSTER_COLUMNS:
+        return None
+    return np.floor(np.arange(n_points) / OUSTER_ROWS) / OUSTER_COLUMNS * SWEEP_PERIOD
+
+
+def _with_ouster_times(reader, scan: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    points = reader(scan)
+    return points, ouster_times(len(points))
+
+
+def mulran_folder(path: Path) -> Path | None:
+    """The Ouster scan folder of a MulRan sequence folder, in either layout (None when neither exists)."""
+    return next((path / sub for sub in MULRAN_SCANS if (path / sub).is_dir()), None)
+
+
+def mulran_poses(pose_file: Path, scan_ns: np.ndarray) -> np.ndarray:
+    """kiss_icp's MulRan ground truth: per scan the nearest pose in time, relative to the first, LiDAR frame."""
+    from kiss_icp.datasets.mulran import MulranDataset
+
+    try:
+        rows = np.loadtxt(pose_file, delimiter=",", ndmin=2)
+    except ValueError as exc:
+        raise InputError(f"{pose_file}: not MulRan's global_pose.csv (time, then 12 pose values a row): {exc}") from None
+    if rows.shape[1] != 13:
+        raise InputError(f"{pose_file}: {rows.shape[1]} values a row; MulRan's global_pose.csv has 13 (time, 3x4 pose)")
+    poses = np.tile(np.eye(4), (len(rows), 1, 1))
+    poses[:, :3, :4] = rows[:, 1:].reshape(-1, 3, 4)
+    poses = poses[[int(np.argmin(np.abs(rows[:, 0] - t))) for t in scan_ns]]
+    poses = np.linalg.inv(poses[0]) @ poses
+    lidar_to_base, base_to_lidar = MulranDataset._get_calibration(None)
+    return lidar_to_base @ poses @ base_to_lidar
+
+
+def mulran_sequence(path: Path) -> ScanSequence:
+    folder = mulran_folder(path)
+    if folder is None:
+        raise InputError(f"{path}: not a MulRan sequence (no {' or '.join(MULRAN_SCANS)} folder)")
+    scans = sorted(folder.glob("*.bin"))
+    bad = next((s for s in scans if not s.stem.isdigit()), None)
+    if bad is not None:
+        raise InputError(f"{bad}: MulRan scans are named by their time in nanoseconds")
+    scan_ns = np.array([int(s.stem) for s in scans], dtype=np.float64)
+    pose_file = path / "global_pose.csv"
+    gt = mulran_poses(pose_file, scan_ns) if pose_file.is_file() and len(scans) else None
+    return ScanSequence(path, scans, gt, scan_ns * 1e-9, timed_reader=partial(_with_ouster_times, read_bin))
+
+
 def kiss_sequence(name: str, path: str | os.PathLike) -> ScanSequence:
     """Open a MulRan, Apollo-SouthBay or Newer College sequence folder (`name`: mulran, apollo, ncd)."""
     path = Path(path)
     if name == "mulran":
-        from kiss_icp.datasets.mulran import MulranDataset
-
-        _require(path / "Ouster", "MulRan Ouster/ scan folder")
-        _require(path / "global_pose.csv", "MulRan ground truth")
-        data = MulranDataset(path)
-        times = np.asarray(data.scan_timestamps, dtype=np.float64) * 1e-9
-        return ScanSequence(path, [Path(f) for f in data.scan_files], np.asarray(data.gt_poses), times, read_bin)
+        return mulran_sequence(path)
     if name == "apollo":
         from kiss_icp.datasets.apollo import ApolloDataset
 
         scans = sorted(_require(path / "pcds", "Apollo pcds/ folder").glob("*.pcd"), key=lambda p: int(p.stem)
                        if p.stem.isdigit() else p.stem)
-        poses = ApolloDataset.read_poses(str(_require(path / "poses" / "gt_poses.txt", "Apollo ground truth")))
-        return ScanSequence(path, scans, poses, None, read_pcd)
+        pose_file = _require(path / "poses" / "gt_poses.txt", "Apollo ground truth")
+        times = np.loadtxt(pose_file, ndmin=2)[:, 1]
+        return ScanSequence(path, scans, ApolloDataset.read_poses(str(pose_file)), times, read_pcd)
     if name == "ncd":
         from kiss_icp.datasets.ncd import NewerCollegeDataset
 
         folder = _require(path / "raw_format" / "ouster_scan", "Newer College scan folder")
         pose_file = _require(path / "ground_truth" / "registered_poses.csv", "Newer College ground truth")
-        scans = [folder / f for f in NewerCollegeDataset.get_pcd_filenames(str(folder))]
-        return ScanSequence(path, scans, NewerCollegeDataset.load_gt_poses(str(pose_file)), None, read_pcd)
+        names = NewerCollegeDataset.get_pcd_filenames(str(folder))
+        stamps = [_NCD_NAME.match(n) for n in names]
+        times = None if not all(stamps) else np.array([int(m[1]) + 1e-9 * int(m[2]) for m in stamps])
+        return ScanSequence(path, [folder / f for f in names], NewerCollegeDataset.load_gt_poses(str(pose_file)),
+                            times, timed_reader=partial(_with_ouster_times, read_pcd))
     raise InputError(f"unknown dataset loader {name!r}; choose one of {', '.join(KISS_DATASETS)}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import os
 from functools import partial
 from pathlib import Path
@@ -9,7 +10,7 @@ from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
-from msa_slam.datasets.clouds import CLOUD_SUFFIXES, check_bin_size, read_cloud
+from msa_slam.datasets.clouds import CLOUD_SUFFIXES, check_bin_size, read_cloud, read_timed_cloud
 from msa_slam.datasets.frame import Frame
 from msa_slam.datasets.point_times import TIMES_FOLDER, read_timed_scan, stored_times_path
 from msa_slam.errors import InputError
@@ -22,12 +23,14 @@ class ScanSequence:
 
     Opening checks what is cheap to check before any long work: .bin file sizes, the first scan, and that
     times increase strictly; every scan is checked again as it is read. A `timed_reader` (instead of
-    `reader`) also gives each scan's per-point times, which frames then carry as `timestamps`.
+    `reader`) also gives each scan's per-point times, which frames then carry as `timestamps`; `kitti_bins`
+    False: .bin files are not KITTI's 16-byte records (HeLiPR).
     """
 
     def __init__(self, path: Path, scan_files: Sequence[Path], gt_poses: np.ndarray | None = None,
                  times: np.ndarray | None = None, reader: Callable[[Path], np.ndarray] = read_cloud,
-                 timed_reader: Callable[[Path], tuple[np.ndarray, np.ndarray]] | None = None) -> None:
+                 timed_reader: Callable[[Path], tuple[np.ndarray, np.ndarray | None]] | None = None,
+                 kitti_bins: bool = True) -> None:
         self.path = Path(path)
         self.name = self.path.name
         self.scan_files = [Path(f) for f in scan_files]
@@ -42,13 +45,33 @@ class ScanSequence:
         self.times = check_times(times, lambda i: f"{self.path}: timestamp of scan {self.scan_files[i].name}")
         self._reader = reader
         self._timed_reader = timed_reader
-        for scan in self.scan_files:
+        for scan in self.scan_files if kitti_bins else ():
             if scan.suffix.lower() == ".bin":
                 check_bin_size(scan)
         self._read(self.scan_files[0])
 
     def __len__(self) -> int:
         return len(self.scan_files)
+
+    def select(self, first: int = 0, jump: int = 1, count: int | None = None) -> "ScanSequence":
+        """Part of the recording: every `jump`-th scan from scan `first`, at most `count` of them (the frames
+        keep their times and ground truth; indices restart at 0)."""
+        if first < 0 or jump < 1 or (count is not None and count < 1):
+            raise InputError(f"{self.path}: bad selection first={first}, jump={jump}, n={count}; need first >= 0, "
+                             "jump >= 1, n >= 1")
+        if first >= len(self):
+            raise InputError(f"{self.path}: --first {first} is beyond its {len(self)} scans (0..{len(self) - 1})")
+        if (first, jump, count) == (0, 1, None):
+            return self
+        part = copy.copy(self)
+        part._take(np.arange(first, len(self), jump)[:count])
+        return part
+
+    def _take(self, rows: np.ndarray) -> None:
+        """Keep only the scans at `rows` (of this copy)."""
+        self.scan_files = [self.scan_files[i] for i in rows]
+        self.gt_poses = None if self.gt_poses is None else self.gt_poses[rows]
+        self.times = self.times[rows]
 
     def __getitem__(self, index: int) -> Frame:
         if not -len(self) <= index < len(self):
@@ -182,7 +205,7 @@ def folder_sequence(path: str | os.PathLike, poses: str | os.PathLike | None = N
             raise InputError(f"{poses}: {len(gt)} poses but {path} has {len(files)} scans")
         if times is not None:
             times = check_times(times, lambda i: f"{poses}: pose {i + 1}")
-    return ScanSequence(path, files, gt, times)
+    return ScanSequence(path, files, gt, times, timed_reader=read_timed_cloud)
 
 
 def load_cloud_stack(source: str | os.PathLike, n_frames: int) -> list[np.ndarray]:

@@ -39,7 +39,7 @@ def run_batch(config: RunConfig, frontend: Frontend | None = None, quiet: bool =
 
 
 def _run_backend(config: RunConfig, frontend: Frontend, quiet: bool) -> RunResult:
-    graph = PoseGraph(config.graph)
+    graph = PoseGraph(config.graph, mode=config.mode)
     backend = build_backend(config, frontend.descriptor, KeyframeCloudStore(config.verifier.voxel_size), graph,
                            len(frontend), frontend.name)
     sequence, times = frontend.sequence, frontend.sequence.times

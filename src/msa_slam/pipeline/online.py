@@ -125,7 +125,7 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     odometry, cached = make_online_odometry(config, source, n)
     descriptor = make_descriptor(config.descriptor, **config.descriptor_params)
     clouds = make_cloud_store(config.cloud_store, config.verifier.voxel_size, config.store_dir)
-    graph = IncrementalPoseGraph(config.graph, final_iterations=config.update_iterations)
+    graph = IncrementalPoseGraph(config.graph, final_iterations=config.update_iterations, mode=config.mode)
     recorder = MemoryRecorder(n)
     backend = build_backend(config, descriptor, clouds, graph, n, source.name, config.update_iterations, recorder)
     front_ms = {s: np.zeros(n, dtype=np.float32) for s in STEPS[:2]}

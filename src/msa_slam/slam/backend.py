@@ -127,14 +127,14 @@ class SlamBackend:
             self.store.add_cloud(k, _scan(points))
             self.graph.add_keyframe(k, self.odometry[k])
             t = self._timed("keyframe_store", i, t)
-            candidates = self.loop_closer.candidates(k, descriptor, self.gt)
+            candidates = self.loop_closer.candidates(k, descriptor, self.gt, self.odometry)
             self.store.add(k, self.odometry[k], descriptor)
             t = self._timed("loop_detection", i, t)
             if candidates:
                 verified = self.loop_closer.verify(candidates)
                 for loop in verified:
                     if loop.accepted:
-                        self.graph.add_loop(loop.match, loop.query, loop.T_match_query)
+                        self.graph.add_loop(loop.match, loop.query, loop.T_match_query, loop.covariance)
                         accepted_any = True
                 self.loops.extend(verified)
                 self._timed("verification", i, t)

@@ -15,6 +15,7 @@ import numpy as np
 from msa_slam.evaluation import TrajectoryEvaluation, peak_rss_bytes
 from msa_slam.place_recognition import PRCurve
 from msa_slam.registration import VerifierConfig
+from msa_slam.slam.loop_closing import loop_summary
 from msa_slam.types import LoopClosure
 
 
@@ -102,6 +103,7 @@ def core_metrics(result: RunResult) -> dict[str, Any]:
         "verified": len(accepted),
         "registrations": int(sum(c.verified for c in loops)),
         "false_loops": int(sum(c.gt_distance > cfg.loop_radius for c in accepted)),
+        "loop_closing": loop_summary(loops, cfg),
         **ev.metrics,
         "unavailable": unavailable,
         "warnings": list(ev.warnings),
