@@ -22,15 +22,24 @@ def compare_command(
     overwrite: bool = typer.Option(False, "--overwrite", help=OVERWRITE_HELP),
     cache_dir: Optional[Path] = typer.Option(None, help=CACHE_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bars"),
+    seeds: Optional[str] = typer.Option(None, help="world seeds of a sim: dataset, e.g. 0,1,2: the comparison on "
+                                        "each, then mean +- std, per-seed ranks and MSA's paired-test verdicts"),
 ) -> None:
     """Run the paper's method set (all, constant 1/2/3 m, entropy, spaciousness, MSA) on one sequence and
-    write the Table-I-style comparison; prints its report.md."""
+    write the Table-I-style comparison; prints its report.md (with --seeds, first the spread over seeds)."""
     from msa_slam.cli.config import cache_option
     from msa_slam.cli.run import batch_config
     from msa_slam.pipeline.compare import run_compare
+    from msa_slam.pipeline.seeds import parse_seeds, seeded_datasets
 
     given = {"dataset": dataset, "descriptor": descriptor, "odometry": odometry, "mode": mode,
              "cache_dir": cache_option(cache_dir)}
     cfg = batch_config(config, given, param)
+    seed_list = None if seeds is None else parse_seeds(seeds)
+    if seed_list is not None:
+        seeded_datasets(cfg.dataset, seed_list)  # refuse non-simulated data before any work
     with reporting_failed_methods():
-        typer.echo(str(run_compare(cfg, out, quiet=quiet, overwrite=overwrite)))
+        report = run_compare(cfg, out, quiet=quiet, overwrite=overwrite, seeds=seed_list)
+        if seed_list is not None:
+            typer.echo((report.parent / "seeds.md").read_text())
+        typer.echo(str(report))

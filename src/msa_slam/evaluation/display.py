@@ -20,7 +20,13 @@ def fmt(value: float | None, spec: str = ".3f", unit: str = "") -> str:
 
 NOTE_LABELS = {"ate": "ATE (and its % improvement)", "ate_odometry": "ATE of the odometry",
                "ate_optimised": "ATE after optimisation", "improvement_translation": "translation ATE improvement",
-               "improvement_rotation": "rotation ATE improvement", "pr": "PR-AUC / F1-max"}
+               "improvement_rotation": "rotation ATE improvement", "pr": "PR-AUC / F1-max",
+               "full_rate_ate": "full-rate ATE (and its % improvement)",
+               "full_rate_ate_optimised": "full-rate ATE after optimisation",
+               "full_rate_improvement_translation": "full-rate translation ATE improvement",
+               "full_rate_improvement_rotation": "full-rate rotation ATE improvement",
+               "rpe_kitti": "RPE over KITTI's 100-800 m segments", "rpe_10m": "RPE over 10 m",
+               "pr_reference": "PR-AUC / F1-max of the reference example's protocol"}
 
 
 def notes(metrics: Mapping[str, Any]) -> list[str]:

@@ -3,8 +3,9 @@
 odometry + descriptors (shared front end, cached) streamed frame by frame through the SLAM core
 (msa_slam.slam: keyframe sampling, loop candidates between keyframes with descriptor similarity >= 0.8 and
 recent keyframes excluded, small_gicp verification (oracle or realistic)) -> GTSAM pose graph optimised
-once with Levenberg-Marquardt at the end -> ATE/RPE before and after, % improvement, PR-AUC/F1-max, loop
-counts, memory and time.
+once with Levenberg-Marquardt at the end -> ATE/RPE before and after (keyframes and full rate), %
+improvement, PR-AUC/F1-max of both place-recognition protocols, loop counts, memory and time, and the
+threshold sweep (the back-end re-run at similarity thresholds around the run's, pipeline/sweep.py).
 """
 
 from __future__ import annotations
@@ -17,6 +18,9 @@ from msa_slam.backend import PoseGraph
 from msa_slam.errors import InputError
 from msa_slam.pipeline.config import RunConfig
 from msa_slam.pipeline.frontend import Frontend, prepare_frontend
+from msa_slam.pipeline.sweep import threshold_sweep
+from msa_slam.place_recognition import precision_recall
+from msa_slam.place_recognition.metrics import reference_protocol_matches
 from msa_slam.progress import progress_bar
 from msa_slam.registration import KeyframeCloudStore
 from msa_slam.slam import BACKEND_STEPS, RunResult, build_backend, core_metrics
@@ -24,8 +28,10 @@ from msa_slam.slam import BACKEND_STEPS, RunResult, build_backend, core_metrics
 BACKEND_STAGES = (*BACKEND_STEPS, "optimisation")
 
 
-def run_batch(config: RunConfig, frontend: Frontend | None = None, quiet: bool = True) -> RunResult:
-    """Run one sampler through the batch protocol; pass `frontend` to reuse odometry and descriptors.
+def run_batch(config: RunConfig, frontend: Frontend | None = None, quiet: bool = True,
+              sweep: bool = True) -> RunResult:
+    """Run one sampler through the batch protocol; pass `frontend` to reuse odometry and descriptors;
+    `sweep=False` leaves out the threshold sweep (metrics["threshold_sweep"] None).
 
     BLAS runs single-threaded: the descriptor searches are many small matrix products, which OpenBLAS
     threads slow down ~10x on a busy 2-core machine.
@@ -35,13 +41,13 @@ def run_batch(config: RunConfig, frontend: Frontend | None = None, quiet: bool =
     elif not frontend.matches(config):
         raise InputError("run_batch: the given front end was built with other odometry/descriptor settings")
     with threadpool_limits(limits=1, user_api="blas"):
-        return _run_backend(config, frontend, quiet)
+        return _run_backend(config, frontend, quiet, sweep)
 
 
-def _run_backend(config: RunConfig, frontend: Frontend, quiet: bool) -> RunResult:
+def _run_backend(config: RunConfig, frontend: Frontend, quiet: bool, sweep: bool) -> RunResult:
     graph = PoseGraph(config.graph, mode=config.mode)
-    backend = build_backend(config, frontend.descriptor, KeyframeCloudStore(config.verifier.voxel_size), graph,
-                           len(frontend), frontend.name)
+    clouds = KeyframeCloudStore(config.verifier.voxel_size)
+    backend = build_backend(config, frontend.descriptor, clouds, graph, len(frontend), frontend.name)
     sequence, times = frontend.sequence, frontend.sequence.times
     with progress_bar(quiet) as bar:
         task = bar.add_task(f"back-end ({config.name})", total=len(frontend))
@@ -51,8 +57,25 @@ def _run_backend(config: RunConfig, frontend: Frontend, quiet: bool) -> RunResul
             bar.advance(task)
     result = backend.finish()
     result.descriptors = frontend.descriptors[:len(result)]
+    sims, dists = reference_protocol_matches(frontend.descriptor, result.keyframes, frontend.descriptors,
+                                             frontend.gt_poses)
+    result.pr_reference = precision_recall(sims, dists, config.loop_radius) if len(sims) else None
     result.metrics = _metrics(result, frontend)
+    result.metrics["pr_reference"] = _reference_pr(result, len(sims), result.metrics["unavailable"])
+    result.metrics["threshold_sweep"] = threshold_sweep(result, frontend, clouds) if sweep else None
     return result
+
+
+def _reference_pr(result: RunResult, matches: int, unavailable: dict[str, str]) -> dict[str, Any]:
+    """PR-AUC / F1-max of the reference example's protocol; the reason into `unavailable` when None."""
+    pr = result.pr_reference
+    if pr is None:
+        unavailable["pr_reference"] = ("no frame had more than 10 keyframes before it and a best match more than "
+                                       "10 frames away (the reference protocol recorded no match)")
+    elif pr.unavailable:
+        unavailable["pr_reference"] = pr.unavailable
+    return {"pr_auc": None if pr is None else pr.auc, "f1_max": None if pr is None else pr.f1_max,
+            "matches": matches}
 
 
 def _metrics(result: RunResult, frontend: Frontend) -> dict[str, Any]:

@@ -18,6 +18,8 @@ from msa_slam.pipeline.batch import run_batch
 from msa_slam.pipeline.config import RunConfig, make_config
 from msa_slam.pipeline.frontend import Frontend, prepare_frontend
 from msa_slam.pipeline.results import trajectory_panels, write_run_files
+from msa_slam.pipeline.seeds import SEED_COLUMNS, seed_markdown, seed_rows, seed_summary, seeded_datasets
+from msa_slam.place_recognition import PRCurve
 from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.progress import progress_bar
 from msa_slam.slam import RunResult
@@ -35,19 +37,34 @@ PAPER_METHODS: tuple[tuple[str, str, dict[str, Any]], ...] = (
     ("msa", "msa", {}),
 )
 
+# Primary columns: full-rate (every frame, the same "ATE before" for every method); kf_*: keyframes only.
 COLUMNS = ("method", "keyframes", "candidates", "verified", "false_loops", "ate_before_m", "ate_after_m",
-           "improvement_t_pct", "improvement_r_pct", "pr_auc", "f1_max", "memory_mib", "time_s")
+           "improvement_t_pct", "improvement_r_pct", "rpe_pct", "rpe_10m_m", "pr_auc", "f1_max", "pr_auc_reference",
+           "f1_max_reference", "memory_mib", "time_s", "kf_ate_before_m", "kf_ate_after_m", "kf_improvement_t_pct",
+           "kf_improvement_r_pct")
+HEADERS = ("method", "keyframes", "candidates", "verified", "false loops", "ATE before [m]", "ATE after [m]",
+           "t. ATE impr. [%]", "R. ATE impr. [%]", "RPE 100-800 m [%]", "RPE 10 m [m]", "PR-AUC", "F1-max",
+           "PR-AUC (ref.)", "F1-max (ref.)", "memory [MiB]", "time [s]", "kf ATE before [m]", "kf ATE after [m]",
+           "kf t. impr. [%]", "kf R. impr. [%]")
 
 
 def table_row(metrics: dict[str, Any]) -> dict[str, Any]:
-    """One Table-I row from a run's metrics (memory: keyframes + graph; time: back-end stages)."""
-    m = metrics
+    """One Table-I row from a run's metrics: full-rate ATE/RPE first, keyframe-only ATE as kf_* columns
+    (memory: keyframes + graph; time: back-end stages)."""
+    m, full = metrics, metrics["full_rate"]
+    reference = m.get("pr_reference") or {}
     return {
         "method": m["method"], "keyframes": m["keyframes"], "candidates": m["candidates"], "verified": m["verified"],
-        "false_loops": m["false_loops"], "ate_before_m": m["before"]["ate_translation_m"],
-        "ate_after_m": m["after"]["ate_translation_m"], "improvement_t_pct": m["improvement_pct"]["translation"],
-        "improvement_r_pct": m["improvement_pct"]["rotation"], "pr_auc": m["pr_auc"], "f1_max": m["f1_max"],
+        "false_loops": m["false_loops"], "ate_before_m": full["before"]["ate_translation_m"],
+        "ate_after_m": full["after"]["ate_translation_m"], "improvement_t_pct": full["improvement_pct"]["translation"],
+        "improvement_r_pct": full["improvement_pct"]["rotation"],
+        "rpe_pct": full["after"]["rpe_kitti_translation_pct"], "rpe_10m_m": full["after"]["rpe_10m_translation_m"],
+        "pr_auc": m["pr_auc"], "f1_max": m["f1_max"], "pr_auc_reference": reference.get("pr_auc"),
+        "f1_max_reference": reference.get("f1_max"),
         "memory_mib": m["memory_bytes"]["total"] / 2**20, "time_s": m["time_s"]["backend_total"],
+        "kf_ate_before_m": m["before"]["ate_translation_m"], "kf_ate_after_m": m["after"]["ate_translation_m"],
+        "kf_improvement_t_pct": m["improvement_pct"]["translation"],
+        "kf_improvement_r_pct": m["improvement_pct"]["rotation"],
     }
 
 
@@ -58,9 +75,7 @@ def _fmt(value: Any) -> str:
 
 
 def table_markdown(rows: Sequence[dict[str, Any]]) -> str:
-    head = ["method", "keyframes", "candidates", "verified", "false loops", "ATE before [m]", "ATE after [m]",
-            "t. ATE impr. [%]", "R. ATE impr. [%]", "PR-AUC", "F1-max", "memory [MiB]", "time [s]"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines = ["| " + " | ".join(HEADERS) + " |", "|" + "---|" * len(HEADERS)]
     lines += ["| " + " | ".join(_fmt(r[c]) for c in COLUMNS) + " |" for r in rows]
     return "\n".join(lines) + "\n"
 
@@ -82,13 +97,48 @@ def _figures(results: Sequence[RunResult], folder: Path) -> list[str]:
     plot_trajectories(folder / "trajectories.png", gt_xy, [trajectory_panels(results[0])[0], *panels],
                       title=f"{display_name(results[0].metrics['sequence'])}: keyframe trajectories of every sampler "
                       "after optimisation, coloured by ATE", columns=4)
-    curves = {r.config.name: r.pr for r in results if r.pr is not None and r.pr.auc is not None}
     names = ["metrics.png", "trajectories.png"]
-    if curves:
-        plot_pr_curves(curves, folder / "pr_curves.png",
-                       title=f"{display_name(results[0].metrics['sequence'])}: loop candidates per method")
-        names.append("pr_curves.png")
+    sequence = display_name(results[0].metrics["sequence"])
+    for protocol, file, what in (("paper", "pr_curves.png", "loop candidates per method (paper: keyframe search)"),
+                                 ("reference", "pr_curves_reference.png",
+                                  "best match per frame (reference example's protocol)")):
+        curves = {r.config.name: c for r in results if (c := _pr(r, protocol)) is not None and c.auc is not None}
+        if curves:
+            plot_pr_curves(curves, folder / file, title=f"{sequence}: {what}")
+            names.append(file)
+    (folder / "pr.csv").write_text(pr_csv(results))
     return names
+
+
+def _pr(result: RunResult, protocol: str) -> PRCurve | None:
+    return result.pr if protocol == "paper" else result.pr_reference
+
+
+PR_COLUMNS = ("method", "protocol", "threshold", "precision", "recall", "f1")
+
+
+def pr_csv(results: Sequence[RunResult]) -> str:
+    """Both protocols' precision/recall arrays of every method (one row per threshold; no rows for a method
+    without recorded matches)."""
+    rows = [{"method": r.config.name, "protocol": protocol, "threshold": f"{t:.2f}", "precision": f"{p:.6f}",
+             "recall": f"{q:.6f}", "f1": f"{f:.6f}"}
+            for r in results for protocol in ("paper", "reference") if (c := _pr(r, protocol)) is not None
+            for t, p, q, f in zip(c.thresholds, c.precision, c.recall, c.f1)]
+    return rows_csv(rows, PR_COLUMNS)
+
+
+def sweep_markdown(results: Sequence[RunResult]) -> str:
+    """Loops accepted and full-rate t. ATE improvement per method at each threshold of the sweep."""
+    swept = [r for r in results if r.metrics.get("threshold_sweep")]
+    if not swept:
+        return ""
+    thresholds = [row["threshold"] for row in swept[0].metrics["threshold_sweep"]]
+    lines = ["| method | " + " | ".join(f"{t:.2f}" for t in thresholds) + " |", "|" + "---|" * (len(thresholds) + 1)]
+    for r in swept:
+        cells = {row["threshold"]: f"{row['loops_accepted']} / {fmt(row['improvement_t_pct'], '.1f', ' %')}"
+                 for row in r.metrics["threshold_sweep"]}
+        lines.append(f"| {r.config.name} | " + " | ".join(cells.get(t, NA) for t in thresholds) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: list[str]) -> str:
@@ -99,12 +149,17 @@ def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: lis
              f"Dataset `{cfg.dataset}`: {len(fe)} frames. Odometry `{cfg.odometry}`, descriptor `{cfg.descriptor}`, "
              f"loops: similarity >= {cfg.similarity_threshold}, {cfg.mode} verification (small_gicp residual < "
              f"{cfg.verifier.max_residual} m), GTSAM Levenberg-Marquardt. Shared front end: {front}{cached}.", "",
-             f"ATE: keyframe trajectory vs ground truth after {ATE_ALIGNMENT} alignment (fitted on all keyframes of "
-             "each estimate), before (odometry) and after pose-graph optimisation; improvement = 100 (before - "
-             "after) / before. False loops: verified loops whose ground-truth distance exceeds "
+             f"ATE: the full-rate trajectory (every frame: its preceding keyframe's optimised pose and the "
+             f"odometry since) vs ground truth after {ATE_ALIGNMENT} alignment (fitted on all frames of each "
+             "estimate), before (odometry, the same for every method) and after pose-graph optimisation; "
+             "improvement = 100 (before - after) / before. RPE of the full-rate optimised trajectory over KITTI's "
+             "100-800 m segments (translation, % of the length) and over 10 m (m). kf columns: the same ATE on "
+             "each method's own keyframes only. PR-AUC / F1-max: the paper's keyframe search (each keyframe's best "
+             "older match) and, marked ref., the reference example's protocol (each frame against the 10 nearest "
+             "keyframes); arrays in figures/pr.csv. False loops: verified loops whose ground-truth distance exceeds "
              f"{cfg.loop_radius} m. Memory: accounted bytes of keyframe descriptors, downsampled keyframe clouds "
              "and the graph, per method. Time: sampling + keyframe store + loop search + verification + "
-             "optimisation.", "", table, "",
+             "optimisation.", "", table, "", *_sweep_lines(results),
              f"Process peak RSS: {mib(max(r.metrics['peak_rss_bytes'] for r in results))} (whole process: "
              "every method and the shared front end; not a per-method figure).", ""]
     method_notes = [f"- {r.config.name}: {note}" for r in results for note in notes(r.metrics)]
@@ -114,6 +169,15 @@ def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: lis
     lines += ["", "Per-method results: " + ", ".join(f"[{r.config.name}](runs/{r.config.name}/report.md)"
                                                   for r in results), ""]
     return "\n".join(lines)
+
+
+def _sweep_lines(results: Sequence[RunResult]) -> list[str]:
+    sweep = sweep_markdown(results)
+    if not sweep:
+        return []
+    return ["Threshold sensitivity: loops accepted / full-rate t. ATE improvement when only the back-end (loop "
+            "closing + optimisation) is re-run on the same keyframes with another similarity threshold:", "",
+            sweep, ""]
 
 
 def method_configs(base: RunConfig, methods: Sequence[tuple[str, str, dict[str, Any]]] = PAPER_METHODS
@@ -133,34 +197,72 @@ class MethodsFailed(Exception):
 
 def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = True,
                 methods: Sequence[tuple[str, str, dict[str, Any]]] = PAPER_METHODS, overwrite: bool = False,
-                default_parent: Path = DEFAULT_RESULTS / "compare") -> Path:
+                default_parent: Path = DEFAULT_RESULTS / "compare", seeds: Sequence[int] | None = None) -> Path:
     """Run every method on the sequence of `base` and write the comparison folder; return its report.md.
 
     `out` is checked before any work (msa_slam.io.outputs; None: a new timestamped folder under
     `default_parent`) and appears only when complete. A method that fails does not cost the others: the
     folder is written with the methods that finished, the failed ones are marked in report.md (their
     traceback in runs/<method>/error.txt), and MethodsFailed is raised afterwards.
+
+    `seeds` (simulated data only) repeats the comparison on each world seed under seeds/seed-<n>/ and
+    writes the spread over seeds (seeds.md, seeds.csv, seeds.json) and its report.md at the top.
     """
-    configs = method_configs(base, methods)
+    datasets = seeded_datasets(base.dataset, seeds) if seeds is not None else [base.dataset]
     with open_result_folder(out, "compare", default_parent, overwrite=overwrite) as folder:
-        frontend = prepare_frontend(configs[0], quiet)
         with folder.staging() as tmp:
-            results, failed = _run_methods(configs, frontend, tmp / "runs", quiet)
-            rows = [table_row(r.metrics) for r in results]
-            table = table_markdown(rows)
-            (tmp / "comparison.md").write_text(table)
-            (tmp / "comparison.csv").write_text(rows_csv(rows, COLUMNS))
-            write_json(tmp / "comparison.json", [r.metrics for r in results])
-            figures = _figures(results, tmp / "figures") if results else []
-            report = (_report(frontend, results, table, figures) if results
-                      else f"# Sampler comparison on {frontend.name}\n")
-            if failed:
-                report += "\n## Failed methods\n\n" + "".join(f"- {name}: {error} (traceback: runs/{name}/error.txt)\n"
-                                                         for name, error in failed.items())
-            (tmp / "report.md").write_text(report)
+            if seeds is None:
+                _, failed = _comparison(method_configs(base, methods), tmp, quiet)
+            else:
+                failed = _seed_comparisons(base, methods, dict(zip(seeds, datasets)), tmp, quiet)
     if failed:
         raise MethodsFailed(folder.path / "report.md", failed)
     return folder.path / "report.md"
+
+
+def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool) -> tuple[list[dict[str, Any]], dict[str, str]]:
+    """One comparison folder's files in `tmp`; its table rows and failed methods."""
+    frontend = prepare_frontend(configs[0], quiet)
+    results, failed = _run_methods(configs, frontend, tmp / "runs", quiet)
+    rows = [table_row(r.metrics) for r in results]
+    table = table_markdown(rows)
+    (tmp / "comparison.md").write_text(table)
+    (tmp / "comparison.csv").write_text(rows_csv(rows, COLUMNS))
+    write_json(tmp / "comparison.json", [r.metrics for r in results])
+    figures = _figures(results, tmp / "figures") if results else []
+    report = (_report(frontend, results, table, figures) if results
+              else f"# Sampler comparison on {frontend.name}\n")
+    if failed:
+        report += "\n## Failed methods\n\n" + "".join(f"- {name}: {error} (traceback: runs/{name}/error.txt)\n"
+                                                     for name, error in failed.items())
+    (tmp / "report.md").write_text(report)
+    return rows, failed
+
+
+def _seed_comparisons(base: RunConfig, methods: Sequence[tuple[str, str, dict[str, Any]]],
+                      datasets: dict[int, str], tmp: Path, quiet: bool) -> dict[str, str]:
+    """A comparison per world seed under tmp/seeds/, then the spread over seeds at the top of `tmp`."""
+    rows, failed = {}, {}
+    for seed, dataset in datasets.items():
+        folder = tmp / "seeds" / f"seed-{seed}"
+        folder.mkdir(parents=True)
+        configs = method_configs(make_config({**base.dump(), "dataset": dataset}), methods)
+        rows[seed], seed_failed = _comparison(configs, folder, quiet)
+        failed.update({f"seed {seed}: {name}": error for name, error in seed_failed.items()})
+    summary = seed_summary(rows)
+    table = seed_markdown(summary)
+    (tmp / "seeds.md").write_text(table)
+    (tmp / "seeds.csv").write_text(rows_csv(seed_rows(summary), SEED_COLUMNS))
+    write_json(tmp / "seeds.json", summary)
+    lines = [f"# Sampler comparison over world seeds: `{base.dataset}`", "",
+             "Each seed simulates a different world along the same trajectory; every seed's full comparison "
+             "(table, figures, per-method runs) is under seeds/seed-<n>/. Metrics as in those reports (ATE and "
+             "improvement on the full-rate trajectory).", "", table]
+    lines += [f"- [seed {s}](seeds/seed-{s}/report.md)" for s in datasets]
+    if failed:
+        lines += ["", "## Failed methods", "", *(f"- {k}: {v}" for k, v in failed.items())]
+    (tmp / "report.md").write_text("\n".join(lines) + "\n")
+    return failed
 
 
 def _run_methods(configs: Sequence[RunConfig], frontend, runs: Path, quiet: bool

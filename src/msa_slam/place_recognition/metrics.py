@@ -9,6 +9,10 @@ nothing is positive, F1 0 when both are 0. PR-AUC = trapezoid area under precisi
 PR-AUC and F1-max are None (with the reason in `unavailable`) when they would only restate those
 conventions: no recorded match, no match within `max_distance` (recall undefined: the score would read
 0), no match beyond it (nothing to reject: it would read 1) or no match reaching any threshold.
+
+Two protocols record the matches: the paper's batch search (each new keyframe's best match among the
+older keyframes, msa_slam.slam.loop_closing) and the reference example's (`reference_protocol_matches`:
+every frame against the keyframes nearest to it, docs/descriptors.md "Place-recognition protocols").
 """
 
 from __future__ import annotations
@@ -18,7 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import trapezoid
 
+from msa_slam.descriptors.base import Descriptor
 from msa_slam.errors import InputError
+from msa_slam.place_recognition.database import KeyframeDatabase
 
 DEFAULT_THRESHOLDS = np.arange(100) / 100.0
 
@@ -97,3 +103,28 @@ def _unavailable(near: np.ndarray, predicted: np.ndarray, max_distance: float) -
     if not predicted.any():
         return "no match reached the lowest similarity threshold"
     return None
+
+
+def reference_protocol_matches(descriptor: Descriptor, keyframes: np.ndarray, descriptors: np.ndarray,
+                               poses: np.ndarray, n_nearest: int = 10, min_gap: int = 10
+                               ) -> tuple[np.ndarray, np.ndarray]:
+    """Similarities and distances (m) of the reference example's recorded matches: once more than
+    `n_nearest` keyframes precede it, every frame compares its descriptor with the `n_nearest` keyframes
+    before it that are nearest to its pose (`poses`: every frame's, ground truth for the distances), and
+    the best match more than `min_gap` frames away is recorded. The MSA window's extra candidates of the
+    reference are not offered (every sampler is scored on its keyframes alone)."""
+    keyframes = np.asarray(keyframes, dtype=np.int64)
+    database = KeyframeDatabase(descriptor)
+    sims, dists = [], []
+    added = 0
+    for frame in range(len(poses)):
+        while added < len(keyframes) and keyframes[added] < frame:
+            database.add(int(keyframes[added]), poses[keyframes[added]], descriptors[keyframes[added]])
+            added += 1
+        if len(database) <= n_nearest:
+            continue
+        match = database.query_reference(frame, poses[frame], descriptors[frame], n_nearest, min_gap=min_gap)
+        if match is not None:
+            sims.append(match.similarity)
+            dists.append(match.distance)
+    return np.asarray(sims, dtype=np.float64), np.asarray(dists, dtype=np.float64)

@@ -1,0 +1,137 @@
+"""Full-rate trajectories and their errors: the same denominator for every sampler.
+
+Keyframe-only ATE depends on which frames a sampler keeps (a sampler that keeps stalled frames is judged on
+other poses than one that keeps one frame per metre), so the comparison metrics are computed on every
+frame. After optimisation each frame takes its pose from the keyframe before it: the keyframe's optimised
+pose times the odometry motion from that keyframe to the frame (frames before the first keyframe use the
+first keyframe's correction). "Before" is the odometry itself, identical for every sampler of a comparison.
+
+RPE is measured over fixed travelled distances (KITTI odometry benchmark: segments of 100..800 m starting
+every STEP_FRAMES frames, translation error in % of the segment length and rotation in deg per 100 m),
+plus over 10 m segments (metres and degrees per 10 m) starting at every frame, so it does not depend on the
+gaps between keyframes either. A run shorter than a segment length gets None with the reason.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from msa_slam.errors import InputError
+from msa_slam.evaluation.summary import ZERO_ERROR, improvement_pct
+from msa_slam.evaluation.trajectory import ATE_ALIGNMENT, AlignmentError, ate
+from msa_slam.types import validate_poses
+
+KITTI_LENGTHS_M = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
+SHORT_LENGTH_M = 10.0
+STEP_FRAMES = 10  # the KITTI devkit's step between segment starts
+
+
+def full_rate_poses(odometry: np.ndarray, keyframes: np.ndarray, optimised: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) poses of every frame: the preceding keyframe's optimised pose composed with the odometry
+    motion from that keyframe to the frame."""
+    odometry = validate_poses(odometry, "odometry")
+    keyframes = np.asarray(keyframes, dtype=np.int64)
+    optimised = validate_poses(optimised, "optimised keyframe poses")
+    if len(keyframes) != len(optimised) or not len(keyframes):
+        raise InputError(f"full-rate trajectory: {len(keyframes)} keyframes but {len(optimised)} optimised poses")
+    if np.any(np.diff(keyframes) <= 0) or keyframes[0] < 0 or keyframes[-1] >= len(odometry):
+        raise InputError(f"full-rate trajectory: keyframes must be increasing frame indices in 0..{len(odometry) - 1}")
+    correction = optimised @ np.linalg.inv(odometry[keyframes])  # world correction of each keyframe
+    owner = np.clip(np.searchsorted(keyframes, np.arange(len(odometry)), side="right") - 1, 0, None)
+    return correction[owner] @ odometry
+
+
+def _rotation_deg(relative: np.ndarray) -> np.ndarray:
+    cos = np.clip((np.trace(relative[:, :3, :3], axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    return np.degrees(np.arccos(cos))
+
+
+def path_length(poses: np.ndarray) -> np.ndarray:
+    """Cumulative travelled distance (m) at each pose."""
+    steps = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)
+    return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+def segment_errors(estimate: np.ndarray, reference: np.ndarray, length: float,
+                   step: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Translation (m) and rotation (deg) errors of the relative motion over every segment of `length`
+    metres travelled along `reference` (starts every `step` frames; end: the first frame at least `length`
+    further), as the KITTI devkit computes them; empty arrays when the path is shorter."""
+    dist = path_length(reference)
+    starts = np.arange(0, len(reference), step)
+    ends = np.searchsorted(dist, dist[starts] + length, side="left")
+    keep = ends < len(reference)
+    starts, ends = starts[keep], ends[keep]
+    if not len(starts):
+        return np.zeros(0), np.zeros(0)
+    gt_motion = np.linalg.inv(reference[starts]) @ reference[ends]
+    est_motion = np.linalg.inv(estimate[starts]) @ estimate[ends]
+    error = np.linalg.inv(est_motion) @ gt_motion
+    return np.linalg.norm(error[:, :3, 3], axis=1), _rotation_deg(error)
+
+
+def distance_rpe(estimate: np.ndarray, reference: np.ndarray) -> tuple[dict[str, float | None], dict[str, str]]:
+    """KITTI segment RPE (translation %, rotation deg/100 m) and 10 m RPE (m, deg per 10 m): means over all
+    segments; None with the reason when the reference path is shorter than the segments."""
+    out: dict[str, float | None] = {}
+    unavailable: dict[str, str] = {}
+    total = float(path_length(reference)[-1])
+    pairs = [segment_errors(estimate, reference, length, STEP_FRAMES) for length in KITTI_LENGTHS_M]
+    t_rel = np.concatenate([t / length for (t, _), length in zip(pairs, KITTI_LENGTHS_M)])
+    r_rel = np.concatenate([r / length for (_, r), length in zip(pairs, KITTI_LENGTHS_M)])
+    if len(t_rel):
+        out.update(rpe_kitti_translation_pct=float(100 * t_rel.mean()), rpe_kitti_rotation_deg_per_100m=float(
+            100 * r_rel.mean()))
+    else:
+        out.update(rpe_kitti_translation_pct=None, rpe_kitti_rotation_deg_per_100m=None)
+        unavailable["rpe_kitti"] = (f"the ground-truth path is {total:.1f} m, shorter than KITTI's shortest "
+                                    f"segment ({KITTI_LENGTHS_M[0]:g} m)")
+    t10, r10 = segment_errors(estimate, reference, SHORT_LENGTH_M)
+    if len(t10):
+        out.update(rpe_10m_translation_m=float(t10.mean()), rpe_10m_rotation_deg=float(r10.mean()))
+    else:
+        out.update(rpe_10m_translation_m=None, rpe_10m_rotation_deg=None)
+        unavailable["rpe_10m"] = f"the ground-truth path is {total:.1f} m, shorter than {SHORT_LENGTH_M:g} m"
+    return out, unavailable
+
+
+def _block(estimate: np.ndarray, reference: np.ndarray) -> tuple[dict[str, Any], str | None, dict[str, str]]:
+    block: dict[str, Any] = {"ate_translation_m": None, "ate_rotation_deg": None}
+    reason = None
+    try:
+        a = ate(estimate, reference)
+    except AlignmentError as exc:
+        reason = str(exc)
+    else:
+        block.update(ate_translation_m=a.translation_rmse, ate_rotation_deg=a.rotation_rmse)
+    rpe, unavailable = distance_rpe(estimate, reference)
+    return {**block, **rpe}, reason, unavailable
+
+
+def evaluate_full_rate(odometry: np.ndarray, full_rate: np.ndarray, reference: np.ndarray | None) -> dict[str, Any]:
+    """JSON-ready full-rate metrics: `before` (odometry) and `after` (full-rate optimised) ATE and distance
+    RPE, the % ATE improvement, the alignment used and `unavailable` (metric -> why it is None)."""
+    if reference is None or not np.isfinite(reference).all():
+        keys = ("ate_translation_m", "ate_rotation_deg", "rpe_kitti_translation_pct",
+                "rpe_kitti_rotation_deg_per_100m", "rpe_10m_translation_m", "rpe_10m_rotation_deg")
+        empty = dict.fromkeys(keys)
+        return {"before": empty, "after": dict(empty), "improvement_pct": {"translation": None, "rotation": None},
+                "frames": len(odometry), "ate_alignment": None,
+                "unavailable": {"full_rate_ate": "no ground-truth pose for every frame"}}
+    before, reason_b, unavailable = _block(validate_poses(odometry, "odometry"), reference)
+    after, reason_a, _ = _block(validate_poses(full_rate, "full-rate trajectory"), reference)
+    if reason_b:
+        unavailable["full_rate_ate"] = reason_b
+    elif reason_a:
+        unavailable["full_rate_ate_optimised"] = reason_a
+    improvements = {}
+    for part, key in (("translation", "ate_translation_m"), ("rotation", "ate_rotation_deg")):
+        improvements[part] = improvement_pct(before[key], after[key])
+        if improvements[part] is None and before[key] is not None and not before[key] > ZERO_ERROR:
+            unavailable[f"full_rate_improvement_{part}"] = (f"odometry ATE {part} is 0 ({before[key]:.1g}): "
+                                                            "% improvement undefined")
+    return {"before": before, "after": after, "improvement_pct": improvements, "frames": len(reference),
+            "ate_alignment": f"{ATE_ALIGNMENT}, fitted separately for each estimate on all {len(reference)} frames",
+            "unavailable": unavailable}

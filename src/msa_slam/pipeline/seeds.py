@@ -1,0 +1,127 @@
+"""`compare --seeds`: the comparison repeated over simulated worlds, summarised per metric as mean +- std,
+per-seed ranks and, for MSA against each baseline, whether the difference exceeds the seed-to-seed spread
+(msa_slam.evaluation.spread)."""
+
+from __future__ import annotations
+
+from typing import Any, Mapping, Sequence
+
+from msa_slam.errors import InputError
+from msa_slam.evaluation import NA, fmt
+from msa_slam.evaluation.spread import MIN_SEEDS, PAIRED_TEST, PAIRED_TEST_WHY, REFERENCE, paired_verdict, spreads
+
+SIM_PREFIX = "sim:"
+# comparison column -> (label, higher is better; None: no direction, no rank and no test)
+SEED_METRICS: dict[str, tuple[str, bool | None]] = {
+    "improvement_t_pct": ("t. ATE impr. [%]", True),
+    "improvement_r_pct": ("R. ATE impr. [%]", True),
+    "ate_after_m": ("ATE after [m]", False),
+    "rpe_pct": ("RPE 100-800 m [%]", False),
+    "rpe_10m_m": ("RPE 10 m [m]", False),
+    "pr_auc": ("PR-AUC", True),
+    "f1_max": ("F1-max", True),
+    "false_loops": ("false loops", False),
+    "memory_mib": ("memory [MiB]", False),
+    "keyframes": ("keyframes", None),
+    "verified": ("loops", None),
+}
+
+
+def parse_seeds(text: str) -> list[int]:
+    """World seeds from "0,1,2": distinct non-negative integers."""
+    try:
+        seeds = [int(item) for item in text.split(",") if item.strip()]
+    except ValueError:
+        raise InputError(f"--seeds {text!r}: expected comma-separated non-negative integers, e.g. 0,1,2") from None
+    if not seeds or min(seeds) < 0 or len(set(seeds)) != len(seeds):
+        raise InputError(f"--seeds {text!r}: expected distinct non-negative integers, e.g. 0,1,2")
+    return seeds
+
+
+def seeded_datasets(dataset: str, seeds: Sequence[int]) -> list[str]:
+    """The `sim:` spec of each world seed; only simulated data has a world seed."""
+    if not dataset.startswith(SIM_PREFIX):
+        raise InputError(f"--seeds: dataset {dataset!r} is not simulated; world seeds exist only for sim: "
+                         "datasets (e.g. --dataset sim:test --seeds 0,1,2)")
+    fields = [item.partition("=")[0].strip() for item in dataset[len(SIM_PREFIX):].split(",")]
+    if "seed" in fields:
+        raise InputError(f"--seeds: dataset {dataset!r} already sets seed=; give the seeds with --seeds only")
+    return [f"{dataset},seed={s}" for s in seeds]
+
+
+def seed_summary(rows: Mapping[int, Sequence[Mapping[str, Any]]]) -> dict[str, Any]:
+    """Per metric: each method's values, mean, std and ranks over the seeds (`rows`: seed -> comparison rows),
+    and MSA's verdict against each baseline."""
+    seeds = list(rows)
+    methods = list(dict.fromkeys(r["method"] for seed_rows in rows.values() for r in seed_rows))
+    per_seed = {s: {r["method"]: r for r in rows[s]} for s in seeds}
+    metrics: dict[str, Any] = {}
+    for column, (label, higher) in SEED_METRICS.items():
+        values = [{m: _value(per_seed[s].get(m), column) for m in methods} for s in seeds]
+        spread = spreads(values, higher)
+        verdicts = {}
+        if higher is not None and REFERENCE in spread:
+            for m in methods:
+                if m != REFERENCE:
+                    verdicts[m] = paired_verdict(spread[REFERENCE].values, spread[m].values, higher, seeds)
+        metrics[column] = {"label": label, "higher_is_better": higher,
+                           "methods": {m: vars(sp) for m, sp in spread.items()}, "msa_vs": verdicts}
+    return {"seeds": seeds, "test": PAIRED_TEST, "test_choice": PAIRED_TEST_WHY, "min_seeds": MIN_SEEDS,
+            "metrics": metrics}
+
+
+def _value(row: Mapping[str, Any] | None, column: str) -> float | None:
+    value = None if row is None else row.get(column)
+    return None if value is None else float(value)
+
+
+def _cell(entry: Mapping[str, Any]) -> str:
+    digits = ".1f" if entry["mean"] is not None and abs(entry["mean"]) >= 10 else ".3f"
+    if entry["mean"] is None:
+        return NA
+    return f"{fmt(entry['mean'], digits)} ± {fmt(entry['std'], digits)}"
+
+
+def seed_markdown(summary: Mapping[str, Any]) -> str:
+    """Three tables: mean ± std per method and metric, the per-seed ranks, MSA's paired-test verdicts."""
+    metrics = summary["metrics"]
+    seeds = summary["seeds"]
+    methods = list(next(iter(metrics.values()))["methods"])
+    labels = [m["label"] for m in metrics.values()]
+    lines = [f"Seeds {', '.join(map(str, seeds))}: mean ± sample std (ddof 1) over the seeds.", "",
+             "| method | " + " | ".join(labels) + " |", "|" + "---|" * (len(labels) + 1)]
+    lines += [f"| {m} | " + " | ".join(_cell(e["methods"][m]) for e in metrics.values()) + " |" for m in methods]
+    ranked = {k: e for k, e in metrics.items() if e["higher_is_better"] is not None}
+    lines += ["", "Rank per seed (1 = best, among the methods with a value; seeds " + ", ".join(map(str, seeds))
+              + "):", "",
+              "| method | " + " | ".join(e["label"] for e in ranked.values()) + " |",
+              "|" + "---|" * (len(ranked) + 1)]
+    lines += [f"| {m} | " + " | ".join(", ".join(NA if r is None else str(r) for r in e["methods"][m]["ranks"])
+                                        for e in ranked.values()) + " |" for m in methods]
+    baselines = [m for m in methods if m != REFERENCE]
+    if any(e["msa_vs"] for e in ranked.values()):
+        lines += ["", f"MSA against each baseline, {summary['test']} over the seeds: does the difference exceed "
+                  f"the seed-to-seed spread? ({summary['test_choice']}.)", "",
+                  "| baseline | " + " | ".join(e["label"] for e in ranked.values()) + " |",
+                  "|" + "---|" * (len(ranked) + 1)]
+        lines += [f"| {b} | " + " | ".join(e["msa_vs"][b]["verdict"] if b in e["msa_vs"] else NA
+                                           for e in ranked.values()) + " |" for b in baselines]
+    else:
+        lines += ["", f"No paired test: no method labelled {REFERENCE!r} in the comparison."]
+    return "\n".join(lines) + "\n"
+
+
+def seed_rows(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """seeds.csv rows: one per method and metric (mean, std, per-seed values and ranks, MSA's verdict)."""
+    out = []
+    for column, entry in summary["metrics"].items():
+        for method, sp in entry["methods"].items():
+            verdict = entry["msa_vs"].get(method, {})
+            out.append({"metric": column, "method": method, "mean": sp["mean"], "std": sp["std"],
+                        "values": " ".join(NA if v is None else f"{v:.6g}" for v in sp["values"]),
+                        "ranks": " ".join(NA if r is None else str(r) for r in sp["ranks"]),
+                        "msa_vs_p": verdict.get("p"), "msa_vs_verdict": verdict.get("verdict", "")})
+    return out
+
+
+SEED_COLUMNS = ("metric", "method", "mean", "std", "values", "ranks", "msa_vs_p", "msa_vs_verdict")

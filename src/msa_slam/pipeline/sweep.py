@@ -1,0 +1,114 @@
+"""Sensitivity to the similarity threshold (issue 14): loops accepted and full-rate ATE improvement of one
+batch run at thresholds around its own (SWEEP_OFFSETS: 0.70, 0.75, 0.80, 0.85 around the paper's 0.8).
+
+Only the back-end is re-run: the same keyframes (a replay sampler emits the run's keyframes), the same
+downsampled keyframe clouds (shared, not re-read) and the cached front end, streamed through the same SLAM
+core (`build_backend`) with the threshold changed. A candidate pair's verification does not depend on the
+threshold, so each pair is registered once over the whole sweep (the run's own pairs are reused).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from msa_slam.backend import PoseGraph
+from msa_slam.evaluation import evaluate_full_rate
+from msa_slam.pipeline.config import RunConfig, make_config
+from msa_slam.pipeline.frontend import Frontend
+from msa_slam.sampling.base import Sampler
+from msa_slam.slam import RunResult, build_backend
+from msa_slam.types import LoopClosure
+
+SWEEP_OFFSETS = (-0.10, -0.05, 0.0, 0.05)
+
+
+def sweep_thresholds(threshold: float) -> list[float]:
+    """The thresholds of the sweep around `threshold`, within [0, 1]."""
+    return sorted({round(min(1.0, max(0.0, threshold + d)), 6) for d in SWEEP_OFFSETS})
+
+
+class _ReplaySampler(Sampler):
+    """Emits the given keyframes, each as its frame arrives."""
+
+    name = "replay"
+
+    def __init__(self, keyframes: np.ndarray) -> None:
+        super().__init__()
+        self._keys = {int(k) for k in keyframes}
+
+    def _push(self, index: int, pose: np.ndarray, descriptor: np.ndarray | None,
+              points: np.ndarray | None) -> list[int]:
+        return [index] if index in self._keys else []
+
+
+class _SharedClouds:
+    """The run's downsampled keyframe clouds: storing one again keeps the stored cloud (no scan is read)."""
+
+    def __init__(self, clouds: Any) -> None:
+        self._clouds = clouds
+
+    def add(self, key: int, points: np.ndarray | None) -> np.ndarray:
+        return self._clouds[key]
+
+    def __getitem__(self, key: int) -> np.ndarray:
+        return self._clouds[key]
+
+    @property
+    def nbytes(self) -> int:
+        return 0
+
+
+class _MemoVerify:
+    """A loop closer whose verification outcomes are shared by pair (query, match) across the sweep."""
+
+    def __init__(self, closer: Any, memo: dict[tuple[int, int], LoopClosure]) -> None:
+        self._closer, self._memo = closer, memo
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._closer, name)
+
+    def verify(self, candidates: list[LoopClosure]) -> list[LoopClosure]:
+        new = [c for c in candidates if (c.query, c.match) not in self._memo]
+        for c in self._closer.verify(new) if new else []:
+            self._memo[(c.query, c.match)] = c
+        return [self._memo[(c.query, c.match)] for c in candidates]
+
+
+def replay(config: RunConfig, frontend: Frontend, clouds: Any, keyframes: np.ndarray,
+           memo: dict[tuple[int, int], LoopClosure]) -> RunResult:
+    """The back-end of `config` on fixed `keyframes` whose clouds are in `clouds` (front end from `frontend`)."""
+    backend = build_backend(config, frontend.descriptor, _SharedClouds(clouds), PoseGraph(config.graph),
+                            len(frontend), frontend.name)
+    backend.sampler = _ReplaySampler(keyframes)
+    backend.loop_closer = _MemoVerify(backend.loop_closer, memo)
+    times = frontend.sequence.times
+    for i in range(len(frontend)):
+        backend.add_frame(frontend.odometry[i], frontend.descriptors[i], None, frontend.gt_poses[i], times[i])
+    return backend.finish()
+
+
+def _row(threshold: float, result: RunResult) -> dict[str, Any]:
+    full = result.metrics.get("full_rate") or evaluate_full_rate(result.odometry, result.optimised_full,
+                                                                 result.gt_poses)
+    radius = result.config.loop_radius
+    return {"threshold": threshold, "candidates": len(result.loops), "loops_accepted": len(result.accepted_loops),
+            "false_loops": int(sum(c.gt_distance > radius for c in result.accepted_loops)),
+            "ate_after_m": full["after"]["ate_translation_m"],
+            "improvement_t_pct": full["improvement_pct"]["translation"]}
+
+
+def threshold_sweep(result: RunResult, frontend: Frontend, clouds: Any) -> list[dict[str, Any]]:
+    """One row per threshold of the sweep (candidates, loops accepted, false loops, full-rate ATE after and
+    % improvement); the run's own threshold is the run itself, the others are replays."""
+    config = result.config
+    memo = {(c.query, c.match): c for c in result.loops}
+    rows = []
+    for threshold in sweep_thresholds(config.similarity_threshold):
+        if threshold == round(config.similarity_threshold, 6):
+            rows.append(_row(threshold, result))
+            continue
+        swept = make_config({**config.dump(), "similarity_threshold": threshold})
+        rows.append(_row(threshold, replay(swept, frontend, clouds, result.keyframes, memo)))
+    return rows
