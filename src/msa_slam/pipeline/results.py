@@ -78,10 +78,11 @@ def steps_csv(result: RunResult) -> str:
 
 
 def write_trajectory_files(folder: Path, result: RunResult) -> None:
-    """Keyframe trajectories (optimised, odometry, GT) and the full-rate odometry and GT, in KITTI and TUM."""
+    """Keyframe trajectories (optimised, odometry, GT) and the full-rate optimised (every frame from its
+    preceding keyframe's optimised pose and the odometry since), odometry and GT, in KITTI and TUM."""
     folder.mkdir()
     kf, times = result.keyframes, np.asarray(result.times, dtype=np.float64)
-    trajectories = [("optimised_keyframes", result.optimised, times[kf]),
+    trajectories = [("optimised", result.optimised_full, times), ("optimised_keyframes", result.optimised, times[kf]),
                     ("odometry_keyframes", result.odometry[kf], times[kf]),
                     ("odometry", result.odometry, times)]
     if has_ground_truth(result):
