@@ -26,3 +26,11 @@ def merge_options(base: dict[str, Any], given: dict[str, Any], datasets: str) ->
 def cache_option(cache_dir: Optional[Path]) -> Optional[str]:
     """--cache-dir as the config stores it."""
     return None if cache_dir is None else str(cache_dir)
+
+
+def source_options(base: dict[str, Any], loader: Optional[str], **given: Any) -> dict[str, Any]:
+    """--loader and the source options given (--topic, --gt, --sequence, --first, --jump, -n) as config keys:
+    `dataset_kind` and the file's `source` section updated (None values: not given)."""
+    given = {k: (str(v) if isinstance(v, Path) else v) for k, v in given.items() if v is not None}
+    source = {**(base.get("source") or {}), **given} if given else None
+    return {"dataset_kind": loader, "source": source}

@@ -7,10 +7,11 @@ from typing import List, Optional
 
 import typer
 
-from msa_slam.cli.options import CACHE_HELP, DESCRIPTOR_HELP, MODE_HELP, OVERWRITE_HELP, SAMPLER_HELP, out_help
+from msa_slam.cli.options import (CACHE_HELP, DESCRIPTOR_HELP, FIRST, FRAMES, GT, JUMP, LOADER, MODE_HELP,
+                                  OVERWRITE_HELP, SAMPLER_HELP, SEQUENCE, TOPIC, out_help)
 
-DATASET_HELP = ("sequence folder, sim:NAME (cached on disk) or live:NAME[,field=value...,laps=K] "
-                "(simulated in memory, e.g. live:city-tour,laps=10)")
+DATASET_HELP = ("sequence folder (any layout --loader lists), a ROS1/ROS2 bag, sim:NAME (cached on disk) or "
+                "live:NAME[,field=value...,laps=K] (simulated in memory, e.g. live:city-tour,laps=10)")
 PARAM_HELP = ("override as key=value (repeatable): a config key (cloud_store=disk, max_frames=500), "
               "a section field (verifier.max_residual=0.2), a stage parameter (sampler.lambda_u=5, "
               "odometry.translation_noise=0.02) or a bare sampler parameter")
@@ -32,6 +33,13 @@ def _read_config(path: Path) -> dict:
 
 def online_command(
     dataset: Optional[str] = typer.Option(None, "--dataset", "-d", help=DATASET_HELP),
+    loader: Optional[str] = LOADER,
+    topic: Optional[str] = TOPIC,
+    gt: Optional[Path] = GT,
+    sequence: Optional[str] = SEQUENCE,
+    first: Optional[int] = FIRST,
+    jump: Optional[int] = JUMP,
+    frames: Optional[int] = FRAMES,
     sampler: Optional[str] = typer.Option(None, help=SAMPLER_HELP),
     descriptor: Optional[str] = typer.Option(None, help=DESCRIPTOR_HELP),
     odometry: Optional[str] = typer.Option(None, help="kiss (default), gt-noise, or a KITTI/TUM pose file"),
@@ -46,18 +54,26 @@ def online_command(
 ) -> None:
     """Run the online pipeline frame by frame (odometry, descriptor, sampler, loop detection, verification,
     iSAM2) and write its result folder; prints the path of its report.md."""
-    from msa_slam.cli.config import cache_option, merge_options
+    from msa_slam.cli.config import cache_option, merge_options, source_options
+    from msa_slam.errors import InputError
     from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
     from msa_slam.pipeline.online import run_online
     from msa_slam.pipeline.online_config import apply_online_params
     from msa_slam.pipeline.results import write_run_files
+    from msa_slam.pipeline.source import open_source
 
     base = _read_config(config) if config is not None else {}
     given = {"dataset": dataset, "sampler": sampler, "descriptor": descriptor, "odometry": odometry, "mode": mode,
-             "cloud_store": cloud_store, "cache_dir": cache_option(cache_dir)}
-    cfg = apply_online_params(merge_options(base, given, "a sequence folder, sim:NAME or live:NAME"), param)
+             "cloud_store": cloud_store, "cache_dir": cache_option(cache_dir),
+             **source_options(base, loader, topic=topic, gt=gt, sequence=sequence, first=first, jump=jump,
+                              frames=frames)}
+    cfg = apply_online_params(merge_options(base, given, "a sequence folder, a bag, sim:NAME or live:NAME"), param)
+    source = open_source(cfg.dataset, cfg.dataset_kind, cfg.cache_dir, not quiet, cfg.source, cfg.mode)
+    if source.gt_poses is None and cfg.odometry == "gt-noise":
+        raise InputError(f"dataset {cfg.dataset!r}: odometry gt-noise perturbs ground truth, which this recording "
+                         "lacks; use --odometry kiss or a pose file")
     with open_result_folder(out, "online", DEFAULT_RESULTS / "online", overwrite=overwrite) as folder:
-        result = run_online(cfg, quiet=quiet)
+        result = run_online(cfg, source, quiet=quiet)
         with folder.staging() as tmp:
             write_run_files(result, tmp)
     typer.echo(str(folder.path / "report.md"))

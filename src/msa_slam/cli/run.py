@@ -7,22 +7,31 @@ from typing import List, Optional
 
 import typer
 
-from msa_slam.cli.options import (CACHE_HELP, DATASET_HELP, DESCRIPTOR_HELP, MODE_HELP, OVERWRITE_HELP,
-                                  PARAM_HELP, SAMPLER_HELP, out_help)
+from msa_slam.cli.options import (CACHE_HELP, DATASET_HELP, DESCRIPTOR_HELP, FIRST, FRAMES, GT, JUMP, LOADER,
+                                  MODE_HELP, OVERWRITE_HELP, PARAM_HELP, SAMPLER_HELP, SEQUENCE, TOPIC, out_help)
 
 
-def batch_config(config_file: Optional[Path], given: dict, params: List[str]):
-    """The RunConfig of `run` / `compare`: the options over --config, then the --param overrides."""
-    from msa_slam.cli.config import merge_options
+def batch_config(config_file: Optional[Path], given: dict, params: List[str], source: Optional[dict] = None):
+    """The RunConfig of `run` / `compare`: the options over --config, then the --param overrides; `source`:
+    --loader and the source options (cli.config.source_options' arguments)."""
+    from msa_slam.cli.config import merge_options, source_options
     from msa_slam.pipeline.config import apply_params, load_config, make_config
 
     base = load_config(config_file).dump() if config_file else {}
-    data = merge_options(base, given, "a sequence folder or sim:NAME")
+    given = {**given, **source_options(base, **(source or {"loader": None}))}
+    data = merge_options(base, given, "a sequence folder, a bag or sim:NAME")
     return apply_params(make_config(data), params)
 
 
 def run_command(
     dataset: Optional[str] = typer.Option(None, "--dataset", "-d", help=DATASET_HELP),
+    loader: Optional[str] = LOADER,
+    topic: Optional[str] = TOPIC,
+    gt: Optional[Path] = GT,
+    sequence: Optional[str] = SEQUENCE,
+    first: Optional[int] = FIRST,
+    jump: Optional[int] = JUMP,
+    frames: Optional[int] = FRAMES,
     sampler: Optional[str] = typer.Option(None, help=SAMPLER_HELP),
     descriptor: Optional[str] = typer.Option(None, help=DESCRIPTOR_HELP),
     odometry: Optional[str] = typer.Option(None, help="kiss (default) or a KITTI/TUM pose file"),
@@ -42,7 +51,9 @@ def run_command(
 
     given = {"dataset": dataset, "sampler": sampler, "descriptor": descriptor, "odometry": odometry,
              "mode": mode, "cache_dir": cache_option(cache_dir)}
-    cfg = batch_config(config, given, param)
+    source = {"loader": loader, "topic": topic, "gt": gt, "sequence": sequence, "first": first, "jump": jump,
+              "frames": frames}
+    cfg = batch_config(config, given, param, source)
     with open_result_folder(out, "run", DEFAULT_RESULTS / "run", overwrite=overwrite) as folder:
         result = run_batch(cfg, quiet=quiet)
         with folder.staging() as tmp:

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from msa_slam.datasets.clouds import checked_points
+from msa_slam.datasets.kiss_loaders import nanoseconds_to_seconds
 from msa_slam.datasets.sequences import ScanSequence
 from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses
@@ -66,7 +67,7 @@ def helipr_sequence(path: str | os.PathLike, sensor: str | None) -> ScanSequence
     bad = next((s for s in scans if not s.stem.isdigit()), None)
     if bad is not None:
         raise InputError(f"{bad}: HeLiPR scans are named by their time in nanoseconds")
-    times = np.array([int(s.stem) for s in scans], dtype=np.float64) * 1e-9
+    times = nanoseconds_to_seconds([int(s.stem) for s in scans])
     gt_file = path / "LiDAR_GT" / f"global_{sensor}_gt.txt"
     gt = None
     if gt_file.is_file():

@@ -44,6 +44,11 @@ def ouster_times(n_points: int) -> np.ndarray | None:
     return np.floor(np.arange(n_points) / OUSTER_ROWS) / OUSTER_COLUMNS * SWEEP_PERIOD
 
 
+def nanoseconds_to_seconds(stamps: list[int]) -> np.ndarray:
+    """Integer nanosecond times as float64 seconds, split first so differences keep their precision."""
+    return np.array([s // 10**9 + (s % 10**9) * 1e-9 for s in stamps], dtype=np.float64)
+
+
 def _with_ouster_times(reader, scan: Path) -> tuple[np.ndarray, np.ndarray | None]:
     points = reader(scan)
     return points, ouster_times(len(points))
@@ -80,10 +85,11 @@ def mulran_sequence(path: Path) -> ScanSequence:
     bad = next((s for s in scans if not s.stem.isdigit()), None)
     if bad is not None:
         raise InputError(f"{bad}: MulRan scans are named by their time in nanoseconds")
-    scan_ns = np.array([int(s.stem) for s in scans], dtype=np.float64)
+    scan_ns = [int(s.stem) for s in scans]
     pose_file = path / "global_pose.csv"
-    gt = mulran_poses(pose_file, scan_ns) if pose_file.is_file() and len(scans) else None
-    return ScanSequence(path, scans, gt, scan_ns * 1e-9, timed_reader=partial(_with_ouster_times, read_bin))
+    gt = mulran_poses(pose_file, np.array(scan_ns, dtype=np.float64)) if pose_file.is_file() and scans else None
+    return ScanSequence(path, scans, gt, nanoseconds_to_seconds(scan_ns),
+                        timed_reader=partial(_with_ouster_times, read_bin))
 
 
 def kiss_sequence(name: str, path: str | os.PathLike) -> ScanSequence:

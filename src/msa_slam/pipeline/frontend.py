@@ -32,10 +32,11 @@ logger = logging.getLogger(__name__)
 
 @dataclass
 class Frontend:
-    """A sequence with its ground truth, odometry and per-frame descriptors (plus how long they took)."""
+    """A sequence with its ground truth (None when the recording has none), odometry and per-frame
+    descriptors (plus how long they took)."""
 
     sequence: ScanSequence
-    gt_poses: np.ndarray
+    gt_poses: np.ndarray | None
     odometry: np.ndarray
     descriptors: np.ndarray
     descriptor: Descriptor
@@ -60,7 +61,8 @@ class Frontend:
 
 
 def _odometry_config(config: RunConfig, n_frames: int) -> dict[str, Any]:
-    return {"odometry": config.odometry, "params": config.odometry_params, "frames": n_frames}
+    return {"odometry": config.odometry, "params": config.odometry_params, "frames": n_frames,
+            "source": config.source.model_dump()}
 
 
 def pipeline_cache(config: RunConfig) -> Path:
@@ -125,7 +127,11 @@ def prepare_frontend(config: RunConfig, quiet: bool = True) -> Frontend:
     """Open the dataset, then odometry and descriptors for all frames (cached per sequence)."""
     timer = StageTimer()
     with timer.stage("dataset"):
-        sequence = open_sequence(config.dataset, config.dataset_kind, config.cache_dir, progress=not quiet)
+        sequence = open_sequence(config.dataset, config.dataset_kind, config.cache_dir, not quiet, config.source,
+                                 config.mode)
+    if sequence.gt_poses is None and config.sample_on == "gt":
+        raise InputError(f"dataset {config.dataset!r}: sample_on=gt needs ground-truth poses; this recording has "
+                         "none (use sample_on=odometry, or give them with --gt FILE)")
     cache = CacheDir(pipeline_cache(config))
     n = len(sequence)
     odometry = make_odometry(config, n)

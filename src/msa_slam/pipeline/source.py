@@ -1,4 +1,4 @@
-"""Resolve a dataset argument: a sequence folder, `sim:NAME[,field=value...]` built by msa_slam.sim, or (as
+"""Resolve a dataset argument: a sequence folder or bag, `sim:NAME[,field=value...]` built by msa_slam.sim, or (as
 a frame source for the online pipeline) `live:NAME` simulated in memory."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import yaml
 
-from msa_slam.datasets import ScanSequence, open_dataset
+from msa_slam.datasets import ScanSequence, SourceOptions, open_source_options
 from msa_slam.errors import InputError
 from msa_slam.types import FrameSource
 
@@ -28,7 +28,7 @@ def resolve_dataset(spec: str, cache_dir: str | os.PathLike | None = None, progr
     if not spec.startswith(SIM_PREFIX):
         path = Path(spec).expanduser()
         if not path.exists():
-            raise InputError(f"dataset {spec!r}: folder not found (give a sequence folder or sim:NAME)")
+            raise InputError(f"dataset {spec!r}: not found (give a sequence folder, a bag or sim:NAME)")
         return path
     from msa_slam.sim import DEFAULT_CONFIGS, TRAJECTORY_NAMES, default_sequence, make_config, simulate_sequence
 
@@ -56,23 +56,26 @@ def resolve_dataset(spec: str, cache_dir: str | os.PathLike | None = None, progr
 
 
 def open_sequence(spec: str, kind: str = "auto", cache_dir: str | os.PathLike | None = None,
-                  progress: bool = False) -> ScanSequence:
-    """The scan sequence of `spec`; the batch experiment needs its ground-truth poses."""
-    sequence = open_dataset(resolve_dataset(spec, cache_dir, progress), kind=kind)
-    if sequence.gt_poses is None:
-        raise InputError(f"dataset {spec!r}: no ground-truth poses found (poses.txt, ../../poses/NN.txt or the "
-                         "dataset's ground-truth file); the batch experiment needs them for oracle loops and ATE")
+                  progress: bool = False, source: SourceOptions | None = None,
+                  mode: str = "realistic") -> ScanSequence:
+    """The scan sequence of `spec` (the part `source` selects); ground truth is optional, but the oracle
+    `mode` verifies loops by ground-truth distance and so refuses a sequence without it."""
+    sequence = open_source_options(resolve_dataset(spec, cache_dir, progress), kind, source or SourceOptions())
+    if sequence.gt_poses is None and mode == "oracle":
+        raise InputError(f"dataset {spec!r}: no ground-truth poses, which the oracle mode needs (it verifies only "
+                         "loops that ground truth confirms); use --mode realistic, or give ground truth with --gt "
+                         "FILE (KITTI or TUM, LiDAR frame)")
     if len(sequence) < 3:
-        raise InputError(f"dataset {spec!r}: {len(sequence)} scans; the batch experiment needs at least 3")
+        raise InputError(f"dataset {spec!r}: {len(sequence)} scans; a run needs at least 3")
     return sequence
 
 
 def open_source(spec: str, kind: str = "auto", cache_dir: str | os.PathLike | None = None,
-                progress: bool = False) -> FrameSource:
-    """The frame source named by `spec` (folder, sim:NAME or live:NAME); it must have ground truth."""
+                progress: bool = False, source: SourceOptions | None = None, mode: str = "realistic") -> FrameSource:
+    """The frame source named by `spec` (folder, bag, sim:NAME or live:NAME); see open_sequence."""
     from msa_slam.sim.live import LIVE_PREFIX, live_source
 
     if spec.startswith(LIVE_PREFIX):
         return live_source(spec)
-    sequence = open_sequence(spec, kind, cache_dir, progress)
-    return FrameSource(sequence.name, sequence.gt_poses, lambda: iter(sequence), sequence.path)
+    sequence = open_sequence(spec, kind, cache_dir, progress, source, mode)
+    return FrameSource(sequence.name, sequence.gt_poses, lambda: iter(sequence), sequence.path, len(sequence))

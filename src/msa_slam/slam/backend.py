@@ -16,6 +16,7 @@ import numpy as np
 from msa_slam.descriptors import Descriptor
 from msa_slam.errors import InputError
 from msa_slam.evaluation import evaluate_trajectories
+from msa_slam.place_recognition import PRCurve
 from msa_slam.registration import Verifier
 from msa_slam.sampling import make_sampler
 from msa_slam.sampling.base import Sampler
@@ -63,7 +64,8 @@ class SlamBackend:
         self.n = int(n_frames)
         self.sampler.expect_frames(self.n)
         self.odometry = np.zeros((self.n, 4, 4))
-        self.gt = np.zeros((self.n, 4, 4))
+        self.gt = np.full((self.n, 4, 4), np.nan)  # NaN without ground truth: loop distances are then NaN
+        self.has_gt: bool | None = None  # decided by the first frame; every frame must agree
         self.times = np.zeros(self.n)
         self.steps_ms = {s: np.zeros(self.n, dtype=np.float32) for s in BACKEND_STEPS}
         self.loops: list[LoopClosure] = []
@@ -90,10 +92,11 @@ class SlamBackend:
         i = self._frames
         if i >= self.n:
             raise InputError(f"SLAM back-end: frame {i} beyond the announced {self.n} frames")
-        if gt_pose is None:
-            raise InputError(f"SLAM back-end: frame {i} has no ground-truth pose (needed for oracle loops, ATE)")
+        self._check_gt(i, gt_pose)
         start = time.perf_counter()
-        self.odometry[i], self.gt[i], self.times[i] = odom_pose, gt_pose, time_s
+        self.odometry[i], self.times[i] = odom_pose, time_s
+        if gt_pose is not None:
+            self.gt[i] = gt_pose
         if self.sampler.needs_points:
             points = _scan(points)
         self._pending[i] = (descriptor, points)
@@ -106,6 +109,20 @@ class SlamBackend:
         if self.recorder is not None:
             self.recorder.record(self, i)
         return new
+
+    def _check_gt(self, i: int, gt_pose: np.ndarray | None) -> None:
+        """A run has ground truth for every frame or for none; the oracle mode needs it."""
+        if self.has_gt is None:
+            self.has_gt = gt_pose is not None
+            if not self.has_gt and self.settings.mode == "oracle":
+                raise InputError("SLAM back-end: the frames have no ground-truth poses, which the oracle mode "
+                                 "needs (it verifies only loops ground truth confirms); use mode realistic")
+            if not self.has_gt and self.settings.sample_on == "gt":
+                raise InputError("SLAM back-end: sample_on=gt but the frames have no ground-truth poses; "
+                                 "use sample_on=odometry")
+        elif self.has_gt != (gt_pose is not None):
+            raise InputError(f"SLAM back-end: frame {i} {'lacks' if self.has_gt else 'has'} a ground-truth pose "
+                             f"but frame 0 {'has' if self.has_gt else 'lacks'} one; give it for all frames or none")
 
     def _timed(self, step: str, i: int, start: float) -> float:
         now = time.perf_counter()
@@ -170,12 +187,13 @@ class SlamBackend:
         t0 = time.perf_counter()
         optimised = self.graph.optimize()
         t1 = time.perf_counter()
-        pr = self.loop_closer.pr_curve()
-        evaluation = evaluate_trajectories(self.odometry[keys], optimised, self.gt[keys], keys)
+        gt = self.gt if self.has_gt else None
+        pr = self.loop_closer.pr_curve() if gt is not None else no_ground_truth_pr()
+        evaluation = evaluate_trajectories(self.odometry[keys], optimised, None if gt is None else gt[keys], keys)
         t2 = time.perf_counter()
         stats = {**self.sampler.stats.as_dict(), "online_keyframes": len(self.sampler.online_keyframes),
                  "flushed_keyframes": len(self.sampler.flushed_keyframes)}
-        return RunResult(self.settings, self.name, self.times, self.odometry, self.gt, keys, optimised, self.loops,
+        return RunResult(self.settings, self.name, self.times, self.odometry, gt, keys, optimised, self.loops,
                          pr, evaluation, self.steps_ms, memory, stats, len(self.loop_closer.best_similarity),
                          {"optimisation": t1 - t0, "evaluation": t2 - t1},
                          map_points=keyframe_map(self.store.clouds, keys, optimised, self.settings.verifier.voxel_size))
@@ -183,6 +201,15 @@ class SlamBackend:
     def close(self) -> None:
         """Release the keyframe clouds (a disk store removes the files it wrote); safe to call twice."""
         self.store.close()
+
+
+NO_GROUND_TRUTH = "no ground truth: true loops (within loop_radius) cannot be told from false ones"
+
+
+def no_ground_truth_pr() -> PRCurve:
+    """The PR curve of a run without ground truth: empty, with the reason."""
+    empty = np.zeros(0)
+    return PRCurve(empty, empty, empty, empty, None, None, None, NO_GROUND_TRUTH)
 
 
 def build_backend(config: RunSettings, descriptor: Descriptor, clouds: CloudStore, graph: Graph, n_frames: int,

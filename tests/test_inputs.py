@@ -1,0 +1,316 @@
+"""Each input of issue 15's table on a small recording written here in that dataset's exact layout (bags
+written with rosbags): the loader is found from the layout, scans, times, ground truth and per-point times
+come through, and a wrong layout names what was expected where."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from msa_slam.datasets import LOADERS, detect_loader, open_dataset
+from msa_slam.datasets.kiss_loaders import OUSTER_COLUMNS, OUSTER_ROWS
+from msa_slam.datasets.lzf import lzf_decompress
+from msa_slam.datasets.pcd import read_timed_pcd
+from msa_slam.datasets.options import SourceOptions
+from msa_slam.errors import InputError
+from msa_slam.io.poses import format_kitti
+from msa_slam.pipeline.source import open_sequence
+
+N = 4
+
+
+def _points(k: int, n: int = 40) -> np.ndarray:
+    return (np.random.default_rng(k).normal(size=(n, 3)) * 10).astype(np.float32)
+
+
+def _poses(n: int = N) -> np.ndarray:
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    poses[:, 0, 3] = np.arange(n) * 2.0
+    return poses
+
+
+def _write_bin(path: Path, points: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.hstack([points, np.ones((len(points), 1), np.float32)]).tofile(path)
+
+
+def lzf_compress(data: bytes) -> bytes:
+    """A greedy LZF encoder (the format lzf.py documents) with back references, for writing test files."""
+    out, literal, i, seen = bytearray(), bytearray(), 0, {}
+
+    def flush():
+        for s in range(0, len(literal), 32):
+            chunk = literal[s:s + 32]
+            out.extend([len(chunk) - 1, *chunk])
+        literal.clear()
+
+    while i < len(data):
+        ref = seen.get(data[i:i + 3]) if i + 3 <= len(data) else None
+        seen[data[i:i + 3]] = i
+        if ref is not None and i - ref - 1 < 8192:
+            length = 3
+            while i + length < len(data) and length < 264 and data[ref + length] == data[i + length]:
+                length += 1
+            flush()
+            off, n = i - ref - 1, length - 2
+            if n < 7:
+                out.extend([(n << 5) | (off >> 8), off & 0xFF])
+            else:
+                out.extend([(7 << 5) | (off >> 8), n - 7, off & 0xFF])
+            i += length
+        else:
+            literal.append(data[i])
+            i += 1
+    flush()
+    return bytes(out)
+
+
+def _pcd(path: Path, points: np.ndarray, times: np.ndarray, mode: str) -> None:
+    """A PCD file with x y z (float32) and t (uint32 ns) fields in encoding `mode`."""
+    n = len(points)
+    header = (f"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z t\nSIZE 4 4 4 4\nTYPE F F F U\nCOUNT 1 1 1 1\nWIDTH {n}\n"
+              f"HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA {mode}\n").encode()
+    t = times.astype(np.uint32)
+    if mode == "ascii":
+        body = "".join(f"{x} {y} {z} {s}\n" for (x, y, z), s in zip(points.tolist(), t.tolist())).encode()
+    elif mode == "binary":
+        rows = np.empty(n, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("t", "<u4")])
+        rows["x"], rows["y"], rows["z"], rows["t"] = points[:, 0], points[:, 1], points[:, 2], t
+        body = rows.tobytes()
+    else:  # binary_compressed: each field's values in turn, LZF-compressed, after two size words
+        plain = b"".join(np.ascontiguousarray(c).tobytes() for c in (*points.T.astype("<f4"), t.astype("<u4")))
+        packed = lzf_compress(plain)
+        body = np.array([len(packed), len(plain)], "<u4").tobytes() + packed
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(header + body)
+
+
+def test_lzf_round_trip_with_overlapping_back_references():
+    data = bytes(500) + bytes(range(256)) * 3 + b"abcabcabcabc" * 40
+    packed = lzf_compress(data)
+    assert len(packed) < len(data) / 3  # the encoder used back references, some overlapping (runs)
+    assert lzf_decompress(packed, len(data)) == data
+    with pytest.raises(InputError, match="decodes to"):
+        lzf_decompress(packed, len(data) + 1, "f.pcd")
+    with pytest.raises(InputError, match="corrupt LZF stream"):
+        lzf_decompress(bytes([0xE0, 0x05, 0xFF]), 10, "f.pcd")  # a back reference before the start
+
+
+@pytest.mark.parametrize("mode", ["ascii", "binary", "binary_compressed"])
+def test_pcd_every_encoding_with_point_times(tmp_path, mode):
+    points = np.round(_points(1, 300), 3)
+    points[::7] = points[0]  # repeated values, so the compressed stream has back references
+    times = np.arange(300) * 1000 + 5_000
+    _pcd(tmp_path / "s.pcd", points, times, mode)
+    read, stamps = read_timed_pcd(tmp_path / "s.pcd")
+    np.testing.assert_allclose(read, points, atol=1e-6)
+    np.testing.assert_allclose(stamps, np.arange(300) * 1e-6)  # integer t counts ns, from the earliest point
+
+
+def test_pcd_folder_with_tum_ground_truth_matched_by_time(tmp_path):
+    folder = tmp_path / "scans"
+    for k in range(N):
+        _pcd(folder / f"{k}.pcd", _points(k), np.arange(40) * 100, "binary_compressed")
+    poses = _poses(2 * N)
+    times = 100.0 + 0.05 * np.arange(2 * N)  # twice the scan rate: every other pose matches a scan
+    quat = np.tile([0, 0, 0, 1.0], (2 * N, 1))
+    rows = np.column_stack([times, poses[:, :3, 3], quat])
+    (tmp_path / "gt.tum").write_text("".join(" ".join(f"{v:.9f}" for v in r) + "\n" for r in rows))
+    (tmp_path / "scan_times.tum").write_text("".join(" ".join(f"{v:.9f}" for v in r) + "\n" for r in rows[::2]))
+    seq = open_dataset(folder, poses=tmp_path / "scan_times.tum")  # one pose a scan: its times are the scans'
+    assert detect_loader(folder) == "folder" and seq[0].timestamps is not None
+    np.testing.assert_allclose(seq.times, times[::2])
+    seq2 = open_dataset(folder)
+    assert seq2.gt_poses is None  # no ground truth: opens anyway
+
+
+def test_ply_folder_with_kitti_ground_truth(tmp_path):
+    import trimesh
+
+    for k in range(N):
+        trimesh.PointCloud(_points(k)).export(tmp_path / "scans" / f"{k:03d}.ply") if (tmp_path / "scans").mkdir(
+            exist_ok=True) is None else None
+    (tmp_path / "gt.txt").write_text(format_kitti(_poses()))
+    seq = open_dataset(tmp_path / "scans", poses=tmp_path / "gt.txt")
+    np.testing.assert_allclose(seq.gt_poses, _poses())
+    np.testing.assert_allclose(seq[2].points, _points(2), atol=1e-5)
+    (tmp_path / "short.txt").write_text(format_kitti(_poses(2)))
+    with pytest.raises(InputError, match="short.txt: 2 poses but .* has 4 scans"):
+        open_dataset(tmp_path / "scans", poses=tmp_path / "short.txt")
+
+
+def _mulran(seq: Path, n: int = N) -> None:
+    stamps = 1_600_000_000_000_000_000 + np.arange(n) * 100_000_000
+    for k, stamp in enumerate(stamps):
+        _write_bin(seq / "sensor_data" / "Ouster" / f"{stamp}.bin", _points(k))
+    rows = [[s, *np.eye(4)[:3].ravel()] for s in stamps]
+    for k, row in enumerate(rows):
+        row[4] = 1.5 * k  # x translation of the 3x4 pose
+    np.savetxt(seq / "global_pose.csv", np.array(rows), delimiter=",", fmt="%.17g")
+
+
+def test_mulran_as_shipped_from_its_sequence_or_its_root(tmp_path):
+    _mulran(tmp_path / "KAIST01")
+    seq = open_dataset(tmp_path / "KAIST01")
+    assert detect_loader(tmp_path / "KAIST01") == "mulran" and len(seq) == N
+    assert np.linalg.norm(seq.gt_poses[3, :3, 3]) == pytest.approx(4.5, abs=1e-3)
+    assert seq.times[1] - seq.times[0] == pytest.approx(0.1, abs=1e-6)
+    np.testing.assert_allclose(open_dataset(tmp_path, sequence="KAIST01")[1].points, _points(1))
+    with pytest.raises(InputError, match="no sequence 'KAIST02'.*KAIST01"):
+        open_dataset(tmp_path, sequence="KAIST02")
+
+
+def test_ouster_scans_carry_column_times(tmp_path):
+    _write_bin(tmp_path / "Ouster" / "1000000000.bin", _points(0, OUSTER_ROWS * OUSTER_COLUMNS))
+    _write_bin(tmp_path / "Ouster" / "1100000000.bin", _points(1, 10))
+    seq = open_dataset(tmp_path, kind="mulran")
+    stamps = seq[0].timestamps
+    assert stamps[0] == 0 and stamps[OUSTER_ROWS] > 0 and stamps[-1] == pytest.approx(0.1 * 1023 / 1024)
+    assert seq[1].timestamps is None  # a scan of another size: no times, as in kiss-icp
+
+
+def test_helipr_sensor_records_and_ground_truth(tmp_path):
+    record = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"), ("t", "<u4"),
+                       ("reflectivity", "<u2"), ("ring", "<u2"), ("ambient", "<u2")])
+    assert record.itemsize == 26  # kiss-icp's "=ffffIHHH"
+    stamps = 1_690_000_000_000_000_000 + np.arange(N) * 100_000_000
+    for k, stamp in enumerate(stamps):
+        rows = np.zeros(40, record)
+        pts = _points(k)
+        rows["x"], rows["y"], rows["z"], rows["t"] = pts[:, 0], pts[:, 1], pts[:, 2], np.arange(40) * 2_500_000
+        (tmp_path / "LiDAR" / "Ouster").mkdir(parents=True, exist_ok=True)
+        rows.tofile(tmp_path / "LiDAR" / "Ouster" / f"{stamp}.bin")
+    (tmp_path / "LiDAR_GT").mkdir()
+    gt = "".join(f"{s} {1.5 * k} 0 0 0 0 0 1\n" for k, s in enumerate(stamps))
+    (tmp_path / "LiDAR_GT" / "global_Ouster_gt.txt").write_text(gt)
+    with pytest.raises(InputError, match="--sequence naming its LiDAR.*found under .*: Ouster"):
+        open_dataset(tmp_path)
+    seq = open_dataset(tmp_path, sequence="Ouster")
+    np.testing.assert_allclose(seq[1].points, _points(1))
+    np.testing.assert_allclose(seq[1].timestamps, np.arange(40) * 2.5e-3)
+    assert seq.gt_poses[3, 0, 3] == pytest.approx(4.5)
+
+
+def test_kitti_root_sequence_and_part_of_a_recording(tmp_path):
+    seq_dir = tmp_path / "sequences" / "05"
+    for k in range(8):
+        _write_bin(seq_dir / "velodyne" / f"{k:06d}.bin", _points(k))
+    (seq_dir / "calib.txt").write_text("Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n")
+    (seq_dir / "poses.txt").write_text(format_kitti(_poses(8)))
+    seq = open_dataset(tmp_path, sequence="05").select(first=1, jump=2, count=3)
+    assert len(seq) == 3
+    np.testing.assert_allclose(seq[2].points, _points(5))
+    np.testing.assert_allclose(seq.gt_poses[:, 0, 3], [2.0, 6.0, 10.0])
+    with pytest.raises(InputError, match="--first 9 is beyond its 8 scans"):
+        open_dataset(seq_dir).select(first=9)
+
+
+def test_apollo_and_newer_college_times_are_real(tmp_path):
+    apollo = tmp_path / "apollo"
+    for k in range(N):
+        _pcd(apollo / "pcds" / f"{k + 1}.pcd", _points(k), np.zeros(40), "binary")
+    (apollo / "poses").mkdir()
+    (apollo / "poses" / "gt_poses.txt").write_text("".join(f"{k} {1500000000.5 + 0.1 * k} {k} 0 0 0 0 0 1\n"
+                                                           for k in range(N)))
+    assert detect_loader(apollo) == "apollo"
+    assert open_dataset(apollo).times[1] == pytest.approx(1500000000.6)
+    ncd = tmp_path / "ncd"
+    for k in range(N):
+        _pcd(ncd / "raw_format" / "ouster_scan" / f"cloud_1583836591_{k * 100_000_000:09d}.pcd", _points(k),
+             np.zeros(40), "ascii")
+    (ncd / "ground_truth").mkdir()
+    (ncd / "ground_truth" / "registered_poses.csv").write_text(
+        "".join(f"1583836591,{k * 100_000_000},{k},0,0,0,0,0,1\n" for k in range(N)))
+    assert detect_loader(ncd) == "ncd"
+    assert open_dataset(ncd).times[2] == pytest.approx(1583836591.2)
+
+
+def _cloud_msg(typestore, k: int, stamp_ns: int):
+    pts = _points(k)
+    fields_t = typestore.types["sensor_msgs/msg/PointField"]
+    rows = np.zeros(len(pts), [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("t", "<u4")])
+    rows["x"], rows["y"], rows["z"], rows["t"] = pts[:, 0], pts[:, 1], pts[:, 2], np.arange(len(pts)) * 1000
+    fields = [fields_t(name=n, offset=4 * i, datatype=7 if n != "t" else 6, count=1)
+              for i, n in enumerate("xyzt")]
+    header_t = typestore.types["std_msgs/msg/Header"]
+    ros1 = {"seq": k} if "seq" in header_t.__dataclass_fields__ else {}
+    header = header_t(**ros1, stamp=typestore.types["builtin_interfaces/msg/Time"](
+        sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9), frame_id="os_sensor")
+    return typestore.types["sensor_msgs/msg/PointCloud2"](
+        header=header, height=1, width=len(pts), fields=fields, is_bigendian=False, point_step=16,
+        row_step=16 * len(pts), data=np.frombuffer(rows.tobytes(), np.uint8), is_dense=True)
+
+
+def _write_bag(path: Path, kind: str) -> None:
+    """A bag with a PointCloud2 topic /points (N scans at 10 Hz) and a second one /other (1 scan)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    msgtype = "sensor_msgs/msg/PointCloud2"
+    stamps = [1_700_000_000_000_000_000 + k * 100_000_000 for k in range(N)]
+    if kind == "ros1":
+        from rosbags.rosbag1 import Writer
+
+        store = get_typestore(Stores.ROS1_NOETIC)
+        with Writer(path) as writer:
+            conns = {t: writer.add_connection(t, msgtype, typestore=store) for t in ("/points", "/other")}
+            for k, s in enumerate(stamps):
+                writer.write(conns["/points"], s, store.serialize_ros1(_cloud_msg(store, k, s), msgtype))
+            writer.write(conns["/other"], stamps[0], store.serialize_ros1(_cloud_msg(store, 9, stamps[0]), msgtype))
+        return
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    plugin = StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3
+    with Writer(path, version=9, storage_plugin=plugin) as writer:
+        conns = {t: writer.add_connection(t, msgtype, typestore=store) for t in ("/points", "/other")}
+        for k, s in enumerate(stamps):
+            writer.write(conns["/points"], s, store.serialize_cdr(_cloud_msg(store, k, s), msgtype))
+        writer.write(conns["/other"], stamps[0], store.serialize_cdr(_cloud_msg(store, 9, stamps[0]), msgtype))
+
+
+@pytest.mark.parametrize("kind", ["ros1", "ros2", "mcap"])
+def test_bags_by_topic(tmp_path, kind):
+    bag = tmp_path / ("run.bag" if kind == "ros1" else "run")
+    _write_bag(bag, kind)
+    assert detect_loader(bag) == "rosbag"
+    with pytest.raises(InputError, match="several PointCloud2 topics \\(/other, /points\\); name one with --topic"):
+        open_dataset(bag)
+    with pytest.raises(InputError, match="--topic /nope is not a PointCloud2 topic.*/other, /points"):
+        open_dataset(bag, topic="/nope")
+    seq = open_dataset(bag, topic="/points")
+    assert len(seq) == N and seq.gt_poses is None
+    np.testing.assert_allclose(seq.times - seq.times[0], 0.1 * np.arange(N), atol=1e-6)
+    np.testing.assert_allclose(seq[2].points, _points(2), atol=1e-6)
+    np.testing.assert_allclose(seq[2].timestamps, np.arange(40) * 1e-6)
+    part = seq.select(first=1, jump=2)
+    np.testing.assert_allclose(part[1].points, _points(3), atol=1e-6)
+    from msa_slam.io.cache import sequence_identity
+
+    assert sequence_identity(part) != sequence_identity(seq)  # a part is cached apart from the whole
+    if kind != "ros1":
+        files = sorted((bag).glob("*.mcap" if kind == "mcap" else "*.db3"))
+        assert len(open_dataset(files[0], topic="/points")) == N  # the storage file itself
+
+
+def test_open_sequence_options_and_oracle_needs_ground_truth(tmp_path):
+    folder = tmp_path / "scans"
+    for k in range(N):
+        _write_bin(folder / f"{k}.bin", _points(k))
+    with pytest.raises(InputError, match="no ground-truth poses, which the oracle mode needs.*--mode realistic"):
+        open_sequence(str(folder), mode="oracle")
+    seq = open_sequence(str(folder), source=SourceOptions(first=1), mode="realistic")
+    assert len(seq) == N - 1 and seq.gt_poses is None
+    (tmp_path / "gt.txt").write_text(format_kitti(_poses()))
+    seq = open_sequence(str(folder), source=SourceOptions(gt=str(tmp_path / "gt.txt"), frames=3), mode="oracle")
+    np.testing.assert_allclose(seq.gt_poses, _poses()[:3])
+
+
+def test_loader_names_match_the_cli_help():
+    from msa_slam.cli.options import LOADER_HELP, LOADER_NAMES
+
+    assert set(LOADER_NAMES) == set(LOADERS)
+    assert all(name in LOADER_HELP for name in LOADERS)
+    with pytest.raises(InputError, match="unknown dataset loader 'velodyne'; choose one of auto, kitti"):
+        open_dataset(".", kind="velodyne")
