@@ -1,13 +1,19 @@
-"""GTSAM pose graphs on a constructed drifting loop: a loop factor reduces ATE; LM and iSAM2 agree."""
+"""GTSAM pose graphs on a constructed drifting loop: a loop factor reduces ATE; LM and iSAM2 agree; odometry
+edges weighted by a drift model give a chain whose stiffness does not depend on how it is split; loop
+covariances stay within bounds; the robust kernel follows the verification mode."""
 
 from __future__ import annotations
 
+import math
+
+import gtsam
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from msa_slam.backend import GraphConfig, IncrementalPoseGraph, PoseGraph
 from msa_slam.backend.graph import FACTOR_BYTES
+from msa_slam.backend.noise import bounded_covariance
 from msa_slam.errors import InputError
 from msa_slam.evaluation import ate
 
@@ -26,6 +32,10 @@ def _square(steps_per_side: int = 5, step: float = 2.0) -> np.ndarray:
         pose = pose @ turn
     poses.append(pose.copy())
     return np.stack(poses)
+
+
+# The drift model of the constructed odometry below: 3 % of the distance and 1.5 deg per 2 m step.
+SQUARE = GraphConfig(drift_translation=0.03, drift_rotation=math.radians(0.75))
 
 
 def _drift(gt: np.ndarray) -> np.ndarray:
@@ -55,9 +65,9 @@ def square():
 
 def test_loop_factor_reduces_ate(square):
     gt, odom = square
-    without = PoseGraph()
+    without = PoseGraph(SQUARE)
     _build(without, odom, gt, loop=False)
-    with_loop = PoseGraph()
+    with_loop = PoseGraph(SQUARE)
     _build(with_loop, odom, gt, loop=True)
     before = ate(odom, gt).translation_rmse
     np.testing.assert_allclose(without.optimize(), odom, atol=1e-6)  # odometry alone is already optimal
@@ -70,7 +80,7 @@ def test_loop_factor_reduces_ate(square):
 
 def test_isam2_agrees_with_levenberg_marquardt(square):
     gt, odom = square
-    batch, online = PoseGraph(), IncrementalPoseGraph()
+    batch, online = PoseGraph(SQUARE), IncrementalPoseGraph(SQUARE)
     _build(batch, odom, gt, loop=True)
     for k, pose in enumerate(odom):  # online: keyframes arrive one update at a time, then the loop
         online.add_keyframe(k, pose)
@@ -85,7 +95,7 @@ def test_robust_kernel_limits_a_wrong_loop(square):
     gt, odom = square
     wrong = np.eye(4)
     wrong[:3, 3] = [30.0, -20.0, 0.0]  # a false loop 36 m off
-    plain, robust = PoseGraph(), PoseGraph(GraphConfig(robust="cauchy"))
+    plain, robust = PoseGraph(SQUARE), PoseGraph(SQUARE.model_copy(update={"robust": "cauchy"}))
     for graph in (plain, robust):
         _build(graph, odom, gt, loop=True)
         graph.add_loop(5, len(gt) - 3, wrong)
@@ -166,3 +176,72 @@ def test_batch_graph_is_independent_of_the_order_loops_arrive_in():
                 streamed.add_loop(a, b, np.linalg.inv(gt[a]) @ gt[b])
         streamed.update()  # nothing happens before optimize()
     np.testing.assert_array_equal(streamed.optimize(), first.optimize())
+
+
+def _arc(length: float, edges: int) -> np.ndarray:
+    """Poses along one constant-twist motion (a climbing left turn of 60 deg over `length` m), in `edges` edges."""
+    xi = np.array([0.01, 0.02, math.radians(60), length, 0.0, 0.5])  # GTSAM order: rotation, translation
+    return np.stack([gtsam.Pose3.Expmap(xi * k / edges).matrix() for k in range(edges + 1)])
+
+
+def _end_covariance(poses: np.ndarray, config: GraphConfig | None = None) -> np.ndarray:
+    graph = PoseGraph(config)
+    for k, pose in enumerate(poses):
+        graph.add_keyframe(k, pose)
+    factors, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    factors.push_back(graph._graph)
+    values.insert(graph._values)
+    return gtsam.Marginals(factors, values).marginalCovariance(len(poses) - 1)
+
+
+def test_chain_covariance_does_not_depend_on_the_number_of_edges():
+    """The drift model's covariance over a stretch is the same whether 2 or 20 keyframes split it (the
+    per-edge floor, 1e-4 m and 1e-5 rad, is the only difference), and it grows with the distance."""
+    two, twenty = _end_covariance(_arc(40.0, 2)), _end_covariance(_arc(40.0, 20))
+    np.testing.assert_allclose(twenty, two, rtol=2e-3, atol=1e-9)
+    longer = _end_covariance(_arc(80.0, 2))
+    assert np.all(np.diag(longer)[3:] > 1.9 * np.diag(two)[3:])
+    fixed = GraphConfig(odometry_noise="fixed")  # the old fixed sigma per edge: 20 edges are far looser
+    assert _end_covariance(_arc(40.0, 20), fixed)[3, 3] > 5 * _end_covariance(_arc(40.0, 2), fixed)[3, 3]
+
+
+def test_edge_covariance_matches_the_calibration():
+    """Over the reference length the translation sigma along the path is the stated relative drift."""
+    config = GraphConfig()
+    straight = np.eye(4)
+    straight[0, 3] = config.drift_reference_m
+    cov = config.drift.edge_covariance(straight)
+    assert math.sqrt(cov[3, 3]) == pytest.approx(config.drift_translation * config.drift_reference_m)
+    assert math.sqrt(cov[5, 5]) > math.sqrt(cov[3, 3])  # pitch drift adds a vertical lever arm
+
+
+def test_loop_covariance_is_kept_within_bounds():
+    lo, hi = np.repeat([0.004, 0.05], 3), np.repeat([0.09, 1.0], 3)
+    overconfident = bounded_covariance(np.diag(np.repeat([1e-8, 1e-6], 3)), lo, hi)
+    np.testing.assert_allclose(np.sqrt(np.diag(overconfident)), lo)
+    degenerate = np.diag([1e-6] * 5 + [1e12])  # a corridor: one direction unconstrained
+    capped = bounded_covariance(degenerate, lo, hi)
+    np.testing.assert_allclose(np.sqrt(np.diag(capped)), [*lo[:5], hi[5]])
+    middle = np.diag(np.repeat([0.01, 0.2], 3) ** 2)
+    np.testing.assert_allclose(bounded_covariance(middle, lo, hi), middle)
+
+
+def test_loop_covariance_weights_the_loop(square):
+    """A loop registered with large uncertainty corrects the drift less than a precise one."""
+    gt, odom = square
+    errors = []
+    for sigma in (0.05, 1.0):
+        graph = PoseGraph(SQUARE)
+        for k, pose in enumerate(odom):
+            graph.add_keyframe(k, pose)
+        covariance = np.diag(np.repeat([sigma / 10, sigma], 3) ** 2)
+        graph.add_loop(0, len(gt) - 1, np.linalg.inv(gt[0]) @ gt[-1], covariance)
+        errors.append(ate(graph.optimize(), gt).translation_rmse)
+    assert errors[0] < errors[1]
+    with pytest.raises(InputError, match="covariance must be a finite 6x6"):
+        graph.add_loop(0, 3, np.eye(4), np.eye(3))
+
+
+def test_robust_kernel_follows_the_mode():
+    assert PoseGraph(mode="realistic").kernel == "cauchy" and PoseGraph(mode="oracle").kernel == "none"
+    assert PoseGraph(GraphConfig(robust="huber"), mode="oracle").kernel == "huber"

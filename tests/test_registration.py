@@ -54,7 +54,9 @@ def test_real_pair_is_accepted_near_ground_truth(scans):
     result = Verifier().verify(scans[0], scans[5])
     assert result.accepted
     assert result.residual < 0.2
-    assert result.inlier_fraction > 0.9
+    assert result.inlier_fraction > 0.9 and result.target_fraction > 0.85 and result.rejected == ""
+    sigmas = np.sqrt(np.diag(result.covariance))  # from the GICP Hessian: a well-constrained street scene
+    assert np.all(sigmas > 0) and sigmas[3:].max() < 0.05 and sigmas[:3].max() < 0.005
     trans, rot = _pose_error(result.T_target_source, _gt_lidar_relative(0, 5))
     assert trans < 0.8 and rot < 0.7  # the measured scan/GT disagreement (see module docstring)
 
@@ -95,7 +97,7 @@ def test_random_points_are_rejected(scans):
     rng = np.random.default_rng(0)
     noise = rng.uniform(target.min(axis=0), target.max(axis=0), size=(20000, 3))
     result = Verifier().verify(target, noise)
-    assert not result.accepted
+    assert not result.accepted and result.rejected == "overlap"
     assert result.inlier_fraction < 0.2
 
 

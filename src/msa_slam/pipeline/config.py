@@ -32,8 +32,11 @@ class RunConfig(StageConfig):
     optionally with simulator fields: `sim:kitti-05,stride=3`).
     `odometry` is "kiss" (KISS-ICP) or the path of a KITTI/TUM pose file (LiDAR frame, one pose per scan).
     Keyframes are sampled on `sample_on` poses (`flush` adds what MSA still holds at the end). A keyframe's
-    loop candidates are older keyframes more than `min_frame_gap` frames back and not among the
-    `exclude_recent` newest, with descriptor similarity >= `similarity_threshold` (best `top_k`).
+    loop candidates are older keyframes more than `min_frame_gap` frames and `min_travel_m` metres of
+    odometry path back (a revisit, not a standstill) and not among the `exclude_recent` newest, with
+    descriptor similarity >= `similarity_threshold` (best `top_k`). A registered loop is also rejected when
+    it corrects the odometry between its keyframes by more than `drift_gate` times the drift model's
+    allowance (graph.drift_*) plus `drift_slack_m` / `drift_slack_deg` (`drift_gate=0`: no such check).
     `loop_radius` (3 m) defines a true loop: oracle verification, false loops and the PR curve.
     """
 
@@ -54,6 +57,10 @@ class RunConfig(StageConfig):
     exclude_recent: int = Field(10, ge=0)
     top_k: int = Field(1, ge=1)
     loop_radius: float = Field(3.0, gt=0)
+    min_travel_m: float = Field(30.0, ge=0)
+    drift_gate: float = Field(3.0, ge=0)
+    drift_slack_m: float = Field(1.0, ge=0)
+    drift_slack_deg: float = Field(2.0, ge=0)
     verifier: VerifierConfig = Field(default_factory=VerifierConfig)
     graph: GraphConfig = Field(default_factory=GraphConfig)
     cache_dir: str | None = None

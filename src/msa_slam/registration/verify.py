@@ -4,7 +4,10 @@ The paper (its section V-A) accepts a loop when the registration residual is bel
 residual is the RMS point-to-plane distance, after alignment, of the source points whose nearest target
 point lies within `max_correspondence_distance` (the inliers); point-to-plane rather than point-to-point
 so the value does not grow with the voxel spacing of the downsampled clouds. A loop also needs enough
-inliers, so a cloud that touches the target in a few places cannot pass.
+inliers and overlap on BOTH clouds (the fraction of each cloud's points with a point of the other within
+`max_correspondence_distance`), so a small cloud that fits inside a large one, or a cloud that touches the
+target in a few places, cannot pass. The estimate's covariance comes from the GICP Hessian at the solution
+(registration_covariance) and weights the loop factor.
 """
 
 from __future__ import annotations
@@ -23,6 +26,8 @@ from msa_slam.types import as_points, validate_pose
 
 class VerifierConfig(StageConfig):
     """Registration and acceptance parameters (metres, fractions); the run configuration's `verifier` section.
+`min_inlier_fraction` applies to both clouds (source points near the target and target points near the
+aligned source).
 
     `num_threads=1` keeps small_gicp's reductions in a fixed order, so identical runs accept identical loops.
     """
@@ -40,9 +45,14 @@ class VerifierConfig(StageConfig):
     num_threads: int = Field(1, ge=1)
 
 
+REJECTIONS = ("overlap", "inliers", "residual")  # the verifier's gates, in the order they are checked
+
+
 @dataclass(frozen=True)
 class Verification:
-    """Outcome of one verification: `T_target_source` maps source-frame points into the target frame."""
+    """Outcome of one verification: `T_target_source` maps source-frame points into the target frame;
+    `covariance` (6x6, rotation then translation) is its uncertainty; `rejected` names the first failed
+    gate of REJECTIONS ("" when accepted)."""
 
     T_target_source: np.ndarray
     accepted: bool
@@ -50,6 +60,9 @@ class Verification:
     num_inliers: int
     inlier_fraction: float
     converged: bool
+    target_fraction: float = float("nan")
+    covariance: np.ndarray | None = None
+    rejected: str = ""
 
 
 class Verifier:
@@ -86,9 +99,23 @@ class Verifier:
             converged = bool(result.converged)
         residual, num_inliers = _point_to_plane_residual(tgt, tree, src, T, cfg.max_correspondence_distance)
         fraction = num_inliers / src.size()
-        accepted = (residual < cfg.max_residual and num_inliers >= cfg.min_inliers
-                    and fraction >= cfg.min_inlier_fraction)
-        return Verification(T, bool(accepted), residual, num_inliers, float(fraction), converged)
+        target_fraction = _covered_fraction(tgt, src, T, cfg.max_correspondence_distance, cfg.num_threads)
+        failed = {"overlap": min(fraction, target_fraction) < cfg.min_inlier_fraction,
+                  "inliers": num_inliers < cfg.min_inliers, "residual": not residual < cfg.max_residual}
+        rejected = next((gate for gate in REJECTIONS if failed[gate]), "")
+        covariance = registration_covariance(np.asarray(result.H), result.error, result.num_inliers)
+        return Verification(T, not rejected, residual, num_inliers, float(fraction), converged,
+                            target_fraction, covariance, rejected)
+
+
+def _covered_fraction(target: small_gicp.PointCloud, source: small_gicp.PointCloud, T: np.ndarray,
+                      max_distance: float, num_threads: int) -> float:
+    """Fraction of target points with an aligned source point within `max_distance`."""
+    moved = source.points()[:, :3] @ T[:3, :3].T + T[:3, 3]
+    idx, sq_dist = small_gicp.KdTree(moved, num_threads=num_threads).batch_nearest_neighbor_search(
+        target.points()[:, :3])
+    near = (np.asarray(idx) >= 0) & (np.asarray(sq_dist) <= max_distance**2)
+    return float(near.mean())
 
 
 def _point_to_plane_residual(target: small_gicp.PointCloud, tree: small_gicp.KdTree,
@@ -106,3 +133,15 @@ def _point_to_plane_residual(target: small_gicp.PointCloud, tree: small_gicp.KdT
     offsets = moved[inliers] - target.points()[nearest, :3]
     plane = np.einsum("ij,ij->i", normals, offsets)
     return float(np.sqrt(np.mean(plane**2))), int(inliers.sum())
+
+
+def registration_covariance(hessian: np.ndarray, error: float, num_inliers: int) -> np.ndarray:
+    """Covariance of a GICP estimate (small_gicp: H = J^T M J at the solution, error = 0.5 sum r^T M r,
+    tangent order rotation then translation): H^-1 scaled by the reduced chi-square of the residuals,
+    since GICP's normalised point covariances are not calibrated. Infinite along directions H does not
+    constrain (bounded_covariance caps them)."""
+    dof = max(3 * int(num_inliers) - 6, 1)
+    scale = max(2.0 * float(error) / dof, 1e-12)
+    w, v = np.linalg.eigh(0.5 * (hessian + hessian.T))
+    inv = np.where(w > 1e-12 * max(w.max(), 1e-300), 1.0 / np.maximum(w, 1e-300), 1e12)
+    return scale * (v * inv) @ v.T

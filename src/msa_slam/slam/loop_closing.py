@@ -1,23 +1,31 @@
 """Loop closing for each new keyframe (paper, section V-A): descriptor search, then verification.
 
-A new keyframe queries the older keyframes by descriptor, leaving out the most recent ones; its best match
-is recorded for the PR curve, and matches at or above the similarity threshold are loop candidates.
+A new keyframe queries the older keyframes by descriptor, leaving out the most recent ones and those
+fewer than `min_travel_m` metres back along the odometry path (a revisit, not a standstill); its best
+match is recorded for the PR curve, and matches at or above the similarity threshold are loop candidates.
 `oracle` mode (the paper) verifies only candidates within `loop_radius` of each other in ground truth;
-`realistic` mode verifies every candidate. Verification registers the two downsampled keyframe clouds and
-accepts the loop when the residual is below the gate; an accepted loop whose ground-truth distance
-exceeds `loop_radius` is a false loop.
+`realistic` mode verifies every candidate. Verification registers the two downsampled keyframe clouds;
+the loop is rejected when the clouds are too sparse, overlap too little, have too few inliers or too
+large a residual (registration.verify), or when its correction of the odometry between the two keyframes
+exceeds `drift_gate` times what the drift model allows over the travelled distance plus a slack
+(`drift_slack_m`, `drift_slack_deg`). An accepted loop whose ground-truth distance exceeds `loop_radius`
+is a false loop; one over at least 2 x `loop_radius` of path (the robot left the place and came back) is
+a revisit.
 """
 
 from __future__ import annotations
 
-from typing import Protocol
+from dataclasses import replace
+from typing import Any, Protocol
 
 import numpy as np
 
+from msa_slam.backend.graph import GraphConfig
 from msa_slam.descriptors import Descriptor
 from msa_slam.errors import InputError
 from msa_slam.place_recognition import PRCurve, precision_recall
 from msa_slam.registration import Verifier
+from msa_slam.registration.verify import REJECTIONS
 from msa_slam.slam.keyframes import KeyframeStore
 from msa_slam.types import LoopClosure
 
@@ -31,6 +39,14 @@ class LoopSettings(Protocol):
     top_k: int
     mode: str
     loop_radius: float
+    min_travel_m: float
+    drift_gate: float
+    drift_slack_m: float
+    drift_slack_deg: float
+    graph: GraphConfig
+
+
+REJECTION_REASONS = ("sparse", *REJECTIONS, "drift")  # every reason a registered candidate can be rejected for
 
 
 def yaw_guess(descriptor: Descriptor, query_desc: np.ndarray, match_desc: np.ndarray) -> np.ndarray:
@@ -51,13 +67,22 @@ class LoopCloser:
         self.store, self.verifier, self.settings = store, verifier, settings
         self.best_similarity: list[float] = []
         self.best_distance: list[float] = []
+        self._path = np.zeros(1)  # odometry path length from frame 0 to each frame seen so far
+        self._odometry = np.zeros((0, 4, 4))
 
-    def candidates(self, frame: int, descriptor: np.ndarray, gt: np.ndarray) -> list[LoopClosure]:
-        """Older keyframes matching `frame` (call before adding it to the store); `gt` holds every frame's
-        ground-truth pose, for the true-loop distance."""
+    def candidates(self, frame: int, descriptor: np.ndarray, gt: np.ndarray,
+                   odometry: np.ndarray) -> list[LoopClosure]:
+        """Older keyframes matching `frame` (call before adding it to the store); `gt` and `odometry` hold
+        every frame's ground-truth and odometry poses up to `frame` (true-loop distance, travelled path)."""
         s = self.settings
-        matches = self.store.database.query(frame, descriptor, exclude_frames=s.min_frame_gap,
-                                            exclude_recent=s.exclude_recent, threshold=0.0, top_k=s.top_k)
+        self._odometry = odometry
+        path = self._path_to(frame)
+        reachable = int(np.searchsorted(path, path[frame] - s.min_travel_m, side="right")) - 1
+        if reachable < 0:  # nothing far enough back along the path yet
+            return []
+        gap = max(s.min_frame_gap, frame - reachable - 1)
+        matches = self.store.database.query(frame, descriptor, exclude_frames=gap, exclude_recent=s.exclude_recent,
+                                            threshold=0.0, top_k=s.top_k)
         out = []
         for rank, match in enumerate(matches):
             dist = float(np.linalg.norm(gt[frame, :3, 3] - gt[match.keyframe_id, :3, 3]))
@@ -65,8 +90,17 @@ class LoopCloser:
                 self.best_similarity.append(match.similarity)
                 self.best_distance.append(dist)
             if match.similarity >= s.similarity_threshold:
-                out.append(LoopClosure(frame, match.keyframe_id, match.similarity, dist))
+                out.append(LoopClosure(frame, match.keyframe_id, match.similarity, dist,
+                                       travelled_m=float(path[frame] - path[match.keyframe_id])))
         return out
+
+    def _path_to(self, frame: int) -> np.ndarray:
+        """Cumulative odometry path length up to `frame`, extended incrementally (frames never change)."""
+        done = len(self._path)
+        if frame >= done:
+            steps = np.linalg.norm(np.diff(self._odometry[done - 1: frame + 1, :3, 3], axis=0), axis=1)
+            self._path = np.concatenate([self._path, self._path[-1] + np.cumsum(steps)])
+        return self._path
 
     def verify(self, candidates: list[LoopClosure]) -> list[LoopClosure]:
         """Register candidate pairs (all in `realistic` mode, only GT-near ones in `oracle` mode)."""
@@ -80,12 +114,44 @@ class LoopCloser:
         try:
             result = self.verifier.verify(store.cloud(cand.match), store.cloud(cand.query), initial_guess=guess)
         except InputError:  # clouds too sparse to register: the candidate is rejected, not the run
-            return LoopClosure(cand.query, cand.match, cand.similarity, cand.gt_distance, True, False, float("inf"))
-        return LoopClosure(cand.query, cand.match, cand.similarity, cand.gt_distance, True, result.accepted,
-                           result.residual, result.T_target_source)
+            return replace(cand, verified=True, residual=float("inf"), rejected="sparse")
+        rejected = result.rejected
+        if not rejected and self.exceeds_drift(cand, result.T_target_source):
+            rejected = "drift"
+        return replace(cand, verified=True, accepted=not rejected, residual=result.residual,
+                       T_match_query=result.T_target_source, covariance=result.covariance, rejected=rejected)
+
+    def exceeds_drift(self, cand: LoopClosure, T_match_query: np.ndarray) -> bool:
+        """Whether the loop corrects the odometry between its keyframes by more than the drift model allows
+        over the travelled path (times `drift_gate`, plus the slack); never with `drift_gate=0`."""
+        s = self.settings
+        if s.drift_gate <= 0:
+            return False
+        odometry = np.linalg.inv(self._odometry[cand.match]) @ self._odometry[cand.query]
+        correction = np.linalg.inv(odometry) @ T_match_query
+        shift = float(np.linalg.norm(correction[:3, 3]))
+        angle = float(np.arccos(np.clip((np.trace(correction[:3, :3]) - 1) / 2, -1.0, 1.0)))
+        max_shift, max_angle = s.graph.drift.allowance(cand.travelled_m)
+        return (shift > s.drift_gate * max_shift + s.drift_slack_m
+                or angle > s.drift_gate * max_angle + np.radians(s.drift_slack_deg))
 
     def pr_curve(self) -> PRCurve | None:
         """Precision-recall of the best matches (None when no keyframe had an older one to query)."""
         if not self.best_similarity:
             return None
         return precision_recall(self.best_similarity, self.best_distance, self.settings.loop_radius)
+
+
+def loop_summary(loops: list[LoopClosure], settings: LoopSettings) -> dict[str, Any]:
+    """What metrics.json reports about loop closing: rejections by reason, accepted loops that are revisits
+    (at least 2 x loop_radius of odometry path between the keyframes) apart from the others, and the
+    noise models and robust kernel the loop factors had."""
+    accepted = [c for c in loops if c.accepted]
+    revisits = sum(c.travelled_m >= 2 * settings.loop_radius for c in accepted)
+    graph = settings.graph
+    return {
+        "rejected": {reason: sum(c.rejected == reason for c in loops) for reason in REJECTION_REASONS},
+        "revisit_loops": int(revisits), "other_loops": len(accepted) - int(revisits),
+        "min_travel_m": settings.min_travel_m, "loop_kernel": graph.loop_kernel(settings.mode),
+        "loop_noise": graph.loop_noise, "odometry_noise": graph.odometry_noise,
+    }

@@ -1,0 +1,116 @@
+"""Loop closing that can say no (issue 14): wrong candidates built on purpose from real KITTI scans are
+rejected for the reason that applies, a true loop is accepted, and a standstill closes no loop.
+
+The query keyframe comes back to keyframe 0 after a 100 m lap of odometry. Its cloud is (a) the other half
+of scan 0 (a true loop), (b) the ground of another place (scan 15 mirrored left-right, the same kind of
+street elsewhere): ground fits ground, so the source side and the residual pass and the old verifier
+accepted it, but it covers a third of the target, (c) scan 0 seen with a 25 deg yaw while the odometry
+says the heading is unchanged: a near miss whose registration implies a turn that 100 m of drift cannot
+explain.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from conftest import shared_path
+from msa_slam.backend import PoseGraph
+from msa_slam.descriptors import make_descriptor
+from msa_slam.pipeline.config import make_config
+from msa_slam.registration import KeyframeCloudStore, Verifier
+from msa_slam.slam import KeyframeStore, LoopCloser, build_backend
+from msa_slam.slam.loop_closing import loop_summary
+
+LAP = 300  # frames of the odometry lap between the two keyframes
+
+
+def _scan(index: int) -> np.ndarray:
+    path = shared_path("data", "kitti_scans_00", f"{index:06d}.bin")
+    return np.fromfile(path, dtype=np.float32).reshape(-1, 4)[:, :3].astype(np.float64)
+
+
+def _lap(length_m: float = 100.0) -> np.ndarray:
+    """Odometry: a circle of `length_m` driven in LAP steps, back at the start with the same heading."""
+    poses = np.tile(np.eye(4), (LAP + 1, 1, 1))
+    radius = length_m / (2 * np.pi)
+    for i, a in enumerate(np.linspace(0, 2 * np.pi, LAP + 1)):
+        poses[i, :3, :3] = Rotation.from_euler("z", a).as_matrix()
+        poses[i, :3, 3] = [radius * np.sin(a), radius * (1 - np.cos(a)), 0.0]
+    return poses
+
+
+@pytest.fixture(scope="module")
+def scans() -> dict[str, np.ndarray]:
+    s0, s15 = _scan(0), _scan(15)
+    other = s15 * [1, -1, 1]  # another street: scan 15 mirrored
+    yaw = Rotation.from_euler("z", 25, degrees=True).as_matrix()
+    return {"target": s0[::2], "true": s0[1::2], "other_place": other[(other[:, 2] < -1.2)
+                                                                     & (np.linalg.norm(other[:, :2], axis=1) < 30)],
+            "wrong_yaw": s0[1::2] @ yaw}  # the sensor turned by 25 deg
+
+
+def _close(query_cloud: np.ndarray, target: np.ndarray, **settings) -> tuple[LoopCloser, list]:
+    config = make_config(dataset="unused", similarity_threshold=0.0, exclude_recent=0, **settings)
+    descriptor = make_descriptor("sc")
+    store = KeyframeStore(descriptor, KeyframeCloudStore(config.verifier.voxel_size))
+    closer = LoopCloser(store, Verifier(config.verifier), config)
+    odometry = _lap()
+    gt = odometry.copy()
+    store.add_cloud(0, target)
+    store.add(0, odometry[0], descriptor.compute(target))
+    store.add_cloud(LAP, query_cloud)
+    query = descriptor.compute(query_cloud)
+    candidates = closer.candidates(LAP, query, gt, odometry)
+    store.add(LAP, odometry[LAP], query)  # as the SLAM core does: stored after its query, before verification
+    return closer, closer.verify(candidates)
+
+
+def test_true_loop_is_accepted_with_a_bounded_covariance(scans):
+    _, loops = _close(scans["true"], scans["target"])
+    assert len(loops) == 1 and loops[0].accepted and loops[0].rejected == ""
+    assert loops[0].travelled_m == pytest.approx(100.0, rel=1e-3)
+    cov = loops[0].covariance
+    assert cov.shape == (6, 6) and np.all(np.linalg.eigvalsh(cov) > 0)
+
+
+def test_two_different_places_are_rejected_on_overlap(scans):
+    _, loops = _close(scans["other_place"], scans["target"])
+    assert len(loops) == 1 and not loops[0].accepted and loops[0].rejected == "overlap"
+    # what the old gate saw (source side and residual) passes: only the target's coverage says no
+    result = Verifier().verify(scans["target"], scans["other_place"])
+    assert result.inlier_fraction > 0.5 and result.residual < 0.3 and result.target_fraction < 0.5
+
+
+def test_near_miss_with_a_wrong_yaw_is_rejected_on_drift(scans):
+    closer, loops = _close(scans["wrong_yaw"], scans["target"])
+    assert len(loops) == 1 and not loops[0].accepted and loops[0].rejected == "drift"
+    assert loops[0].T_match_query is not None  # the registration itself succeeded
+    summary = loop_summary(loops, closer.settings)
+    assert summary["rejected"]["drift"] == 1 and sum(summary["rejected"].values()) == 1
+    _, unchecked = _close(scans["wrong_yaw"], scans["target"], drift_gate=0.0)
+    assert unchecked[0].accepted  # the drift check, not the registration, said no
+
+
+def test_min_travel_leaves_out_keyframes_too_few_metres_back(scans):
+    _, short = _close(scans["true"], scans["target"], min_travel_m=150.0)
+    assert short == []
+
+
+def _standstill(min_travel_m: float, frames: int = 90):
+    """Sampler `all` on a robot that never moves: every frame the same scan and the same pose."""
+    config = make_config(dataset="unused", sampler="all", min_travel_m=min_travel_m, mode="realistic")
+    descriptor = make_descriptor("sc")
+    cloud = _scan(0)[::8]
+    desc = descriptor.compute(cloud)
+    backend = build_backend(config, descriptor, KeyframeCloudStore(config.verifier.voxel_size),
+                            PoseGraph(config.graph, mode=config.mode), frames, "standstill")
+    for i in range(frames):
+        backend.add_frame(np.eye(4), desc, cloud, np.eye(4), 0.1 * i)
+    return backend.finish()
+
+
+def test_a_standstill_closes_no_loop():
+    assert _standstill(30.0).loops == []
+    assert _standstill(0.0).accepted_loops  # a frame gap alone lets the robot "revisit" where it stands
