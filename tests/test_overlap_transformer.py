@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import sys
 
 import numpy as np
@@ -216,3 +217,43 @@ def test_missing_torch_is_a_clear_error(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "torch", None)  # makes `import torch` raise ImportError
     with pytest.raises(InputError, match=r"torch is not installed.*msa-slam\[ot\]"):
         load_network(tmp_path / "w.pth")
+
+
+def test_published_checkpoint_plain_state_dict_and_converted_file_agree(torch_mod, state, golden, tmp_path):
+    """The authors' file holds epoch, optimizer and 'state_dict'; a plain or DataParallel state_dict works too."""
+    from msa_slam.descriptors.overlap_transformer import OverlapTransformer, convert_checkpoint
+
+    published = tmp_path / "pretrained_overlap_transformer.pth.tar"
+    torch_mod.save({"epoch": 30, "state_dict": state, "optimizer": {"state": {}, "param_groups": [{"lr": 1e-5}]}},
+                   published)
+    torch_mod.save(state, tmp_path / "plain.pth")
+    torch_mod.save({f"module.{k}": v for k, v in state.items()}, tmp_path / "parallel.pth")
+    converted = convert_checkpoint(published, tmp_path / "converted.pth")
+    assert set(torch_mod.load(converted, weights_only=True)) < set(state)  # inference weights only
+    images = golden["range_images"][:1]
+    for path in (published, tmp_path / "plain.pth", tmp_path / "parallel.pth", converted):
+        got = OverlapTransformer(path).descriptors_from_range_images(images)
+        np.testing.assert_allclose(got, golden["descriptors"][:1], atol=1e-5, rtol=0)
+    with pytest.raises(InputError, match="converted.pth exists"):
+        convert_checkpoint(published, converted)
+
+
+def test_wrong_files_name_what_is_expected(torch_mod, tmp_path):
+    from msa_slam.descriptors import make_descriptor
+    from msa_slam.descriptors.overlap_transformer import WEIGHTS_URL, load_network
+
+    torch_mod.save([1, 2], tmp_path / "list.pth")
+    with pytest.raises(InputError, match="list.pth is not an OverlapTransformer checkpoint.*holds list"):
+        load_network(tmp_path / "list.pth")
+    with pytest.raises(InputError, match="pretrained_overlap_transformer.pth.tar"):
+        load_network(tmp_path / "nope.pth")
+    url = re.escape(WEIGHTS_URL)
+    with pytest.raises(InputError, match=f"missing a required argument: .weights.*{url}.*descriptor.weights"):
+        make_descriptor("ot")
+
+
+def test_help_says_where_the_weights_are():
+    from msa_slam.cli.options import DESCRIPTOR_HELP
+    from msa_slam.descriptors.overlap_transformer import WEIGHTS_URL
+
+    assert WEIGHTS_URL.split("/view")[0] in DESCRIPTOR_HELP and "-p descriptor.weights=FILE" in DESCRIPTOR_HELP

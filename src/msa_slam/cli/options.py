@@ -9,7 +9,11 @@ import typer
 
 SAMPLER_NAMES = ("all", "constant", "entropy", "spaciousness", "msa")  # tests check: == the registry's names
 SAMPLER_HELP = f"{', '.join(SAMPLER_NAMES)} (default msa)"
-DESCRIPTOR_HELP = "sc (default), ot, precomputed"
+DESCRIPTOR_HELP = ("sc (Scan Context, default), ot (OverlapTransformer: needs torch and the authors' pretrained "
+                   "weights pretrained_overlap_transformer.pth.tar, published at "
+                   "https://drive.google.com/file/d/1FNrx9pcDa9NF7z8CFtuTWyauNkeSEFW4 via "
+                   "github.com/haomo-ai/OverlapTransformer; pass -p descriptor.weights=FILE), precomputed "
+                   "(-p descriptor.path=FILE.npy)")
 MODE_HELP = "oracle (default, the paper; needs ground truth) or realistic"
 DATASET_HELP = ("sequence folder (KITTI, MulRan, HeLiPR, Apollo, Newer College layout, or a folder of .bin/.pcd/.ply "
                 "scans), a ROS1/ROS2 bag (.bag, bag folder, .db3, .mcap), or sim:NAME (sim:demo, sim:kitti-05,...)")

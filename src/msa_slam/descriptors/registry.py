@@ -27,9 +27,11 @@ def make_descriptor(name: str, **params: Any) -> Descriptor:
     entry = _CLASSES.get(str(name).lower())
     if entry is None:
         raise InputError(f"descriptor: unknown name {name!r}; choose one of {', '.join(DESCRIPTOR_NAMES)}")
-    cls = getattr(importlib.import_module(entry[0]), entry[1])
+    module = importlib.import_module(entry[0])
+    cls = getattr(module, entry[1])
     try:
         inspect.signature(cls).bind(**params)
     except TypeError as exc:
-        raise InputError(f"descriptor {name!r}: bad parameters {sorted(params)}: {exc}") from exc
+        hint = f"; it needs {module.WEIGHTS_HINT}" if "weights" in str(exc) and hasattr(module, "WEIGHTS_HINT") else ""
+        raise InputError(f"descriptor {name!r}: bad parameters {sorted(params)}: {exc}{hint}") from exc
     return cls(**params)
