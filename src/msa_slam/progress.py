@@ -11,7 +11,8 @@ from typing import Any, TextIO
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-STEP = 0.1  # a log line every 10 % of a stage
+STEP = 0.1  # a log line every 10 % of a stage...
+MIN_INTERVAL_S = 1.0  # ...but not within a second of the previous one (a short stage logs start and finish)
 
 
 def progress_bar(quiet: bool = False, transient: bool = True, fields: str = "") -> Progress | LogProgress:
@@ -32,16 +33,19 @@ class _Task:
     start: float = field(default_factory=time.monotonic)
     completed: float = 0.0
     logged_step: int = 0
+    logged_at: float = field(default_factory=time.monotonic)
     finished: bool = False
 
 
 class LogProgress:
     """The subset of rich.progress.Progress the pipeline uses (add_task, advance, update, context manager),
-    written as log lines: `<stage>: start (N)`, `<stage>: k/N (p %), t s` every ~10 %, `<stage>: done ...`."""
+    written as log lines: `<stage>: start (N)`, `<stage>: k/N (p %), t s` every ~10 % (at most one per
+    `min_interval_s`), `<stage>: done k/N in t s`."""
 
-    def __init__(self, stream: TextIO | None = None, fields: str = "") -> None:
+    def __init__(self, stream: TextIO | None = None, fields: str = "", min_interval_s: float = MIN_INTERVAL_S) -> None:
         self.stream = stream if stream is not None else sys.stderr
         self.fields = fields
+        self.min_interval_s = min_interval_s
         self._tasks: list[_Task] = []
 
     def __enter__(self) -> LogProgress:
@@ -78,8 +82,8 @@ class LogProgress:
             self._finish(task, "done")
             return
         step = int(task.completed / task.total / STEP)
-        if step > task.logged_step:
-            task.logged_step = step
+        if step > task.logged_step and time.monotonic() - task.logged_at >= self.min_interval_s:
+            task.logged_step, task.logged_at = step, time.monotonic()
             self._log(f"{task.description}: {self._count(task)} ({100 * task.completed / task.total:.0f} %), "
                       f"{time.monotonic() - task.start:.1f} s{self._fields(task)}")
 

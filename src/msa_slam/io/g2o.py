@@ -16,7 +16,7 @@ Edge = tuple[int, int, np.ndarray]  # (from vertex, to vertex, pose of `to` in t
 
 def _pose_fields(pose: np.ndarray) -> str:
     q = Rotation.from_matrix(pose[:3, :3]).as_quat()  # x y z w, as g2o's SE3:QUAT expects
-    return " ".join(f"{v + 0.0:.9f}" for v in (*pose[:3, 3], *q))  # + 0.0: no "-0.000"
+    return " ".join(f"{round(v, 9) + 0.0:.9f}" for v in (*pose[:3, 3], *q))  # no "-0.000000000"
 
 
 def _information(rotation_sigma: float, translation_sigma: float) -> str:

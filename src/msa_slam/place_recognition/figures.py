@@ -18,18 +18,21 @@ from msa_slam.place_recognition.metrics import PRCurve  # noqa: E402
 
 STYLES = ("-", "--", "-.", ":")
 MARKERS = ("o", "s", "^", "v", "D", "P", "X", "*")
-ZOOM_BELOW = 0.6  # draw a zoom when the curves span less than this fraction of recall or precision
+KNEE = 0.8  # the zoom keeps the points whose F1 reaches this fraction of the weakest curve's F1-max
+ZOOM_BELOW = 0.6  # zoom only when those points span less than this fraction of recall or precision
 
 
 def zoom_limits(curves: Mapping[str, PRCurve]) -> tuple[tuple[float, float], tuple[float, float]] | None:
-    """(recall range, precision range) around the curves' points that predict something (recall > 0), padded;
-    None when they already fill most of the unit square."""
-    recall = np.concatenate([np.asarray(c.recall, dtype=float) for c in curves.values()])
-    precision = np.concatenate([np.asarray(c.precision, dtype=float) for c in curves.values()])
-    keep = recall > 0
-    if not keep.any():
+    """(recall range, precision range) around every curve's knee (thresholds whose F1 is at least KNEE times
+    the lowest F1-max), padded; None when that region already fills most of the unit square."""
+    scored = [c for c in curves.values() if c.f1_max]
+    if not scored:
         return None
-    (r0, r1), (p0, p1) = (np.min(recall[keep]), np.max(recall[keep])), (np.min(precision[keep]), np.max(precision[keep]))
+    floor = KNEE * min(c.f1_max for c in scored)
+    keep = [np.asarray(c.f1, dtype=float) >= floor for c in scored]
+    recall = np.concatenate([np.asarray(c.recall, dtype=float)[k] for c, k in zip(scored, keep)])
+    precision = np.concatenate([np.asarray(c.precision, dtype=float)[k] for c, k in zip(scored, keep)])
+    (r0, r1), (p0, p1) = (recall.min(), recall.max()), (precision.min(), precision.max())
     if r1 - r0 >= ZOOM_BELOW and p1 - p0 >= ZOOM_BELOW:
         return None
     pad_r, pad_p = max(0.05 * (r1 - r0), 0.02), max(0.05 * (p1 - p0), 0.02)
@@ -40,7 +43,7 @@ def plot_pr_curves(curves: Mapping[str, PRCurve], path: str | Path, title: str =
     """Write one PR curve per label to `path` as PNG (legend, sorted by PR-AUC, shows PR-AUC and F1-max)."""
     order = sorted(curves, key=lambda k: -(curves[k].auc or 0.0))
     zoom = zoom_limits(curves)
-    fig, axes = plt.subplots(1, 2 if zoom else 1, figsize=(11 if zoom else 7.5, 4), dpi=150, squeeze=False,
+    fig, axes = plt.subplots(1, 2 if zoom else 1, figsize=(9 if zoom else 5.5, 4.8), dpi=150, squeeze=False,
                              layout="constrained")
     try:
         for ax, limits in zip(axes[0], [((0.0, 1.02), (0.0, 1.02)), zoom]):
@@ -51,9 +54,10 @@ def plot_pr_curves(curves: Mapping[str, PRCurve], path: str | Path, title: str =
                 ax.plot(curve.recall, curve.precision, ls=style, marker=marker, ms=3.5, markevery=10, lw=1.4,
                         alpha=0.85, label=f"{label} (PR-AUC {auc}, F1-max {f1})")
             ax.set(xlabel="recall", ylabel="precision", xlim=limits[0], ylim=limits[1])
-            ax.set_title("all thresholds" if ax is axes[0][0] else "zoom", fontsize=9)
+            ax.set_title("all thresholds" if ax is axes[0][0] else "zoom on the knee", fontsize=9)
             ax.grid(alpha=0.3)
-        fig.legend(*axes[0][0].get_legend_handles_labels(), loc="outside right upper", fontsize=7, frameon=False)
+        fig.legend(*axes[0][0].get_legend_handles_labels(), loc="outside lower center", ncols=2, fontsize=7,
+                   frameon=False)
         fig.suptitle(title, fontsize=10)
         with atomic_path(path) as tmp:
             fig.savefig(tmp, format="png")

@@ -15,9 +15,10 @@ from msa_slam.io.atomic import atomic_path  # noqa: E402
 
 def plot_keyframes(poses: np.ndarray, keyframes: list[int], path: str | os.PathLike,
                    title: str = "", flushed: list[int] | None = None) -> None:
-    """Write a PNG: the path in x-y, keyframes as dots, end-of-stream flush keyframes apart."""
+    """Write a PNG: the path in x-y (metres, equal aspect), keyframes as dots, end-of-stream flush keyframes
+    apart, the legend below the axes."""
     xy = poses[:, :2, 3]
-    fig, ax = plt.subplots(figsize=(7, 6), dpi=120)
+    fig, ax = plt.subplots(figsize=(7, 6.4), dpi=120, layout="constrained")
     ax.plot(xy[:, 0], xy[:, 1], "-", color="0.6", lw=1, label=f"trajectory ({len(poses)} frames)")
     online = [k for k in keyframes if not flushed or k not in flushed]
     ax.scatter(xy[online, 0], xy[online, 1], s=12, c="tab:red", zorder=3,
@@ -30,8 +31,8 @@ def plot_keyframes(poses: np.ndarray, keyframes: list[int], path: str | os.PathL
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_title(title)
-    ax.legend(loc="best", fontsize=8)
-    fig.tight_layout()
+    ax.grid(alpha=0.3)
+    fig.legend(loc="outside lower center", ncols=4, fontsize=8, frameon=False)  # below the axes, off the path
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")
     plt.close(fig)

@@ -25,12 +25,12 @@ def _save(fig, path: str | Path) -> Path:
 def plot_memory(path: str | Path, series: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
                 title: str = "memory over time") -> Path:
     """series: label -> (frames, accounted bytes (keyframes + graph), RSS bytes); two panels in MiB."""
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), layout="constrained")
     for label, (frames, accounted, rss) in series.items():
         axes[0].plot(frames, np.asarray(accounted) / 2**20, label=label)
         axes[1].plot(frames, np.asarray(rss) / 2**20, label=label)
-    axes[0].set(xlabel="frame", ylabel="MiB", title="keyframes + graph (accounted)")
-    axes[1].set(xlabel="frame", ylabel="MiB", title="process RSS")
+    axes[0].set(xlabel="frame", ylabel="accounted memory [MiB]", title="keyframes + graph (accounted)")
+    axes[1].set(xlabel="frame", ylabel="resident set size [MiB]", title="process RSS")
     for ax in axes:
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
@@ -50,7 +50,7 @@ def plot_step_times(path: str | Path, steps: Mapping[str, Mapping[str, np.ndarra
         ax.boxplot(data, showfliers=True, flierprops={"markersize": 2})
         ax.set_xticks(range(1, len(labels) + 1), labels, rotation=30, ha="right", fontsize=8)
         ax.set_yscale("log")
-        ax.set(ylabel="ms", title=name)
+        ax.set(ylabel="time per step [ms]", title=name)
         ax.grid(alpha=0.3, axis="y")
     fig.suptitle(title)
     fig.tight_layout()

@@ -47,7 +47,7 @@ def _draw(ax, gt_xy: np.ndarray, panel: TrajectoryPanel, norm: Normalize, cmap: 
     # that a line alone would hide.
     for pairs, colour, marker in ((panel.loops, TRUE_LOOP, "o"), (panel.false_loops, FALSE_LOOP, "X")):
         for a, b in pairs:
-            ax.plot(*panel.xy[[a, b]].T, color=colour, lw=1.4, zorder=4, marker=marker, ms=5, mfc="none", mew=1.0)
+            ax.plot(*panel.xy[[a, b]].T, color=colour, lw=1.2, zorder=4, marker=marker, ms=3.5, mfc="none", mew=0.8)
     ax.set_title(f"{panel.title}\n{len(panel.xy)} keyframes, {len(panel.loops)} loops"
                  + (f", {len(panel.false_loops)} false" if len(panel.false_loops) else ""), fontsize=8)
     ax.set_aspect("equal", adjustable="datalim")
