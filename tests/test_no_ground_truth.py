@@ -1,0 +1,52 @@
+"""A recording without ground truth runs (realistic mode): keyframes, loops and trajectories, with ATE, RPE
+and PR reported n/a and why; the oracle mode and sampling on ground truth are refused before any work."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+
+from msa_slam.errors import InputError
+from msa_slam.pipeline.online import run_online
+from msa_slam.pipeline.online_config import make_online_config
+from msa_slam.pipeline.source import open_source, resolve_dataset
+
+
+@pytest.fixture(scope="module")
+def scans_only(tmp_path_factory):
+    """The simulator's test sequence as a bare folder of .bin scans, and its poses as an odometry file."""
+    sim = resolve_dataset("sim:test")
+    folder = tmp_path_factory.mktemp("nogt") / "scans"
+    folder.mkdir()
+    for scan in sorted((sim / "velodyne").glob("*.bin"))[:90]:
+        shutil.copy(scan, folder / scan.name)
+    poses = folder.parent / "odometry.txt"
+    poses.write_text("".join((sim / "poses.txt").read_text().splitlines(keepends=True)[:90]))
+    return folder, poses
+
+
+def test_online_without_ground_truth_reports_na(scans_only):
+    folder, poses = scans_only
+    config = make_online_config(dataset=str(folder), mode="realistic", odometry=str(poses), sampler="constant",
+                                sampler_params={"distance": 1.0})
+    source = open_source(config.dataset, mode=config.mode)
+    assert source.gt_poses is None and len(source) == 90
+    result = run_online(config, source)
+    m = result.metrics
+    assert result.gt_poses is None and m["keyframes"] >= 3
+    assert m["before"]["ate_translation_m"] is None and m["after"]["ate_translation_m"] is None
+    assert m["unavailable"]["ate"] == "no ground truth"
+    assert m["pr_auc"] is None and "no ground truth" in m["unavailable"]["pr"]
+    assert np.isfinite(result.optimised).all()
+
+
+def test_oracle_and_gt_sampling_refused_without_ground_truth(scans_only):
+    folder, poses = scans_only
+    with pytest.raises(InputError, match="oracle mode needs.*--mode realistic"):
+        open_source(str(folder), mode="oracle")
+    config = make_online_config(dataset=str(folder), mode="realistic", odometry=str(poses), sample_on="gt")
+    source = open_source(str(folder), mode="realistic")
+    with pytest.raises(InputError, match="sample_on=gt but the frames have no ground-truth poses"):
+        run_online(config, source)
