@@ -7,12 +7,20 @@ from typing import List, Optional
 
 import typer
 
-from msa_slam.cli.options import (CACHE_HELP, DATASET_HELP, DESCRIPTOR_HELP, MODE_HELP, OVERWRITE_HELP,
+from msa_slam.cli.options import (FIRST, FRAMES, GT, JUMP, LOADER, SEQUENCE, TOPIC,
+                                  CACHE_HELP, DATASET_HELP, DESCRIPTOR_HELP, MODE_HELP, OVERWRITE_HELP,
                                   PARAM_HELP, out_help, reporting_failed_methods)
 
 
 def compare_command(
     dataset: Optional[str] = typer.Option(None, "--dataset", "-d", help=DATASET_HELP),
+    loader: Optional[str] = LOADER,
+    topic: Optional[str] = TOPIC,
+    gt: Optional[Path] = GT,
+    sequence: Optional[str] = SEQUENCE,
+    first: Optional[int] = FIRST,
+    jump: Optional[int] = JUMP,
+    frames: Optional[int] = FRAMES,
     descriptor: Optional[str] = typer.Option(None, help=DESCRIPTOR_HELP),
     odometry: Optional[str] = typer.Option(None, help="kiss (default) or a KITTI/TUM pose file"),
     mode: Optional[str] = typer.Option(None, help=MODE_HELP),
@@ -34,7 +42,9 @@ def compare_command(
 
     given = {"dataset": dataset, "descriptor": descriptor, "odometry": odometry, "mode": mode,
              "cache_dir": cache_option(cache_dir)}
-    cfg = batch_config(config, given, param)
+    source = {"loader": loader, "topic": topic, "gt": gt, "sequence": sequence, "first": first, "jump": jump,
+              "frames": frames}
+    cfg = batch_config(config, given, param, source)
     seed_list = None if seeds is None else parse_seeds(seeds)
     if seed_list is not None:
         seeded_datasets(cfg.dataset, seed_list)  # refuse non-simulated data before any work
