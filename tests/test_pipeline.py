@@ -112,6 +112,62 @@ def test_compare_writes_table(base, frontend, tmp_path):
     assert {p.name for p in (folder / "runs").iterdir()} == {"constant-3m", "msa"}
     for name in ("metrics.png", "trajectories.png", "pr_curves.png"):
         assert (folder / "figures" / name).read_bytes()[:4] == b"\x89PNG"
+    rows = list(csv.DictReader(open(folder / "comparison.csv")))
+    # the same denominator for every sampler: full-rate "ATE before" is the odometry's, keyframe-only differs
+    assert rows[0]["ate_before_m"] == rows[1]["ate_before_m"] != ""
+    assert rows[0]["kf_ate_before_m"] != rows[1]["kf_ate_before_m"]
+    pr = list(csv.DictReader(open(folder / "figures" / "pr.csv")))
+    assert {(r["method"], r["protocol"]) for r in pr} == {(m, p) for m in ("constant-3m", "msa")
+                                                          for p in ("paper", "reference")}
+    assert "| method | 0.70 | 0.75 | 0.80 | 0.85 |" in report.read_text()
+
+
+def test_full_rate_trajectory_is_written_and_evaluated(base, frontend, tmp_path):
+    result = run_batch(base, frontend, sweep=False)
+    full = result.optimised_full
+    assert full.shape == result.odometry.shape
+    np.testing.assert_allclose(full[result.keyframes], result.optimised, atol=1e-9)
+    m = result.metrics["full_rate"]
+    assert m["frames"] == len(result) and m["after"]["ate_translation_m"] < m["before"]["ate_translation_m"]
+    assert result.metrics["threshold_sweep"] is None
+    folder = write_run(result, tmp_path / "out").parent
+    np.testing.assert_allclose(read_poses(folder / "trajectories" / "optimised.kitti")[0], full, atol=1e-5)
+    poses, stamps = read_poses(folder / "trajectories" / "optimised.tum")
+    np.testing.assert_allclose(poses, full, atol=1e-5)
+    np.testing.assert_allclose(stamps, result.times, atol=1e-6)
+
+
+def test_threshold_sweep_replays_the_backend(base, frontend):
+    """The sweep's row at the run's own threshold is the run; lower thresholds accept at least as many loops
+    (candidate sets are nested), and a replay at the run's threshold reproduces its loops and poses."""
+    from msa_slam.pipeline.sweep import replay
+    from msa_slam.registration import KeyframeCloudStore
+
+    result = run_batch(base, frontend)
+    sweep = result.metrics["threshold_sweep"]
+    assert [r["threshold"] for r in sweep] == [0.7, 0.75, 0.8, 0.85]
+    assert sweep[2]["loops_accepted"] == result.metrics["verified"]
+    assert sweep[2]["improvement_t_pct"] == result.metrics["full_rate"]["improvement_pct"]["translation"]
+    accepted, candidates = [r["loops_accepted"] for r in sweep], [r["candidates"] for r in sweep]
+    assert accepted == sorted(accepted, reverse=True)
+    assert candidates == sorted(candidates, reverse=True) and candidates[0] > candidates[-1]
+    clouds = KeyframeCloudStore(base.verifier.voxel_size)
+    for k in result.keyframes:
+        clouds.add(int(k), frontend.sequence[int(k)].points)
+    again = replay(result.config, frontend, clouds, result.keyframes, {})
+    assert [(c.query, c.match, c.accepted) for c in again.loops] == [(c.query, c.match, c.accepted)
+                                                                     for c in result.loops]
+    np.testing.assert_allclose(again.optimised, result.optimised, atol=1e-9)
+
+
+def test_reference_protocol_pr_is_na_without_enough_keyframes(base, frontend):
+    """The reference protocol queries only once more than 10 keyframes precede a frame: with a sampler that
+    keeps fewer, its PR is n/a with the reason."""
+    result = run_batch(base.model_copy(update={"sampler_params": {"distance": 40.0}}), frontend, sweep=False)
+    assert result.metrics["keyframes"] <= 11
+    ref = result.metrics["pr_reference"]
+    assert ref == {"pr_auc": None, "f1_max": None, "matches": 0}
+    assert "recorded no match" in result.metrics["unavailable"]["pr_reference"]
 
 
 def test_bad_inputs_fail_clearly(base, tmp_path):
@@ -200,7 +256,8 @@ def test_rotation_only_run_reports_ate_na_through_the_cli(sequence, cache_dir, t
     rows = [r for r in csv.DictReader((out / "frames.csv").open()) if r["is_keyframe"] == "1"]
     assert len(rows) == 30 and {(r["ate_odom_m"], r["ate_opt_m"]) for r in rows} == {("n/a", "n/a")}
     report = (out / "report.md").read_text()
-    assert "| ATE translation [m] | n/a | n/a | n/a |" in report
+    assert "| ATE translation [m], keyframes only | n/a | n/a | n/a |" in report
+    assert "| ATE translation [m], full rate | n/a | n/a | n/a |" in report
     assert f"- ATE (and its % improvement) n/a: {m['unavailable']['ate']}" in report
     assert (out / "figures" / "trajectories.png").is_file()
 
@@ -230,7 +287,7 @@ def test_short_straight_run_warns_and_has_no_pr(sequence, cache_dir, tmp_path):
     assert m["pr_queries"] > 0 and m["pr_auc"] is None and m["f1_max"] is None
     assert "no revisit" in m["unavailable"]["pr"]
     report = write_run(result, tmp_path / "out").read_text()
-    assert "| ATE rotation [deg] (unreliable: see notes) |" in report and "| n/a / n/a |" in report
+    assert "| ATE rotation [deg] (unreliable: see notes), keyframes only |" in report and "| n/a / n/a |" in report
     assert f"- warning: {m['warnings'][0]}" in report and f"- PR-AUC / F1-max n/a: {m['unavailable']['pr']}" in report
     assert f"ATE alignment: {m['ate_alignment']}." in report
 
@@ -238,8 +295,11 @@ def test_short_straight_run_warns_and_has_no_pr(sequence, cache_dir, tmp_path):
 def test_improvement_rounding_to_zero_prints_unsigned(base, frontend, tmp_path):
     result = run_batch(base, frontend)
     result.metrics["improvement_pct"] = {"translation": -0.04, "rotation": -0.0004}
+    result.metrics["full_rate"]["improvement_pct"] = {"translation": -0.04, "rotation": -0.0004}
     report = write_run(result, tmp_path / "out").read_text()
-    assert "-0.0" not in report and report.count(" 0.0 % |") == 2
+    ate_rows = [line for line in report.splitlines() if line.startswith("| ATE ")]
+    assert "-0.0" not in report and sum(line.endswith(" 0.0 % |") for line in ate_rows) == 4  # full rate, keyframes
+    result.metrics["full_rate"]["improvement_pct"] = {"translation": -0.0004, "rotation": -0.0001}
     result.metrics["improvement_pct"] = {"translation": -0.0004, "rotation": -0.0001}
     table = table_markdown([table_row(result.metrics)])
     assert "-0.0" not in table and "| 0.000 | 0.000 |" in table

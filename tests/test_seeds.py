@@ -1,0 +1,72 @@
+"""Repetitions over world seeds: spread, ranks, paired-test verdicts and the `compare --seeds` checks."""
+
+from __future__ import annotations
+
+import pytest
+from typer.testing import CliRunner
+
+from msa_slam.cli import app
+from msa_slam.errors import InputError
+from msa_slam.evaluation.spread import paired_verdict, seed_ranks, spreads
+from msa_slam.pipeline.seeds import parse_seeds, seed_markdown, seed_summary, seeded_datasets
+
+
+def test_ranks_follow_the_metric_direction_and_skip_missing_values():
+    values = {"a": 3.0, "b": 1.0, "c": None, "d": 3.0}
+    assert seed_ranks(values, higher_is_better=True) == {"a": 1, "b": 3, "c": None, "d": 1}
+    assert seed_ranks(values, higher_is_better=False) == {"a": 2, "b": 1, "c": None, "d": 2}
+
+
+def test_spread_is_the_sample_std_over_available_seeds():
+    out = spreads([{"msa": 1.0, "all": 5.0}, {"msa": 3.0, "all": None}], higher_is_better=True)
+    assert out["msa"].mean == 2.0 and out["msa"].std == pytest.approx(2 ** 0.5)
+    assert out["all"].mean == 5.0 and out["all"].std is None and out["all"].ranks == [1, None]
+
+
+def test_paired_verdicts():
+    seeds = [0, 1, 2, 3]
+    # MSA ahead by 10 +- 1 on worlds that differ by 50: beyond the spread of the differences
+    msa, base = [60.0, 11.0, 35.0, 85.0], [49.0, 2.0, 24.0, 76.0]
+    assert paired_verdict(msa, base, True, seeds)["verdict"].startswith("better, beyond the seed spread (p=")
+    assert paired_verdict(msa, base, False, seeds)["verdict"].startswith("worse, beyond")
+    # differences of both signs: within the spread
+    assert paired_verdict([1.0, 2.0, 3.0, 4.0], [2.0, 1.0, 4.0, 3.0], True, seeds)["verdict"].startswith("within")
+    assert paired_verdict([1.0, 2.0], [0.0, 1.0], True, [0, 1])["verdict"] == (
+        "n/a: 2 seed(s), the paired test needs at least 3")
+    assert paired_verdict([1.0, None, 3.0], [0.0, 1.0, 2.0], True, [0, 1, 2])["verdict"] == (
+        "n/a: unavailable on seed(s) 1")
+    assert paired_verdict([1.0, 2.0, 3.0], [1.0, 2.0, 3.0], True, [0, 1, 2])["verdict"] == "no difference on any seed"
+
+
+def test_seed_summary_reports_mean_std_ranks_and_verdicts():
+    rows = {s: [{"method": "all", "improvement_t_pct": 10.0 + 20 * s, "keyframes": 100},
+                {"method": "msa", "improvement_t_pct": 12.0 + 20 * s + 0.1 * s, "keyframes": 40}] for s in range(3)}
+    summary = seed_summary(rows)
+    entry = summary["metrics"]["improvement_t_pct"]
+    assert entry["methods"]["msa"]["ranks"] == [1, 1, 1] and entry["methods"]["all"]["mean"] == 30.0
+    assert entry["msa_vs"]["all"]["verdict"].startswith("better, beyond the seed spread")
+    assert summary["metrics"]["keyframes"]["msa_vs"] == {}  # no direction: no test
+    text = seed_markdown(summary)
+    assert "| msa | 32.100 ± 20.100 |" not in text and "| msa | 32.1 ± 20.1 |" in text
+    assert "| all | better, beyond the seed spread" in text and "paired t-test" in text
+
+
+def test_seeds_are_parsed_and_only_simulated_data_takes_them():
+    assert parse_seeds("0, 1,2") == [0, 1, 2]
+    for bad in ("0,x", "1,1", "-1", ""):
+        with pytest.raises(InputError, match="--seeds"):
+            parse_seeds(bad)
+    assert seeded_datasets("sim:test", [0, 2]) == ["sim:test,seed=0", "sim:test,seed=2"]
+    with pytest.raises(InputError, match="not simulated; world seeds exist only for sim: datasets"):
+        seeded_datasets("/data/kitti/00", [0, 1])
+    with pytest.raises(InputError, match="already sets seed="):
+        seeded_datasets("sim:kitti-05,seed=3", [0, 1])
+
+
+def test_compare_refuses_seeds_on_real_data_before_any_work(tmp_path):
+    folder = tmp_path / "seq"
+    folder.mkdir()
+    result = CliRunner().invoke(app, ["compare", "--dataset", str(folder), "--seeds", "0,1,2",
+                                      "--out", str(tmp_path / "out")])
+    assert isinstance(result.exception, InputError) and "not simulated" in str(result.exception)
+    assert not (tmp_path / "out").exists()
