@@ -106,6 +106,7 @@ class _KeyframeGraph:
         self._initial: dict[int, np.ndarray] = {}
         self.num_factors = 0
         self.num_loops = 0
+        self.factors = gtsam.NonlinearFactorGraph()  # every factor in the order added (exported as g2o)
 
     @property
     def keys(self) -> list[int]:
@@ -157,6 +158,7 @@ class _KeyframeGraph:
         self._keys.append(key)
         self._initial[key] = pose
         self.num_factors += 1
+        self.factors.push_back(graph)
         return graph, values
 
     def _loop_factor(self, target_key: int, source_key: int, T_target_source: np.ndarray,
@@ -177,6 +179,7 @@ class _KeyframeGraph:
                                            self._loop_noise(covariance)))
         self.num_factors += 1
         self.num_loops += 1
+        self.factors.push_back(graph)
         return graph
 
     def _poses(self, values: gtsam.Values) -> np.ndarray:

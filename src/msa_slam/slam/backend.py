@@ -9,7 +9,7 @@ and add the accepted loops -> update the graph (iSAM2 relinearises; batch LM wai
 from __future__ import annotations
 
 import time
-from typing import Callable, Protocol, Union
+from typing import Any, Callable, Protocol, Union
 
 import numpy as np
 
@@ -35,6 +35,7 @@ class Graph(Protocol):
 
     keys: list[int]
     nbytes: int
+    factors: Any  # gtsam.NonlinearFactorGraph of every factor added
 
     def add_keyframe(self, key: int, pose: np.ndarray) -> None: ...
     def add_loop(self, target_key: int, source_key: int, T_target_source: np.ndarray) -> None: ...
@@ -196,7 +197,8 @@ class SlamBackend:
         return RunResult(self.settings, self.name, self.times, self.odometry, gt, keys, optimised, self.loops,
                          pr, evaluation, self.steps_ms, memory, stats, len(self.loop_closer.best_similarity),
                          {"optimisation": t1 - t0, "evaluation": t2 - t1},
-                         map_points=keyframe_map(self.store.clouds, keys, optimised, self.settings.verifier.voxel_size))
+                         map_points=keyframe_map(self.store.clouds, keys, optimised, self.settings.verifier.voxel_size),
+                         graph_factors=self.graph.factors)
 
     def close(self) -> None:
         """Release the keyframe clouds (a disk store removes the files it wrote); safe to call twice."""

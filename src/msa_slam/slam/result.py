@@ -67,6 +67,7 @@ class RunResult:
     pr_reference: PRCurve | None = None  # the reference example's protocol (batch runs; None: not computed)
     map_points: np.ndarray | None = None  # keyframe clouds at the optimised poses, voxel-merged (world)
     descriptors: np.ndarray | None = None  # per-frame descriptors, when the pipeline kept them (batch)
+    graph_factors: Any = None  # the pose graph's factors (gtsam.NonlinearFactorGraph), for pose_graph.g2o
 
     @property
     def accepted_loops(self) -> list[LoopClosure]:
