@@ -75,16 +75,43 @@ def test_map_ply_holds_the_keyframe_clouds_at_their_optimised_poses(batch):
     assert len(voxels) > 0.5 * len(points)  # voxel-downsampled, not the raw scans stacked
 
 
-def test_pose_graph_g2o_reads_back_into_gtsam(batch):
+def test_pose_graph_g2o_reads_back_into_gtsam_at_its_optimum(batch):
     metrics = _metrics(batch)
     graph, values = gtsam.readG2o(str(batch / "pose_graph.g2o"), True)
     assert values.size() == metrics["keyframes"]
     assert graph.size() == metrics["keyframes"] - 1 + metrics["verified"]
     optimised, _ = read_poses(batch / "trajectories" / "optimised_keyframes.kitti", "kitti")
-    read = np.stack([values.atPose3(k).matrix() for k in metrics["keyframe_frames"]])
-    np.testing.assert_allclose(read, optimised, atol=1e-6)
+    keys = metrics["keyframe_frames"]
+    np.testing.assert_allclose(np.stack([values.atPose3(k).matrix() for k in keys]), optimised, atol=1e-6)
+    # With the information in the file, the written poses are the optimum: re-optimising moves nothing.
+    graph.add(gtsam.PriorFactorPose3(keys[0], values.atPose3(keys[0]), gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
+    again = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
+    moved = [np.linalg.norm(again.atPose3(k).translation() - values.atPose3(k).translation()) for k in keys]
+    assert max(moved) < 1e-3
     text = (batch / "pose_graph.g2o").read_text()
     assert re.search(r"^FIX 0$", text, re.M) and "-0.000000000" not in text
+
+
+def test_g2o_names_a_robust_loop_kernel_and_keeps_each_factors_information():
+    from msa_slam.backend import PoseGraph
+    from msa_slam.backend.graph import GraphConfig
+    from msa_slam.io.g2o import format_g2o
+
+    graph = PoseGraph(GraphConfig(robust="cauchy"), mode="realistic")
+    poses = np.tile(np.eye(4), (3, 1, 1))
+    poses[:, 0, 3] = [0.0, 1.0, 2.0]
+    for k, pose in enumerate(poses):
+        graph.add_keyframe(k, pose)
+    covariance = np.diag([1e-4, 2e-4, 3e-4, 0.01, 0.02, 0.03])  # GTSAM order: rotation, translation
+    graph.add_loop(0, 2, np.linalg.inv(poses[0]) @ poses[2], covariance)
+    text = format_g2o([0, 1, 2], poses, graph.factors)
+    lines = text.splitlines()
+    assert lines[0].startswith("#") and "cauchy" in lines[0]
+    loop = [ln for ln in lines if ln.startswith("EDGE_SE3:QUAT 0 2 ")]
+    info = np.array(loop[0].split()[10:], dtype=float)
+    g2o_order = [3, 4, 5, 0, 1, 2]  # translation first
+    expected = np.linalg.inv(covariance)[np.ix_(g2o_order, g2o_order)][np.triu_indices(6)]
+    np.testing.assert_allclose(info, expected, rtol=1e-6)
 
 
 def test_pr_csv_holds_the_curve_behind_pr_auc(batch):

@@ -98,13 +98,9 @@ def has_ground_truth(result: RunResult) -> bool:
 
 
 def pose_graph_g2o(result: RunResult) -> str:
-    """The run's pose graph in g2o: keyframes at their optimised poses, odometry edges between consecutive
-    keyframes and the accepted loops, weighted as the graph configuration weighs them."""
-    graph, keys, odom = result.config.graph, [int(k) for k in result.keyframes], result.odometry
-    odometry_edges = [(a, b, np.linalg.inv(odom[a]) @ odom[b]) for a, b in zip(keys[:-1], keys[1:])]
-    loop_edges = [(c.match, c.query, c.T_match_query) for c in result.accepted_loops]
-    return format_g2o(keys, result.optimised, odometry_edges, loop_edges,
-                      (graph.odometry_rotation, graph.odometry_translation), (graph.loop_rotation, graph.loop_translation))
+    """The run's pose graph in g2o: keyframes at their optimised poses, every odometry and loop factor with
+    the information the optimiser used."""
+    return format_g2o(result.keyframes, result.optimised, result.graph_factors)
 
 
 def pr_csv(result: RunResult) -> str:
