@@ -107,7 +107,7 @@ def report_markdown(result: RunResult, figures: list[str]) -> str:
     files = "steps.csv (per-frame step times and memory), " if online else "descriptors.npy (every frame's), "
     lines += ["", f"Files: config.yaml (re-run with `msa-slam {'online' if online else 'run'} --config`), "
               "metrics.json (every key explained in docs/metrics.md of msa-slam), frames.csv, loops.csv, pr.csv, "
-              f"{files}trajectories/ (KITTI and TUM with the frames' times: full-rate ground truth and odometry, "
-              "keyframe trajectories), map.ply (keyframe clouds at the optimised poses), pose_graph.g2o, "
+              f"{files}trajectories/ (KITTI and TUM with the frames' times: full-rate ground truth, odometry "
+              "and optimised, keyframe trajectories), map.ply (keyframe clouds at the optimised poses), pose_graph.g2o, "
               "provenance.json (versions, command line, date, CPU).", f"msa-slam {msa_slam.__version__}", ""]
     return "\n".join(lines)
