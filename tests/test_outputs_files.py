@@ -54,7 +54,9 @@ def test_full_rate_ground_truth_matches_the_sequence_with_the_frames_times(batch
     np.testing.assert_allclose(kitti, gt, atol=1e-6)
     np.testing.assert_allclose(tum[:, :3, 3], gt[:, :3, 3], atol=1e-6)
     _, odometry_times = read_poses(batch / "trajectories" / "odometry.tum", "tum")
-    np.testing.assert_array_equal(times, odometry_times)  # evo pairs the two full-rate files frame by frame
+    np.testing.assert_array_equal(times, odometry_times)  # evo pairs the full-rate files frame by frame
+    optimised, optimised_times = read_poses(batch / "trajectories" / "optimised.tum", "tum")
+    np.testing.assert_array_equal(optimised_times, times)
     assert np.all(np.diff(times) > 0)
 
 
