@@ -1,5 +1,6 @@
 """Aggregate a grid's finished cells into results.csv, results.md (the paper's Table II layout: per dataset,
-one row per method with t./R. ATE improvement, F1-max, memory and time; means over seeds) and figures:
+one row per method with t./R. ATE improvement on the full-rate trajectory, F1-max, memory and time; mean
++- std over seeds, and with several seeds the per-seed ranks and MSA's paired-test verdicts) and figures:
 ATE difference to all samples (box plots), memory over time, per-step time distributions, and the
 distance-bound ablation (metrics against swept parameters, the paper's Fig. 9)."""
 
@@ -21,10 +22,12 @@ from msa_slam.io.atomic import write_text_atomic
 from msa_slam.viz import plot_ate_difference, plot_memory, plot_step_times, plot_sweeps
 from msa_slam.io.tables import rows_csv
 from msa_slam.pipeline.results import accounted_bytes
+from msa_slam.pipeline.seeds import seed_markdown, seed_summary
 
 COLUMNS = ("cell", "pipeline", "dataset", "descriptor", "method", "sampler", "seed", "parameters", "frames",
            "keyframes", "candidates", "verified", "false_loops", "ate_before_m", "ate_after_m", "improvement_t_pct",
-           "improvement_r_pct", "pr_auc", "f1_max", "memory_mib", "memory_vs_reference_pct", "bytes_per_keyframe",
+           "improvement_r_pct", "rpe_pct", "rpe_10m_m", "kf_ate_before_m", "kf_ate_after_m", "kf_improvement_t_pct",
+           "pr_auc", "f1_max", "memory_mib", "memory_vs_reference_pct", "bytes_per_keyframe",
            "time_s", "fps", "backend_fps", "backend_p99_ms", "process_peak_rss_mib")
 SWEEP_METRICS = {"t. ATE impr. [%]": "improvement_t_pct", "R. ATE impr. [%]": "improvement_r_pct",
                  "F1-max": "f1_max", "memory vs reference [%]": "memory_vs_reference_pct"}
@@ -72,9 +75,9 @@ def make_rows(cells: list[dict[str, Any]], reference: str = "all") -> list[dict[
             "seed": info["seed"], "parameters": json.dumps(info["parameters"], sort_keys=True) if info["parameters"]
             else "", "frames": m["frames"], "keyframes": m["keyframes"], "candidates": m["candidates"],
             "verified": m["verified"], "false_loops": m["false_loops"],
-            "ate_before_m": m["before"]["ate_translation_m"], "ate_after_m": m["after"]["ate_translation_m"],
-            "improvement_t_pct": m["improvement_pct"]["translation"],
-            "improvement_r_pct": m["improvement_pct"]["rotation"], "pr_auc": m["pr_auc"], "f1_max": m["f1_max"],
+            **_full_rate(m), "kf_ate_before_m": m["before"]["ate_translation_m"],
+            "kf_ate_after_m": m["after"]["ate_translation_m"], "kf_improvement_t_pct": m["improvement_pct"]["translation"],
+            "pr_auc": m["pr_auc"], "f1_max": m["f1_max"],
             "memory_mib": m["memory_bytes"]["total"] / 2**20,
             "memory_vs_reference_pct": None if not ref else 100.0 * m["memory_bytes"]["total"] / ref,
             "bytes_per_keyframe": m["memory_bytes"]["total"] / max(1, m["keyframes"]),
@@ -85,9 +88,35 @@ def make_rows(cells: list[dict[str, Any]], reference: str = "all") -> list[dict[
     return rows
 
 
+def _full_rate(m: dict[str, Any]) -> dict[str, Any]:
+    """The full-rate ATE/RPE columns; cells written before full-rate metrics existed have only the keyframe
+    figures (the kf_* columns), which stand in for them there, without RPE."""
+    full = m.get("full_rate") or {"before": {**m["before"], "rpe_kitti_translation_pct": None},
+                                  "after": {**m["after"], "rpe_kitti_translation_pct": None,
+                                            "rpe_10m_translation_m": None},
+                                  "improvement_pct": m["improvement_pct"]}
+    return {"ate_before_m": full["before"]["ate_translation_m"], "ate_after_m": full["after"]["ate_translation_m"],
+            "improvement_t_pct": full["improvement_pct"]["translation"],
+            "improvement_r_pct": full["improvement_pct"]["rotation"],
+            "rpe_pct": full["after"]["rpe_kitti_translation_pct"], "rpe_10m_m": full["after"]["rpe_10m_translation_m"]}
+
+
+def _seed_lines(methods: dict[str, list[dict[str, Any]]]) -> list[str]:
+    """Per-seed ranks and MSA's paired-test verdicts of one section (nothing with a single seed)."""
+    by_seed: dict[int, list[dict[str, Any]]] = defaultdict(list)
+    for rs in methods.values():
+        for r in rs:
+            by_seed[r["seed"]].append(r)
+    if len(by_seed) < 2:
+        return []
+    return ["Spread over seeds:", "", seed_markdown(seed_summary(dict(sorted(by_seed.items())))), ""]
+
+
 def _mean(rows: list[dict[str, Any]], key: str) -> tuple[float, float] | None:
     values = [r[key] for r in rows if r[key] is not None]
-    return (float(np.mean(values)), float(np.std(values))) if values else None
+    if not values:
+        return None
+    return float(np.mean(values)), float(np.std(values, ddof=1)) if len(values) > 1 else 0.0  # sample std
 
 
 def _cell(stat: tuple[float, float] | None, spec: str, n: int, unit: str = "") -> str:
@@ -101,7 +130,7 @@ def table2_markdown(rows: list[dict[str, Any]]) -> str:
     sections: dict[tuple, dict[str, list]] = defaultdict(lambda: defaultdict(list))
     for r in rows:
         sections[(r["dataset"], r["descriptor"], r["parameters"])][r["method"]].append(r)
-    head = ["method", "keyframes", "t. ATE impr.", "R. ATE impr.", "F1-max", "mem.", "mem. vs ref.", "time",
+    head = ["method", "keyframes", "t. ATE impr. (full rate)", "R. ATE impr. (full rate)", "F1-max", "mem.", "mem. vs ref.", "time",
             "frames/s", "back-end p99"]
     lines = []
     for (dataset, descriptor, params), methods in sections.items():
@@ -118,6 +147,7 @@ def table2_markdown(rows: list[dict[str, Any]]) -> str:
                 _cell(_mean(rs, "time_s"), ".1f", n, " s"), _cell(_mean(rs, "fps"), ".1f", n),
                 _cell(_mean(rs, "backend_p99_ms"), ".1f", n, " ms")]) + " |")
         lines.append("")
+        lines += _seed_lines(methods)
     return "\n".join(lines)
 
 
