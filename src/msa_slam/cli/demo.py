@@ -1,4 +1,4 @@
-"""`msa-slam demo`: the README's main job, all samplers on the embedded simulated KITTI-05."""
+"""`msa-slam demo`: the README's main job, all samplers on the embedded simulated KITTI-06."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ def demo_command(
     cache_dir: Optional[Path] = typer.Option(None, help=CACHE_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bars"),
 ) -> None:
-    """The main job: compare all samplers on the embedded simulated KITTI-05 sequence (simulated and
+    """The main job: compare all samplers on the embedded simulated KITTI-06 sequence at 10 Hz (simulated and
     processed with KISS-ICP on first use, then cached); prints the path of its report.md."""
     from msa_slam.demo import run_demo
 
