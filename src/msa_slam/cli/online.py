@@ -51,6 +51,10 @@ def online_command(
     overwrite: bool = typer.Option(False, "--overwrite", help=OVERWRITE_HELP),
     cache_dir: Optional[Path] = typer.Option(None, help=CACHE_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+    viewer: bool = typer.Option(False, "--viewer", help="show the run live in Rerun (scan, odometry and optimised "
+                                "trajectories, keyframes, loops); needs pip install 'msa-slam[viewer]'"),
+    viewer_save: Optional[Path] = typer.Option(None, "--viewer-save", help="save the live view as a Rerun "
+                                               "recording (.rrd, replay with `rerun FILE`) instead of a window"),
 ) -> None:
     """Run the online pipeline frame by frame (odometry, descriptor, sampler, loop detection, verification,
     iSAM2) and write its result folder; prints the path of its report.md."""
@@ -62,18 +66,28 @@ def online_command(
     from msa_slam.pipeline.results import write_run_files
     from msa_slam.pipeline.source import open_source
 
+    live = viewer or viewer_save is not None
+    if live:  # before any work: a missing rerun-sdk is one clear line
+        from msa_slam.viz.live import LiveViewer, check_viewer
+
+        check_viewer(viewer_save)
     base = _read_config(config) if config is not None else {}
     given = {"dataset": dataset, "sampler": sampler, "descriptor": descriptor, "odometry": odometry, "mode": mode,
              "cloud_store": cloud_store, "cache_dir": cache_option(cache_dir),
              **source_options(base, loader, topic=topic, gt=gt, sequence=sequence, first=first, jump=jump,
                               frames=frames)}
     cfg = apply_online_params(merge_options(base, given, "a sequence folder, a bag, sim:NAME or live:NAME"), param)
-    source = open_source(cfg.dataset, cfg.dataset_kind, cfg.cache_dir, not quiet, cfg.source, cfg.mode)
-    if source.gt_poses is None and cfg.odometry == "gt-noise":
-        raise InputError(f"dataset {cfg.dataset!r}: odometry gt-noise perturbs ground truth, which this recording "
-                         "lacks; use --odometry kiss or a pose file")
     with open_result_folder(out, "online", DEFAULT_RESULTS / "online", overwrite=overwrite) as folder:
-        result = run_online(cfg, source, quiet=quiet)
+        source = open_source(cfg.dataset, cfg.dataset_kind, cfg.cache_dir, not quiet, cfg.source, cfg.mode)
+        if source.gt_poses is None and cfg.odometry == "gt-noise":
+            raise InputError(f"dataset {cfg.dataset!r}: odometry gt-noise perturbs ground truth, which this "
+                             "recording lacks; use --odometry kiss or a pose file")
+        view = LiveViewer(save=viewer_save) if live else None
+        try:
+            result = run_online(cfg, source, quiet=quiet, viewer=view)
+        finally:
+            if view is not None:
+                view.close()
         with folder.staging() as tmp:
             write_run_files(result, tmp)
     typer.echo(str(folder.path / "report.md"))
