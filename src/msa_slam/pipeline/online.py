@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 import time
 from contextlib import closing
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -93,6 +93,13 @@ def _metrics(result: RunResult) -> dict[str, Any]:
     return metrics
 
 
+class LiveView(Protocol):
+    """A live view of the run (msa_slam.viz.live.LiveViewer), told about every frame and the result."""
+
+    def frame(self, backend: SlamBackend, index: int, points: np.ndarray, new_keyframes: list[int]) -> None: ...
+    def finish(self, result: RunResult) -> None: ...
+
+
 def make_online_odometry(config: OnlineConfig, source: FrameSource, n: int):
     """(odometry object, cached) - gt-noise, a pose file, or KISS-ICP (replayed from the batch pipeline's
     per-sequence cache when it has this sequence, so grids do not redo it; live otherwise)."""
@@ -117,9 +124,11 @@ def online_progress(quiet: bool) -> Progress | LogProgress:
                                                       "kf {task.fields[kf]}  loops {task.fields[loops]}")
 
 
-def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: bool = True) -> RunResult:
+def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: bool = True,
+               viewer: LiveView | None = None) -> RunResult:
     """Run the online pipeline over a source (by default the config's dataset); BLAS single-threaded as in
-    the batch pipeline (many small matrix products)."""
+    the batch pipeline (many small matrix products). `viewer` (msa_slam.viz.live.LiveViewer) is shown every
+    frame and the final result."""
     source = source or open_source(config.dataset, config.dataset_kind, config.cache_dir, progress=not quiet)
     n = len(source) if config.max_frames is None else min(len(source), config.max_frames)
     odometry, cached = make_online_odometry(config, source, n)
@@ -140,12 +149,16 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
             t1 = time.perf_counter()
             desc = np.asarray(descriptor.compute(frame.points, frame=i), dtype=np.float64)
             front_ms["odometry"][i], front_ms["descriptor"][i] = (t1 - t0) * 1e3, (time.perf_counter() - t1) * 1e3
-            backend.add_frame(pose, desc, frame.points, frame.gt_pose, frame.time)
+            new = backend.add_frame(pose, desc, frame.points, frame.gt_pose, frame.time)
+            if viewer is not None:
+                viewer.frame(backend, i, frame.points, new)
             if not quiet and (i % 10 == 9 or i == n - 1):
                 fps = (i + 1) / max(time.perf_counter() - start, 1e-9)
                 bar.update(task, completed=i + 1, fps=fps, rtf=fps / config.sensor_rate_hz,
                            kf=len(backend.store), loops=sum(c.accepted for c in backend.loops))
         result = backend.finish()
+    if viewer is not None:
+        viewer.finish(result)
     m = len(result)
     result.steps_ms = {**{s: v[:m] for s, v in front_ms.items()}, **result.steps_ms}
     result.memory = {k: v[:m] for k, v in recorder.memory.items()}
