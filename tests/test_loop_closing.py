@@ -52,7 +52,8 @@ def scans() -> dict[str, np.ndarray]:
 
 
 def _close(query_cloud: np.ndarray, target: np.ndarray, **settings) -> tuple[LoopCloser, list]:
-    config = make_config(dataset="unused", similarity_threshold=0.0, exclude_recent=0, **settings)
+    config = make_config(**{"dataset": "unused", "similarity_threshold": 0.0, "exclude_recent": 0, "mode": "realistic",
+                            **settings})
     descriptor = make_descriptor("sc")
     store = KeyframeStore(descriptor, KeyframeCloudStore(config.verifier.voxel_size))
     closer = LoopCloser(store, Verifier(config.verifier), config)
@@ -89,8 +90,11 @@ def test_near_miss_with_a_wrong_yaw_is_rejected_on_drift(scans):
     assert loops[0].T_match_query is not None  # the registration itself succeeded
     summary = loop_summary(loops, closer.settings)
     assert summary["rejected"]["drift"] == 1 and sum(summary["rejected"].values()) == 1
-    _, unchecked = _close(scans["wrong_yaw"], scans["target"], drift_gate=0.0)
-    assert unchecked[0].accepted  # the drift check, not the registration, said no
+    for settings in ({"drift_check": "off"}, {"mode": "oracle"}):  # "auto" checks in realistic mode only
+        _, unchecked = _close(scans["wrong_yaw"], scans["target"], **settings)
+        assert unchecked[0].accepted  # the drift check, not the registration, said no
+    _, checked = _close(scans["wrong_yaw"], scans["target"], mode="oracle", drift_check="on")
+    assert checked[0].rejected == "drift"
 
 
 def test_min_travel_leaves_out_keyframes_too_few_metres_back(scans):

@@ -34,9 +34,10 @@ class RunConfig(StageConfig):
     Keyframes are sampled on `sample_on` poses (`flush` adds what MSA still holds at the end). A keyframe's
     loop candidates are older keyframes more than `min_frame_gap` frames and `min_travel_m` metres of
     odometry path back (a revisit, not a standstill) and not among the `exclude_recent` newest, with
-    descriptor similarity >= `similarity_threshold` (best `top_k`). A registered loop is also rejected when
-    it corrects the odometry between its keyframes by more than `drift_gate` times the drift model's
-    allowance (graph.drift_*) plus `drift_slack_m` / `drift_slack_deg` (`drift_gate=0`: no such check).
+    descriptor similarity >= `similarity_threshold` (best `top_k`). With `drift_check` on ("auto": in
+    realistic mode only, where no ground truth vets candidates) a registered loop is also rejected when it
+    corrects the odometry between its keyframes by more than `drift_gate` times the drift model's
+    allowance (graph.drift_*) plus `drift_slack_m` / `drift_slack_deg`.
     `loop_radius` (3 m) defines a true loop: oracle verification, false loops and the PR curve.
     """
 
@@ -58,7 +59,8 @@ class RunConfig(StageConfig):
     top_k: int = Field(1, ge=1)
     loop_radius: float = Field(3.0, gt=0)
     min_travel_m: float = Field(30.0, ge=0)
-    drift_gate: float = Field(3.0, ge=0)
+    drift_check: Literal["auto", "on", "off"] = "auto"
+    drift_gate: float = Field(3.0, gt=0)
     drift_slack_m: float = Field(1.0, ge=0)
     drift_slack_deg: float = Field(2.0, ge=0)
     verifier: VerifierConfig = Field(default_factory=VerifierConfig)

@@ -6,11 +6,11 @@ match is recorded for the PR curve, and matches at or above the similarity thres
 `oracle` mode (the paper) verifies only candidates within `loop_radius` of each other in ground truth;
 `realistic` mode verifies every candidate. Verification registers the two downsampled keyframe clouds;
 the loop is rejected when the clouds are too sparse, overlap too little, have too few inliers or too
-large a residual (registration.verify), or when its correction of the odometry between the two keyframes
-exceeds `drift_gate` times what the drift model allows over the travelled distance plus a slack
-(`drift_slack_m`, `drift_slack_deg`). An accepted loop whose ground-truth distance exceeds `loop_radius`
-is a false loop; one over at least 2 x `loop_radius` of path (the robot left the place and came back) is
-a revisit.
+large a residual (registration.verify), or (drift check on: by default in realistic mode) when its
+correction of the odometry between the two keyframes exceeds `drift_gate` times what the drift model
+allows over the travelled distance plus a slack (`drift_slack_m`, `drift_slack_deg`). An accepted loop
+whose ground-truth distance exceeds `loop_radius` is a false loop; one over at least 2 x `loop_radius`
+of path (the robot left the place and came back) is a revisit.
 """
 
 from __future__ import annotations
@@ -40,6 +40,7 @@ class LoopSettings(Protocol):
     mode: str
     loop_radius: float
     min_travel_m: float
+    drift_check: str
     drift_gate: float
     drift_slack_m: float
     drift_slack_deg: float
@@ -116,17 +117,15 @@ class LoopCloser:
         except InputError:  # clouds too sparse to register: the candidate is rejected, not the run
             return replace(cand, verified=True, residual=float("inf"), rejected="sparse")
         rejected = result.rejected
-        if not rejected and self.exceeds_drift(cand, result.T_target_source):
+        if not rejected and drift_check_on(self.settings) and self.exceeds_drift(cand, result.T_target_source):
             rejected = "drift"
         return replace(cand, verified=True, accepted=not rejected, residual=result.residual,
                        T_match_query=result.T_target_source, covariance=result.covariance, rejected=rejected)
 
     def exceeds_drift(self, cand: LoopClosure, T_match_query: np.ndarray) -> bool:
         """Whether the loop corrects the odometry between its keyframes by more than the drift model allows
-        over the travelled path (times `drift_gate`, plus the slack); never with `drift_gate=0`."""
+        over the travelled path (times `drift_gate`, plus the slack)."""
         s = self.settings
-        if s.drift_gate <= 0:
-            return False
         odometry = np.linalg.inv(self._odometry[cand.match]) @ self._odometry[cand.query]
         correction = np.linalg.inv(odometry) @ T_match_query
         shift = float(np.linalg.norm(correction[:3, 3]))
@@ -142,6 +141,11 @@ class LoopCloser:
         return precision_recall(self.best_similarity, self.best_distance, self.settings.loop_radius)
 
 
+def drift_check_on(settings: LoopSettings) -> bool:
+    """Whether loops are checked against the odometry's drift ("auto": in realistic mode)."""
+    return settings.drift_check == "on" or settings.drift_check == "auto" and settings.mode == "realistic"
+
+
 def loop_summary(loops: list[LoopClosure], settings: LoopSettings) -> dict[str, Any]:
     """What metrics.json reports about loop closing: rejections by reason, accepted loops that are revisits
     (at least 2 x loop_radius of odometry path between the keyframes) apart from the others, and the
@@ -152,6 +156,7 @@ def loop_summary(loops: list[LoopClosure], settings: LoopSettings) -> dict[str, 
     return {
         "rejected": {reason: sum(c.rejected == reason for c in loops) for reason in REJECTION_REASONS},
         "revisit_loops": int(revisits), "other_loops": len(accepted) - int(revisits),
-        "min_travel_m": settings.min_travel_m, "loop_kernel": graph.loop_kernel(settings.mode),
+        "min_travel_m": settings.min_travel_m, "drift_check": drift_check_on(settings),
+        "loop_kernel": graph.loop_kernel(settings.mode),
         "loop_noise": graph.loop_noise, "odometry_noise": graph.odometry_noise,
     }
