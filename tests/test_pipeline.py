@@ -38,7 +38,7 @@ def frontend(base):
 
 
 # Loose gates and threshold: many candidates, and verification accepts nearly anything it registers.
-PERMISSIVE = {"similarity_threshold": 0.4,
+PERMISSIVE = {"similarity_threshold": 0.4, "min_travel_m": 0.0, "drift_check": "off",
               "verifier": {"max_residual": 10.0, "min_inliers": 1, "min_inlier_fraction": 0.0}}
 
 
@@ -277,7 +277,7 @@ def test_short_straight_run_warns_and_has_no_pr(sequence, cache_dir, tmp_path):
     gt[:, 1, 3] = 0.05 * np.sin(np.arange(n))
     dataset, odometry = _posed_sequence(tmp_path / "straight", sequence, gt, drifted(gt))
     cfg = make_config(dataset=str(dataset), odometry=str(odometry), cache_dir=str(cache_dir), sampler="all",
-                      min_frame_gap=5, exclude_recent=2)
+                      min_frame_gap=5, exclude_recent=2, min_travel_m=5.0)
     result = run_batch(cfg)
     m = result.metrics
     assert m["before"]["ate_rotation_deg"] is not None and m["ate_rotation_reliable"] is False
