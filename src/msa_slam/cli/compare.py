@@ -37,7 +37,7 @@ def compare_command(
     write the Table-I-style comparison; prints its report.md (with --seeds, first the spread over seeds)."""
     from msa_slam.cli.config import cache_option
     from msa_slam.cli.run import batch_config
-    from msa_slam.pipeline.compare import run_compare
+    from msa_slam.pipeline.compare import MethodsFailed, run_compare
     from msa_slam.pipeline.seeds import parse_seeds, seeded_datasets
 
     given = {"dataset": dataset, "descriptor": descriptor, "odometry": odometry, "mode": mode,
@@ -49,7 +49,16 @@ def compare_command(
     if seed_list is not None:
         seeded_datasets(cfg.dataset, seed_list)  # refuse non-simulated data before any work
     with reporting_failed_methods():
-        report = run_compare(cfg, out, quiet=quiet, overwrite=overwrite, seeds=seed_list)
-        if seed_list is not None:
-            typer.echo((report.parent / "seeds.md").read_text())
+        try:
+            report = run_compare(cfg, out, quiet=quiet, overwrite=overwrite, seeds=seed_list)
+        except MethodsFailed as exc:  # the spread over the seeds that finished is still worth printing
+            _echo_seeds(exc.report, seed_list)
+            raise
+        _echo_seeds(report, seed_list)
         typer.echo(str(report))
+
+
+def _echo_seeds(report: Path, seeds: Optional[List[int]]) -> None:
+    """Print the spread over seeds (seeds.md beside `report`) of a --seeds comparison."""
+    if seeds is not None and (report.parent / "seeds.md").is_file():
+        typer.echo((report.parent / "seeds.md").read_text())
