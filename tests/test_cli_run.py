@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import inspect
 import json
 
 import pytest
@@ -63,7 +64,7 @@ def test_run_writes_figures_and_report(run_folder):
     for name in ("trajectories.png", "pr_curve.png"):
         assert (run_folder / "figures" / name).read_bytes()[:4] == b"\x89PNG"
     report = (run_folder / "report.md").read_text()
-    assert "| ATE translation [m] |" in report and "figures/trajectories.png" in report
+    assert "| ATE translation [m], full rate |" in report and "figures/trajectories.png" in report
     assert not [p for p in run_folder.parent.iterdir() if p.name.startswith(".")]  # no partial folders left
 
 
@@ -83,8 +84,11 @@ def test_compare_keeps_finished_methods_when_one_fails(sequence, odometry_file, 
 
     methods = (("constant-3m", "constant", {"distance": 3.0}), ("entropy", "entropy", {}))
     monkeypatch.setattr(compare, "PAPER_METHODS", methods)
-    monkeypatch.setattr(compare.run_compare, "__defaults__",
-                        (True, methods, False, compare.DEFAULT_RESULTS / "compare"))
+    with_defaults = [name for name, p in inspect.signature(compare.run_compare).parameters.items()
+                     if p.default is not inspect.Parameter.empty]
+    defaults = list(compare.run_compare.__defaults__)
+    defaults[with_defaults.index("methods")] = methods
+    monkeypatch.setattr(compare.run_compare, "__defaults__", tuple(defaults))
     real = compare.run_batch
 
     def failing(cfg, *args, **kwargs):

@@ -71,11 +71,15 @@ def test_keyframes_the_sampler_can_no_longer_give_are_refused(window, error):
         backend.add_frame(frames[2][0], descriptor.compute(frames[2][1]), frames[2][1], frames[2][0], 0.2)
 
 
-def test_a_frame_without_ground_truth_is_refused_by_index():
-    backend = _backend(3)
+def test_ground_truth_for_all_frames_or_none_and_oracle_needs_it():
     pose, points = next(_frames(1))
-    with pytest.raises(InputError, match="frame 0 has no ground-truth pose"):
-        backend.add_frame(pose, ScanContext().compute(points), points, None, 0.0)
+    descriptor = ScanContext().compute(points)
+    with pytest.raises(InputError, match="no ground-truth poses, which the oracle mode needs"):
+        _backend(3).add_frame(pose, descriptor, points, None, 0.0)
+    backend = _backend(3)
+    backend.add_frame(pose, descriptor, points, pose, 0.0)
+    with pytest.raises(InputError, match="frame 1 lacks a ground-truth pose but frame 0 has one"):
+        backend.add_frame(pose, descriptor, points, None, 0.1)
 
 
 def test_lazy_scans_are_read_only_for_keyframes():
