@@ -50,3 +50,30 @@ def test_oracle_and_gt_sampling_refused_without_ground_truth(scans_only):
     source = open_source(str(folder), mode="realistic")
     with pytest.raises(InputError, match="sample_on=gt but the frames have no ground-truth poses"):
         run_online(config, source)
+
+
+@pytest.mark.parametrize("command", ["run", "compare", "online"])
+def test_cli_commands_write_results_without_ground_truth(command, scans_only, tmp_path):
+    """Batch, compare and online write a complete result folder from scans alone: no ground-truth files,
+    ATE n/a with the reason, loops not judged true or false."""
+    import csv
+    import json
+
+    from typer.testing import CliRunner
+
+    from msa_slam.cli import app
+
+    folder, poses = scans_only
+    out = tmp_path / command
+    extra = [] if command == "compare" else ["--sampler", "constant", "-p", "distance=1.0"]
+    result = CliRunner().invoke(app, [command, "--dataset", str(folder), "--mode", "realistic", "--odometry",
+                                      str(poses), *extra, "--out", str(out), "--quiet"])
+    assert result.exit_code == 0, result.output
+    run = out / "runs" / "msa" if command == "compare" else out
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["unavailable"]["ate"] == "no ground truth"
+    assert not list((run / "trajectories").glob("gt*"))
+    assert "ATE (and its % improvement) n/a: no ground truth" in (run / "report.md").read_text()
+    rows = list(csv.DictReader((run / "frames.csv").open()))
+    assert len(rows) == 90 and all(r["gt_x"] == "" for r in rows)
+    assert all(r["false_loop"] == "n/a" for r in csv.DictReader((run / "loops.csv").open()))

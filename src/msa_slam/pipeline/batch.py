@@ -49,22 +49,25 @@ def _run_backend(config: RunConfig, frontend: Frontend, quiet: bool, sweep: bool
     graph = PoseGraph(config.graph, mode=config.mode)
     clouds = KeyframeCloudStore(config.verifier.voxel_size)
     backend = build_backend(config, frontend.descriptor, clouds, graph, len(frontend), frontend.name)
-    sequence, times = frontend.sequence, frontend.sequence.times
+    sequence, times, gt = frontend.sequence, frontend.sequence.times, frontend.gt_poses
     with progress_bar(quiet) as bar:
         task = bar.add_task(f"back-end ({config.name})", total=len(frontend))
         for i in range(len(frontend)):
             backend.add_frame(frontend.odometry[i], frontend.descriptors[i], lambda i=i: sequence[i].points,
-                              frontend.gt_poses[i], times[i])
+                              None if gt is None else gt[i], times[i])
             bar.advance(task)
     result = backend.finish()
     result.descriptors = frontend.descriptors[:len(result)]
-    sims, dists = reference_protocol_matches(frontend.descriptor, result.keyframes, frontend.descriptors,
-                                             frontend.gt_poses)
+    sims, dists = (reference_protocol_matches(frontend.descriptor, result.keyframes, frontend.descriptors, gt)
+                   if gt is not None else ([], []))
     result.pr_reference = precision_recall(sims, dists, config.loop_radius) if len(sims) else None
     result.metrics = _metrics(result, frontend)
     result.metrics["pr_reference"] = _reference_pr(result, len(sims), result.metrics["unavailable"])
+    if gt is None:
+        result.metrics["unavailable"]["pr_reference"] = "no ground truth: true loops cannot be told from false ones"
+        result.metrics["unavailable"]["threshold_sweep"] = "no ground truth: ATE improvement is undefined"
     start = time.perf_counter()
-    result.metrics["threshold_sweep"] = threshold_sweep(result, frontend, clouds) if sweep else None
+    result.metrics["threshold_sweep"] = threshold_sweep(result, frontend, clouds) if sweep and gt is not None else None
     result.metrics["time_s"]["threshold_sweep"] = round(time.perf_counter() - start, 4)  # not in backend_total
     return result
 

@@ -17,7 +17,7 @@ from msa_slam.io.tables import mib, rows_csv, write_json
 from msa_slam.pipeline.batch import run_batch
 from msa_slam.pipeline.config import RunConfig, make_config
 from msa_slam.pipeline.frontend import Frontend, prepare_frontend
-from msa_slam.pipeline.results import trajectory_panels, write_run_files
+from msa_slam.pipeline.results import reference_xy, trajectory_panels, write_run_files
 from msa_slam.pipeline.seeds import SEED_COLUMNS, seed_markdown, seed_rows, seed_summary, seeded_datasets
 from msa_slam.place_recognition import PRCurve
 from msa_slam.place_recognition.figures import plot_pr_curves
@@ -92,7 +92,7 @@ def _figures(results: Sequence[RunResult], folder: Path) -> list[str]:
         "memory [MiB]": {"keyframes + graph": [r["memory_mib"] for r in rows]},
         "back-end time [s]": {"time": [r["time_s"] for r in rows]},
     }, title=f"{display_name(results[0].metrics['sequence'])} ({results[0].config.mode} loops)")
-    gt_xy = results[0].gt_poses[:, :2, 3]
+    gt_xy = reference_xy(results[0])
     panels = [trajectory_panels(r)[1] for r in results]
     plot_trajectories(folder / "trajectories.png", gt_xy, [trajectory_panels(results[0])[0], *panels],
                       title=f"{display_name(results[0].metrics['sequence'])}: keyframe trajectories of every sampler "

@@ -39,7 +39,8 @@ def frames_csv(result: RunResult) -> str:
                      "opt_x", "opt_y", "opt_z", "ate_odom_m", "ate_opt_m"])
     for i in range(len(result)):
         row = [i, f"{result.times[i]:.6f}", int(i in row_of)]
-        row += [f"{v:.6f}" for v in result.odometry[i, :3, 3]] + [f"{v:.6f}" for v in result.gt_poses[i, :3, 3]]
+        row += [f"{v:.6f}" for v in result.odometry[i, :3, 3]]
+        row += [""] * 3 if result.gt_poses is None else [f"{v:.6f}" for v in result.gt_poses[i, :3, 3]]
         k = row_of.get(i)
         if k is None:
             row += [""] * 5
@@ -59,8 +60,10 @@ def loops_csv(result: RunResult) -> str:
     writer.writerow(["query_frame", "match_frame", "similarity", "gt_distance_m", "registered", "accepted",
                      "residual_m", "false_loop"])
     for c in result.loops:
-        writer.writerow([c.query, c.match, f"{c.similarity:.6f}", f"{c.gt_distance:.4f}", int(c.verified),
-                         int(c.accepted), f"{c.residual:.4f}", int(c.accepted and c.gt_distance > radius)])
+        known = bool(np.isfinite(c.gt_distance))  # NaN without ground truth
+        writer.writerow([c.query, c.match, f"{c.similarity:.6f}", f"{c.gt_distance:.4f}" if known else NA,
+                         int(c.verified), int(c.accepted), f"{c.residual:.4f}",
+                         int(c.accepted and c.gt_distance > radius) if known else NA])
     return buf.getvalue()
 
 
@@ -115,19 +118,24 @@ def loop_edges(result: RunResult) -> tuple[list, list]:
     """Accepted loops as (match row, query row) pairs into the keyframe list: true ones, then false ones."""
     row = {int(k): i for i, k in enumerate(result.keyframes)}
     radius = result.config.loop_radius
+    if result.gt_poses is None:  # no ground truth: no loop can be called false
+        return [(row[c.match], row[c.query]) for c in result.accepted_loops], []
     good = [(row[c.match], row[c.query]) for c in result.accepted_loops if c.gt_distance <= radius]
     bad = [(row[c.match], row[c.query]) for c in result.accepted_loops if c.gt_distance > radius]
     return good, bad
 
 
-def trajectory_panel(name: str, ate_m: float | None, estimate: np.ndarray, gt: np.ndarray,
+def trajectory_panel(name: str, ate_m: float | None, estimate: np.ndarray, gt: np.ndarray | None,
                      errors: np.ndarray | None, loops: tuple[list, list]) -> TrajectoryPanel:
     """A keyframe trajectory SE(3)-aligned to `gt` and coloured by its ATE; drawn as estimated (error 0)
     when the alignment is undetermined."""
-    try:
-        xy = align_se3(estimate, gt)[:, :2, 3]
-    except AlignmentError:
-        xy, name = estimate[:, :2, 3], f"{name} (not aligned)"
+    if gt is None:
+        xy, name = estimate[:, :2, 3], f"{name} (no ground truth)"
+    else:
+        try:
+            xy = align_se3(estimate, gt)[:, :2, 3]
+        except AlignmentError:
+            xy, name = estimate[:, :2, 3], f"{name} (not aligned)"
     shown = np.zeros(len(estimate)) if errors is None else errors
     return TrajectoryPanel(f"{name}, ATE {fmt(ate_m, '.2f', ' m')}", xy, shown, *loops)
 
@@ -135,12 +143,17 @@ def trajectory_panel(name: str, ate_m: float | None, estimate: np.ndarray, gt: n
 def trajectory_panels(result: RunResult) -> tuple[TrajectoryPanel, TrajectoryPanel]:
     """Odometry and optimised keyframe trajectories (SE(3)-aligned to GT) with their loops."""
     kf, m = result.keyframes, result.metrics
-    gt, loops = result.gt_poses[kf], loop_edges(result)
+    gt, loops = None if result.gt_poses is None else result.gt_poses[kf], loop_edges(result)
     optimiser = "iSAM2" if m.get("pipeline") == "online" else "optimised"
     return (trajectory_panel("odometry", m["before"]["ate_translation_m"], result.odometry[kf], gt,
                              result.ate_errors["odometry"], loops),
             trajectory_panel(f"{m['method']} {optimiser}", m["after"]["ate_translation_m"], result.optimised, gt,
                              result.ate_errors["optimised"], loops))
+
+
+def reference_xy(result: RunResult) -> np.ndarray:
+    """The ground-truth path drawn behind trajectory panels (none without ground truth)."""
+    return np.empty((0, 2)) if result.gt_poses is None else result.gt_poses[:, :2, 3]
 
 
 def accounted_bytes(memory: dict[str, np.ndarray]) -> np.ndarray:
@@ -154,7 +167,7 @@ def _write_figures(result: RunResult, folder: Path) -> list[str]:
     m = result.metrics
     online = " online" if m.get("pipeline") == "online" else ""
     sequence = display_name(m["sequence"])
-    plot_trajectories(folder / "trajectories.png", result.gt_poses[:, :2, 3], trajectory_panels(result),
+    plot_trajectories(folder / "trajectories.png", reference_xy(result), trajectory_panels(result),
                       title=f"{sequence}: {m['method']}{online} ({m['keyframes']} keyframes, {m['verified']} loops, "
                             f"{m['mode']} mode)")
     names = ["trajectories.png"]
