@@ -35,7 +35,7 @@ def simulate_command(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
 ) -> None:
     """Simulate a LiDAR sequence (velodyne/*.bin, poses.txt, times.txt, calib.txt) and print its folder."""
-    from msa_slam.sim.sequence import make_config, simulate_sequence
+    from msa_slam.sim import make_config, simulate_sequence
 
     config = make_config(trajectory=trajectory, sensor=sensor, start=start, end=end, stride=stride, seed=seed,
                          azimuth_steps=azimuth_steps, max_range=max_range, range_noise=range_noise,
