@@ -3,17 +3,9 @@ casting, realism presets, and cached sequences in the KITTI odometry layout (the
 
 from msa_slam.sim.realism import REALISM, Realism, get_realism
 from msa_slam.sim.sensors import SENSORS, Lidar, LidarModel, get_sensor
-from msa_slam.sim.sequence import (
-    DEFAULT_CONFIGS,
-    SimConfig,
-    SimFrame,
-    Simulation,
-    default_sequence,
-    iter_frames,
-    make_config,
-    prepare,
-    simulate_sequence,
-)
+from msa_slam.sim.config import SimConfig, make_config
+from msa_slam.sim.sequence import DEFAULT_CONFIGS, default_sequence, simulate_sequence
+from msa_slam.sim.simulation import SimFrame, Simulation, iter_frames, prepare
 from msa_slam.sim.trajectories import TRAJECTORY_NAMES, Trajectory, load_trajectory, read_trajectory
 from msa_slam.sim.world import World, build_world
 

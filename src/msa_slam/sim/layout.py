@@ -12,15 +12,15 @@ parked cars may be transient (kept apart for `dynamic`, present only in some tim
 from __future__ import annotations
 
 import bisect
-from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Callable, Iterator, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from msa_slam.sim.footprints import Footprints, PathClearance, yaw_axes
 from msa_slam.sim.plan import DESIGN, Design, Stretch
 from msa_slam.sim.shapes import Material, MeshBuilder
+from msa_slam.sim.stretches import PlannedStretches
 
 
 @dataclass(frozen=True)
@@ -55,90 +55,7 @@ STYLES: dict[str, Style] = {
 }
 
 
-class Footprints:
-    """Oriented rectangles on a spatial hash; answers "does this rectangle overlap a placed one?"."""
-
-    def __init__(self, cell: float = 10.0) -> None:
-        self.cell = cell
-        self.rects: list[tuple[np.ndarray, np.ndarray, float]] = []
-        self.grid: dict[tuple[int, int], list[int]] = {}
-
-    def _cells(self, center: np.ndarray, radius: float) -> list[tuple[int, int]]:
-        lo = np.floor((center - radius) / self.cell).astype(int)
-        hi = np.floor((center + radius) / self.cell).astype(int)
-        return [(i, j) for i in range(lo[0], hi[0] + 1) for j in range(lo[1], hi[1] + 1)]
-
-    @staticmethod
-    def _overlap(a: tuple[np.ndarray, np.ndarray, float], b: tuple[np.ndarray, np.ndarray, float],
-                 margin: float) -> bool:
-        axes = [np.array([np.cos(t), np.sin(t)]) for t in (a[2], a[2] + np.pi / 2, b[2], b[2] + np.pi / 2)]
-        d = b[0] - a[0]
-        for ax in axes:
-            ra = sum(h * abs(np.dot(ax, u)) for h, u in zip(a[1], _frame(a[2])))
-            rb = sum(h * abs(np.dot(ax, u)) for h, u in zip(b[1], _frame(b[2])))
-            if abs(np.dot(d, ax)) > ra + rb + margin:
-                return False
-        return True
-
-    def add_if_free(self, center: np.ndarray, half: np.ndarray, yaw: float, margin: float = 0.3) -> bool:
-        rect = (np.asarray(center, float), np.asarray(half, float), float(yaw))
-        radius = float(np.hypot(*half)) + margin
-        cells = self._cells(rect[0], radius)
-        seen: set[int] = set()
-        for c in cells:
-            for idx in self.grid.get(c, ()):
-                if idx not in seen:
-                    seen.add(idx)
-                    if self._overlap(rect, self.rects[idx], margin):
-                        return False
-        self.add(center, half, yaw, margin)
-        return True
-
-    def add(self, center: np.ndarray, half: np.ndarray, yaw: float, margin: float = 0.3) -> None:
-        """Register a rectangle without checking (pieces of one continuous wall touch each other)."""
-        self.rects.append((np.asarray(center, float), np.asarray(half, float), float(yaw)))
-        for c in self._cells(self.rects[-1][0], float(np.hypot(*half)) + margin):
-            self.grid.setdefault(c, []).append(len(self.rects) - 1)
-
-
-def _frame(yaw: float) -> tuple[np.ndarray, np.ndarray]:
-    return np.array([np.cos(yaw), np.sin(yaw)]), np.array([-np.sin(yaw), np.cos(yaw)])
-
-
-class PathClearance:
-    """Distance queries from footprints to every point of the (densified) trajectory."""
-
-    def __init__(self, xy: np.ndarray) -> None:
-        seg = np.linalg.norm(np.diff(xy, axis=0), axis=1)
-        extra = [np.linspace(a, b, int(np.ceil(s / 0.5)) + 1)[1:] for a, b, s in zip(xy[:-1], xy[1:], seg)]
-        self.points = np.concatenate([xy[:1], *extra]) if extra else xy
-        self.arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(self.points, axis=0), axis=1))])
-        self.tree = cKDTree(self.points)
-
-    def is_clear(self, center: np.ndarray, half: np.ndarray, yaw: float, clearance: float) -> bool:
-        idx = self.tree.query_ball_point(center, float(np.hypot(*half)) + clearance)
-        if not idx:
-            return True
-        ex, ey = _frame(yaw)
-        rel = self.points[idx] - center
-        dx = np.maximum(np.abs(rel @ ex) - half[0], 0.0)
-        dy = np.maximum(np.abs(rel @ ey) - half[1], 0.0)
-        return bool(np.all(dx * dx + dy * dy >= clearance * clearance))
-
-    def only_within(self, center: np.ndarray, half: np.ndarray, yaw: float, start: float, end: float) -> bool:
-        """True when every path point under the rectangle lies in the arc interval [start, end] (a tunnel
-        roof may cover its own stretch of road, never another one)."""
-        idx = self.tree.query_ball_point(center, float(np.hypot(*half)) + 1.0)
-        if not idx:
-            return True
-        ex, ey = _frame(yaw)
-        rel = self.points[idx] - center
-        under = (np.abs(rel @ ex) <= half[0] + 1.0) & (np.abs(rel @ ey) <= half[1] + 1.0)
-        arc = self.arc[idx][under]
-        return bool(np.all((arc >= start) & (arc <= end)))
-
-
-class StreetLayout:
+class StreetLayout(PlannedStretches):
     """Places blocks and street furniture along a path; primitives go to a MeshBuilder."""
 
     def __init__(self, xy: np.ndarray, style: Style, rng: np.random.Generator,
@@ -252,7 +169,7 @@ class StreetLayout:
             refl = self._u((0.35, 0.75))
         if not self._add_box(center, (length / 2, depth / 2), yaw, height, refl, clearance):
             return False
-        ex, ey = _frame(yaw)
+        ex, ey = yaw_axes(yaw)
         base = self.ground(center) - 0.5
         near = center - side * ey * depth / 2  # facade facing the path
         x = -length / 2 + self._u((0.5, 3.0))
@@ -287,99 +204,6 @@ class StreetLayout:
             self.trunks.append((*c, z, self._u((0.12, 0.3)), trunk_h + crown * 0.5, 0.3))
             self.crowns.append((*c, z + trunk_h + crown * 0.8, crown, crown * self._u((0.8, 1.2)),
                                 crown * self._u((0.7, 1.3)), 0.25))
-
-    @contextmanager
-    def _seeded(self, *seed: int) -> Iterator[None]:
-        """Draw from a fixed stream meanwhile: every instance of a design gets the same details."""
-        saved, self.rng = self.rng, np.random.default_rng(list(seed))
-        try:
-            yield
-        finally:
-            self.rng = saved
-
-    def _design_row(self, stretch: Stretch, design: Design, side: float) -> None:
-        """Identical houses at the design's pitch from the stretch start, the same on both sides, with
-        the design's back-row blocks, fence, front-garden trees and street lights."""
-        st = self.style
-        s, k = stretch.start, 0
-        while s + design.pitch <= stretch.end:
-            p, h, n = self._at(s + design.length / 2)
-            yaw = float(np.arctan2(h[1], h[0]))
-            center = p + side * n * (design.setback + design.depth / 2)
-            with self._seeded(design.detail_seed, 0):
-                built = self._building(center, yaw, side, design.length, design.depth, st.road_clearance,
-                                       height=design.height, refl=design.refl)
-                if built and design.back is not None:
-                    length, depth, height = design.back
-                    back = center + side * n * (design.depth / 2 + 4.0 + depth / 2)
-                    self._building(back, yaw, side, length, depth, st.road_clearance, height=height,
-                                   refl=design.refl * 0.9)
-            if design.fence > 0:
-                q, _, m = self._at(s + design.pitch / 2)
-                self._add_box(q + side * m * (design.setback - 1.0), (design.pitch / 2 - 0.2, 0.08), yaw,
-                              design.fence, 0.5, st.road_clearance - 1.0)
-            if design.tree_pitch and k % design.tree_pitch == 0:
-                q, _, m = self._at(s + design.pitch - (design.pitch - design.length) / 2)
-                with self._seeded(design.detail_seed, 1):
-                    self._tree(q + side * m * (design.setback + 1.0), st.road_clearance)
-            if design.light_pitch and k % design.light_pitch == 0:
-                q, _, m = self._at(s)
-                c = q + side * m * (st.car_offset[1] + 0.7)
-                if self._try(c, np.array([0.2, 0.2]), 0.0, st.furniture_clearance):
-                    self.trunks.append((*c, self.ground(c) - 0.3, 0.12, 6.5, 0.8))
-            s += design.pitch
-            k += 1
-
-    def _segments(self, stretch: Stretch, step: float) -> Iterator[tuple[float, np.ndarray, np.ndarray, float]]:
-        """(arc length, point, left normal, yaw) every `step` m along the stretch (segment centres)."""
-        for s in np.arange(stretch.start + step / 2, stretch.end, step):
-            p, h, n = self._at(float(s))
-            yield float(s), p, n, float(np.arctan2(h[1], h[0]))
-
-    def _wall_piece(self, center: np.ndarray, half: tuple[float, float], yaw: float, z0: float, height: float,
-                    refl: float, material: int = Material.SOLID) -> None:
-        """One piece of a continuous structure: kept off every other road, registered without an overlap
-        check against its neighbours."""
-        h = np.asarray(half, float)
-        if self.clear.is_clear(center, h, yaw, self.style.furniture_clearance) and self.taken.add_if_free(
-                center, h, yaw, margin=-0.05):
-            self.boxes.append((*center, z0 + height / 2, *h, height / 2, yaw, refl, material))
-
-    def _hard(self, stretch: Stretch) -> None:
-        """Structure that constrains little along the path: an open field with a few far trees, plain walls,
-        a tunnel (walls and a roof) or a highway between low barriers."""
-        st = self.style
-        kind = stretch.kind
-        if kind == "field":
-            s = stretch.start + self._u((5.0, 30.0))
-            while s < stretch.end:
-                p, _, n = self._at(s)
-                side = 1.0 if self.rng.random() < 0.5 else -1.0
-                self._tree(p + side * n * self._u((18.0, 45.0)), st.road_clearance)
-                s += self._u((20.0, 45.0))
-            return
-        step = 4.0
-        lateral = st.road_clearance + 0.5
-        wall_h = self._u((3.0, 6.0))
-        roof = self._u((4.5, 5.5)) if st.p_parked > 0 else self._u((2.8, 3.4))
-        refl = self._u((0.3, 0.6))
-        for s, p, n, yaw in self._segments(stretch, step):
-            z = self.ground(p)
-            if kind in ("wall", "tunnel"):
-                for side in (1.0, -1.0):
-                    self._wall_piece(p + side * n * (lateral + 0.15), (step / 2, 0.15), yaw, z - 0.5,
-                                     (roof if kind == "tunnel" else wall_h) + 0.5, refl)
-                if kind == "tunnel":
-                    half = np.array([step / 2, lateral + 0.5])
-                    if self.clear.only_within(p, half, yaw, stretch.start - 10.0, stretch.end + 10.0):
-                        self.boxes.append((*p, z + roof + 1.5, *half, 1.5, yaw, refl, Material.SOLID))
-            else:  # highway: a concrete barrier each side, a light pole on the left every 40 m
-                for side, off in ((1.0, lateral + 0.3), (-1.0, st.car_offset[0])):
-                    self._wall_piece(p + side * n * off, (step / 2, 0.3), yaw, z - 0.2, 1.0, 0.45)
-                if int(s // 40.0) != int((s - step) // 40.0):
-                    c = p + n * (lateral + 1.2)
-                    if self._try(c, np.array([0.2, 0.2]), 0.0, st.furniture_clearance):
-                        self.trunks.append((*c, z - 0.3, 0.12, 9.0, 0.8))
 
     def _furniture(self, total: float) -> None:
         """Poles, trees and parked cars; designed stretches bring their own poles and trees, hard

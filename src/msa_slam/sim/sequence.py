@@ -16,230 +16,26 @@ sim.json records every scan's size, so a truncated scan makes the sequence incom
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import os
-from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Iterator, NamedTuple
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, PrivateAttr, ValidationError, field_validator, model_validator
 
 import msa_slam
-from msa_slam.errors import InputError
-from msa_slam.io.cache import cache_key, partial_dir, remove_orphans
-from msa_slam.io.poses import POSE_FORMATS, format_kitti
 from msa_slam.datasets.point_times import TIMES_FOLDER
-from msa_slam.sim.layout import STYLES
-from msa_slam.sim.realism import DEFAULT_REALISM, REALISM, Realism
-from msa_slam.sim.sensors import SENSORS, Lidar, LidarModel, get_sensor
-from msa_slam.sim.trajectories import TRAJECTORY_NAMES, Trajectory, frame_indices, load_trajectory, read_trajectory
-from msa_slam.sim.world import World, build_world
+from msa_slam.errors import InputError
+from msa_slam.io.cache import cache_root, partial_dir, remove_orphans
+from msa_slam.io.poses import format_kitti
+from msa_slam.progress import progress_bar
+from msa_slam.sim.config import SIM_VERSION, SimConfig
+from msa_slam.sim.simulation import Simulation, prepare
 
-SIM_VERSION = "3"  # bump when generated worlds or scans change, so stale caches are not reused
-SIM_LIBRARIES = ("trimesh", "embreex", "numpy")  # ray casting and noise: part of the cache key
 META_FILE = "sim.json"
 log = logging.getLogger(__name__)
 KITTI_CITATION = ("Trajectory: KITTI odometry ground truth (Geiger, Lenz, Urtasun, CVPR 2012), "
                   "CC BY-NC-SA 3.0")
-
-
-class SimConfig(BaseModel):
-    """Everything that determines a simulated sequence (and so its cache key)."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    trajectory: str = "kitti-05"  # a shipped name, or a pose file (KITTI or TUM format)
-    trajectory_format: str = "auto"  # of a trajectory file: auto, kitti or tum
-    times: str | None = None  # of a KITTI-format trajectory file: one time a line (default 10 Hz)
-    calib: str | None = None  # a KITTI calib.txt whose Tr line converts cam0 poses to the LiDAR frame
-    sensor: str = "hdl64"
-    start: int = 0
-    end: int | None = None
-    stride: int = 1
-    seed: int = 0
-    azimuth_steps: int | None = None
-    max_range: float | None = None
-    range_noise: float = 0.02
-    dropout: float = 0.0
-    style: str | None = None  # None: "city" for vehicles, "campus" for walking platforms
-    realism: str = DEFAULT_REALISM  # a preset of sim.realism: "kitti" (calibrated) or "clean"
-    _files_sha256: str | None = PrivateAttr(default=None)  # content of the trajectory files: the cache key
-
-    @field_validator("trajectory")
-    @classmethod
-    def _known_trajectory(cls, v: str) -> str:
-        if v in TRAJECTORY_NAMES:
-            return v
-        path = Path(v).expanduser()
-        if not path.is_file():
-            raise ValueError(f"unknown trajectory {v!r}; choose one of {', '.join(TRAJECTORY_NAMES)} "
-                             "or give a pose file (KITTI or TUM format)")
-        return str(path.resolve())
-
-    @field_validator("times", "calib")
-    @classmethod
-    def _existing_file(cls, v: str | None) -> str | None:
-        if v is None:
-            return v
-        path = Path(v).expanduser()
-        if not path.is_file():
-            raise ValueError(f"{v}: file not found")
-        return str(path.resolve())
-
-    @field_validator("trajectory_format")
-    @classmethod
-    def _known_format(cls, v: str) -> str:
-        if v not in POSE_FORMATS:
-            raise ValueError(f"unknown trajectory format {v!r}; choose one of {', '.join(POSE_FORMATS)}")
-        return v
-
-    @model_validator(mode="after")
-    def _read_trajectory_file(self) -> "SimConfig":
-        """Check a trajectory file whole now (errors name its line, before any long work) and hash the files."""
-        if self.trajectory in TRAJECTORY_NAMES:
-            if self.times is not None or self.calib is not None or self.trajectory_format != "auto":
-                raise ValueError(f"times, calib and trajectory_format apply to a trajectory file, not to the "
-                                 f"shipped trajectory {self.trajectory!r}")
-            return self
-        self.load_trajectory()
-        parts = [f"{what}:{hashlib.sha256(Path(f).read_bytes()).hexdigest() if f else '-'}"
-                 for what, f in (("poses", self.trajectory), ("times", self.times), ("calib", self.calib))]
-        self._files_sha256 = ",".join(parts)
-        return self
-
-    @property
-    def is_file(self) -> bool:
-        """True when the trajectory comes from a pose file rather than a shipped name."""
-        return self.trajectory not in TRAJECTORY_NAMES
-
-    @property
-    def label(self) -> str:
-        """A short name for folders and progress: the shipped name or the pose file's stem."""
-        return f"file-{Path(self.trajectory).stem}" if self.is_file else self.trajectory
-
-    def load_trajectory(self) -> Trajectory:
-        """The whole source trajectory (shipped, or read from the files)."""
-        if not self.is_file:
-            return load_trajectory(self.trajectory)
-        return read_trajectory(self.trajectory, self.trajectory_format, self.times, self.calib)
-
-    @field_validator("sensor")
-    @classmethod
-    def _known_sensor(cls, v: str) -> str:
-        if v not in SENSORS:
-            raise ValueError(f"unknown sensor {v!r}; choose one of {', '.join(SENSORS)}")
-        return v
-
-    @field_validator("realism")
-    @classmethod
-    def _known_realism(cls, v: str) -> str:
-        if v not in REALISM:
-            raise ValueError(f"unknown realism preset {v!r}; choose one of {', '.join(REALISM)}")
-        return v
-
-    @field_validator("style")
-    @classmethod
-    def _known_style(cls, v: str | None) -> str | None:
-        if v is not None and v not in STYLES:
-            raise ValueError(f"unknown world style {v!r}; choose one of {', '.join(STYLES)}")
-        return v
-
-    def key(self) -> str:
-        """The cache key: hash of the config (a trajectory file by its content), the realism preset's parameters,
-        the simulator version and the versions of msa-slam and of the libraries that ray-cast the scans."""
-        config = self.model_dump()
-        if self.is_file:  # the files' content, not where they are
-            config.update(trajectory="file", times=None, calib=None, trajectory_files=self._files_sha256)
-        preset = asdict(REALISM[self.realism])  # its parameters: retuning a preset is a new simulation
-        return cache_key("simulation", [], {"config": config, "realism_preset": preset, "sim_version": SIM_VERSION},
-                         SIM_LIBRARIES)
-
-
-def make_config(**fields: object) -> SimConfig:
-    """A SimConfig, with validation problems reported as one InputError naming the parameters."""
-    try:
-        return SimConfig(**fields)
-    except ValidationError as exc:
-        problems = "; ".join(": ".join([*(['.'.join(map(str, e['loc']))] if e['loc'] else []),
-                                         e['msg'].removeprefix('Value error, ')]) for e in exc.errors())
-        raise InputError(f"simulation config: {problems}") from None
-
-
-class SimFrame(NamedTuple):
-    """One simulated scan: output index, time (s from the first frame), points, ground-truth pose."""
-
-    index: int
-    time: float
-    points: np.ndarray
-    gt_pose: np.ndarray
-
-
-@dataclass
-class Simulation:
-    """A resolved config: the selected frames, the full-rate trajectory they come from, the world built
-    around them and the bound sensor."""
-
-    config: SimConfig
-    frames: np.ndarray  # source-trajectory indices of the output frames
-    trajectory: Trajectory  # full rate: motion distortion interpolates between its poses
-    world: World
-    lidar: Lidar
-    realism: Realism
-
-    def __len__(self) -> int:
-        return len(self.frames)
-
-    @property
-    def poses(self) -> np.ndarray:
-        return self.trajectory.poses[self.frames]
-
-    @property
-    def times(self) -> np.ndarray:
-        """Output frame times, seconds from the first output frame."""
-        return self.trajectory.times[self.frames] - self.trajectory.times[self.frames[0]]
-
-    def scan(self, k: int, rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-        """(P, 4) float32 scan of output frame k and its per-point times (float64 s from the sweep start;
-        None for a clean preset, whose sensor stands still); noise is seeded by (seed, source frame) unless
-        `rng` is given (a live source drawing each lap's noise apart)."""
-        frame = int(self.frames[k])
-        rng = np.random.default_rng([self.config.seed, frame]) if rng is None else rng
-        if self.realism.is_clean:
-            return self.lidar.scan(self.trajectory.poses[frame], rng), None
-        return self.lidar.sweep(self.trajectory.pose_at, float(self.trajectory.times[frame]), rng)
-
-
-def prepare(config: SimConfig) -> Simulation:
-    """Load the trajectory, select frames and build the world around the whole selected range (unstrided,
-    so every stride of the same range sees the same world)."""
-    traj = config.load_trajectory()
-    frames = frame_indices(len(traj), config.start, config.end, config.stride, config.label)
-    span = traj.poses[frames[0]:frames[-1] + 1]
-    style = config.style or ("campus" if traj.platform == "walk" else "city")
-    realism = REALISM[config.realism]
-    world = build_world(span, style, config.seed, traj.sensor_height, realism.world)
-    model: LidarModel = get_sensor(config.sensor, azimuth_steps=config.azimuth_steps, max_range=config.max_range,
-                                   range_noise=config.range_noise, dropout=config.dropout)
-    return Simulation(config, frames, traj, world, Lidar(model, world, realism.sensor, config.seed), realism)
-
-
-def iter_frames(config: SimConfig, with_intensity: bool = False) -> Iterator[SimFrame]:
-    """Simulate in memory: yields SimFrame(index, time, points (P,3) or (P,4) float32, gt_pose)."""
-    sim = prepare(config)
-    for k in range(len(sim)):
-        pts, _ = sim.scan(k)
-        yield SimFrame(k, float(sim.times[k]), pts if with_intensity else pts[:, :3].copy(), sim.poses[k])
-
-
-def cache_root(cache_dir: str | os.PathLike | None = None) -> Path:
-    """`cache_dir`, else $MSA_SLAM_CACHE, else ~/.cache/msa-slam."""
-    if cache_dir is not None:
-        return Path(cache_dir)
-    env = os.environ.get("MSA_SLAM_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "msa-slam"
 
 
 def _read_meta(seq_dir: Path) -> dict | None:
@@ -280,12 +76,9 @@ CALIB_TEXT = "".join(f"P{k}: 1 0 0 0 0 1 0 0 0 0 1 0\n" for k in range(4)) + "Tr
 
 
 def _write(sim: Simulation, target: Path, progress: bool) -> None:
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
     (target / "velodyne").mkdir(parents=True)
-    with Progress(TextColumn("[bold]simulating[/] {task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TimeRemainingColumn(), disable=not progress, transient=False) as bar:
-        task = bar.add_task(f"{sim.config.label} / {sim.config.sensor}", total=len(sim))
+    with progress_bar(quiet=not progress, transient=False) as bar:
+        task = bar.add_task(f"simulating {sim.config.label} / {sim.config.sensor}", total=len(sim))
         sizes, times_sizes = [], []
         for k in range(len(sim)):
             scan, point_times = sim.scan(k)

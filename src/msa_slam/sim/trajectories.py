@@ -99,22 +99,36 @@ def _planar(name: str, xy: np.ndarray, height: np.ndarray, platform: str,
     return Trajectory(name, _poses(positions, rot), times, platform)
 
 
-def _speed_profile(length: float, cruise: float, curvature_slow: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
-    """Arc-length stations of a vehicle moving `cruise` m/frame, slowing where `curvature_slow` says."""
+START_ACCEL = 2.5  # m/s^2: procedural vehicles pull away from rest, as a car does
+START_SPEED = 0.5  # m/s at the first frame
+
+
+def _speed_profile(length: float, cruise: float,
+                   curvature_slow: Callable[[np.ndarray], np.ndarray] = np.ones_like) -> np.ndarray:
+    """Arc-length stations of a vehicle starting from rest (START_ACCEL) up to `cruise` m/frame, slowing
+    where `curvature_slow` says. A standing start lets odometry's constant-velocity prior (zero at the
+    first scan) follow; a path that starts at full speed can leave KISS-ICP stuck at its start."""
     stations = [0.0]
     while stations[-1] < length:
-        stations.append(stations[-1] + cruise * float(curvature_slow(np.array([stations[-1]]))[0]))
+        s = stations[-1]
+        pulling_away = np.sqrt(START_SPEED**2 + 2.0 * START_ACCEL * s) / FRAME_RATE_HZ
+        stations.append(s + min(pulling_away, cruise * float(curvature_slow(np.array([s]))[0])))
     return np.array(stations[:-1])
 
 
+FIGURE_EIGHT_FRAMES = 427  # its duration; the frame count the tests' sequences are built from
+
+
 def figure_eight() -> Trajectory:
-    """A lemniscate of Bernoulli (70 m half-width) driven 1.15 times at ~1 m per frame: revisits at the
-    crossing (perpendicular headings) and where the path closes on its start."""
+    """A lemniscate of Bernoulli (70 m half-width) driven for 42.7 s (427 frames), from rest up to ~1 m per
+    frame over the first 20 m and about 1.1 times round: revisits at the crossing (perpendicular headings)
+    and where the path closes on its start."""
     t = np.linspace(0.0, 2.3 * np.pi, 4000)
     a = 70.0
     den = 1.0 + np.sin(t) ** 2
     xy = np.column_stack([a * np.cos(t) / den, a * np.sin(t) * np.cos(t) / den])
-    xy = _resample(xy, 1.0)
+    length = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
+    xy = _resample(xy, _speed_profile(length, 1.0)[:FIGURE_EIGHT_FRAMES])
     return _planar("figure-eight", xy, np.zeros(len(xy)), "car")
 
 

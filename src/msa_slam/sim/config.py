@@ -1,0 +1,145 @@
+"""What determines a simulated sequence: `SimConfig` (trajectory, sensor, frames, world seed, realism preset),
+validated before any long work, and its cache key (the config, a trajectory file by content, the preset's
+parameters, the simulator version and the libraries that ray-cast the scans)."""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import asdict
+from pathlib import Path
+
+from pydantic import BaseModel, ConfigDict, PrivateAttr, ValidationError, field_validator, model_validator
+
+from msa_slam.errors import InputError
+from msa_slam.io.cache import cache_key
+from msa_slam.io.poses import POSE_FORMATS
+from msa_slam.sim.layout import STYLES
+from msa_slam.sim.realism import DEFAULT_REALISM, REALISM
+from msa_slam.sim.sensors import SENSORS
+from msa_slam.sim.trajectories import TRAJECTORY_NAMES, Trajectory, load_trajectory, read_trajectory
+
+SIM_VERSION = "4"  # bump when generated worlds or scans change, so stale caches are not reused
+SIM_LIBRARIES = ("trimesh", "embreex", "numpy")  # ray casting and noise: part of the cache key
+
+
+class SimConfig(BaseModel):
+    """Everything that determines a simulated sequence (and so its cache key)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    trajectory: str = "kitti-05"  # a shipped name, or a pose file (KITTI or TUM format)
+    trajectory_format: str = "auto"  # of a trajectory file: auto, kitti or tum
+    times: str | None = None  # of a KITTI-format trajectory file: one time a line (default 10 Hz)
+    calib: str | None = None  # a KITTI calib.txt whose Tr line converts cam0 poses to the LiDAR frame
+    sensor: str = "hdl64"
+    start: int = 0
+    end: int | None = None
+    stride: int = 1
+    seed: int = 0
+    azimuth_steps: int | None = None
+    max_range: float | None = None
+    range_noise: float = 0.02
+    dropout: float = 0.0
+    style: str | None = None  # None: "city" for vehicles, "campus" for walking platforms
+    realism: str = DEFAULT_REALISM  # a preset of sim.realism: "kitti" (calibrated) or "clean"
+    _files_sha256: str | None = PrivateAttr(default=None)  # content of the trajectory files: the cache key
+
+    @field_validator("trajectory")
+    @classmethod
+    def _known_trajectory(cls, v: str) -> str:
+        if v in TRAJECTORY_NAMES:
+            return v
+        path = Path(v).expanduser()
+        if not path.is_file():
+            raise ValueError(f"unknown trajectory {v!r}; choose one of {', '.join(TRAJECTORY_NAMES)} "
+                             "or give a pose file (KITTI or TUM format)")
+        return str(path.resolve())
+
+    @field_validator("times", "calib")
+    @classmethod
+    def _existing_file(cls, v: str | None) -> str | None:
+        if v is None:
+            return v
+        path = Path(v).expanduser()
+        if not path.is_file():
+            raise ValueError(f"{v}: file not found")
+        return str(path.resolve())
+
+    @field_validator("trajectory_format")
+    @classmethod
+    def _known_format(cls, v: str) -> str:
+        if v not in POSE_FORMATS:
+            raise ValueError(f"unknown trajectory format {v!r}; choose one of {', '.join(POSE_FORMATS)}")
+        return v
+
+    @model_validator(mode="after")
+    def _read_trajectory_file(self) -> "SimConfig":
+        """Check a trajectory file whole now (errors name its line, before any long work) and hash the files."""
+        if self.trajectory in TRAJECTORY_NAMES:
+            if self.times is not None or self.calib is not None or self.trajectory_format != "auto":
+                raise ValueError(f"times, calib and trajectory_format apply to a trajectory file, not to the "
+                                 f"shipped trajectory {self.trajectory!r}")
+            return self
+        self.load_trajectory()
+        parts = [f"{what}:{hashlib.sha256(Path(f).read_bytes()).hexdigest() if f else '-'}"
+                 for what, f in (("poses", self.trajectory), ("times", self.times), ("calib", self.calib))]
+        self._files_sha256 = ",".join(parts)
+        return self
+
+    @property
+    def is_file(self) -> bool:
+        """True when the trajectory comes from a pose file rather than a shipped name."""
+        return self.trajectory not in TRAJECTORY_NAMES
+
+    @property
+    def label(self) -> str:
+        """A short name for folders and progress: the shipped name or the pose file's stem."""
+        return f"file-{Path(self.trajectory).stem}" if self.is_file else self.trajectory
+
+    def load_trajectory(self) -> Trajectory:
+        """The whole source trajectory (shipped, or read from the files)."""
+        if not self.is_file:
+            return load_trajectory(self.trajectory)
+        return read_trajectory(self.trajectory, self.trajectory_format, self.times, self.calib)
+
+    @field_validator("sensor")
+    @classmethod
+    def _known_sensor(cls, v: str) -> str:
+        if v not in SENSORS:
+            raise ValueError(f"unknown sensor {v!r}; choose one of {', '.join(SENSORS)}")
+        return v
+
+    @field_validator("realism")
+    @classmethod
+    def _known_realism(cls, v: str) -> str:
+        if v not in REALISM:
+            raise ValueError(f"unknown realism preset {v!r}; choose one of {', '.join(REALISM)}")
+        return v
+
+    @field_validator("style")
+    @classmethod
+    def _known_style(cls, v: str | None) -> str | None:
+        if v is not None and v not in STYLES:
+            raise ValueError(f"unknown world style {v!r}; choose one of {', '.join(STYLES)}")
+        return v
+
+    def key(self) -> str:
+        """The cache key: hash of the config (a trajectory file by its content), the realism preset's parameters,
+        the simulator version and the versions of msa-slam and of the libraries that ray-cast the scans."""
+        config = self.model_dump()
+        if self.is_file:  # the files' content, not where they are
+            config.update(trajectory="file", times=None, calib=None, trajectory_files=self._files_sha256)
+        preset = asdict(REALISM[self.realism])  # its parameters: retuning a preset is a new simulation
+        return cache_key("simulation", [], {"config": config, "realism_preset": preset, "sim_version": SIM_VERSION},
+                         SIM_LIBRARIES)
+
+
+def make_config(**fields: object) -> SimConfig:
+    """A SimConfig, with validation problems reported as one InputError naming the parameters."""
+    try:
+        return SimConfig(**fields)
+    except ValidationError as exc:
+        problems = "; ".join(": ".join([*(['.'.join(map(str, e['loc']))] if e['loc'] else []),
+                                         e['msg'].removeprefix('Value error, ')]) for e in exc.errors())
+        raise InputError(f"simulation config: {problems}") from None
+

@@ -1,0 +1,111 @@
+"""Planned stretches of a street layout (see `plan`): rows of a catalogue design repeated identically, and
+hard stretches (open field, plain walls, tunnel, highway) that constrain ICP little along the path.
+A mixin of `layout.StreetLayout`, whose drawing and placement helpers it uses."""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from typing import Iterator
+
+import numpy as np
+
+from msa_slam.sim.plan import Design, Stretch
+from msa_slam.sim.shapes import Material
+
+
+class PlannedStretches:
+    """Designed rows and hard stretches; expects StreetLayout's attributes (rng, style, clear, taken, boxes,
+    trunks, ground) and helpers (_at, _u, _try, _add_box, _building, _tree)."""
+
+    @contextmanager
+    def _seeded(self, *seed: int) -> Iterator[None]:
+        """Draw from a fixed stream meanwhile: every instance of a design gets the same details."""
+        saved, self.rng = self.rng, np.random.default_rng(list(seed))
+        try:
+            yield
+        finally:
+            self.rng = saved
+
+    def _design_row(self, stretch: Stretch, design: Design, side: float) -> None:
+        """Identical houses at the design's pitch from the stretch start, the same on both sides, with
+        the design's back-row blocks, fence, front-garden trees and street lights."""
+        st = self.style
+        s, k = stretch.start, 0
+        while s + design.pitch <= stretch.end:
+            p, h, n = self._at(s + design.length / 2)
+            yaw = float(np.arctan2(h[1], h[0]))
+            center = p + side * n * (design.setback + design.depth / 2)
+            with self._seeded(design.detail_seed, 0):
+                built = self._building(center, yaw, side, design.length, design.depth, st.road_clearance,
+                                       height=design.height, refl=design.refl)
+                if built and design.back is not None:
+                    length, depth, height = design.back
+                    back = center + side * n * (design.depth / 2 + 4.0 + depth / 2)
+                    self._building(back, yaw, side, length, depth, st.road_clearance, height=height,
+                                   refl=design.refl * 0.9)
+            if design.fence > 0:
+                q, _, m = self._at(s + design.pitch / 2)
+                self._add_box(q + side * m * (design.setback - 1.0), (design.pitch / 2 - 0.2, 0.08), yaw,
+                              design.fence, 0.5, st.road_clearance - 1.0)
+            if design.tree_pitch and k % design.tree_pitch == 0:
+                q, _, m = self._at(s + design.pitch - (design.pitch - design.length) / 2)
+                with self._seeded(design.detail_seed, 1):
+                    self._tree(q + side * m * (design.setback + 1.0), st.road_clearance)
+            if design.light_pitch and k % design.light_pitch == 0:
+                q, _, m = self._at(s)
+                c = q + side * m * (st.car_offset[1] + 0.7)
+                if self._try(c, np.array([0.2, 0.2]), 0.0, st.furniture_clearance):
+                    self.trunks.append((*c, self.ground(c) - 0.3, 0.12, 6.5, 0.8))
+            s += design.pitch
+            k += 1
+
+    def _segments(self, stretch: Stretch, step: float) -> Iterator[tuple[float, np.ndarray, np.ndarray, float]]:
+        """(arc length, point, left normal, yaw) every `step` m along the stretch (segment centres)."""
+        for s in np.arange(stretch.start + step / 2, stretch.end, step):
+            p, h, n = self._at(float(s))
+            yield float(s), p, n, float(np.arctan2(h[1], h[0]))
+
+    def _wall_piece(self, center: np.ndarray, half: tuple[float, float], yaw: float, z0: float, height: float,
+                    refl: float, material: int = Material.SOLID) -> None:
+        """One piece of a continuous structure: kept off every other road, registered without an overlap
+        check against its neighbours."""
+        h = np.asarray(half, float)
+        if self.clear.is_clear(center, h, yaw, self.style.furniture_clearance) and self.taken.add_if_free(
+                center, h, yaw, margin=-0.05):
+            self.boxes.append((*center, z0 + height / 2, *h, height / 2, yaw, refl, material))
+
+    def _hard(self, stretch: Stretch) -> None:
+        """Structure that constrains little along the path: an open field with a few far trees, plain walls,
+        a tunnel (walls and a roof) or a highway between low barriers."""
+        st = self.style
+        kind = stretch.kind
+        if kind == "field":
+            s = stretch.start + self._u((5.0, 30.0))
+            while s < stretch.end:
+                p, _, n = self._at(s)
+                side = 1.0 if self.rng.random() < 0.5 else -1.0
+                self._tree(p + side * n * self._u((18.0, 45.0)), st.road_clearance)
+                s += self._u((20.0, 45.0))
+            return
+        step = 4.0
+        lateral = st.road_clearance + 0.5
+        wall_h = self._u((3.0, 6.0))
+        roof = self._u((4.5, 5.5)) if st.p_parked > 0 else self._u((2.8, 3.4))
+        refl = self._u((0.3, 0.6))
+        for s, p, n, yaw in self._segments(stretch, step):
+            z = self.ground(p)
+            if kind in ("wall", "tunnel"):
+                for side in (1.0, -1.0):
+                    self._wall_piece(p + side * n * (lateral + 0.15), (step / 2, 0.15), yaw, z - 0.5,
+                                     (roof if kind == "tunnel" else wall_h) + 0.5, refl)
+                if kind == "tunnel":
+                    half = np.array([step / 2, lateral + 0.5])
+                    if self.clear.only_within(p, half, yaw, stretch.start - 10.0, stretch.end + 10.0):
+                        self.boxes.append((*p, z + roof + 1.5, *half, 1.5, yaw, refl, Material.SOLID))
+            else:  # highway: a concrete barrier each side, a light pole on the left every 40 m
+                for side, off in ((1.0, lateral + 0.3), (-1.0, st.car_offset[0])):
+                    self._wall_piece(p + side * n * off, (step / 2, 0.3), yaw, z - 0.2, 1.0, 0.45)
+                if int(s // 40.0) != int((s - step) // 40.0):
+                    c = p + n * (lateral + 1.2)
+                    if self._try(c, np.array([0.2, 0.2]), 0.0, st.furniture_clearance):
+                        self.trunks.append((*c, z - 0.3, 0.12, 9.0, 0.8))
