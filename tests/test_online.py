@@ -290,3 +290,16 @@ def test_online_samples_on_ground_truth_when_asked():
     on_odometry = run_online(cfg, source)
     assert on_gt.keyframes.tolist() == expected
     assert on_odometry.keyframes.tolist() != expected  # the noisy odometry moves differently
+
+
+def test_rss_growth_is_measured_from_backend_start_to_its_end(monkeypatch):
+    """rss_growth_bytes is the RSS after the final optimisation minus the RSS when the back-end was built."""
+    import msa_slam.slam.backend as backend_module
+
+    readings = iter([100 * 2**20, 175 * 2**20])
+    monkeypatch.setattr(backend_module, "current_rss_bytes", lambda: next(readings))
+    source, _, _ = _pausing_source(pause=0)
+    cfg = make_online_config(dataset=COARSE, odometry="gt-noise", sampler="constant", sampler_params={"distance": 2.0})
+    metrics = run_online(cfg, source).metrics
+    assert metrics["rss_growth_bytes"] == 75 * 2**20
+    assert metrics["memory_bytes"]["total"] > 0

@@ -102,10 +102,15 @@ def test_compare_writes_table(base, frontend, tmp_path):
     folder = report.parent
     assert report.is_file() and "| constant-3m |" in report.read_text()
     # peak RSS is one process figure: a single line, no per-method column; per-run reports say whose it is
-    rss = [line for line in report.read_text().splitlines() if "rss" in line.lower()]
-    assert len(rss) == 1 and rss[0].startswith("Process peak RSS: ") and "not a per-method figure" in rss[0]
+    peak = [line for line in report.read_text().splitlines() if "peak rss" in line.lower()]
+    assert len(peak) == 1 and peak[0].startswith("Process peak RSS: ") and "not a per-method figure" in peak[0]
     run_report = (folder / "runs" / "msa" / "report.md").read_text()
     assert "process peak RSS (whole process, not this method): " in run_report
+    assert "RSS growth over this run's back-end: " in run_report
+    # RSS growth is per method: a column of the table, next to the accounted memory
+    metrics = json.loads((folder / "runs" / "msa" / "metrics.json").read_text())
+    assert isinstance(metrics["rss_growth_bytes"], int)
+    assert "| memory [MiB] | RSS growth [MiB] |" in report.read_text()
     assert "| memory (keyframes + graph) | back-end time |" in run_report
     lines = (folder / "comparison.csv").read_text().splitlines()
     assert lines[0].split(",") == list(COLUMNS) and len(lines) == 3

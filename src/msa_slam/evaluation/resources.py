@@ -3,11 +3,14 @@
 Per-method memory is the accounted bytes (`array_bytes` and the stores' `nbytes`). Peak RSS is the whole
 process's high-water mark since it started: methods run one after another in one process all see the
 largest of them (and the front end), so reports print it once, as a process figure (PROCESS_RSS_LABEL).
+RSS growth (`current_rss_bytes` at the end of a back-end minus at its start) is per run, and is what the
+accounted bytes should explain.
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
 import resource
 import sys
 import time
@@ -28,6 +31,15 @@ def peak_rss_bytes() -> int:
     Linux, bytes on macOS)."""
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return int(peak if sys.platform == "darwin" else peak * 1024)
+
+
+def current_rss_bytes() -> int:
+    """Resident set size now (Linux /proc/self/statm); the peak where that is unavailable."""
+    try:
+        with open("/proc/self/statm") as handle:
+            return int(handle.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError, AttributeError):
+        return peak_rss_bytes()
 
 
 class StageTimer:

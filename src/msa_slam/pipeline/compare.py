@@ -40,17 +40,17 @@ PAPER_METHODS: tuple[tuple[str, str, dict[str, Any]], ...] = (
 # Primary columns: full-rate (every frame, the same "ATE before" for every method); kf_*: keyframes only.
 COLUMNS = ("method", "keyframes", "candidates", "verified", "false_loops", "ate_before_m", "ate_after_m",
            "improvement_t_pct", "improvement_r_pct", "rpe_pct", "rpe_10m_m", "pr_auc", "f1_max", "pr_auc_reference",
-           "f1_max_reference", "memory_mib", "time_s", "kf_ate_before_m", "kf_ate_after_m", "kf_improvement_t_pct",
+           "f1_max_reference", "memory_mib", "rss_growth_mib", "time_s", "kf_ate_before_m", "kf_ate_after_m", "kf_improvement_t_pct",
            "kf_improvement_r_pct")
 HEADERS = ("method", "keyframes", "candidates", "verified", "false loops", "ATE before [m]", "ATE after [m]",
            "t. ATE impr. [%]", "R. ATE impr. [%]", "RPE 100-800 m [%]", "RPE 10 m [m]", "PR-AUC", "F1-max",
-           "PR-AUC (ref.)", "F1-max (ref.)", "memory [MiB]", "time [s]", "kf ATE before [m]", "kf ATE after [m]",
+           "PR-AUC (ref.)", "F1-max (ref.)", "memory [MiB]", "RSS growth [MiB]", "time [s]", "kf ATE before [m]", "kf ATE after [m]",
            "kf t. impr. [%]", "kf R. impr. [%]")
 
 
 def table_row(metrics: dict[str, Any]) -> dict[str, Any]:
     """One Table-I row from a run's metrics: full-rate ATE/RPE first, keyframe-only ATE as kf_* columns
-    (memory: keyframes + graph; time: back-end stages)."""
+    (memory: keyframes + graph; RSS growth: the process's over the method's back-end; time: back-end stages)."""
     m, full = metrics, metrics["full_rate"]
     reference = m.get("pr_reference") or {}
     return {
@@ -61,7 +61,8 @@ def table_row(metrics: dict[str, Any]) -> dict[str, Any]:
         "rpe_pct": full["after"]["rpe_kitti_translation_pct"], "rpe_10m_m": full["after"]["rpe_10m_translation_m"],
         "pr_auc": m["pr_auc"], "f1_max": m["f1_max"], "pr_auc_reference": reference.get("pr_auc"),
         "f1_max_reference": reference.get("f1_max"),
-        "memory_mib": m["memory_bytes"]["total"] / 2**20, "time_s": m["time_s"]["backend_total"],
+        "memory_mib": m["memory_bytes"]["total"] / 2**20, "rss_growth_mib": m["rss_growth_bytes"] / 2**20,
+        "time_s": m["time_s"]["backend_total"],
         "kf_ate_before_m": m["before"]["ate_translation_m"], "kf_ate_after_m": m["after"]["ate_translation_m"],
         "kf_improvement_t_pct": m["improvement_pct"]["translation"],
         "kf_improvement_r_pct": m["improvement_pct"]["rotation"],
@@ -158,7 +159,7 @@ def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: lis
              "older match) and, marked ref., the reference example's protocol (each frame against the 10 nearest "
              "keyframes); arrays in figures/pr.csv. False loops: verified loops whose ground-truth distance exceeds "
              f"{cfg.loop_radius} m. Memory: accounted bytes of keyframe descriptors, downsampled keyframe clouds "
-             "and the graph, per method. Time: sampling + keyframe store + loop search + verification + "
+             "and the graph, per method; RSS growth: the process's resident set at the end of the method's back-end minus at its start (methods run one after another, so memory one method freed can be reused by the next). Time: sampling + keyframe store + loop search + verification + "
              "optimisation.", "", table, "", *_sweep_lines(results),
              f"Process peak RSS: {mib(max(r.metrics['peak_rss_bytes'] for r in results))} (whole process: "
              "every method and the shared front end; not a per-method figure).", ""]

@@ -9,7 +9,6 @@ after optimisation, and throughput (frames per second, real-time factor for the 
 
 from __future__ import annotations
 
-import os
 import time
 from contextlib import closing
 from typing import Any, Protocol
@@ -20,7 +19,7 @@ from threadpoolctl import threadpool_limits
 from msa_slam.backend import IncrementalPoseGraph
 from msa_slam.descriptors import make_descriptor
 from msa_slam.errors import InputError
-from msa_slam.evaluation import peak_rss_bytes
+from msa_slam.evaluation.resources import current_rss_bytes
 from msa_slam.odometry import NoisyOdometry, OdometryCache, ReplayedOdometry
 from msa_slam.pipeline.frontend import make_odometry, pipeline_cache
 from msa_slam.pipeline.online_config import OnlineConfig
@@ -33,15 +32,6 @@ from msa_slam.types import FrameSource
 STEPS = ("odometry", "descriptor", *BACKEND_STEPS)
 MEMORY = ("keyframes", "cloud_bytes", "cloud_disk_bytes", "descriptor_bytes", "graph_bytes", "pending_bytes",
           "rss_bytes")
-
-
-def current_rss_bytes() -> int:
-    """Resident set size now (Linux /proc/self/statm); the peak where that is unavailable."""
-    try:
-        with open("/proc/self/statm") as handle:
-            return int(handle.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-    except (OSError, ValueError, IndexError, AttributeError):
-        return peak_rss_bytes()
 
 
 class MemoryRecorder:

@@ -42,6 +42,12 @@ def sweep_lines(sweep: list[dict[str, Any]] | None) -> list[str]:
               f"{fmt(r['improvement_t_pct'], '.1f', ' %')} |" for r in sweep), ""]
 
 
+def _rss_growth(m: dict) -> str:
+    """RSS growth over this run's back-end beside the accounted bytes it should be explained by."""
+    return (f"RSS growth over this run's back-end: {mib(m['rss_growth_bytes'])} (accounted: "
+            f"{mib(m['memory_bytes']['total'])})")
+
+
 def _batch_lines(result: RunResult) -> list[str]:
     m = result.metrics
     ref = m.get("pr_reference") or {}
@@ -51,7 +57,7 @@ def _batch_lines(result: RunResult) -> list[str]:
         f"| {fmt(m['pr_auc'])} / {fmt(m['f1_max'])} | {fmt(ref.get('pr_auc'))} / {fmt(ref.get('f1_max'))} | "
         f"{mib(m['memory_bytes']['total'])} | {m['time_s']['backend_total']:.2f} s |", "",
         *sweep_lines(m.get("threshold_sweep")),
-        f"{PROCESS_RSS_LABEL}: {mib(m['peak_rss_bytes'])}", "",
+        f"{PROCESS_RSS_LABEL}: {mib(m['peak_rss_bytes'])}; {_rss_growth(m)}", "",
         "Stage times [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in {**m['frontend_time_s'], **m['time_s']}.items())
         + ("  (front end from cache)" if all(m["frontend_cached"].values()) else ""), "",
     ]
@@ -66,7 +72,7 @@ def _online_lines(result: RunResult) -> list[str]:
         f"| {fmt(m['f1_max'])} | {mib(m['memory_bytes']['total'])} ({m['memory_bytes']['cloud_store']}) | "
         f"{m['bytes_per_keyframe']:.0f} | {m['fps']:.1f} | {m['backend_fps']:.1f} | "
         f"{m['realtime_factor']:.2f} | {lat['backend']['p99']:.1f} |", "",
-        f"{PROCESS_RSS_LABEL}: {mib(m['peak_rss_bytes'])}", "",
+        f"{PROCESS_RSS_LABEL}: {mib(m['peak_rss_bytes'])}; {_rss_growth(m)}", "",
         "Step totals [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in m["time_s"].items())
         + ("  (odometry replayed from cache)" if m.get("odometry_cached") else ""), "",
     ]

@@ -16,6 +16,7 @@ import numpy as np
 from msa_slam.descriptors import Descriptor
 from msa_slam.errors import InputError
 from msa_slam.evaluation import evaluate_trajectories
+from msa_slam.evaluation.resources import current_rss_bytes
 from msa_slam.place_recognition import PRCurve
 from msa_slam.registration import Verifier
 from msa_slam.sampling import make_sampler
@@ -72,6 +73,7 @@ class SlamBackend:
         self.loops: list[LoopClosure] = []
         self._pending: dict[int, tuple[np.ndarray, Points]] = {}  # frames the sampler may still choose
         self._frames = 0
+        self.rss_start = current_rss_bytes()  # the run's RSS growth is measured from here to `finish`
 
     @property
     def keyframes(self) -> list[int]:
@@ -194,11 +196,12 @@ class SlamBackend:
         t2 = time.perf_counter()
         stats = {**self.sampler.stats.as_dict(), "online_keyframes": len(self.sampler.online_keyframes),
                  "flushed_keyframes": len(self.sampler.flushed_keyframes)}
+        rss_growth = current_rss_bytes() - self.rss_start
         return RunResult(self.settings, self.name, self.times, self.odometry, gt, keys, optimised, self.loops,
                          pr, evaluation, self.steps_ms, memory, stats, len(self.loop_closer.best_similarity),
                          {"optimisation": t1 - t0, "evaluation": t2 - t1},
                          map_points=keyframe_map(self.store.clouds, keys, optimised, self.settings.verifier.voxel_size),
-                         graph_factors=self.graph.factors)
+                         graph_factors=self.graph.factors, rss_growth_bytes=rss_growth)
 
     def close(self) -> None:
         """Release the keyframe clouds (a disk store removes the files it wrote); safe to call twice."""

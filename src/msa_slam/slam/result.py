@@ -68,6 +68,7 @@ class RunResult:
     map_points: np.ndarray | None = None  # keyframe clouds at the optimised poses, voxel-merged (world)
     descriptors: np.ndarray | None = None  # per-frame descriptors, when the pipeline kept them (batch)
     graph_factors: Any = None  # the pose graph's factors (gtsam.NonlinearFactorGraph), for pose_graph.g2o
+    rss_growth_bytes: int = 0  # process RSS after the final optimisation minus at the back-end's start
 
     @property
     def accepted_loops(self) -> list[LoopClosure]:
@@ -127,5 +128,6 @@ def core_metrics(result: RunResult) -> dict[str, Any]:
                          "graph": mem["graph_bytes"], "total": mem["descriptor_bytes"] + clouds + mem["graph_bytes"]},
         "peak_rss_bytes": peak_rss_bytes(),  # the whole process's high-water mark, not this run's
         "peak_rss_scope": "process",
+        "rss_growth_bytes": int(result.rss_growth_bytes),
         "sampler_stats": result.sampler_stats,
     }
