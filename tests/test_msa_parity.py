@@ -28,13 +28,13 @@ MAX_AMBIGUOUS_CONFIGS = 4  # per stream and mode (of 24): the detector must stay
 CROSS_CPU_CASE = ("stream_s2_sc20x60.npz", "msa_N10_nn2_a10_b1_l0.1_u5")  # 73 here, 77 on an AVX2 EPYC
 
 
-def sampler_for(config: str, mode: str = "exact"):
+def sampler_for(config: str, mode: str = "exact", pi: str = "reference"):
     """Translate a parity configuration name into one of our samplers."""
     match = MSA_NAME.match(config)
     if match:
         n, nb, a, b, lo, hi = match.groups()
         return make_sampler("msa", window=int(n), neighbours=int(nb), alpha=float(a), beta=float(b),
-                            lambda_l=float(lo), lambda_u=float(hi), mode=mode)
+                            lambda_l=float(lo), lambda_u=float(hi), mode=mode, pi=pi)
     if config == "fixed_0":
         return make_sampler("all")
     if config.startswith("fixed_"):

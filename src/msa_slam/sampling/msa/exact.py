@@ -13,6 +13,7 @@ import numpy as np
 from numba import njit
 
 from msa_slam.sampling.msa import fast
+from msa_slam.sampling.msa.canonical import canonicalise
 from msa_slam.sampling.msa.decision import decide
 from msa_slam.sampling.msa.powerset import padded_subsets, subsets_by_size
 from msa_slam.sampling.msa.terms import C_CLIP, EIGENVALUE_FLOOR, ScoreWeights, WindowResult
@@ -121,14 +122,25 @@ def _scaled_steps(t: np.ndarray, scale: np.ndarray, out: np.ndarray) -> np.ndarr
     return out
 
 
-def _information(subsets: np.ndarray, x: np.ndarray, flat: np.ndarray, workspace: ExactWorkspace) -> np.ndarray:
+def _information(subsets: np.ndarray, x: np.ndarray, flat: np.ndarray, workspace: ExactWorkspace,
+                 canonical: bool = False) -> np.ndarray:
     """pi for candidates of one size (m > 2), in batches of CHUNK (one stacked eigh per batch)."""
     chunk = workspace.CHUNK
-    return np.concatenate([_information_batch(subsets[i:i + chunk], x[i:i + chunk], flat, workspace)
+    return np.concatenate([_information_batch(subsets[i:i + chunk], x[i:i + chunk], flat, workspace, canonical)
                            for i in range(0, len(subsets), chunk)])
 
 
-def _information_batch(subsets: np.ndarray, x: np.ndarray, flat: np.ndarray, ws: ExactWorkspace) -> np.ndarray:
+@njit(cache=True)
+def _canonicalise_stack(lam: np.ndarray, v: np.ndarray) -> None:  # pragma: no cover
+    """canonical.canonicalise on every eigen-decomposition of a stack (in place)."""
+    count, m = lam.shape
+    work = np.empty((m + 1, m))
+    for c in range(count):
+        canonicalise(lam[c], v[c], m, work)
+
+
+def _information_batch(subsets: np.ndarray, x: np.ndarray, flat: np.ndarray, ws: ExactWorkspace,
+                       canonical: bool) -> np.ndarray:
     count, m = subsets.shape
     width = flat.shape[1]
     f = np.take(flat, subsets, axis=0, out=ws.get("f", (count, m, width)), mode="clip")  # F, unbuffered
@@ -136,6 +148,8 @@ def _information_batch(subsets: np.ndarray, x: np.ndarray, flat: np.ndarray, ws:
         jt = _gradient(f, x, ws.get("jt", (count, m, width)))
         c = _sanitize(jt @ jt.transpose(0, 2, 1))  # C = J^T J
     lam, v = np.linalg.eigh(c)
+    if canonical:
+        _canonicalise_stack(lam, v)
     lam[lam < 0] = 0
     lam += EIGENVALUE_FLOOR
     t = ws.get("t", (count, m, width))  # (F^T V)^T: the reference's T, stored row per eigen-direction
@@ -147,7 +161,7 @@ def _information_batch(subsets: np.ndarray, x: np.ndarray, flat: np.ndarray, ws:
 
 
 def fast_path_extremes(pi: np.ndarray, dist: np.ndarray, sim: np.ndarray, dmin: float, dmax: float,
-                       gram: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                       gram: np.ndarray, canonical: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Extremes of the exact pi under rounding: the fast path's value and its probes' shifts.
 
     The fast path computes pi by another floating-point route (the Gram shortcut); where it or its
@@ -155,13 +169,14 @@ def fast_path_extremes(pi: np.ndarray, dist: np.ndarray, sim: np.ndarray, dmin: 
     """
     table, sizes = padded_subsets(len(dist))
     rows, _ = fast.feasible_and_redundancy(table, sizes, dist, sim, dmin, dmax)
-    value, low, high = fast.information_rows(table, sizes, rows, dist, gram, fast.PROBES)
+    value, low, high = fast.information_rows(table, sizes, rows, dist, gram, fast.PROBES, canonical)
     return np.minimum(value, pi + (low - value)), np.maximum(value, pi + (high - value))
 
 
 def optimise_exact(translations: np.ndarray, descriptors: np.ndarray, dmin: float, dmax: float,
-                   weights: ScoreWeights, workspace: ExactWorkspace) -> WindowResult:
+                   weights: ScoreWeights, workspace: ExactWorkspace, pi_definition: str = "reference") -> WindowResult:
     """The window's choice with the reference's arithmetic (and its ambiguity)."""
+    canonical = pi_definition == "canonical"
     n = len(translations)
     dist, sim = pairwise(translations, descriptors)
     allowed = (dist >= dmin) & (dist <= dmax)  # eq. (7) on every pair, then on every consecutive pair
@@ -174,8 +189,8 @@ def optimise_exact(translations: np.ndarray, descriptors: np.ndarray, dmin: floa
     pi = pi_low = pi_high = None
     if weights.use_pi:
         pi = np.concatenate([np.zeros(len(subsets)) if subsets.shape[1] == 2 else
-                             _information(subsets, dist[0, subsets], flat, workspace) for subsets in groups])
-        pi_low, pi_high = fast_path_extremes(pi, dist, sim, dmin, dmax, fast.gram(descriptors))
+                             _information(subsets, dist[0, subsets], flat, workspace, canonical) for subsets in groups])
+        pi_low, pi_high = fast_path_extremes(pi, dist, sim, dmin, dmax, fast.gram(descriptors), canonical)
     best, ambiguous, margin = decide(count, rho, pi, pi_low, pi_high, weights)
     for subsets in groups:
         if best < len(subsets):

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from msa_slam.sampling.msa.canonical import SOLVER_RTOL, canonicalise
 from msa_slam.sampling.msa.decision import decide
 from msa_slam.sampling.msa.powerset import padded_subsets
 from msa_slam.sampling.msa.terms import C_CLIP, EIGENVALUE_FLOOR, ScoreWeights, WindowResult
@@ -75,9 +76,10 @@ def feasible_and_redundancy(table: np.ndarray, sizes: np.ndarray, dist: np.ndarr
 
 @njit(cache=True)
 def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.ndarray,
-                     scratch: np.ndarray, probes: int):  # pragma: no cover
-    """pi of one candidate through G: returns (pi, lowest, highest), the extremes of pi over `probes`
-    eigen-decompositions of C perturbed by PROBE_SCALE (and pi itself).
+                     scratch: np.ndarray, probes: int, canonical: bool):  # pragma: no cover
+    """pi of one candidate through G: returns (pi, lowest, highest). Reference pi: the extremes over
+    `probes` eigen-decompositions of C perturbed by PROBE_SCALE (and pi itself). Canonical pi: pi plus
+    or minus its bound under solver rounding (canonical.py), no probes needed.
 
     A's three diagonals are `lower`, `diag`, `upper` (row k uses columns k-1, k, k+1).
     """
@@ -122,7 +124,9 @@ def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nda
             for k in range(m):
                 v = 0.0 if np.isnan(c[i, k]) else c[i, k]
                 c[i, k] = min(max(v, -C_CLIP), C_CLIP)
-    pi = _pi_of_information(c, g, m, scratch)
+    pi, bound = _pi_of_information(c, g, m, scratch, canonical)
+    if canonical:
+        return pi, max(pi - bound, 0.0), min(pi + bound, 1.0)
     lowest, highest = pi, pi
     probe = np.empty((m, m))
     for p in range(probes):
@@ -130,16 +134,22 @@ def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nda
             for k in range(m):  # a fixed symmetric pattern in [-1, 1], different per probe
                 probe[i, k] = c[i, k] * (1.0 + PROBE_SCALE * np.sin(12.9898 * (p + 1) + 78.233 * (i + k)
                                                                     + 37.719 * i * k))
-        value = _pi_of_information(probe, g, m, scratch)
+        value = _pi_of_information(probe, g, m, scratch, False)[0]
         lowest, highest = min(lowest, value), max(highest, value)
     return pi, lowest, highest
 
 
 @njit(cache=True)
-def _pi_of_information(c: np.ndarray, g: np.ndarray, m: int, scratch: np.ndarray) -> float:  # pragma: no cover
-    """pi from the information matrix C and the candidate's Gram block G_S (e_j^2 = d_j^T G_S d_j)."""
+def _pi_of_information(c: np.ndarray, g: np.ndarray, m: int, scratch: np.ndarray,
+                       canonical: bool):  # pragma: no cover
+    """pi from the information matrix C and the candidate's Gram block G_S (e_j^2 = d_j^T G_S d_j),
+    and (canonical only) a bound on how far another solver's rounding could move it (1 if C sits
+    at a threshold of the canonical form)."""
     scale, d, e = scratch[3, :m], scratch[4, :m], scratch[5, :m - 1]
     lam, vec = np.linalg.eigh(c)
+    err = 0.0
+    if canonical:
+        err = canonicalise(lam, vec, m, scratch[6 + 2 * m:7 + 3 * m, :m])
     for j in range(m):
         scale[j] = np.sqrt(max(lam[j], 0.0) + EIGENVALUE_FLOOR)
     for j in range(m - 1):
@@ -156,20 +166,29 @@ def _pi_of_information(c: np.ndarray, g: np.ndarray, m: int, scratch: np.ndarray
     total = 0.0
     for j in range(m - 1):
         total += (e[j] - lo) / (hi - lo + EIGENVALUE_FLOOR)
-    return total / (m - 1)
+    bound = 0.0
+    if err > 0.0:  # |delta e_j| <= 2 |delta a|_G, |delta a| <= err sqrt(lam_max) + |delta sqrt(lam)|
+        trace = 0.0
+        for i in range(m):
+            trace += g[i, i]
+        shift = 2.0 * np.sqrt(trace) * (err * scale[m - 1] + np.sqrt(SOLVER_RTOL * lam[m - 1] + EIGENVALUE_FLOOR)
+                                        - np.sqrt(EIGENVALUE_FLOOR))
+        bound = min(3.0 * shift / (hi - lo + EIGENVALUE_FLOOR), 1.0)
+    return total / (m - 1), bound
 
 
 @njit(cache=True)
 def information_rows(table: np.ndarray, sizes: np.ndarray, rows: np.ndarray, dist: np.ndarray,
-                     gram: np.ndarray, probes: int) -> np.ndarray:  # pragma: no cover
-    """(3, rows): pi of the given candidate rows, and its lowest and highest value over the probes."""
+                     gram: np.ndarray, probes: int, canonical: bool = False) -> np.ndarray:  # pragma: no cover
+    """(3, rows): pi of the given candidate rows, and its lowest and highest value under rounding."""
     out = np.zeros((3, len(rows)))
     width = table.shape[1] + 1
-    scratch = np.empty((6 + 2 * width, width))
+    scratch = np.empty((7 + 3 * width, width))
     for i in range(len(rows)):
         m = sizes[rows[i]]
         if m > 2:
-            out[0, i], out[1, i], out[2, i] = information_gram(table[rows[i]], m, dist, gram, scratch, probes)
+            out[0, i], out[1, i], out[2, i] = information_gram(table[rows[i]], m, dist, gram, scratch, probes,
+                                                                  canonical)
     return out
 
 
@@ -180,7 +199,7 @@ def gram(descriptors: np.ndarray) -> np.ndarray:
 
 
 def optimise_fast(translations: np.ndarray, descriptors: np.ndarray, dmin: float, dmax: float,
-                  weights: ScoreWeights) -> WindowResult:
+                  weights: ScoreWeights, pi_definition: str = "reference") -> WindowResult:
     """The window's choice with pi through the Gram matrix (and its ambiguity from the probes)."""
     n = len(translations)
     blocks = descriptors.reshape(n, -1, 1) if descriptors.ndim == 2 else descriptors
@@ -191,7 +210,8 @@ def optimise_fast(translations: np.ndarray, descriptors: np.ndarray, dmin: float
         return WindowResult((0, n - 1), 1)
     pi = pi_low = pi_high = None
     if weights.use_pi:
-        pi, pi_low, pi_high = information_rows(table, sizes, rows, dist, gram(descriptors), PROBES)
+        pi, pi_low, pi_high = information_rows(table, sizes, rows, dist, gram(descriptors), PROBES,
+                                               pi_definition == "canonical")
     best, ambiguous, margin = decide(int(rows.size), rho if weights.use_rho else None, pi, pi_low, pi_high, weights)
     row = rows[best]
     return WindowResult(tuple(int(p) for p in table[row, :sizes[row]]), int(rows.size), ambiguous, margin)

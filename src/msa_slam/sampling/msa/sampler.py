@@ -20,7 +20,7 @@ from msa_slam.sampling import checks
 from msa_slam.sampling.base import AmbiguousWindow, Sampler, Timer
 from msa_slam.sampling.msa.exact import ExactWorkspace
 from msa_slam.sampling.msa.terms import ScoreWeights
-from msa_slam.sampling.msa.window import MODES, optimise_window
+from msa_slam.sampling.msa.window import MODES, PI_DEFINITIONS, optimise_window
 
 MAX_CANDIDATES = 2 ** 15 - 2  # per window optimisation, i.e. N <= 16: measured 5 s a window in exact mode
 # (sc20x60, 17811 feasible candidates), 1 s in fast mode; N = 20 took 116 s for 150 frames, N = 30 runs out of memory
@@ -57,15 +57,17 @@ class MSASampler(Sampler):
     Parameters: window size N, alpha and beta (eq. 8), lambda_l / lambda_u (distance bounds as multiples
     of the running average step, eq. 7), neighbours (old keyframes near the window's end that join it;
     the authors' example uses 2), use_rho / use_pi (the paper's ablations), mode "exact" (the reference's
-    floating-point path) or "fast" (Gram-matrix formulation). Windows whose choice rounding could change
-    are counted in `stats.ambiguous` (msa/decision.py).
+    floating-point path) or "fast" (Gram-matrix formulation), pi "reference" (LAPACK's eigenvectors, the
+    authors' keyframes) or "canonical" (eigenvectors fixed from the data alone: the same keyframes on
+    every machine, msa/canonical.py). Windows whose choice rounding could change are counted in
+    `stats.ambiguous` (msa/decision.py).
     """
 
     name = "msa"
 
     def __init__(self, window: int = 10, alpha: float = 1.0, beta: float = 1.0, lambda_l: float = 0.1,
                  lambda_u: float = 3.0, neighbours: int = 0, use_rho: bool = True, use_pi: bool = True,
-                 mode: str = "exact") -> None:
+                 mode: str = "exact", pi: str = "reference") -> None:
         super().__init__()
         self.window_size = checks.integer(self.name, "window", window, 3)
         self.neighbours = checks.integer(self.name, "neighbours", neighbours, 0)
@@ -78,6 +80,7 @@ class MSASampler(Sampler):
             raise InputError(f"sampler 'msa': lambda_l={lambda_l!r} > lambda_u={lambda_u!r} is not allowed; "
                              f"expected lambda_l <= lambda_u")
         self.mode = checks.choice(self.name, "mode", mode, MODES)
+        self.pi = checks.choice(self.name, "pi", pi, PI_DEFINITIONS)
         self.weights = ScoreWeights(alpha, beta, checks.boolean(self.name, "use_rho", use_rho),
                                     checks.boolean(self.name, "use_pi", use_pi))
         self._window: list[int] = []
@@ -145,7 +148,7 @@ class MSASampler(Sampler):
             result = optimise_window(
                 np.array([self._translation[f] for f in members]),
                 np.array([self._descriptor[f] for f in members]),
-                self.dmin, self.dmax, self.weights, self.mode, self._workspace)
+                self.dmin, self.dmax, self.weights, self.mode, self._workspace, self.pi)
         self._record(result, members, timer.ms)
         new: list[int] = []  # 4. emit: the chosen members after the first (already a keyframe)
         for pos in result.positions[1:]:

@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from msa_slam.sampling.msa.canonical import canonicalise
+
 EIGENVALUE_FLOOR = 1e-6  # added to every eigenvalue of C, and to the denominator of e's normalisation
 C_CLIP = 1e6  # a non-finite C (coincident distances) is cleaned and clipped to this, as the reference does
 
@@ -72,13 +74,14 @@ def redundancy(descriptors: np.ndarray) -> float:
     return float(np.mean([similarity(descriptors[k + 1], descriptors[k]) for k in range(len(descriptors) - 1)]))
 
 
-def information(translations: np.ndarray, flat: np.ndarray) -> float:
+def information(translations: np.ndarray, flat: np.ndarray, canonical: bool = False) -> float:
     """pi, eqs. (4)-(5): how much the descriptors change along the path, spread over eigen-directions.
 
     J is the gradient of the flattened descriptors F (m, M) with respect to the straight-line distance
     from the subset's first pose (numpy.gradient, non-uniform spacing); C = J^T J is the information
     matrix. The reference then compares CONSECUTIVE scaled eigen-directions T_j = F^T v_j sqrt(lam_j):
-    e_j = |T_{j+1} - T_j|, min-max normalised, averaged. Two members give pi = 0.
+    e_j = |T_{j+1} - T_j|, min-max normalised, averaged. Two members give pi = 0. `canonical` fixes
+    the eigenvectors' signs and the bases of (near-)repeated eigenvalues from C alone (canonical.py).
     """
     m = len(flat)
     if m == 2:
@@ -90,6 +93,8 @@ def information(translations: np.ndarray, flat: np.ndarray) -> float:
     if not np.isfinite(c).all():
         c = np.clip(np.nan_to_num(c), -C_CLIP, C_CLIP)
     lam, v = np.linalg.eigh(c)
+    if canonical:
+        canonicalise(lam, v, m, np.empty((m + 1, m)))
     lam[lam < 0] = 0
     lam += EIGENVALUE_FLOOR
     t = (flat.T @ v) * np.sqrt(lam)
@@ -114,10 +119,10 @@ def score(rho: np.ndarray, pi: np.ndarray, weights: ScoreWeights) -> np.ndarray:
 
 
 def optimise_window_literal(translations: np.ndarray, descriptors: np.ndarray, dmin: float, dmax: float,
-                            weights: ScoreWeights) -> WindowResult:
+                            weights: ScoreWeights, canonical: bool = False) -> WindowResult:
     """Enumerate, score and choose one subset at a time; the first candidate with the smallest score wins."""
     flat = descriptors.reshape(len(descriptors), -1)
     candidates = constrained_power_set(translations, dmin, dmax)
     rho = np.array([redundancy(descriptors[list(s)]) for s in candidates])
-    pi = np.array([information(translations[list(s)], flat[list(s)]) for s in candidates])
+    pi = np.array([information(translations[list(s)], flat[list(s)], canonical) for s in candidates])
     return WindowResult(candidates[int(np.argmin(score(rho, pi, weights)))], len(candidates))

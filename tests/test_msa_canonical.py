@@ -1,0 +1,127 @@
+"""Canonical pi (sampling/msa/canonical.py): a function of C alone, whatever the solver's signs and
+in-eigenspace rotations, equal across the exact and fast paths, and never ambiguous on the parity streams."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import shared_path
+from msa_slam.sampling.msa import exact, fast, terms
+from msa_slam.sampling.msa.canonical import SIGN_ATOL, canonicalise
+from msa_slam.sampling.msa.powerset import padded_subsets, subsets_by_size
+from test_msa_parity import MSA_NAME, STREAMS, load_stream, sampler_for
+
+
+def spectrum_matrix(lam: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A symmetric C with eigenvalues lam and a random orthonormal eigenbasis Q (C = Q diag(lam) Q^T)."""
+    q, _ = np.linalg.qr(np.random.default_rng(seed).standard_normal((len(lam), len(lam))))
+    return (q * lam) @ q.T, q
+
+
+def canonical(lam: np.ndarray, vec: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    lam, vec = lam.copy(), vec.copy()
+    err = canonicalise(lam, vec, len(lam), np.empty((len(lam) + 1, len(lam))))
+    return lam, vec, err
+
+
+def test_canonical_pairs_ignore_the_solvers_signs_and_rotations_in_an_eigenspace():
+    lam = np.array([0.0, 0.5, 2.0, 2.0, 2.0, 7.0, 9.0])  # a triple eigenvalue at 2
+    c, q = spectrum_matrix(lam, 1)
+    rng = np.random.default_rng(2)
+    rotation, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    other = q * rng.choice([-1.0, 1.0], len(lam))  # another solver: other signs, another basis of lam = 2
+    other[:, 2:5] = other[:, 2:5] @ rotation
+    assert np.allclose((other * lam) @ other.T, c)
+    assert not np.allclose(other, q)
+    lam_a, vec_a, err_a = canonical(lam, q)
+    lam_b, vec_b, err_b = canonical(lam, other)
+    np.testing.assert_allclose(vec_a, vec_b, atol=1e-12)
+    np.testing.assert_allclose(lam_a, lam_b)
+    assert np.isfinite(err_a) and np.isfinite(err_b)
+    np.testing.assert_allclose((vec_a * lam_a) @ vec_a.T, c, atol=1e-12)  # still C's eigen-decomposition
+    assert all(vec_a[np.argmax(np.abs(vec_a[:, j])), j] > 0 for j in range(len(lam)))
+
+
+def test_near_equal_eigenvalues_form_one_cluster_with_their_mean():
+    lam = np.array([1.0, 3.0, 3.0 * (1 + 1e-9), 5.0])
+    _, q = spectrum_matrix(lam, 3)
+    got, _, _ = canonical(lam, q)
+    assert got[1] == got[2] == pytest.approx(3.0 * (1 + 5e-10), rel=1e-15)
+    assert got[0] == 1.0 and got[3] == 5.0
+
+
+def test_a_sign_tie_at_rounding_level_is_reported():
+    vec = np.eye(3)
+    vec[:, 0] = [0.6, -(0.6 - SIGN_ATOL), 0.0]  # the second component right at the tie's edge
+    vec[2, 0] = np.sqrt(1 - vec[0, 0] ** 2 - vec[1, 0] ** 2)
+    vec[:, 1] = np.cross(vec[:, 2], vec[:, 0])
+    assert canonical(np.array([1.0, 2.0, 3.0]), vec)[2] == np.inf
+    vec[:, 0] = [0.6, -(0.6 - 2 * SIGN_ATOL), 0.0]  # clearly outside the tie
+    vec[2, 0] = np.sqrt(1 - vec[0, 0] ** 2 - vec[1, 0] ** 2)
+    vec[:, 1] = np.cross(vec[:, 2], vec[:, 0])
+    assert np.isfinite(canonical(np.array([1.0, 2.0, 3.0]), vec)[2])
+
+
+def test_canonical_pi_is_invariant_where_the_reference_is_not(monkeypatch):
+    """Flip the signs LAPACK returns: the reference's pi moves, the canonical one does not."""
+    rng = np.random.default_rng(4)
+    t = np.zeros((6, 3))
+    t[:, 0] = np.cumsum(rng.uniform(0.5, 1.5, 6))
+    flat = np.cumsum(rng.standard_normal((6, 40)), axis=0)
+    values = {True: [], False: []}
+    eigh = np.linalg.eigh
+    for signs in (np.ones(6), np.array([1.0, -1, 1, -1, -1, 1])):
+        monkeypatch.setattr(np.linalg, "eigh", lambda c, s=signs: (eigh(c)[0], eigh(c)[1] * s))
+        for canonical_pi in (True, False):
+            values[canonical_pi].append(terms.information(t, flat, canonical_pi))
+    monkeypatch.setattr(np.linalg, "eigh", eigh)
+    assert values[True][0] == pytest.approx(values[True][1], abs=1e-12)
+    assert abs(values[False][0] - values[False][1]) > 1e-3
+
+
+def test_batched_canonical_pi_equals_the_one_subset_definition():
+    rng = np.random.default_rng(5)
+    n = 8
+    t = np.zeros((n, 3))
+    t[:, :2] = np.cumsum(rng.uniform(0.2, 1.0, (n, 2)), axis=0)
+    desc = np.cumsum(rng.standard_normal((n, 24)), axis=0)
+    subsets = subsets_by_size(n)[3]
+    dist, _ = exact.pairwise(t, desc)
+    batched = exact._information(subsets, dist[0, subsets], desc, exact.ExactWorkspace(), True)
+    one_by_one = [terms.information(t[s], desc[s], True) for s in subsets]
+    assert batched.tolist() == one_by_one
+    table, sizes = padded_subsets(n)
+    rows = np.flatnonzero(sizes == 5)
+    value, low, high = fast.information_rows(table, sizes, rows, dist, fast.gram(desc), 0, True)
+    np.testing.assert_allclose(value, one_by_one, atol=1e-9)
+    assert (low <= value).all() and (value <= high).all() and (high - low < 1e-6).all()
+
+
+@pytest.fixture(scope="module", params=[p.name for p in STREAMS] or ["missing"])
+def stream(request):
+    if request.param == "missing":
+        pytest.skip("parity vectors not available (../shared/parity)")
+    return (request.param, *load_stream(shared_path("parity", request.param)))
+
+
+def test_canonical_pi_has_no_ambiguous_window_on_the_parity_streams(stream, record_property):
+    """Every window of the 24 configurations, fast path; reports the agreement with the reference."""
+    name, poses, descriptors, _, expected = stream
+    windows = agree = 0
+    for config, keyframes in expected.items():
+        if MSA_NAME.match(config):
+            sampler = sampler_for(config, "fast", "canonical")
+            agree += sampler.run(poses, descriptors) == keyframes
+            windows += sampler.stats.window_optimisations
+            assert sampler.stats.ambiguous == [], config
+    assert windows > 0
+    record_property("canonical_agreeing_with_reference", f"{agree} of 24")
+
+
+def test_exact_and_fast_paths_choose_the_same_canonical_keyframes(stream):
+    _, poses, descriptors, _, expected = stream
+    configs = [c for c in expected if MSA_NAME.match(c)][::6]  # 4 of 24: both N and both neighbour counts
+    for config in configs:
+        assert sampler_for(config, "exact", "canonical").run(poses, descriptors) == \
+            sampler_for(config, "fast", "canonical").run(poses, descriptors), config
