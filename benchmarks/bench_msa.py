@@ -18,9 +18,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 
 from msa_slam.sampling import make_sampler
 from msa_slam.sampling.msa import ScoreWeights, optimise_window
+from msa_slam.sampling.msa.eigen import symmetric_eigh
 from msa_slam.sampling.msa.exact import ExactWorkspace
 from msa_slam.sampling.msa.terms import optimise_window_literal
 
@@ -63,6 +65,45 @@ def literal_speedup(poses, desc, window: int = 10, windows: int = 12):
             call()
             results[name].append((time.perf_counter() - t0) * 1e3)
     return {k: float(np.median(v)) for k, v in results.items()}
+
+
+@njit
+def _lapack_each(cs):  # pragma: no cover
+    total = 0.0
+    for k in range(cs.shape[0]):
+        total += np.linalg.eigh(cs[k])[0][0]
+    return total
+
+
+@njit
+def _compiled_each(cs, v, d, e):  # pragma: no cover
+    total = 0.0
+    for k in range(cs.shape[0]):
+        v[:, :] = cs[k]
+        symmetric_eigh(v, d, e, cs.shape[1])
+        total += d[0]
+    return total
+
+
+def eigensolver_timings(sizes=(3, 5, 9, 10, 15, 19), count=2000, repeats=5):
+    """Median us per matrix: LAPACK dsyevd (numba's np.linalg.eigh) vs msa.eigen on random C = X X^T."""
+    rows = []
+    for m in sizes:
+        x = np.random.default_rng(m).standard_normal((count, m, m))
+        cs = x @ x.transpose(0, 2, 1)
+        v, d, e = np.empty((m, m)), np.empty(m), np.empty(m)
+        calls = {"dsyevd": lambda: _lapack_each(cs), "compiled": lambda: _compiled_each(cs, v, d, e)}
+        timing = {}
+        for name, call in calls.items():
+            call()
+            runs = []
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                call()
+                runs.append((time.perf_counter() - t0) / count * 1e6)
+            timing[name] = float(np.median(runs))
+        rows.append((m, timing["dsyevd"], timing["compiled"]))
+    return rows
 
 
 def parity_stream_timings():
@@ -128,6 +169,11 @@ def main() -> int:
         r = literal_speedup(*random_walk_stream(shape, 240))
         print(f"{shape_name:8} {r['literal']:>14.2f} {r['exact']:>8.2f} {r['fast']:>8.3f} "
               f"{r['literal'] / r['exact']:>8.1f} {r['literal'] / r['fast']:>8.1f}")
+
+    print("\nEigensolver per matrix (random C = X X^T, median us): LAPACK dsyevd vs msa/eigen.py")
+    print(f"{'m':>3} {'dsyevd':>8} {'compiled':>9} {'speed-up':>9}")
+    for m, lapack, compiled in eigensolver_timings():
+        print(f"{m:>3} {lapack:>8.2f} {compiled:>9.2f} {lapack / compiled:>8.2f}x", flush=True)
 
     if args.quick:
         return 0

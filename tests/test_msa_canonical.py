@@ -125,3 +125,21 @@ def test_exact_and_fast_paths_choose_the_same_canonical_keyframes(stream):
     for config in configs:
         assert sampler_for(config, "exact", "canonical").run(poses, descriptors) == \
             sampler_for(config, "fast", "canonical").run(poses, descriptors), config
+
+
+@pytest.mark.parametrize("m", [3, 10, 19])
+def test_compiled_eigensolver_matches_lapack_on_random_and_degenerate_matrices(m):
+    from msa_slam.sampling.msa.eigen import symmetric_eigh
+
+    rng = np.random.default_rng(m)
+    lam = np.sort(rng.uniform(0, 10, m))
+    lam[1:3] = lam[1]  # a repeated eigenvalue
+    for c in (spectrum_matrix(lam, m)[0], np.cov(rng.standard_normal((m, 2 * m)))):
+        got_lam, got_vec = np.empty(m), c.copy()
+        symmetric_eigh(got_vec, got_lam, np.empty(m), m)
+        want_lam, want_vec = np.linalg.eigh(c)
+        scale = np.abs(want_lam).max()
+        np.testing.assert_allclose(got_lam, want_lam, atol=1e-13 * scale)
+        np.testing.assert_allclose(got_vec.T @ got_vec, np.eye(m), atol=1e-13)
+        np.testing.assert_allclose((got_vec * got_lam) @ got_vec.T, c, atol=1e-13 * scale)
+        np.testing.assert_allclose(canonical(got_lam, got_vec)[1], canonical(want_lam, want_vec)[1], atol=1e-9)

@@ -17,6 +17,7 @@ from numba import njit
 
 from msa_slam.sampling.msa.canonical import SOLVER_RTOL, canonicalise
 from msa_slam.sampling.msa.decision import decide
+from msa_slam.sampling.msa.eigen import symmetric_eigh
 from msa_slam.sampling.msa.powerset import padded_subsets
 from msa_slam.sampling.msa.terms import C_CLIP, EIGENVALUE_FLOOR, ScoreWeights, WindowResult
 
@@ -146,10 +147,16 @@ def _pi_of_information(c: np.ndarray, g: np.ndarray, m: int, scratch: np.ndarray
     and (canonical only) a bound on how far another solver's rounding could move it (1 if C sits
     at a threshold of the canonical form)."""
     scale, d, e = scratch[3, :m], scratch[4, :m], scratch[5, :m - 1]
-    lam, vec = np.linalg.eigh(c)
+    vec, lam = scratch[7 + 3 * m:7 + 4 * m, :m], scratch[7 + 4 * m, :m]
     err = 0.0
-    if canonical:
+    if canonical:  # any accurate solver will do: the canonical form fixes what solvers leave open
+        vec[:, :] = c
+        symmetric_eigh(vec, lam, scratch[8 + 4 * m, :m], m)
         err = canonicalise(lam, vec, m, scratch[6 + 2 * m:7 + 3 * m, :m])
+    else:
+        values, vectors = np.linalg.eigh(c)
+        lam[:] = values
+        vec[:, :] = vectors
     for j in range(m):
         scale[j] = np.sqrt(max(lam[j], 0.0) + EIGENVALUE_FLOOR)
     for j in range(m - 1):
@@ -183,7 +190,7 @@ def information_rows(table: np.ndarray, sizes: np.ndarray, rows: np.ndarray, dis
     """(3, rows): pi of the given candidate rows, and its lowest and highest value under rounding."""
     out = np.zeros((3, len(rows)))
     width = table.shape[1] + 1
-    scratch = np.empty((7 + 3 * width, width))
+    scratch = np.empty((9 + 4 * width, width))
     for i in range(len(rows)):
         m = sizes[rows[i]]
         if m > 2:
