@@ -85,7 +85,7 @@ class _CountingOdometry:
         self.config = {"method": "counting", "tag": tag}
         self.calls = 0
 
-    def register(self, points, timestamps=None):
+    def register(self, points, timestamps=None, time=None):
         pose = np.eye(4)
         pose[0, 3] = self.calls
         self.calls += 1

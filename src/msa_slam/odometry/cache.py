@@ -20,7 +20,8 @@ ODOMETRY_LIBRARIES = ("kiss-icp", "numpy")
 class Odometry(Protocol):
     config: Mapping[str, Any]
 
-    def register(self, points: np.ndarray, timestamps: np.ndarray | None = None) -> np.ndarray: ...
+    def register(self, points: np.ndarray, timestamps: np.ndarray | None = None,
+                 time: float | None = None) -> np.ndarray: ...
 
 
 class OdometryCache:
@@ -76,8 +77,8 @@ def sequence_odometry(sequence: ScanSequence, odometry: Odometry, cache: Odometr
     with progress_bar(quiet) as progress:
         task = progress.add_task("odometry", total=len(sequence))
         for i in range(len(sequence)):
-            frame = sequence[i]  # per-point times: used by KISS-ICP only with deskew on
-            poses[i] = odometry.register(frame.points, frame.timestamps)
+            frame = sequence[i]  # per-point and scan times: used by KISS-ICP only with deskew on
+            poses[i] = odometry.register(frame.points, frame.timestamps, frame.time)
             progress.advance(task)
     if cache is not None and key is not None:
         cache.save(key, poses)

@@ -15,6 +15,7 @@ from kiss_icp.config.parser import KISSConfig
 from kiss_icp.kiss_icp import KissICP
 
 from msa_slam.errors import InputError
+from msa_slam.odometry.deskew import deskew, se3_log
 from msa_slam.io.poses import read_poses
 from msa_slam.types import as_points
 
@@ -44,7 +45,8 @@ class KissOdometry:
 
     The configuration is built from these arguments only (KISS-ICP's own defaults written out), never from
     `load_config`, which reads `kiss_icp_*` environment variables that would change results unseen.
-    Deskewing is off by default (scans without per-point times); the voxel size follows KISS-ICP's rule
+    Deskewing is off by default (scans without per-point times); with it on, see `register` for the sweep
+    time convention. The voxel size follows KISS-ICP's rule
     max_range / 100 unless given. `num_threads=1` (default) keeps the ICP reductions in a fixed order, so
     identical runs give identical poses; 0 (KISS-ICP's "all cores") is faster but differs between runs
     by rounding, which keyframe sampling can turn into different keyframes. KISS-ICP sets its (TBB) thread
@@ -80,6 +82,8 @@ class KissOdometry:
         _claim_threads(config.registration.max_num_threads)
         self._icp = KissICP(config)
         self._frames = 0
+        self._last_time: float | None = None  # scan time of the previous frame (deskew: sweep / frame interval)
+        self._first: list[tuple[np.ndarray, np.ndarray | None, float | None]] = []  # frames 0-1, see _restart_deskewed
         self.unregistered_frames: list[int] = []  # frames with no points to register: pose extrapolated
 
     @property
@@ -101,22 +105,80 @@ class KissOdometry:
         """The full effective KISS-ICP configuration, thread count and version (identifies cached results)."""
         settings = self._icp.config.model_dump()
         settings.pop("out_dir", None)
+        if settings["data"]["deskew"]:  # not KISS-ICP's own end-of-sweep deskew (see register)
+            settings["data"]["deskew_reference"] = "mid-sweep"
         return {"method": "kiss_icp", "kiss_icp_version": kiss_icp.__version__, **settings}
 
-    def register(self, points: np.ndarray, timestamps: np.ndarray | None = None) -> np.ndarray:
+    def register(self, points: np.ndarray, timestamps: np.ndarray | None = None,
+                 time: float | None = None) -> np.ndarray:
         """Register the next scan (sensor frame); return its (4, 4) world-from-LiDAR pose.
+
+        With deskew on and per-point `timestamps` (s from the sweep start), the pose is that of mid-sweep,
+        the time KITTI's (and the simulator's) scan timestamp and ground truth refer to. KISS-ICP 1.3 alone
+        deskews to the sweep's END (its times normalised to [0, 1], 1 = no correction), so its poses would
+        lead the ground truth by half a sweep, and frames 0-1 (no motion known yet) would stay distorted
+        in the map. `time` (the scan's timestamp, s) scales the motion to the sweep:
+        with every 2nd scan read (--jump 2) a sweep covers half the interval between frames.
 
         KISS-ICP does not report whether its ICP converged; what it does expose is the set of points it
         registered: a frame with none (all outside [min_range, max_range]) only gets the constant-velocity
         prediction, which is logged as a warning and listed in `unregistered_frames`.
         """
         cloud = as_points(points, where=f"odometry frame {self._frames}")
-        stamps = np.zeros(0) if timestamps is None else np.asarray(timestamps, dtype=np.float64).ravel()
-        _, source = self._icp.register_frame(cloud, stamps)
+        stamps = None
+        if self._icp.config.data.deskew and timestamps is not None:
+            stamps = self._point_times(timestamps, len(cloud))
+            if self._frames >= 2:
+                cloud = self._deskew(cloud, stamps, self._sweep_share(stamps, time), self._icp.last_delta)
+        _, source = self._icp.register_frame(cloud, np.zeros(0))  # no times: KISS-ICP's own deskew skipped
         if len(source) == 0 and self._frames > 0:
             self._not_registered(len(cloud))
+        if self._frames < 2:
+            self._first.append((cloud, stamps, time))
+            if self._frames == 1 and all(first[1] is not None for first in self._first):
+                self._restart_deskewed()
         self._frames += 1
+        self._last_time = None if time is None else float(time)
         return np.array(self._icp.last_pose, dtype=np.float64)
+
+    def _restart_deskewed(self) -> None:
+        """Frames 0 and 1 come before any motion is known, so they are registered raw; a map built from
+        them would hold their distortion for as long as it keeps their points, and later (deskewed) scans
+        would be registered against a distorted map. Once frame 1 gives the motion, KISS-ICP starts over
+        with both deskewed by it."""
+        (cloud0, stamps0, time0), (cloud1, stamps1, time1) = self._first
+        motion = self._icp.last_delta.copy()
+        self._icp = KissICP(self._icp.config)
+        self._last_time = None if time0 is None else float(time0)
+        share = self._sweep_share(stamps1, time1)
+        for cloud, stamps in ((cloud0, stamps0), (cloud1, stamps1)):
+            self._icp.register_frame(self._deskew(cloud, stamps, share, motion), np.zeros(0))
+        self._first.clear()
+
+    def _point_times(self, timestamps: np.ndarray, n_points: int) -> np.ndarray:
+        stamps = np.asarray(timestamps, dtype=np.float64).ravel()
+        if len(stamps) != n_points or not np.isfinite(stamps).all():
+            raise InputError(f"odometry frame {self._frames}: {len(stamps)} per-point times for {n_points} "
+                             "points; deskewing needs one finite time (s) a point")
+        return stamps
+
+    def _sweep_share(self, stamps: np.ndarray, time: float | None) -> float:
+        """Share of the interval since the previous frame that the sweep took (1: unknown, or a sweep per
+        frame interval)."""
+        span = float(stamps.max() - stamps.min()) if len(stamps) else 0.0
+        if time is not None and self._last_time is not None and time > self._last_time:
+            return min(1.0, span / (time - self._last_time))
+        return 1.0
+
+    @staticmethod
+    def _deskew(cloud: np.ndarray, stamps: np.ndarray, share: float, motion: np.ndarray) -> np.ndarray:
+        """Each point moved into the sensor frame of mid-sweep (midway between the first and last point's
+        time), at the constant velocity of `motion` (a frame interval's), `share` of it during the sweep."""
+        span = float(stamps.max() - stamps.min()) if len(stamps) else 0.0
+        if span <= 0.0:  # one time for all points: nothing to correct (KISS-ICP would divide by zero)
+            return cloud
+        rho, phi = se3_log(motion)
+        return deskew(cloud, (stamps - stamps.min()) / span, share * rho, share * phi)
 
     def _not_registered(self, n_points: int) -> None:
         self.unregistered_frames.append(self._frames)
@@ -156,7 +218,8 @@ class PosesFromFile:
     def __len__(self) -> int:
         return len(self.poses)
 
-    def register(self, points: np.ndarray | None = None, timestamps: np.ndarray | None = None) -> np.ndarray:
+    def register(self, points: np.ndarray | None = None, timestamps: np.ndarray | None = None,
+                 time: float | None = None) -> np.ndarray:
         """Return the next pose of the file (the scan itself is not needed)."""
         if self._frames >= len(self.poses):
             raise InputError(f"{self.path}: has {len(self.poses)} poses but frame {self._frames} was requested")

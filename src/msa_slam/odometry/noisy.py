@@ -33,7 +33,8 @@ class NoisyOdometry:
         return {"method": "gt_noise", "translation_noise": self.translation_noise,
                 "rotation_noise_deg": self.rotation_noise_deg, "seed": self.seed}
 
-    def register(self, points: np.ndarray | None = None, timestamps: np.ndarray | None = None) -> np.ndarray:
+    def register(self, points: np.ndarray | None = None, timestamps: np.ndarray | None = None,
+                 time: float | None = None) -> np.ndarray:
         """The next odometry pose (the scan itself is not needed)."""
         i = self._frames
         if i >= len(self._gt):
@@ -57,6 +58,7 @@ class ReplayedOdometry:
     def __init__(self, poses: np.ndarray) -> None:
         self.poses, self._i = poses, 0
 
-    def register(self, points: np.ndarray | None = None, timestamps: np.ndarray | None = None) -> np.ndarray:
+    def register(self, points: np.ndarray | None = None, timestamps: np.ndarray | None = None,
+                 time: float | None = None) -> np.ndarray:
         self._i += 1
         return self.poses[self._i - 1]
