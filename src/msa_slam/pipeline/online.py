@@ -135,7 +135,7 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
             if i >= n:
                 break
             t0 = time.perf_counter()
-            pose = odometry.register(frame.points)
+            pose = odometry.register(frame.points, frame.timestamps, frame.time)  # times: for deskew
             t1 = time.perf_counter()
             desc = np.asarray(descriptor.compute(frame.points, frame=i), dtype=np.float64)
             front_ms["odometry"][i], front_ms["descriptor"][i] = (t1 - t0) * 1e3, (time.perf_counter() - t1) * 1e3
