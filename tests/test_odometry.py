@@ -78,6 +78,26 @@ def test_poses_from_file(tmp_path):
         PosesFromFile(tmp_path / "missing.txt")
 
 
+def test_pose_file_odometry_follows_the_scan_selection(tmp_path):
+    # --odometry FILE with --first/--jump/-n: the file holds one pose a scan of the recording, like --gt
+    from msa_slam.pipeline.config import make_config
+    from msa_slam.pipeline.frontend import make_odometry
+
+    poses = np.tile(np.eye(4), (10, 1, 1))
+    poses[:, 0, 3] = np.arange(10.0)
+    write_poses(tmp_path / "odom.txt", poses)
+    selection = {"first": 2, "jump": 3, "frames": 3}
+    config = make_config(dataset="sim:test", odometry=str(tmp_path / "odom.txt"), source=selection)
+    odometry = make_odometry(config, 3)
+    assert [odometry.register()[0, 3] for _ in range(3)] == [2.0, 5.0, 8.0]
+    write_poses(tmp_path / "part.txt", poses[[2, 5, 8]])  # one pose a scan read: taken as it is
+    part = make_odometry(make_config(dataset="sim:test", odometry=str(tmp_path / "part.txt"), source=selection), 3)
+    assert [part.register()[0, 3] for _ in range(3)] == [2.0, 5.0, 8.0]
+    with pytest.raises(InputError, match=r"odom.txt: 10 poses but the run reads 4 scans \(scans 2, 5, \.\.\. 11"):
+        make_odometry(make_config(dataset="sim:test", odometry=str(tmp_path / "odom.txt"),
+                                  source={**selection, "frames": 4}), 4)
+
+
 class _CountingOdometry:
     """Stand-in odometry: pose i translates i metres; counts calls so the cache can be observed."""
 

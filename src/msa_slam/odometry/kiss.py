@@ -218,6 +218,11 @@ class PosesFromFile:
     def __len__(self) -> int:
         return len(self.poses)
 
+    def select(self, rows: np.ndarray) -> None:
+        """Keep only the poses at `rows` (those of the scans a run reads: --first/--jump/-n)."""
+        self.poses = self.poses[rows]
+        self.times = None if self.times is None else self.times[rows]
+
     def register(self, points: np.ndarray | None = None, timestamps: np.ndarray | None = None,
                  time: float | None = None) -> np.ndarray:
         """Return the next pose of the file (the scan itself is not needed)."""

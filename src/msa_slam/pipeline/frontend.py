@@ -72,7 +72,9 @@ def pipeline_cache(config: RunConfig) -> Path:
 
 
 def make_odometry(config: RunConfig, n_frames: int):
-    """KISS-ICP with `odometry_params`, or the pose file named by `config.odometry` (length checked)."""
+    """KISS-ICP with `odometry_params`, or the pose file named by `config.odometry`: one pose a scan of the
+    recording, cut by the same --first/--jump/-n as the scans (a file with one pose a selected scan is
+    taken as it is)."""
     if config.odometry == "kiss":
         try:
             return KissOdometry(**config.odometry_params)
@@ -85,8 +87,15 @@ def make_odometry(config: RunConfig, n_frames: int):
     if not path.is_file():
         raise InputError(f"odometry {config.odometry!r}: neither 'kiss' nor an existing pose file")
     odometry = PosesFromFile(path)
-    if len(odometry) != n_frames:
-        raise InputError(f"odometry pose file {path}: {len(odometry)} poses but the sequence has {n_frames} scans")
+    if len(odometry) == n_frames:
+        return odometry
+    rows = config.source.first + config.source.jump * np.arange(n_frames)
+    if len(odometry) <= rows[-1]:
+        selection = f" (scans {rows[0]}, {rows[0] + config.source.jump}, ... {rows[-1]} of the recording)" \
+            if n_frames > 1 else ""
+        raise InputError(f"odometry pose file {path}: {len(odometry)} poses but the run reads {n_frames} scans"
+                         f"{selection}; give one pose a scan of the recording, or one a scan read")
+    odometry.select(rows)
     return odometry
 
 
