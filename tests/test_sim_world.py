@@ -11,6 +11,8 @@ import pytest
 from msa_slam.descriptors.scan_context import ScanContext
 from msa_slam.errors import InputError
 from msa_slam.sim.dynamic import DRIVE, FIXED, WALK
+from msa_slam.sim.layout import STYLES
+from msa_slam.sim.plan import make_catalogue, plan_stretches, straight_runs
 from msa_slam.sim.sensors import get_sensor
 from msa_slam.sim.shapes import Material
 from msa_slam.sim.world import PATH_LEAD, World, WorldRealism, build_world
@@ -240,3 +242,54 @@ def test_worlds_are_deterministic_per_seed():
 def test_bad_realism_knobs_are_one_clear_error(knob, value, message):
     with pytest.raises(InputError, match=message):
         WorldRealism(**{knob: value})
+
+
+def _zigzag(leg: float, legs: int) -> np.ndarray:
+    """A path of straight legs (1 m steps) joined by sharp 60 deg turns: straight runs only on the legs."""
+    xy, heading = [np.zeros(2)], 0.0
+    for k in range(legs):
+        step, corner = np.array([np.cos(heading), np.sin(heading)]), xy[-1]
+        xy.extend(corner + step * t for t in np.arange(1.0, leg + 1.0))
+        heading += np.radians(60.0) * (1 if k % 2 == 0 else -1)
+    return np.array(xy)
+
+
+def test_straight_runs_are_the_legs_of_a_zigzag():
+    runs = straight_runs(_zigzag(200.0, 3))
+    assert len(runs) == 3 and all(150.0 < b - a <= 200.0 for a, b in runs)
+
+
+def test_designs_lie_on_straight_streets_only():
+    """Two places of one design look alike only where both streets are straight (a bend turns Scan Context's
+    far rings away), so designs go on straight runs; hard stretches may go anywhere."""
+    xy = _zigzag(160.0, 12)
+    runs = straight_runs(xy)
+    plan = plan_stretches(xy, 0.6, 0.2, ("wall",), 2, np.random.default_rng(3))
+    designs = [s for s in plan if s.kind == "design"]
+    assert len(designs) >= 3 and any(s.kind == "wall" for s in plan)
+    for s in designs:
+        assert s.end - s.start >= 100.0
+        assert any(a <= s.start and s.end <= b + 1e-6 for a, b in runs), f"design {s} off the straight runs"
+
+
+def test_every_house_of_a_design_has_the_same_parked_cars():
+    """Parked cars are part of a design (drawn once, repeated at every house), not drawn per slot: two places
+    of one design keep alike at the curb too."""
+    poses = _path(900, bend=0.0)
+    world = build_world(poses, "city", seed=5, realism=WorldRealism(catalogue_designs=1, catalogue_share=0.6))
+    pitch = make_catalogue(1, STYLES["city"], np.random.default_rng([5, 12, 2]))[0].pitch
+    s = max((x for x in world.stretches if x.kind == "design"), key=lambda x: x.end - x.start)
+    assert s.end - s.start > 3 * pitch
+    down_right = np.array([[0.0, -1.0, -0.15]]) / np.linalg.norm([0.0, -1.0, -0.15])
+
+    def curb(house: int) -> list[tuple[bool, float]]:
+        """(car hit, distance) of rays to the right every 0.5 m along one house's pitch."""
+        out = []
+        for x in np.arange(0.0, pitch, 0.5):
+            h = world.cast(np.array([s.start - PATH_LEAD + house * pitch + x, 0.0, 0.0]), down_right)
+            car = len(h) == 1 and h.material[0] == Material.VEHICLE
+            out.append((car, round(float(h.dist[0]), 3) if car else 0.0))
+        return out
+    first = curb(1)
+    assert any(car for car, _ in first)
+    assert curb(2) == first

@@ -206,8 +206,7 @@ class StreetLayout(PlannedStretches):
                                 crown * self._u((0.7, 1.3)), 0.25))
 
     def _furniture(self, total: float) -> None:
-        """Poles, trees and parked cars; designed stretches bring their own poles and trees, hard
-        stretches have none of these."""
+        """Poles, trees and parked cars; designed stretches bring their own, hard stretches have none."""
         st = self.style
         for side in (1.0, -1.0):
             s = self._u((0.0, st.pole_spacing))
@@ -235,7 +234,7 @@ class StreetLayout(PlannedStretches):
             s = self._u((0.0, 10.0))
             while s < total:  # parked cars
                 special = self._special(s) if self.plan else None
-                if special is None or special.kind == DESIGN:
+                if special is None:  # designed stretches park their own cars, hard ones none
                     if self.rng.random() < st.p_parked:
                         self._parked_car(s, side, self.transient_share > 0 and self.rng.random() < self.transient_share)
                     elif self.transient_share > 0 and self.rng.random() < self.transient_share * st.p_parked:

@@ -20,6 +20,10 @@ DESIGN = "design"
 _LENGTHS = {DESIGN: (150.0, 350.0), "field": (80.0, 200.0), "wall": (100.0, 250.0), "tunnel": (60.0, 150.0),
             "highway": (150.0, 300.0)}
 _MEAN_SPECIAL = 200.0
+STRAIGHT_TOLERANCE_DEG = 15.0  # heading range within a straight run
+MIN_DESIGN_M = 100.0  # shortest designed stretch (a straight run's remainder shorter than this stays regular)
+_HEADING_STEP_M = 2.0
+STRAIGHT_KINDS = (DESIGN, "wall", "tunnel", "highway")  # laid on straight runs where one is near (fields anywhere)
 
 
 @dataclass(frozen=True)
@@ -71,25 +75,74 @@ def make_catalogue(n: int, style: Style, rng: np.random.Generator) -> tuple[Desi
     return tuple(designs)
 
 
-def plan_stretches(total: float, catalogue_share: float, hard_share: float, hard_kinds: tuple[str, ...],
+def straight_runs(xy: np.ndarray, min_length: float = MIN_DESIGN_M,
+                  tolerance_deg: float = STRAIGHT_TOLERANCE_DEG) -> list[tuple[float, float]]:
+    """Arc-length intervals at least `min_length` long over which the path's heading stays within a range of
+    `tolerance_deg` (greedy, in path order)."""
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    s = np.arange(0.0, arc[-1], _HEADING_STEP_M)
+    if len(s) < 3:
+        return []
+    p = np.column_stack([np.interp(s, arc, xy[:, 0]), np.interp(s, arc, xy[:, 1])])
+    d = np.gradient(p, axis=0)
+    heading = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    tol = np.radians(tolerance_deg)
+    runs, i = [], 0
+    while i < len(s) - 1:
+        lo = hi = heading[i]
+        j = i
+        while j + 1 < len(s) and max(hi, heading[j + 1]) - min(lo, heading[j + 1]) < tol:
+            j += 1
+            lo, hi = min(lo, heading[j]), max(hi, heading[j])
+        if s[j] - s[i] >= min_length:
+            runs.append((float(s[i]), float(s[j])))
+            i = j + 1
+        else:
+            i += 1
+    return runs
+
+
+def _on_straight(runs: list[tuple[float, float]], s: float, reach: float) -> tuple[float, float] | None:
+    """[start, end] of straight path at or after `s` (within `reach` m) at least MIN_DESIGN_M long."""
+    for a, b in runs:
+        start = max(a, s)
+        if b - start >= MIN_DESIGN_M and start - s <= reach:
+            return start, b
+    return None
+
+
+def plan_stretches(xy: np.ndarray, catalogue_share: float, hard_share: float, hard_kinds: tuple[str, ...],
                    n_designs: int, rng: np.random.Generator) -> tuple[Stretch, ...]:
-    """Special stretches over [0, total) covering about the given shares of the path; the designs are
-    used in shuffled rounds so each repeats as soon as the path is long enough."""
+    """Special stretches along the path `xy` covering about the given shares of it; the designs are used in
+    shuffled rounds so each repeats as soon as the path is long enough. Designs, walls, tunnels and highways
+    move on to the next straight run within reach; a design finding none leaves regular blocks, the others
+    are laid where they are."""
     special = catalogue_share + hard_share
     if special <= 0:
         return ()
+    total = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
+    runs = straight_runs(xy)
     regular = _MEAN_SPECIAL * (1.0 - special) / special
     out: list[Stretch] = []
     rounds: list[int] = []
     s = float(rng.uniform(0.2, 1.0)) * regular
     while s < total:
         if rng.random() < catalogue_share / special:
+            kind = DESIGN
+        else:
+            kind = str(hard_kinds[int(rng.integers(len(hard_kinds)))])
+        length = float(rng.uniform(*_LENGTHS[kind]))
+        straight = _on_straight(runs, s, _LENGTHS[DESIGN][1]) if kind in STRAIGHT_KINDS else None
+        if straight is not None:
+            s, length = straight[0], min(length, straight[1] - straight[0])
+        elif kind == DESIGN:  # no straight street near: regular blocks where the design would have been
+            s += length + float(rng.uniform(0.5, 1.5)) * regular
+            continue
+        design = -1
+        if kind == DESIGN:
             if not rounds:
                 rounds = list(rng.permutation(n_designs))
-            kind, design = DESIGN, int(rounds.pop())
-        else:
-            kind, design = str(hard_kinds[int(rng.integers(len(hard_kinds)))]), -1
-        length = float(rng.uniform(*_LENGTHS[kind]))
+            design = int(rounds.pop())
         out.append(Stretch(s, min(s + length, total), kind, design))
         s += length + float(rng.uniform(0.5, 1.5)) * regular
     return tuple(out)

@@ -15,7 +15,7 @@ from msa_slam.sim.shapes import Material
 
 class PlannedStretches:
     """Designed rows and hard stretches; expects StreetLayout's attributes (rng, style, clear, taken, boxes,
-    trunks, ground) and helpers (_at, _u, _try, _add_box, _building, _tree)."""
+    trunks, ground) and helpers (_at, _u, _try, _add_box, _building, _tree, _parked_car)."""
 
     @contextmanager
     def _seeded(self, *seed: int) -> Iterator[None]:
@@ -28,7 +28,7 @@ class PlannedStretches:
 
     def _design_row(self, stretch: Stretch, design: Design, side: float) -> None:
         """Identical houses at the design's pitch from the stretch start, the same on both sides, with
-        the design's back-row blocks, fence, front-garden trees and street lights."""
+        the design's back-row blocks, fence, front-garden trees, parked cars and street lights."""
         st = self.style
         s, k = stretch.start, 0
         while s + design.pitch <= stretch.end:
@@ -51,6 +51,11 @@ class PlannedStretches:
                 q, _, m = self._at(s + design.pitch - (design.pitch - design.length) / 2)
                 with self._seeded(design.detail_seed, 1):
                     self._tree(q + side * m * (design.setback + 1.0), st.road_clearance)
+            if st.p_parked > 0:  # the same cars in front of every house of the design
+                with self._seeded(design.detail_seed, 2):
+                    for x in np.arange(self._u((0.0, 3.0)), design.pitch - 4.0, 6.5):
+                        if self.rng.random() < st.p_parked:
+                            self._parked_car(s + x, side, False)
             if design.light_pitch and k % design.light_pitch == 0:
                 q, _, m = self._at(s)
                 c = q + side * m * (st.car_offset[1] + 0.7)

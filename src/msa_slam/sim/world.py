@@ -231,7 +231,7 @@ def build_world(poses: np.ndarray, style: str = "city", seed: int = 0, sensor_he
     ground = GroundModel(poses, sensor_height, rng)
     xy = extend_path(poses[:, :2, 3], PATH_LEAD)
     path = PathFrame.of(xy)
-    plan = plan_stretches(path.length, realism.catalogue_share, realism.hard_share, realism.hard_kinds,
+    plan = plan_stretches(xy, realism.catalogue_share, realism.hard_share, realism.hard_kinds,
                           realism.catalogue_designs, np.random.default_rng([seed, 12, 1]))
     catalogue = make_catalogue(realism.catalogue_designs, st, np.random.default_rng([seed, 12, 2]))
     layout = StreetLayout(xy, st, rng, ground, plan, catalogue, realism.transient_parking)
