@@ -314,3 +314,23 @@ def test_loader_names_match_the_cli_help():
     assert all(name in LOADER_HELP for name in LOADERS)
     with pytest.raises(InputError, match="unknown dataset loader 'velodyne'; choose one of auto, kitti"):
         open_dataset(".", kind="velodyne")
+
+
+@pytest.mark.parametrize("command", ["run", "online", "compare"])
+def test_gt_format_option_reaches_the_pose_reader(tmp_path, command):
+    from typer.testing import CliRunner
+
+    from msa_slam.cli import app
+
+    folder = tmp_path / "scans"
+    for k in range(N):
+        _write_bin(folder / f"{k}.bin", _points(k))
+    tum = tmp_path / "gt.txt"
+    tum.write_text("".join(f"{k * 0.1:.1f} {2.0 * k} 0 0 0 0 0 1\n" for k in range(N)))
+    args = [command, "--dataset", str(folder), "--gt", str(tum), "--mode", "realistic", "--out",
+            str(tmp_path / "out"), "--cache-dir", str(tmp_path / "cache"), "--quiet"]
+    result = CliRunner().invoke(app, [*args, "--gt-format", "kitti"])
+    assert result.exit_code != 0
+    assert "gt.txt:1: 8 values, expected 12 (kitti format)" in str(result.output) + str(result.exception)
+    result = CliRunner().invoke(app, [*args, "--gt-format", "g2o"])
+    assert result.exit_code != 0 and "gt_format" in str(result.output) + str(result.exception)

@@ -7,7 +7,7 @@ from typing import List, Optional
 
 import typer
 
-from msa_slam.cli.options import (FIRST, FRAMES, GT, JUMP, LOADER, SEQUENCE, TOPIC,
+from msa_slam.cli.options import (FIRST, FRAMES, GT, GT_FORMAT, JUMP, LOADER, SEQUENCE, TOPIC,
                                   CACHE_HELP, DATASET_HELP, DESCRIPTOR_HELP, MODE_HELP, OVERWRITE_HELP,
                                   PARAM_HELP, out_help, reporting_failed_methods)
 
@@ -17,6 +17,7 @@ def compare_command(
     loader: Optional[str] = LOADER,
     topic: Optional[str] = TOPIC,
     gt: Optional[Path] = GT,
+    gt_format: Optional[str] = GT_FORMAT,
     sequence: Optional[str] = SEQUENCE,
     first: Optional[int] = FIRST,
     jump: Optional[int] = JUMP,
@@ -42,8 +43,8 @@ def compare_command(
 
     given = {"dataset": dataset, "descriptor": descriptor, "odometry": odometry, "mode": mode,
              "cache_dir": cache_option(cache_dir)}
-    source = {"loader": loader, "topic": topic, "gt": gt, "sequence": sequence, "first": first, "jump": jump,
-              "frames": frames}
+    source = {"loader": loader, "topic": topic, "gt": gt, "gt_format": gt_format, "sequence": sequence,
+              "first": first, "jump": jump, "frames": frames}
     cfg = batch_config(config, given, param, source)
     seed_list = None if seeds is None else parse_seeds(seeds)
     if seed_list is not None:

@@ -7,7 +7,7 @@ from typing import List, Optional
 
 import typer
 
-from msa_slam.cli.options import (CACHE_HELP, DESCRIPTOR_HELP, FIRST, FRAMES, GT, JUMP, LOADER, MODE_HELP,
+from msa_slam.cli.options import (CACHE_HELP, DESCRIPTOR_HELP, FIRST, FRAMES, GT, GT_FORMAT, JUMP, LOADER, MODE_HELP,
                                   OVERWRITE_HELP, SAMPLER_HELP, SEQUENCE, TOPIC, out_help)
 
 DATASET_HELP = ("sequence folder (any layout --loader lists), a ROS1/ROS2 bag, sim:NAME (cached on disk) or "
@@ -36,6 +36,7 @@ def online_command(
     loader: Optional[str] = LOADER,
     topic: Optional[str] = TOPIC,
     gt: Optional[Path] = GT,
+    gt_format: Optional[str] = GT_FORMAT,
     sequence: Optional[str] = SEQUENCE,
     first: Optional[int] = FIRST,
     jump: Optional[int] = JUMP,
@@ -74,8 +75,8 @@ def online_command(
     base = _read_config(config) if config is not None else {}
     given = {"dataset": dataset, "sampler": sampler, "descriptor": descriptor, "odometry": odometry, "mode": mode,
              "cloud_store": cloud_store, "cache_dir": cache_option(cache_dir),
-             **source_options(base, loader, topic=topic, gt=gt, sequence=sequence, first=first, jump=jump,
-                              frames=frames)}
+             **source_options(base, loader, topic=topic, gt=gt, gt_format=gt_format, sequence=sequence, first=first,
+                              jump=jump, frames=frames)}
     cfg = apply_online_params(merge_options(base, given, "a sequence folder, a bag, sim:NAME or live:NAME"), param)
     with open_result_folder(out, "online", DEFAULT_RESULTS / "online", overwrite=overwrite) as folder:
         source = open_source(cfg.dataset, cfg.dataset_kind, cfg.cache_dir, not quiet, cfg.source, cfg.mode)

@@ -23,6 +23,7 @@ LOADER_HELP = ("how to read --dataset: auto (default: from its layout) or kitti 
                "apollo (pcds/*.pcd), ncd (Newer College raw_format/ouster_scan), rosbag (--topic), folder (scans)")
 TOPIC_HELP = "PointCloud2 topic of a bag (needed when it has several)"
 GT_HELP = "ground-truth pose file, LiDAR frame: KITTI (one pose a scan) or TUM (matched by time); optional"
+GT_FORMAT_HELP = "format of --gt: auto (default: 12 values a line KITTI, 8 TUM), kitti or tum"
 SEQUENCE_HELP = "sequence of a dataset root (KITTI root: 00..21; MulRan root: KAIST01; HeLiPR: the sensor)"
 FIRST_HELP = "first scan to read (0-based)"
 JUMP_HELP = "read every JUMP-th scan"
@@ -31,6 +32,7 @@ FRAMES_HELP = "read at most N scans"
 LOADER = typer.Option(None, "--loader", help=LOADER_HELP)
 TOPIC = typer.Option(None, "--topic", help=TOPIC_HELP)
 GT = typer.Option(None, "--gt", help=GT_HELP)
+GT_FORMAT = typer.Option(None, "--gt-format", help=GT_FORMAT_HELP)
 SEQUENCE = typer.Option(None, "--sequence", help=SEQUENCE_HELP)
 FIRST = typer.Option(None, "--first", min=0, help=FIRST_HELP)
 JUMP = typer.Option(None, "--jump", min=1, help=JUMP_HELP)

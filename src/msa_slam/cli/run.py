@@ -7,7 +7,7 @@ from typing import List, Optional
 
 import typer
 
-from msa_slam.cli.options import (CACHE_HELP, DATASET_HELP, DESCRIPTOR_HELP, FIRST, FRAMES, GT, JUMP, LOADER,
+from msa_slam.cli.options import (CACHE_HELP, DATASET_HELP, DESCRIPTOR_HELP, FIRST, FRAMES, GT, GT_FORMAT, JUMP, LOADER,
                                   MODE_HELP, OVERWRITE_HELP, PARAM_HELP, SAMPLER_HELP, SEQUENCE, TOPIC, out_help)
 
 
@@ -28,6 +28,7 @@ def run_command(
     loader: Optional[str] = LOADER,
     topic: Optional[str] = TOPIC,
     gt: Optional[Path] = GT,
+    gt_format: Optional[str] = GT_FORMAT,
     sequence: Optional[str] = SEQUENCE,
     first: Optional[int] = FIRST,
     jump: Optional[int] = JUMP,
@@ -51,8 +52,8 @@ def run_command(
 
     given = {"dataset": dataset, "sampler": sampler, "descriptor": descriptor, "odometry": odometry,
              "mode": mode, "cache_dir": cache_option(cache_dir)}
-    source = {"loader": loader, "topic": topic, "gt": gt, "sequence": sequence, "first": first, "jump": jump,
-              "frames": frames}
+    source = {"loader": loader, "topic": topic, "gt": gt, "gt_format": gt_format, "sequence": sequence,
+              "first": first, "jump": jump, "frames": frames}
     cfg = batch_config(config, given, param, source)
     with open_result_folder(out, "run", DEFAULT_RESULTS / "run", overwrite=overwrite) as folder:
         result = run_batch(cfg, quiet=quiet)
