@@ -41,8 +41,8 @@ def random_walk_stream(shape: tuple[int, ...], frames: int, seed: int = 0):
     return poses, desc
 
 
-def time_sampler(poses, desc, window: int, mode: str):
-    sampler = make_sampler("msa", window=window, lambda_u=3.0, mode=mode)
+def time_sampler(poses, desc, window: int, mode: str, pi: str = "reference"):
+    sampler = make_sampler("msa", window=window, lambda_u=3.0, mode=mode, pi=pi)
     sampler.run(poses, desc)
     ms = np.array(sampler.stats.optimisation_ms)
     cands = sampler.stats.candidates_evaluated / max(sampler.stats.window_optimisations, 1)
@@ -119,10 +119,11 @@ def parity_stream_timings():
 
 
 def parity_counts():
-    """Per mode: MSA configurations identical to the reference, with an ambiguous window (and of those,
-    how many still match fully), and differing without any ambiguous window (must be 0)."""
+    """Per mode and pi: MSA configurations identical to the reference, with an ambiguous window (and of
+    those, how many still match fully), and differing without any ambiguous window (0 for pi=reference;
+    canonical pi is another definition, its agreement is reported)."""
     counts = {}
-    for mode in ("exact", "fast"):
+    for mode, pi in (("exact", "reference"), ("fast", "reference"), ("fast", "canonical")):
         tally = {"identical": 0, "ambiguous": 0, "ambiguous_matching": 0, "differing": 0}
         for path in sorted(PARITY_DIR.glob("stream_*.npz")):
             data = np.load(path)
@@ -132,15 +133,29 @@ def parity_counts():
                     continue
                 n, nb, a, b, lo, hi = match.groups()
                 sampler = make_sampler("msa", window=int(n), neighbours=int(nb), alpha=float(a),
-                                       beta=float(b), lambda_l=float(lo), lambda_u=float(hi), mode=mode)
+                                       beta=float(b), lambda_l=float(lo), lambda_u=float(hi), mode=mode, pi=pi)
                 same = sampler.run(data["poses"], data["descriptors"]) == keyframes
                 if sampler.stats.ambiguous:
                     tally["ambiguous"] += 1
                     tally["ambiguous_matching"] += same
                 else:
                     tally["identical" if same else "differing"] += 1
-        counts[mode] = tally
+        counts[f"{mode}/{pi}"] = tally
     return counts
+
+
+def canonical_targets(shapes) -> None:
+    """Issue 16's targets: median ms per window at N = 10, 16, 20, canonical vs reference (fast mode)."""
+    targets = {10: 0.5, 16: 10.0, 20: 100.0}
+    print("\nCanonical vs reference pi, fast mode (random-walk streams; reference refuses N > 16)")
+    print(f"{'shape':8} {'N':>3} {'cand/window':>12} {'reference ms':>13} {'canonical ms':>13} {'target ms':>10}")
+    for shape_name, shape in shapes.items():
+        for n, target in targets.items():
+            stream = random_walk_stream(shape, 240 if n <= 12 else 60)
+            canonical, _, cands, _ = time_sampler(*stream, n, "fast", "canonical")
+            reference = f"{time_sampler(*stream, n, 'fast')[0]:>13.3f}" if n <= 16 else f"{'n/a':>13}"
+            print(f"{shape_name:8} {n:>3} {cands:>12.0f} {reference} {canonical:>13.3f} {target:>10.1f}",
+                  flush=True)
 
 
 def main() -> int:
@@ -150,10 +165,11 @@ def main() -> int:
     sizes = [8, 10, 12] if args.quick else list(range(8, 17))
     shapes = {"vec256": (256,), "sc20x60": (20, 60)}
     warm = random_walk_stream((16,), 40)
-    for mode in ("exact", "fast"):  # compile the kernels before timing
-        time_sampler(*warm, 8, mode)
+    for mode, pi in (("exact", "reference"), ("fast", "reference"), ("fast", "canonical")):  # compile first
+        time_sampler(*warm, 8, mode, pi)
+    canonical_targets(shapes)
 
-    print("MSA window optimisation (random-walk streams, lambda_u = 3)")
+    print("\nMSA window optimisation (random-walk streams, lambda_u = 3)")
     print(f"{'mode':6} {'shape':8} {'N':>3} {'median ms':>10} {'p95 ms':>9} {'cand/window':>12} {'us/cand':>8}")
     for mode in ("exact", "fast"):
         for shape_name, shape in shapes.items():
@@ -188,9 +204,10 @@ def main() -> int:
     counts = parity_counts()
     print("\nParity with the reference vectors (144 MSA configurations; ambiguous = a window whose choice")
     print("rounding could change, see sampling/msa/decision.py)")
-    print(f"{'mode':6} {'identical':>10} {'ambiguous':>10} {'(of which match)':>17} {'differing':>10}")
+    print(f"{'mode/pi':16} {'identical':>10} {'ambiguous':>10} {'(of which match)':>17} {'differing':>10}")
     for mode, c in counts.items():
-        print(f"{mode:6} {c['identical']:>10} {c['ambiguous']:>10} {c['ambiguous_matching']:>17} {c['differing']:>10}")
+        print(f"{mode:16} {c['identical']:>10} {c['ambiguous']:>10} {c['ambiguous_matching']:>17} "
+              f"{c['differing']:>10}")
     return 0
 
 

@@ -9,7 +9,7 @@ import pytest
 from conftest import shared_path
 from msa_slam.sampling.msa import exact, fast, terms
 from msa_slam.sampling.msa.canonical import SIGN_ATOL, canonicalise
-from msa_slam.sampling.msa.powerset import padded_subsets, subsets_by_size
+from msa_slam.sampling.msa.powerset import feasible_subsets, subsets_by_size
 from test_msa_parity import MSA_NAME, STREAMS, load_stream, sampler_for
 
 
@@ -91,9 +91,9 @@ def test_batched_canonical_pi_equals_the_one_subset_definition():
     batched = exact._information(subsets, dist[0, subsets], desc, exact.ExactWorkspace(), True)
     one_by_one = [terms.information(t[s], desc[s], True) for s in subsets]
     assert batched.tolist() == one_by_one
-    table, sizes = padded_subsets(n)
-    rows = np.flatnonzero(sizes == 5)
-    value, low, high = fast.information_rows(table, sizes, rows, dist, fast.gram(desc), 0, True)
+    masks = feasible_subsets(dist, dist, 0.0, np.inf)[0]
+    masks = masks[[bin(int(k)).count("1") == 5 for k in masks]]
+    value, low, high = fast.information_rows(masks, dist, fast.gram(desc), 0, True)
     np.testing.assert_allclose(value, one_by_one, atol=1e-9)
     assert (low <= value).all() and (value <= high).all() and (high - low < 1e-6).all()
 
@@ -143,3 +143,33 @@ def test_compiled_eigensolver_matches_lapack_on_random_and_degenerate_matrices(m
         np.testing.assert_allclose(got_vec.T @ got_vec, np.eye(m), atol=1e-13)
         np.testing.assert_allclose((got_vec * got_lam) @ got_vec.T, c, atol=1e-13 * scale)
         np.testing.assert_allclose(canonical(got_lam, got_vec)[1], canonical(want_lam, want_vec)[1], atol=1e-9)
+
+
+@pytest.mark.parametrize("n", [3, 7, 11])
+def test_streamed_candidates_are_the_constrained_power_set_in_order(n):
+    rng = np.random.default_rng(n)
+    t = np.zeros((n, 3))
+    t[:, :2] = np.cumsum(rng.uniform(0.2, 1.5, (n, 2)), axis=0)
+    dist, sim = exact.pairwise(t, rng.standard_normal((n, 5)))
+    masks, rho = feasible_subsets(dist, sim, 0.5, 2.5)
+    want = terms.constrained_power_set(t, 0.5, 2.5)
+    got = [fast.mask_positions(int(k)) for k in masks]
+    assert got == (want if len(masks) else [])
+    assert rho.tolist() == [sum(sim[b, a] for a, b in zip(s, s[1:])) / (len(s) - 1) for s in got]
+
+
+def test_thread_count_does_not_change_canonical_keyframes():
+    import numba
+
+    poses, descriptors = load_stream(shared_path("parity", "stream_s2_sc20x60.npz"))[:2] if STREAMS else (None, None)
+    if poses is None:
+        pytest.skip("parity vectors not available (../shared/parity)")
+    runs = []
+    for threads in (1, numba.config.NUMBA_NUM_THREADS):
+        numba.set_num_threads(threads)
+        try:
+            sampler = sampler_for("msa_N10_nn2_a10_b1_l0.1_u5", "fast", "canonical")
+            runs.append((sampler.run(poses, descriptors), sampler.stats.ambiguous))
+        finally:
+            numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    assert runs[0] == runs[1]

@@ -92,6 +92,28 @@ def test_window_with_too_many_candidates_is_refused(params, fragment):
 def test_largest_allowed_window_is_accepted():
     assert make_sampler("msa", window=16).window_size == 16
     assert make_sampler("msa", window=15, neighbours=2).window_size == 15
+    assert make_sampler("msa", window=20, mode="fast", pi="canonical").window_size == 20
+
+
+@pytest.mark.parametrize("params, fragment", [
+    ({"window": 21, "mode": "fast", "pi": "canonical"},
+     "window=21: up to 2^20 - 2 = 1048574 candidates per window optimisation, more than the limit of 524286 "
+     "(window + neighbours - 1 <= 20)"),
+    ({"window": 20, "mode": "exact", "pi": "canonical"}, "window=20: up to 2^19 - 2 = 524286 candidates"),
+    ({"window": 17, "mode": "fast"}, "up to 20 with mode='fast', pi='canonical'"),
+    ({"pi": "lapack"}, "pi"),
+])
+def test_canonical_window_limit_and_pi_choice(params, fragment):
+    with pytest.raises(InputError, match=re.escape(fragment)):
+        make_sampler("msa", **params)
+
+
+def test_window_of_twenty_runs_with_canonical_pi():
+    poses, desc = random_walk(24)
+    sampler = make_sampler("msa", window=20, mode="fast", pi="canonical")
+    keyframes = sampler.run(poses, desc)
+    assert sampler.stats.window_optimisations >= 1 and keyframes[0] == 0 and len(keyframes) > 1
+    assert sampler.stats.candidates_evaluated > 2 ** 15
 
 
 def test_window_longer_than_the_stream_warns():
@@ -339,7 +361,7 @@ def test_decision_is_ambiguous_only_when_a_probe_can_reach_the_winner():
 def test_batched_terms_equal_the_one_subset_definitions():
     """exact.py's pi is bit-identical to terms.information; fast.py's agrees to rounding."""
     from msa_slam.sampling.msa import exact, fast, terms
-    from msa_slam.sampling.msa.powerset import padded_subsets
+    from msa_slam.sampling.msa.powerset import feasible_subsets
 
     rng = np.random.default_rng(5)
     n = 8
@@ -351,21 +373,23 @@ def test_batched_terms_equal_the_one_subset_definitions():
     batched = exact._information(subsets, dist[0, subsets], desc, exact.ExactWorkspace())
     one_by_one = [terms.information(t[s], desc[s]) for s in subsets]
     assert batched.tolist() == one_by_one
-    table, sizes = padded_subsets(n)
-    rows = np.flatnonzero(sizes == 5)
-    gram_pi = fast.information_rows(table, sizes, rows, dist, fast.gram(desc), 0)[0]
+    masks = feasible_subsets(dist, dist, 0.0, np.inf)[0]
+    masks = masks[[bin(int(k)).count("1") == 5 for k in masks]]
+    gram_pi = fast.information_rows(masks, dist, fast.gram(desc), 0)[0]
     np.testing.assert_allclose(gram_pi, one_by_one, atol=1e-6)
 
 
-def test_fast_mode_runs_in_a_forked_child_after_the_parent_used_it():
+@pytest.mark.parametrize("pi", ["reference", "canonical"])
+def test_fast_mode_runs_in_a_forked_child_after_the_parent_used_it(pi):
+    """The parallel loop's thread pool (numba workqueue) must survive a fork of a process that used it."""
     import multiprocessing
 
     poses, desc = random_walk(60)
-    parent = make_sampler("msa", window=13, mode="fast").run(poses, desc)
+    parent = make_sampler("msa", window=13, mode="fast", pi=pi).run(poses, desc)
     with multiprocessing.get_context("fork").Pool(1) as pool:
-        child = pool.apply(_run_fast_msa, (poses, desc))
+        child = pool.apply(_run_fast_msa, (poses, desc, pi))
     assert child == parent
 
 
-def _run_fast_msa(poses, desc):
-    return make_sampler("msa", window=13, mode="fast").run(poses, desc)
+def _run_fast_msa(poses, desc, pi):
+    return make_sampler("msa", window=13, mode="fast", pi=pi).run(poses, desc)

@@ -9,13 +9,14 @@ how far another machine's rounding could move pi (decision.py, docs/msa.md).
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from numba import njit
 
 from msa_slam.sampling.msa import fast
 from msa_slam.sampling.msa.canonical import canonicalise
 from msa_slam.sampling.msa.decision import decide
-from msa_slam.sampling.msa.powerset import padded_subsets, subsets_by_size
+from msa_slam.sampling.msa.powerset import feasible_subsets, subsets_by_size
 from msa_slam.sampling.msa.terms import C_CLIP, EIGENVALUE_FLOOR, ScoreWeights, WindowResult
 
 
@@ -167,9 +168,9 @@ def fast_path_extremes(pi: np.ndarray, dist: np.ndarray, sim: np.ndarray, dmin: 
     The fast path computes pi by another floating-point route (the Gram shortcut); where it or its
     perturbed eigen-decompositions land elsewhere, the exact value could too on another machine.
     """
-    table, sizes = padded_subsets(len(dist))
-    rows, _ = fast.feasible_and_redundancy(table, sizes, dist, sim, dmin, dmax)
-    value, low, high = fast.information_rows(table, sizes, rows, dist, gram, fast.PROBES, canonical)
+    masks, _ = feasible_subsets(dist, sim, dmin, dmax)
+    value, low, high = fast.information_rows(masks, dist, gram, fast.PROBES, canonical,
+                                             8 * numba.get_num_threads())
     return np.minimum(value, pi + (low - value)), np.maximum(value, pi + (high - value))
 
 

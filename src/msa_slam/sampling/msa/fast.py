@@ -6,20 +6,27 @@ with a_j = sqrt(lam_j) v_j. A candidate then costs O(m^3) instead of O(m^2 M). A
 terms.information, numerically not bit-identical (pi is ill-conditioned; docs/msa.md). The same kernels
 give exact mode the extremes of pi under rounding (exact.fast_path_extremes).
 
-Runs on one thread: the default window (N = 10, 510 candidates) takes a few ms, and a process-global
-thread pool (or numba's OpenMP layer) is not safe across fork.
+Candidates are spread over numba's threads (parallel loop); the threading layer is numba's own
+`workqueue` unless NUMBA_THREADING_LAYER names another: it survives a fork, unlike GNU OpenMP's
+(it is not meant for concurrent calls from several Python threads; the pipeline makes none).
 """
 
 from __future__ import annotations
 
+import os
+
+import numba
 import numpy as np
-from numba import njit
+from numba import get_num_threads, njit, prange
 
 from msa_slam.sampling.msa.canonical import SOLVER_RTOL, canonicalise
 from msa_slam.sampling.msa.decision import decide
 from msa_slam.sampling.msa.eigen import symmetric_eigh
-from msa_slam.sampling.msa.powerset import padded_subsets
+from msa_slam.sampling.msa.powerset import feasible_subsets
 from msa_slam.sampling.msa.terms import C_CLIP, EIGENVALUE_FLOOR, ScoreWeights, WindowResult
+
+if "NUMBA_THREADING_LAYER" not in os.environ:  # before the first parallel call; see the module docstring
+    numba.config.THREADING_LAYER = "workqueue"
 
 PROBES = 3  # rounding-level perturbations of each candidate's C for the ambiguity screen (decision.py)
 PROBE_SCALE = 1e-13  # their relative size: ~450 ulp, beyond any reordering of a BLAS kernel's sums
@@ -48,31 +55,6 @@ def pairwise(translations: np.ndarray, descriptors: np.ndarray):  # pragma: no c
                 total += 1.0 / (1.0 + np.sqrt(sq))
             sim[i, j] = sim[j, i] = total
     return dist, sim
-
-
-@njit(cache=True)
-def feasible_and_redundancy(table: np.ndarray, sizes: np.ndarray, dist: np.ndarray, sim: np.ndarray,
-                            dmin: float, dmax: float):  # pragma: no cover
-    """Rows of the subsets whose consecutive steps lie in [dmin, dmax] (eq. 7), and their rho (eq. 3)."""
-    count = len(table)
-    keep = np.zeros(count, dtype=np.bool_)
-    rho = np.zeros(count)
-    for row in range(count):
-        m = sizes[row]
-        members = table[row]
-        feasible = True
-        total = 0.0
-        for k in range(m - 1):
-            d = dist[members[k], members[k + 1]]
-            if d < dmin or d > dmax:
-                feasible = False
-                break
-            total += sim[members[k + 1], members[k]]
-        if feasible:
-            keep[row] = True
-            rho[row] = total / (m - 1)
-    rows = np.flatnonzero(keep)
-    return rows, rho[rows]
 
 
 @njit(cache=True)
@@ -184,17 +166,27 @@ def _pi_of_information(c: np.ndarray, g: np.ndarray, m: int, scratch: np.ndarray
     return total / (m - 1), bound
 
 
-@njit(cache=True)
-def information_rows(table: np.ndarray, sizes: np.ndarray, rows: np.ndarray, dist: np.ndarray,
-                     gram: np.ndarray, probes: int, canonical: bool = False) -> np.ndarray:  # pragma: no cover
-    """(3, rows): pi of the given candidate rows, and its lowest and highest value under rounding."""
-    out = np.zeros((3, len(rows)))
-    width = table.shape[1] + 1
-    scratch = np.empty((9 + 4 * width, width))
-    for i in range(len(rows)):
-        m = sizes[rows[i]]
-        if m > 2:
-            out[0, i], out[1, i], out[2, i] = information_gram(table[rows[i]], m, dist, gram, scratch, probes,
+@njit(cache=True, parallel=True)
+def information_rows(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, probes: int,
+                     canonical: bool = False, blocks: int = 16) -> np.ndarray:  # pragma: no cover
+    """(3, candidates): pi of the candidates (bit masks, powerset.feasible_subsets), and its lowest and
+    highest value under rounding. Candidates are split into `blocks` shared by numba's threads (pass a
+    few per thread); each candidate's arithmetic is the same whatever the thread count."""
+    count = len(masks)
+    out = np.zeros((3, count))
+    width = dist.shape[0]
+    blocks = max(min(count, blocks), 1)
+    for block in prange(blocks):
+        scratch = np.empty((9 + 4 * width, width))
+        members = np.empty(width, dtype=np.int64)
+        for i in range(block * count // blocks, (block + 1) * count // blocks):
+            m = 0
+            for p in range(width):
+                if masks[i] >> p & 1:
+                    members[m] = p
+                    m += 1
+            if m > 2:
+                out[0, i], out[1, i], out[2, i] = information_gram(members, m, dist, gram, scratch, probes,
                                                                   canonical)
     return out
 
@@ -211,14 +203,17 @@ def optimise_fast(translations: np.ndarray, descriptors: np.ndarray, dmin: float
     n = len(translations)
     blocks = descriptors.reshape(n, -1, 1) if descriptors.ndim == 2 else descriptors
     dist, sim = pairwise(np.ascontiguousarray(translations), np.ascontiguousarray(blocks))
-    table, sizes = padded_subsets(n)
-    rows, rho = feasible_and_redundancy(table, sizes, dist, sim, dmin, dmax)
-    if rows.size == 0:
+    masks, rho = feasible_subsets(dist, sim, dmin, dmax)
+    if masks.size == 0:
         return WindowResult((0, n - 1), 1)
     pi = pi_low = pi_high = None
     if weights.use_pi:
-        pi, pi_low, pi_high = information_rows(table, sizes, rows, dist, gram(descriptors), PROBES,
-                                               pi_definition == "canonical")
-    best, ambiguous, margin = decide(int(rows.size), rho if weights.use_rho else None, pi, pi_low, pi_high, weights)
-    row = rows[best]
-    return WindowResult(tuple(int(p) for p in table[row, :sizes[row]]), int(rows.size), ambiguous, margin)
+        pi, pi_low, pi_high = information_rows(masks, dist, gram(descriptors), PROBES, pi_definition == "canonical",
+                                               8 * get_num_threads())
+    best, ambiguous, margin = decide(int(masks.size), rho if weights.use_rho else None, pi, pi_low, pi_high, weights)
+    return WindowResult(mask_positions(int(masks[best])), int(masks.size), ambiguous, margin)
+
+
+def mask_positions(mask: int) -> tuple[int, ...]:
+    """The window positions of a candidate's bit mask, ascending."""
+    return tuple(p for p in range(mask.bit_length()) if mask >> p & 1)

@@ -24,24 +24,30 @@ from msa_slam.sampling.msa.window import MODES, PI_DEFINITIONS, optimise_window
 
 MAX_CANDIDATES = 2 ** 15 - 2  # per window optimisation, i.e. N <= 16: measured 5 s a window in exact mode
 # (sc20x60, 17811 feasible candidates), 1 s in fast mode; N = 20 took 116 s for 150 frames, N = 30 runs out of memory
+MAX_CANDIDATES_CANONICAL = 2 ** 19 - 2  # N <= 20 with pi="canonical" in fast mode: compiled solver on 2 threads,
+# candidates streamed (benchmarks/bench_msa.py)
 MIN_WINDOW_STEP = 0.01  # a frame joins the window only if it moved this far from the last member
 INITIAL_DMIN, INITIAL_DMAX = 1.0, 5.0  # the bounds before the first window is optimised
 DMIN_FLOOR, DMAX_CAP = 0.01, 5.0  # the reference's limits on the bounds, in metres
 
 
-def check_candidate_count(window: int, neighbours: int) -> None:
+def check_candidate_count(window: int, neighbours: int, mode: str = "exact", pi: str = "reference") -> None:
     """Refuse windows whose power set is too large to enumerate (time, then memory, explode).
 
     A window optimisation scores every subset that starts with the window's first member: 2^(n-1) - 2
     candidates for n members, and n reaches window + neighbours - 1 (old keyframes join a full window).
+    Canonical pi on the fast path goes to n = 20; the other combinations stay at 16.
     """
     members = window + max(neighbours - 1, 0)
-    if 2 ** min(members - 1, 64) - 2 > MAX_CANDIDATES:
+    canonical_fast = mode == "fast" and pi == "canonical"
+    limit, largest = (MAX_CANDIDATES_CANONICAL, 20) if canonical_fast else (MAX_CANDIDATES, 16)
+    if 2 ** min(members - 1, 64) - 2 > limit:
         count = f"{2 ** (members - 1) - 2}" if members <= 64 else f"about 10^{int((members - 1) * 0.30103)}"
         joined = f" (+{neighbours - 1} neighbour{'s' * (neighbours > 2)})" if neighbours > 1 else ""
         raise InputError(f"sampler 'msa': window={window}{joined}: up to 2^{members - 1} - 2 = {count} candidates "
-                         f"per window optimisation, more than the limit of {MAX_CANDIDATES} "
-                         f"(window + neighbours - 1 <= 16)")
+                         f"per window optimisation, more than the limit of {limit} "
+                         f"(window + neighbours - 1 <= {largest}"
+                         + ("" if canonical_fast else "; up to 20 with mode='fast', pi='canonical'") + ")")
 
 
 def warn_short_stream(frames: int, window: int) -> None:
@@ -71,7 +77,6 @@ class MSASampler(Sampler):
         super().__init__()
         self.window_size = checks.integer(self.name, "window", window, 3)
         self.neighbours = checks.integer(self.name, "neighbours", neighbours, 0)
-        check_candidate_count(self.window_size, self.neighbours)
         alpha = checks.finite_float(self.name, "alpha", alpha, 0.0, exclusive=True)
         beta = checks.finite_float(self.name, "beta", beta, 0.0, exclusive=True)
         self.lambda_l = checks.finite_float(self.name, "lambda_l", lambda_l, 0.0)
@@ -81,6 +86,7 @@ class MSASampler(Sampler):
                              f"expected lambda_l <= lambda_u")
         self.mode = checks.choice(self.name, "mode", mode, MODES)
         self.pi = checks.choice(self.name, "pi", pi, PI_DEFINITIONS)
+        check_candidate_count(self.window_size, self.neighbours, self.mode, self.pi)
         self.weights = ScoreWeights(alpha, beta, checks.boolean(self.name, "use_rho", use_rho),
                                     checks.boolean(self.name, "use_pi", use_pi))
         self._window: list[int] = []
