@@ -112,11 +112,13 @@ def _on_straight(runs: list[tuple[float, float]], s: float, reach: float) -> tup
 
 
 def plan_stretches(xy: np.ndarray, catalogue_share: float, hard_share: float, hard_kinds: tuple[str, ...],
-                   n_designs: int, rng: np.random.Generator) -> tuple[Stretch, ...]:
+                   n_designs: int, rng: np.random.Generator, hard_from: float = 0.0) -> tuple[Stretch, ...]:
     """Special stretches along the path `xy` covering about the given shares of it; the designs are used in
     shuffled rounds so each repeats as soon as the path is long enough. Designs, walls, tunnels and highways
     move on to the next straight run within reach; a design finding none leaves regular blocks, the others
-    are laid where they are."""
+    are laid where they are. No hard stretch begins before arc length `hard_from`: odometry starts with zero
+    velocity and needs structure along the road to pick up the motion (KISS-ICP stalled in a tunnel at the
+    start of KITTI-06)."""
     special = catalogue_share + hard_share
     if special <= 0:
         return ()
@@ -132,6 +134,8 @@ def plan_stretches(xy: np.ndarray, catalogue_share: float, hard_share: float, ha
         else:
             kind = str(hard_kinds[int(rng.integers(len(hard_kinds)))])
         length = float(rng.uniform(*_LENGTHS[kind]))
+        if kind != DESIGN:
+            s = max(s, hard_from)
         straight = _on_straight(runs, s, _LENGTHS[DESIGN][1]) if kind in STRAIGHT_KINDS else None
         if straight is not None:
             s, length = straight[0], min(length, straight[1] - straight[0])

@@ -24,6 +24,7 @@ from msa_slam.sim.plan import HARD_KINDS, Stretch, make_catalogue, plan_stretche
 from msa_slam.sim.shapes import Material, MeshBuilder
 
 PATH_LEAD = 80.0  # m of straight street laid before the first pose and after the last
+START_STRUCTURE_M = 60.0  # no hard stretch over the lead and the first metres: odometry must pick up the motion
 DYNAMIC_RADIUS = 120.0  # dynamic objects farther than this from the rays' origins are not cast against
 
 
@@ -232,7 +233,8 @@ def build_world(poses: np.ndarray, style: str = "city", seed: int = 0, sensor_he
     xy = extend_path(poses[:, :2, 3], PATH_LEAD)
     path = PathFrame.of(xy)
     plan = plan_stretches(xy, realism.catalogue_share, realism.hard_share, realism.hard_kinds,
-                          realism.catalogue_designs, np.random.default_rng([seed, 12, 1]))
+                          realism.catalogue_designs, np.random.default_rng([seed, 12, 1]),
+                          hard_from=PATH_LEAD + START_STRUCTURE_M)
     catalogue = make_catalogue(realism.catalogue_designs, st, np.random.default_rng([seed, 12, 2]))
     layout = StreetLayout(xy, st, rng, ground, plan, catalogue, realism.transient_parking)
     layout.build()
