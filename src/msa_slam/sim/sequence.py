@@ -169,7 +169,7 @@ def default_sequence(kind: str = "demo", cache_dir: str | os.PathLike | None = N
     an empty cache (simulation ~50 s, KISS-ICP at 1 thread ~80 s, descriptors, 7 methods) takes ~3 minutes on
     2 cores.
     "test": the procedural figure-eight (revisits at its crossing and where it closes) at every 2nd
-    frame, 209 scans ~2 m apart, HDL-64 beams with 360 azimuth steps (1 deg), realism preset "clean" (the
+    frame, 214 scans ~2 m apart after a standing start, HDL-64 beams with 360 azimuth steps (1 deg), realism preset "clean" (the
     plain simulator the pipeline tests were written against): a few seconds to make.
     """
     if kind not in DEFAULT_CONFIGS:
