@@ -169,8 +169,8 @@ def default_sequence(kind: str = "demo", cache_dir: str | os.PathLike | None = N
     an empty cache (simulation ~50 s, KISS-ICP at 1 thread ~80 s, descriptors, 7 methods) takes ~3 minutes on
     2 cores.
     "test": the procedural figure-eight (revisits at its crossing and where it closes) at every 2nd
-    frame, 214 scans ~2 m apart after a standing start, HDL-64 beams with 360 azimuth steps (1 deg), realism preset "clean" (the
-    plain simulator the pipeline tests were written against): a few seconds to make.
+    frame, 214 scans ~2 m apart after a standing start, HDL-64 beams with 360 azimuth steps (1 deg),
+    realism preset "clean" (the plain simulator the pipeline tests were written against): seconds to make.
     """
     if kind not in DEFAULT_CONFIGS:
         raise InputError(f"unknown default sequence {kind!r}; choose one of {', '.join(DEFAULT_CONFIGS)}")
