@@ -198,7 +198,7 @@ def test_mismatched_pose_file_is_rejected(base, odometry_file, tmp_path):
     poses, _ = read_poses(odometry_file)
     short = tmp_path / "short.txt"
     write_poses(short, poses[:-5])
-    with pytest.raises(InputError, match=rf"short.txt: {len(poses) - 5} poses but the sequence has {len(poses)}"):
+    with pytest.raises(InputError, match=rf"short.txt: {len(poses) - 5} poses but the run reads {len(poses)} scans"):
         prepare_frontend(base.model_copy(update={"odometry": str(short)}))
     with pytest.raises(InputError, match="neither 'kiss' nor an existing pose file"):
         prepare_frontend(base.model_copy(update={"odometry": str(tmp_path / "missing.txt")}))
