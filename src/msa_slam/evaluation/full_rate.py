@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 
 from msa_slam.errors import InputError
-from msa_slam.evaluation.summary import ZERO_ERROR, improvement_pct
-from msa_slam.evaluation.trajectory import ATE_ALIGNMENT, AlignmentError, ate
+from msa_slam.evaluation.summary import ZERO_ERROR, ate_or_reason, improvement_pct
+from msa_slam.evaluation.trajectory import ATE_ALIGNMENT
 from msa_slam.types import validate_poses
 
 KITTI_LENGTHS_M = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
@@ -98,14 +98,7 @@ def distance_rpe(estimate: np.ndarray, reference: np.ndarray) -> tuple[dict[str,
 
 
 def _block(estimate: np.ndarray, reference: np.ndarray) -> tuple[dict[str, Any], str | None, dict[str, str]]:
-    block: dict[str, Any] = {"ate_translation_m": None, "ate_rotation_deg": None}
-    reason = None
-    try:
-        a = ate(estimate, reference)
-    except AlignmentError as exc:
-        reason = str(exc)
-    else:
-        block.update(ate_translation_m=a.translation_rmse, ate_rotation_deg=a.rotation_rmse)
+    block, _, reason = ate_or_reason(estimate, reference)
     rpe, unavailable = distance_rpe(estimate, reference)
     return {**block, **rpe}, reason, unavailable
 

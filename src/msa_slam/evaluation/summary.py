@@ -39,16 +39,21 @@ def improvement_pct(before: float | None, after: float | None) -> float | None:
     return improvement(before, after)
 
 
-def _errors(estimate: np.ndarray, reference: np.ndarray) -> tuple[dict[str, Any], np.ndarray | None, str | None]:
+def ate_or_reason(estimate: np.ndarray, reference: np.ndarray
+                  ) -> tuple[dict[str, Any], np.ndarray | None, str | None]:
+    """ATE translation/rotation RMSE and per-pose errors, or None values and the reason the alignment is
+    undetermined (stationary, rotation-only, straight line)."""
     out: dict[str, Any] = {"ate_translation_m": None, "ate_rotation_deg": None}
-    errors, reason = None, None
     try:
         a = ate(estimate, reference)
     except AlignmentError as exc:
-        reason = str(exc)
-    else:
-        out.update(ate_translation_m=a.translation_rmse, ate_rotation_deg=a.rotation_rmse)
-        errors = a.translation_errors
+        return out, None, str(exc)
+    out.update(ate_translation_m=a.translation_rmse, ate_rotation_deg=a.rotation_rmse)
+    return out, a.translation_errors, None
+
+
+def _errors(estimate: np.ndarray, reference: np.ndarray) -> tuple[dict[str, Any], np.ndarray | None, str | None]:
+    out, errors, reason = ate_or_reason(estimate, reference)
     r = rpe(estimate, reference, delta=1, unit="frames")
     out.update(rpe_translation_m=r.translation_rmse, rpe_rotation_deg=r.rotation_rmse)
     return out, errors, reason

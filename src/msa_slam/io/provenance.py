@@ -7,10 +7,10 @@ import os
 import platform
 import sys
 from datetime import datetime, timezone
-from importlib import metadata
 from typing import Any
 
 import msa_slam
+from msa_slam.io.cache import library_versions
 
 # The distributions whose versions change results (odometry, registration, graph, evaluation, figures).
 LIBRARIES = ("numpy", "scipy", "numba", "gtsam", "kiss-icp", "small_gicp", "evo", "open3d", "torch", "matplotlib",
@@ -29,17 +29,6 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
-def library_versions() -> dict[str, str | None]:
-    """Installed version of each of LIBRARIES (None when not installed)."""
-    versions: dict[str, str | None] = {}
-    for name in LIBRARIES:
-        try:
-            versions[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            versions[name] = None
-    return versions
-
-
 def provenance() -> dict[str, Any]:
     """The provenance record of this process, now."""
     return {
@@ -50,5 +39,5 @@ def provenance() -> dict[str, Any]:
         "cpu_count": os.cpu_count(),
         "python": platform.python_version(),
         "platform": platform.platform(),
-        "libraries": library_versions(),
+        "libraries": library_versions(LIBRARIES),
     }
