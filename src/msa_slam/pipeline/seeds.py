@@ -22,8 +22,10 @@ SEED_METRICS: dict[str, tuple[str, bool | None]] = {
     "f1_max": ("F1-max", True),
     "false_loops": ("false loops", False),
     "memory_mib": ("memory [MiB]", False),
+    "rss_growth_mib": ("RSS growth [MiB]", False),
     "keyframes": ("keyframes", None),
     "verified": ("loops", None),
+    "rejected": ("rejected", None),
 }
 
 
