@@ -108,6 +108,21 @@ def _check_sampler(sampler: str, params: Mapping[str, Any]) -> None:
         raise InputError(f"config: {exc}") from None
 
 
+def _check_weights(descriptor: str, params: Mapping[str, Any]) -> None:
+    """The OverlapTransformer's weights file, missing from the config or from the disk, reported before any
+    scan is simulated (the descriptor itself is built after the dataset is opened). Not in make_config:
+    the CLI makes a config from its options before the -p overrides add the weights."""
+    if str(descriptor).lower() not in OT_NAMES:
+        return
+    from msa_slam.descriptors.overlap_transformer import WEIGHTS_HINT
+
+    if "weights" not in params:
+        raise InputError(f"config: descriptor {descriptor!r} needs its weights file, -p weights=FILE: {WEIGHTS_HINT}")
+    if not Path(str(params["weights"])).is_file():
+        raise InputError(f"config: descriptor {descriptor!r}: weights file not found: {params['weights']}; "
+                         f"expected {WEIGHTS_HINT}")
+
+
 def load_config(path: str | os.PathLike) -> RunConfig:
     """Read a YAML config file (the `config.yaml` of a result folder works as input)."""
     path = Path(path)
@@ -130,14 +145,22 @@ def apply_params(config: RunConfig, params: list[str]) -> RunConfig:
 
     Keys: a config field (`similarity_threshold=0.7`), a section field (`verifier.max_residual=0.2`,
     `graph.robust=cauchy`), a stage parameter (`sampler.lambda_u=5`, `descriptor.n_sector=60`,
-    `odometry.max_range=80`), or a bare sampler parameter (`lambda_u=5`).
+    `odometry.max_range=80`), a bare sampler parameter (`lambda_u=5`), or the bare OverlapTransformer
+    weights file (`weights=FILE`, as `--descriptor ot -p weights=FILE` reads in the docs).
+    The result is a command's final config, so the OverlapTransformer's weights file is checked here.
     """
-    return make_config(apply_overrides(config.dump(), params, RunConfig))
+    config = make_config(apply_overrides(config.dump(), params, RunConfig))
+    _check_weights(config.descriptor, config.descriptor_params)
+    return config
 
 
 def apply_overrides(data: dict, params: list[str], model: type[BaseModel]) -> dict:
-    """The config mapping `data` (fields of `model`) with each `key=value` override applied."""
+    """The config mapping `data` (fields of `model`) with each `key=value` override applied.
+
+    Bare keys that are no config field go to the sampler or the descriptor chosen after all overrides, so
+    `-p weights=FILE -p descriptor=ot` and `-p descriptor=ot -p weights=FILE` mean the same."""
     data = dict(data)
+    bare: list[tuple[str, Any]] = []
     for item in params:
         key, value = parse_key_value(item)
         head, dot, tail = key.partition(".")
@@ -149,11 +172,13 @@ def apply_overrides(data: dict, params: list[str], model: type[BaseModel]) -> di
             _check_not_a_sampler_param(data.get("sampler"), key, value, model)
             data[key] = value
         elif not dot:
-            _check_sampler_param(data["sampler"], key, model)
-            data["sampler_params"] = {**data["sampler_params"], key: value}
+            bare.append((key, value))
         else:
             raise InputError(f"--param {key!r}: unknown section {head!r}; use one of "
                              f"{', '.join([*_SECTIONS, 'verifier', 'graph'])}")
+    for key, value in bare:
+        section = _bare_key_section(data["sampler"], data["descriptor"], key, value, model)
+        data[section] = {**data[section], key: value}
     return data
 
 
@@ -182,10 +207,21 @@ def _allowed(model: type[BaseModel], key: str) -> str:
     return ", ".join(map(str, args)) if args else str(model.model_fields[key].annotation)
 
 
-def _check_sampler_param(sampler: str, key: str, model: type[BaseModel]) -> None:
+def _bare_key_section(sampler: str, descriptor: str, key: str, value: Any, model: type[BaseModel]) -> str:
+    """Where a bare key that is no config field goes: "sampler_params" for a parameter of `sampler`,
+    "descriptor_params" for `weights` with the OverlapTransformer; else an InputError listing what exists."""
     from msa_slam.sampling import sampler_parameters
 
     known = sampler_parameters(sampler)
-    if key not in known:
-        raise InputError(f"--param {key!r}: not a config key ({', '.join(model.model_fields)}) nor a "
-                         f"parameter of sampler {sampler!r} ({', '.join(known) or 'none'})")
+    if key in known:
+        return "sampler_params"
+    if key == "weights" and str(descriptor).lower() in OT_NAMES:
+        return "descriptor_params"
+    if key == "weights":
+        raise InputError(f"--param weights={value}: the weights file is the OverlapTransformer's, but the "
+                         f"descriptor is {descriptor!r}; add --descriptor ot (or -p descriptor=ot)")
+    raise InputError(f"--param {key!r}: not a config key ({', '.join(model.model_fields)}), a parameter of "
+                     f"sampler {sampler!r} ({', '.join(known) or 'none'}) nor weights (of descriptor ot)")
+
+
+OT_NAMES = ("ot", "overlap_transformer")  # the descriptor that takes `weights`, also as a bare key (-p weights=FILE)
