@@ -7,21 +7,13 @@ from typing import List, Optional
 
 import typer
 
-from msa_slam.cli.options import (FIRST, FRAMES, GT, GT_FORMAT, JUMP, LOADER, SEQUENCE, TOPIC,
-                                  CACHE_HELP, DATASET_HELP, DESCRIPTOR_HELP, MODE_HELP, OVERWRITE_HELP,
-                                  PARAM_HELP, out_help, reporting_failed_methods)
+from msa_slam.cli.options import (CACHE_HELP, DATASET_HELP, DESCRIPTOR_HELP, MODE_HELP, OVERWRITE_HELP, PARAM_HELP,
+                                  out_help, reporting_failed_methods, with_source_options)
 
 
+@with_source_options
 def compare_command(
     dataset: Optional[str] = typer.Option(None, "--dataset", "-d", help=DATASET_HELP),
-    loader: Optional[str] = LOADER,
-    topic: Optional[str] = TOPIC,
-    gt: Optional[Path] = GT,
-    gt_format: Optional[str] = GT_FORMAT,
-    sequence: Optional[str] = SEQUENCE,
-    first: Optional[int] = FIRST,
-    jump: Optional[int] = JUMP,
-    frames: Optional[int] = FRAMES,
     descriptor: Optional[str] = typer.Option(None, help=DESCRIPTOR_HELP),
     odometry: Optional[str] = typer.Option(None, help="kiss (default) or a KITTI/TUM pose file"),
     mode: Optional[str] = typer.Option(None, help=MODE_HELP),
@@ -33,6 +25,7 @@ def compare_command(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bars"),
     seeds: Optional[str] = typer.Option(None, help="world seeds of a sim: dataset, e.g. 0,1,2: the comparison on "
                                         "each, then mean +- std, per-seed ranks and MSA's paired-test verdicts"),
+    source: Optional[dict] = None,  # --loader, --gt, ... (added by with_source_options)
 ) -> None:
     """Run the paper's method set (all, constant 1/2/3 m, entropy, spaciousness, MSA) on one sequence and
     write the Table-I-style comparison; prints its report.md (with --seeds, first the spread over seeds)."""
@@ -43,8 +36,6 @@ def compare_command(
 
     given = {"dataset": dataset, "descriptor": descriptor, "odometry": odometry, "mode": mode,
              "cache_dir": cache_option(cache_dir)}
-    source = {"loader": loader, "topic": topic, "gt": gt, "gt_format": gt_format, "sequence": sequence,
-              "first": first, "jump": jump, "frames": frames}
     cfg = batch_config(config, given, param, source)
     seed_list = None if seeds is None else parse_seeds(seeds)
     if seed_list is not None:

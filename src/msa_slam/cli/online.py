@@ -7,8 +7,8 @@ from typing import List, Optional
 
 import typer
 
-from msa_slam.cli.options import (CACHE_HELP, DESCRIPTOR_HELP, FIRST, FRAMES, GT, GT_FORMAT, JUMP, LOADER, MODE_HELP,
-                                  OVERWRITE_HELP, SAMPLER_HELP, SEQUENCE, TOPIC, out_help)
+from msa_slam.cli.options import (CACHE_HELP, DESCRIPTOR_HELP, MODE_HELP, OVERWRITE_HELP, SAMPLER_HELP, out_help,
+                                  with_source_options)
 
 DATASET_HELP = ("sequence folder (any layout --loader lists), a ROS1/ROS2 bag, sim:NAME (cached on disk) or "
                 "live:NAME[,field=value...,laps=K] (simulated in memory, e.g. live:city-tour,laps=10)")
@@ -31,16 +31,9 @@ def _read_config(path: Path) -> dict:
     return data
 
 
+@with_source_options
 def online_command(
     dataset: Optional[str] = typer.Option(None, "--dataset", "-d", help=DATASET_HELP),
-    loader: Optional[str] = LOADER,
-    topic: Optional[str] = TOPIC,
-    gt: Optional[Path] = GT,
-    gt_format: Optional[str] = GT_FORMAT,
-    sequence: Optional[str] = SEQUENCE,
-    first: Optional[int] = FIRST,
-    jump: Optional[int] = JUMP,
-    frames: Optional[int] = FRAMES,
     sampler: Optional[str] = typer.Option(None, help=SAMPLER_HELP),
     descriptor: Optional[str] = typer.Option(None, help=DESCRIPTOR_HELP),
     odometry: Optional[str] = typer.Option(None, help="kiss (default), gt-noise, or a KITTI/TUM pose file"),
@@ -56,6 +49,7 @@ def online_command(
                                 "trajectories, keyframes, loops); needs pip install 'msa-slam[viewer]'"),
     viewer_save: Optional[Path] = typer.Option(None, "--viewer-save", help="save the live view as a Rerun "
                                                "recording (.rrd, replay with `rerun FILE`) instead of a window"),
+    source: Optional[dict] = None,  # --loader, --gt, ... (added by with_source_options)
 ) -> None:
     """Run the online pipeline frame by frame (odometry, descriptor, sampler, loop detection, verification,
     iSAM2) and write its result folder; prints the path of its report.md."""
@@ -75,17 +69,16 @@ def online_command(
     base = _read_config(config) if config is not None else {}
     given = {"dataset": dataset, "sampler": sampler, "descriptor": descriptor, "odometry": odometry, "mode": mode,
              "cloud_store": cloud_store, "cache_dir": cache_option(cache_dir),
-             **source_options(base, loader, topic=topic, gt=gt, gt_format=gt_format, sequence=sequence, first=first,
-                              jump=jump, frames=frames)}
+             **source_options(base, **source)}
     cfg = apply_online_params(merge_options(base, given, "a sequence folder, a bag, sim:NAME or live:NAME"), param)
     with open_result_folder(out, "online", DEFAULT_RESULTS / "online", overwrite=overwrite) as folder:
-        source = open_source(cfg.dataset, cfg.dataset_kind, cfg.cache_dir, not quiet, cfg.source, cfg.mode)
-        if source.gt_poses is None and cfg.odometry == "gt-noise":
+        recording = open_source(cfg.dataset, cfg.dataset_kind, cfg.cache_dir, not quiet, cfg.source, cfg.mode)
+        if recording.gt_poses is None and cfg.odometry == "gt-noise":
             raise InputError(f"dataset {cfg.dataset!r}: odometry gt-noise perturbs ground truth, which this "
                              "recording lacks; use --odometry kiss or a pose file")
         view = LiveViewer(save=viewer_save) if live else None
         try:
-            result = run_online(cfg, source, quiet=quiet, viewer=view)
+            result = run_online(cfg, recording, quiet=quiet, viewer=view)
         finally:
             if view is not None:
                 view.close()

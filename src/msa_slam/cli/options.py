@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import contextlib
-from typing import Iterator
+import functools
+import inspect
+import typing
+from pathlib import Path
+from typing import Any, Callable, Iterator, Optional
 
 import typer
 
@@ -28,15 +32,44 @@ SEQUENCE_HELP = "sequence of a dataset root (KITTI root: 00..21; MulRan root: KA
 FIRST_HELP = "first scan to read (0-based)"
 JUMP_HELP = "read every JUMP-th scan"
 FRAMES_HELP = "read at most N scans"
-# The source options run, online and compare share (typer takes one OptionInfo as several commands' default)
-LOADER = typer.Option(None, "--loader", help=LOADER_HELP)
-TOPIC = typer.Option(None, "--topic", help=TOPIC_HELP)
-GT = typer.Option(None, "--gt", help=GT_HELP)
-GT_FORMAT = typer.Option(None, "--gt-format", help=GT_FORMAT_HELP)
-SEQUENCE = typer.Option(None, "--sequence", help=SEQUENCE_HELP)
-FIRST = typer.Option(None, "--first", min=0, help=FIRST_HELP)
-JUMP = typer.Option(None, "--jump", min=1, help=JUMP_HELP)
-FRAMES = typer.Option(None, "-n", "--frames", min=1, help=FRAMES_HELP)
+# The source options run, online and compare share: name -> (type, option), in --help order after --dataset
+SOURCE_OPTIONS: dict[str, tuple[Any, Any]] = {
+    "loader": (Optional[str], typer.Option(None, "--loader", help=LOADER_HELP)),
+    "topic": (Optional[str], typer.Option(None, "--topic", help=TOPIC_HELP)),
+    "gt": (Optional[Path], typer.Option(None, "--gt", help=GT_HELP)),
+    "gt_format": (Optional[str], typer.Option(None, "--gt-format", help=GT_FORMAT_HELP)),
+    "sequence": (Optional[str], typer.Option(None, "--sequence", help=SEQUENCE_HELP)),
+    "first": (Optional[int], typer.Option(None, "--first", min=0, help=FIRST_HELP)),
+    "jump": (Optional[int], typer.Option(None, "--jump", min=1, help=JUMP_HELP)),
+    "frames": (Optional[int], typer.Option(None, "-n", "--frames", min=1, help=FRAMES_HELP)),
+}
+
+
+def with_source_options(command: Callable[..., None]) -> Callable[..., None]:
+    """`command` with the source options (SOURCE_OPTIONS) added after its --dataset; it receives them as
+    one `source` mapping (its own `source` parameter is hidden from the command line). One declaration for
+    run, compare and online instead of eight repeated parameters each."""
+    signature = inspect.signature(command)
+    hints = typing.get_type_hints(command)  # real types: the command's module may postpone annotations
+    own = [p.replace(annotation=hints.get(name, p.annotation)) for name, p in signature.parameters.items()
+           if name != "source"]
+    added = [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=option, annotation=kind)
+             for name, (kind, option) in SOURCE_OPTIONS.items()]
+    at = next(i for i, p in enumerate(own) if p.name == "dataset") + 1
+    params = [p.replace(kind=inspect.Parameter.KEYWORD_ONLY) for p in own]
+    params[at:at] = added
+
+    @functools.wraps(command)
+    def wrapper(**kwargs: Any) -> None:
+        source = {name: kwargs.pop(name) for name in SOURCE_OPTIONS}
+        return command(source=source, **kwargs)
+
+    wrapper.__signature__ = signature.replace(parameters=params, return_annotation=None)  # type: ignore[attr-defined]
+    wrapper.__annotations__ = {p.name: p.annotation for p in params} | {"return": None}
+    del wrapper.__wrapped__  # typer must read the new signature, not the wrapped one
+    return wrapper
+
+
 OVERWRITE_HELP = "replace a previous msa-slam result in --out (never anything msa-slam did not write)"
 CACHE_HELP = "cache root (default $MSA_SLAM_CACHE or ~/.cache/msa-slam)"
 PARAM_HELP = ("override as key=value (repeatable): a config key (similarity_threshold=0.7), a section field "

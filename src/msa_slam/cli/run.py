@@ -7,8 +7,8 @@ from typing import List, Optional
 
 import typer
 
-from msa_slam.cli.options import (CACHE_HELP, DATASET_HELP, DESCRIPTOR_HELP, FIRST, FRAMES, GT, GT_FORMAT, JUMP, LOADER,
-                                  MODE_HELP, OVERWRITE_HELP, PARAM_HELP, SAMPLER_HELP, SEQUENCE, TOPIC, out_help)
+from msa_slam.cli.options import (CACHE_HELP, DATASET_HELP, DESCRIPTOR_HELP, MODE_HELP, OVERWRITE_HELP, PARAM_HELP,
+                                  SAMPLER_HELP, out_help, with_source_options)
 
 
 def batch_config(config_file: Optional[Path], given: dict, params: List[str], source: Optional[dict] = None):
@@ -23,16 +23,9 @@ def batch_config(config_file: Optional[Path], given: dict, params: List[str], so
     return apply_params(make_config(data), params)
 
 
+@with_source_options
 def run_command(
     dataset: Optional[str] = typer.Option(None, "--dataset", "-d", help=DATASET_HELP),
-    loader: Optional[str] = LOADER,
-    topic: Optional[str] = TOPIC,
-    gt: Optional[Path] = GT,
-    gt_format: Optional[str] = GT_FORMAT,
-    sequence: Optional[str] = SEQUENCE,
-    first: Optional[int] = FIRST,
-    jump: Optional[int] = JUMP,
-    frames: Optional[int] = FRAMES,
     sampler: Optional[str] = typer.Option(None, help=SAMPLER_HELP),
     descriptor: Optional[str] = typer.Option(None, help=DESCRIPTOR_HELP),
     odometry: Optional[str] = typer.Option(None, help="kiss (default) or a KITTI/TUM pose file"),
@@ -43,6 +36,7 @@ def run_command(
     overwrite: bool = typer.Option(False, "--overwrite", help=OVERWRITE_HELP),
     cache_dir: Optional[Path] = typer.Option(None, help=CACHE_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bars"),
+    source: Optional[dict] = None,  # --loader, --gt, ... (added by with_source_options)
 ) -> None:
     """Run one sampler through the batch experiment and write its result folder; prints its report.md."""
     from msa_slam.cli.config import cache_option
@@ -52,8 +46,6 @@ def run_command(
 
     given = {"dataset": dataset, "sampler": sampler, "descriptor": descriptor, "odometry": odometry,
              "mode": mode, "cache_dir": cache_option(cache_dir)}
-    source = {"loader": loader, "topic": topic, "gt": gt, "gt_format": gt_format, "sequence": sequence,
-              "first": first, "jump": jump, "frames": frames}
     cfg = batch_config(config, given, param, source)
     with open_result_folder(out, "run", DEFAULT_RESULTS / "run", overwrite=overwrite) as folder:
         result = run_batch(cfg, quiet=quiet)
