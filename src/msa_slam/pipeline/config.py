@@ -108,7 +108,7 @@ def _check_sampler(sampler: str, params: Mapping[str, Any]) -> None:
         raise InputError(f"config: {exc}") from None
 
 
-def _check_weights(descriptor: str, params: Mapping[str, Any]) -> None:
+def check_weights(descriptor: str, params: Mapping[str, Any]) -> None:
     """The OverlapTransformer's weights file, missing from the config or from the disk, reported before any
     scan is simulated (the descriptor itself is built after the dataset is opened). Not in make_config:
     the CLI makes a config from its options before the -p overrides add the weights."""
@@ -150,7 +150,7 @@ def apply_params(config: RunConfig, params: list[str]) -> RunConfig:
     The result is a command's final config, so the OverlapTransformer's weights file is checked here.
     """
     config = make_config(apply_overrides(config.dump(), params, RunConfig))
-    _check_weights(config.descriptor, config.descriptor_params)
+    check_weights(config.descriptor, config.descriptor_params)
     return config
 
 
