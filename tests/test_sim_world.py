@@ -4,6 +4,7 @@ reused street designs, hard stretches, determinism."""
 from __future__ import annotations
 
 import hashlib
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ from msa_slam.descriptors.scan_context import ScanContext
 from msa_slam.errors import InputError
 from msa_slam.sim.dynamic import DRIVE, FIXED, WALK
 from msa_slam.sim.layout import STYLES
-from msa_slam.sim.plan import make_catalogue, plan_stretches, straight_runs
+from msa_slam.sim.plan import MAX_DESIGN_M, MIN_DESIGN_M, make_catalogue, plan_stretches, straight_runs
 from msa_slam.sim.sensors import get_sensor
 from msa_slam.sim.shapes import Material
 from msa_slam.sim.world import PATH_LEAD, START_STRUCTURE_M, World, WorldRealism, build_world
@@ -167,21 +168,26 @@ def test_foliage_returns_vary_between_scans_but_not_within_one():
 
 # --- reused designs and hard stretches ---------------------------------------------------------------
 def test_two_far_places_of_the_same_design_look_alike():
+    """Some place of a second street of the design, within one house pitch of the same spot relative to its
+    street's middle, looks like the middle of the first street."""
     poses = _path(1300, bend=0.0)
     realism = WorldRealism(catalogue_designs=1, catalogue_share=0.6)
     world = build_world(poses, "city", seed=7, realism=realism)
     plain = build_world(poses, "city", seed=7)
+    pitch = make_catalogue(1, STYLES["city"], np.random.default_rng([7, 12, 2]))[0].pitch
     designed = [s for s in world.stretches if s.kind == "design" and s.end - s.start > 150
                 and PATH_LEAD + 80 < s.start < PATH_LEAD + len(poses) - 230]
     assert len(designed) >= 2
     a, b = designed[0], designed[1]
-    frame_a = int(a.start + 60.0 - PATH_LEAD)  # same place relative to each stretch's first house
-    frame_b = int(round(frame_a + (b.start - a.start)))
-    assert abs(frame_b - frame_a) > 100
+    frame_a = int((a.start + a.end) / 2 - PATH_LEAD)
+    middle_b = int((b.start + b.end) / 2 - PATH_LEAD)
+    frames_b = range(middle_b - int(pitch / 2), middle_b + int(pitch / 2) + 1)
+    assert min(frames_b) - frame_a > 100
     sc = ScanContext()
 
     def sim(w: World) -> float:
-        return sc.similarity(sc.compute(_scan(w, poses[frame_a])), sc.compute(_scan(w, poses[frame_b])))
+        query = sc.compute(_scan(w, poses[frame_a]))
+        return max(sc.similarity(query, sc.compute(_scan(w, poses[k]))) for k in frames_b)
     assert sim(world) > 0.8
     assert sim(world) > sim(plain) + 0.1
 
@@ -259,17 +265,64 @@ def test_straight_runs_are_the_legs_of_a_zigzag():
     assert len(runs) == 3 and all(150.0 < b - a <= 200.0 for a, b in runs)
 
 
-def test_designs_lie_on_straight_streets_only():
+def test_designs_take_whole_straight_streets_and_hard_stretches_the_rest():
     """Two places of one design look alike only where both streets are straight (a bend turns Scan Context's
-    far rings away), so designs go on straight runs; hard stretches may go anywhere."""
+    far rings away) and lined by the design far along (it sees 80 m ahead), so designs take whole straight
+    runs (split when very long); hard stretches go in between, never overlapping a design."""
     xy = _zigzag(160.0, 12)
     runs = straight_runs(xy)
     plan = plan_stretches(xy, 0.6, 0.2, ("wall",), 2, np.random.default_rng(3))
     designs = [s for s in plan if s.kind == "design"]
     assert len(designs) >= 3 and any(s.kind == "wall" for s in plan)
     for s in designs:
-        assert s.end - s.start >= 100.0
-        assert any(a <= s.start and s.end <= b + 1e-6 for a, b in runs), f"design {s} off the straight runs"
+        run = next((a, b) for a, b in runs if a <= s.start and s.end <= b + 1e-6)
+        assert s.end - s.start == pytest.approx(run[1] - run[0]), f"design {s} is not its whole run {run}"
+    assert all(a.end <= b.start for a, b in zip(plan, plan[1:])), "stretches overlap"
+    long_run = plan_stretches(_zigzag(700.0, 1), 0.8, 0.0, ("wall",), 2, np.random.default_rng(3))
+    assert len(long_run) >= 2 and all(MIN_DESIGN_M <= s.end - s.start <= MAX_DESIGN_M for s in long_run)
+
+
+def test_a_design_repeats_every_house_behind_closed_gaps_on_one_building_line():
+    """Every house of a design has the same tree, light and parked cars (period = one pitch, so a place
+    matches the one a pitch along), all designs of a world share one setback, and a garden wall closes each
+    gap between houses: what lies behind, different at every place, stays hidden from the street."""
+    catalogue = make_catalogue(4, STYLES["city"], np.random.default_rng(0))
+    assert len({d.setback for d in catalogue}) == 1
+    assert all(d.tree_pitch in (0, 1) and d.light_pitch in (0, 1) and d.gap_wall > 2.5 for d in catalogue)
+    poses = _path(600, bend=0.0)
+    world = build_world(poses, "city", seed=5, realism=WorldRealism(catalogue_designs=1, catalogue_share=0.6))
+    design = make_catalogue(1, STYLES["city"], np.random.default_rng([5, 12, 2]))[0]
+    s = next(x for x in world.stretches if x.kind == "design")
+    to_gap = []  # rays from the sensor's height to each gap between two houses on the left, square to the road
+    for x in np.arange(s.start - PATH_LEAD, s.end - PATH_LEAD, 0.5):
+        h = world.cast(np.array([x, 0.0, 0.0]), np.array([[0.0, 1.0, 0.0]]))
+        to_gap.append(float(h.dist[0]) if len(h) else np.inf)
+    gaps = np.array(to_gap) > design.setback + 1.0  # past the facade line: in a gap
+    assert gaps.any(), "no gap between houses"
+    assert np.all(np.array(to_gap)[gaps] < design.setback + design.depth / 2 + 0.5), "a gap left open"
+
+
+def test_a_designed_street_goes_on_past_the_turn():
+    """Where the path turns off a designed street, the houses go on along the street's line (as past a
+    junction), so places along the street see the same street ahead whatever their distance to the turn."""
+    xy = _zigzag(150.0, 2)
+    poses = np.tile(np.eye(4), (len(xy), 1, 1))
+    poses[:, :2, 3] = xy
+    realism = WorldRealism(catalogue_designs=1, catalogue_share=0.8)
+    design = make_catalogue(1, STYLES["city"], np.random.default_rng([4, 12, 2]))[0]
+    right = np.array([0.0, -design.setback - design.depth / 2])
+    past = np.array([150.0 + 30.0, 0.0]) + right  # right of the first leg's line, 30 m past the turn (to the left)
+
+    def house_near(world: World) -> bool:
+        """A wall facing along the first leg (the second leg's blocks are turned 60 deg) near `past`."""
+        square = np.abs(world.face_normals[:, 0]) > 0.999  # faces square to the first leg
+        near = np.linalg.norm(world.mesh.triangles_center[:, :2] - past, axis=1) < design.length / 2
+        return bool(np.any(square & near & (world.material == Material.SOLID)))
+    world = build_world(poses, "city", seed=4, realism=realism)
+    first = next(s for s in world.stretches if s.kind == "design")
+    assert first.end < PATH_LEAD + 155.0 < first.end + 10.0, "the first design should end at the turn"
+    assert house_near(world), "no house past the turn on the street's line"
+    assert not house_near(build_world(poses, "city", seed=4, realism=replace(realism, catalogue_share=0.0)))
 
 
 def test_every_house_of_a_design_has_the_same_parked_cars():

@@ -241,11 +241,13 @@ class StreetLayout(PlannedStretches):
                         self._parked_car(s, side, True)  # an empty slot, taken at some times
                 s += self._u((5.0, 7.5))
 
-    def _parked_car(self, s: float, side: float, transient: bool) -> None:
-        """Body and cabin; a transient car goes to `self.transient` (x, y, z, yaw, body half length and width,
-        cabin centre height above ground and half extents, reflectance) and keeps its footprint reserved."""
+    def _parked_car(self, s: float, side: float, transient: bool,
+                    at: Callable[[float], tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None) -> None:
+        """Body and cabin at arc length s (of the path, or of the street `at` gives); a transient car goes to
+        `self.transient` (x, y, z, yaw, body half length and width, cabin centre height above ground and half
+        extents, reflectance) and keeps its footprint reserved."""
         st = self.style
-        p, h, n = self._at(s)
+        p, h, n = (at or self._at)(s)
         yaw = float(np.arctan2(h[1], h[0]))
         c = p + side * n * self._u(st.car_offset)
         half = np.array([self._u((1.9, 2.4)), self._u((0.8, 0.95))])

@@ -17,13 +17,14 @@ if TYPE_CHECKING:
 
 HARD_KINDS: tuple[str, ...] = ("field", "wall", "tunnel", "highway")
 DESIGN = "design"
-_LENGTHS = {DESIGN: (150.0, 350.0), "field": (80.0, 200.0), "wall": (100.0, 250.0), "tunnel": (60.0, 150.0),
-            "highway": (150.0, 300.0)}
-_MEAN_SPECIAL = 200.0
-STRAIGHT_TOLERANCE_DEG = 15.0  # heading range within a straight run
+_LENGTHS = {"field": (80.0, 200.0), "wall": (100.0, 250.0), "tunnel": (60.0, 150.0), "highway": (150.0, 300.0)}
+_MEAN_HARD = 170.0
+_MIN_HARD_M = 40.0  # a hard stretch squeezed shorter than this between designs is left out
+STRAIGHT_TOLERANCE_DEG = 25.0  # heading range within a straight run
 MIN_DESIGN_M = 100.0  # shortest designed stretch (a straight run's remainder shorter than this stays regular)
+MAX_DESIGN_M = 260.0  # longer straight runs get several designs (one design all along would hide true revisits)
+_DESIGN_BREAK = (20.0, 50.0)  # m of regular street between two designed stretches of one straight run
 _HEADING_STEP_M = 2.0
-STRAIGHT_KINDS = (DESIGN, "wall", "tunnel", "highway")  # laid on straight runs where one is near (fields anywhere)
 
 
 @dataclass(frozen=True)
@@ -38,8 +39,9 @@ class Stretch:
 
 @dataclass(frozen=True)
 class Design:
-    """A street design: identical houses at a fixed pitch on both sides, optional back-row block,
-    front-garden trees, low front fence and street lights; `detail_seed` fixes the facade detail."""
+    """A street design: identical houses at a fixed pitch on both sides, each with the same garden wall closing
+    the gap to the next house (so what lies behind, different at every place, stays hidden), optional back-row
+    block, front-garden tree, low front fence and street light; `detail_seed` fixes the facade detail."""
 
     length: float
     depth: float
@@ -52,11 +54,15 @@ class Design:
     fence: float                             # fence height (0: none)
     light_pitch: int                         # a street light every this many houses (0: none)
     detail_seed: int
+    gap_wall: float = 0.0                    # height of the wall between two houses (0: an open gap)
 
 
 def make_catalogue(n: int, style: Style, rng: np.random.Generator) -> tuple[Design, ...]:
-    """`n` designs within the style's ranges (mid-height blocks, as residential streets)."""
+    """`n` designs within the style's ranges (mid-height blocks, as residential streets). They share one
+    building line (setback), as a town's planning rules fix it, and repeat every house (tree, light and parked
+    cars at each), so a place matches another one pitch along and a place of another street of the design."""
     designs = []
+    setback = float(rng.uniform(*style.setback))
     for _ in range(n):
         lo, hi = style.length
         length = float(rng.uniform(lo + 2.0, (lo + hi) / 2 + 2.0))
@@ -68,10 +74,11 @@ def make_catalogue(n: int, style: Style, rng: np.random.Generator) -> tuple[Desi
         designs.append(Design(
             length=length, depth=float(rng.uniform(*style.depth)),
             height=float(rng.uniform(h_lo + 2.0, h_lo + 0.6 * (h_hi - h_lo))),
-            setback=float(rng.uniform(*style.setback)), pitch=length + float(rng.uniform(*style.gap)),
-            refl=float(rng.uniform(0.35, 0.75)), back=back, tree_pitch=int(rng.integers(0, 3)),
+            setback=setback, pitch=length + float(rng.uniform(*style.gap)),
+            refl=float(rng.uniform(0.35, 0.75)), back=back, tree_pitch=int(rng.integers(0, 2)),
             fence=float(rng.uniform(0.8, 1.6)) if rng.random() < 0.5 else 0.0,
-            light_pitch=int(rng.integers(1, 4)), detail_seed=int(rng.integers(2**31))))
+            light_pitch=int(rng.integers(0, 2)), detail_seed=int(rng.integers(2**31)),
+            gap_wall=float(rng.uniform(2.6, 3.4))))
     return tuple(designs)
 
 
@@ -102,51 +109,66 @@ def straight_runs(xy: np.ndarray, min_length: float = MIN_DESIGN_M,
     return runs
 
 
-def _on_straight(runs: list[tuple[float, float]], s: float, reach: float) -> tuple[float, float] | None:
-    """[start, end] of straight path at or after `s` (within `reach` m) at least MIN_DESIGN_M long."""
-    for a, b in runs:
-        start = max(a, s)
-        if b - start >= MIN_DESIGN_M and start - s <= reach:
-            return start, b
-    return None
+def _design_pieces(runs: list[tuple[float, float]], total: float, share: float,
+                   rng: np.random.Generator) -> list[tuple[float, float]]:
+    """Whole straight runs, in a seeded order, until about `share` of the path is covered; a run longer than
+    MAX_DESIGN_M is cut into pieces with regular blocks between them."""
+    pieces: list[tuple[float, float]] = []
+    covered = 0.0
+    for k in rng.permutation(len(runs)):
+        a, b = runs[int(k)]
+        if pieces and covered + min(b - a, MAX_DESIGN_M) > share * total:
+            continue
+        while b - a >= MIN_DESIGN_M:
+            length = b - a if b - a <= MAX_DESIGN_M else float(rng.uniform(MIN_DESIGN_M + 50.0, MAX_DESIGN_M))
+            pieces.append((a, a + length))
+            covered += length
+            a += length + float(rng.uniform(*_DESIGN_BREAK))
+    return sorted(pieces)
 
 
 def plan_stretches(xy: np.ndarray, catalogue_share: float, hard_share: float, hard_kinds: tuple[str, ...],
                    n_designs: int, rng: np.random.Generator, hard_from: float = 0.0) -> tuple[Stretch, ...]:
-    """Special stretches along the path `xy` covering about the given shares of it; the designs are used in
-    shuffled rounds so each repeats as soon as the path is long enough. Designs, walls, tunnels and highways
-    move on to the next straight run within reach; a design finding none leaves regular blocks, the others
-    are laid where they are. No hard stretch begins before arc length `hard_from`: odometry starts with zero
-    velocity and needs structure along the road to pick up the motion (KISS-ICP stalled in a tunnel at the
-    start of KITTI-06)."""
-    special = catalogue_share + hard_share
-    if special <= 0:
+    """Special stretches along the path `xy` covering about the given shares of it.
+
+    Designs come first and take whole straight runs (Scan Context sees 80 m along a street: two places of a
+    design look alike only where the design lines the street that far both ways), used in shuffled rounds so
+    each repeats as soon as the path is long enough. Hard stretches fill about `hard_share` of the path in
+    between, none beginning before arc length `hard_from`: odometry starts with zero velocity and needs
+    structure along the road to pick up the motion (KISS-ICP stalled in a tunnel at the start of KITTI-06)."""
+    if catalogue_share + hard_share <= 0:
         return ()
     total = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
-    runs = straight_runs(xy)
-    regular = _MEAN_SPECIAL * (1.0 - special) / special
     out: list[Stretch] = []
-    rounds: list[int] = []
-    s = float(rng.uniform(0.2, 1.0)) * regular
-    while s < total:
-        if rng.random() < catalogue_share / special:
-            kind = DESIGN
-        else:
-            kind = str(hard_kinds[int(rng.integers(len(hard_kinds)))])
-        length = float(rng.uniform(*_LENGTHS[kind]))
-        if kind != DESIGN:
-            s = max(s, hard_from)
-        straight = _on_straight(runs, s, _LENGTHS[DESIGN][1]) if kind in STRAIGHT_KINDS else None
-        if straight is not None:
-            s, length = straight[0], min(length, straight[1] - straight[0])
-        elif kind == DESIGN:  # no straight street near: regular blocks where the design would have been
-            s += length + float(rng.uniform(0.5, 1.5)) * regular
-            continue
-        design = -1
-        if kind == DESIGN:
+    if catalogue_share > 0:
+        rounds: list[int] = []
+        for a, b in _design_pieces(straight_runs(xy), total, catalogue_share, rng):
             if not rounds:
                 rounds = list(rng.permutation(n_designs))
-            design = int(rounds.pop())
-        out.append(Stretch(s, min(s + length, total), kind, design))
-        s += length + float(rng.uniform(0.5, 1.5)) * regular
-    return tuple(out)
+            out.append(Stretch(a, b, DESIGN, int(rounds.pop())))
+    if hard_share > 0:
+        out += _hard_stretches(total, hard_share, hard_kinds, out, rng, hard_from)
+    return tuple(sorted(out, key=lambda x: x.start))
+
+
+def _hard_stretches(total: float, share: float, kinds: tuple[str, ...], designs: list[Stretch],
+                    rng: np.random.Generator, hard_from: float) -> list[Stretch]:
+    """About `share` of the path in hard stretches laid between the designs (shortened to fit)."""
+    free = total - sum(d.end - d.start for d in designs)
+    regular = _MEAN_HARD * max(free / total - share, 0.05) / share
+    out: list[Stretch] = []
+    s = max(float(rng.uniform(0.2, 1.0)) * regular, hard_from)
+    while s < total:
+        kind = str(kinds[int(rng.integers(len(kinds)))])
+        end = min(s + float(rng.uniform(*_LENGTHS[kind])), total)
+        inside = next((d for d in designs if d.start - _DESIGN_BREAK[0] <= s < d.end), None)
+        if inside is not None:  # starts in a design: after it
+            s = inside.end + float(rng.uniform(*_DESIGN_BREAK))
+            continue
+        ahead = [d.start for d in designs if d.start > s]
+        if ahead:
+            end = min(end, ahead[0] - _DESIGN_BREAK[0])
+        if end - s >= _MIN_HARD_M:
+            out.append(Stretch(s, end, kind))
+        s = end + float(rng.uniform(0.5, 1.5)) * regular
+    return out

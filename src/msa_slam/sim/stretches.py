@@ -9,8 +9,11 @@ from typing import Iterator
 
 import numpy as np
 
-from msa_slam.sim.plan import Design, Stretch
+from msa_slam.sim.plan import DESIGN, Design, Stretch
 from msa_slam.sim.shapes import Material
+
+ROW_BEYOND_M = 60.0
+ROW_CLEAR_M = 15.0
 
 
 class PlannedStretches:
@@ -26,13 +29,36 @@ class PlannedStretches:
         finally:
             self.rng = saved
 
+    def _row_at(self, stretch: Stretch, s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Point, heading and left normal at arc length s of the path inside the stretch, and on the straight
+        line continuing it beyond its ends (the designed street goes on past the junction where the path turns)."""
+        end = min(max(s, stretch.start), stretch.end)
+        p, h, n = self._at(end)
+        return p + h * (s - end), h, n
+
+    def _row_span(self, stretch: Stretch) -> tuple[float, float]:
+        """Where a design's rows go: the stretch and up to ROW_BEYOND_M past each end, short of the neighbouring
+        hard stretches (Scan Context sees 80 m ahead: without the street going on, two places of one design
+        differ by where their street ends). Houses of two designs meeting at a corner: the first laid stays."""
+        hard = [o for o in self.plan if o.kind != DESIGN]
+        before = max((o.end for o in hard if o.end <= stretch.start), default=-np.inf)
+        after = min((o.start for o in hard if o.start >= stretch.end), default=np.inf)
+        return (max(stretch.start - ROW_BEYOND_M, before + ROW_CLEAR_M),
+                min(stretch.end + ROW_BEYOND_M, after - ROW_CLEAR_M))
+
     def _design_row(self, stretch: Stretch, design: Design, side: float) -> None:
-        """Identical houses at the design's pitch from the stretch start, the same on both sides, with
-        the design's back-row blocks, fence, front-garden trees, parked cars and street lights."""
+        """Identical houses at the design's pitch centred in the row's span, the same on both sides, with
+        the design's garden walls, back-row blocks, fence, front-garden trees, parked cars and street lights."""
         st = self.style
-        s, k = stretch.start, 0
-        while s + design.pitch <= stretch.end:
-            p, h, n = self._at(s + design.length / 2)
+        start, end = self._row_span(stretch)
+        houses = int((end - start) // design.pitch)
+        row = (houses - 1) * design.pitch + design.length
+        s, k = start + max(end - start - row, 0.0) / 2, 0  # centred: the row is the same driven either way
+
+        def at(x: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            return self._row_at(stretch, x)
+        for _ in range(houses):
+            p, h, n = at(s + design.length / 2)
             yaw = float(np.arctan2(h[1], h[0]))
             center = p + side * n * (design.setback + design.depth / 2)
             with self._seeded(design.detail_seed, 0):
@@ -44,25 +70,32 @@ class PlannedStretches:
                     self._building(back, yaw, side, length, depth, st.road_clearance, height=height,
                                    refl=design.refl * 0.9)
             if design.fence > 0:
-                q, _, m = self._at(s + design.pitch / 2)
+                q, _, m = at(s + design.pitch / 2)
                 self._add_box(q + side * m * (design.setback - 1.0), (design.pitch / 2 - 0.2, 0.08), yaw,
                               design.fence, 0.5, st.road_clearance - 1.0)
             if design.tree_pitch and k % design.tree_pitch == 0:
-                q, _, m = self._at(s + design.pitch - (design.pitch - design.length) / 2)
+                q, _, m = at(s + design.pitch - (design.pitch - design.length) / 2)
                 with self._seeded(design.detail_seed, 1):
                     self._tree(q + side * m * (design.setback + 1.0), st.road_clearance)
             if st.p_parked > 0:  # the same cars in front of every house of the design
                 with self._seeded(design.detail_seed, 2):
                     for x in np.arange(self._u((0.0, 3.0)), design.pitch - 4.0, 6.5):
                         if self.rng.random() < st.p_parked:
-                            self._parked_car(s + x, side, False)
+                            self._parked_car(s + x, side, False, at)
             if design.light_pitch and k % design.light_pitch == 0:
-                q, _, m = self._at(s)
+                q, _, m = at(s)
                 c = q + side * m * (st.car_offset[1] + 0.7)
                 if self._try(c, np.array([0.2, 0.2]), 0.0, st.furniture_clearance):
                     self.trunks.append((*c, self.ground(c) - 0.3, 0.12, 6.5, 0.8))
             s += design.pitch
             k += 1
+        gap = design.pitch - design.length
+        if design.gap_wall > 0 and gap > 0.5:  # after the houses, which keep a margin to anything placed before
+            for x in np.arange(s - houses * design.pitch + design.length, s - design.pitch, design.pitch):
+                q, h, m = at(x + gap / 2)
+                self._wall_piece(q + side * m * (design.setback + design.depth / 2), (gap / 2, 0.15),
+                                 float(np.arctan2(h[1], h[0])), self.ground(q) - 0.3, design.gap_wall + 0.3,
+                                 design.refl * 0.8, overlap=0.6)  # on a bend the inner side's gaps narrow
 
     def _segments(self, stretch: Stretch, step: float) -> Iterator[tuple[float, np.ndarray, np.ndarray, float]]:
         """(arc length, point, left normal, yaw) every `step` m along the stretch (segment centres)."""
@@ -71,12 +104,12 @@ class PlannedStretches:
             yield float(s), p, n, float(np.arctan2(h[1], h[0]))
 
     def _wall_piece(self, center: np.ndarray, half: tuple[float, float], yaw: float, z0: float, height: float,
-                    refl: float, material: int = Material.SOLID) -> None:
-        """One piece of a continuous structure: kept off every other road, registered without an overlap
-        check against its neighbours."""
+                    refl: float, material: int = Material.SOLID, overlap: float = 0.05) -> None:
+        """One piece of a continuous structure: kept off every other road, placed where it overlaps what is
+        already there by at most `overlap` m (its neighbours, or the houses a garden wall joins)."""
         h = np.asarray(half, float)
         if self.clear.is_clear(center, h, yaw, self.style.furniture_clearance) and self.taken.add_if_free(
-                center, h, yaw, margin=-0.05):
+                center, h, yaw, margin=-overlap):
             self.boxes.append((*center, z0 + height / 2, *h, height / 2, yaw, refl, material))
 
     def _hard(self, stretch: Stretch) -> None:
