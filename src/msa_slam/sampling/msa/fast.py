@@ -91,7 +91,7 @@ def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nda
             if k < m - 1:
                 v += upper[k] * g[k + 1, j]
             h[k, j] = v
-    c = np.empty((m, m))  # C = (A G) A^T
+    c = scratch[9 + 4 * m:9 + 5 * m, :m]  # C = (A G) A^T
     finite = True
     for i in range(m):
         for k in range(m):
@@ -177,7 +177,7 @@ def information_rows(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, prob
     width = dist.shape[0]
     blocks = max(min(count, blocks), 1)
     for block in prange(blocks):
-        scratch = np.empty((9 + 4 * width, width))
+        scratch = np.empty((9 + 5 * width, width))
         members = np.empty(width, dtype=np.int64)
         for i in range(block * count // blocks, (block + 1) * count // blocks):
             m = 0
