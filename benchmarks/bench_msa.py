@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
-from numba import njit
+from numba import get_num_threads, njit
 
 from msa_slam.sampling import make_sampler
 from msa_slam.sampling.msa import ScoreWeights, optimise_window
@@ -147,15 +148,17 @@ def parity_counts():
 def canonical_targets(shapes) -> None:
     """Issue 16's targets: median ms per window at N = 10, 16, 20, canonical vs reference (fast mode)."""
     targets = {10: 0.5, 16: 10.0, 20: 100.0}
-    print("\nCanonical vs reference pi, fast mode (random-walk streams; reference refuses N > 16)")
-    print(f"{'shape':8} {'N':>3} {'cand/window':>12} {'reference ms':>13} {'canonical ms':>13} {'target ms':>10}")
+    print("\nCanonical vs reference pi, fast mode (random-walk streams; reference refuses N > 16); "
+          f"{get_num_threads()} threads, load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
+    print(f"{'shape':8} {'N':>3} {'cand/window':>12} {'reference ms':>13} {'canonical ms':>13} {'us/cand':>8} "
+          f"{'target ms':>10}")
     for shape_name, shape in shapes.items():
         for n, target in targets.items():
             stream = random_walk_stream(shape, 240 if n <= 12 else 60)
-            canonical, _, cands, _ = time_sampler(*stream, n, "fast", "canonical")
+            canonical, _, cands, per_candidate = time_sampler(*stream, n, "fast", "canonical")
             reference = f"{time_sampler(*stream, n, 'fast')[0]:>13.3f}" if n <= 16 else f"{'n/a':>13}"
-            print(f"{shape_name:8} {n:>3} {cands:>12.0f} {reference} {canonical:>13.3f} {target:>10.1f}",
-                  flush=True)
+            print(f"{shape_name:8} {n:>3} {cands:>12.0f} {reference} {canonical:>13.3f} {per_candidate:>8.2f} "
+                  f"{target:>10.1f}", flush=True)
 
 
 def main() -> int:

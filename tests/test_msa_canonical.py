@@ -173,3 +173,19 @@ def test_thread_count_does_not_change_canonical_keyframes():
         finally:
             numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
     assert runs[0] == runs[1]
+
+
+@pytest.mark.parametrize("size", [1e-160, 1e160])
+def test_compiled_eigensolver_keeps_its_accuracy_at_extreme_scales(size):
+    """QL's rotations use a plain square root (no hypot) after an exact power-of-two scaling of C:
+    without that scaling, p * p + e * e underflows at 1e-160 and overflows at 1e160."""
+    from msa_slam.sampling.msa.eigen import symmetric_eigh
+
+    m = 9
+    c = np.cov(np.random.default_rng(7).standard_normal((m, 2 * m))) * size
+    got_lam, got_vec = np.empty(m), c.copy()
+    symmetric_eigh(got_vec, got_lam, np.empty(m), m)
+    want_lam, want_vec = np.linalg.eigh(c)
+    assert np.isfinite(got_lam).all() and np.isfinite(got_vec).all()
+    np.testing.assert_allclose(got_lam, want_lam, rtol=0, atol=1e-13 * np.abs(want_lam).max())
+    np.testing.assert_allclose(canonical(got_lam, got_vec)[1], canonical(want_lam, want_vec)[1], atol=1e-9)

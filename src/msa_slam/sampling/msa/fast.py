@@ -32,6 +32,29 @@ PROBES = 3  # rounding-level perturbations of each candidate's C for the ambigui
 PROBE_SCALE = 1e-13  # their relative size: ~450 ulp, beyond any reordering of a BLAS kernel's sums
 
 
+VECTORS, MATRICES = 9, 5  # a candidate's scratch: 9 vectors and 5 matrices of its size (the last one row taller)
+
+
+@njit(cache=True)
+def scratch_size(width: int) -> int:  # pragma: no cover
+    """Length of the flat scratch buffer information_gram needs for candidates of up to `width` members."""
+    return VECTORS * width + MATRICES * width * width + width
+
+
+@njit(cache=True)
+def _vector(scratch: np.ndarray, slot: int, m: int) -> np.ndarray:  # pragma: no cover
+    """Vector `slot` of a candidate of m members in the flat scratch buffer (contiguous)."""
+    return scratch[slot * m:(slot + 1) * m]
+
+
+@njit(cache=True)
+def _matrix(scratch: np.ndarray, slot: int, m: int, rows: int = 0) -> np.ndarray:  # pragma: no cover
+    """Matrix `slot` (m x m, or rows x m) of a candidate in the flat scratch buffer: C-contiguous, so
+    that its rows vectorise (views into a wider 2-D buffer are strided and do not)."""
+    start = VECTORS * m + slot * m * m
+    return scratch[start:start + max(rows, m) * m].reshape((max(rows, m), m))
+
+
 @njit(cache=True)
 def pairwise(translations: np.ndarray, descriptors: np.ndarray):  # pragma: no cover
     """Distances and similarities for all pairs (terms.similarity's values up to rounding).
@@ -66,8 +89,8 @@ def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nda
 
     A's three diagonals are `lower`, `diag`, `upper` (row k uses columns k-1, k, k+1).
     """
-    lower, diag, upper = scratch[0, :m], scratch[1, :m], scratch[2, :m]
-    g, h = scratch[6:6 + m, :m], scratch[6 + m:6 + 2 * m, :m]
+    lower, diag, upper = _vector(scratch, 0, m), _vector(scratch, 1, m), _vector(scratch, 2, m)
+    g, h = _matrix(scratch, 0, m), _matrix(scratch, 1, m)
     lower[0] = 0.0
     upper[m - 1] = 0.0
     first = dist[0, members[1]] - dist[0, members[0]]
@@ -91,7 +114,7 @@ def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nda
             if k < m - 1:
                 v += upper[k] * g[k + 1, j]
             h[k, j] = v
-    c = scratch[9 + 4 * m:9 + 5 * m, :m]  # C = (A G) A^T
+    c = _matrix(scratch, 2, m)  # C = (A G) A^T
     finite = True
     for i in range(m):
         for k in range(m):
@@ -128,13 +151,13 @@ def _pi_of_information(c: np.ndarray, g: np.ndarray, m: int, scratch: np.ndarray
     """pi from the information matrix C and the candidate's Gram block G_S (e_j^2 = d_j^T G_S d_j),
     and (canonical only) a bound on how far another solver's rounding could move it (1 if C sits
     at a threshold of the canonical form)."""
-    scale, d, e = scratch[3, :m], scratch[4, :m], scratch[5, :m - 1]
-    vec, lam = scratch[7 + 3 * m:7 + 4 * m, :m], scratch[7 + 4 * m, :m]
+    scale, d, e = _vector(scratch, 3, m), _vector(scratch, 4, m), _vector(scratch, 5, m)[:m - 1]
+    lam, gd, vec = _vector(scratch, 6, m), _vector(scratch, 8, m), _matrix(scratch, 3, m)
     err = 0.0
     if canonical:  # any accurate solver will do: the canonical form fixes what solvers leave open
         vec[:, :] = c
-        symmetric_eigh(vec, lam, scratch[8 + 4 * m, :m], m)
-        err = canonicalise(lam, vec, m, scratch[6 + 2 * m:7 + 3 * m, :m])
+        symmetric_eigh(vec, lam, _vector(scratch, 7, m), m)
+        err = canonicalise(lam, vec, m, _matrix(scratch, 4, m, m + 1))
     else:
         values, vectors = np.linalg.eigh(c)
         lam[:] = values
@@ -144,12 +167,13 @@ def _pi_of_information(c: np.ndarray, g: np.ndarray, m: int, scratch: np.ndarray
     for j in range(m - 1):
         for i in range(m):
             d[i] = vec[i, j + 1] * scale[j + 1] - vec[i, j] * scale[j]
+        gd[:] = 0.0
+        for k in range(m):  # G d by rows of the symmetric G: contiguous, so the compiler vectorises it
+            for i in range(m):
+                gd[i] += g[k, i] * d[k]
         total = 0.0
         for i in range(m):
-            row = 0.0
-            for k in range(m):
-                row += g[i, k] * d[k]
-            total += d[i] * row
+            total += d[i] * gd[i]
         e[j] = np.sqrt(max(total, 0.0))
     lo, hi = e.min(), e.max()
     total = 0.0
@@ -170,16 +194,18 @@ def _pi_of_information(c: np.ndarray, g: np.ndarray, m: int, scratch: np.ndarray
 def information_rows(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, probes: int,
                      canonical: bool = False, blocks: int = 16) -> np.ndarray:  # pragma: no cover
     """(3, candidates): pi of the candidates (bit masks, powerset.feasible_subsets), and its lowest and
-    highest value under rounding. Candidates are split into `blocks` shared by numba's threads (pass a
-    few per thread); each candidate's arithmetic is the same whatever the thread count."""
+    highest value under rounding. Candidates are dealt to `blocks` in turn (they come ordered by size,
+    so contiguous ranges left the thread with the last blocks most of the work), and the blocks are
+    shared by numba's threads (pass a few per thread); each candidate's arithmetic is the same whatever
+    the thread count."""
     count = len(masks)
     out = np.zeros((3, count))
     width = dist.shape[0]
     blocks = max(min(count, blocks), 1)
     for block in prange(blocks):
-        scratch = np.empty((9 + 5 * width, width))
+        scratch = np.empty(scratch_size(width))
         members = np.empty(width, dtype=np.int64)
-        for i in range(block * count // blocks, (block + 1) * count // blocks):
+        for i in range(block, count, blocks):  # every block gets small and large candidates alike
             m = 0
             for p in range(width):
                 if masks[i] >> p & 1:
