@@ -256,4 +256,4 @@ def test_help_says_where_the_weights_are():
     from msa_slam.cli.options import DESCRIPTOR_HELP
     from msa_slam.descriptors.overlap_transformer import WEIGHTS_URL
 
-    assert WEIGHTS_URL.split("/view")[0] in DESCRIPTOR_HELP and "-p descriptor.weights=FILE" in DESCRIPTOR_HELP
+    assert WEIGHTS_URL.split("/view")[0] in DESCRIPTOR_HELP and "-p weights=FILE" in DESCRIPTOR_HELP

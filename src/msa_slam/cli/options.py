@@ -16,7 +16,7 @@ SAMPLER_HELP = f"{', '.join(SAMPLER_NAMES)} (default msa)"
 DESCRIPTOR_HELP = ("sc (Scan Context, default), ot (OverlapTransformer: needs torch and the authors' pretrained "
                    "weights pretrained_overlap_transformer.pth.tar, published at "
                    "https://drive.google.com/file/d/1FNrx9pcDa9NF7z8CFtuTWyauNkeSEFW4 via "
-                   "github.com/haomo-ai/OverlapTransformer; pass -p descriptor.weights=FILE), precomputed "
+                   "github.com/haomo-ai/OverlapTransformer; pass -p weights=FILE), precomputed "
                    "(-p descriptor.path=FILE.npy)")
 MODE_HELP = "oracle (default, the paper; needs ground truth) or realistic"
 DATASET_HELP = ("sequence folder (KITTI, MulRan, HeLiPR, Apollo, Newer College layout, or a folder of .bin/.pcd/.ply "
@@ -74,7 +74,7 @@ OVERWRITE_HELP = "replace a previous msa-slam result in --out (never anything ms
 CACHE_HELP = "cache root (default $MSA_SLAM_CACHE or ~/.cache/msa-slam)"
 PARAM_HELP = ("override as key=value (repeatable): a config key (similarity_threshold=0.7), a section field "
               "(verifier.max_residual=0.2, graph.robust=cauchy), a stage parameter (sampler.lambda_u=5, "
-              "odometry.max_range=80) or a bare sampler parameter")
+              "odometry.max_range=80) or a bare sampler parameter, or weights=FILE (the OverlapTransformer's, with --descriptor ot)")
 
 
 def out_help(command: str) -> str:

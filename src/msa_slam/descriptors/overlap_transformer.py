@@ -3,7 +3,7 @@
 Optional: needs torch (`pip install msa-slam[ot]`) and the authors' pretrained weights, which they publish
 (GPL-3.0, github.com/haomo-ai/OverlapTransformer, "model pretrained on KITTI") as
 pretrained_overlap_transformer.pth.tar at WEIGHTS_URL; pass the file as `--descriptor ot -p
-descriptor.weights=FILE`. Accepted: that checkpoint as published (a dict whose 'state_dict' holds the
+weights=FILE`. Accepted: that checkpoint as published (a dict whose 'state_dict' holds the
 weights) or a plain state_dict (`convert_checkpoint` writes one). Range projection in `range_image`, network
 in `_ot_network`. Similarity 1/(1 + L2), as the MSA paper uses it.
 """
@@ -21,7 +21,7 @@ from msa_slam.errors import InputError
 DESCRIPTOR_DIM = 256
 WEIGHTS_URL = "https://drive.google.com/file/d/1FNrx9pcDa9NF7z8CFtuTWyauNkeSEFW4/view?usp=sharing"
 WEIGHTS_HINT = (f"the authors' pretrained_overlap_transformer.pth.tar ({WEIGHTS_URL}, linked from "
-                "github.com/haomo-ai/OverlapTransformer), given as -p descriptor.weights=FILE")
+                "github.com/haomo-ai/OverlapTransformer), given as --descriptor ot -p weights=FILE")
 # Present in the authors' checkpoint, not used at inference (batch norms and the unused heads).
 _UNUSED_PREFIXES = ("bn", "linear.", "linear1.", "linear2.", "linear3.", "net_vlad.bn2.")
 
