@@ -248,7 +248,7 @@ def test_wrong_files_name_what_is_expected(torch_mod, tmp_path):
     with pytest.raises(InputError, match="pretrained_overlap_transformer.pth.tar"):
         load_network(tmp_path / "nope.pth")
     url = re.escape(WEIGHTS_URL)
-    with pytest.raises(InputError, match=f"missing a required argument: .weights.*{url}.*descriptor.weights"):
+    with pytest.raises(InputError, match=f"missing a required argument: .weights.*{url}.*-p weights=FILE"):
         make_descriptor("ot")
 
 
