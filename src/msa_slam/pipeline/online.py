@@ -4,11 +4,13 @@ Each frame: odometry -> descriptor -> the SLAM core (msa_slam.slam: sampler, key
 RAM or on disk, loop candidates, verification, and an iSAM2 graph (Kaess et al., IJRR 2012) updated at
 every frame that finalised keyframes). A recorder keeps, per frame, the time of each step and the memory
 held (keyframe clouds, descriptors, graph, pending scans, process RSS); at the end F1-max, ATE before and
-after optimisation, and throughput (frames per second, real-time factor for the sensor rate).
+after optimisation, and throughput (frames per second, real-time factor for the sensor rate). The odometry
+gets the batch pipeline's plausibility checks (stalled, implausible steps) once the run has ended.
 """
 
 from __future__ import annotations
 
+import logging
 import time
 from contextlib import closing
 from typing import Any, Protocol
@@ -20,6 +22,7 @@ from msa_slam.backend import IncrementalPoseGraph
 from msa_slam.descriptors import make_descriptor
 from msa_slam.errors import InputError
 from msa_slam.evaluation.resources import current_rss_bytes
+from msa_slam.evaluation.sanity import frontend_warnings
 from msa_slam.odometry import NoisyOdometry, OdometryCache, ReplayedOdometry
 from msa_slam.pipeline.frontend import make_odometry, pipeline_cache
 from msa_slam.pipeline.online_config import OnlineConfig
@@ -29,9 +32,11 @@ from msa_slam.registration import make_cloud_store
 from msa_slam.slam import BACKEND_STEPS, RunResult, SlamBackend, build_backend, core_metrics
 from msa_slam.types import FrameSource
 
+logger = logging.getLogger(__name__)
+
 STEPS = ("odometry", "descriptor", *BACKEND_STEPS)
-MEMORY = ("keyframes", "cloud_bytes", "cloud_disk_bytes", "descriptor_bytes", "graph_bytes", "pending_bytes",
-          "rss_bytes")
+MEMORY = ("keyframes", "cloud_bytes", "cloud_disk_bytes", "descriptor_bytes", "graph_bytes", "record_bytes",
+          "pending_bytes", "rss_bytes")
 
 
 class MemoryRecorder:
@@ -152,5 +157,11 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     m = len(result)
     result.steps_ms = {**{s: v[:m] for s, v in front_ms.items()}, **result.steps_ms}
     result.memory = {k: v[:m] for k, v in recorder.memory.items()}
+    front = [result.steps_ms[s] for s in front_ms]
+    result.memory_bytes["record_bytes"] += sum(v.nbytes for v in (*result.memory.values(), *front))  # per-frame series
     result.metrics = {**_metrics(result), "odometry_cached": cached}
+    warnings = frontend_warnings(result.gt_poses, result.odometry, result.times)
+    for warning in warnings:
+        logger.warning(warning)
+    result.metrics["warnings"] = [*warnings, *result.metrics["warnings"]]
     return result

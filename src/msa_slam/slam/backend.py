@@ -4,10 +4,13 @@ frames, iSAM2 at every keyframe step).
 For each frame: sampler.push -> for every keyframe it finalises: store its cloud, add it to the pose graph,
 look for loop candidates among the older keyframes, store its pose and descriptor, verify the candidates
 and add the accepted loops -> update the graph (iSAM2 relinearises; batch LM waits for `finish`).
+Every RELEASE_EVERY frames, and before the run's RSS growth is read, free heap pages go back to the system
+(iSAM2's piecewise re-elimination leaves them between long-lived objects; evaluation.resources).
 """
 
 from __future__ import annotations
 
+import sys
 import time
 from typing import Any, Callable, Protocol, Union
 
@@ -16,7 +19,7 @@ import numpy as np
 from msa_slam.descriptors import Descriptor
 from msa_slam.errors import InputError
 from msa_slam.evaluation import evaluate_trajectories
-from msa_slam.evaluation.resources import current_rss_bytes
+from msa_slam.evaluation.resources import current_rss_bytes, release_free_heap
 from msa_slam.place_recognition import PRCurve
 from msa_slam.registration import Verifier
 from msa_slam.sampling import make_sampler
@@ -29,6 +32,7 @@ from msa_slam.types import LoopClosure
 
 BACKEND_STEPS = ("sampling", "keyframe_store", "loop_detection", "verification", "graph_update")
 Points = Union[np.ndarray, Callable[[], np.ndarray]]  # a scan, or how to read it when it becomes a keyframe
+RELEASE_EVERY = 100  # frames between returns of free heap pages (malloc_trim: well under 1 ms each)
 
 
 class Graph(Protocol):
@@ -73,6 +77,7 @@ class SlamBackend:
         self.loops: list[LoopClosure] = []
         self._pending: dict[int, tuple[np.ndarray, Points]] = {}  # frames the sampler may still choose
         self._frames = 0
+        self._loop_bytes = 0  # running size of the loop records in `loops`
         self.rss_start = current_rss_bytes()  # the run's RSS growth is measured from here to `finish`
 
     @property
@@ -84,10 +89,19 @@ class SlamBackend:
         """Bytes of descriptors and scans buffered for frames the sampler may still choose."""
         return sum(d.nbytes + getattr(p, "nbytes", 0) for d, p in self._pending.values())
 
+    @property
+    def record_bytes(self) -> int:
+        """Bytes of the run's records so far: per-frame poses, times and step times of the frames seen (their
+        arrays are allocated for the whole run, but pages are resident only once written) and loop records."""
+        per_frame = (self.odometry[0].nbytes + self.gt[0].nbytes + self.times.itemsize
+                     + sum(v.itemsize for v in self.steps_ms.values())) if self.n else 0
+        return self._frames * per_frame + self._loop_bytes
+
     def memory_bytes(self) -> dict[str, int]:
-        """Accounted bytes now: keyframe clouds (RAM, disk), descriptors and graph."""
+        """Accounted bytes now: keyframe clouds (RAM, disk), descriptors, graph and the run's records."""
         return {"cloud_bytes": self.store.cloud_bytes, "cloud_disk_bytes": self.store.disk_bytes,
-                "descriptor_bytes": self.store.descriptor_bytes, "graph_bytes": int(self.graph.nbytes)}
+                "descriptor_bytes": self.store.descriptor_bytes, "graph_bytes": int(self.graph.nbytes),
+                "record_bytes": self.record_bytes}
 
     def add_frame(self, odom_pose: np.ndarray, descriptor: np.ndarray, points: Points, gt_pose: np.ndarray | None,
                   time_s: float) -> list[int]:
@@ -109,6 +123,8 @@ class SlamBackend:
         self._frames += 1
         self._add_keyframes(new, i)
         self._prune()
+        if self._frames % RELEASE_EVERY == 0:
+            release_free_heap()
         if self.recorder is not None:
             self.recorder.record(self, i)
         return new
@@ -157,6 +173,7 @@ class SlamBackend:
                         self.graph.add_loop(loop.match, loop.query, loop.T_match_query, loop.covariance)
                         accepted_any = True
                 self.loops.extend(verified)
+                self._loop_bytes += sum(loop_record_bytes(c) for c in verified)
                 self._timed("verification", i, t)
         if new:
             t = time.perf_counter()
@@ -196,16 +213,25 @@ class SlamBackend:
         t2 = time.perf_counter()
         stats = {**self.sampler.stats.as_dict(), "online_keyframes": len(self.sampler.online_keyframes),
                  "flushed_keyframes": len(self.sampler.flushed_keyframes)}
+        map_points = keyframe_map(self.store.clouds, keys, optimised, self.settings.verifier.voxel_size)
+        memory["map_bytes"] = int(map_points.nbytes)
+        release_free_heap()
         rss_growth = current_rss_bytes() - self.rss_start
         return RunResult(self.settings, self.name, self.times, self.odometry, gt, keys, optimised, self.loops,
                          pr, evaluation, self.steps_ms, memory, stats, len(self.loop_closer.best_similarity),
-                         {"optimisation": t1 - t0, "evaluation": t2 - t1},
-                         map_points=keyframe_map(self.store.clouds, keys, optimised, self.settings.verifier.voxel_size),
+                         {"optimisation": t1 - t0, "evaluation": t2 - t1}, map_points=map_points,
                          graph_factors=self.graph.factors, rss_growth_bytes=rss_growth)
 
     def close(self) -> None:
         """Release the keyframe clouds (a disk store removes the files it wrote); safe to call twice."""
         self.store.close()
+
+
+def loop_record_bytes(loop: LoopClosure) -> int:
+    """Bytes of one loop record: the object, its attribute dict, its floats and its arrays (with data)."""
+    fields = vars(loop)
+    return sys.getsizeof(loop) + sys.getsizeof(fields) + sum(
+        sys.getsizeof(v) for v in fields.values() if isinstance(v, (float, str, np.ndarray)))
 
 
 NO_GROUND_TRUTH = "no ground truth: true loops (within loop_radius) cannot be told from false ones"
