@@ -158,8 +158,10 @@ def test_streamed_candidates_are_the_constrained_power_set_in_order(n):
     assert rho.tolist() == [sum(sim[b, a] for a, b in zip(s, s[1:])) / (len(s) - 1) for s in got]
 
 
-def test_thread_count_does_not_change_canonical_keyframes():
+def test_thread_count_does_not_change_canonical_keyframes(monkeypatch):
     import numba
+
+    monkeypatch.setattr(fast, "PARALLEL_FROM", 0)  # these windows are small: make them take the threaded path
 
     poses, descriptors = load_stream(shared_path("parity", "stream_s2_sc20x60.npz"))[:2] if STREAMS else (None, None)
     if poses is None:
@@ -189,3 +191,27 @@ def test_compiled_eigensolver_keeps_its_accuracy_at_extreme_scales(size):
     assert np.isfinite(got_lam).all() and np.isfinite(got_vec).all()
     np.testing.assert_allclose(got_lam, want_lam, rtol=0, atol=1e-13 * np.abs(want_lam).max())
     np.testing.assert_allclose(canonical(got_lam, got_vec)[1], canonical(want_lam, want_vec)[1], atol=1e-9)
+
+
+def test_serial_and_threaded_candidate_loops_give_identical_pi():
+    """Small windows run on the calling thread, large ones on numba's threads (fast.PARALLEL_FROM):
+    every candidate's value must not depend on which, nor on the thread count or the block split."""
+    import numba
+
+    rng = np.random.default_rng(11)
+    n = 14
+    t = np.zeros((n, 3))
+    t[:, 0] = np.cumsum(rng.uniform(0.5, 1.5, n))
+    desc = np.cumsum(rng.standard_normal((n, 32)), axis=0)
+    dist, sim = exact.pairwise(t, desc)
+    masks = feasible_subsets(dist, sim, 0.1, 3.0)[0]
+    assert len(masks) > fast.PARALLEL_FROM
+    serial = fast.information_rows_serial(masks, dist, fast.gram(desc), 0, True)
+    assert np.isfinite(serial[0, [bin(int(k)).count("1") > 2 for k in masks]]).all()
+    for threads, blocks in ((1, 3), (numba.config.NUMBA_NUM_THREADS, 16)):
+        numba.set_num_threads(threads)
+        try:
+            threaded = fast.information_rows(masks, dist, fast.gram(desc), 0, True, blocks)
+        finally:
+            numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        assert np.array_equal(serial, threaded)

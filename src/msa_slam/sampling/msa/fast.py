@@ -190,6 +190,27 @@ def _pi_of_information(c: np.ndarray, g: np.ndarray, m: int, scratch: np.ndarray
     return total / (m - 1), bound
 
 
+PARALLEL_FROM = 1000  # candidates per window from which threads share them: below, the hand-off to a
+# worker thread costs more than it saves (and on a loaded machine the worker may wait for a time slice)
+
+
+@njit(cache=True)
+def _information_block(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, probes: int, canonical: bool,
+                       out: np.ndarray, first: int, step: int) -> None:  # pragma: no cover
+    """information_rows for candidates first, first + step, ... (their columns of out)."""
+    width = dist.shape[0]
+    scratch = np.empty(scratch_size(width))
+    members = np.empty(width, dtype=np.int64)
+    for i in range(first, len(masks), step):
+        m = 0
+        for p in range(width):
+            if masks[i] >> p & 1:
+                members[m] = p
+                m += 1
+        if m > 2:
+            out[0, i], out[1, i], out[2, i] = information_gram(members, m, dist, gram, scratch, probes, canonical)
+
+
 @njit(cache=True, parallel=True)
 def information_rows(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, probes: int,
                      canonical: bool = False, blocks: int = 16) -> np.ndarray:  # pragma: no cover
@@ -198,22 +219,19 @@ def information_rows(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, prob
     so contiguous ranges left the thread with the last blocks most of the work), and the blocks are
     shared by numba's threads (pass a few per thread); each candidate's arithmetic is the same whatever
     the thread count."""
-    count = len(masks)
-    out = np.zeros((3, count))
-    width = dist.shape[0]
-    blocks = max(min(count, blocks), 1)
+    out = np.zeros((3, len(masks)))
+    blocks = max(min(len(masks), blocks), 1)
     for block in prange(blocks):
-        scratch = np.empty(scratch_size(width))
-        members = np.empty(width, dtype=np.int64)
-        for i in range(block, count, blocks):  # every block gets small and large candidates alike
-            m = 0
-            for p in range(width):
-                if masks[i] >> p & 1:
-                    members[m] = p
-                    m += 1
-            if m > 2:
-                out[0, i], out[1, i], out[2, i] = information_gram(members, m, dist, gram, scratch, probes,
-                                                                  canonical)
+        _information_block(masks, dist, gram, probes, canonical, out, block, blocks)
+    return out
+
+
+@njit(cache=True)
+def information_rows_serial(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, probes: int,
+                            canonical: bool = False) -> np.ndarray:  # pragma: no cover
+    """information_rows on the calling thread (windows of fewer than PARALLEL_FROM candidates)."""
+    out = np.zeros((3, len(masks)))
+    _information_block(masks, dist, gram, probes, canonical, out, 0, 1)
     return out
 
 
@@ -234,8 +252,12 @@ def optimise_fast(translations: np.ndarray, descriptors: np.ndarray, dmin: float
         return WindowResult((0, n - 1), 1)
     pi = pi_low = pi_high = None
     if weights.use_pi:
-        pi, pi_low, pi_high = information_rows(masks, dist, gram(descriptors), PROBES, pi_definition == "canonical",
-                                               8 * get_num_threads())
+        canonical = pi_definition == "canonical"
+        if masks.size < PARALLEL_FROM:
+            pi, pi_low, pi_high = information_rows_serial(masks, dist, gram(descriptors), PROBES, canonical)
+        else:
+            pi, pi_low, pi_high = information_rows(masks, dist, gram(descriptors), PROBES, canonical,
+                                                   8 * get_num_threads())
     best, ambiguous, margin = decide(int(masks.size), rho if weights.use_rho else None, pi, pi_low, pi_high, weights)
     return WindowResult(mask_positions(int(masks[best])), int(masks.size), ambiguous, margin)
 
