@@ -1,8 +1,9 @@
 """A compiled eigensolver for the small symmetric matrices of canonical pi, called in place per candidate.
 
 Householder reduction to tridiagonal form and implicit QL with accumulated transformations (EISPACK's
-tred2/tql2, the algorithm LAPACK's dsyevd itself uses below 25 rows). Measured on this machine
-(benchmarks/bench_msa.py): 10-25 % faster than a LAPACK call per matrix at 9-19 rows and 5x at 3,
+tred2/tql2, the algorithm LAPACK's dsyevd itself uses below 25 rows), with a square root in place of
+hypot and the transformations kept in rows (contiguous). Measured on this machine
+(benchmarks/bench_msa.py): about 2x faster than a LAPACK call per matrix at 9-19 rows and 3x at 3-5,
 where the call and its workspace allocation dominate; cyclic Jacobi, tried first, was 1.4-3x slower
 than LAPACK from 9 rows on. Accurate to a few ulp of |C|: since the canonical form fixes what solvers
 leave open (signs, bases of repeated eigenvalues; canonical.py), which backward-stable solver runs
@@ -27,7 +28,9 @@ def symmetric_eigh(v: np.ndarray, d: np.ndarray, e: np.ndarray, n: int) -> None:
     The matrix is first scaled by a power of two to unit size (exact: the same eigenvectors, the
     eigenvalues scaled back exactly), so that QL's rotations can use a plain square root where
     EISPACK calls hypot against overflow: hypot is a library call on the rotations' serial chain
-    and cost a third of the solver's time."""
+    and cost a third of the solver's time. EISPACK's steps run with v's indices swapped (v is
+    symmetric on entry), so the transformations build up in rows, contiguous in memory, and are
+    transposed at the end: the same arithmetic, 10-20 % faster."""
     top = 0.0
     for i in range(n):
         for j in range(n):
