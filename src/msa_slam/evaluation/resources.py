@@ -6,7 +6,8 @@ largest of them (and the front end), so reports print it once, as a process figu
 RSS growth (`current_rss_bytes` at the end of a back-end minus at its start) is per run, and is what the
 accounted bytes should explain. glibc's malloc keeps freed heap pages resident between long-lived objects
 (GTSAM's Bayes tree is rebuilt piecewise at every update, leaving holes); `release_free_heap` hands them back
-(malloc_trim), which on the city tour removed ~35 MiB of RSS over two laps (benchmarks/bench_online.py --scale).
+(malloc_trim): on two laps of the city tour, RSS at frame 5,000 was 375 MiB with it every 100 frames and
+411 MiB without.
 """
 
 from __future__ import annotations
@@ -55,11 +56,11 @@ class _MallInfo2(ctypes.Structure):
 @functools.lru_cache(maxsize=1)
 def _glibc() -> ctypes.CDLL | None:
     """The C library when it is glibc (malloc_trim, mallinfo2 exist); None elsewhere."""
-    name = ctypes.util.find_library("c")
     try:
-        libc = ctypes.CDLL(name)
-        libc.malloc_trim, libc.mallinfo2  # noqa: B018 - both or neither
-    except (OSError, TypeError, AttributeError):
+        libc = ctypes.CDLL(ctypes.util.find_library("c"))
+    except OSError:
+        return None
+    if not (hasattr(libc, "malloc_trim") and hasattr(libc, "mallinfo2")):  # mallinfo2: glibc >= 2.33
         return None
     libc.mallinfo2.restype = _MallInfo2
     return libc
