@@ -69,3 +69,12 @@ def test_cli_refuses_a_missing_weights_file_before_reading_scans(tmp_path):
     assert result.stderr.startswith(f"error: config: descriptor 'ot': weights file not found: {missing}; ")
     assert len(result.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists() and not (tmp_path / "cache").exists()
+
+
+def test_online_config_routes_and_checks_the_weights(weights, tmp_path):
+    from msa_slam.pipeline.online_config import apply_online_params
+
+    config = apply_online_params({"dataset": "x"}, ["descriptor=ot", f"weights={weights}"])
+    assert config.descriptor_params == {"weights": str(weights)}
+    with pytest.raises(InputError, match="weights file not found: .*nope.pth"):
+        apply_online_params({"dataset": "x"}, ["descriptor=ot", f"weights={tmp_path / 'nope.pth'}"])
