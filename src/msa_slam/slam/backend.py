@@ -227,11 +227,24 @@ class SlamBackend:
         self.store.close()
 
 
+_FLOAT_BYTES = sys.getsizeof(0.0)
+_ARRAY_HEADER_BYTES = sys.getsizeof(np.empty(0))
+
+
 def loop_record_bytes(loop: LoopClosure) -> int:
-    """Bytes of one loop record: the object, its attribute dict, its floats and its arrays (with data)."""
+    """Bytes of one loop record: the object, its attribute dict, its floats, strings and arrays (header plus
+    data). Arrays count their data whether they own it or view another's, and every float counts as a
+    Python float, so the figure depends on the loops alone, not on how an array or scalar was produced."""
     fields = vars(loop)
-    return sys.getsizeof(loop) + sys.getsizeof(fields) + sum(
-        sys.getsizeof(v) for v in fields.values() if isinstance(v, (float, str, np.ndarray)))
+    values = 0
+    for v in fields.values():
+        if isinstance(v, np.ndarray):
+            values += _ARRAY_HEADER_BYTES + v.nbytes
+        elif isinstance(v, (float, np.floating)):
+            values += _FLOAT_BYTES
+        elif isinstance(v, str):
+            values += sys.getsizeof(v)
+    return sys.getsizeof(loop) + sys.getsizeof(fields) + values
 
 
 NO_GROUND_TRUTH = "no ground truth: true loops (within loop_radius) cannot be told from false ones"
