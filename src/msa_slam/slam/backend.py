@@ -234,7 +234,9 @@ _ARRAY_HEADER_BYTES = sys.getsizeof(np.empty(0))
 def loop_record_bytes(loop: LoopClosure) -> int:
     """Bytes of one loop record: the object, its attribute dict, its floats, strings and arrays (header plus
     data). Arrays count their data whether they own it or view another's, and every float counts as a
-    Python float, so the figure depends on the loops alone, not on how an array or scalar was produced."""
+    Python float, and the attribute dict as a plain dict of its keys (an instance dict's own size depends on
+    CPython's key sharing, i.e. on which instances the process made before), so the figure depends on the
+    loops alone."""
     fields = vars(loop)
     values = 0
     for v in fields.values():
@@ -244,7 +246,7 @@ def loop_record_bytes(loop: LoopClosure) -> int:
             values += _FLOAT_BYTES
         elif isinstance(v, str):
             values += sys.getsizeof(v)
-    return sys.getsizeof(loop) + sys.getsizeof(fields) + values
+    return sys.getsizeof(loop) + sys.getsizeof(dict.fromkeys(fields)) + values
 
 
 NO_GROUND_TRUTH = "no ground truth: true loops (within loop_radius) cannot be told from false ones"
