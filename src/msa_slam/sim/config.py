@@ -8,7 +8,7 @@ import hashlib
 from dataclasses import asdict
 from pathlib import Path
 
-from pydantic import BaseModel, ConfigDict, PrivateAttr, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, PrivateAttr, ValidationError, ValidationInfo, field_validator, model_validator
 
 from msa_slam.errors import InputError
 from msa_slam.io.cache import cache_key
@@ -102,25 +102,13 @@ class SimConfig(BaseModel):
             return load_trajectory(self.trajectory)
         return read_trajectory(self.trajectory, self.trajectory_format, self.times, self.calib)
 
-    @field_validator("sensor")
+    @field_validator("sensor", "realism", "style")
     @classmethod
-    def _known_sensor(cls, v: str) -> str:
-        if v not in SENSORS:
-            raise ValueError(f"unknown sensor {v!r}; choose one of {', '.join(SENSORS)}")
-        return v
-
-    @field_validator("realism")
-    @classmethod
-    def _known_realism(cls, v: str) -> str:
-        if v not in REALISM:
-            raise ValueError(f"unknown realism preset {v!r}; choose one of {', '.join(REALISM)}")
-        return v
-
-    @field_validator("style")
-    @classmethod
-    def _known_style(cls, v: str | None) -> str | None:
-        if v is not None and v not in STYLES:
-            raise ValueError(f"unknown world style {v!r}; choose one of {', '.join(STYLES)}")
+    def _known_name(cls, v: str | None, info: ValidationInfo) -> str | None:
+        kind, names = {"sensor": ("sensor", SENSORS), "realism": ("realism preset", REALISM),
+                       "style": ("world style", STYLES)}[info.field_name]
+        if v is not None and v not in names:
+            raise ValueError(f"unknown {kind} {v!r}; choose one of {', '.join(names)}")
         return v
 
     def key(self) -> str:
