@@ -11,6 +11,7 @@ from msa_slam.sampling.msa import exact, fast, terms
 from msa_slam.sampling.msa.canonical import SIGN_ATOL, canonicalise
 from msa_slam.sampling.msa.powerset import feasible_subsets, subsets_by_size
 from test_msa_parity import MSA_NAME, STREAMS, load_stream, sampler_for
+from helpers.msa_windows import planar_window
 
 
 def spectrum_matrix(lam: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -81,11 +82,8 @@ def test_canonical_pi_is_invariant_where_the_reference_is_not(monkeypatch):
 
 
 def test_batched_canonical_pi_equals_the_one_subset_definition():
-    rng = np.random.default_rng(5)
     n = 8
-    t = np.zeros((n, 3))
-    t[:, :2] = np.cumsum(rng.uniform(0.2, 1.0, (n, 2)), axis=0)
-    desc = np.cumsum(rng.standard_normal((n, 24)), axis=0)
+    t, desc = planar_window(n)
     subsets = subsets_by_size(n)[3]
     dist, _ = exact.pairwise(t, desc)
     batched = exact._information(subsets, dist[0, subsets], desc, exact.ExactWorkspace(), True)

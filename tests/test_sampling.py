@@ -12,6 +12,7 @@ from msa_slam.sampling import SAMPLERS, make_sampler, sampler_parameters
 from msa_slam.sampling.baselines import histogram_entropy, spaciousness_threshold
 from msa_slam.sampling.msa import ScoreWeights, optimise_window
 from msa_slam.sampling.msa.powerset import subsets_by_size
+from helpers.msa_windows import planar_window
 
 
 def straight_line(n: int, step: float = 1.0) -> np.ndarray:
@@ -363,11 +364,8 @@ def test_batched_terms_equal_the_one_subset_definitions():
     from msa_slam.sampling.msa import exact, fast, terms
     from msa_slam.sampling.msa.powerset import feasible_subsets
 
-    rng = np.random.default_rng(5)
     n = 8
-    t = np.zeros((n, 3))
-    t[:, :2] = np.cumsum(rng.uniform(0.2, 1.0, (n, 2)), axis=0)
-    desc = np.cumsum(rng.standard_normal((n, 24)), axis=0)
+    t, desc = planar_window(n)
     subsets = subsets_by_size(n)[3]  # every subset of 5 members
     dist, _ = exact.pairwise(t, desc)
     batched = exact._information(subsets, dist[0, subsets], desc, exact.ExactWorkspace())
