@@ -6,7 +6,7 @@ A result folder is recognised by its marker file (`.msa-slam-result`, JSON: tool
 - an explicit `--out` that exists and is not a result folder (a file, a dataset, a user's folder with
   anything in it) is refused; an empty folder is taken;
 - a previous result folder is replaced only with `overwrite=True` (`resume=True` reuses it in place:
-  experiment grids);
+  experiment grids, `compare --seeds`);
 - a lock file beside the target (`.NAME.lock`, flock) makes a second run on the same `--out` refuse
   instead of silently losing one result;
 - leftovers of a killed run on the same target (`.NAME.partial-*`, `.NAME.old-*`) are removed, and a
@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import os
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -139,8 +140,14 @@ class ResultFolder:
         if self.timestamped:
             point_latest(self.path)
 
-    def prepare_in_place(self) -> Path:
-        """Create (or reuse) `path` itself with its marker, for outputs that grow in place (experiment grids)."""
+    def prepare_in_place(self, fresh: bool = False) -> Path:
+        """Create (or reuse) `path` itself with its marker, for outputs that grow in place (experiment grids,
+        `compare --seeds`). `fresh` (--overwrite) first removes a previous result there, moved aside first so a
+        kill leaves the old result (put back by the next run) or none, never half of one."""
+        if fresh and is_result_folder(self.path):
+            old = self.path.parent / f".{self.path.name}.old-{os.getpid()}-{time.monotonic_ns()}"
+            os.replace(self.path, old)
+            shutil.rmtree(old, ignore_errors=True)
         self.path.mkdir(parents=True, exist_ok=True)
         if not is_result_folder(self.path, self.kind):
             write_marker(self.path, self.kind)

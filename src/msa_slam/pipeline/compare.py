@@ -7,17 +7,21 @@ and the comparison (Markdown + CSV + figures + report.md) sits at the top of the
 from __future__ import annotations
 
 import os
+import sys
 import traceback
 from pathlib import Path
 from typing import Any, Sequence
 
 from msa_slam.evaluation import ATE_ALIGNMENT, NA, fmt, notes
-from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
+from msa_slam.io.atomic import atomic_path, write_text_atomic
+from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, staged_dir
 from msa_slam.io.tables import mib, rows_csv, write_json
 from msa_slam.pipeline.batch import run_batch
 from msa_slam.pipeline.config import RunConfig, make_config
 from msa_slam.pipeline.frontend import Frontend, prepare_frontend
 from msa_slam.pipeline.results import reference_xy, trajectory_panels, write_run_files
+from msa_slam.pipeline.seed_folder import (check_seed_folder, clean_leftovers, finished_metrics, left_out_seeds,
+                                           reusable_seeds, seed_dir, seed_record, write_record)
 from msa_slam.pipeline.seeds import SEED_COLUMNS, seed_markdown, seed_rows, seed_summary, seeded_datasets
 from msa_slam.place_recognition import PRCurve
 from msa_slam.place_recognition.figures import plot_pr_curves
@@ -207,15 +211,20 @@ def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = Tr
     traceback in runs/<method>/error.txt), and MethodsFailed is raised afterwards.
 
     `seeds` (simulated data only) repeats the comparison on each world seed under seeds/seed-<n>/ and
-    writes the spread over seeds (seeds.md, seeds.csv, seeds.json) and its report.md at the top.
+    writes the spread over seeds (seeds.md, seeds.csv, seeds.json) and its report.md at the top. That folder
+    grows in place so an interrupted run resumes: each seed appears when complete, and a rerun reuses the
+    finished seeds run with the same settings (msa_slam.pipeline.seed_folder); `overwrite` starts afresh.
     """
-    datasets = seeded_datasets(base.dataset, seeds) if seeds is not None else [base.dataset]
-    with open_result_folder(out, "compare", default_parent, overwrite=overwrite) as folder:
-        with folder.staging() as tmp:
-            if seeds is None:
+    plans = None if seeds is None else {seed: method_configs(make_config({**base.dump(), "dataset": dataset}), methods)
+                                        for seed, dataset in zip(seeds, seeded_datasets(base.dataset, seeds))}
+    with open_result_folder(out, "compare", default_parent, overwrite=overwrite, resume=plans is not None) as folder:
+        if plans is None:
+            with folder.staging() as tmp:
                 _, failed = _comparison(method_configs(base, methods), tmp, quiet)
-            else:
-                failed = _seed_comparisons(base, methods, dict(zip(seeds, datasets)), tmp, quiet)
+        else:
+            if not overwrite:
+                check_seed_folder(folder.path)
+            failed = _seed_comparisons(base, plans, folder.prepare_in_place(fresh=overwrite), quiet)
     if failed:
         raise MethodsFailed(folder.path / "report.md", failed)
     return folder.path / "report.md"
@@ -240,30 +249,53 @@ def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool) -> tuple[l
     return rows, failed
 
 
-def _seed_comparisons(base: RunConfig, methods: Sequence[tuple[str, str, dict[str, Any]]],
-                      datasets: dict[int, str], tmp: Path, quiet: bool) -> dict[str, str]:
-    """A comparison per world seed under tmp/seeds/, then the spread over seeds at the top of `tmp`."""
+def _seed_comparisons(base: RunConfig, plans: dict[int, list[RunConfig]], out: Path, quiet: bool) -> dict[str, str]:
+    """Each seed's comparison (`plans`: seed -> method configs) under out/seeds/, reusing the ones finished
+    earlier with the same settings, then the spread over seeds at the top of `out`."""
+    records = {seed: seed_record(base.dataset, configs) for seed, configs in plans.items()}
+    clean_leftovers(out)
+    reusable = reusable_seeds(out, records)  # refuses other settings before any work
     rows, failed = {}, {}
-    for seed, dataset in datasets.items():
-        folder = tmp / "seeds" / f"seed-{seed}"
-        folder.mkdir(parents=True)
-        configs = method_configs(make_config({**base.dump(), "dataset": dataset}), methods)
-        rows[seed], seed_failed = _comparison(configs, folder, quiet)
-        failed.update({f"seed {seed}: {name}": error for name, error in seed_failed.items()})
+    for seed, configs in plans.items():
+        target = seed_dir(out, seed)
+        if seed in reusable:
+            _say(quiet, f"seed {seed}: reused (finished earlier with the same settings)")
+        else:
+            _say(quiet, f"seed {seed}: running")
+            with staged_dir(target) as tmp:
+                _, seed_failed = _comparison(configs, tmp, quiet)
+                write_record(tmp, records[seed], seed_failed)
+            failed.update({f"seed {seed}: {name}": error for name, error in seed_failed.items()})
+        rows[seed] = [table_row(m) for m in finished_metrics(target) or []]
+    _write_spread(out, base.dataset, rows, failed, left_out_seeds(out, list(plans)))
+    return failed
+
+
+def _say(quiet: bool, line: str) -> None:
+    if not quiet:
+        print(line, file=sys.stderr, flush=True)
+
+
+def _write_spread(out: Path, dataset: str, rows: dict[int, list[dict[str, Any]]], failed: dict[str, str],
+                  left_out: list[int]) -> None:
+    """seeds.md, seeds.csv, seeds.json and report.md at the top of `out`, each replaced atomically."""
     summary = seed_summary(rows)
     table = seed_markdown(summary)
-    (tmp / "seeds.md").write_text(table)
-    (tmp / "seeds.csv").write_text(rows_csv(seed_rows(summary), SEED_COLUMNS))
-    write_json(tmp / "seeds.json", summary)
-    lines = [f"# Sampler comparison over world seeds: `{base.dataset}`", "",
+    write_text_atomic(out / "seeds.md", table)
+    write_text_atomic(out / "seeds.csv", rows_csv(seed_rows(summary), SEED_COLUMNS))
+    with atomic_path(out / "seeds.json") as path:
+        write_json(path, summary)
+    lines = [f"# Sampler comparison over world seeds: `{dataset}`", "",
              "Each seed simulates a different world along the same trajectory; every seed's full comparison "
              "(table, figures, per-method runs) is under seeds/seed-<n>/. Metrics as in those reports (ATE and "
              "improvement on the full-rate trajectory).", "", table]
-    lines += [f"- [seed {s}](seeds/seed-{s}/report.md)" for s in datasets]
+    lines += [f"- [seed {s}](seeds/seed-{s}/report.md)" for s in rows]
+    if left_out:
+        lines += ["", "Also in seeds/, left out of the spread (not among --seeds): "
+                  + ", ".join(f"[seed {s}](seeds/seed-{s}/report.md)" for s in left_out)]
     if failed:
         lines += ["", "## Failed methods", "", *(f"- {k}: {v}" for k, v in failed.items())]
-    (tmp / "report.md").write_text("\n".join(lines) + "\n")
-    return failed
+    write_text_atomic(out / "report.md", "\n".join(lines) + "\n")
 
 
 def _run_methods(configs: Sequence[RunConfig], frontend, runs: Path, quiet: bool

@@ -1,0 +1,125 @@
+"""The seeds/ folder of a `compare --seeds` result, which lets an interrupted run resume.
+
+    seeds/seed-<n>/           one seed's whole comparison, moved into place only once complete
+    seeds/seed-<n>/seed.json  the settings it was run with (dataset without the seed, each method's resolved
+                              config, msa-slam's version) and the methods that failed
+
+A rerun of the same command reuses every finished seed whose record matches (hours of CPU on a whole KITTI
+sequence) and runs the others; a finished seed run with other settings is refused before any work, naming the
+setting, since mixing it into the spread would compare different experiments.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import msa_slam
+from msa_slam.io.outputs import MARKER, OutputError
+from msa_slam.io.staging import clean_stale
+from msa_slam.io.tables import write_json
+from msa_slam.pipeline.config import RunConfig
+
+SEEDS = "seeds"
+RECORD = "seed.json"
+COMPARISON = "comparison.json"  # a seed's per-method metrics (msa_slam.pipeline.compare)
+# Where the cache lives changes nothing that is computed, so it is not a setting a seed must match.
+NOT_SETTINGS = ("cache_dir",)
+_SEED_NAME = re.compile(r"seed-(\d+)")
+_LEFTOVER = re.compile(r"\.(seed-\d+)\.(partial|old)-")
+
+
+def seed_dir(out: Path, seed: int) -> Path:
+    return Path(out) / SEEDS / f"seed-{seed}"
+
+
+def seed_record(dataset: str, configs: Sequence[RunConfig]) -> dict[str, Any]:
+    """What a finished seed must have been run with to be reused: `dataset` is the one without the seed."""
+    methods = {cfg.name: {k: v for k, v in cfg.dump().items() if k not in NOT_SETTINGS} for cfg in configs}
+    return json.loads(json.dumps({"version": msa_slam.__version__, "dataset": dataset, "methods": methods}))
+
+
+def write_record(folder: Path, record: Mapping[str, Any], failed: Mapping[str, str]) -> None:
+    write_json(Path(folder) / RECORD, {**record, "failed": dict(failed)})
+
+
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def finished_metrics(folder: Path) -> list[dict[str, Any]] | None:
+    """The per-method metrics of a finished seed; None when missing or damaged (the seed is then run again)."""
+    metrics = _read_json(Path(folder) / COMPARISON)
+    return metrics if isinstance(metrics, list) and all(isinstance(m, dict) for m in metrics) else None
+
+
+def check_seed_folder(out: Path) -> None:
+    """Without --overwrite, `out` must hold a `compare --seeds` result (its seeds/ folder) or nothing yet."""
+    if out.is_dir() and not (out / SEEDS).is_dir() and any(p.name != MARKER for p in out.iterdir()):
+        raise OutputError(f"--out {out}: holds a comparison run without --seeds; pass --overwrite to replace it "
+                          "or choose another --out")
+
+
+def clean_leftovers(out: Path) -> list[Path]:
+    """Remove the staging folders of seeds a kill interrupted (call with the result folder's lock held)."""
+    seeds = Path(out) / SEEDS
+    names = {m.group(1) for p in seeds.iterdir() if (m := _LEFTOVER.match(p.name))} if seeds.is_dir() else set()
+    return [path for name in sorted(names) for path in clean_stale(seeds / name)]
+
+
+def reusable_seeds(out: Path, records: Mapping[int, Mapping[str, Any]]) -> list[int]:
+    """The seeds of `records` (seed -> expected record) finished earlier in `out` with the same settings and no
+    failed method. Raises OutputError, before any work, for a finished seed run with other settings or
+    without a record."""
+    reusable = []
+    for seed, expected in records.items():
+        folder = seed_dir(out, seed)
+        if not folder.is_dir():
+            continue
+        record = _read_json(folder / RECORD)
+        if not isinstance(record, dict):
+            raise OutputError(f"--out {out}: seed {seed} has no readable record of the settings it was run with "
+                              f"({SEEDS}/seed-{seed}/{RECORD}); pass --overwrite to replace the folder")
+        difference = first_difference({k: v for k, v in record.items() if k != "failed"}, expected)
+        if difference is not None:
+            key, there, now = difference
+            raise OutputError(f"--out {out}: seed {seed} was run with other settings ({key}: {there} there, {now} "
+                              "now); rerun with the same settings to resume, or pass --overwrite to replace the "
+                              "folder")
+        if not record.get("failed") and finished_metrics(folder) is not None:
+            reusable.append(seed)
+    return reusable
+
+
+def left_out_seeds(out: Path, seeds: Sequence[int]) -> list[int]:
+    """Finished seeds in `out` that are not among `seeds` (a rerun with fewer seeds): kept, not in the spread."""
+    folder = Path(out) / SEEDS
+    found = [int(m.group(1)) for p in folder.iterdir() if p.is_dir() and (m := _SEED_NAME.fullmatch(p.name))
+             ] if folder.is_dir() else []
+    return sorted(set(found) - set(seeds))
+
+
+_ABSENT = object()
+
+
+def first_difference(there: Any, now: Any, key: str = "") -> tuple[str, str, str] | None:
+    """The first setting (dotted key) whose value differs between two records, with both values shown."""
+    if isinstance(there, dict) and isinstance(now, dict):
+        for name in [*there, *(k for k in now if k not in there)]:
+            found = first_difference(there.get(name, _ABSENT), now.get(name, _ABSENT), f"{key}.{name}" if key else name)
+            if found is not None:
+                return found
+        return None
+    return None if there == now else (key, _show(there), _show(now))
+
+
+def _show(value: Any, limit: int = 60) -> str:
+    if value is _ABSENT:
+        return "absent"
+    text = json.dumps(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
