@@ -40,7 +40,8 @@ def _cell(entry: dict, digits: str) -> str:
 
 
 def comparison(dataset: str, mode: str, seeds: list[int], folder: Path, cache_dir: str | None) -> dict:
-    """seeds.json of the comparison in `folder`, run first unless it exists."""
+    """seeds.json of the comparison in `folder`, run first unless it exists; a folder without it (a run killed
+    part-way) is resumed by run_compare, which reuses the seeds that finished there."""
     if not (folder / "seeds.json").is_file():
         cfg = make_config(dataset=dataset, mode=mode, cache_dir=cache_dir)
         run_compare(cfg, folder, quiet=True, seeds=seeds)

@@ -19,12 +19,15 @@ def compare_command(
     mode: Optional[str] = typer.Option(None, help=MODE_HELP),
     param: List[str] = typer.Option([], "--param", "-p", help=PARAM_HELP),
     config: Optional[Path] = typer.Option(None, help="YAML config (its sampler is replaced by the method set)"),
-    out: Optional[Path] = typer.Option(None, help=out_help("compare")),
+    out: Optional[Path] = typer.Option(None, help=out_help("compare") + "; with --seeds, a previous run of the "
+                                       "same settings is resumed (its finished seeds are reused)"),
     overwrite: bool = typer.Option(False, "--overwrite", help=OVERWRITE_HELP),
     cache_dir: Optional[Path] = typer.Option(None, help=CACHE_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bars"),
     seeds: Optional[str] = typer.Option(None, help="world seeds of a sim: dataset, e.g. 0,1,2: the comparison on "
-                                        "each, then mean +- std, per-seed ranks and MSA's paired-test verdicts"),
+                                        "each, then mean +- std, per-seed ranks and MSA's paired-test verdicts; "
+                                        "each seed is kept when it finishes, so rerunning the same command on the "
+                                        "same --out resumes an interrupted run"),
     source: Optional[dict] = None,  # --loader, --gt, ... (added by with_source_options)
 ) -> None:
     """Run the paper's method set (all, constant 1/2/3 m, entropy, spaciousness, MSA) on one sequence and
