@@ -10,8 +10,9 @@ above -5 %).
                                         [--azimuth-steps 720] [--frames N] [--out DIR] [--cache-dir DIR]
 
 Each comparison's full result folder (reports, figures, per-method runs) is kept under --out
-(default: ./msa_slam_results/bench_fairness/), one per sequence and mode; an existing one is reused
-as is (delete it, or pass a new --out, to rerun). Simulations, odometry and descriptors are cached as
+(default: ./msa_slam_results/bench_fairness/), one per sequence and mode; a finished one (with
+seeds.json) is reused as is, an interrupted one is resumed (its finished seeds are kept); delete it, or pass a
+new --out, to rerun. Simulations, odometry and descriptors are cached as
 everywhere else (the same simulated sequences as benchmarks/bench_realism.py at the same azimuth steps).
 """
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +23,7 @@ from msa_slam.errors import InputError
 from msa_slam.experiments.folder import CELL_FILE, KIND, cell_dir, read_cell, stale_cells, write_grid
 from msa_slam.experiments.grid import Cell, GridSpec, expand
 from msa_slam.io.atomic import write_text_atomic
-from msa_slam.io.outputs import DEFAULT_RESULTS, is_result_folder, open_result_folder, staged_dir
+from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, staged_dir
 
 DEFAULT_PARENT = DEFAULT_RESULTS / "experiments"
 
@@ -105,16 +104,6 @@ def _record(run: GridRun, cell: Cell, error: BaseException | None) -> None:
     run.failed[cell.id] = f"{type(error).__name__}: {reason}"
 
 
-def _discard_previous(folder: Path) -> None:
-    """--overwrite: remove a previous msa-slam result at `folder` (moved aside first, so a kill leaves either
-    the old result, put back by the next run, or none; never half of one)."""
-    if not is_result_folder(folder):
-        return
-    old = folder.parent / f".{folder.name}.old-{os.getpid()}-{time.monotonic_ns()}"
-    os.replace(folder, old)
-    shutil.rmtree(old, ignore_errors=True)
-
-
 def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | None = None, workers: int = 1,
              client=None, quiet: bool = True, overwrite: bool = False) -> GridRun:
     """Run the unfinished cells of `grid` into `out`, then write the aggregate report.
@@ -132,9 +121,7 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
     cells = expand(grid)
     with open_result_folder(out, kind=KIND, default_parent=DEFAULT_PARENT, overwrite=overwrite,
                             resume=True) as folder:
-        if overwrite:
-            _discard_previous(folder.path)
-        folder.prepare_in_place()
+        folder.prepare_in_place(fresh=overwrite)
         run = GridRun(folder.path)
         (run.out / "cells").mkdir(exist_ok=True)
         write_grid(run.out, grid)
