@@ -95,6 +95,12 @@ def jaccard_pct(a: Sequence[int], b: Sequence[int]) -> float:
     return 100.0 * len(sa & sb) / len(sa | sb) if sa | sb else 100.0
 
 
+def chance_jaccard_pct(keyframes: float, frames: float) -> float:
+    """The Jaccard (%) two random sets of `keyframes` of `frames` frames have on average, k / (2n - k): the
+    level keyframe agreement should be read against when keyframes are dense (KITTI at 10 Hz: ~every 2nd)."""
+    return 100.0 * keyframes / (2 * frames - keyframes)
+
+
 def row_values(metrics: Mapping[str, Any]) -> dict[str, Any]:
     """A run's table values: compare's columns plus the MSA statistics and the keyframe frames."""
     stats = metrics["sampler_stats"]
@@ -182,7 +188,12 @@ def run(args: argparse.Namespace) -> str:
         elif cell.id in done.failed:
             key = by_label[cell.method]
             failed[key] = "; ".join(filter(None, [failed.get(key), f"seed {cell.seed}: {done.failed[cell.id]}"]))
+    base = list(runs.get(BASELINE, {}).values())
+    chance = (f"\nChance level of the Jaccard column: two random keyframe sets of the N=10 reference row's size "
+              f"would share {fmt(sum(chance_jaccard_pct(r['keyframes'], r['frames']) for r in base) / len(base), '.1f')} % "
+              "(mean over seeds).\n" if base else "")
     text = (header(sequence, args.frames, seeds, args.mode, runs) + "\n\n" + table_markdown(rows, runs, seeds, failed)
+            + chance
             + f"\n{len(done.ran)} runs now, {len(done.skipped)} reused; {time.perf_counter() - start:.0f} s wall, "
             f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}; run folders: {done.out / 'cells'}\n")
     write_text_atomic(done.out / "table.md", text)

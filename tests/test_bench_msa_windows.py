@@ -7,6 +7,7 @@ import importlib.util
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_msa_windows.py"
@@ -71,3 +72,10 @@ def test_table_one_seed_has_no_std_and_a_missing_baseline_seed_is_na(bench):
     row = text.splitlines()[2]
     assert _column(bench, row, "t. ATE impr. %") == "30.0"
     assert _column(bench, row, "kf Jaccard vs N=10 ref. %") == "n/a"
+
+
+def test_chance_jaccard_matches_random_sets(bench):
+    rng = np.random.default_rng(0)
+    n, k = 1000, 430
+    draws = [bench.jaccard_pct(rng.choice(n, k, replace=False), rng.choice(n, k, replace=False)) for _ in range(200)]
+    assert bench.chance_jaccard_pct(k, n) == pytest.approx(np.mean(draws), abs=0.5)
