@@ -213,3 +213,52 @@ def test_serial_and_threaded_candidate_loops_give_identical_pi():
         finally:
             numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
         assert np.array_equal(serial, threaded)
+
+
+def test_paired_eigensolver_is_bit_identical_to_one_matrix_at_a_time():
+    """symmetric_eigh_pair overlaps two matrices' QL sweeps; each matrix must get exactly the
+    single solver's values, whatever the other matrix does (other sweep counts, an early finish,
+    repeated eigenvalues, zeros, non-finite input)."""
+    from msa_slam.sampling.msa.eigen import symmetric_eigh, symmetric_eigh_pair
+
+    rng = np.random.default_rng(21)
+    for m in (3, 6, 10, 13, 19):
+        mats = []
+        for k in range(40):
+            x = rng.standard_normal((m, m + 2)) * 10.0 ** rng.uniform(-8, 8)
+            mats.append(x @ x.T)
+        lam = np.repeat(rng.uniform(0, 5, (m + 1) // 2), 2)[:m]  # repeated eigenvalues
+        mats.append(spectrum_matrix(np.sort(lam), m)[0])
+        mats.append(np.diag(np.arange(m, dtype=float)))  # already diagonal: no sweep at all
+        mats.append(np.zeros((m, m)))
+        mats.append(np.full((m, m), np.nan))
+        for a, b in zip(mats, mats[1:] + mats[:1]):
+            want = []
+            for c in (a, b):
+                v, d = c.copy(), np.empty(m)
+                symmetric_eigh(v, d, np.empty(m), m)
+                want.append((v, d))
+            va, vb, da, db = a.copy(), b.copy(), np.empty(m), np.empty(m)
+            symmetric_eigh_pair(va, da, np.empty(m), vb, db, np.empty(m), m)
+            for (wv, wd), gv, gd in zip(want, (va, vb), (da, db)):
+                assert np.array_equal(wv, gv, equal_nan=True) and np.array_equal(wd, gd, equal_nan=True)
+
+
+def test_paired_candidates_give_the_values_of_one_candidate_at_a_time():
+    """The candidate loop pairs same-size candidates for the eigensolver (and leaves one alone when
+    the size changes): every candidate's pi and bounds must be those of information_gram on it alone."""
+    t, desc = planar_window(14, 32, 9)
+    dist, sim = exact.pairwise(t, desc)
+    masks = feasible_subsets(dist, sim, 0.1, 3.0)[0]
+    gram = fast.gram(desc)
+    paired = fast.information_rows_serial(masks, dist, gram, 0, True)
+    scratch = np.empty(fast.scratch_size(len(t)))
+    single = np.zeros_like(paired)
+    sizes = []
+    for i, mask in enumerate(masks):
+        members = np.array(fast.mask_positions(int(mask)))
+        sizes.append(len(members))
+        if len(members) > 2:
+            single[:, i] = fast.information_gram(members, len(members), dist, gram, scratch, 0, True)
+    assert np.bincount(sizes)[3:].min() % 2 == 1  # odd counts of some size: a candidate left alone
+    assert np.array_equal(paired, single)

@@ -21,7 +21,7 @@ from numba import get_num_threads, njit, prange
 
 from msa_slam.sampling.msa.canonical import SOLVER_RTOL, canonicalise
 from msa_slam.sampling.msa.decision import decide
-from msa_slam.sampling.msa.eigen import symmetric_eigh
+from msa_slam.sampling.msa.eigen import symmetric_eigh, symmetric_eigh_pair
 from msa_slam.sampling.msa.powerset import feasible_subsets
 from msa_slam.sampling.msa.terms import C_CLIP, EIGENVALUE_FLOOR, ScoreWeights, WindowResult
 
@@ -32,7 +32,7 @@ PROBES = 3  # rounding-level perturbations of each candidate's C for the ambigui
 PROBE_SCALE = 1e-13  # their relative size: ~450 ulp, beyond any reordering of a BLAS kernel's sums
 
 
-VECTORS, MATRICES = 9, 5  # a candidate's scratch: 9 vectors and 5 matrices of its size (the last one row taller)
+VECTORS, MATRICES = 8, 5  # a candidate's scratch: 8 vectors and 5 matrices of its size (the last one row taller)
 
 
 @njit(cache=True)
@@ -81,11 +81,9 @@ def pairwise(translations: np.ndarray, descriptors: np.ndarray):  # pragma: no c
 
 
 @njit(cache=True)
-def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.ndarray,
-                     scratch: np.ndarray, probes: int, canonical: bool):  # pragma: no cover
-    """pi of one candidate through G: returns (pi, lowest, highest). Reference pi: the extremes over
-    `probes` eigen-decompositions of C perturbed by PROBE_SCALE (and pi itself). Canonical pi: pi plus
-    or minus its bound under solver rounding (canonical.py), no probes needed.
+def _form_information(members: np.ndarray, m: int, dist: np.ndarray, gram: np.ndarray,
+                      scratch: np.ndarray) -> None:  # pragma: no cover
+    """The candidate's Gram block G_S (matrix 0 of scratch) and C = A G_S A^T (matrix 2).
 
     A's three diagonals are `lower`, `diag`, `upper` (row k uses columns k-1, k, k+1).
     """
@@ -130,9 +128,48 @@ def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nda
             for k in range(m):
                 v = 0.0 if np.isnan(c[i, k]) else c[i, k]
                 c[i, k] = min(max(v, -C_CLIP), C_CLIP)
-    pi, bound = _pi_of_information(c, g, m, scratch, canonical)
+
+
+@njit(cache=True)
+def _eigen_of_information(scratch: np.ndarray, m: int) -> None:  # pragma: no cover
+    """Canonical pi's eigen-decomposition of C (matrix 2 of scratch) into lam (vector 6) and vec (matrix 3)."""
+    vec = _matrix(scratch, 3, m)
+    vec[:, :] = _matrix(scratch, 2, m)
+    symmetric_eigh(vec, _vector(scratch, 6, m), _vector(scratch, 7, m), m)
+
+
+@njit(cache=True)
+def _eigen_of_information_pair(scratch_a: np.ndarray, scratch_b: np.ndarray, m: int) -> None:  # pragma: no cover
+    """_eigen_of_information of two candidates of the same size, their QL chains overlapped (bit-identical)."""
+    vec_a, vec_b = _matrix(scratch_a, 3, m), _matrix(scratch_b, 3, m)
+    vec_a[:, :] = _matrix(scratch_a, 2, m)
+    vec_b[:, :] = _matrix(scratch_b, 2, m)
+    symmetric_eigh_pair(vec_a, _vector(scratch_a, 6, m), _vector(scratch_a, 7, m),
+                        vec_b, _vector(scratch_b, 6, m), _vector(scratch_b, 7, m), m)
+
+
+@njit(cache=True)
+def _canonical_pi(scratch: np.ndarray, m: int):  # pragma: no cover
+    """(pi, lowest, highest) from the eigen-pairs left in scratch by _eigen_of_information: canonical
+    form, eq. (5), and pi plus or minus its bound under solver rounding."""
+    lam, vec = _vector(scratch, 6, m), _matrix(scratch, 3, m)
+    err = canonicalise(lam, vec, m, _matrix(scratch, 4, m, m + 1))
+    pi, bound = _pi_of_eigenpairs(lam, vec, _matrix(scratch, 0, m), m, scratch, err)
+    return pi, max(pi - bound, 0.0), min(pi + bound, 1.0)
+
+
+@njit(cache=True)
+def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.ndarray,
+                     scratch: np.ndarray, probes: int, canonical: bool):  # pragma: no cover
+    """pi of one candidate through G: returns (pi, lowest, highest). Reference pi: the extremes over
+    `probes` eigen-decompositions of C perturbed by PROBE_SCALE (and pi itself). Canonical pi: pi plus
+    or minus its bound under solver rounding (canonical.py), no probes needed."""
+    _form_information(members, m, dist, gram, scratch)
+    c, g = _matrix(scratch, 2, m), _matrix(scratch, 0, m)
     if canonical:
-        return pi, max(pi - bound, 0.0), min(pi + bound, 1.0)
+        _eigen_of_information(scratch, m)
+        return _canonical_pi(scratch, m)
+    pi = _pi_of_information(c, g, m, scratch)
     lowest, highest = pi, pi
     probe = np.empty((m, m))
     for p in range(probes):
@@ -140,41 +177,50 @@ def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nda
             for k in range(m):  # a fixed symmetric pattern in [-1, 1], different per probe
                 probe[i, k] = c[i, k] * (1.0 + PROBE_SCALE * np.sin(12.9898 * (p + 1) + 78.233 * (i + k)
                                                                     + 37.719 * i * k))
-        value = _pi_of_information(probe, g, m, scratch, False)[0]
+        value = _pi_of_information(probe, g, m, scratch)
         lowest, highest = min(lowest, value), max(highest, value)
     return pi, lowest, highest
 
 
 @njit(cache=True)
-def _pi_of_information(c: np.ndarray, g: np.ndarray, m: int, scratch: np.ndarray,
-                       canonical: bool):  # pragma: no cover
-    """pi from the information matrix C and the candidate's Gram block G_S (e_j^2 = d_j^T G_S d_j),
-    and (canonical only) a bound on how far another solver's rounding could move it (1 if C sits
-    at a threshold of the canonical form)."""
-    scale, d, e = _vector(scratch, 3, m), _vector(scratch, 4, m), _vector(scratch, 5, m)[:m - 1]
-    lam, gd, vec = _vector(scratch, 6, m), _vector(scratch, 8, m), _matrix(scratch, 3, m)
-    err = 0.0
-    if canonical:  # any accurate solver will do: the canonical form fixes what solvers leave open
-        vec[:, :] = c
-        symmetric_eigh(vec, lam, _vector(scratch, 7, m), m)
-        err = canonicalise(lam, vec, m, _matrix(scratch, 4, m, m + 1))
-    else:
-        values, vectors = np.linalg.eigh(c)
-        lam[:] = values
-        vec[:, :] = vectors
+def _pi_of_information(c: np.ndarray, g: np.ndarray, m: int, scratch: np.ndarray):  # pragma: no cover
+    """The reference's pi from the information matrix C (LAPACK's eigen-pairs, as they come)."""
+    lam, vec = _vector(scratch, 6, m), _matrix(scratch, 3, m)
+    values, vectors = np.linalg.eigh(c)
+    lam[:] = values
+    vec[:, :] = vectors
+    return _pi_of_eigenpairs(lam, vec, g, m, scratch, 0.0)[0]
+
+
+@njit(cache=True)
+def _pi_of_eigenpairs(lam: np.ndarray, vec: np.ndarray, g: np.ndarray, m: int, scratch: np.ndarray,
+                      err: float):  # pragma: no cover
+    """pi (eq. 5) from C's eigen-pairs and the candidate's Gram block G_S (e_j^2 = d_j^T G_S d_j), and a
+    bound on how far another solver's rounding could move it, given err, the eigenvectors' error from
+    canonicalise (0: no bound wanted; inf: C sits at a threshold of the canonical form, bound 1).
+
+    The e_j are computed together, each sum in the order of the one-at-a-time loop (over k for G d_j,
+    then over i for d_j . G d_j), with the independent j innermost: the compiler vectorises across j
+    without reassociating any sum, so the values are those of the loop per j."""
+    scale, e = _vector(scratch, 3, m), _vector(scratch, 5, m)[:m - 1]
+    diff, gdiff = _matrix(scratch, 1, m), _matrix(scratch, 4, m)
     for j in range(m):
         scale[j] = np.sqrt(max(lam[j], 0.0) + EIGENVALUE_FLOOR)
+    for i in range(m):  # column j of diff: d_j = a_{j+1} - a_j
+        for j in range(m - 1):
+            diff[i, j] = vec[i, j + 1] * scale[j + 1] - vec[i, j] * scale[j]
+    gdiff[:, :] = 0.0
+    for k in range(m):  # G d_j (G symmetric: its rows are contiguous)
+        for i in range(m):
+            gki = g[k, i]
+            for j in range(m - 1):
+                gdiff[i, j] += gki * diff[k, j]
+    e[:] = 0.0
+    for i in range(m):
+        for j in range(m - 1):
+            e[j] += diff[i, j] * gdiff[i, j]
     for j in range(m - 1):
-        for i in range(m):
-            d[i] = vec[i, j + 1] * scale[j + 1] - vec[i, j] * scale[j]
-        gd[:] = 0.0
-        for k in range(m):  # G d by rows of the symmetric G: contiguous, so the compiler vectorises it
-            for i in range(m):
-                gd[i] += g[k, i] * d[k]
-        total = 0.0
-        for i in range(m):
-            total += d[i] * gd[i]
-        e[j] = np.sqrt(max(total, 0.0))
+        e[j] = np.sqrt(max(e[j], 0.0))
     lo, hi = e.min(), e.max()
     total = 0.0
     for j in range(m - 1):
@@ -197,18 +243,40 @@ PARALLEL_FROM = 1000  # candidates per window from which threads share them: bel
 @njit(cache=True)
 def _information_block(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, probes: int, canonical: bool,
                        out: np.ndarray, first: int, step: int) -> None:  # pragma: no cover
-    """information_rows for candidates first, first + step, ... (their columns of out)."""
+    """information_rows for candidates first, first + step, ... (their columns of out). Canonical pi
+    takes them two at a time when they have the same size (nearly always: they come ordered by size),
+    so that the eigensolver overlaps their QL chains (symmetric_eigh_pair, bit-identical)."""
     width = dist.shape[0]
-    scratch = np.empty(scratch_size(width))
+    scratch = np.empty((2, scratch_size(width)))
     members = np.empty(width, dtype=np.int64)
+    pending, pending_m = -1, 0  # a canonical candidate whose C is formed in scratch[0], waiting for a partner
     for i in range(first, len(masks), step):
         m = 0
         for p in range(width):
             if masks[i] >> p & 1:
                 members[m] = p
                 m += 1
-        if m > 2:
-            out[0, i], out[1, i], out[2, i] = information_gram(members, m, dist, gram, scratch, probes, canonical)
+        if m <= 2:
+            continue
+        if not canonical:
+            out[0, i], out[1, i], out[2, i] = information_gram(members, m, dist, gram, scratch[0], probes, False)
+            continue
+        if pending >= 0 and m != pending_m:  # no partner of its size: alone
+            _eigen_of_information(scratch[0], pending_m)
+            out[0, pending], out[1, pending], out[2, pending] = _canonical_pi(scratch[0], pending_m)
+            pending = -1
+        if pending < 0:
+            _form_information(members, m, dist, gram, scratch[0])
+            pending, pending_m = i, m
+            continue
+        _form_information(members, m, dist, gram, scratch[1])
+        _eigen_of_information_pair(scratch[0], scratch[1], m)
+        out[0, pending], out[1, pending], out[2, pending] = _canonical_pi(scratch[0], m)
+        out[0, i], out[1, i], out[2, i] = _canonical_pi(scratch[1], m)
+        pending = -1
+    if pending >= 0:
+        _eigen_of_information(scratch[0], pending_m)
+        out[0, pending], out[1, pending], out[2, pending] = _canonical_pi(scratch[0], pending_m)
 
 
 @njit(cache=True, parallel=True)
