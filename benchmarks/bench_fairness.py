@@ -10,9 +10,9 @@ above -5 %).
                                         [--azimuth-steps 720] [--frames N] [--out DIR] [--cache-dir DIR]
 
 Each comparison's full result folder (reports, figures, per-method runs) is kept under --out
-(default: ./msa_slam_results/bench_fairness/), one per sequence and mode; a finished one (with
-seeds.json) is reused as is, an interrupted one is resumed (its finished seeds are kept); delete it, or pass a
-new --out, to rerun. Simulations, odometry and descriptors are cached as
+(default: ./msa_slam_results/bench_fairness/), one per sequence and mode; a finished one over the same
+seeds is reused as is; an interrupted one, or one finished on other seeds, is resumed (its finished seeds are
+kept, the missing ones run); delete it, or pass a new --out, to rerun. Simulations, odometry and descriptors are cached as
 everywhere else (the same simulated sequences as benchmarks/bench_realism.py at the same azimuth steps).
 """
 
@@ -41,12 +41,14 @@ def _cell(entry: dict, digits: str) -> str:
 
 
 def comparison(dataset: str, mode: str, seeds: list[int], folder: Path, cache_dir: str | None) -> dict:
-    """seeds.json of the comparison in `folder`, run first unless it exists; a folder without it (a run killed
-    part-way) is resumed by run_compare, which reuses the seeds that finished there."""
-    if not (folder / "seeds.json").is_file():
+    """seeds.json of the comparison in `folder` over `seeds`: a finished one over the same seeds is read as is;
+    otherwise run_compare runs it, resuming a folder killed part-way or finished on fewer seeds (the seeds
+    that finished there are reused)."""
+    done = folder / "seeds.json"
+    if not done.is_file() or json.loads(done.read_text()).get("seeds") != seeds:
         cfg = make_config(dataset=dataset, mode=mode, cache_dir=cache_dir)
         run_compare(cfg, folder, quiet=True, seeds=seeds)
-    return json.loads((folder / "seeds.json").read_text())
+    return json.loads(done.read_text())
 
 
 def print_table(title: str, summary: dict) -> None:
