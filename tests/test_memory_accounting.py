@@ -1,5 +1,6 @@
 """Memory accounting against what the process really holds: GTSAM's heap against the graph's estimate,
-free heap pages handed back, and the run's records and map counted in the bytes RSS growth is compared with."""
+free heap pages handed back, the run's records and map counted in the bytes RSS growth is compared with, and
+RSS growth per run when runs follow one another in one process (as compare's methods do)."""
 
 from __future__ import annotations
 
@@ -87,3 +88,41 @@ def test_online_in_ram_bytes_include_records_and_map():
     assert mem["map"] == result.map_points.nbytes > 0
     assert mem["in_ram"] == mem["total"] - mem["keyframe_clouds_on_disk"] + mem["run_records"] + mem["map"]
     assert m["rss_growth_ratio"] == pytest.approx(m["rss_growth_bytes"] / mem["in_ram"], abs=1e-3)
+
+
+TWO_RUNS = """
+import numpy as np
+from msa_slam.backend import PoseGraph
+from msa_slam.descriptors import ScanContext
+from msa_slam.pipeline import make_config
+from msa_slam.registration import KeyframeCloudStore
+from msa_slam.slam import build_backend
+
+def run(sampler, params):
+    config = make_config(dataset="x", sampler=sampler, sampler_params=params)
+    backend = build_backend(config, ScanContext(), KeyframeCloudStore(0.1), PoseGraph(), 150, "drive")
+    rng = np.random.default_rng(0)
+    for i in range(150):  # 2 m per frame; random clouds barely thin out at 0.1 m voxels
+        pose = np.eye(4)
+        pose[0, 3] = 2.0 * i
+        points = rng.uniform(-20, 20, (10000, 3))
+        backend.add_frame(pose, ScanContext().compute(points), points, pose, 0.1 * i)
+    return backend.finish()
+
+first = run("all", {})  # every frame a keyframe: ~17 MiB of clouds, freed when run() returns
+second = run("constant", {"distance": 50.0})  # 6 keyframes
+print(first.memory_bytes["cloud_bytes"], second.rss_growth_bytes)
+"""
+
+
+@glibc
+def test_rss_growth_of_a_run_is_not_lowered_by_what_an_earlier_run_freed():
+    """Two back-end runs in one process, the first keeping 25x the keyframes of the second (its result kept,
+    as compare keeps each method's). The second's RSS growth was about minus the first's freed clouds
+    (-15.7 MiB): its start reading held the first's freed heap, its end reading came after malloc_trim.
+    Tolerance 2 MiB: two of CPython's 1 MiB object arenas that the second run may empty of earlier objects,
+    against the first run's ~17 MiB of clouds. In a fresh process, so the heap holds only these two runs."""
+    out = subprocess.run([sys.executable, "-c", TWO_RUNS], capture_output=True, text=True, check=True).stdout
+    first_clouds, second_growth = (int(v) for v in out.split())
+    assert first_clouds > 15 * 2**20
+    assert second_growth > -2 * 2**20

@@ -3,11 +3,14 @@
 Per-method memory is the accounted bytes (`array_bytes` and the stores' `nbytes`). Peak RSS is the whole
 process's high-water mark since it started: methods run one after another in one process all see the
 largest of them (and the front end), so reports print it once, as a process figure (PROCESS_RSS_LABEL).
-RSS growth (`current_rss_bytes` at the end of a back-end minus at its start) is per run, and is what the
+RSS growth (`settled_rss_bytes` at the end of a back-end minus at its start) is per run, and is what the
 accounted bytes should explain. glibc's malloc keeps freed heap pages resident between long-lived objects
 (GTSAM's Bayes tree is rebuilt piecewise at every update, leaving holes); `release_free_heap` hands them back
 (malloc_trim): on two laps of the city tour, RSS at frame 5,000 was 375 MiB with it every 100 frames and
-411 MiB without.
+411 MiB without. Both ends of a growth are read settled (garbage collected, free pages handed back): in
+`compare`, where methods run one after another in one process, a start read unsettled counted what the
+previous method had freed, or left to the cycle collector (its figures), and the next method's growth came out
+negative (simulated KITTI-00: constant-1m -116 MiB after all's +350 MiB).
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import contextlib
 import ctypes
 import ctypes.util
 import functools
+import gc
 import os
 import resource
 import sys
@@ -81,6 +85,15 @@ def heap_in_use_bytes() -> int | None:
         return None
     info = libc.mallinfo2()
     return int(info.uordblks + info.hblkhd)
+
+
+def settled_rss_bytes() -> int:
+    """Resident set size once cyclic garbage is collected and free heap pages are handed back, so a later
+    reading is not lowered by memory freed before this one (the base of an RSS growth). A full collection:
+    ~7 ms per 100,000 tracked objects."""
+    gc.collect()
+    release_free_heap()
+    return current_rss_bytes()
 
 
 class StageTimer:
