@@ -3,11 +3,11 @@
 Per-method memory is the accounted bytes (`array_bytes` and the stores' `nbytes`). Peak RSS is the whole
 process's high-water mark since it started: methods run one after another in one process all see the
 largest of them (and the front end), so reports print it once, as a process figure (PROCESS_RSS_LABEL).
-RSS growth (`settled_rss_bytes` at the end of a back-end minus at its start) is per run, and is what the
+RSS growth (`current_rss_bytes` at the end of a back-end minus at its start) is per run, and is what the
 accounted bytes should explain. glibc's malloc keeps freed heap pages resident between long-lived objects
 (GTSAM's Bayes tree is rebuilt piecewise at every update, leaving holes); `release_free_heap` hands them back
 (malloc_trim): on two laps of the city tour, RSS at frame 5,000 was 375 MiB with it every 100 frames and
-411 MiB without. Both ends of a growth are read settled (garbage collected, free pages handed back): in
+411 MiB without. Both ends of a growth are read after `settle_heap` (garbage collected, free pages handed back): in
 `compare`, where methods run one after another in one process, a start read unsettled counted what the
 previous method had freed, or left to the cycle collector (its figures), and the next method's growth came out
 negative (simulated KITTI-00: constant-1m -116 MiB after all's +350 MiB).
@@ -87,13 +87,12 @@ def heap_in_use_bytes() -> int | None:
     return int(info.uordblks + info.hblkhd)
 
 
-def settled_rss_bytes() -> int:
-    """Resident set size once cyclic garbage is collected and free heap pages are handed back, so a later
-    reading is not lowered by memory freed before this one (the base of an RSS growth). A full collection:
-    ~7 ms per 100,000 tracked objects."""
+def settle_heap() -> None:
+    """Collect cyclic garbage and hand free heap pages back, so an RSS reading taken next is not lowered later
+    by memory freed before it (read at both ends of an RSS growth). A full collection: ~7 ms per 100,000
+    tracked objects."""
     gc.collect()
     release_free_heap()
-    return current_rss_bytes()
 
 
 class StageTimer:

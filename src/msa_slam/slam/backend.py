@@ -19,7 +19,7 @@ import numpy as np
 from msa_slam.descriptors import Descriptor
 from msa_slam.errors import InputError
 from msa_slam.evaluation import evaluate_trajectories
-from msa_slam.evaluation.resources import release_free_heap, settled_rss_bytes
+from msa_slam.evaluation.resources import current_rss_bytes, release_free_heap, settle_heap
 from msa_slam.place_recognition import PRCurve
 from msa_slam.registration import Verifier
 from msa_slam.sampling import make_sampler
@@ -80,7 +80,8 @@ class SlamBackend:
         self._loop_bytes = 0  # running size of the loop records in `loops`
         # The run's RSS growth is measured from here to `finish`, settled at both ends: what an earlier run in the
         # process freed (or left to the cycle collector) is then counted neither for nor against this one.
-        self.rss_start = settled_rss_bytes()
+        settle_heap()
+        self.rss_start = current_rss_bytes()
 
     @property
     def keyframes(self) -> list[int]:
@@ -217,7 +218,8 @@ class SlamBackend:
                  "flushed_keyframes": len(self.sampler.flushed_keyframes)}
         map_points = keyframe_map(self.store.clouds, keys, optimised, self.settings.verifier.voxel_size)
         memory["map_bytes"] = int(map_points.nbytes)
-        rss_growth = settled_rss_bytes() - self.rss_start
+        settle_heap()
+        rss_growth = current_rss_bytes() - self.rss_start
         return RunResult(self.settings, self.name, self.times, self.odometry, gt, keys, optimised, self.loops,
                          pr, evaluation, self.steps_ms, memory, stats, len(self.loop_closer.best_similarity),
                          {"optimisation": t1 - t0, "evaluation": t2 - t1}, map_points=map_points,
