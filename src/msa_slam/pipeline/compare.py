@@ -168,10 +168,12 @@ def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: lis
              "and the graph, per method; RSS growth: the process's resident set at the end of the method's back-end "
              "(after the final optimisation) minus at its start, both read after a full garbage collection and "
              "with free heap pages handed back (malloc_trim), so memory an earlier method freed counts neither for "
-             "nor against this one (methods run one after another in one process); MSA's numba kernels are loaded "
-             "before its back-end starts (a one-time cost of the process, ~58 MiB). Time: sampling + keyframe store "
-             "+ loop search + verification + "
-             "optimisation.", "", table, "", *_sweep_lines(results),
+             "nor against this one (methods run one after another in one process). It is what the back-end added "
+             "and still holds at its end: the memory column plus what that leaves out (per-frame records, the map, "
+             "the sampler's working buffers such as MSA's exact-search workspace, allocator overheads). MSA's numba "
+             "kernels are loaded before its back-end starts (a one-time cost of the process, ~58 MiB). Time: "
+             "sampling + keyframe store + loop search + verification + optimisation.", "", table, "",
+             *_sweep_lines(results),
              f"Process peak RSS: {mib(max(r.metrics['peak_rss_bytes'] for r in results))} (whole process: "
              "every method and the shared front end; not a per-method figure).", ""]
     method_notes = [f"- {r.config.name}: {note}" for r in results for note in notes(r.metrics)]
