@@ -192,6 +192,40 @@ def test_two_far_places_of_the_same_design_look_alike():
     assert sim(world) > sim(plain) + 0.1
 
 
+def test_house_types_of_a_design_follow_one_irregular_order():
+    """Each design's house types differ (length, height) and come in a fixed order that never repeats at a
+    short period, the same for every street of the design."""
+    designs = make_catalogue(2, STYLES["city"], np.random.default_rng(3), variants=3)
+    again = make_catalogue(2, STYLES["city"], np.random.default_rng(3), variants=3)
+    assert designs == again
+    for design in designs:
+        assert len(design.variants) == 3
+        assert len({v.length for v in design.variants}) == 3 and len({v.height for v in design.variants}) == 3
+        order = design.variant_order()
+        assert np.array_equal(order, design.variant_order()) and set(order) == {0, 1, 2}
+        assert all(not np.array_equal(order[:60], order[p:p + 60]) for p in range(1, 21))
+        assert design.house(order, 5) == design.variants[order[5]]
+    assert all(d.variants == () for d in make_catalogue(2, STYLES["city"], np.random.default_rng(3)))
+
+
+def test_house_types_keep_a_street_from_matching_itself_a_few_houses_along():
+    """Identical houses at one pitch make the middle of a designed street look like the place a few houses
+    ahead (similarity above 0.95); house types in an irregular order take that away."""
+    poses = _path(1300, bend=0.0)
+    sc = ScanContext()
+
+    def best_ahead(variants: int) -> float:
+        world = build_world(poses, "city", seed=7, realism=WorldRealism(catalogue_designs=1, catalogue_share=0.6,
+                                                                        design_variants=variants))
+        s = max((x for x in world.stretches if x.kind == "design"), key=lambda x: x.end - x.start)
+        k = int((s.start + s.end) / 2 - PATH_LEAD)
+        query = sc.compute(_scan(world, poses[k]))
+        return max(sc.similarity(query, sc.compute(_scan(world, poses[k + d]))) for d in range(30, 61, 2))
+    identical, typed = best_ahead(1), best_ahead(3)
+    assert identical > 0.95
+    assert typed < identical - 0.05
+
+
 @pytest.mark.parametrize("kind", ["field", "wall", "tunnel", "highway"])
 def test_hard_stretches_keep_the_road_open(kind):
     poses = _path(500)
@@ -243,6 +277,7 @@ def test_worlds_are_deterministic_per_seed():
     ("foliage_gap", 1.0, "foliage_gap must be in"),
     ("catalogue_share", 0.5, "catalogue_designs must be >= 1"),
     ("hard_kinds", ("swamp",), "hard_kinds"),
+    ("design_variants", 0, "design_variants must be in"),
     ("turnover_period", 0.0, "turnover_period must be > 0"),
 ])
 def test_bad_realism_knobs_are_one_clear_error(knob, value, message):

@@ -7,7 +7,7 @@ The rest of the path is laid out block by block as before; with no shares the pl
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -35,13 +35,32 @@ class Stretch:
     end: float
     kind: str
     design: int = -1
+    order_offset: int = 0  # where this instance of the design starts in the design's order of house variants
+
+
+ORDER_LENGTH = 97  # house variants in a design's fixed order (prime, longer than any row: never periodic)
+
+
+@dataclass(frozen=True)
+class HouseVariant:
+    """One house type of a design: its length along the street, its height, and whether a back-row block and a
+    front-garden tree go with it."""
+
+    length: float
+    height: float
+    back: tuple[float, float, float] | None  # length, depth, height of a block behind the house
+    tree: bool
 
 
 @dataclass(frozen=True)
 class Design:
-    """A street design: identical houses at a fixed pitch on both sides, each with the same garden wall closing
-    the gap to the next house (so what lies behind, different at every place, stays hidden), optional back-row
-    block, front-garden tree, low front fence and street light; `detail_seed` fixes the facade detail."""
+    """A street design: houses of a few types (`variants`) at a fixed pitch on both sides, in an irregular order
+    fixed by the design (`order_seed`), each with the same garden wall closing the gap to the next house (so what
+    lies behind, different at every place, stays hidden), optional back-row block, front-garden tree, low front
+    fence and street light; `detail_seed` fixes the facade detail. Every instance of the design runs through the
+    same order from its own starting point (Stretch.order_offset): as in a real suburb, two streets of it share
+    house types and now and then a run of them in the same order, and no street repeats itself at a fixed pitch
+    (identical houses at one pitch made a place look like the place a few houses back)."""
 
     length: float
     depth: float
@@ -55,12 +74,26 @@ class Design:
     light_pitch: int                         # a street light every this many houses (0: none)
     detail_seed: int
     gap_wall: float = 0.0                    # height of the wall between two houses (0: an open gap)
+    variants: tuple[HouseVariant, ...] = ()  # house types (empty: every house is the design's own)
+    order_seed: int = 0
+
+    def variant_order(self) -> np.ndarray:
+        """The design's fixed irregular order of house types: ORDER_LENGTH indices into `variants`."""
+        if len(self.variants) < 2:
+            return np.zeros(ORDER_LENGTH, dtype=int)
+        return np.random.default_rng([self.order_seed, 7]).integers(len(self.variants), size=ORDER_LENGTH)
+
+    def house(self, order: np.ndarray, k: int) -> HouseVariant:
+        """The type of the k-th house counted from the order's start."""
+        if not self.variants:
+            return HouseVariant(self.length, self.height, self.back, bool(self.tree_pitch))
+        return self.variants[int(order[k % ORDER_LENGTH])]
 
 
-def make_catalogue(n: int, style: Style, rng: np.random.Generator) -> tuple[Design, ...]:
+def make_catalogue(n: int, style: Style, rng: np.random.Generator, variants: int = 1) -> tuple[Design, ...]:
     """`n` designs within the style's ranges (mid-height blocks, as residential streets). They share one
-    building line (setback), as a town's planning rules fix it, and repeat every house (tree, light and parked
-    cars at each), so a place matches another one pitch along and a place of another street of the design."""
+    building line (setback), as a town's planning rules fix it. With `variants` > 1 each design has that many
+    house types, differing in height, back-row block and tree; with 1 every house of a design is the same."""
     designs = []
     setback = float(rng.uniform(*style.setback))
     for _ in range(n):
@@ -79,7 +112,30 @@ def make_catalogue(n: int, style: Style, rng: np.random.Generator) -> tuple[Desi
             fence=float(rng.uniform(0.8, 1.6)) if rng.random() < 0.5 else 0.0,
             light_pitch=int(rng.integers(0, 2)), detail_seed=int(rng.integers(2**31)),
             gap_wall=float(rng.uniform(2.6, 3.4))))
-    return tuple(designs)
+    if variants < 2:
+        return tuple(designs)
+    return tuple(replace(d, variants=_house_variants(d, variants, style, rng), order_seed=int(rng.integers(2**31)))
+                 for d in designs)
+
+
+def _house_variants(design: Design, n: int, style: Style, rng: np.random.Generator) -> tuple[HouseVariant, ...]:
+    """The design's own house and n - 1 types differing from it in length (so the gaps between houses fall
+    irregularly), by 3-6 m of height and, each at even odds, in having a back-row block and a tree (what Scan
+    Context's height bins see)."""
+    h_lo, h_hi = style.height
+    lo, hi = style.length
+    back = design.back or (float(rng.uniform(*style.length)), float(rng.uniform(*style.depth)),
+                           float(rng.uniform(h_lo + 4.0, h_hi)))
+    out = [HouseVariant(design.length, design.height, design.back, bool(design.tree_pitch))]
+    for _ in range(n - 1):
+        step = float(rng.uniform(3.0, 6.0)) * (1.0 if rng.random() < 0.5 else -1.0)
+        height = design.height + step
+        if not h_lo <= height <= h_hi:
+            height = design.height - step
+        out.append(HouseVariant(float(rng.uniform(lo + 2.0, (lo + hi) / 2 + 2.0)), float(np.clip(height, h_lo, h_hi)),
+                                back if rng.random() < 0.5 else None,
+                                bool(rng.random() < 0.5)))
+    return tuple(out)
 
 
 def straight_runs(xy: np.ndarray, min_length: float = MIN_DESIGN_M,
@@ -145,7 +201,7 @@ def plan_stretches(xy: np.ndarray, catalogue_share: float, hard_share: float, ha
         for a, b in _design_pieces(straight_runs(xy), total, catalogue_share, rng):
             if not rounds:
                 rounds = list(rng.permutation(n_designs))
-            out.append(Stretch(a, b, DESIGN, int(rounds.pop())))
+            out.append(Stretch(a, b, DESIGN, int(rounds.pop()), int(rng.integers(ORDER_LENGTH))))
     if hard_share > 0:
         out += _hard_stretches(total, hard_share, hard_kinds, out, rng, hard_from)
     return tuple(sorted(out, key=lambda x: x.start))

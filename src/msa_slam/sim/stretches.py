@@ -1,4 +1,4 @@
-"""Planned stretches of a street layout (see `plan`): rows of a catalogue design repeated identically, and
+"""Planned stretches of a street layout (see `plan`): rows of a catalogue design's house types, and
 hard stretches (open field, plain walls, tunnel, highway) that constrain ICP little along the path.
 A mixin of `layout.StreetLayout`, whose drawing and placement helpers it uses."""
 
@@ -9,7 +9,7 @@ from typing import Iterator
 
 import numpy as np
 
-from msa_slam.sim.plan import DESIGN, Design, Stretch
+from msa_slam.sim.plan import DESIGN, ORDER_LENGTH, Design, HouseVariant, Stretch
 from msa_slam.sim.shapes import Material
 
 ROW_BEYOND_M = 60.0
@@ -47,39 +47,48 @@ class PlannedStretches:
                 min(stretch.end + ROW_BEYOND_M, after - ROW_CLEAR_M))
 
     def _design_row(self, stretch: Stretch, design: Design, side: float) -> None:
-        """Identical houses at the design's pitch centred in the row's span, the same on both sides, with
-        the design's garden walls, back-row blocks, fence, front-garden trees, parked cars and street lights."""
+        """The design's houses, their types in the design's order from the instance's starting point, one garden
+        gap apart and centred in the row's span, with the design's garden walls, back-row blocks, fence,
+        front-garden trees, parked cars and street lights."""
         st = self.style
         start, end = self._row_span(stretch)
-        houses = int((end - start) // design.pitch)
-        row = (houses - 1) * design.pitch + design.length
-        s, k = start + max(end - start - row, 0.0) / 2, 0  # centred: the row is the same driven either way
+        gap = design.pitch - design.length
+        order = design.variant_order()
+        first = stretch.order_offset + (0 if side > 0 else ORDER_LENGTH // 2)  # the far side has its own run
+        houses: list[HouseVariant] = []
+        row = -gap
+        while row + gap + design.house(order, first + len(houses)).length <= end - start:
+            houses.append(design.house(order, first + len(houses)))
+            row += gap + houses[-1].length
+        s = start + max(end - start - row, 0.0) / 2  # centred: the row is the same driven either way
 
         def at(x: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             return self._row_at(stretch, x)
-        for _ in range(houses):
-            p, h, n = at(s + design.length / 2)
+        gaps = []
+        for k, house in enumerate(houses):
+            p, h, n = at(s + house.length / 2)
             yaw = float(np.arctan2(h[1], h[0]))
             center = p + side * n * (design.setback + design.depth / 2)
             with self._seeded(design.detail_seed, 0):
-                built = self._building(center, yaw, side, design.length, design.depth, st.road_clearance,
-                                       height=design.height, refl=design.refl)
-                if built and design.back is not None:
-                    length, depth, height = design.back
+                built = self._building(center, yaw, side, house.length, design.depth, st.road_clearance,
+                                       height=house.height, refl=design.refl)
+                if built and house.back is not None:
+                    length, depth, height = house.back
                     back = center + side * n * (design.depth / 2 + 4.0 + depth / 2)
                     self._building(back, yaw, side, length, depth, st.road_clearance, height=height,
                                    refl=design.refl * 0.9)
+            plot = house.length + gap
             if design.fence > 0:
-                q, _, m = at(s + design.pitch / 2)
-                self._add_box(q + side * m * (design.setback - 1.0), (design.pitch / 2 - 0.2, 0.08), yaw,
+                q, _, m = at(s + plot / 2)
+                self._add_box(q + side * m * (design.setback - 1.0), (plot / 2 - 0.2, 0.08), yaw,
                               design.fence, 0.5, st.road_clearance - 1.0)
-            if design.tree_pitch and k % design.tree_pitch == 0:
-                q, _, m = at(s + design.pitch - (design.pitch - design.length) / 2)
+            if house.tree:
+                q, _, m = at(s + house.length + gap / 2)
                 with self._seeded(design.detail_seed, 1):
                     self._tree(q + side * m * (design.setback + 1.0), st.road_clearance)
             if st.p_parked > 0:  # the same cars in front of every house of the design
                 with self._seeded(design.detail_seed, 2):
-                    for x in np.arange(self._u((0.0, 3.0)), design.pitch - 4.0, 6.5):
+                    for x in np.arange(self._u((0.0, 3.0)), plot - 4.0, 6.5):
                         if self.rng.random() < st.p_parked:
                             self._parked_car(s + x, side, False, at)
             if design.light_pitch and k % design.light_pitch == 0:
@@ -87,11 +96,11 @@ class PlannedStretches:
                 c = q + side * m * (st.car_offset[1] + 0.7)
                 if self._try(c, np.array([0.2, 0.2]), 0.0, st.furniture_clearance):
                     self.trunks.append((*c, self.ground(c) - 0.3, 0.12, 6.5, 0.8))
-            s += design.pitch
-            k += 1
-        gap = design.pitch - design.length
+            if k < len(houses) - 1:
+                gaps.append(s + house.length)
+            s += plot
         if design.gap_wall > 0 and gap > 0.5:  # after the houses, which keep a margin to anything placed before
-            for x in np.arange(s - houses * design.pitch + design.length, s - design.pitch, design.pitch):
+            for x in gaps:
                 q, h, m = at(x + gap / 2)
                 self._wall_piece(q + side * m * (design.setback + design.depth / 2), (gap / 2, 0.15),
                                  float(np.arctan2(h[1], h[0])), self.ground(q) - 0.3, design.gap_wall + 0.3,

@@ -38,6 +38,7 @@ class WorldRealism:
     turnover_period: float = 60.0   # s: a transient car is there or not per epoch of this length
     catalogue_designs: int = 0      # street designs reused in different places (perceptual aliasing)
     catalogue_share: float = 0.0    # share of the path laid out from the catalogue
+    design_variants: int = 1        # house types per design, laid in an irregular order (1: identical houses)
     hard_share: float = 0.0         # share of the path in stretches where ICP degenerates along the path
     hard_kinds: tuple[str, ...] = HARD_KINDS
     foliage_gap: float = 0.0        # share of rays that pass a crown's surface, drawn per scan and ray
@@ -57,6 +58,8 @@ class WorldRealism:
         if self.catalogue_designs < 0 or (self.catalogue_share > 0 and self.catalogue_designs < 1):
             raise InputError(f"world realism: catalogue_designs must be >= 1 when catalogue_share > 0, got "
                              f"{self.catalogue_designs}")
+        if not 1 <= self.design_variants <= 8:
+            raise InputError(f"world realism: design_variants must be in [1, 8], got {self.design_variants}")
         unknown = sorted(set(self.hard_kinds) - set(HARD_KINDS))
         if unknown or (self.hard_share > 0 and not self.hard_kinds):
             raise InputError(f"world realism: hard_kinds {list(self.hard_kinds)} must be a non-empty subset of "
@@ -235,7 +238,8 @@ def build_world(poses: np.ndarray, style: str = "city", seed: int = 0, sensor_he
     plan = plan_stretches(xy, realism.catalogue_share, realism.hard_share, realism.hard_kinds,
                           realism.catalogue_designs, np.random.default_rng([seed, 12, 1]),
                           hard_from=PATH_LEAD + START_STRUCTURE_M)
-    catalogue = make_catalogue(realism.catalogue_designs, st, np.random.default_rng([seed, 12, 2]))
+    catalogue = make_catalogue(realism.catalogue_designs, st, np.random.default_rng([seed, 12, 2]),
+                               realism.design_variants)
     layout = StreetLayout(xy, st, rng, ground, plan, catalogue, realism.transient_parking)
     layout.build()
     builder = MeshBuilder()
