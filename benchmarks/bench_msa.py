@@ -24,7 +24,7 @@ from numba import njit
 
 from msa_slam.sampling import make_sampler
 from msa_slam.sampling.msa import ScoreWeights, fast, optimise_window
-from msa_slam.sampling.msa.eigen import symmetric_eigh
+from msa_slam.sampling.msa.eigen import LANE_WORK, LANES, symmetric_eigh, symmetric_eigh_lanes
 from msa_slam.sampling.msa.exact import ExactWorkspace
 from msa_slam.sampling.msa.terms import optimise_window_literal
 
@@ -110,14 +110,33 @@ def _compiled_each(cs, v, d, e):  # pragma: no cover
     return total
 
 
-def eigensolver_timings(sizes=(3, 5, 9, 10, 15, 19), count=2000, repeats=5):
-    """Median us per matrix: LAPACK dsyevd (numba's np.linalg.eigh) vs msa.eigen on random C = X X^T."""
+@njit
+def _lanes_each(cs):  # pragma: no cover
+    """symmetric_eigh_lanes on LANES matrices at a time (their copy into the lane-innermost layout included)."""
+    m = cs.shape[1]
+    v, d, e, work = np.empty((m, m, LANES)), np.empty((m, LANES)), np.empty((m, LANES)), np.empty((LANE_WORK, LANES))
+    total = 0.0
+    for start in range(0, cs.shape[0], LANES):
+        count = min(LANES, cs.shape[0] - start)
+        for i in range(m):
+            for j in range(m):
+                for lane in range(count):
+                    v[i, j, lane] = cs[start + lane, i, j]
+        symmetric_eigh_lanes(v, d, e, m, count, work)
+        total += d[0, 0]
+    return total
+
+
+def eigensolver_timings(sizes=(3, 5, 9, 10, 13, 15, 19), count=2048, repeats=5):
+    """Median us per matrix: LAPACK dsyevd (numba's np.linalg.eigh) vs msa.eigen on random C = X X^T,
+    one matrix at a time and LANES at a time (what canonical pi runs)."""
     rows = []
     for m in sizes:
         x = np.random.default_rng(m).standard_normal((count, m, m))
         cs = x @ x.transpose(0, 2, 1)
         v, d, e = np.empty((m, m)), np.empty(m), np.empty(m)
-        calls = {"dsyevd": lambda: _lapack_each(cs), "compiled": lambda: _compiled_each(cs, v, d, e)}
+        calls = {"dsyevd": lambda: _lapack_each(cs), "compiled": lambda: _compiled_each(cs, v, d, e),
+                 "lanes": lambda: _lanes_each(cs)}
         timing = {}
         for name, call in calls.items():
             call()
@@ -127,7 +146,7 @@ def eigensolver_timings(sizes=(3, 5, 9, 10, 15, 19), count=2000, repeats=5):
                 call()
                 runs.append((time.perf_counter() - t0) / count * 1e6)
             timing[name] = float(np.median(runs))
-        rows.append((m, timing["dsyevd"], timing["compiled"]))
+        rows.append((m, timing["dsyevd"], timing["compiled"], timing["lanes"]))
     return rows
 
 
@@ -222,10 +241,12 @@ def main() -> int:
         print(f"{shape_name:8} {r['literal']:>14.2f} {r['exact']:>8.2f} {r['fast']:>8.3f} "
               f"{r['literal'] / r['exact']:>8.1f} {r['literal'] / r['fast']:>8.1f}")
 
-    print("\nEigensolver per matrix (random C = X X^T, median us): LAPACK dsyevd vs msa/eigen.py")
-    print(f"{'m':>3} {'dsyevd':>8} {'compiled':>9} {'speed-up':>9}")
-    for m, lapack, compiled in eigensolver_timings():
-        print(f"{m:>3} {lapack:>8.2f} {compiled:>9.2f} {lapack / compiled:>8.2f}x", flush=True)
+    print(f"\nEigensolver per matrix (random C = X X^T, median us): LAPACK dsyevd vs msa/eigen.py, one matrix "
+          f"at a time and {LANES} at a time")
+    print(f"{'m':>3} {'dsyevd':>8} {'compiled':>9} {'speed-up':>9} {'lanes':>8} {'speed-up':>9}")
+    for m, lapack, compiled, lanes in eigensolver_timings():
+        print(f"{m:>3} {lapack:>8.2f} {compiled:>9.2f} {lapack / compiled:>8.2f}x {lanes:>8.2f} {lapack / lanes:>8.2f}x",
+              flush=True)
 
     if args.quick:
         return 0

@@ -215,50 +215,79 @@ def test_serial_and_threaded_candidate_loops_give_identical_pi():
         assert np.array_equal(serial, threaded)
 
 
-def test_paired_eigensolver_is_bit_identical_to_one_matrix_at_a_time():
-    """symmetric_eigh_pair overlaps two matrices' QL sweeps; each matrix must get exactly the
-    single solver's values, whatever the other matrix does (other sweep counts, an early finish,
-    repeated eigenvalues, zeros, non-finite input)."""
-    from msa_slam.sampling.msa.eigen import symmetric_eigh, symmetric_eigh_pair
+def lane_decomposition(mats: list[np.ndarray], count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """symmetric_eigh_lanes on the matrices, `count` at a time: eigenvalues, eigenvectors (rows), flags."""
+    from msa_slam.sampling.msa.eigen import LANE_WORK, LANES, symmetric_eigh_lanes
+
+    m = len(mats[0])
+    values, vectors, flags = [], [], []
+    for start in range(0, len(mats), count):
+        batch = np.stack(mats[start:start + count], axis=-1)
+        v = np.zeros((m, m, LANES))
+        v[:, :, :batch.shape[-1]] = batch
+        d, e, work = np.empty((m, LANES)), np.empty((m, LANES)), np.empty((LANE_WORK, LANES))
+        symmetric_eigh_lanes(v, d, e, m, batch.shape[-1], work)
+        for lane in range(batch.shape[-1]):
+            values.append(d[:, lane].copy())
+            vectors.append(v[:, :, lane].copy())
+            flags.append(work[0, lane])
+    return np.array(values), np.array(vectors), np.array(flags)
+
+
+def test_lane_eigensolver_gives_each_matrix_its_own_values_whatever_the_other_lanes():
+    """symmetric_eigh_lanes decomposes up to LANES matrices together: each matrix must get the same
+    bits whether alone or among others (other sweep counts, an early finish, repeated eigenvalues, a
+    tridiagonal that splits), accurate ones; a matrix whose reduction meets an exactly zero column
+    (zeros, a diagonal) is flagged for the one-matrix solver."""
+    from msa_slam.sampling.msa.eigen import LANES
 
     rng = np.random.default_rng(21)
     for m in (3, 6, 10, 13, 19):
         mats = []
-        for k in range(40):
+        for k in range(2 * LANES + 5):  # two full batches and a partial one
             x = rng.standard_normal((m, m + 2)) * 10.0 ** rng.uniform(-8, 8)
             mats.append(x @ x.T)
         lam = np.repeat(rng.uniform(0, 5, (m + 1) // 2), 2)[:m]  # repeated eigenvalues
-        mats.append(spectrum_matrix(np.sort(lam), m)[0])
-        mats.append(np.diag(np.arange(m, dtype=float)))  # already diagonal: no sweep at all
-        mats.append(np.zeros((m, m)))
-        mats.append(np.full((m, m), np.nan))
-        for a, b in zip(mats, mats[1:] + mats[:1]):
-            want = []
-            for c in (a, b):
-                v, d = c.copy(), np.empty(m)
-                symmetric_eigh(v, d, np.empty(m), m)
-                want.append((v, d))
-            va, vb, da, db = a.copy(), b.copy(), np.empty(m), np.empty(m)
-            symmetric_eigh_pair(va, da, np.empty(m), vb, db, np.empty(m), m)
-            for (wv, wd), gv, gd in zip(want, (va, vb), (da, db)):
-                assert np.array_equal(wv, gv, equal_nan=True) and np.array_equal(wd, gd, equal_nan=True)
+        mats[3] = spectrum_matrix(np.sort(lam), m)[0]
+        split = mats[8].copy()
+        split[: m // 2, m // 2:] = split[m // 2:, : m // 2] = 1e-18 * np.abs(split).max()  # nearly two blocks:
+        mats[8] = split  # QL's tridiagonal splits (negligible entries)
+        mats[11] = np.zeros((m, m))
+        mats[12] = np.diag(np.arange(m, dtype=float))
+        together, vectors, flags = lane_decomposition(mats, LANES)
+        alone, alone_vectors, alone_flags = lane_decomposition(mats, 1)
+        assert np.array_equal(flags, alone_flags) and flags[11] != 0 and flags[12] != 0
+        taken = flags == 0
+        assert taken.sum() == len(mats) - 2
+        assert np.array_equal(together[taken], alone[taken]) and np.array_equal(vectors[taken], alone_vectors[taken])
+        for k, c in enumerate(mats):
+            if not taken[k]:
+                continue
+            scale = np.abs(c).max()
+            np.testing.assert_allclose(np.sort(together[k]), np.linalg.eigvalsh(c), atol=1e-13 * scale)
+            np.testing.assert_allclose(vectors[k] @ vectors[k].T, np.eye(m), atol=1e-13)
+            np.testing.assert_allclose((vectors[k].T * together[k]) @ vectors[k], c, atol=1e-13 * scale)
 
 
-def test_paired_candidates_give_the_values_of_one_candidate_at_a_time():
-    """The candidate loop pairs same-size candidates for the eigensolver (and leaves one alone when
-    the size changes): every candidate's pi and bounds must be those of information_gram on it alone."""
+def test_batched_candidates_give_the_values_of_one_candidate_at_a_time():
+    """The candidate loop decomposes same-size candidates together (full batches of LANES and the
+    partial ones where the size changes): every candidate's pi and bounds must be those of
+    information_gram on it alone."""
+    from msa_slam.sampling.msa.eigen import LANES
+
     t, desc = planar_window(14, 32, 9)
     dist, sim = exact.pairwise(t, desc)
     masks = feasible_subsets(dist, sim, 0.1, 3.0)[0]
     gram = fast.gram(desc)
-    paired = fast.information_rows_serial(masks, dist, gram, 0, True)
+    batched = fast.information_rows_serial(masks, dist, gram, 0, True)
     scratch = np.empty(fast.scratch_size(len(t)))
-    single = np.zeros_like(paired)
+    single = np.zeros_like(batched)
     sizes = []
     for i, mask in enumerate(masks):
         members = np.array(fast.mask_positions(int(mask)))
         sizes.append(len(members))
         if len(members) > 2:
             single[:, i] = fast.information_gram(members, len(members), dist, gram, scratch, 0, True)
-    assert np.bincount(sizes)[3:].min() % 2 == 1  # odd counts of some size: a candidate left alone
-    assert np.array_equal(paired, single)
+    counts = np.bincount(sizes)[3:]
+    assert counts.max() > LANES and (counts % LANES).max() > 0  # full batches and partial ones
+    assert np.array_equal(batched, single)

@@ -1,17 +1,21 @@
-"""A compiled eigensolver for the small symmetric matrices of canonical pi, called in place per candidate.
+"""A compiled eigensolver for the small symmetric matrices of canonical pi, many matrices at a time.
 
 Householder reduction to tridiagonal form and implicit QL with accumulated transformations (EISPACK's
 tred2/tql2, the algorithm LAPACK's dsyevd itself uses below 25 rows), with a square root in place of
-hypot and the transformations kept in rows (contiguous). QL's rotations are a serial chain of one
-square root and two divisions each, which the CPU cannot overlap within one matrix:
-`symmetric_eigh_pair` runs the sweeps of two matrices rotation by rotation in one loop, so that their
-chains overlap (each matrix's operations and their order unchanged: bit-identical results).
-Measured on this machine (benchmarks/bench_msa.py): about 2x faster than a LAPACK call per matrix at 9-19 rows and 3x at 3-5,
-where the call and its workspace allocation dominate; cyclic Jacobi, tried first, was 1.4-3x slower
-than LAPACK from 9 rows on. Accurate to a few ulp of |C|: since the canonical form fixes what solvers
-leave open (signs, bases of repeated eigenvalues; canonical.py), which backward-stable solver runs
-does not change canonical pi beyond its rounding bound. Not used for the reference pi, whose keyframes
-depend on LAPACK's own eigenvectors.
+hypot and the transformations kept in rows (contiguous). One matrix alone is slow on two counts: QL's
+rotations are a serial chain of one square root and two divisions each, which the CPU cannot overlap
+within one matrix, and every loop runs over at most n elements, too few for the compiler to vectorise.
+`symmetric_eigh_lanes` therefore decomposes up to LANES matrices of the same size together, stored
+lane-innermost: each scalar of the one-matrix solver becomes a vector over the lanes, the lanes' chains
+overlap and every loop vectorises over the lanes, while each matrix's own operations stay those of
+`symmetric_eigh` (QL on a uniform schedule; see its docstring). `symmetric_eigh` decomposes one matrix
+(the rare matrix the lanes leave out, and the tests).
+Measured on this machine (benchmarks/bench_msa.py): one matrix at a time about 2x faster than a LAPACK
+call at 9-19 rows and 3x at 3-5, where the call and its workspace allocation dominate; cyclic Jacobi, tried
+first, was 1.4-3x slower than LAPACK from 9 rows on. Accurate to a few ulp of |C|: since the canonical
+form fixes what solvers leave open (signs, bases of repeated eigenvalues; canonical.py), which
+backward-stable solver runs does not change canonical pi beyond its rounding bound. Not used for the
+reference pi, whose keyframes depend on LAPACK's own eigenvectors.
 """
 
 from __future__ import annotations
@@ -45,51 +49,10 @@ def symmetric_eigh(v: np.ndarray, d: np.ndarray, e: np.ndarray, n: int) -> None:
     _finish(v, d, n, exponent)
 
 
-@njit(cache=True)
-def symmetric_eigh_pair(va: np.ndarray, da: np.ndarray, ea: np.ndarray, vb: np.ndarray, db: np.ndarray,
-                        eb: np.ndarray, n: int) -> None:  # pragma: no cover
-    """symmetric_eigh of two n x n matrices (a and b), bit-identical to two calls, 1.1-1.2x faster at
-    6-13 rows: their QL sweeps run side by side, one rotation of each per loop pass (each matrix keeps
-    its own deflation, sweep count and convergence test); when one is done the other goes on alone."""
-    xa = _to_unit(va, n)
-    xb = _to_unit(vb, n)
-    _tridiagonalise(va, da, ea, n)
-    _tridiagonalise(vb, db, eb, n)
-    la, ma, ta = _next_sweep(da, ea, n, 0, 0.0, 0.0)
-    lb, mb, tb = _next_sweep(db, eb, n, 0, 0.0, 0.0)
-    fa = fb = 0.0
-    ita = itb = 0
-    while la < n and lb < n:
-        fa, dla = _sweep_start(da, ea, n, la, fa)
-        fb, dlb = _sweep_start(db, eb, n, lb, fb)
-        pa, pb = da[ma], db[mb]
-        ca = ca2 = ca3 = cb = cb2 = cb3 = 1.0
-        ela, elb = ea[la + 1], eb[lb + 1]
-        sa = sa2 = sb = sb2 = 0.0
-        ia, ib = ma - 1, mb - 1
-        while ia >= la or ib >= lb:
-            if ia >= la:
-                ca3, ca2, sa2 = ca2, ca, sa
-                ca, sa, pa = _rotation(da, ea, ia, ca, sa, pa)
-                _rotate_rows(va, n, ia, ca, sa)
-                ia -= 1
-            if ib >= lb:
-                cb3, cb2, sb2 = cb2, cb, sb
-                cb, sb, pb = _rotation(db, eb, ib, cb, sb, pb)
-                _rotate_rows(vb, n, ib, cb, sb)
-                ib -= 1
-        ita += 1
-        if _sweep_end(da, ea, la, ca, sa, sa2, ca3, ela, dla, ta) or ita == MAX_SWEEPS:
-            la, ma, ta = _next_sweep(da, ea, n, _deflate(da, ea, la, fa), fa, ta)
-            ita = 0
-        itb += 1
-        if _sweep_end(db, eb, lb, cb, sb, sb2, cb3, elb, dlb, tb) or itb == MAX_SWEEPS:
-            lb, mb, tb = _next_sweep(db, eb, n, _deflate(db, eb, lb, fb), fb, tb)
-            itb = 0
-    _ql(va, da, ea, n, la, ma, fa, ta, ita)
-    _ql(vb, db, eb, n, lb, mb, fb, tb, itb)
-    _finish(va, da, n, xa)
-    _finish(vb, db, n, xb)
+@njit(cache=True, inline="always")
+def _unit_exponent(top: float) -> int:  # pragma: no cover
+    """The power of two that brings a matrix with largest entry `top` into [0.5, 1) (0 for 0 or non-finite)."""
+    return math.frexp(top)[1] if top > 0.0 and np.isfinite(top) else 0
 
 
 @njit(cache=True, inline="always")
@@ -99,7 +62,7 @@ def _to_unit(v: np.ndarray, n: int) -> int:  # pragma: no cover
     for i in range(n):
         for j in range(n):
             top = max(top, abs(v[i, j]))
-    exponent = math.frexp(top)[1] if top > 0.0 and np.isfinite(top) else 0
+    exponent = _unit_exponent(top)
     unit = math.ldexp(1.0, -exponent)
     for i in range(n):
         for j in range(n):
@@ -294,3 +257,234 @@ def _finish(v: np.ndarray, d: np.ndarray, n: int, exponent: int) -> None:  # pra
     for i in range(n):  # eigenvectors from rows to columns
         for j in range(i + 1, n):
             v[i, j], v[j, i] = v[j, i], v[i, j]
+
+
+LANES = 32  # matrices decomposed together by symmetric_eigh_lanes: measured 1.6x (reduction) and 1.7x (QL) per
+# matrix at 13 rows over one at a time, 2.2-2.7x at 6 rows; 8 lanes were too few for the compiler to vectorise
+
+
+@njit(cache=True, error_model="numpy")
+def symmetric_eigh_lanes(v: np.ndarray, d: np.ndarray, e: np.ndarray, n: int, count: int,
+                         work: np.ndarray) -> None:  # pragma: no cover
+    """Eigen-decomposition of `count` symmetric n x n matrices held lane-innermost, v[i, j, lane] (both
+    triangles): each scalar of the one-matrix solver becomes a vector over the lanes, so every loop
+    has the lanes innermost, independent and contiguous, and the compiler vectorises it (a matrix's
+    own operations stay in their order). On exit v[i, :, lane] is the eigenvector of eigenvalue
+    d[i, lane] (not sorted), e is scratch like d, work (LANE_WORK, lanes) scratch; work[0, lane] != 0
+    marks a lane this solver does not take (an exactly zero column in the reduction: symmetric_eigh).
+
+    The reduction and scaling are symmetric_eigh's operations lane by lane; QL runs a uniform
+    schedule: every lane sweeps the whole trailing block from l (the one-matrix solver stops at the
+    first negligible subdiagonal entry; rotating across it changes nothing beyond rounding), and a
+    lane whose e[l] has converged keeps its values exactly while the others go on, so each lane's
+    result depends on its own matrix only, not on the other lanes or their number. IEEE division
+    (error_model="numpy"): a flagged lane's divisions by zero give inf or nan instead of raising, and
+    no division carries a zero test, which would keep the loops from vectorising."""
+    bad, unit = work[0], work[1]
+    for lane in range(count):
+        bad[lane] = 0.0
+        unit[lane] = 0.0
+    for i in range(n):
+        for j in range(n):
+            for lane in range(count):
+                unit[lane] = max(unit[lane], abs(v[i, j, lane]))
+    exponents = work[2]
+    for lane in range(count):
+        exponent = _unit_exponent(unit[lane])
+        exponents[lane] = exponent
+        unit[lane] = math.ldexp(1.0, -exponent)
+    for i in range(n):
+        for j in range(n):
+            for lane in range(count):
+                v[i, j, lane] *= unit[lane]
+    _tridiagonalise_lanes(v, d, e, n, count, work)
+    _ql_lanes(v, d, e, n, count, work)
+    for lane in range(count):
+        unit[lane] = math.ldexp(1.0, int(exponents[lane]))
+    for i in range(n):
+        for lane in range(count):
+            d[i, lane] *= unit[lane]
+
+
+LANE_WORK = 15  # rows of symmetric_eigh_lanes' work array
+
+
+@njit(cache=True, error_model="numpy")
+def _tridiagonalise_lanes(v: np.ndarray, d: np.ndarray, e: np.ndarray, n: int, count: int,
+                          work: np.ndarray) -> None:  # pragma: no cover
+    """_tridiagonalise on every lane (the same operations per lane); a lane whose reduction meets an
+    exactly zero column is marked in work[0] (its values are then meaningless)."""
+    bad, scale, h, f, g, hh = work[0], work[3], work[4], work[5], work[6], work[7]
+    for j in range(n):
+        for lane in range(count):
+            d[j, lane] = v[j, n - 1, lane]
+    for i in range(n - 1, 0, -1):
+        for lane in range(count):
+            scale[lane] = 0.0
+            h[lane] = 0.0
+        for k in range(i):
+            for lane in range(count):
+                scale[lane] += abs(d[k, lane])
+        for lane in range(count):
+            if scale[lane] == 0.0:
+                bad[lane] = 1.0
+                scale[lane] = 1.0
+        for k in range(i):
+            for lane in range(count):
+                d[k, lane] /= scale[lane]
+                h[lane] += d[k, lane] * d[k, lane]
+        for lane in range(count):
+            fl = d[i - 1, lane]
+            gl = np.sqrt(h[lane])
+            gl = -gl if fl > 0 else gl
+            e[i, lane] = scale[lane] * gl
+            h[lane] -= fl * gl
+            d[i - 1, lane] = fl - gl
+        for j in range(i):
+            for lane in range(count):
+                e[j, lane] = 0.0
+        for j in range(i):
+            for lane in range(count):
+                f[lane] = d[j, lane]
+                v[i, j, lane] = f[lane]
+                g[lane] = e[j, lane] + v[j, j, lane] * f[lane]
+            for k in range(j + 1, i):
+                for lane in range(count):
+                    g[lane] += v[j, k, lane] * d[k, lane]
+                    e[k, lane] += v[j, k, lane] * f[lane]
+            for lane in range(count):
+                e[j, lane] = g[lane]
+        for lane in range(count):
+            f[lane] = 0.0
+        for j in range(i):
+            for lane in range(count):
+                e[j, lane] /= h[lane]
+                f[lane] += e[j, lane] * d[j, lane]
+        for lane in range(count):
+            hh[lane] = f[lane] / (h[lane] + h[lane])
+        for j in range(i):
+            for lane in range(count):
+                e[j, lane] -= hh[lane] * d[j, lane]
+        for j in range(i):
+            for k in range(j, i):
+                for lane in range(count):
+                    v[j, k, lane] -= d[j, lane] * e[k, lane] + e[j, lane] * d[k, lane]
+            for lane in range(count):
+                d[j, lane] = v[j, i - 1, lane]
+                v[j, i, lane] = 0.0
+        for lane in range(count):
+            d[i, lane] = h[lane]
+    for i in range(n - 1):  # accumulate the transformations
+        for lane in range(count):
+            v[i, n - 1, lane] = v[i, i, lane]
+            v[i, i, lane] = 1.0
+        for k in range(i + 1):
+            for lane in range(count):
+                d[k, lane] = v[i + 1, k, lane] / d[i + 1, lane]
+        for j in range(i + 1):
+            for lane in range(count):
+                g[lane] = 0.0
+            for k in range(i + 1):
+                for lane in range(count):
+                    g[lane] += v[i + 1, k, lane] * v[j, k, lane]
+            for k in range(i + 1):
+                for lane in range(count):
+                    v[j, k, lane] -= g[lane] * d[k, lane]
+        for k in range(i + 1):
+            for lane in range(count):
+                v[i + 1, k, lane] = 0.0
+    for j in range(n):
+        for lane in range(count):
+            d[j, lane] = v[j, n - 1, lane]
+            v[j, n - 1, lane] = 0.0
+    for lane in range(count):
+        v[n - 1, n - 1, lane] = 1.0
+    for i in range(1, n):
+        for lane in range(count):
+            e[i - 1, lane] = e[i, lane]
+    for lane in range(count):
+        e[n - 1, lane] = 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def _ql_lanes(v: np.ndarray, d: np.ndarray, e: np.ndarray, n: int, count: int,
+              work: np.ndarray) -> None:  # pragma: no cover
+    """Implicit QL (_ql's sweeps, _sweep_start, _rotation, _sweep_end) on every lane, uniform schedule:
+    at eigenvalue l, every lane whose e[l] is not yet negligible (and that has done fewer than
+    MAX_SWEEPS sweeps on l) sweeps rows n-1 down to l; the others keep their values exactly."""
+    f, tst1, p, c, s = work[3], work[4], work[5], work[6], work[7]
+    c2, c3, s2, el1, dl1 = work[8], work[9], work[10], work[11], work[12]
+    active, h = work[13], work[14]
+    for lane in range(count):
+        f[lane] = 0.0
+        tst1[lane] = 0.0
+    for l in range(n - 1):
+        for lane in range(count):
+            tst1[lane] = max(tst1[lane], abs(d[l, lane]) + abs(e[l, lane]))
+        for _ in range(MAX_SWEEPS):
+            busy = 0.0
+            for lane in range(count):
+                flag = 1.0 if abs(e[l, lane]) > EPS * tst1[lane] else 0.0
+                active[lane] = flag
+                busy += flag
+            if busy == 0.0:
+                break
+            for lane in range(count):  # _sweep_start
+                on = active[lane] != 0.0
+                gl = d[l, lane]
+                el = e[l, lane] if on else 1.0
+                pl = (d[l + 1, lane] - gl) / (2.0 * el)
+                rl = np.sqrt(pl * pl + 1.0) if abs(pl) < 1e150 else abs(pl)
+                rl = -rl if pl < 0 else rl
+                top = el / (pl + rl)
+                below = el * (pl + rl)
+                d[l, lane] = top if on else gl
+                dl1[lane] = below if on else d[l + 1, lane]
+                d[l + 1, lane] = dl1[lane]
+                h[lane] = gl - top if on else 0.0
+                f[lane] += h[lane]
+            for i in range(l + 2, n):
+                for lane in range(count):
+                    d[i, lane] -= h[lane]
+            for lane in range(count):
+                p[lane] = d[n - 1, lane]
+                c[lane] = c2[lane] = c3[lane] = 1.0
+                el1[lane] = e[l + 1, lane]
+                s[lane] = s2[lane] = 0.0
+            for i in range(n - 2, l - 1, -1):
+                for lane in range(count):  # _rotation; the identity (s = 0, c = 1) on inactive lanes
+                    on = active[lane] != 0.0
+                    c3[lane] = c2[lane]
+                    c2[lane] = c[lane]
+                    s2[lane] = s[lane]
+                    ei = e[i, lane]
+                    g = c[lane] * ei
+                    hl = c[lane] * p[lane]
+                    r = np.sqrt(p[lane] * p[lane] + ei * ei)
+                    on = on and r > 0.0
+                    rs = r if on else 1.0
+                    sn = ei / rs if on else 0.0
+                    cn = p[lane] / rs if on else 1.0
+                    e[i + 1, lane] = s[lane] * r if on else e[i + 1, lane]
+                    pn = cn * d[i, lane] - sn * g
+                    dn = hl + sn * (cn * g + sn * d[i, lane])
+                    d[i + 1, lane] = dn if on else d[i + 1, lane]
+                    p[lane] = pn if on else p[lane]
+                    s[lane] = sn
+                    c[lane] = cn
+                for k in range(n):  # _rotate_rows (the identity leaves nonzero entries exactly as they are)
+                    for lane in range(count):
+                        below, here = v[i + 1, k, lane], v[i, k, lane]
+                        v[i + 1, k, lane] = s[lane] * here + c[lane] * below
+                        v[i, k, lane] = c[lane] * here - s[lane] * below
+            for lane in range(count):  # _sweep_end
+                on = active[lane] != 0.0
+                pe = -s[lane] * s2[lane] * c3[lane] * el1[lane] * e[l, lane] / (dl1[lane] if on else 1.0)
+                e[l, lane] = s[lane] * pe if on else e[l, lane]
+                d[l, lane] = c[lane] * pe if on else d[l, lane]
+        for lane in range(count):  # _deflate
+            d[l, lane] += f[lane]
+            e[l, lane] = 0.0
+    for lane in range(count):
+        d[n - 1, lane] += f[lane]
+        e[n - 1, lane] = 0.0

@@ -21,7 +21,7 @@ from numba import get_num_threads, njit, prange
 
 from msa_slam.sampling.msa.canonical import SOLVER_RTOL, canonicalise
 from msa_slam.sampling.msa.decision import decide
-from msa_slam.sampling.msa.eigen import symmetric_eigh, symmetric_eigh_pair
+from msa_slam.sampling.msa.eigen import LANE_WORK, LANES, symmetric_eigh, symmetric_eigh_lanes
 from msa_slam.sampling.msa.powerset import feasible_subsets
 from msa_slam.sampling.msa.terms import C_CLIP, EIGENVALUE_FLOOR, ScoreWeights, WindowResult
 
@@ -132,20 +132,49 @@ def _form_information(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nd
 
 @njit(cache=True)
 def _eigen_of_information(scratch: np.ndarray, m: int) -> None:  # pragma: no cover
-    """Canonical pi's eigen-decomposition of C (matrix 2 of scratch) into lam (vector 6) and vec (matrix 3)."""
+    """Canonical pi's eigen-decomposition of C (matrix 2 of scratch) into lam (vector 6) and vec (matrix 3),
+    one matrix alone: for the rare C whose reduction meets an exactly zero column (symmetric_eigh_lanes)."""
     vec = _matrix(scratch, 3, m)
     vec[:, :] = _matrix(scratch, 2, m)
     symmetric_eigh(vec, _vector(scratch, 6, m), _vector(scratch, 7, m), m)
 
 
 @njit(cache=True)
-def _eigen_of_information_pair(scratch_a: np.ndarray, scratch_b: np.ndarray, m: int) -> None:  # pragma: no cover
-    """_eigen_of_information of two candidates of the same size, their QL chains overlapped (bit-identical)."""
-    vec_a, vec_b = _matrix(scratch_a, 3, m), _matrix(scratch_b, 3, m)
-    vec_a[:, :] = _matrix(scratch_a, 2, m)
-    vec_b[:, :] = _matrix(scratch_b, 2, m)
-    symmetric_eigh_pair(vec_a, _vector(scratch_a, 6, m), _vector(scratch_a, 7, m),
-                        vec_b, _vector(scratch_b, 6, m), _vector(scratch_b, 7, m), m)
+def _lane_buffers(width: int):  # pragma: no cover
+    """The lane-innermost arrays symmetric_eigh_lanes works in, for candidates of up to `width` members."""
+    return (np.empty((width, width, LANES)), np.empty((width, LANES)), np.empty((width, LANES)),
+            np.empty((LANE_WORK, LANES)), np.empty(width, dtype=np.int64))
+
+
+@njit(cache=True)
+def _canonical_batch(scratches: np.ndarray, count: int, m: int, v: np.ndarray, d: np.ndarray, e: np.ndarray,
+                     work: np.ndarray, order: np.ndarray, out: np.ndarray, index: np.ndarray) -> None:  # pragma: no cover
+    """(pi, lowest, highest) of `count` candidates of m members whose C is formed in scratches[lane]
+    (matrix 2), into out[:, index[lane]]: their C decomposed together (symmetric_eigh_lanes), each
+    lane's eigen-pairs sorted ascending into its scratch, then the canonical form and eq. (5) one by
+    one. A lane's values depend on its own candidate only (not on the others in the batch)."""
+    for i in range(m):
+        for j in range(m):
+            for lane in range(count):
+                v[i, j, lane] = scratches[lane, VECTORS * m + 2 * m * m + i * m + j]
+    symmetric_eigh_lanes(v, d, e, m, count, work)
+    for lane in range(count):
+        scratch = scratches[lane]
+        if work[0, lane] != 0.0:
+            _eigen_of_information(scratch, m)
+        else:
+            for j in range(m):  # ascending order, ties kept in place (symmetric_eigh's insertion sort)
+                order[j] = j
+                k = j
+                while k > 0 and d[order[k - 1], lane] > d[order[k], lane]:
+                    order[k - 1], order[k] = order[k], order[k - 1]
+                    k -= 1
+            lam, vec = _vector(scratch, 6, m), _matrix(scratch, 3, m)
+            for j in range(m):
+                lam[j] = d[order[j], lane]
+                for r in range(m):
+                    vec[r, j] = v[order[j], r, lane]
+        out[0, index[lane]], out[1, index[lane]], out[2, index[lane]] = _canonical_pi(scratch, m)
 
 
 @njit(cache=True)
@@ -166,9 +195,12 @@ def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nda
     or minus its bound under solver rounding (canonical.py), no probes needed."""
     _form_information(members, m, dist, gram, scratch)
     c, g = _matrix(scratch, 2, m), _matrix(scratch, 0, m)
-    if canonical:
-        _eigen_of_information(scratch, m)
-        return _canonical_pi(scratch, m)
+    if canonical:  # a batch of one: the values of the batched loop
+        v, d, e, work, order = _lane_buffers(m)
+        out = np.empty((3, 1))
+        _canonical_batch(scratch[:scratch_size(m)].reshape((1, scratch_size(m))), 1, m, v, d, e, work, order, out,
+                         np.zeros(1, dtype=np.int64))
+        return out[0, 0], out[1, 0], out[2, 0]
     pi = _pi_of_information(c, g, m, scratch)
     lowest, highest = pi, pi
     probe = np.empty((m, m))
@@ -244,12 +276,14 @@ PARALLEL_FROM = 1000  # candidates per window from which threads share them: bel
 def _information_block(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, probes: int, canonical: bool,
                        out: np.ndarray, first: int, step: int) -> None:  # pragma: no cover
     """information_rows for candidates first, first + step, ... (their columns of out). Canonical pi
-    takes them two at a time when they have the same size (nearly always: they come ordered by size),
-    so that the eigensolver overlaps their QL chains (symmetric_eigh_pair, bit-identical)."""
+    takes them in batches of up to LANES of the same size (they come ordered by size), whose C are
+    decomposed together (_canonical_batch: the same values as one at a time)."""
     width = dist.shape[0]
-    scratch = np.empty((2, scratch_size(width)))
+    scratches = np.empty((LANES, scratch_size(width)))
     members = np.empty(width, dtype=np.int64)
-    pending, pending_m = -1, 0  # a canonical candidate whose C is formed in scratch[0], waiting for a partner
+    v, d, e, work, order = _lane_buffers(width)
+    index = np.empty(LANES, dtype=np.int64)
+    batch, batch_m = 0, 0  # candidates whose C waits in scratches[:batch], and their size
     for i in range(first, len(masks), step):
         m = 0
         for p in range(width):
@@ -259,24 +293,20 @@ def _information_block(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, pr
         if m <= 2:
             continue
         if not canonical:
-            out[0, i], out[1, i], out[2, i] = information_gram(members, m, dist, gram, scratch[0], probes, False)
+            out[0, i], out[1, i], out[2, i] = information_gram(members, m, dist, gram, scratches[0], probes, False)
             continue
-        if pending >= 0 and m != pending_m:  # no partner of its size: alone
-            _eigen_of_information(scratch[0], pending_m)
-            out[0, pending], out[1, pending], out[2, pending] = _canonical_pi(scratch[0], pending_m)
-            pending = -1
-        if pending < 0:
-            _form_information(members, m, dist, gram, scratch[0])
-            pending, pending_m = i, m
-            continue
-        _form_information(members, m, dist, gram, scratch[1])
-        _eigen_of_information_pair(scratch[0], scratch[1], m)
-        out[0, pending], out[1, pending], out[2, pending] = _canonical_pi(scratch[0], m)
-        out[0, i], out[1, i], out[2, i] = _canonical_pi(scratch[1], m)
-        pending = -1
-    if pending >= 0:
-        _eigen_of_information(scratch[0], pending_m)
-        out[0, pending], out[1, pending], out[2, pending] = _canonical_pi(scratch[0], pending_m)
+        if batch > 0 and m != batch_m:
+            _canonical_batch(scratches, batch, batch_m, v, d, e, work, order, out, index)
+            batch = 0
+        _form_information(members, m, dist, gram, scratches[batch])
+        index[batch] = i
+        batch_m = m
+        batch += 1
+        if batch == LANES:
+            _canonical_batch(scratches, batch, m, v, d, e, work, order, out, index)
+            batch = 0
+    if batch > 0:
+        _canonical_batch(scratches, batch, batch_m, v, d, e, work, order, out, index)
 
 
 @njit(cache=True, parallel=True)
