@@ -80,12 +80,14 @@ def pairwise(translations: np.ndarray, descriptors: np.ndarray):  # pragma: no c
     return dist, sim
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _form_information(members: np.ndarray, m: int, dist: np.ndarray, gram: np.ndarray,
                       scratch: np.ndarray) -> None:  # pragma: no cover
     """The candidate's Gram block G_S (matrix 0 of scratch) and C = A G_S A^T (matrix 2).
 
-    A's three diagonals are `lower`, `diag`, `upper` (row k uses columns k-1, k, k+1).
+    A's three diagonals are `lower`, `diag`, `upper` (row k uses columns k-1, k, k+1). Two members at
+    the same distance from the first divide by zero: IEEE division (error_model="numpy") gives the
+    inf or nan numpy.gradient gives, and C is then cleaned and clipped as the reference does.
     """
     lower, diag, upper = _vector(scratch, 0, m), _vector(scratch, 1, m), _vector(scratch, 2, m)
     g, h = _matrix(scratch, 0, m), _matrix(scratch, 1, m)
