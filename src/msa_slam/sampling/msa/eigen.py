@@ -309,6 +309,15 @@ def symmetric_eigh_lanes(v: np.ndarray, d: np.ndarray, e: np.ndarray, n: int, co
 LANE_WORK = 15  # rows of symmetric_eigh_lanes' work array
 
 
+@njit(cache=True)
+def lane_buffers(width: int):  # pragma: no cover
+    """v, d, e and work for symmetric_eigh_lanes on up to LANES matrices of up to `width` rows. Callers in
+    other modules take the lane count from v.shape[2]: numba's cache does not see a change of LANES
+    in their compiled code, only here."""
+    return np.empty((width, width, LANES)), np.empty((width, LANES)), np.empty((width, LANES)), \
+        np.empty((LANE_WORK, LANES))
+
+
 @njit(cache=True, error_model="numpy")
 def _tridiagonalise_lanes(v: np.ndarray, d: np.ndarray, e: np.ndarray, n: int, count: int,
                           work: np.ndarray) -> None:  # pragma: no cover

@@ -21,7 +21,7 @@ from numba import get_num_threads, njit, prange
 
 from msa_slam.sampling.msa.canonical import SOLVER_RTOL, canonicalise
 from msa_slam.sampling.msa.decision import decide
-from msa_slam.sampling.msa.eigen import LANE_WORK, LANES, symmetric_eigh, symmetric_eigh_lanes
+from msa_slam.sampling.msa.eigen import lane_buffers, symmetric_eigh, symmetric_eigh_lanes
 from msa_slam.sampling.msa.powerset import feasible_subsets
 from msa_slam.sampling.msa.terms import C_CLIP, EIGENVALUE_FLOOR, ScoreWeights, WindowResult
 
@@ -142,15 +142,8 @@ def _eigen_of_information(scratch: np.ndarray, m: int) -> None:  # pragma: no co
 
 
 @njit(cache=True)
-def _lane_buffers(width: int):  # pragma: no cover
-    """The lane-innermost arrays symmetric_eigh_lanes works in, for candidates of up to `width` members."""
-    return (np.empty((width, width, LANES)), np.empty((width, LANES)), np.empty((width, LANES)),
-            np.empty((LANE_WORK, LANES)), np.empty(width, dtype=np.int64))
-
-
-@njit(cache=True)
 def _canonical_batch(scratches: np.ndarray, count: int, m: int, v: np.ndarray, d: np.ndarray, e: np.ndarray,
-                     work: np.ndarray, order: np.ndarray, out: np.ndarray, index: np.ndarray) -> None:  # pragma: no cover
+                     work: np.ndarray, out: np.ndarray, index: np.ndarray) -> None:  # pragma: no cover
     """(pi, lowest, highest) of `count` candidates of m members whose C is formed in scratches[lane]
     (matrix 2), into out[:, index[lane]]: their C decomposed together (symmetric_eigh_lanes), each
     lane's eigen-pairs sorted ascending into its scratch, then the canonical form and eq. (5) one by
@@ -160,6 +153,7 @@ def _canonical_batch(scratches: np.ndarray, count: int, m: int, v: np.ndarray, d
             for lane in range(count):
                 v[i, j, lane] = scratches[lane, VECTORS * m + 2 * m * m + i * m + j]
     symmetric_eigh_lanes(v, d, e, m, count, work)
+    order = np.empty(m, dtype=np.int64)
     for lane in range(count):
         scratch = scratches[lane]
         if work[0, lane] != 0.0:
@@ -198,9 +192,9 @@ def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nda
     _form_information(members, m, dist, gram, scratch)
     c, g = _matrix(scratch, 2, m), _matrix(scratch, 0, m)
     if canonical:  # a batch of one: the values of the batched loop
-        v, d, e, work, order = _lane_buffers(m)
+        v, d, e, work = lane_buffers(m)
         out = np.empty((3, 1))
-        _canonical_batch(scratch[:scratch_size(m)].reshape((1, scratch_size(m))), 1, m, v, d, e, work, order, out,
+        _canonical_batch(scratch[:scratch_size(m)].reshape((1, scratch_size(m))), 1, m, v, d, e, work, out,
                          np.zeros(1, dtype=np.int64))
         return out[0, 0], out[1, 0], out[2, 0]
     pi = _pi_of_information(c, g, m, scratch)
@@ -277,48 +271,53 @@ PARALLEL_FROM = 1000  # candidates per window from which threads share them: bel
 @njit(cache=True)
 def _information_block(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, probes: int, canonical: bool,
                        out: np.ndarray, first: int, step: int) -> None:  # pragma: no cover
-    """information_rows for candidates first, first + step, ... (their columns of out). Canonical pi
-    takes them in batches of up to LANES of the same size (they come ordered by size), whose C are
-    decomposed together (_canonical_batch: the same values as one at a time)."""
+    """information_rows for the chunks of candidates first, first + step, ... (their columns of out;
+    a chunk is eigen.LANES consecutive candidates). Canonical pi takes them in batches of up to
+    eigen.LANES of the same size, whose C are decomposed together (_canonical_batch: the same values
+    as one at a time); candidates come ordered by size, so a chunk is one batch but where the size
+    changes (dealing single candidates in turn left every block a small batch of each size, and a
+    batch of a few lanes costs nearly what a full one does)."""
     width = dist.shape[0]
-    scratches = np.empty((LANES, scratch_size(width)))
+    v, d, e, work = lane_buffers(width)
+    lanes = v.shape[2]
+    scratches = np.empty((lanes, scratch_size(width)))
     members = np.empty(width, dtype=np.int64)
-    v, d, e, work, order = _lane_buffers(width)
-    index = np.empty(LANES, dtype=np.int64)
+    index = np.empty(lanes, dtype=np.int64)
     batch, batch_m = 0, 0  # candidates whose C waits in scratches[:batch], and their size
-    for i in range(first, len(masks), step):
-        m = 0
-        for p in range(width):
-            if masks[i] >> p & 1:
-                members[m] = p
-                m += 1
-        if m <= 2:
-            continue
-        if not canonical:
-            out[0, i], out[1, i], out[2, i] = information_gram(members, m, dist, gram, scratches[0], probes, False)
-            continue
-        if batch > 0 and m != batch_m:
-            _canonical_batch(scratches, batch, batch_m, v, d, e, work, order, out, index)
-            batch = 0
-        _form_information(members, m, dist, gram, scratches[batch])
-        index[batch] = i
-        batch_m = m
-        batch += 1
-        if batch == LANES:
-            _canonical_batch(scratches, batch, m, v, d, e, work, order, out, index)
-            batch = 0
+    for chunk in range(first, (len(masks) + lanes - 1) // lanes, step):
+        for i in range(chunk * lanes, min((chunk + 1) * lanes, len(masks))):
+            m = 0
+            for p in range(width):
+                if masks[i] >> p & 1:
+                    members[m] = p
+                    m += 1
+            if m <= 2:
+                continue
+            if not canonical:
+                out[0, i], out[1, i], out[2, i] = information_gram(members, m, dist, gram, scratches[0], probes, False)
+                continue
+            if batch > 0 and m != batch_m:
+                _canonical_batch(scratches, batch, batch_m, v, d, e, work, out, index)
+                batch = 0
+            _form_information(members, m, dist, gram, scratches[batch])
+            index[batch] = i
+            batch_m = m
+            batch += 1
+            if batch == lanes:
+                _canonical_batch(scratches, batch, m, v, d, e, work, out, index)
+                batch = 0
     if batch > 0:
-        _canonical_batch(scratches, batch, batch_m, v, d, e, work, order, out, index)
+        _canonical_batch(scratches, batch, batch_m, v, d, e, work, out, index)
 
 
 @njit(cache=True, parallel=True)
 def information_rows(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, probes: int,
                      canonical: bool = False, blocks: int = 16) -> np.ndarray:  # pragma: no cover
     """(3, candidates): pi of the candidates (bit masks, powerset.feasible_subsets), and its lowest and
-    highest value under rounding. Candidates are dealt to `blocks` in turn (they come ordered by size,
-    so contiguous ranges left the thread with the last blocks most of the work), and the blocks are
-    shared by numba's threads (pass a few per thread); each candidate's arithmetic is the same whatever
-    the thread count."""
+    highest value under rounding. Chunks of eigen.LANES consecutive candidates are dealt to `blocks` in
+    turn (candidates come ordered by size, so contiguous ranges left the thread with the last blocks most
+    of the work), and the blocks are shared by numba's threads (pass a few per thread); each
+    candidate's arithmetic is the same whatever the thread count."""
     out = np.zeros((3, len(masks)))
     blocks = max(min(len(masks), blocks), 1)
     for block in prange(blocks):
