@@ -77,7 +77,7 @@ def _sanitize(c: np.ndarray) -> np.ndarray:
     return c
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _gradient(f: np.ndarray, x: np.ndarray, out: np.ndarray) -> np.ndarray:  # pragma: no cover
     """numpy.gradient(F.T, x, axis=1).T for a stack of (m, M) descriptor blocks F with coordinates x.
 
