@@ -10,7 +10,8 @@ Candidates are spread over numba's threads (parallel loop); the threading layer 
 `workqueue` unless NUMBA_THREADING_LAYER names another: it survives a fork, unlike GNU OpenMP's
 (it is not meant for concurrent calls from several Python threads; the pipeline makes none).
 numba's cache keys each compiled function on its own module's source file only, and the code cached
-here includes eigen.py's and canonical.py's kernels: a change to their code must come with a change to this file.
+here includes eigen.py's and canonical.py's kernels: a change to their code must come with a change to
+this file.
 """
 
 from __future__ import annotations
