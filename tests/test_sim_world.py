@@ -260,7 +260,7 @@ def test_walls_make_places_along_the_stretch_alike():
 def test_worlds_are_deterministic_per_seed():
     poses = _path(300)
     realism = WorldRealism(moving_cars=2.0, pedestrians=2.0, transient_parking=0.3, catalogue_designs=2,
-                           catalogue_share=0.4, hard_share=0.3, foliage_gap=0.3)
+                           catalogue_share=0.4, hard_share=0.3, foliage_gap=0.3, design_variants=3)
     a, b, c = (build_world(poses, "city", seed=s, realism=realism) for s in (11, 11, 12))
     dirs = _directions(20000)
     origin = poses[150, :3, 3]

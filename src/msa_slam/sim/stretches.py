@@ -57,9 +57,9 @@ class PlannedStretches:
         first = stretch.order_offset + (0 if side > 0 else ORDER_LENGTH // 2)  # the far side has its own run
         houses: list[HouseVariant] = []
         row = -gap
-        while row + gap + design.house(order, first + len(houses)).length <= end - start:
-            houses.append(design.house(order, first + len(houses)))
-            row += gap + houses[-1].length
+        while row + gap + (house := design.house(order, first + len(houses))).length <= end - start:
+            houses.append(house)
+            row += gap + house.length
         s = start + max(end - start - row, 0.0) / 2  # centred: the row is the same driven either way
 
         def at(x: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
