@@ -36,6 +36,10 @@ def test_paired_verdicts():
     assert paired_verdict([1.0, None, 3.0], [0.0, 1.0, 2.0], True, [0, 1, 2])["verdict"] == (
         "n/a: unavailable on seed(s) 1")
     assert paired_verdict([1.0, 2.0, 3.0], [1.0, 2.0, 3.0], True, [0, 1, 2])["verdict"] == "no difference on any seed"
+    # no loop closed by either (simulated KITTI-09): improvements of +-1e-11 % are the optimiser's rounding
+    rounding = paired_verdict([6.3e-12, -1.3e-12, -2.2e-12], [1.7e-12, 4.6e-13, -3.1e-12], True, [0, 1, 2])
+    assert rounding["verdict"] == "no difference on any seed" and rounding["p"] is None
+    assert paired_verdict([1e-6, 2e-6, 4e-6], [0.0, 0.0, 0.0], True, [0, 1, 2])["p"] is not None
 
 
 def test_seed_summary_reports_mean_std_ranks_and_verdicts():

@@ -18,6 +18,9 @@ from scipy import stats
 
 MIN_SEEDS = 3  # fewer pairs leave the spread of the differences undetermined (1 degree of freedom or none)
 ALPHA = 0.05
+# Per-seed differences within this fraction of the values' scale (at least 1) are rounding, not a result:
+# on a sequence where no sampler closes a loop the improvements are +-1e-11 % and a t-test would rank noise.
+ROUNDING = 1e-9
 PAIRED_TEST = "paired t-test (scipy.stats.ttest_rel, two-sided, alpha 0.05)"
 PAIRED_TEST_WHY = ("a paired t-test rather than Wilcoxon's signed-rank test: with n seeds the exact two-sided "
                    "Wilcoxon p-value cannot go below 2/2^n (0.25 for 3 seeds, 0.0625 for 5), so with the few "
@@ -79,6 +82,9 @@ def paired_verdict(reference: Sequence[float | None], baseline: Sequence[float |
     diff = np.asarray(reference, dtype=np.float64) - np.asarray(baseline, dtype=np.float64)
     mean = float(diff.mean())
     better = (mean > 0) == higher_is_better
+    scale = max(1.0, float(np.max(np.abs(np.concatenate([np.asarray(reference), np.asarray(baseline)])))))
+    if np.all(np.abs(diff) <= ROUNDING * scale):  # e.g. no loop closed: the optimiser only rounded the poses
+        return {"p": None, "mean_difference": mean, "verdict": "no difference on any seed"}
     if np.all(diff == diff[0]):  # no spread at all: the t statistic is undefined
         verdict = "no difference on any seed" if diff[0] == 0 else (
             f"{'better' if better else 'worse'} by the same amount on every seed")
