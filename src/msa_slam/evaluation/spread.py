@@ -79,17 +79,17 @@ def paired_verdict(reference: Sequence[float | None], baseline: Sequence[float |
     if len(seeds) < MIN_SEEDS:
         return {"p": None, "mean_difference": None,
                 "verdict": f"n/a: {len(seeds)} seed(s), the paired test needs at least {MIN_SEEDS}"}
-    diff = np.asarray(reference, dtype=np.float64) - np.asarray(baseline, dtype=np.float64)
+    ref, base = np.asarray(reference, dtype=np.float64), np.asarray(baseline, dtype=np.float64)
+    diff = ref - base
     mean = float(diff.mean())
     better = (mean > 0) == higher_is_better
-    scale = max(1.0, float(np.max(np.abs(np.concatenate([np.asarray(reference), np.asarray(baseline)])))))
-    if np.all(np.abs(diff) <= ROUNDING * scale):  # e.g. no loop closed: the optimiser only rounded the poses
+    scale = max(1.0, float(np.abs(np.concatenate([ref, base])).max()))
+    if np.all(np.abs(diff) <= ROUNDING * scale):  # equal, or e.g. no loop closed: the optimiser only rounded
         return {"p": None, "mean_difference": mean, "verdict": "no difference on any seed"}
     if np.all(diff == diff[0]):  # no spread at all: the t statistic is undefined
-        verdict = "no difference on any seed" if diff[0] == 0 else (
-            f"{'better' if better else 'worse'} by the same amount on every seed")
-        return {"p": None, "mean_difference": mean, "verdict": verdict}
-    p = float(stats.ttest_rel(reference, baseline).pvalue)
+        return {"p": None, "mean_difference": mean,
+                "verdict": f"{'better' if better else 'worse'} by the same amount on every seed"}
+    p = float(stats.ttest_rel(ref, base).pvalue)
     verdict = (f"{'better' if better else 'worse'}, beyond the seed spread (p={p:.3f})" if p < ALPHA
                else f"within the seed spread (p={p:.3f})")
     return {"p": p, "mean_difference": mean, "verdict": verdict}
