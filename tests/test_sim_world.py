@@ -13,7 +13,7 @@ from msa_slam.descriptors.scan_context import ScanContext
 from msa_slam.errors import InputError
 from msa_slam.sim.dynamic import DRIVE, FIXED, WALK
 from msa_slam.sim.layout import STYLES
-from msa_slam.sim.plan import MAX_DESIGN_M, MIN_DESIGN_M, make_catalogue, plan_stretches, straight_runs
+from msa_slam.sim.plan import MAX_DESIGN_M, MIN_DESIGN_M, first_visits, make_catalogue, plan_stretches, straight_runs
 from msa_slam.sim.sensors import get_sensor
 from msa_slam.sim.shapes import Material
 from msa_slam.sim.world import PATH_LEAD, START_STRUCTURE_M, World, WorldRealism, build_world
@@ -315,6 +315,22 @@ def test_designs_take_whole_straight_streets_and_hard_stretches_the_rest():
     assert all(a.end <= b.start for a, b in zip(plan, plan[1:])), "stretches overlap"
     long_run = plan_stretches(_zigzag(700.0, 1), 0.8, 0.0, ("wall",), 2, np.random.default_rng(3))
     assert len(long_run) >= 2 and all(MIN_DESIGN_M <= s.end - s.start <= MAX_DESIGN_M for s in long_run)
+
+
+def test_only_first_visits_are_planned():
+    """A road driven a second time (here: a lap of a 400 x 60 m loop, then its first 300 m again) is laid out
+    on the first visit only: no design or hard stretch is planned on the second, and the shares count the
+    first visits. A crossing is no revisit."""
+    t = np.arange(0.0, 400.0)
+    loop = np.vstack([np.column_stack([t, 0 * t]), np.column_stack([400 + 0 * t[:60], t[:60]]),
+                      np.column_stack([400 - t, 60 + 0 * t]), np.column_stack([0 * t[:60], 60 - t[:60]])])
+    xy = np.vstack([loop, loop[:300]])
+    visits = first_visits(xy)
+    assert len(visits) == 1 and visits[0][0] == 0.0 and abs(visits[0][1] - len(loop)) < 15.0
+    plan = plan_stretches(xy, 0.6, 0.25, ("wall",), 2, np.random.default_rng(0))
+    assert plan and all(s.start < visits[0][1] for s in plan)
+    cross = np.vstack([np.column_stack([t - 200, 0 * t]), np.column_stack([0 * t[:200] + 100, t[:200] - 100])])
+    assert len(first_visits(cross)) == 1 and first_visits(cross)[0][1] > 590.0
 
 
 def test_a_design_repeats_every_house_behind_closed_gaps_on_one_building_line():

@@ -11,6 +11,7 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 if TYPE_CHECKING:
     from msa_slam.sim.layout import Style
@@ -25,6 +26,9 @@ MIN_DESIGN_M = 100.0  # shortest designed stretch (a straight run's remainder sh
 MAX_DESIGN_M = 260.0  # longer straight runs get several designs (one design all along would hide true revisits)
 _DESIGN_BREAK = (20.0, 50.0)  # m of regular street between two designed stretches of one straight run
 _HEADING_STEP_M = 2.0
+REVISIT_RADIUS_M = 10.0  # a path point this close to the path driven earlier re-drives that road
+_REVISIT_BEHIND_M = 60.0  # ... unless that part is less than this far back along the path (a bend)
+_MIN_REVISIT_M = 30.0  # a shorter re-driven interval is a crossing, not a revisit: it stays in the plan
 
 
 @dataclass(frozen=True)
@@ -165,6 +169,34 @@ def straight_runs(xy: np.ndarray, min_length: float = MIN_DESIGN_M,
     return runs
 
 
+def first_visits(xy: np.ndarray) -> list[tuple[float, float]]:
+    """Arc-length intervals of the path that do not re-drive a road driven before (what a revisit sees was
+    laid out on the first visit: planning it again would lay a second design or a hard stretch over the
+    first visit's, and on a lap driven twice (KITTI-06) leave neither as planned)."""
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    s = np.arange(0.0, arc[-1], _HEADING_STEP_M)
+    if len(s) < 2:
+        return [(0.0, float(arc[-1]))]
+    p = np.column_stack([np.interp(s, arc, xy[:, 0]), np.interp(s, arc, xy[:, 1])])
+    near = cKDTree(p).query_ball_point(p, REVISIT_RADIUS_M)
+    behind = int(_REVISIT_BEHIND_M / _HEADING_STEP_M)
+    revisit = np.array([min(js) < i - behind for i, js in enumerate(near)])
+    edges = np.flatnonzero(np.diff(np.concatenate([[False], revisit, [False]]).astype(np.int8)))
+    out, a = [], 0.0
+    for lo, hi in zip(edges[::2], edges[1::2]):
+        if s[hi - 1] - s[lo] >= _MIN_REVISIT_M:
+            out.append((a, float(s[lo])))
+            a = float(s[hi - 1])
+    out.append((a, float(arc[-1])))
+    return [(lo, hi) for lo, hi in out if hi - lo >= REVISIT_RADIUS_M]  # not the end of a revisit's last sample
+
+
+def _runs_within(runs: list[tuple[float, float]], keep: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """The parts of `runs` inside the `keep` intervals that are still at least MIN_DESIGN_M long."""
+    out = [(max(a, lo), min(b, hi)) for a, b in runs for lo, hi in keep]
+    return [(a, b) for a, b in out if b - a >= MIN_DESIGN_M]
+
+
 def _design_pieces(runs: list[tuple[float, float]], total: float, share: float,
                    rng: np.random.Generator) -> list[tuple[float, float]]:
     """Whole straight runs, in a seeded order, until about `share` of the path is covered; a run longer than
@@ -191,37 +223,44 @@ def plan_stretches(xy: np.ndarray, catalogue_share: float, hard_share: float, ha
     design look alike only where the design lines the street that far both ways), used in shuffled rounds so
     each repeats as soon as the path is long enough. Hard stretches fill about `hard_share` of the path in
     between, none beginning before arc length `hard_from`: odometry starts with zero velocity and needs
-    structure along the road to pick up the motion (KISS-ICP stalled in a tunnel at the start of KITTI-06)."""
+    structure along the road to pick up the motion (KISS-ICP stalled in a tunnel at the start of KITTI-06).
+    Only first visits are planned (`first_visits`): a revisit sees what its first visit laid out."""
     if catalogue_share + hard_share <= 0:
         return ()
-    total = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
+    visits = first_visits(xy)
+    total = sum(b - a for a, b in visits)
+    if total <= 0:
+        return ()
     out: list[Stretch] = []
     if catalogue_share > 0:
         rounds: list[int] = []
-        for a, b in _design_pieces(straight_runs(xy), total, catalogue_share, rng):
+        for a, b in _design_pieces(_runs_within(straight_runs(xy), visits), total, catalogue_share, rng):
             if not rounds:
                 rounds = list(rng.permutation(n_designs))
             out.append(Stretch(a, b, DESIGN, int(rounds.pop()), int(rng.integers(ORDER_LENGTH))))
     if hard_share > 0:
-        out += _hard_stretches(total, hard_share, hard_kinds, out, rng, hard_from)
+        revisits = [Stretch(b, a, "revisit") for (_, b), (a, _) in zip(visits, visits[1:])]
+        out += _hard_stretches(visits[-1][1], total, hard_share, hard_kinds, out + revisits, rng, hard_from)
     return tuple(sorted(out, key=lambda x: x.start))
 
 
-def _hard_stretches(total: float, share: float, kinds: tuple[str, ...], designs: list[Stretch],
+def _hard_stretches(end_arc: float, total: float, share: float, kinds: tuple[str, ...], taken: list[Stretch],
                     rng: np.random.Generator, hard_from: float) -> list[Stretch]:
-    """About `share` of the path in hard stretches laid between the designs (shortened to fit)."""
-    free = total - sum(d.end - d.start for d in designs)
+    """About `share` of the path's `total` first-visit length in hard stretches laid between the `taken`
+    intervals (designs and re-driven roads; shortened to fit)."""
+    taken = sorted(taken, key=lambda x: x.start)
+    free = total - sum(d.end - d.start for d in taken if d.kind == DESIGN)
     regular = _MEAN_HARD * max(free / total - share, 0.05) / share
     out: list[Stretch] = []
     s = max(float(rng.uniform(0.2, 1.0)) * regular, hard_from)
-    while s < total:
+    while s < end_arc:
         kind = str(kinds[int(rng.integers(len(kinds)))])
-        end = min(s + float(rng.uniform(*_LENGTHS[kind])), total)
-        inside = next((d for d in designs if d.start - _DESIGN_BREAK[0] <= s < d.end), None)
-        if inside is not None:  # starts in a design: after it
+        end = min(s + float(rng.uniform(*_LENGTHS[kind])), end_arc)
+        inside = next((d for d in taken if d.start - _DESIGN_BREAK[0] <= s < d.end), None)
+        if inside is not None:  # starts in a design or on a re-driven road: after it
             s = inside.end + float(rng.uniform(*_DESIGN_BREAK))
             continue
-        ahead = [d.start for d in designs if d.start > s]
+        ahead = [d.start for d in taken if d.start > s]
         if ahead:
             end = min(end, ahead[0] - _DESIGN_BREAK[0])
         if end - s >= _MIN_HARD_M:
