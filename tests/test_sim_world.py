@@ -279,6 +279,7 @@ def test_worlds_are_deterministic_per_seed():
     ("hard_kinds", ("swamp",), "hard_kinds"),
     ("design_variants", 0, "design_variants must be in"),
     ("turnover_period", 0.0, "turnover_period must be > 0"),
+    ("km_per_design", -1.0, "km_per_design must be in"),
 ])
 def test_bad_realism_knobs_are_one_clear_error(knob, value, message):
     with pytest.raises(InputError, match=message):
@@ -331,6 +332,13 @@ def test_only_first_visits_are_planned():
     assert plan and all(s.start < visits[0][1] for s in plan)
     cross = np.vstack([np.column_stack([t - 200, 0 * t]), np.column_stack([0 * t[:200] + 100, t[:200] - 100])])
     assert len(first_visits(cross)) == 1 and first_visits(cross)[0][1] > 590.0
+
+
+def test_longer_paths_get_more_designs():
+    """One design per km_per_design km of first visits, never fewer than catalogue_designs; 0 turns it off."""
+    realism = WorldRealism(catalogue_designs=2, catalogue_share=0.6, km_per_design=1.0)
+    assert [realism.designs_for(m) for m in (400.0, 997.0, 2400.0, 3094.0, 5600.0)] == [2, 2, 2, 3, 6]
+    assert WorldRealism(catalogue_designs=2, catalogue_share=0.6).designs_for(5600.0) == 2
 
 
 def test_a_design_repeats_every_house_behind_closed_gaps_on_one_building_line():

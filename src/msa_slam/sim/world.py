@@ -20,7 +20,7 @@ from trimesh.ray.ray_pyembree import RayMeshIntersector
 from msa_slam.errors import InputError
 from msa_slam.sim.dynamic import DynamicObjects, DynamicRecipe, PathFrame, make_dynamic, unit_hash
 from msa_slam.sim.layout import STYLES, StreetLayout
-from msa_slam.sim.plan import HARD_KINDS, Stretch, make_catalogue, plan_stretches
+from msa_slam.sim.plan import HARD_KINDS, Stretch, first_visits, make_catalogue, plan_stretches
 from msa_slam.sim.shapes import Material, MeshBuilder
 
 PATH_LEAD = 80.0  # m of straight street laid before the first pose and after the last
@@ -37,6 +37,7 @@ class WorldRealism:
     transient_parking: float = 0.0  # share of parking slots whose car comes and goes
     turnover_period: float = 60.0   # s: a transient car is there or not per epoch of this length
     catalogue_designs: int = 0      # street designs reused in different places (perceptual aliasing)
+    km_per_design: float = 0.0      # more designs on longer paths: one per this many km of first visits (0: off)
     catalogue_share: float = 0.0    # share of the path laid out from the catalogue
     design_variants: int = 1        # house types per design, laid in an irregular order (1: identical houses)
     hard_share: float = 0.0         # share of the path in stretches where ICP degenerates along the path
@@ -58,12 +59,23 @@ class WorldRealism:
         if self.catalogue_designs < 0 or (self.catalogue_share > 0 and self.catalogue_designs < 1):
             raise InputError(f"world realism: catalogue_designs must be >= 1 when catalogue_share > 0, got "
                              f"{self.catalogue_designs}")
+        if not 0.0 <= self.km_per_design <= 100.0:
+            raise InputError(f"world realism: km_per_design must be in [0, 100], got {self.km_per_design}")
         if not 1 <= self.design_variants <= 8:
             raise InputError(f"world realism: design_variants must be in [1, 8], got {self.design_variants}")
         unknown = sorted(set(self.hard_kinds) - set(HARD_KINDS))
         if unknown or (self.hard_share > 0 and not self.hard_kinds):
             raise InputError(f"world realism: hard_kinds {list(self.hard_kinds)} must be a non-empty subset of "
                              f"{', '.join(HARD_KINDS)}")
+
+    def designs_for(self, first_visit_m: float) -> int:
+        """How many designs a path with `first_visit_m` m of first visits gets: at least `catalogue_designs`, and
+        one per `km_per_design` km, so that each design comes back about as often on a long drive as on a short
+        one (with two designs KITTI-00's 3.1 km had each design's streets four to five times, and look-alikes
+        outscored a third of its true revisits)."""
+        if self.km_per_design <= 0:
+            return self.catalogue_designs
+        return max(self.catalogue_designs, round(first_visit_m / (1000.0 * self.km_per_design)))
 
     @classmethod
     def clean(cls) -> "WorldRealism":
@@ -235,11 +247,10 @@ def build_world(poses: np.ndarray, style: str = "city", seed: int = 0, sensor_he
     ground = GroundModel(poses, sensor_height, rng)
     xy = extend_path(poses[:, :2, 3], PATH_LEAD)
     path = PathFrame.of(xy)
-    plan = plan_stretches(xy, realism.catalogue_share, realism.hard_share, realism.hard_kinds,
-                          realism.catalogue_designs, np.random.default_rng([seed, 12, 1]),
-                          hard_from=PATH_LEAD + START_STRUCTURE_M)
-    catalogue = make_catalogue(realism.catalogue_designs, st, np.random.default_rng([seed, 12, 2]),
-                               realism.design_variants)
+    designs = realism.designs_for(sum(b - a for a, b in first_visits(xy)))
+    plan = plan_stretches(xy, realism.catalogue_share, realism.hard_share, realism.hard_kinds, designs,
+                          np.random.default_rng([seed, 12, 1]), hard_from=PATH_LEAD + START_STRUCTURE_M)
+    catalogue = make_catalogue(designs, st, np.random.default_rng([seed, 12, 2]), realism.design_variants)
     layout = StreetLayout(xy, st, rng, ground, plan, catalogue, realism.transient_parking)
     layout.build()
     builder = MeshBuilder()
