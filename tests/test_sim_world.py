@@ -330,8 +330,10 @@ def test_only_first_visits_are_planned():
     assert len(visits) == 1 and visits[0][0] == 0.0 and abs(visits[0][1] - len(loop)) < 15.0
     plan = plan_stretches(xy, 0.6, 0.25, ("wall",), 2, np.random.default_rng(0))
     assert plan and all(s.start < visits[0][1] for s in plan)
-    cross = np.vstack([np.column_stack([t - 200, 0 * t]), np.column_stack([0 * t[:200] + 100, t[:200] - 100])])
-    assert len(first_visits(cross)) == 1 and first_visits(cross)[0][1] > 590.0
+    u = np.arange(0.0, 200.0)  # 300 m east, 100 m north, 150 m west, then south across the first leg
+    cross = np.vstack([np.column_stack([t[:300], 0 * t[:300]]), np.column_stack([300 + 0 * u[:100], u[:100]]),
+                       np.column_stack([300 - u[:150], 100 + 0 * u[:150]]), np.column_stack([150 + 0 * u, 100 - u])])
+    assert len(first_visits(cross)) == 1 and first_visits(cross)[0][1] > 740.0
 
 
 def test_longer_paths_get_more_designs():
