@@ -97,6 +97,16 @@ def test_moving_objects_move_and_parked_ones_stay():
     assert np.all(step[walk] <= 2.0 * dyn.speed[walk] + 1e-9) and step[walk].max() > 0
 
 
+def test_parked_occupancy_fills_the_car_slots_of_streets_with_parking():
+    def transient_cars(style: str, occupancy: float) -> int:
+        world = build_world(_path(400, bend=0.0), style, seed=2,
+                            realism=WorldRealism(transient_parking=0.5, parked_occupancy=occupancy))
+        return 0 if world.dynamic is None else int(np.sum(world.dynamic.motion == FIXED))
+
+    assert transient_cars("city", 0.95) > 1.2 * transient_cars("city", 0.0) > 0  # the city style's own: 0.5
+    assert transient_cars("campus", 0.95) == 0  # no parking on campus paths, whatever the knob
+
+
 def _ray_to(world: World, target: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A ray from `target` + `offset` (x, y; 1 m above the ground) towards 0.6 m above `target`."""
     origin = np.array([*(target[:2] + offset), world.dynamic.ground(target[None, :2])[0] + 1.0])
@@ -280,6 +290,7 @@ def test_worlds_are_deterministic_per_seed():
     ("design_variants", 0, "design_variants must be in"),
     ("turnover_period", 0.0, "turnover_period must be > 0"),
     ("km_per_design", -1.0, "km_per_design must be in"),
+    ("parked_occupancy", 1.5, "parked_occupancy must be in"),
 ])
 def test_bad_realism_knobs_are_one_clear_error(knob, value, message):
     with pytest.raises(InputError, match=message):

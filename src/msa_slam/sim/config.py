@@ -18,7 +18,7 @@ from msa_slam.sim.realism import DEFAULT_REALISM, REALISM
 from msa_slam.sim.sensors import SENSORS
 from msa_slam.sim.trajectories import TRAJECTORY_NAMES, Trajectory, load_trajectory, read_trajectory
 
-SIM_VERSION = "8"  # bump when generated worlds or scans change, so stale caches are not reused
+SIM_VERSION = "9"  # bump when generated worlds or scans change, so stale caches are not reused
 SIM_LIBRARIES = ("trimesh", "embreex", "numpy")  # ray casting and noise: part of the cache key
 
 

@@ -9,7 +9,7 @@ reused designs and hard stretches from `plan`, moving and transient objects from
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Iterator
 
 import numpy as np
@@ -35,6 +35,7 @@ class WorldRealism:
     moving_cars: float = 0.0        # cars driving along the path in both directions
     pedestrians: float = 0.0        # people walking back and forth beside the path
     transient_parking: float = 0.0  # share of parking slots whose car comes and goes
+    parked_occupancy: float = 0.0   # share of car slots with a parked car on streets that have parking (0: the style's)
     turnover_period: float = 60.0   # s: a transient car is there or not per epoch of this length
     catalogue_designs: int = 0      # street designs reused in different places (perceptual aliasing)
     km_per_design: float = 0.0      # more designs on longer paths: one per this many km of first visits (0: off)
@@ -48,7 +49,7 @@ class WorldRealism:
         for name in ("moving_cars", "pedestrians"):
             if not 0.0 <= getattr(self, name) <= 20.0:
                 raise InputError(f"world realism: {name} must be in [0, 20] per 100 m, got {getattr(self, name)}")
-        for name in ("transient_parking", "catalogue_share", "hard_share", "foliage_gap"):
+        for name in ("transient_parking", "parked_occupancy", "catalogue_share", "hard_share", "foliage_gap"):
             if not 0.0 <= getattr(self, name) < 1.0:
                 raise InputError(f"world realism: {name} must be in [0, 1), got {getattr(self, name)}")
         if self.catalogue_share + self.hard_share > 0.9:
@@ -243,6 +244,8 @@ def build_world(poses: np.ndarray, style: str = "city", seed: int = 0, sensor_he
     if style not in STYLES:
         raise InputError(f"unknown world style {style!r}; choose one of {', '.join(STYLES)}")
     st = STYLES[style]
+    if realism.parked_occupancy > 0 and st.p_parked > 0:  # a style without parking (campus) keeps none
+        st = replace(st, p_parked=realism.parked_occupancy)
     rng = np.random.default_rng(seed)
     ground = GroundModel(poses, sensor_height, rng)
     xy = extend_path(poses[:, :2, 3], PATH_LEAD)
