@@ -50,9 +50,9 @@ def calls(monkeypatch):
     done: list[int] = []
     real = compare._comparison
 
-    def counting(configs, tmp, quiet):
+    def counting(configs, tmp, quiet, sweep):
         done.append(int(configs[0].dataset.rsplit("seed=", 1)[1]))
-        return real(configs, tmp, quiet)
+        return real(configs, tmp, quiet, sweep)
 
     monkeypatch.setattr(compare, "_comparison", counting)
     return done
@@ -66,11 +66,11 @@ def _interrupt_on_seed_1(monkeypatch):
     """Seed 1's work writes part of its folder, then dies (as a crash or Ctrl-C would)."""
     real = compare._comparison
 
-    def failing(configs, tmp, quiet):
+    def failing(configs, tmp, quiet, sweep):
         if configs[0].dataset.endswith("seed=1"):
             (tmp / "comparison.md").write_text("half")
             raise KeyboardInterrupt
-        return real(configs, tmp, quiet)
+        return real(configs, tmp, quiet, sweep)
 
     monkeypatch.setattr(compare, "_comparison", failing)
 
@@ -117,6 +117,8 @@ def test_other_settings_are_refused_and_overwrite_replaces(base, whole, calls, t
 
     with pytest.raises(OutputError, match="seed 0 was run with other settings .methods.entropy: absent there"):
         run_compare(base, out, methods=(*METHODS, ("entropy", "entropy", {})), seeds=[0])
+    with pytest.raises(OutputError, match="seed 0 was run with other settings .threshold_sweep: true there, false now"):
+        run_compare(base, out, methods=METHODS, seeds=[0], sweep=False)
 
     run_compare(changed, out, methods=METHODS, seeds=[0], overwrite=True)
     assert calls == [0] and sorted(p.name for p in (out / "seeds").iterdir()) == ["seed-0"]  # replaced, not merged

@@ -28,6 +28,8 @@ def compare_command(
                                         "each, then mean +- std, per-seed ranks and MSA's paired-test verdicts; "
                                         "each seed is kept when it finishes, so rerunning the same command on the "
                                         "same --out resumes an interrupted run"),
+    sweep: bool = typer.Option(True, "--sweep/--no-sweep", help="also replay each method's back-end at "
+                               "similarity thresholds 0.70-0.85 (about half of a method's time)"),
     source: Optional[dict] = None,  # --loader, --gt, ... (added by with_source_options)
 ) -> None:
     """Run the paper's method set (all, constant 1/2/3 m, entropy, spaciousness, MSA) on one sequence and
@@ -45,7 +47,7 @@ def compare_command(
         seeded_datasets(cfg.dataset, seed_list)  # refuse non-simulated data before any work
     with reporting_failed_methods():
         try:
-            report = run_compare(cfg, out, quiet=quiet, overwrite=overwrite, seeds=seed_list)
+            report = run_compare(cfg, out, quiet=quiet, overwrite=overwrite, seeds=seed_list, sweep=sweep)
         except MethodsFailed as exc:  # the spread over the seeds that finished is still worth printing
             _echo_seeds(exc.report, seed_list)
             raise

@@ -188,7 +188,10 @@ def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: lis
 def _sweep_lines(results: Sequence[RunResult]) -> list[str]:
     sweep = sweep_markdown(results)
     if not sweep:
-        return []
+        if any("threshold_sweep" in r.metrics["unavailable"] for r in results):
+            return []  # why is in each method's notes
+        return ["Threshold sensitivity: not run (left out with `compare --no-sweep`; the demo leaves it out to "
+                "stay short).", ""]
     return ["Threshold sensitivity: loops accepted / full-rate t. ATE improvement when only the back-end (loop "
             "closing + optimisation) is re-run on the same keyframes with another similarity threshold:", "",
             sweep, ""]
@@ -211,7 +214,8 @@ class MethodsFailed(Exception):
 
 def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = True,
                 methods: Sequence[tuple[str, str, dict[str, Any]]] = PAPER_METHODS, overwrite: bool = False,
-                default_parent: Path = DEFAULT_RESULTS / "compare", seeds: Sequence[int] | None = None) -> Path:
+                default_parent: Path = DEFAULT_RESULTS / "compare", seeds: Sequence[int] | None = None,
+                sweep: bool = True) -> Path:
     """Run every method on the sequence of `base` and write the comparison folder; return its report.md.
 
     `out` is checked before any work (msa_slam.io.outputs; None: a new timestamped folder under
@@ -223,26 +227,29 @@ def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = Tr
     writes the spread over seeds (seeds.md, seeds.csv, seeds.json) and its report.md at the top. That folder
     grows in place so an interrupted run resumes: each seed appears when complete, and a rerun reuses the
     finished seeds run with the same settings (msa_slam.pipeline.seed_folder); `overwrite` starts afresh.
+
+    `sweep=False` leaves out each method's threshold sweep (pipeline/sweep.py), about half of a method's time.
     """
     plans = None if seeds is None else {seed: method_configs(make_config({**base.dump(), "dataset": dataset}), methods)
                                         for seed, dataset in zip(seeds, seeded_datasets(base.dataset, seeds))}
     with open_result_folder(out, "compare", default_parent, overwrite=overwrite, resume=plans is not None) as folder:
         if plans is None:
             with folder.staging() as tmp:
-                _, failed = _comparison(method_configs(base, methods), tmp, quiet)
+                _, failed = _comparison(method_configs(base, methods), tmp, quiet, sweep)
         else:
             if not overwrite:
                 check_seed_folder(folder.path)
-            failed = _seed_comparisons(base, plans, folder.prepare_in_place(fresh=overwrite), quiet)
+            failed = _seed_comparisons(base, plans, folder.prepare_in_place(fresh=overwrite), quiet, sweep)
     if failed:
         raise MethodsFailed(folder.path / "report.md", failed)
     return folder.path / "report.md"
 
 
-def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool) -> tuple[list[dict[str, Any]], dict[str, str]]:
+def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: bool
+                ) -> tuple[list[dict[str, Any]], dict[str, str]]:
     """One comparison folder's files in `tmp`; its table rows and failed methods."""
     frontend = prepare_frontend(configs[0], quiet)
-    results, failed = _run_methods(configs, frontend, tmp / "runs", quiet)
+    results, failed = _run_methods(configs, frontend, tmp / "runs", quiet, sweep)
     rows = [table_row(r.metrics) for r in results]
     table = table_markdown(rows)
     (tmp / "comparison.md").write_text(table)
@@ -258,10 +265,11 @@ def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool) -> tuple[l
     return rows, failed
 
 
-def _seed_comparisons(base: RunConfig, plans: dict[int, list[RunConfig]], out: Path, quiet: bool) -> dict[str, str]:
+def _seed_comparisons(base: RunConfig, plans: dict[int, list[RunConfig]], out: Path, quiet: bool,
+                      sweep: bool) -> dict[str, str]:
     """Each seed's comparison (`plans`: seed -> method configs) under out/seeds/, reusing the ones finished
     earlier with the same settings, then the spread over seeds at the top of `out`."""
-    records = {seed: seed_record(base.dataset, configs) for seed, configs in plans.items()}
+    records = {seed: seed_record(base.dataset, configs, sweep) for seed, configs in plans.items()}
     clean_leftovers(out)
     reusable = reusable_seeds(out, records)  # refuses other settings before any work
     rows, failed = {}, {}
@@ -272,7 +280,7 @@ def _seed_comparisons(base: RunConfig, plans: dict[int, list[RunConfig]], out: P
         else:
             _say(quiet, f"seed {seed}: running")
             with staged_dir(target) as tmp:
-                _, seed_failed = _comparison(configs, tmp, quiet)
+                _, seed_failed = _comparison(configs, tmp, quiet, sweep)
                 write_record(tmp, records[seed], seed_failed)
             failed.update({f"seed {seed}: {name}": error for name, error in seed_failed.items()})
         rows[seed] = [table_row(m) for m in finished_metrics(target) or []]
@@ -315,7 +323,7 @@ def _load_kernels(config: RunConfig, frontend: Frontend) -> None:
         compile_kernels(config.sampler_params, frontend.descriptors.shape[1:])
 
 
-def _run_methods(configs: Sequence[RunConfig], frontend, runs: Path, quiet: bool
+def _run_methods(configs: Sequence[RunConfig], frontend, runs: Path, quiet: bool, sweep: bool
                  ) -> tuple[list[RunResult], dict[str, str]]:
     """Each method's run folder under `runs`, in order; a failing method leaves its error.txt instead."""
     runs.mkdir()
@@ -327,7 +335,7 @@ def _run_methods(configs: Sequence[RunConfig], frontend, runs: Path, quiet: bool
             (runs / cfg.name).mkdir()
             try:
                 _load_kernels(cfg, frontend)
-                result = run_batch(cfg, frontend, quiet)
+                result = run_batch(cfg, frontend, quiet, sweep=sweep)
             except Exception as exc:  # one method's failure must not lose the others' results
                 (runs / cfg.name / "error.txt").write_text("".join(traceback.format_exception(exc)))
                 failed[cfg.name] = f"{type(exc).__name__}: {exc}"

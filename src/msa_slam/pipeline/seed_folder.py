@@ -35,10 +35,12 @@ def seed_dir(out: Path, seed: int) -> Path:
     return Path(out) / SEEDS / f"seed-{seed}"
 
 
-def seed_record(dataset: str, configs: Sequence[RunConfig]) -> dict[str, Any]:
-    """What a finished seed must have been run with to be reused: `dataset` is the one without the seed."""
+def seed_record(dataset: str, configs: Sequence[RunConfig], sweep: bool = True) -> dict[str, Any]:
+    """What a finished seed must have been run with to be reused: `dataset` is the one without the seed,
+    `sweep` whether its methods ran the threshold sweep."""
     methods = {cfg.name: {k: v for k, v in cfg.dump().items() if k not in NOT_SETTINGS} for cfg in configs}
-    return json.loads(json.dumps({"version": msa_slam.__version__, "dataset": dataset, "methods": methods}))
+    return json.loads(json.dumps({"version": msa_slam.__version__, "dataset": dataset, "methods": methods,
+                                  "threshold_sweep": sweep}))
 
 
 def write_record(folder: Path, record: Mapping[str, Any], failed: Mapping[str, str]) -> None:
