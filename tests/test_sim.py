@@ -268,6 +268,19 @@ def test_sequence_layout_readers_and_cache(tmp_path):
         simulate_sequence(cfg, out=other)
 
 
+def test_a_pool_of_workers_writes_the_same_bytes(tmp_path):
+    """Scans cast by two spawned workers (each building its own world) equal those cast in this process."""
+    cfg = make_config(**SMALL)  # the kitti preset: scans and per-point times
+    here = simulate_sequence(cfg, out=tmp_path / "here", workers=0)
+    pool = simulate_sequence(cfg, out=tmp_path / "pool", workers=2)
+    files = sorted(p.relative_to(here) for p in here.rglob("*") if p.is_file() and not p.is_symlink())
+    assert len([f for f in files if f.parts[0] == "velodyne_times"]) == 6
+    assert files == sorted(p.relative_to(pool) for p in pool.rglob("*") if p.is_file() and not p.is_symlink())
+    assert all((here / f).read_bytes() == (pool / f).read_bytes() for f in files)
+    with pytest.raises(InputError, match="workers must be an integer >= 0, got -1"):
+        simulate_sequence(cfg, out=tmp_path / "bad", workers=-1)
+
+
 def test_damaged_simulation_is_simulated_again(tmp_path, caplog):
     """A scan truncated or lost after sim.json was written (a full disk, a killed copy) makes the sequence
     incomplete: the next use warns and simulates it again, never serving the short scan."""

@@ -32,6 +32,8 @@ def simulate_command(
     realism: str = typer.Option("kitti", help="realism preset: kitti (calibrated against KITTI: motion distortion, "
                                 "sensor imperfections, a changing world) or clean (static world, ideal sensor)"),
     cache_dir: Optional[Path] = typer.Option(None, help=CACHE_HELP),
+    workers: Optional[int] = typer.Option(None, min=0, help="processes casting scans (0: this one; default: one "
+                                          "per CPU, at most 4, for 300 scans or more); the files do not depend on it"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
 ) -> None:
     """Simulate a LiDAR sequence (velodyne/*.bin, poses.txt, times.txt, calib.txt) and print its folder."""
@@ -41,5 +43,5 @@ def simulate_command(
                          azimuth_steps=azimuth_steps, max_range=max_range, range_noise=range_noise,
                          dropout=dropout, style=style, realism=realism, trajectory_format=trajectory_format,
                          times=None if times is None else str(times), calib=None if calib is None else str(calib))
-    path = simulate_sequence(config, out=out, cache_dir=cache_dir, progress=not quiet)
+    path = simulate_sequence(config, out=out, cache_dir=cache_dir, progress=not quiet, workers=workers)
     typer.echo(str(path))

@@ -12,14 +12,18 @@ also holds sequences/00/ and poses/00.txt as relative links: `KITTIOdometryDatas
 Directories are written under a locked temporary name (`.NAME.partial-*`, removed by the next run if
 its writer was killed) and renamed when complete, so a partial one is never mistaken for a cached sequence;
 sim.json records every scan's size, so a truncated scan makes the sequence incomplete (simulated again).
+Scans are independent (each frame's noise has its own seed), so a long sequence is cast by a pool of worker
+processes, each holding its own copy of the world: the files are the same bytes as one process writes.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import multiprocessing
 import os
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -33,6 +37,8 @@ from msa_slam.sim.config import SIM_VERSION, SimConfig
 from msa_slam.sim.simulation import Simulation, prepare
 
 META_FILE = "sim.json"
+PARALLEL_MIN_FRAMES = 300  # shorter sequences are cast in the calling process (a worker's start-up costs seconds)
+MAX_WORKERS = 4  # each worker builds and holds its own world
 log = logging.getLogger(__name__)
 KITTI_CITATION = ("Trajectory: KITTI odometry ground truth (Geiger, Lenz, Urtasun, CVPR 2012), "
                   "CC BY-NC-SA 3.0")
@@ -75,20 +81,58 @@ def _is_ours(seq_dir: Path, key: str) -> bool:
 CALIB_TEXT = "".join(f"P{k}: 1 0 0 0 0 1 0 0 0 0 1 0\n" for k in range(4)) + "Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n"
 
 
-def _write(sim: Simulation, target: Path, progress: bool) -> None:
+def _write_scan(sim: Simulation, target: Path, k: int) -> tuple[int, int | None]:
+    """Cast frame k and write its scan (and per-point times); their sizes in bytes."""
+    scan, point_times = sim.scan(k)
+    scan.tofile(target / "velodyne" / f"{k:06d}.bin")
+    if point_times is None:
+        return scan.nbytes, None
+    times_file = target / TIMES_FOLDER / f"{k:06d}.npy"
+    np.save(times_file, point_times.astype(np.float32))
+    return scan.nbytes, times_file.stat().st_size
+
+
+_worker_sim: Simulation | None = None  # a pool worker's own world (_start_worker)
+
+
+def _start_worker(config: SimConfig) -> None:
+    global _worker_sim
+    _worker_sim = prepare(config)
+
+
+def _worker_write(job: tuple[Path, int]) -> tuple[int, int | None]:
+    assert _worker_sim is not None, "pool worker used before _start_worker"
+    return _write_scan(_worker_sim, *job)
+
+
+def default_workers(frames: int) -> int:
+    """Worker processes for a sequence of `frames` scans: one per CPU (at most MAX_WORKERS), or none (the
+    calling process casts) for a short sequence or a single CPU."""
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return 0 if frames < PARALLEL_MIN_FRAMES or cpus < 2 else min(cpus, MAX_WORKERS)
+
+
+def _written_scans(sim: Simulation, target: Path, workers: int) -> Iterator[tuple[int, int | None]]:
+    """Every frame's (scan bytes, times bytes) in frame order, cast here (workers 0) or by a spawned pool."""
+    if workers <= 0:
+        yield from (_write_scan(sim, target, k) for k in range(len(sim)))
+        return
+    context = multiprocessing.get_context("spawn")  # not fork: the parent's ray-casting library may hold threads
+    with context.Pool(workers, initializer=_start_worker, initargs=(sim.config,)) as pool:
+        yield from pool.imap(_worker_write, [(target, k) for k in range(len(sim))], chunksize=4)
+
+
+def _write(sim: Simulation, target: Path, progress: bool, workers: int) -> None:
     (target / "velodyne").mkdir(parents=True)
+    if not sim.realism.is_clean:
+        (target / TIMES_FOLDER).mkdir()
     with progress_bar(quiet=not progress, transient=False) as bar:
         task = bar.add_task(f"simulating {sim.config.label} / {sim.config.sensor}", total=len(sim))
         sizes, times_sizes = [], []
-        for k in range(len(sim)):
-            scan, point_times = sim.scan(k)
-            scan.tofile(target / "velodyne" / f"{k:06d}.bin")
-            sizes.append(scan.nbytes)
-            if point_times is not None:
-                (target / TIMES_FOLDER).mkdir(exist_ok=True)
-                times_file = target / TIMES_FOLDER / f"{k:06d}.npy"
-                np.save(times_file, point_times.astype(np.float32))
-                times_sizes.append(times_file.stat().st_size)
+        for scan_bytes, times_bytes in _written_scans(sim, target, workers):
+            sizes.append(scan_bytes)
+            if times_bytes is not None:
+                times_sizes.append(times_bytes)
             bar.advance(task)
     (target / "poses.txt").write_text(format_kitti(sim.poses))
     (target / "times.txt").write_text("".join(f"{t:.6e}\n" for t in sim.times))
@@ -115,13 +159,17 @@ def _write(sim: Simulation, target: Path, progress: bool) -> None:
 
 
 def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
-                      cache_dir: str | os.PathLike | None = None, progress: bool = False) -> Path:
+                      cache_dir: str | os.PathLike | None = None, progress: bool = False,
+                      workers: int | None = None) -> Path:
     """Write (or reuse) the sequence of `config`; returns its directory.
 
     Without `out` the directory is <cache>/<trajectory>_<sensor>_<key>. An existing complete
     simulation of the same config is returned as is; one of the same config with a missing or truncated
     scan is simulated again (with a warning); any other existing non-empty `out` is an error.
+    `workers`: processes casting scans (0: this one; None: `default_workers`); the bytes do not depend on it.
     """
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
+        raise InputError(f"simulate: workers must be an integer >= 0, got {workers!r}")
     key = config.key()
     target = Path(out) if out is not None else cache_root(cache_dir) / f"{config.label}_{config.sensor}_{key}"
     remove_orphans(target.parent, f".{target.name}.partial-*")
@@ -138,7 +186,7 @@ def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         with partial_dir(target.parent, target.name) as tmp:
-            _write(sim, tmp / "seq", progress)
+            _write(sim, tmp / "seq", progress, default_workers(len(sim)) if workers is None else workers)
             if damaged:
                 os.replace(target, tmp / "damaged")  # removed with the scratch folder
             elif target.exists():

@@ -2,8 +2,8 @@
 
 numba compiles a kernel on its first call (about a minute of CPU for the kernels MSA's default mode uses, on
 this project's 2-core machine) and keeps the machine code in its on-disk cache (the kernels use cache=True).
-The demo spends its first minutes simulating and running KISS-ICP on one core, so the other core can compile
-meanwhile; MSA's first window then loads the cache instead of compiling. The compiled code, and so every result,
+The demo spends its first minutes simulating (on every core, where this low-priority process yields) and
+running KISS-ICP on one core, so the other core can compile meanwhile; MSA's first window then loads the cache instead of compiling. The compiled code, and so every result,
 is the same either way; if the background process cannot start, or has not finished in time, MSA compiles the
 kernels itself as before.
 """
@@ -11,6 +11,7 @@ kernels itself as before.
 from __future__ import annotations
 
 import multiprocessing
+import os
 from multiprocessing.process import BaseProcess
 from typing import Any
 
@@ -31,11 +32,20 @@ def compile_kernels(params: dict[str, Any], shape: tuple[int, ...]) -> None:
     make_sampler("msa", **params).run(poses, descriptors)
 
 
+def _compile_at_low_priority(params: dict[str, Any], shape: tuple[int, ...]) -> None:
+    """compile_kernels at the lowest CPU priority: the simulator's workers come first, the compilation takes
+    the core KISS-ICP leaves free."""
+    if hasattr(os, "nice"):
+        os.nice(19)
+    compile_kernels(params, shape)
+
+
 def compile_in_background(params: dict[str, Any], shape: tuple[int, ...]) -> BaseProcess | None:
-    """Start compile_kernels in a spawned daemon process (ended with the caller); None when it cannot start."""
+    """Start compile_kernels in a spawned daemon process (ended with the caller) at low priority; None when it
+    cannot start."""
     try:
         process = multiprocessing.get_context("spawn").Process(
-            target=compile_kernels, args=(dict(params), tuple(shape)), daemon=True, name="msa-compile")
+            target=_compile_at_low_priority, args=(dict(params), tuple(shape)), daemon=True, name="msa-compile")
         process.start()
     except OSError:
         return None
