@@ -22,6 +22,7 @@ import json
 import logging
 import multiprocessing
 import os
+import signal
 from pathlib import Path
 from typing import Iterator
 
@@ -96,7 +97,10 @@ _worker_sim: Simulation | None = None  # a pool worker's own world (_start_worke
 
 
 def _start_worker(config: SimConfig) -> None:
+    """Build the worker's world. Ctrl-C is left to the parent, which ends the pool (and removes the partial
+    folder) instead of every worker printing its own traceback."""
     global _worker_sim
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     _worker_sim = prepare(config)
 
 
