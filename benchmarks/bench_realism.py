@@ -1,8 +1,15 @@
 """Simulator realism against its calibration targets (issue 12): per shipped KITTI trajectory and world seed,
 KISS-ICP drift (KITTI's relative translational error over 100-800 m segments, with its horizontal and vertical
 parts), Scan Context aliasing (the highest similarity among frame pairs more than 20 m apart and the fraction
-above the paper's 0.8), PR-AUC of constant 2 m and of all samples (oracle loops, the reference protocol),
-spaciousness against constant 3 m, plus simulation speed and disk per scan.
+above the paper's 0.8), PR-AUC of constant 2 m and of all samples, spaciousness against constant 3 m, plus
+simulation speed and disk per scan.
+
+PR-AUC is given under both place-recognition protocols (docs/descriptors.md): the targets use the reference
+example's, as the issue and the paper's Table I do (every frame against the 10 keyframes nearest to its
+pose, so a recorded match is nearly always a place nearby and the score measures how sampling thins out the
+nearby keyframes); the batch search's (every keyframe against all older ones, so every query that is not a
+revisit records its best far look-alike as a false match) is printed beside it, because it is the one that
+feels the simulator's look-alikes.
 
 Targets: mean RTE 0.3-1.0 % with the horizontal part at least half; pairs > 20 m apart above 0.8 on every
 sequence while all-samples PR-AUC > 0.7; constant 2 m at least 5 points below all samples on >= 3 of 5;
@@ -94,7 +101,11 @@ def evaluate(spec: str, cache_dir: str | None, pair_step: int) -> dict:
     kf_const, kf_spac = set(runs["constant-3m"].keyframes.tolist()), set(runs["spaciousness"].keyframes.tolist())
     return {
         "frames": len(frontend), "rte": rte, "best": best, "above": above,
-        "auc_all": runs["all"].metrics["pr_auc"], "auc_c2": runs["constant-2m"].metrics["pr_auc"],
+        "auc_all": runs["all"].metrics["pr_reference"]["pr_auc"],
+        "auc_c2": runs["constant-2m"].metrics["pr_reference"]["pr_auc"],
+        "batch_all": runs["all"].metrics["pr_auc"], "batch_c2": runs["constant-2m"].metrics["pr_auc"],
+        "auc_all_why": runs["all"].metrics["unavailable"].get("pr_reference"),
+        "batch_all_why": runs["all"].metrics["unavailable"].get("pr"),
         "spac_diff": len(kf_const ^ kf_spac) / max(1, len(kf_const | kf_spac)),
         "kf": (len(kf_spac), len(kf_const)),
         "scans_per_s": len(frontend) / sim_s if sim_s > 1.0 else None, "disk": disk_per_scan(folder),
@@ -104,6 +115,29 @@ def evaluate(spec: str, cache_dir: str | None, pair_step: int) -> dict:
 
 def _pct(value: float | None) -> str:
     return "n/a" if value is None or not np.isfinite(value) else f"{100 * value:.1f}"
+
+
+def _auc_targets(per_seq: dict[str, list[dict]], all_key: str, c2_key: str) -> str:
+    """The PR-AUC targets under one protocol: the lowest all-samples PR-AUC (> 70) and on how many sequences
+    constant 2 m is at least 5 points below all samples on average (>= 3 of 5); runs where a PR-AUC is
+    undefined are counted with the reason the metric gives."""
+    defined = {seq: [r for r in rs if r[all_key] is not None and r[c2_key] is not None] for seq, rs in per_seq.items()}
+    gap = sum(np.mean([r[all_key] - r[c2_key] for r in rs]) >= 0.05 for rs in defined.values() if rs)
+    aucs = [r[all_key] for rs in defined.values() for r in rs]
+    runs = [r for rs in per_seq.values() for r in rs]
+    why = sorted({r[f"{all_key}_why"] for r in runs if r[all_key] is None and r[f"{all_key}_why"]})
+    na = (f"; all samples undefined on {sum(r[all_key] is None for r in runs)} of {len(runs)} runs ({'; '.join(why)})"
+          if why else "")
+    return (f"min all-samples PR-AUC {_pct(min(aucs) if aucs else None)} (target > 70); constant 2 m >= 5 points below "
+            f"all samples on {gap} of {len(per_seq)} sequences (target >= 3 of 5){na}")
+
+
+def _mean_std(values: list, minus: list | None = None) -> str:
+    """Mean +- std (points) over seeds of a PR-AUC (or of a difference of two); n/a when a seed's is undefined."""
+    if any(v is None for v in values) or (minus and any(v is None for v in minus)):
+        return "n/a"
+    arr = np.array(values) - (np.array(minus) if minus else 0.0)
+    return f"{100 * arr.mean():.1f} +- {100 * arr.std():.1f}"
 
 
 def main() -> None:
@@ -120,7 +154,8 @@ def main() -> None:
     print(f"realism {args.realism}, frames {args.frames or 'all'}, azimuth steps {args.azimuth_steps or 'default'}, "
           f"far pairs on every {args.pair_step}. frame\n")
     header = ("seq", "seed", "frames", "RTE %", "horiz %", "vert %", "max far SC", "far > 0.8 %",
-              "AUC all", "AUC c2m", "spac vs c3m kf diff %", "kf spac/c3m", "scans/s", "KiB/scan")
+              "AUC all", "AUC c2m", "batch AUC all", "batch AUC c2m", "spac vs c3m kf diff %", "kf spac/c3m",
+              "scans/s", "KiB/scan")
     print(" | ".join(header))
     print("|".join("---" for _ in header))
     rows = []
@@ -134,6 +169,7 @@ def main() -> None:
             rte = r["rte"] or (float("nan"),) * 3
             print(" | ".join([seq, str(seed), str(r["frames"]), *(f"{v:.2f}" for v in rte), f"{r['best']:.3f}",
                               f"{100 * r['above']:.3f}", _pct(r["auc_all"]), _pct(r["auc_c2"]),
+                              _pct(r["batch_all"]), _pct(r["batch_c2"]),
                               f"{100 * r['spac_diff']:.1f}", "/".join(map(str, r["kf"])),
                               "cached" if r["scans_per_s"] is None else f"{r['scans_per_s']:.1f}",
                               f"{r['disk'] / 1024:.0f}"]), flush=True)
@@ -146,23 +182,17 @@ def main() -> None:
               "with horizontal >= half")
     per_seq = {seq: [r for s, r in rows if s == seq] for seq, _ in rows}
     false_everywhere = all(any(r["best"] > THRESHOLD for r in rs) for rs in per_seq.values())
-    defined = {seq: [r for r in rs if r["auc_all"] is not None and r["auc_c2"] is not None]
-               for seq, rs in per_seq.items()}
-    undefined = [seq for seq, rs in defined.items() if not rs]
-    gap = sum(np.mean([r["auc_all"] - r["auc_c2"] for r in rs]) >= 0.05 for rs in defined.values() if rs)
-    aucs = [r["auc_all"] for rs in defined.values() for r in rs]
-    na = f" (n/a on {', '.join(undefined)}: recall undefined: no query has a true revisit within 3 m)" if undefined else ""
-    print(f"pairs > 20 m above 0.8 on every sequence: {false_everywhere}; min all-samples AUC "
-          f"{_pct(min(aucs) if aucs else None)} (target > 70){na}; constant 2 m >= 5 points below all "
-          f"samples on {gap} of {len(per_seq)} sequences (target >= 3 of 5); spaciousness differs from constant 3 m: "
+    print(f"pairs > 20 m above 0.8 on every sequence: {false_everywhere}; spaciousness differs from constant 3 m: "
           f"{any(r['spac_diff'] > 0 for _, r in rows)}")
-    print("\nper sequence, mean over its seeds: seq | AUC all | AUC c2m | gap (points)")
-    for seq, rs in defined.items():
-        if rs:
-            auc_all, auc_c2 = np.mean([r["auc_all"] for r in rs]), np.mean([r["auc_c2"] for r in rs])
-            print(f"{seq} | {_pct(auc_all)} | {_pct(auc_c2)} | {100 * (auc_all - auc_c2):.1f}")
-        else:
-            print(f"{seq} | n/a | n/a | n/a (no query has a true revisit within 3 m)")
+    for protocol, all_key, c2_key in (("reference protocol", "auc_all", "auc_c2"),
+                                      ("batch search", "batch_all", "batch_c2")):
+        print(f"{protocol}: {_auc_targets(per_seq, all_key, c2_key)}")
+    print("\nper sequence, mean +- std over its seeds (PR-AUC, points): seq | AUC all | AUC c2m | gap | "
+          "batch AUC all | batch AUC c2m | batch gap")
+    for seq, rs in per_seq.items():
+        print(" | ".join([seq, *(_mean_std([r[a] for r in rs], [r[b] for r in rs] if b else None)
+                                 for a, b in (("auc_all", None), ("auc_c2", None), ("auc_all", "auc_c2"),
+                                              ("batch_all", None), ("batch_c2", None), ("batch_all", "batch_c2")))]))
 
 
 if __name__ == "__main__":
