@@ -25,7 +25,9 @@ segments longer than the prefix's path are skipped, so short prefixes report RTE
 from __future__ import annotations
 
 import argparse
+import re
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -125,9 +127,10 @@ def _auc_targets(per_seq: dict[str, list[dict]], all_key: str, c2_key: str) -> s
     gap = sum(np.mean([r[all_key] - r[c2_key] for r in rs]) >= 0.05 for rs in defined.values() if rs)
     aucs = [r[all_key] for rs in defined.values() for r in rs]
     runs = [r for rs in per_seq.values() for r in rs]
-    why = sorted({r[f"{all_key}_why"] for r in runs if r[all_key] is None and r[f"{all_key}_why"]})
-    na = (f"; all samples undefined on {sum(r[all_key] is None for r in runs)} of {len(runs)} runs ({'; '.join(why)})"
-          if why else "")
+    why = Counter(re.sub(r"(?:the )?\d+ quer(?:y|ies)", "its queries", r[f"{all_key}_why"])
+                  for r in runs if r[all_key] is None and r[f"{all_key}_why"])
+    na = (f"; all samples undefined on {sum(r[all_key] is None for r in runs)} of {len(runs)} runs: "
+          + "; ".join(f"{count} x {reason}" for reason, count in why.most_common()) if why else "")
     return (f"min all-samples PR-AUC {_pct(min(aucs) if aucs else None)} (target > 70); constant 2 m >= 5 points below "
             f"all samples on {gap} of {len(per_seq)} sequences (target >= 3 of 5){na}")
 
