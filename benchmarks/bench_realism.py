@@ -136,11 +136,12 @@ def _auc_targets(per_seq: dict[str, list[dict]], all_key: str, c2_key: str) -> s
 
 
 def _mean_std(values: list, minus: list | None = None) -> str:
-    """Mean +- std (points) over seeds of a PR-AUC (or of a difference of two); n/a when a seed's is undefined."""
+    """Mean +- sample std (ddof 1, as the project's seed tables: evaluation/spread.py) in points over seeds of a
+    PR-AUC (or of a difference of two); n/a when a seed's is undefined, std left out with a single seed."""
     if any(v is None for v in values) or (minus and any(v is None for v in minus)):
         return "n/a"
     arr = np.array(values) - (np.array(minus) if minus else 0.0)
-    return f"{100 * arr.mean():.1f} +- {100 * arr.std():.1f}"
+    return f"{100 * arr.mean():.1f}" + (f" +- {100 * arr.std(ddof=1):.1f}" if len(arr) > 1 else "")
 
 
 def main() -> None:
@@ -190,7 +191,7 @@ def main() -> None:
     for protocol, all_key, c2_key in (("reference protocol", "auc_all", "auc_c2"),
                                       ("batch search", "batch_all", "batch_c2")):
         print(f"{protocol}: {_auc_targets(per_seq, all_key, c2_key)}")
-    print("\nper sequence, mean +- std over its seeds (PR-AUC, points): seq | AUC all | AUC c2m | gap | "
+    print("\nper sequence, mean +- sample std over its seeds (PR-AUC, points): seq | AUC all | AUC c2m | gap | "
           "batch AUC all | batch AUC c2m | batch gap")
     for seq, rs in per_seq.items():
         print(" | ".join([seq, *(_mean_std([r[a] for r in rs], [r[b] for r in rs] if b else None)
