@@ -150,18 +150,15 @@ def _auc_targets(per_seq: dict[str, list[dict]], all_key: str, c2_key: str) -> s
     constant 2 m is at least 5 points below all samples on average (>= 3 of 5); runs where a PR-AUC is
     undefined are counted with the reason the metric gives; a run whose all-samples matches are all true is
     scored with perfect_precision_auc (counted apart)."""
-    def all_samples(r: dict) -> float | None:
-        return _scored(r, all_key)
-
-    defined = {seq: [r for r in rs if all_samples(r) is not None and r[c2_key] is not None]
+    defined = {seq: [r for r in rs if _scored(r, all_key) is not None and r[c2_key] is not None]
                for seq, rs in per_seq.items()}
-    gap = sum(np.mean([all_samples(r) - r[c2_key] for r in rs]) >= 0.05 for rs in defined.values() if rs)
-    aucs = [all_samples(r) for rs in defined.values() for r in rs]
+    gap = sum(np.mean([_scored(r, all_key) - r[c2_key] for r in rs]) >= 0.05 for rs in defined.values() if rs)
+    aucs = [_scored(r, all_key) for rs in defined.values() for r in rs]
     runs = [r for rs in per_seq.values() for r in rs]
     perfect = sum(r[all_key] is None and r.get(f"{all_key}_perfect") is not None for r in runs)
     why = Counter(re.sub(r"(?:the )?\d+ quer(?:y|ies)", "its queries", r[f"{all_key}_why"])
-                  for r in runs if all_samples(r) is None and r[f"{all_key}_why"])
-    na = (f"; all samples undefined on {sum(all_samples(r) is None for r in runs)} of {len(runs)} runs: "
+                  for r in runs if _scored(r, all_key) is None and r[f"{all_key}_why"])
+    na = (f"; all samples undefined on {sum(_scored(r, all_key) is None for r in runs)} of {len(runs)} runs: "
           + "; ".join(f"{count} x {reason}" for reason, count in why.most_common()) if why else "")
     star = (f"; * all samples' matches all true on {perfect} of {len(runs)} runs, scored by the trapezoid over "
             "precision 1" if perfect else "")
@@ -170,13 +167,8 @@ def _auc_targets(per_seq: dict[str, list[dict]], all_key: str, c2_key: str) -> s
 
 
 def _scored(r: dict, key: str) -> float | None:
-    """All samples' PR-AUC as the targets score it: the metric's, else the perfect-precision trapezoid."""
-    return r[key] if r[key] is not None else r[f"{key}_perfect"]
-
-
-def _value(r: dict, key: str) -> float | None:
-    """A row's value, all samples' PR-AUCs as the targets score them (_scored)."""
-    return _scored(r, key) if f"{key}_perfect" in r else r[key]
+    """A row's PR-AUC as the targets score it: the metric's, else (all samples) the perfect-precision trapezoid."""
+    return r[key] if r[key] is not None else r.get(f"{key}_perfect")
 
 
 def _auc_all(r: dict) -> str:
@@ -245,7 +237,7 @@ def main() -> None:
           "it): seq | AUC all | AUC c2m | gap | "
           "batch AUC all | batch AUC c2m | batch gap")
     for seq, rs in per_seq.items():
-        print(" | ".join([seq, *(_mean_std([_value(r, a) for r in rs], [r[b] for r in rs] if b else None)
+        print(" | ".join([seq, *(_mean_std([_scored(r, a) for r in rs], [r[b] for r in rs] if b else None)
                                  for a, b in (("auc_all", None), ("auc_c2", None), ("auc_all", "auc_c2"),
                                               ("batch_all", None), ("batch_c2", None), ("batch_all", "batch_c2")))]))
 
