@@ -1,0 +1,46 @@
+"""benchmarks/bench_realism.py: how its targets score all samples' PR-AUC where the package's metric says n/a
+because every recorded match is true, on constructed matches (the runs themselves are the pipeline's)."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+from msa_slam.place_recognition import precision_recall
+
+PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_realism.py"
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("bench_realism", PATH)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    yield module
+    del sys.modules[spec.name]
+
+
+def test_all_true_matches_score_the_trapezoid_over_precision_one(bench):
+    curve = precision_recall([0.95, 0.85, 0.7, 0.6], [0.5, 1.0, 2.0, 2.9])
+    assert curve.auc is None and "precision is 1 by construction" in curve.unavailable
+    assert bench.perfect_precision_auc(curve) == pytest.approx(1.0)  # no match reaches 0.99: recall 1 -> 0
+    assert bench.recall_at(curve, 0.8) == pytest.approx(0.5)
+    high = precision_recall([0.995, 0.9], [0.5, 1.0])  # half the recall is still there at 0.99
+    assert bench.perfect_precision_auc(high) == pytest.approx(0.5)
+
+
+def test_other_curves_keep_the_metric_or_stay_undefined(bench):
+    mixed = precision_recall([0.9, 0.85, 0.5], [1.0, 10.0, 2.0])  # a wrong match: the metric's own value
+    assert mixed.auc is not None and bench.perfect_precision_auc(mixed) is None
+    no_revisit = precision_recall([0.9, 0.5], [10.0, 20.0])
+    assert bench.perfect_precision_auc(no_revisit) is None and bench.recall_at(no_revisit, 0.8) is None
+    assert bench.perfect_precision_auc(None) is None
+    row = {"auc_all": None, "auc_all_perfect": 1.0, "auc_c2": 0.9}
+    assert bench._scored(row, "auc_all") == 1.0 and bench._scored(row, "auc_c2") == 0.9
+    assert bench._auc_all(row) == "100.0*"
+    assert "constant 2 m >= 5 points below all samples on 1 of 1" in bench._auc_targets(
+        {"05": [{**row, "auc_all_why": "precision is 1 by construction"}]}, "auc_all", "auc_c2")
