@@ -151,15 +151,16 @@ def _auc_targets(per_seq: dict[str, list[dict]], all_key: str, c2_key: str) -> s
     constant 2 m is at least 5 points below all samples on average (>= 3 of 5); runs where a PR-AUC is
     undefined are counted with the reason the metric gives; a run whose all-samples matches are all true is
     scored with perfect_precision_auc (counted apart)."""
-    defined = {seq: [r for r in rs if _scored(r, all_key) is not None and r[c2_key] is not None]
-               for seq, rs in per_seq.items()}
-    gap = sum(np.mean([_scored(r, all_key) - r[c2_key] for r in rs]) >= 0.05 for rs in defined.values() if rs)
-    aucs = [_scored(r, all_key) for rs in defined.values() for r in rs]
-    runs = [r for rs in per_seq.values() for r in rs]
-    perfect = sum(r[all_key] is None and r.get(f"{all_key}_perfect") is not None for r in runs)
+    scored = {seq: [(_scored(r, all_key), r) for r in rs] for seq, rs in per_seq.items()}
+    defined = {seq: [(a, r) for a, r in rows if a is not None and r[c2_key] is not None] for seq, rows in scored.items()}
+    gap = sum(np.mean([a - r[c2_key] for a, r in rows]) >= 0.05 for rows in defined.values() if rows)
+    aucs = [a for rows in defined.values() for a, _ in rows]
+    runs = [(a, r) for rows in scored.values() for a, r in rows]
+    perfect = sum(r[all_key] is None and a is not None for a, r in runs)
+    undefined = [r for a, r in runs if a is None]
     why = Counter(re.sub(r"(?:the )?\d+ quer(?:y|ies)", "its queries", r[f"{all_key}_why"])
-                  for r in runs if _scored(r, all_key) is None and r[f"{all_key}_why"])
-    na = (f"; all samples undefined on {sum(_scored(r, all_key) is None for r in runs)} of {len(runs)} runs: "
+                  for r in undefined if r[f"{all_key}_why"])
+    na = (f"; all samples undefined on {len(undefined)} of {len(runs)} runs: "
           + "; ".join(f"{count} x {reason}" for reason, count in why.most_common()) if why else "")
     star = (f"; * all samples' matches all true on {perfect} of {len(runs)} runs, scored by the trapezoid over "
             "precision 1" if perfect else "")
@@ -174,8 +175,9 @@ def _scored(r: dict, key: str) -> float | None:
 
 def _auc_all(r: dict) -> str:
     """All samples' reference-protocol PR-AUC; a perfect-precision run's trapezoid value marked "*"."""
-    return _pct(r["auc_all"]) if r["auc_all"] is not None or r["auc_all_perfect"] is None else \
-        f"{_pct(r['auc_all_perfect'])}*"
+    if r["auc_all"] is None and r["auc_all_perfect"] is not None:
+        return f"{_pct(r['auc_all_perfect'])}*"
+    return _pct(r["auc_all"])
 
 
 def _mean_std(values: list, minus: list | None = None) -> str:
