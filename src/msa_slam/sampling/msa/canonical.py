@@ -33,42 +33,88 @@ def canonicalise(lam: np.ndarray, vec: np.ndarray, m: int, work: np.ndarray) -> 
 
     work is (m + 1, m) scratch. Returns how far another backward-stable solver's canonical
     eigenvectors may lie from these (SOLVER_RTOL * max|lam| / smallest gap between clusters), or inf
-    when C lies within that rounding of a threshold (a cluster boundary or a sign tie).
+    when C lies within that rounding of a threshold (a cluster boundary or a sign tie). One matrix
+    through the lane functions (count 1), which the batched fast path runs on many at once.
     """
-    scale = max(abs(lam[0]), abs(lam[m - 1]), 1e-300)
-    tol = CLUSTER_RTOL * scale
-    slack = SOLVER_RTOL * scale
-    fragile = False
-    sep = np.inf  # smallest gap between clusters: eigenvectors are determined to eps * scale / sep
-    start = 0
-    for j in range(1, m + 1):
-        if j < m:
-            gap = lam[j] - lam[j - 1]
-            fragile = fragile or abs(gap - tol) <= 2 * slack
-            if gap <= tol:
+    lam_lanes = np.empty((m, 1))
+    lam_lanes[:, 0] = lam
+    err, fragile, clustered = np.empty(1), np.empty(1), np.empty(1)
+    cluster_scan_lanes(lam_lanes, m, 1, err, fragile, clustered)
+    if clustered[0] != 0.0:
+        tol = CLUSTER_RTOL * max(abs(lam[0]), abs(lam[m - 1]), 1e-300)
+        start = 0
+        for j in range(1, m + 1):
+            if j < m and lam[j] - lam[j - 1] <= tol:
                 continue
-            sep = min(sep, gap)
-        if j - start > 1:
-            _cluster_basis(lam, vec, m, start, j, work)
-        start = j
-    err = slack / sep if sep < np.inf else SOLVER_RTOL  # how far a solver's eigenvectors may be off
+            if j - start > 1:
+                _cluster_basis(lam, vec, m, start, j, work)
+            start = j
+    vec_lanes = np.empty((m, m, 1))
+    vec_lanes[:, :, 0] = vec
+    sign_convention_lanes(vec_lanes, m, 1, err, fragile)
+    vec[:, :] = vec_lanes[:, :, 0]
+    return np.inf if fragile[0] != 0.0 else err[0]
+
+
+@njit(cache=True)
+def cluster_scan_lanes(lam: np.ndarray, m: int, count: int, err: np.ndarray, fragile: np.ndarray,
+                       clustered: np.ndarray) -> None:  # pragma: no cover
+    """The clusters of each lane's eigenvalues lam[:, lane] (ascending), lane-innermost so that the
+    loops vectorise over the lanes: clustered[lane] = 1 where one exists (its eigenvectors are then
+    replaced by the eigenspace's basis, canonicalise), fragile[lane] = 1 where a gap lies within
+    solver rounding of the cluster threshold, err[lane] = SOLVER_RTOL * max|lam| / the smallest gap
+    between clusters (how far a backward-stable solver's eigenvectors may be off; SOLVER_RTOL alone
+    when there is no such gap)."""
+    sep = np.empty(count)
+    for lane in range(count):
+        sep[lane] = np.inf
+        fragile[lane] = 0.0
+        clustered[lane] = 0.0
+    for j in range(1, m):
+        for lane in range(count):
+            scale = max(abs(lam[0, lane]), abs(lam[m - 1, lane]), 1e-300)
+            tol = CLUSTER_RTOL * scale
+            gap = lam[j, lane] - lam[j - 1, lane]
+            fragile[lane] = 1.0 if abs(gap - tol) <= 2 * SOLVER_RTOL * scale else fragile[lane]
+            clustered[lane] = 1.0 if gap <= tol else clustered[lane]
+            sep[lane] = min(sep[lane], gap) if gap > tol else sep[lane]
+    for lane in range(count):
+        scale = max(abs(lam[0, lane]), abs(lam[m - 1, lane]), 1e-300)
+        err[lane] = SOLVER_RTOL * scale / sep[lane] if sep[lane] < np.inf else SOLVER_RTOL
+
+
+@njit(cache=True)
+def sign_convention_lanes(vec: np.ndarray, m: int, count: int, err: np.ndarray,
+                          fragile: np.ndarray) -> None:  # pragma: no cover
+    """Each eigenvector vec[:, j, lane] turned so that its largest-magnitude component is positive
+    (components within SIGN_ATOL of the largest tie, the lowest index wins), lane-innermost so that
+    the loops vectorise over the lanes; fragile[lane] = 1 where a component lies within 2 err[lane]
+    of taking or losing that tie with the other sign (another machine's rounding could flip it)."""
+    size, top, pivot, found = np.empty(count), np.empty(count), np.empty(count), np.empty(count)
     for j in range(m):
-        top = 0
+        for lane in range(count):
+            size[lane] = abs(vec[0, j, lane])
+            top[lane] = vec[0, j, lane]
+        for i in range(1, m):
+            for lane in range(count):
+                bigger = abs(vec[i, j, lane]) > size[lane]
+                size[lane] = abs(vec[i, j, lane]) if bigger else size[lane]
+                top[lane] = vec[i, j, lane] if bigger else top[lane]
+        for lane in range(count):
+            size[lane] -= SIGN_ATOL  # the edge: components at least this large tie for the sign
+            found[lane] = 0.0
+            pivot[lane] = 0.0
         for i in range(m):
-            if abs(vec[i, j]) > abs(vec[top, j]):
-                top = i
-        edge = abs(vec[top, j]) - SIGN_ATOL
-        pivot = -1
+            for lane in range(count):
+                value = vec[i, j, lane]
+                take = found[lane] == 0.0 and abs(value) >= size[lane]
+                pivot[lane] = value if take else pivot[lane]
+                found[lane] = 1.0 if take else found[lane]
+                near = abs(abs(value) - size[lane]) <= 2 * err[lane] + 1e-15 and value * top[lane] < 0
+                fragile[lane] = 1.0 if near else fragile[lane]
         for i in range(m):
-            size = abs(vec[i, j])
-            if pivot < 0 and size >= edge:
-                pivot = i
-            if abs(size - edge) <= 2 * err + 1e-15 and vec[i, j] * vec[top, j] < 0:
-                fragile = True  # this component could take or lose the tie on another machine
-        if vec[pivot, j] < 0:
-            for i in range(m):
-                vec[i, j] = -vec[i, j]
-    return np.inf if fragile else err
+            for lane in range(count):
+                vec[i, j, lane] = -vec[i, j, lane] if pivot[lane] < 0 else vec[i, j, lane]
 
 
 @njit(cache=True)

@@ -22,7 +22,7 @@ import numba
 import numpy as np
 from numba import get_num_threads, njit, prange
 
-from msa_slam.sampling.msa.canonical import SOLVER_RTOL, canonicalise
+from msa_slam.sampling.msa.canonical import SOLVER_RTOL, canonicalise, cluster_scan_lanes, sign_convention_lanes
 from msa_slam.sampling.msa.decision import decide
 from msa_slam.sampling.msa.eigen import lane_buffers, symmetric_eigh, symmetric_eigh_lanes
 from msa_slam.sampling.msa.powerset import feasible_subsets
@@ -35,7 +35,7 @@ PROBES = 3  # rounding-level perturbations of each candidate's C for the ambigui
 PROBE_SCALE = 1e-13  # their relative size: ~450 ulp, beyond any reordering of a BLAS kernel's sums
 
 
-VECTORS, MATRICES = 8, 5  # a candidate's scratch: 8 vectors and 5 matrices of its size (the last one row taller)
+VECTORS, MATRICES = 5, 5  # a candidate's scratch: 5 vectors and 5 matrices of its size (the last one row taller)
 
 
 @njit(cache=True)
@@ -137,53 +137,93 @@ def _form_information(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nd
 
 @njit(cache=True)
 def _eigen_of_information(scratch: np.ndarray, m: int) -> None:  # pragma: no cover
-    """Canonical pi's eigen-decomposition of C (matrix 2 of scratch) into lam (vector 6) and vec (matrix 3),
+    """Canonical pi's eigen-decomposition of C (matrix 2 of scratch) into lam (vector 3) and vec (matrix 3),
     one matrix alone: for the rare C whose reduction meets an exactly zero column (symmetric_eigh_lanes)."""
     vec = _matrix(scratch, 3, m)
     vec[:, :] = _matrix(scratch, 2, m)
-    symmetric_eigh(vec, _vector(scratch, 6, m), _vector(scratch, 7, m), m)
+    symmetric_eigh(vec, _vector(scratch, 3, m), _vector(scratch, 4, m), m)
 
 
 @njit(cache=True)
-def _canonical_batch(scratches: np.ndarray, count: int, m: int, v: np.ndarray, d: np.ndarray, e: np.ndarray,
-                     work: np.ndarray, out: np.ndarray, index: np.ndarray) -> None:  # pragma: no cover
-    """(pi, lowest, highest) of `count` candidates of m members whose C is formed in scratches[lane]
-    (matrix 2), into out[:, index[lane]]: their C decomposed together (symmetric_eigh_lanes), each
-    lane's eigen-pairs sorted ascending into its scratch, then the canonical form and eq. (5) one by
-    one. A lane's values depend on its own candidate only (not on the others in the batch)."""
+def _batch_buffers(width: int):  # pragma: no cover
+    """Scratch for _canonical_batch on up to eigen.LANES candidates of up to `width` members, lane-innermost:
+    the solver's (eigen.lane_buffers), the sorted eigenvalues and eigenvectors, the Gram blocks, eq. (5)'s
+    rows, per-lane values and the lanes' (pi, lowest, highest)."""
+    v, d, e, work = lane_buffers(width)
+    lanes = v.shape[2]
+    return (v, d, e, work, np.empty((width, lanes)), np.empty((width, width, lanes)), np.empty((width, width, lanes)),
+            np.empty((4, width, lanes)), np.empty((8, lanes)), np.empty((3, lanes)))
+
+
+@njit(cache=True)
+def _sorted_lanes(d: np.ndarray, v: np.ndarray, lam: np.ndarray, vec: np.ndarray, m: int,
+                  count: int) -> None:  # pragma: no cover
+    """Every lane's eigen-pairs (d[i, lane], v[i, :, lane]) ascending into lam[:, lane] and vec's columns
+    (lane by lane: a sorting network's exchanges on all lanes at once measured 2-4x slower). Ties keep
+    their order (symmetric_eigh's insertion sort)."""
+    order = np.empty(m, dtype=np.int64)
+    for lane in range(count):
+        for j in range(m):
+            order[j] = j
+            k = j
+            while k > 0 and d[order[k - 1], lane] > d[order[k], lane]:
+                order[k - 1], order[k] = order[k], order[k - 1]
+                k -= 1
+        for j in range(m):
+            lam[j, lane] = d[order[j], lane]
+            for r in range(m):
+                vec[r, j, lane] = v[order[j], r, lane]
+
+
+@njit(cache=True)
+def _canonical_batch(scratches: np.ndarray, count: int, m: int, buffers, out: np.ndarray,
+                     index: np.ndarray) -> None:  # pragma: no cover
+    """(pi, lowest, highest) of `count` candidates of m members whose G_S and C are formed in
+    scratches[lane] (matrices 0 and 2), into out[:, index[lane]], every step on all lanes at once
+    (`buffers` from _batch_buffers): their C decomposed together (symmetric_eigh_lanes), sorted, the
+    canonical form (canonical.py's lane functions) and eq. (5) (_pi_lanes). A lane the solver leaves
+    out or whose eigenvalues form a cluster goes through the one-matrix path (_canonical_pi), with
+    the same functions on one lane: a lane's values depend on its own candidate only."""
+    v, d, e, work, lam, vec, g, rows, per_lane, values = buffers
     for i in range(m):
         for j in range(m):
             for lane in range(count):
                 v[i, j, lane] = scratches[lane, VECTORS * m + 2 * m * m + i * m + j]
+                g[i, j, lane] = scratches[lane, VECTORS * m + i * m + j]
     symmetric_eigh_lanes(v, d, e, m, count, work)
-    order = np.empty(m, dtype=np.int64)
+    _sorted_lanes(d, v, lam, vec, m, count)
+    err, fragile, clustered, bound = per_lane[0], per_lane[1], per_lane[2], per_lane[3]
+    cluster_scan_lanes(lam, m, count, err, fragile, clustered)
+    sign_convention_lanes(vec, m, count, err, fragile)
     for lane in range(count):
+        bound[lane] = np.inf if fragile[lane] != 0.0 else err[lane]
+    _pi_lanes(lam, vec, g, m, count, bound, values, rows, per_lane[4:])
+    for lane in range(count):
+        if work[0, lane] == 0.0 and clustered[lane] == 0.0:
+            out[0, index[lane]], out[1, index[lane]], out[2, index[lane]] = values[0, lane], values[1, lane], \
+                values[2, lane]
+            continue
         scratch = scratches[lane]
         if work[0, lane] != 0.0:
             _eigen_of_information(scratch, m)
         else:
-            for j in range(m):  # ascending order, ties kept in place (symmetric_eigh's insertion sort)
-                order[j] = j
-                k = j
-                while k > 0 and d[order[k - 1], lane] > d[order[k], lane]:
-                    order[k - 1], order[k] = order[k], order[k - 1]
-                    k -= 1
-            lam, vec = _vector(scratch, 6, m), _matrix(scratch, 3, m)
+            # the sorted pairs, signs already turned: canonicalise gives the same bits (a sign change is
+            # exact, and a cluster's basis depends only on its eigenspace)
+            lam_one, vec_one = _vector(scratch, 3, m), _matrix(scratch, 3, m)
             for j in range(m):
-                lam[j] = d[order[j], lane]
+                lam_one[j] = lam[j, lane]
                 for r in range(m):
-                    vec[r, j] = v[order[j], r, lane]
+                    vec_one[r, j] = vec[r, j, lane]
         out[0, index[lane]], out[1, index[lane]], out[2, index[lane]] = _canonical_pi(scratch, m)
 
 
 @njit(cache=True)
 def _canonical_pi(scratch: np.ndarray, m: int):  # pragma: no cover
-    """(pi, lowest, highest) from the eigen-pairs left in scratch by _eigen_of_information: canonical
-    form, eq. (5), and pi plus or minus its bound under solver rounding."""
-    lam, vec = _vector(scratch, 6, m), _matrix(scratch, 3, m)
+    """(pi, lowest, highest) from the eigen-pairs left in scratch (lam: vector 3, vec: matrix 3), one
+    candidate: canonical form, eq. (5), and pi plus or minus its bound under solver rounding."""
+    lam, vec = _vector(scratch, 3, m), _matrix(scratch, 3, m)
     err = canonicalise(lam, vec, m, _matrix(scratch, 4, m, m + 1))
-    pi, bound = _pi_of_eigenpairs(lam, vec, _matrix(scratch, 0, m), m, scratch, err)
-    return pi, max(pi - bound, 0.0), min(pi + bound, 1.0)
+    return _pi_of_eigenpairs(lam, vec, _matrix(scratch, 0, m), m, err)
 
 
 @njit(cache=True)
@@ -195,12 +235,11 @@ def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nda
     _form_information(members, m, dist, gram, scratch)
     c, g = _matrix(scratch, 2, m), _matrix(scratch, 0, m)
     if canonical:  # a batch of one: the values of the batched loop
-        v, d, e, work = lane_buffers(m)
         out = np.empty((3, 1))
-        _canonical_batch(scratch[:scratch_size(m)].reshape((1, scratch_size(m))), 1, m, v, d, e, work, out,
+        _canonical_batch(scratch[:scratch_size(m)].reshape((1, scratch_size(m))), 1, m, _batch_buffers(m), out,
                          np.zeros(1, dtype=np.int64))
         return out[0, 0], out[1, 0], out[2, 0]
-    pi = _pi_of_information(c, g, m, scratch)
+    pi = _pi_of_information(c, g, m)
     lowest, highest = pi, pi
     probe = np.empty((m, m))
     for p in range(probes):
@@ -208,63 +247,85 @@ def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nda
             for k in range(m):  # a fixed symmetric pattern in [-1, 1], different per probe
                 probe[i, k] = c[i, k] * (1.0 + PROBE_SCALE * np.sin(12.9898 * (p + 1) + 78.233 * (i + k)
                                                                     + 37.719 * i * k))
-        value = _pi_of_information(probe, g, m, scratch)
+        value = _pi_of_information(probe, g, m)
         lowest, highest = min(lowest, value), max(highest, value)
     return pi, lowest, highest
 
 
 @njit(cache=True)
-def _pi_of_information(c: np.ndarray, g: np.ndarray, m: int, scratch: np.ndarray):  # pragma: no cover
+def _pi_of_information(c: np.ndarray, g: np.ndarray, m: int):  # pragma: no cover
     """The reference's pi from the information matrix C (LAPACK's eigen-pairs, as they come)."""
-    lam, vec = _vector(scratch, 6, m), _matrix(scratch, 3, m)
     values, vectors = np.linalg.eigh(c)
-    lam[:] = values
-    vec[:, :] = vectors
-    return _pi_of_eigenpairs(lam, vec, g, m, scratch, 0.0)[0]
+    return _pi_of_eigenpairs(values, vectors, g, m, 0.0)[0]
 
 
 @njit(cache=True)
-def _pi_of_eigenpairs(lam: np.ndarray, vec: np.ndarray, g: np.ndarray, m: int, scratch: np.ndarray,
-                      err: float):  # pragma: no cover
-    """pi (eq. 5) from C's eigen-pairs and the candidate's Gram block G_S (e_j^2 = d_j^T G_S d_j), and a
-    bound on how far another solver's rounding could move it, given err, the eigenvectors' error from
-    canonicalise (0: no bound wanted; inf: C sits at a threshold of the canonical form, bound 1).
+def _pi_of_eigenpairs(lam: np.ndarray, vec: np.ndarray, g: np.ndarray, m: int, err: float):  # pragma: no cover
+    """(pi, lowest, highest) of one candidate from C's eigen-pairs (vec's columns) and its Gram block
+    G_S: _pi_lanes on one lane."""
+    lam_lanes, vec_lanes, g_lanes = np.empty((m, 1)), np.empty((m, m, 1)), np.empty((m, m, 1))
+    lam_lanes[:, 0] = lam
+    vec_lanes[:, :, 0] = vec
+    g_lanes[:, :, 0] = g
+    values = np.empty((3, 1))
+    _pi_lanes(lam_lanes, vec_lanes, g_lanes, m, 1, np.full(1, err), values, np.empty((4, m, 1)), np.empty((4, 1)))
+    return values[0, 0], values[1, 0], values[2, 0]
 
-    The e_j are computed together, each sum in the order of the one-at-a-time loop (over k for G d_j,
-    then over i for d_j . G d_j), with the independent j innermost: the compiler vectorises across j
-    without reassociating any sum, so the values are those of the loop per j."""
-    scale, e = _vector(scratch, 3, m), _vector(scratch, 5, m)[:m - 1]
-    diff, gdiff = _matrix(scratch, 1, m), _matrix(scratch, 4, m)
+
+@njit(cache=True)
+def _pi_lanes(lam: np.ndarray, vec: np.ndarray, g: np.ndarray, m: int, count: int, err: np.ndarray,
+              values: np.ndarray, rows: np.ndarray, per_lane: np.ndarray) -> None:  # pragma: no cover
+    """Eq. (5) on every lane, lane-innermost so that the loops vectorise over the lanes: lam[:, lane]
+    C's eigenvalues ascending, vec[:, j, lane] the eigenvector of lam[j, lane], g[:, :, lane] the
+    candidate's Gram block G_S (e_j^2 = d_j^T G_S d_j, d_j = a_{j+1} - a_j, a_j = sqrt(lam_j) v_j).
+    values[:, lane] = (pi, lowest, highest): pi plus or minus a bound on how far another solver's
+    rounding could move it, from err[lane], the eigenvectors' error as canonicalise returns it (0: no
+    bound wanted; inf: C sits at a threshold of the canonical form, bound 1). rows (4, m, lanes) and
+    per_lane (4, lanes) are scratch. Each lane's sums run in a fixed order (over k for G d_j, then
+    over i), so its values do not depend on the other lanes or their number."""
+    scale, diff, gdiff, e = rows[0], rows[1], rows[2], rows[3]
+    lo, hi, total, trace = per_lane[0], per_lane[1], per_lane[2], per_lane[3]
     for j in range(m):
-        scale[j] = np.sqrt(max(lam[j], 0.0) + EIGENVALUE_FLOOR)
-    for i in range(m):  # column j of diff: d_j = a_{j+1} - a_j
-        for j in range(m - 1):
-            diff[i, j] = vec[i, j + 1] * scale[j + 1] - vec[i, j] * scale[j]
-    gdiff[:, :] = 0.0
-    for k in range(m):  # G d_j (G symmetric: its rows are contiguous)
+        for lane in range(count):
+            scale[j, lane] = np.sqrt(max(lam[j, lane], 0.0) + EIGENVALUE_FLOOR)
+    for j in range(m - 1):
+        for k in range(m):
+            for lane in range(count):
+                diff[k, lane] = vec[k, j + 1, lane] * scale[j + 1, lane] - vec[k, j, lane] * scale[j, lane]
+                gdiff[k, lane] = 0.0
+        for k in range(m):
+            for i in range(m):
+                for lane in range(count):
+                    gdiff[i, lane] += g[k, i, lane] * diff[k, lane]
+        for lane in range(count):
+            e[j, lane] = 0.0
         for i in range(m):
-            gki = g[k, i]
-            for j in range(m - 1):
-                gdiff[i, j] += gki * diff[k, j]
-    e[:] = 0.0
+            for lane in range(count):
+                e[j, lane] += diff[i, lane] * gdiff[i, lane]
+        for lane in range(count):
+            e[j, lane] = np.sqrt(max(e[j, lane], 0.0))
+    for lane in range(count):
+        lo[lane] = hi[lane] = e[0, lane]
+        total[lane] = trace[lane] = 0.0
+    for j in range(1, m - 1):
+        for lane in range(count):
+            lo[lane] = min(lo[lane], e[j, lane])
+            hi[lane] = max(hi[lane], e[j, lane])
+    for j in range(m - 1):
+        for lane in range(count):
+            total[lane] += (e[j, lane] - lo[lane]) / (hi[lane] - lo[lane] + EIGENVALUE_FLOOR)
     for i in range(m):
-        for j in range(m - 1):
-            e[j] += diff[i, j] * gdiff[i, j]
-    for j in range(m - 1):
-        e[j] = np.sqrt(max(e[j], 0.0))
-    lo, hi = e.min(), e.max()
-    total = 0.0
-    for j in range(m - 1):
-        total += (e[j] - lo) / (hi - lo + EIGENVALUE_FLOOR)
-    bound = 0.0
-    if err > 0.0:  # |delta e_j| <= 2 |delta a|_G, |delta a| <= err sqrt(lam_max) + |delta sqrt(lam)|
-        trace = 0.0
-        for i in range(m):
-            trace += g[i, i]
-        shift = 2.0 * np.sqrt(trace) * (err * scale[m - 1] + np.sqrt(SOLVER_RTOL * lam[m - 1] + EIGENVALUE_FLOOR)
-                                        - np.sqrt(EIGENVALUE_FLOOR))
-        bound = min(3.0 * shift / (hi - lo + EIGENVALUE_FLOOR), 1.0)
-    return total / (m - 1), bound
+        for lane in range(count):
+            trace[lane] += g[i, i, lane]
+    for lane in range(count):  # |delta e_j| <= 2 |delta a|_G, |delta a| <= err sqrt(lam_max) + |delta sqrt(lam)|
+        pi = total[lane] / (m - 1)
+        bound = 0.0
+        if err[lane] > 0.0:
+            shift = 2.0 * np.sqrt(trace[lane]) * (err[lane] * scale[m - 1, lane]
+                                                  + np.sqrt(SOLVER_RTOL * lam[m - 1, lane] + EIGENVALUE_FLOOR)
+                                                  - np.sqrt(EIGENVALUE_FLOOR))
+            bound = min(3.0 * shift / (hi[lane] - lo[lane] + EIGENVALUE_FLOOR), 1.0)
+        values[0, lane], values[1, lane], values[2, lane] = pi, max(pi - bound, 0.0), min(pi + bound, 1.0)
 
 
 PARALLEL_FROM = 1000  # candidates per window from which threads share them: below, the hand-off to a
@@ -281,8 +342,8 @@ def _information_block(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, pr
     changes (dealing single candidates in turn left every block a small batch of each size, and a
     batch of a few lanes costs nearly what a full one does)."""
     width = dist.shape[0]
-    v, d, e, work = lane_buffers(width)
-    lanes = v.shape[2]
+    buffers = _batch_buffers(width)
+    lanes = buffers[0].shape[2]
     scratches = np.empty((lanes, scratch_size(width)))
     members = np.empty(width, dtype=np.int64)
     index = np.empty(lanes, dtype=np.int64)
@@ -300,17 +361,17 @@ def _information_block(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, pr
                 out[0, i], out[1, i], out[2, i] = information_gram(members, m, dist, gram, scratches[0], probes, False)
                 continue
             if batch > 0 and m != batch_m:
-                _canonical_batch(scratches, batch, batch_m, v, d, e, work, out, index)
+                _canonical_batch(scratches, batch, batch_m, buffers, out, index)
                 batch = 0
             _form_information(members, m, dist, gram, scratches[batch])
             index[batch] = i
             batch_m = m
             batch += 1
             if batch == lanes:
-                _canonical_batch(scratches, batch, m, v, d, e, work, out, index)
+                _canonical_batch(scratches, batch, m, buffers, out, index)
                 batch = 0
     if batch > 0:
-        _canonical_batch(scratches, batch, batch_m, v, d, e, work, out, index)
+        _canonical_batch(scratches, batch, batch_m, buffers, out, index)
 
 
 @njit(cache=True, parallel=True)
