@@ -35,12 +35,13 @@ PROBES = 3  # rounding-level perturbations of each candidate's C for the ambigui
 PROBE_SCALE = 1e-13  # their relative size: ~450 ulp, beyond any reordering of a BLAS kernel's sums
 
 
-VECTORS, MATRICES = 5, 5  # a candidate's scratch: 5 vectors and 5 matrices of its size (the last one row taller)
+VECTORS, MATRICES = 2, 4  # one candidate's scratch (the one-matrix path): 2 vectors and 4 matrices of its size
+# (the last one row taller): lam, e; G_S, C, eigenvectors, canonicalise's work
 
 
 @njit(cache=True)
 def scratch_size(width: int) -> int:  # pragma: no cover
-    """Length of the flat scratch buffer information_gram needs for candidates of up to `width` members."""
+    """Length of the flat scratch buffer of the one-matrix path for candidates of up to `width` members."""
     return VECTORS * width + MATRICES * width * width + width
 
 
@@ -84,75 +85,79 @@ def pairwise(translations: np.ndarray, descriptors: np.ndarray):  # pragma: no c
 
 
 @njit(cache=True, error_model="numpy")
-def _form_information(members: np.ndarray, m: int, dist: np.ndarray, gram: np.ndarray,
-                      scratch: np.ndarray) -> None:  # pragma: no cover
-    """The candidate's Gram block G_S (matrix 0 of scratch) and C = A G_S A^T (matrix 2).
+def _form_lanes(members: np.ndarray, m: int, count: int, dist: np.ndarray, gram: np.ndarray, g: np.ndarray,
+                c: np.ndarray, h: np.ndarray, rows: np.ndarray, clipped: np.ndarray) -> None:  # pragma: no cover
+    """The Gram blocks G_S (g) and C = A G_S A^T (c) of `count` candidates of m members (members[:, lane]),
+    lane-innermost so that the loops vectorise over the lanes; h (like g) and rows (3 or more, m,
+    lanes) are scratch, clipped (lanes) flags the lanes whose C was cleaned.
 
-    A's three diagonals are `lower`, `diag`, `upper` (row k uses columns k-1, k, k+1). Two members at
-    the same distance from the first divide by zero: IEEE division (error_model="numpy") gives the
-    inf or nan numpy.gradient gives, and C is then cleaned and clipped as the reference does.
-    """
-    lower, diag, upper = _vector(scratch, 0, m), _vector(scratch, 1, m), _vector(scratch, 2, m)
-    g, h = _matrix(scratch, 0, m), _matrix(scratch, 1, m)
-    lower[0] = 0.0
-    upper[m - 1] = 0.0
-    first = dist[0, members[1]] - dist[0, members[0]]
-    last = dist[0, members[m - 1]] - dist[0, members[m - 2]]
-    diag[0], upper[0] = -1.0 / first, 1.0 / first
-    lower[m - 1], diag[m - 1] = -1.0 / last, 1.0 / last
-    for k in range(1, m - 1):
-        dx1 = dist[0, members[k]] - dist[0, members[k - 1]]
-        dx2 = dist[0, members[k + 1]] - dist[0, members[k]]
-        lower[k] = -dx2 / (dx1 * (dx1 + dx2))
-        diag[k] = (dx2 - dx1) / (dx1 * dx2)
-        upper[k] = dx1 / (dx2 * (dx1 + dx2))
+    A's three diagonals are rows 0-2 (row k uses columns k-1, k, k+1). Two members at the same
+    distance from the first divide by zero: IEEE division (error_model="numpy") gives the inf or nan
+    numpy.gradient gives, and C is then cleaned and clipped as the reference does."""
+    lower, diag, upper = rows[0], rows[1], rows[2]
     for i in range(m):
         for j in range(m):
-            g[i, j] = gram[members[i], members[j]]
+            for lane in range(count):
+                g[i, j, lane] = gram[members[i, lane], members[j, lane]]
+    for lane in range(count):
+        first = dist[0, members[1, lane]] - dist[0, members[0, lane]]
+        last = dist[0, members[m - 1, lane]] - dist[0, members[m - 2, lane]]
+        lower[0, lane], diag[0, lane], upper[0, lane] = 0.0, -1.0 / first, 1.0 / first
+        lower[m - 1, lane], diag[m - 1, lane], upper[m - 1, lane] = -1.0 / last, 1.0 / last, 0.0
+    for k in range(1, m - 1):
+        for lane in range(count):
+            dx1 = dist[0, members[k, lane]] - dist[0, members[k - 1, lane]]
+            dx2 = dist[0, members[k + 1, lane]] - dist[0, members[k, lane]]
+            lower[k, lane] = -dx2 / (dx1 * (dx1 + dx2))
+            diag[k, lane] = (dx2 - dx1) / (dx1 * dx2)
+            upper[k, lane] = dx1 / (dx2 * (dx1 + dx2))
     for k in range(m):  # h = A G
         for j in range(m):
-            v = diag[k] * g[k, j]
-            if k > 0:
-                v += lower[k] * g[k - 1, j]
-            if k < m - 1:
-                v += upper[k] * g[k + 1, j]
-            h[k, j] = v
-    c = _matrix(scratch, 2, m)  # C = (A G) A^T
-    finite = True
-    for i in range(m):
+            for lane in range(count):
+                v = diag[k, lane] * g[k, j, lane]
+                if k > 0:
+                    v += lower[k, lane] * g[k - 1, j, lane]
+                if k < m - 1:
+                    v += upper[k, lane] * g[k + 1, j, lane]
+                h[k, j, lane] = v
+    for lane in range(count):
+        clipped[lane] = 0.0
+    for i in range(m):  # C = (A G) A^T
         for k in range(m):
-            v = diag[k] * h[i, k]
-            if k > 0:
-                v += lower[k] * h[i, k - 1]
-            if k < m - 1:
-                v += upper[k] * h[i, k + 1]
-            c[i, k] = v
-            finite = finite and np.isfinite(v)
-    if not finite:  # the reference's guard for coincident distances
-        for i in range(m):
-            for k in range(m):
-                v = 0.0 if np.isnan(c[i, k]) else c[i, k]
-                c[i, k] = min(max(v, -C_CLIP), C_CLIP)
+            for lane in range(count):
+                v = diag[k, lane] * h[i, k, lane]
+                if k > 0:
+                    v += lower[k, lane] * h[i, k - 1, lane]
+                if k < m - 1:
+                    v += upper[k, lane] * h[i, k + 1, lane]
+                c[i, k, lane] = v
+                clipped[lane] = clipped[lane] if np.isfinite(v) else 1.0
+    for lane in range(count):
+        if clipped[lane] != 0.0:  # the reference's guard for coincident distances
+            for i in range(m):
+                for k in range(m):
+                    v = 0.0 if np.isnan(c[i, k, lane]) else c[i, k, lane]
+                    c[i, k, lane] = min(max(v, -C_CLIP), C_CLIP)
 
 
 @njit(cache=True)
 def _eigen_of_information(scratch: np.ndarray, m: int) -> None:  # pragma: no cover
-    """Canonical pi's eigen-decomposition of C (matrix 2 of scratch) into lam (vector 3) and vec (matrix 3),
+    """Canonical pi's eigen-decomposition of C (matrix 1 of scratch) into lam (vector 0) and vec (matrix 2),
     one matrix alone: for the rare C whose reduction meets an exactly zero column (symmetric_eigh_lanes)."""
-    vec = _matrix(scratch, 3, m)
-    vec[:, :] = _matrix(scratch, 2, m)
-    symmetric_eigh(vec, _vector(scratch, 3, m), _vector(scratch, 4, m), m)
+    vec = _matrix(scratch, 2, m)
+    vec[:, :] = _matrix(scratch, 1, m)
+    symmetric_eigh(vec, _vector(scratch, 0, m), _vector(scratch, 1, m), m)
 
 
 @njit(cache=True)
 def _batch_buffers(width: int):  # pragma: no cover
     """Scratch for _canonical_batch on up to eigen.LANES candidates of up to `width` members, lane-innermost:
     the solver's (eigen.lane_buffers), the sorted eigenvalues and eigenvectors, the Gram blocks, eq. (5)'s
-    rows, per-lane values and the lanes' (pi, lowest, highest)."""
+    rows, per-lane values, the lanes' (pi, lowest, highest) and a copy of their C."""
     v, d, e, work = lane_buffers(width)
     lanes = v.shape[2]
     return (v, d, e, work, np.empty((width, lanes)), np.empty((width, width, lanes)), np.empty((width, width, lanes)),
-            np.empty((4, width, lanes)), np.empty((8, lanes)), np.empty((3, lanes)))
+            np.empty((4, width, lanes)), np.empty((8, lanes)), np.empty((3, lanes)), np.empty((width, width, lanes)))
 
 
 @njit(cache=True)
@@ -176,20 +181,20 @@ def _sorted_lanes(d: np.ndarray, v: np.ndarray, lam: np.ndarray, vec: np.ndarray
 
 
 @njit(cache=True)
-def _canonical_batch(scratches: np.ndarray, count: int, m: int, buffers, out: np.ndarray,
-                     index: np.ndarray) -> None:  # pragma: no cover
-    """(pi, lowest, highest) of `count` candidates of m members whose G_S and C are formed in
-    scratches[lane] (matrices 0 and 2), into out[:, index[lane]], every step on all lanes at once
-    (`buffers` from _batch_buffers): their C decomposed together (symmetric_eigh_lanes), sorted, the
-    canonical form (canonical.py's lane functions) and eq. (5) (_pi_lanes). A lane the solver leaves
-    out or whose eigenvalues form a cluster goes through the one-matrix path (_canonical_pi), with
-    the same functions on one lane: a lane's values depend on its own candidate only."""
-    v, d, e, work, lam, vec, g, rows, per_lane, values = buffers
+def _canonical_batch(members: np.ndarray, count: int, m: int, dist: np.ndarray, gram: np.ndarray, buffers,
+                     scratch: np.ndarray, out: np.ndarray, index: np.ndarray) -> None:  # pragma: no cover
+    """(pi, lowest, highest) of `count` candidates of m members (members[:, lane]) into
+    out[:, index[lane]], every step on all lanes at once (`buffers` from _batch_buffers): G_S and C
+    formed (_form_lanes), C decomposed (symmetric_eigh_lanes), the eigen-pairs sorted, the canonical
+    form (canonical.py's lane functions) and eq. (5) (_pi_lanes). A lane the solver leaves out or
+    whose eigenvalues form a cluster goes through the one-matrix path (_canonical_pi in `scratch`),
+    with the same functions on one lane: a lane's values depend on its own candidate only."""
+    v, d, e, work, lam, vec, g, rows, per_lane, values, kept = buffers
+    _form_lanes(members, m, count, dist, gram, g, v, vec, rows, per_lane[0])
     for i in range(m):
         for j in range(m):
             for lane in range(count):
-                v[i, j, lane] = scratches[lane, VECTORS * m + 2 * m * m + i * m + j]
-                g[i, j, lane] = scratches[lane, VECTORS * m + i * m + j]
+                kept[i, j, lane] = v[i, j, lane]
     symmetric_eigh_lanes(v, d, e, m, count, work)
     _sorted_lanes(d, v, lam, vec, m, count)
     err, fragile, clustered, bound = per_lane[0], per_lane[1], per_lane[2], per_lane[3]
@@ -203,13 +208,17 @@ def _canonical_batch(scratches: np.ndarray, count: int, m: int, buffers, out: np
             out[0, index[lane]], out[1, index[lane]], out[2, index[lane]] = values[0, lane], values[1, lane], \
                 values[2, lane]
             continue
-        scratch = scratches[lane]
+        gram_one, c_one = _matrix(scratch, 0, m), _matrix(scratch, 1, m)
+        for i in range(m):
+            for j in range(m):
+                gram_one[i, j] = g[i, j, lane]
+                c_one[i, j] = kept[i, j, lane]
         if work[0, lane] != 0.0:
             _eigen_of_information(scratch, m)
         else:
             # the sorted pairs, signs already turned: canonicalise gives the same bits (a sign change is
             # exact, and a cluster's basis depends only on its eigenspace)
-            lam_one, vec_one = _vector(scratch, 3, m), _matrix(scratch, 3, m)
+            lam_one, vec_one = _vector(scratch, 0, m), _matrix(scratch, 2, m)
             for j in range(m):
                 lam_one[j] = lam[j, lane]
                 for r in range(m):
@@ -219,10 +228,10 @@ def _canonical_batch(scratches: np.ndarray, count: int, m: int, buffers, out: np
 
 @njit(cache=True)
 def _canonical_pi(scratch: np.ndarray, m: int):  # pragma: no cover
-    """(pi, lowest, highest) from the eigen-pairs left in scratch (lam: vector 3, vec: matrix 3), one
-    candidate: canonical form, eq. (5), and pi plus or minus its bound under solver rounding."""
-    lam, vec = _vector(scratch, 3, m), _matrix(scratch, 3, m)
-    err = canonicalise(lam, vec, m, _matrix(scratch, 4, m, m + 1))
+    """(pi, lowest, highest) from the eigen-pairs left in scratch (lam: vector 0, vec: matrix 2; G_S: matrix 0),
+    one candidate: canonical form, eq. (5), and pi plus or minus its bound under solver rounding."""
+    lam, vec = _vector(scratch, 0, m), _matrix(scratch, 2, m)
+    err = canonicalise(lam, vec, m, _matrix(scratch, 3, m, m + 1))
     return _pi_of_eigenpairs(lam, vec, _matrix(scratch, 0, m), m, err)
 
 
@@ -232,13 +241,15 @@ def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nda
     """pi of one candidate through G: returns (pi, lowest, highest). Reference pi: the extremes over
     `probes` eigen-decompositions of C perturbed by PROBE_SCALE (and pi itself). Canonical pi: pi plus
     or minus its bound under solver rounding (canonical.py), no probes needed."""
-    _form_information(members, m, dist, gram, scratch)
-    c, g = _matrix(scratch, 2, m), _matrix(scratch, 0, m)
+    one = np.empty((m, 1), dtype=np.int64)
+    one[:, 0] = members[:m]
     if canonical:  # a batch of one: the values of the batched loop
         out = np.empty((3, 1))
-        _canonical_batch(scratch[:scratch_size(m)].reshape((1, scratch_size(m))), 1, m, _batch_buffers(m), out,
-                         np.zeros(1, dtype=np.int64))
+        _canonical_batch(one, 1, m, dist, gram, _batch_buffers(m), scratch, out, np.zeros(1, dtype=np.int64))
         return out[0, 0], out[1, 0], out[2, 0]
+    g, c = np.empty((m, m, 1)), np.empty((m, m, 1))
+    _form_lanes(one, m, 1, dist, gram, g, c, np.empty((m, m, 1)), np.empty((3, m, 1)), np.empty(1))
+    c, g = c.reshape((m, m)), g.reshape((m, m))
     pi = _pi_of_information(c, g, m)
     lowest, highest = pi, pi
     probe = np.empty((m, m))
@@ -344,10 +355,11 @@ def _information_block(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, pr
     width = dist.shape[0]
     buffers = _batch_buffers(width)
     lanes = buffers[0].shape[2]
-    scratches = np.empty((lanes, scratch_size(width)))
+    scratch = np.empty(scratch_size(width))
     members = np.empty(width, dtype=np.int64)
+    waiting = np.empty((width, lanes), dtype=np.int64)  # the members of the candidates of the next batch
     index = np.empty(lanes, dtype=np.int64)
-    batch, batch_m = 0, 0  # candidates whose C waits in scratches[:batch], and their size
+    batch, batch_m = 0, 0  # candidates waiting, and their size
     for chunk in range(first, (len(masks) + lanes - 1) // lanes, step):
         for i in range(chunk * lanes, min((chunk + 1) * lanes, len(masks))):
             m = 0
@@ -358,20 +370,20 @@ def _information_block(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, pr
             if m <= 2:
                 continue
             if not canonical:
-                out[0, i], out[1, i], out[2, i] = information_gram(members, m, dist, gram, scratches[0], probes, False)
+                out[0, i], out[1, i], out[2, i] = information_gram(members, m, dist, gram, scratch, probes, False)
                 continue
             if batch > 0 and m != batch_m:
-                _canonical_batch(scratches, batch, batch_m, buffers, out, index)
+                _canonical_batch(waiting, batch, batch_m, dist, gram, buffers, scratch, out, index)
                 batch = 0
-            _form_information(members, m, dist, gram, scratches[batch])
+            waiting[:m, batch] = members[:m]
             index[batch] = i
             batch_m = m
             batch += 1
             if batch == lanes:
-                _canonical_batch(scratches, batch, m, buffers, out, index)
+                _canonical_batch(waiting, batch, m, dist, gram, buffers, scratch, out, index)
                 batch = 0
     if batch > 0:
-        _canonical_batch(scratches, batch, batch_m, buffers, out, index)
+        _canonical_batch(waiting, batch, batch_m, dist, gram, buffers, scratch, out, index)
 
 
 @njit(cache=True, parallel=True)
