@@ -35,8 +35,8 @@ PROBES = 3  # rounding-level perturbations of each candidate's C for the ambigui
 PROBE_SCALE = 1e-13  # their relative size: ~450 ulp, beyond any reordering of a BLAS kernel's sums
 
 
-VECTORS, MATRICES = 2, 4  # one candidate's scratch (the one-matrix path): 2 vectors and 4 matrices of its size
-# (the last one row taller): lam, e; G_S, C, eigenvectors, canonicalise's work
+VECTORS, MATRICES = 2, 3  # one candidate's scratch (the one-matrix path): 2 vectors and 3 matrices of its size
+# (the last one row taller): lam, e; C, eigenvectors, canonicalise's work
 
 
 @njit(cache=True)
@@ -142,10 +142,10 @@ def _form_lanes(members: np.ndarray, m: int, count: int, dist: np.ndarray, gram:
 
 @njit(cache=True)
 def _eigen_of_information(scratch: np.ndarray, m: int) -> None:  # pragma: no cover
-    """Canonical pi's eigen-decomposition of C (matrix 1 of scratch) into lam (vector 0) and vec (matrix 2),
+    """Canonical pi's eigen-decomposition of C (matrix 0 of scratch) into lam (vector 0) and vec (matrix 1),
     one matrix alone: for the rare C whose reduction meets an exactly zero column (symmetric_eigh_lanes)."""
-    vec = _matrix(scratch, 2, m)
-    vec[:, :] = _matrix(scratch, 1, m)
+    vec = _matrix(scratch, 1, m)
+    vec[:, :] = _matrix(scratch, 0, m)
     symmetric_eigh(vec, _vector(scratch, 0, m), _vector(scratch, 1, m), m)
 
 
@@ -208,31 +208,32 @@ def _canonical_batch(members: np.ndarray, count: int, m: int, dist: np.ndarray, 
             out[0, index[lane]], out[1, index[lane]], out[2, index[lane]] = values[0, lane], values[1, lane], \
                 values[2, lane]
             continue
-        gram_one, c_one = _matrix(scratch, 0, m), _matrix(scratch, 1, m)
+        gram_one, c_one = np.empty((m, m, 1)), _matrix(scratch, 0, m)
         for i in range(m):
             for j in range(m):
-                gram_one[i, j] = g[i, j, lane]
+                gram_one[i, j, 0] = g[i, j, lane]
                 c_one[i, j] = kept[i, j, lane]
         if work[0, lane] != 0.0:
             _eigen_of_information(scratch, m)
         else:
             # the sorted pairs, signs already turned: canonicalise gives the same bits (a sign change is
             # exact, and a cluster's basis depends only on its eigenspace)
-            lam_one, vec_one = _vector(scratch, 0, m), _matrix(scratch, 2, m)
+            lam_one, vec_one = _vector(scratch, 0, m), _matrix(scratch, 1, m)
             for j in range(m):
                 lam_one[j] = lam[j, lane]
                 for r in range(m):
                     vec_one[r, j] = vec[r, j, lane]
-        out[0, index[lane]], out[1, index[lane]], out[2, index[lane]] = _canonical_pi(scratch, m)
+        out[0, index[lane]], out[1, index[lane]], out[2, index[lane]] = _canonical_pi(scratch, gram_one, m)
 
 
 @njit(cache=True)
-def _canonical_pi(scratch: np.ndarray, m: int):  # pragma: no cover
-    """(pi, lowest, highest) from the eigen-pairs left in scratch (lam: vector 0, vec: matrix 2; G_S: matrix 0),
-    one candidate: canonical form, eq. (5), and pi plus or minus its bound under solver rounding."""
-    lam, vec = _vector(scratch, 0, m), _matrix(scratch, 2, m)
-    err = canonicalise(lam, vec, m, _matrix(scratch, 3, m, m + 1))
-    return _pi_of_eigenpairs(lam, vec, _matrix(scratch, 0, m), m, err)
+def _canonical_pi(scratch: np.ndarray, g: np.ndarray, m: int):  # pragma: no cover
+    """(pi, lowest, highest) from the eigen-pairs left in scratch (lam: vector 0, vec: matrix 1) and the Gram
+    block g (m, m, 1), one candidate: canonical form, eq. (5), and pi plus or minus its bound under solver
+    rounding."""
+    lam, vec = _vector(scratch, 0, m), _matrix(scratch, 1, m)
+    err = canonicalise(lam, vec, m, _matrix(scratch, 2, m, m + 1))
+    return _pi_of_eigenpairs(lam, vec, g, m, err)
 
 
 @njit(cache=True)
@@ -249,7 +250,7 @@ def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nda
         return out[0, 0], out[1, 0], out[2, 0]
     g, c = np.empty((m, m, 1)), np.empty((m, m, 1))
     _form_lanes(one, m, 1, dist, gram, g, c, np.empty((m, m, 1)), np.empty((3, m, 1)), np.empty(1))
-    c, g = c.reshape((m, m)), g.reshape((m, m))
+    c = c.reshape((m, m))
     pi = _pi_of_information(c, g, m)
     lowest, highest = pi, pi
     probe = np.empty((m, m))
@@ -265,7 +266,8 @@ def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nda
 
 @njit(cache=True)
 def _pi_of_information(c: np.ndarray, g: np.ndarray, m: int):  # pragma: no cover
-    """The reference's pi from the information matrix C (LAPACK's eigen-pairs, as they come)."""
+    """The reference's pi from the information matrix C (LAPACK's eigen-pairs, as they come); g is the
+    Gram block G_S on one lane, (m, m, 1)."""
     values, vectors = np.linalg.eigh(c)
     return _pi_of_eigenpairs(values, vectors, g, m, 0.0)[0]
 
@@ -273,13 +275,12 @@ def _pi_of_information(c: np.ndarray, g: np.ndarray, m: int):  # pragma: no cove
 @njit(cache=True)
 def _pi_of_eigenpairs(lam: np.ndarray, vec: np.ndarray, g: np.ndarray, m: int, err: float):  # pragma: no cover
     """(pi, lowest, highest) of one candidate from C's eigen-pairs (vec's columns) and its Gram block
-    G_S: _pi_lanes on one lane."""
-    lam_lanes, vec_lanes, g_lanes = np.empty((m, 1)), np.empty((m, m, 1)), np.empty((m, m, 1))
+    G_S, already on one lane (g: (m, m, 1)): _pi_lanes on one lane."""
+    lam_lanes, vec_lanes = np.empty((m, 1)), np.empty((m, m, 1))
     lam_lanes[:, 0] = lam
     vec_lanes[:, :, 0] = vec
-    g_lanes[:, :, 0] = g
     values = np.empty((3, 1))
-    _pi_lanes(lam_lanes, vec_lanes, g_lanes, m, 1, np.full(1, err), values, np.empty((4, m, 1)), np.empty((4, 1)))
+    _pi_lanes(lam_lanes, vec_lanes, g, m, 1, np.full(1, err), values, np.empty((4, m, 1)), np.empty((4, 1)))
     return values[0, 0], values[1, 0], values[2, 0]
 
 
