@@ -5,7 +5,7 @@ arrays), 240 frames, lambda_u = 3 (paper). The "one-at-a-time" column times a pl
 the reference (msa_slam.sampling.msa.terms) on the same windows at N = 10, the reference's shape
 of computation, so the speed-up is measured on this machine rather than quoted.
 
-Usage: python benchmarks/bench_msa.py [--quick] [--canonical-only]
+Usage: python benchmarks/bench_msa.py [--quick] [--canonical-only] [--repeats R]
 """
 
 from __future__ import annotations
@@ -188,39 +188,57 @@ def parity_counts():
     return counts
 
 
-def canonical_targets(shapes) -> None:
+def canonical_targets(shapes, repeats: int = 3) -> None:
     """Issue 16's targets: median ms per window at N = 10, 16, 20, canonical vs reference (fast mode),
     canonical on 2 threads and on 1; at N = 10 also with every window handed to the threads (windows
     under fast.PARALLEL_FROM candidates run on the calling thread: this column is the data for that
-    threshold)."""
+    threshold). Each figure is the median over `repeats` sampler runs (2 and 1 threads alternating) of
+    the run's median window, with the runs' range beside the 2-thread figure: on a shared machine one
+    run's median moves by a quarter from run to run."""
     targets = {10: 0.5, 16: 10.0, 20: 100.0}
     most = numba.config.NUMBA_NUM_THREADS
     print(f"\nCanonical vs reference pi, fast mode (random-walk streams; reference refuses N > 16); "
-          f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs; ms per window, median (wall)")
+          f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs; ms per window: median over "
+          f"{repeats} runs of each run's median window (wall)")
     print(f"{'shape':8} {'N':>3} {'cand/window':>12} {'reference':>10} {f'canon. {most} thr':>13} "
-          f"{'canon. 1 thr':>13} {f'all threaded':>13} {'run CPU us/c':>12} {'target ms':>10}")
+          f"{'(range)':>15} {'canon. 1 thr':>13} {f'all threaded':>13} {'run CPU us/c':>12} {'target ms':>10}")
     for shape_name, shape in shapes.items():
         for n, target in targets.items():
             stream = random_walk_stream(shape, 240 if n <= 12 else 60)
-            reference = f"{time_sampler(*stream, n, 'fast')[0]:>10.3f}" if n <= 16 else f"{'n/a':>10}"
-            both, cands, _ = canonical_run(*stream, n, most)
-            one, _, cpu = canonical_run(*stream, n, 1)
-            handed = f"{canonical_run(*stream, n, most, 0)[0]:>13.3f}" if n == 10 else f"{'':>13}"
-            print(f"{shape_name:8} {n:>3} {cands:>12.0f} {reference} {both:>13.3f} {one:>13.3f} {handed} "
-                  f"{cpu:>12.2f} {target:>10.1f}", flush=True)
+            runs = {"reference": [], "both": [], "one": [], "handed": [], "cpu": []}
+            for _ in range(repeats):
+                if n <= 16:
+                    runs["reference"].append(time_sampler(*stream, n, "fast")[0])
+                both, cands, _ = canonical_run(*stream, n, most)
+                one, _, cpu = canonical_run(*stream, n, 1)
+                runs["both"].append(both)
+                runs["one"].append(one)
+                runs["cpu"].append(cpu)
+                if n == 10:
+                    runs["handed"].append(canonical_run(*stream, n, most, 0)[0])
+            median = {key: float(np.median(values)) if values else None for key, values in runs.items()}
+            reference = f"{median['reference']:>10.3f}" if median["reference"] is not None else f"{'n/a':>10}"
+            spread = f"{min(runs['both']):.3f}-{max(runs['both']):.3f}"
+            handed = f"{median['handed']:>13.3f}" if median["handed"] is not None else f"{'':>13}"
+            print(f"{shape_name:8} {n:>3} {cands:>12.0f} {reference} {median['both']:>13.3f} {spread:>15} "
+                  f"{median['one']:>13.3f} {handed} {median['cpu']:>12.2f} {target:>10.1f}", flush=True)
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="N = 8, 10, 12 only; skip parity")
     parser.add_argument("--canonical-only", action="store_true", help="only the canonical-pi table (issue 16)")
+    parser.add_argument("--repeats", type=int, default=3,
+                        help="sampler runs per canonical-pi figure, reported as their median (default 3)")
     args = parser.parse_args()
+    if args.repeats < 1:
+        parser.error(f"--repeats must be at least 1, got {args.repeats}")
     sizes = [8, 10, 12] if args.quick else list(range(8, 17))
     shapes = {"vec256": (256,), "sc20x60": (20, 60)}
     warm = random_walk_stream((16,), 40)
     for mode, pi in (("exact", "reference"), ("fast", "reference"), ("fast", "canonical")):  # compile first
         time_sampler(*warm, 8, mode, pi)
-    canonical_targets(shapes)
+    canonical_targets(shapes, args.repeats)
     if args.canonical_only:
         return 0
 
