@@ -63,23 +63,33 @@ def _matrix(scratch: np.ndarray, slot: int, m: int, rows: int = 0) -> np.ndarray
 def pairwise(translations: np.ndarray, descriptors: np.ndarray):  # pragma: no cover
     """Distances and similarities for all pairs (terms.similarity's values up to rounding).
 
-    descriptors is (n, rings, sectors); a 1-D descriptor is passed as (n, dim, 1).
+    descriptors is (n, rings, sectors); a 1-D descriptor is passed as (n, dim, 1). With several sectors,
+    their sums of squares build up side by side, the contiguous sector index innermost (each sum still
+    adds its rings in order, so the values are those of one sector after another).
     """
     n, rows, cols = descriptors.shape
     dist = np.zeros((n, n))
     sim = np.zeros((n, n))
+    sq = np.empty(cols)
     for i in range(n):
         for j in range(i + 1, n):
             d = 0.0
             for k in range(3):
                 d += (translations[i, k] - translations[j, k]) ** 2
             dist[i, j] = dist[j, i] = np.sqrt(d)
+            if cols == 1:  # a vector: one sum along it
+                total = 0.0
+                for row in range(rows):
+                    total += (descriptors[i, row, 0] - descriptors[j, row, 0]) ** 2
+                sq[0] = total
+            else:
+                sq[:] = 0.0
+                for row in range(rows):
+                    for col in range(cols):
+                        sq[col] += (descriptors[i, row, col] - descriptors[j, row, col]) ** 2
             total = 0.0
             for col in range(cols):
-                sq = 0.0
-                for row in range(rows):
-                    sq += (descriptors[i, row, col] - descriptors[j, row, col]) ** 2
-                total += 1.0 / (1.0 + np.sqrt(sq))
+                total += 1.0 / (1.0 + np.sqrt(sq[col]))
             sim[i, j] = sim[j, i] = total
     return dist, sim
 
