@@ -101,7 +101,8 @@ def _form_lanes(members: np.ndarray, m: int, count: int, dist: np.ndarray, gram:
     lane-innermost so that the loops vectorise over the lanes; h (like g) and rows (3 or more, m,
     lanes) are scratch, clipped (lanes) flags the lanes whose C was cleaned.
 
-    A's three diagonals are rows 0-2 (row k uses columns k-1, k, k+1). Two members at the same
+    A's three diagonals are rows 0-2 (row k uses columns k-1, k, k+1). A's rows sum to zero, so C has an
+    exact null vector, which the solver's unshifted first sweep takes out first (eigen._ql). Two members at the same
     distance from the first divide by zero: IEEE division (error_model="numpy") gives the inf or nan
     numpy.gradient gives, and C is then cleaned and clipped as the reference does."""
     lower, diag, upper = rows[0], rows[1], rows[2]
