@@ -26,7 +26,6 @@ from msa_slam.pipeline.seeds import SEED_COLUMNS, seed_markdown, seed_rows, seed
 from msa_slam.place_recognition import PRCurve
 from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.progress import progress_bar
-from msa_slam.sampling.msa.warm import compile_kernels
 from msa_slam.slam import RunResult
 from msa_slam.viz import plot_metric_bars, plot_trajectories
 from msa_slam.viz.labels import display_name
@@ -315,14 +314,6 @@ def _write_spread(out: Path, dataset: str, rows: dict[int, list[dict[str, Any]]]
     write_text_atomic(out / "report.md", "\n".join(lines) + "\n")
 
 
-def _load_kernels(config: RunConfig, frontend: Frontend) -> None:
-    """Load (compile when not cached) MSA's numba kernels before its back-end: a one-time cost of the process
-    (~58 MiB RSS, 0.25 s from numba's cache), which would otherwise land in MSA's RSS growth (simulated
-    KITTI-00, 600 frames: 77 MiB instead of 22 MiB, against 15.5 MiB accounted) and in its time."""
-    if config.sampler == "msa":
-        compile_kernels(config.sampler_params, frontend.descriptors.shape[1:])
-
-
 def _run_methods(configs: Sequence[RunConfig], frontend, runs: Path, quiet: bool, sweep: bool
                  ) -> tuple[list[RunResult], dict[str, str]]:
     """Each method's run folder under `runs`, in order; a failing method leaves its error.txt instead."""
@@ -334,7 +325,6 @@ def _run_methods(configs: Sequence[RunConfig], frontend, runs: Path, quiet: bool
             bar.update(task, description=f"method {cfg.name}")
             (runs / cfg.name).mkdir()
             try:
-                _load_kernels(cfg, frontend)
                 result = run_batch(cfg, frontend, quiet, sweep=sweep)
             except Exception as exc:  # one method's failure must not lose the others' results
                 (runs / cfg.name / "error.txt").write_text("".join(traceback.format_exception(exc)))

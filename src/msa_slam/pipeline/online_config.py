@@ -23,6 +23,8 @@ class OnlineConfig(RunConfig):
     `cloud_store="disk"` keeps downsampled keyframe clouds as .npy files (memory-mapped when read) instead of
     in RAM, in a private folder under `store_dir` (default: the system temporary folder) that is removed when
     the run ends; pick a `store_dir` on a real disk when the temporary folder is in RAM (tmpfs).
+    `sensor_rate_hz` is the data's frame rate for the real-time factor only while the frames' timestamps span
+    no time (fewer than two frames); otherwise the timestamps give it.
     """
 
     SECTION: ClassVar[str] = "online config"
