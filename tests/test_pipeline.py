@@ -130,9 +130,11 @@ def test_compare_writes_table(base, frontend, tmp_path):
 def test_compare_without_sweep_says_it_was_not_run(base, frontend, tmp_path):
     report = run_compare(base, tmp_path / "cmp", methods=(("constant-3m", "constant", {"distance": 3.0}),), sweep=False)
     text = report.read_text()
-    assert "Threshold sensitivity: not run (left out with `compare --no-sweep`" in text
+    assert "Threshold sensitivity: not run: left out with `--no-sweep`" in text
     assert "| method | 0.70 |" not in text
-    assert json.loads((report.parent / "runs" / "constant-3m" / "metrics.json").read_text())["threshold_sweep"] is None
+    metrics = json.loads((report.parent / "runs" / "constant-3m" / "metrics.json").read_text())
+    assert metrics["threshold_sweep"] is None and metrics["time_s"]["threshold_sweep"] is None
+    assert metrics["unavailable"]["threshold_sweep"].startswith("not run: left out with `--no-sweep`")
 
 
 def test_full_rate_trajectory_is_written_and_evaluated(base, frontend, tmp_path):

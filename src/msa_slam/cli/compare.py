@@ -33,7 +33,8 @@ def compare_command(
     source: Optional[dict] = None,  # --loader, --gt, ... (added by with_source_options)
 ) -> None:
     """Run the paper's method set (all, constant 1/2/3 m, entropy, spaciousness, MSA) on one sequence and
-    write the Table-I-style comparison; prints its report.md (with --seeds, first the spread over seeds)."""
+    write the Table-I-style comparison; prints the path of its report.md (with --seeds, first the spread over
+    seeds)."""
     from msa_slam.cli.config import cache_option
     from msa_slam.cli.run import batch_config
     from msa_slam.pipeline.compare import MethodsFailed, run_compare

@@ -46,7 +46,8 @@ def online_command(
     cache_dir: Optional[Path] = typer.Option(None, help=CACHE_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
     viewer: bool = typer.Option(False, "--viewer", help="show the run live in Rerun (scan, odometry and optimised "
-                                "trajectories, keyframes, loops); needs pip install 'msa-slam[viewer]'"),
+                                "trajectories, keyframes, loops); needs pip install "
+                                "'msa-slam\\[viewer]'"),  # \\[: a literal bracket in the help's rich markup
     viewer_save: Optional[Path] = typer.Option(None, "--viewer-save", help="save the live view as a Rerun "
                                                "recording (.rrd, replay with `rerun FILE`) instead of a window"),
     source: Optional[dict] = None,  # --loader, --gt, ... (added by with_source_options)

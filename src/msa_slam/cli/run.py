@@ -38,7 +38,7 @@ def run_command(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bars"),
     source: Optional[dict] = None,  # --loader, --gt, ... (added by with_source_options)
 ) -> None:
-    """Run one sampler through the batch experiment and write its result folder; prints its report.md."""
+    """Run one sampler through the batch experiment and write its result folder; prints the path of its report.md."""
     from msa_slam.cli.config import cache_option
     from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
     from msa_slam.pipeline.batch import run_batch

@@ -28,6 +28,7 @@ from msa_slam.sampling.msa.warm import load_kernels
 from msa_slam.slam import BACKEND_STEPS, RunResult, build_backend, core_metrics
 
 BACKEND_STAGES = (*BACKEND_STEPS, "optimisation")
+SWEEP_NOT_RUN = "not run: left out with `--no-sweep` (the demo leaves it out to stay short)"
 
 
 def run_batch(config: RunConfig, frontend: Frontend | None = None, quiet: bool = True,
@@ -69,7 +70,9 @@ def _run_backend(config: RunConfig, frontend: Frontend, quiet: bool, sweep: bool
         result.metrics["unavailable"]["pr_reference"] = "no ground truth: true loops cannot be told from false ones"
         result.metrics["unavailable"]["threshold_sweep"] = "no ground truth: ATE improvement is undefined"
     result.metrics["threshold_sweep"] = result.metrics["time_s"]["threshold_sweep"] = None
-    if sweep and gt is not None:
+    if not sweep:
+        result.metrics["unavailable"]["threshold_sweep"] = SWEEP_NOT_RUN
+    elif gt is not None:
         start = time.perf_counter()
         result.metrics["threshold_sweep"] = threshold_sweep(result, frontend, clouds)
         result.metrics["time_s"]["threshold_sweep"] = round(time.perf_counter() - start, 4)  # not in backend_total

@@ -16,7 +16,7 @@ from msa_slam.evaluation import ATE_ALIGNMENT, NA, fmt, notes
 from msa_slam.io.atomic import atomic_path, write_text_atomic
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, staged_dir
 from msa_slam.io.tables import mib, rows_csv, write_json
-from msa_slam.pipeline.batch import run_batch
+from msa_slam.pipeline.batch import SWEEP_NOT_RUN, run_batch
 from msa_slam.pipeline.config import RunConfig, make_config
 from msa_slam.pipeline.frontend import Frontend, prepare_frontend
 from msa_slam.pipeline.results import reference_xy, trajectory_panels, write_run_files
@@ -187,10 +187,10 @@ def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: lis
 def _sweep_lines(results: Sequence[RunResult]) -> list[str]:
     sweep = sweep_markdown(results)
     if not sweep:
-        if any("threshold_sweep" in r.metrics["unavailable"] for r in results):
-            return []  # why is in each method's notes
-        return ["Threshold sensitivity: not run (left out with `compare --no-sweep`; the demo leaves it out to "
-                "stay short).", ""]
+        reasons = {r.metrics["unavailable"].get("threshold_sweep") for r in results}
+        if reasons == {SWEEP_NOT_RUN}:
+            return [f"Threshold sensitivity: {SWEEP_NOT_RUN}.", ""]
+        return []  # why is in each method's notes
     return ["Threshold sensitivity: loops accepted / full-rate t. ATE improvement when only the back-end (loop "
             "closing + optimisation) is re-run on the same keyframes with another similarity threshold:", "",
             sweep, ""]
