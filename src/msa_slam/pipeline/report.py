@@ -9,6 +9,7 @@ import msa_slam
 from msa_slam.evaluation import PROCESS_RSS_LABEL, fmt, notes
 from msa_slam.io.tables import mib
 from msa_slam.slam import RunResult
+from msa_slam.viz.labels import sampler_label
 
 
 def notes_markdown(metrics: dict[str, Any]) -> list[str]:
@@ -88,6 +89,7 @@ def report_markdown(result: RunResult, figures: list[str]) -> str:
     after = "iSAM2" if online else "optimised"
     lines = [
         f"# {m['method']}{' online' if online else ''} on {m['sequence']} ({m['mode']} loops)", "",
+        f"Sampler: {sampler_label(cfg.sampler, cfg.sampler_params)}.", "",
         f"{m['frames']} frames -> {m['keyframes']} keyframes; {m['candidates']} loop candidates "
         f"(similarity >= {cfg.similarity_threshold}), {m['verified']} verified, "
         f"{m['false_loops']} false (ground-truth distance > {cfg.loop_radius} m)."

@@ -27,7 +27,7 @@ from msa_slam.pipeline.report import report_markdown
 from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.slam import RunResult
 from msa_slam.viz import TrajectoryPanel, plot_memory, plot_step_times, plot_trajectories
-from msa_slam.viz.labels import display_name
+from msa_slam.viz.labels import display_name, sampler_label
 
 
 def frames_csv(result: RunResult) -> str:
@@ -137,7 +137,7 @@ def trajectory_panel(name: str, ate_m: float | None, estimate: np.ndarray, gt: n
         except AlignmentError:
             xy, name = estimate[:, :2, 3], f"{name} (not aligned)"
     shown = np.zeros(len(estimate)) if errors is None else errors
-    return TrajectoryPanel(f"{name}, ATE {fmt(ate_m, '.2f', ' m')}", xy, shown, *loops)
+    return TrajectoryPanel(f"{name}, keyframe ATE {fmt(ate_m, '.3f', ' m')}", xy, shown, *loops)
 
 
 def trajectory_panels(result: RunResult) -> tuple[TrajectoryPanel, TrajectoryPanel]:
@@ -167,8 +167,10 @@ def _write_figures(result: RunResult, folder: Path) -> list[str]:
     m = result.metrics
     online = " online" if m.get("pipeline") == "online" else ""
     sequence = display_name(m["sequence"])
+    cfg = result.config  # a labelled run (compare's "constant-2m") says its parameters in its label
+    method = m["method"] if cfg.label else sampler_label(cfg.sampler, cfg.sampler_params)
     plot_trajectories(folder / "trajectories.png", reference_xy(result), trajectory_panels(result),
-                      title=f"{sequence}: {m['method']}{online} ({m['keyframes']} keyframes, {m['verified']} loops, "
+                      title=f"{sequence}: {method}{online} ({m['keyframes']} keyframes, {m['verified']} loops, "
                             f"{m['mode']} mode)")
     names = ["trajectories.png"]
     if result.memory:

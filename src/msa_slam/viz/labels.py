@@ -1,9 +1,11 @@
-"""Names as a person reads them in figure titles: cache hashes dropped from sequence names
-(`figure-eight_hdl64_32fb48a...` -> `figure-eight (hdl64)`)."""
+"""Names as a person reads them in figure titles and reports: cache hashes dropped from sequence names
+(`figure-eight_hdl64_32fb48a...` -> `figure-eight (hdl64)`), samplers with the parameters a run gave them."""
 
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
+from typing import Any
 
 _HASHED = re.compile(r"^(?P<name>.+?)(?:_(?P<sensor>[A-Za-z0-9-]+))?_[0-9a-f]{12,}$")
 
@@ -16,3 +18,9 @@ def display_name(sequence: str) -> str:
         return sequence
     sensor = match["sensor"]
     return f"{match['name']} ({sensor})" if sensor else match["name"]
+
+
+def sampler_label(sampler: str, params: Mapping[str, Any]) -> str:
+    """A sampler with the parameters the run gave it, e.g. `constant (distance=2)`; the name alone with none."""
+    given = ", ".join(f"{key}={value}" for key, value in sorted(params.items()))
+    return f"{sampler} ({given})" if given else sampler

@@ -61,7 +61,7 @@ def _draw(ax, gt_xy: np.ndarray, panel: TrajectoryPanel, norm: Normalize, cmap: 
 def _legend_handles(panels: Sequence[TrajectoryPanel], cmap: str) -> list[Line2D]:
     handles = [Line2D([], [], color="0.8", lw=3.0, label="ground truth"),
                Line2D([], [], color=plt.get_cmap(cmap)(0.5), marker="o", ms=3, lw=1.2,
-                      label="keyframes (colour: ATE)")]
+                      label="keyframes, SE(3)-aligned to ground truth (colour: ATE)")]
     if any(len(p.loops) for p in panels):
         handles.append(Line2D([], [], color=TRUE_LOOP, marker="o", mfc="none", lw=1.4, label="loop (true)"))
     if any(len(p.false_loops) for p in panels):
