@@ -116,7 +116,6 @@ def _fake_experiment(root: Path, grid_data: dict, memory: dict[str, int], ate_af
     (per method); returns the cells."""
     grid = parse_grid(grid_data)
     root.mkdir(exist_ok=True)
-    write_marker(root, "experiment")
     write_grid(root, grid)
     cells = expand(grid)
     for cell in cells:
@@ -131,6 +130,7 @@ def _fake_experiment(root: Path, grid_data: dict, memory: dict[str, int], ate_af
                    "latency_ms": {"backend": {"p99": 12.0}}}
         (folder / "cell.json").write_text(json.dumps(cell.info()))
         (folder / "metrics.json").write_text(json.dumps(metrics))
+    write_marker(root, "experiment")  # last: it lists the files above as msa-slam's
     return cells
 
 
@@ -239,6 +239,16 @@ def test_overwrite_discards_the_previous_experiment(tmp_path):
     assert len(run.failed) == 1 and not run.stale
     assert not any((tmp_path / "exp" / "cells" / c.id).exists() for c in old)
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no .exp.old-* or lock left
+
+
+def test_overwrite_refuses_an_experiment_holding_someone_elses_files(tmp_path):
+    _fake_experiment(tmp_path / "exp", TINY, {"all": 4000, "const-2m": 1000}, {"all": 0.5, "const-2m": 0.7})
+    (tmp_path / "exp" / "notes.md").write_text("mine")
+    assert CliRunner().invoke(app, ["report", str(tmp_path / "exp")]).exit_code == 0  # in place: notes stay not ours
+    missing = {**TINY, "datasets": [str(tmp_path / "no-such-sequence")], "samplers": ["all"]}
+    with pytest.raises(OutputError, match=r"holds files msa-slam did not write \(notes.md\)"):
+        run_grid(parse_grid(missing), tmp_path / "exp", overwrite=True)
+    assert (tmp_path / "exp" / "notes.md").read_text() == "mine"
 
 
 def test_experiment_exit_code_names_failed_cells_and_keeps_their_log(tmp_path):

@@ -92,6 +92,19 @@ def test_previous_result_is_replaced_only_with_overwrite(stream, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["desc.npy", "out", "poses.txt"]  # no leftovers
 
 
+def test_overwrite_never_removes_a_file_msa_slam_did_not_write(stream, tmp_path):
+    out = tmp_path / "out"
+    assert sample(stream, "--out", out).exit_code == 0
+    (out / "notes.md").write_text("mine")
+    (out / "plots").mkdir()
+    (out / "plots" / "p.txt").write_text("mine too")
+    first = tree(out)
+    result = sample(stream, "--out", out, "-p", "lambda_u=2", "--overwrite")
+    assert result.exit_code != 0
+    assert "holds files msa-slam did not write (notes.md, plots/p.txt)" in str(result.exception)
+    assert tree(out) == first
+
+
 def test_empty_folder_is_taken(stream, tmp_path):
     out = tmp_path / "empty"
     out.mkdir()
@@ -137,8 +150,8 @@ def test_leftovers_of_a_killed_swap_are_repaired(tmp_path):
     """A kill between the two renames of a swap left the old result aside and --out missing."""
     displaced = tmp_path / ".out.old-123-456"
     displaced.mkdir()
-    write_marker(displaced, "run")
     (displaced / "a.txt").write_text("old")
+    write_marker(displaced, "run")  # after: it lists a.txt as msa-slam's
     partial = tmp_path / ".out.partial-abc"
     partial.mkdir()
     (partial / "half.txt").write_text("half")

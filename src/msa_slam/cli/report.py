@@ -25,7 +25,9 @@ def report_command(
     if not is_result_folder(results_dir, KIND):
         raise InputError(f"{results_dir}: not a folder written by `msa-slam experiment` (no {MARKER} of an "
                          "experiment); nothing written")
-    with open_result_folder(results_dir, kind=KIND, default_parent=DEFAULT_PARENT, resume=True):
+    with open_result_folder(results_dir, kind=KIND, default_parent=DEFAULT_PARENT, resume=True) as folder:
+        folder.prepare_in_place(grows=("cells",))
         report = write_report(results_dir, reference)
+        folder.record_files()
         echo_stale(stale_cells(results_dir, grid_cells(results_dir)[1]))
     typer.echo(str(report))

@@ -121,7 +121,7 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
     cells = expand(grid)
     with open_result_folder(out, kind=KIND, default_parent=DEFAULT_PARENT, overwrite=overwrite,
                             resume=True) as folder:
-        folder.prepare_in_place(fresh=overwrite)
+        folder.prepare_in_place(fresh=overwrite, grows=("cells",))
         run = GridRun(folder.path)
         (run.out / "cells").mkdir(exist_ok=True)
         write_grid(run.out, grid)
@@ -135,6 +135,7 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
                 todo.append(cell)
         _run_cells(grid, todo, run, scheduler, workers, client, quiet)
         write_report(run.out)
+        folder.record_files()
     return run
 
 

@@ -6,7 +6,8 @@ A result folder is recognised by its marker file (`.msa-slam-result`, JSON: tool
 - an explicit `--out` that exists and is not a result folder (a file, a dataset, a user's folder with
   anything in it) is refused; an empty folder is taken;
 - a previous result folder is replaced only with `overwrite=True` (`resume=True` reuses it in place:
-  experiment grids, `compare --seeds`);
+  experiment grids, `compare --seeds`), and only when every file in it is one its marker lists as
+  msa-slam's (a user's notes added to a result are never removed: the overwrite is refused);
 - a lock file beside the target (`.NAME.lock`, flock) makes a second run on the same `--out` refuse
   instead of silently losing one result;
 - leftovers of a killed run on the same target (`.NAME.partial-*`, `.NAME.old-*`) are removed, and a
@@ -29,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
-from msa_slam.io.staging import (MARKER, OutputError, clean_stale, is_result_folder, staged_dir,
+from msa_slam.io.staging import (MARKER, OutputError, clean_stale, foreign_files, is_result_folder, staged_dir,
                                  write_marker)
 
 __all__ = ["DEFAULT_RESULTS", "MARKER", "OutputError", "ResultFolder", "is_result_folder",
@@ -85,11 +86,22 @@ def _check_target(target: Path, kind: str, overwrite: bool, resume: bool) -> Non
     if not is_result_folder(target):
         raise OutputError(f"--out {target}: exists and is not a msa-slam result folder (no {MARKER}); "
                           "msa-slam never replaces files it did not write: choose a new or empty folder")
-    if resume and is_result_folder(target, kind):
-        return
-    if not overwrite:
+    if overwrite:
+        _refuse_foreign(target)
+    elif not (resume and is_result_folder(target, kind)):
         raise OutputError(f"--out {target}: holds a previous msa-slam result; pass --overwrite to replace it "
                           "or choose another --out")
+
+
+def _refuse_foreign(target: Path) -> None:
+    """--overwrite replaces a previous result only when all its files are msa-slam's (staging.foreign_files)."""
+    foreign = foreign_files(target)
+    if foreign:
+        more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
+        raise OutputError(f"--out {target}: holds files msa-slam did not write ({', '.join(foreign[:3])}{more}); "
+                          "--overwrite would remove them: move them elsewhere or choose another --out (files of a "
+                          "killed experiment or `compare --seeds` run count too: rerun it without --overwrite to "
+                          "finish it first)")
 
 
 def _check_writable(folder: Path) -> None:
@@ -131,6 +143,7 @@ class ResultFolder:
     kind: str
     timestamped: bool = False
     _lock: _Lock | None = field(default=None, repr=False)
+    _not_ours: dict[str, int] = field(default_factory=dict, repr=False)  # growing in place: foreign files, mtimes
 
     @contextlib.contextmanager
     def staging(self) -> Iterator[Path]:
@@ -140,10 +153,13 @@ class ResultFolder:
         if self.timestamped:
             point_latest(self.path)
 
-    def prepare_in_place(self, fresh: bool = False) -> Path:
+    def prepare_in_place(self, fresh: bool = False, grows: tuple[str, ...] = ()) -> Path:
         """Create (or reuse) `path` itself with its marker, for outputs that grow in place (experiment grids,
-        `compare --seeds`). `fresh` (--overwrite) first removes a previous result there, moved aside first so a
-        kill leaves the old result (put back by the next run) or none, never half of one."""
+        `compare --seeds`) in the subfolders `grows` (where msa-slam writes whole folders at a time). `fresh`
+        (--overwrite, checked: only msa-slam's files) first removes a previous result there, moved aside
+        first so a kill leaves the old result (put back by the next run) or none, never half of one. The
+        files outside `grows` that the marker does not list are remembered, so that record_files lists them
+        only if this run writes them anew (grid.yaml after a killed run), never someone else's."""
         if fresh and is_result_folder(self.path):
             old = self.path.parent / f".{self.path.name}.old-{os.getpid()}-{time.monotonic_ns()}"
             os.replace(self.path, old)
@@ -151,9 +167,21 @@ class ResultFolder:
         self.path.mkdir(parents=True, exist_ok=True)
         if not is_result_folder(self.path, self.kind):
             write_marker(self.path, self.kind)
+        self._not_ours = {name: (self.path / name).lstat().st_mtime_ns
+                          for name in foreign_files(self.path, outside=grows)}
         if self.timestamped:
             point_latest(self.path)
         return self.path
+
+    def record_files(self) -> None:
+        """After a run that grew the folder in place: list its files as msa-slam's in the marker, but the
+        unlisted ones it found there and left untouched (prepare_in_place)."""
+        untouched = []
+        for name, mtime in self._not_ours.items():
+            with contextlib.suppress(FileNotFoundError):  # gone: nothing to list
+                if (self.path / name).lstat().st_mtime_ns == mtime:
+                    untouched.append(name)
+        write_marker(self.path, self.kind, exclude=untouched)
 
 
 @contextlib.contextmanager

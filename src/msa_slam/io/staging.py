@@ -12,7 +12,7 @@ import shutil
 import tempfile
 import time
 from pathlib import Path
-from typing import Iterator
+from typing import Collection, Iterator
 
 import msa_slam
 from msa_slam.errors import InputError
@@ -51,9 +51,29 @@ def is_result_folder(path: Path, kind: str | None = None) -> bool:
     return isinstance(meta, dict) and meta.get("tool") == "msa-slam" and (kind is None or meta.get("kind") == kind)
 
 
-def write_marker(folder: Path, kind: str) -> None:
-    (Path(folder) / MARKER).write_text(json.dumps({"tool": "msa-slam", "kind": kind,
-                                                   "version": msa_slam.__version__}) + "\n")
+def write_marker(folder: Path, kind: str, exclude: Collection[str] = ()) -> None:
+    """Mark `folder` as msa-slam's result of `kind`, listing the files in it now (but `exclude`) as the ones
+    msa-slam wrote: an --overwrite removes nothing else (foreign_files)."""
+    folder = Path(folder)
+    files = [name for name in _files(folder) if name not in set(exclude)]
+    (folder / MARKER).write_text(json.dumps({"tool": "msa-slam", "kind": kind, "version": msa_slam.__version__,
+                                             "files": files}) + "\n")
+
+
+def foreign_files(folder: Path, outside: tuple[str, ...] = ()) -> list[str]:
+    """Files (relative paths) in a result folder that its marker does not list as msa-slam's: someone else put
+    them there, or a run that grows the folder in place was killed before listing its own. With `outside`,
+    only those not under these subfolders."""
+    meta = json.loads((Path(folder) / MARKER).read_text())
+    ours = set(meta.get("files", []))
+    return [name for name in _files(Path(folder))
+            if name not in ours and not any(name.startswith(f"{sub}/") for sub in outside)]
+
+
+def _files(folder: Path) -> list[str]:
+    """Every file and link under `folder` but the marker, as sorted relative POSIX paths."""
+    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*")
+                  if (p.is_symlink() or not p.is_dir()) and p.name != MARKER)
 
 
 def _exchange(a: Path, b: Path) -> bool:
@@ -101,6 +121,8 @@ def staged_dir(target: Path, kind: str | None = None) -> Iterator[Path]:
         if kind is not None:
             write_marker(tmp, kind)
         yield tmp
+        if kind is not None:
+            write_marker(tmp, kind)  # now listing what the block wrote
         apply_umask(tmp)
         if not target.exists() and not target.is_symlink():
             os.replace(tmp, target)

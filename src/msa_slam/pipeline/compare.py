@@ -238,7 +238,9 @@ def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = Tr
         else:
             if not overwrite:
                 check_seed_folder(folder.path)
-            failed = _seed_comparisons(base, plans, folder.prepare_in_place(fresh=overwrite), quiet, sweep)
+            failed = _seed_comparisons(base, plans, folder.prepare_in_place(fresh=overwrite, grows=("seeds",)),
+                                       quiet, sweep)
+            folder.record_files()
     if failed:
         raise MethodsFailed(folder.path / "report.md", failed)
     return folder.path / "report.md"
