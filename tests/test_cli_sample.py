@@ -111,7 +111,7 @@ def test_missing_and_corrupt_files(stream):
                  "nope.txt: pose file not found")
     (path / "corrupt.npy").write_bytes(b"not numpy")
     expect_error(invoke("--poses", path / "poses.txt", "--descriptors", path / "corrupt.npy", "--out", path / "o"),
-                 "corrupt.npy is not a readable .npy array")
+                 "corrupt.npy is not a .npy file (no NumPy header)")
 
 
 def test_unknown_sampler_and_missing_inputs(stream):

@@ -46,11 +46,25 @@ def test_precomputed_errors(npy, tmp_path):
     corrupt.write_bytes(b"\x93NUMPY garbage")
     with pytest.raises(InputError, match="not a readable .npy"):
         PrecomputedDescriptors(corrupt)
+    huge = tmp_path / "huge.npy"  # a valid header claiming 48 TB, then 800 bytes: refused before any allocation
+    with huge.open("wb") as file:
+        np.lib.format.write_array_header_1_0(file, {"descr": "<f8", "fortran_order": False,
+                                                    "shape": (60, 10**6, 10**5)})
+        file.write(bytes(800))
+    with pytest.raises(InputError, match="huge.npy is not a readable .npy array \\(truncated or corrupt"):
+        PrecomputedDescriptors(huge)
+    for name, values in (("complex.npy", np.ones((5, 4), complex)), ("bool.npy", np.ones((5, 4), bool))):
+        np.save(tmp_path / name, values)
+        with pytest.raises(InputError, match=f"{name} holds {values.dtype} values; expected real numbers"):
+            PrecomputedDescriptors(tmp_path / name)
+    np.savez(tmp_path / "both.npz", a=np.ones((5, 4)))
+    with pytest.raises(InputError, match="both.npz is a .npz archive; expected one .npy array"):
+        PrecomputedDescriptors(tmp_path / "both.npz")
     with pytest.raises(InputError, match="has 4 frames, the sequence has 5"):
         PrecomputedDescriptors(npy, n_frames=5)
     flat = tmp_path / "flat.npy"
     np.save(flat, np.zeros(7))
-    with pytest.raises(InputError, match=r"numeric array \(N, ...\)"):
+    with pytest.raises(InputError, match=r"must hold an array \(N, ...\) of N descriptors, got shape \(7,\)"):
         PrecomputedDescriptors(flat)
     nan = tmp_path / "nan.npy"
     np.save(nan, np.array([[0.0, 1.0], [np.nan, 0.0]]))

@@ -23,19 +23,28 @@ def load_descriptor_file(path: str | Path, n_frames: int | None = None) -> np.nd
     path = Path(path)
     if not path.is_file():
         raise InputError(f"precomputed descriptors: file not found: {path}")
-    try:
-        data = np.load(path, allow_pickle=False)
+    with path.open("rb") as file:
+        magic = file.read(6)
+    if magic != b"\x93NUMPY":
+        what = "a .npz archive" if magic.startswith(b"PK") else "not a .npy file (no NumPy header)"
+        raise InputError(f"precomputed descriptors: {path} is {what}; expected one .npy array (np.save)")
+    try:  # memory-mapped: a header that claims more than the file holds fails here, before any allocation
+        data = np.load(path, mmap_mode="r", allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
-        raise InputError(f"precomputed descriptors: {path} is not a readable .npy array: {exc}") from exc
-    if not isinstance(data, np.ndarray) or data.ndim < 2 or not np.issubdtype(data.dtype, np.number):
-        shape = getattr(data, "shape", None)
-        raise InputError(f"precomputed descriptors: {path} must hold a numeric array (N, ...), got shape {shape}")
+        raise InputError(f"precomputed descriptors: {path} is not a readable .npy array (truncated or corrupt: "
+                         f"{exc})") from exc
+    if data.dtype.kind not in "fiu":
+        raise InputError(f"precomputed descriptors: {path} holds {data.dtype} values; expected real numbers "
+                         "(float or integer)")
+    if data.ndim < 2:
+        raise InputError(f"precomputed descriptors: {path} must hold an array (N, ...) of N descriptors, got shape "
+                         f"{data.shape}")
     if n_frames is not None and len(data) != n_frames:
         raise InputError(f"precomputed descriptors: {path} has {len(data)} frames, the sequence has {n_frames}")
     finite = np.isfinite(data.reshape(len(data), -1)).all(axis=1)
     if not finite.all():
         raise InputError(f"precomputed descriptors: {path}: frame {int(np.argmin(finite))} has NaN or inf values")
-    return data.astype(np.float64, copy=False)
+    return np.array(data, dtype=np.float64)  # a copy in memory: the map closes with `data`
 
 
 class PrecomputedDescriptors:
