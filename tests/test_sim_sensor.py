@@ -224,10 +224,15 @@ def test_foliage_returns_vary_from_scan_to_scan():
 def test_bad_realism_values_name_the_knob():
     with pytest.raises(InputError, match="mixed_pixel_prob must be in"):
         SensorRealism(mixed_pixel_prob=1.0)
-    with pytest.raises(InputError, match="range_noise_per_m must be >= 0"):
+    with pytest.raises(InputError, match="range_noise_per_m must be finite and >= 0"):
         SensorRealism(range_noise_per_m=-0.1)
+    with pytest.raises(InputError, match="incidence_noise must be finite and >= 0"):
+        SensorRealism(incidence_noise=float("inf"))
     with pytest.raises(InputError, match="sweep_period must be > 0"):
         get_sensor("hdl64", sweep_period=0.0)
+    for value in (float("inf"), float("nan"), -0.01):  # inf put inf points in the scans, NaN acted as 0
+        with pytest.raises(InputError, match="range_noise must be finite and >= 0"):
+            get_sensor("hdl64", range_noise=value)
 
 
 def test_stored_sweep_times_are_read_back_and_match_those_derived_from_azimuth(tmp_path):

@@ -43,8 +43,8 @@ class LidarModel:
         if not 0 < self.min_range < self.max_range:
             raise InputError(f"sensor {self.name}: need 0 < min_range < max_range, got "
                              f"{self.min_range} and {self.max_range}")
-        if self.range_noise < 0:
-            raise InputError(f"sensor {self.name}: range_noise must be >= 0, got {self.range_noise}")
+        if not 0 <= self.range_noise < float("inf"):  # NaN fails too
+            raise InputError(f"sensor {self.name}: range_noise must be finite and >= 0, got {self.range_noise}")
         if not 0 <= self.dropout < 1:
             raise InputError(f"sensor {self.name}: dropout must be in [0, 1), got {self.dropout}")
         if not self.sweep_period > 0:
@@ -93,8 +93,8 @@ class SensorRealism:
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name != "elevation_bias_deg" and not isinstance(value, bool) and not value >= 0:
-                raise InputError(f"sensor realism: {f.name} must be >= 0, got {value}")
+            if f.name != "elevation_bias_deg" and not isinstance(value, bool) and not 0 <= value < float("inf"):
+                raise InputError(f"sensor realism: {f.name} must be finite and >= 0, got {value}")
         for name in ("mixed_pixel_prob", "vegetation_dropout"):
             if not getattr(self, name) < 1:
                 raise InputError(f"sensor realism: {name} must be in [0, 1), got {getattr(self, name)}")
