@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -103,6 +104,20 @@ def test_non_rigid_pose_and_bad_lines(stream):
     (path / "short.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0\n")
     expect_error(invoke("--poses", path / "short.txt", "--descriptors", path / "desc.npy", "--out", path / "o"),
                  "short.txt:2: 3 values, expected 12")
+
+
+def test_tum_times_that_do_not_increase_are_refused(stream):
+    path, _, _ = stream
+    lines = (path / "poses_tum.txt").read_text().splitlines()
+    for name, edit, message in (("back.txt", lambda t: t[3] - 0.5, "pose 5: time .* is before the previous one"),
+                                ("same.txt", lambda t: t[3], "pose 5: time .* repeats the previous one"),
+                                ("nan.txt", lambda t: float("nan"), "pose 5: time nan is not a finite number")):
+        times = [float(line.split()[0]) for line in lines]
+        changed = lines[:4] + [" ".join([repr(edit(times))] + lines[4].split()[1:])] + lines[5:]
+        (path / name).write_text("\n".join(changed) + "\n")
+        result = invoke("--poses", path / name, "--descriptors", path / "desc.npy", "--out", path / "o")
+        assert isinstance(result.exception, InputError) and re.search(f"{name}: {message}", str(result.exception))
+        assert not (path / "o").exists()
 
 
 def test_missing_and_corrupt_files(stream):
