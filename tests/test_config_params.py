@@ -67,3 +67,15 @@ def test_nan_in_a_config_file_is_refused(tmp_path):
     path.write_text("dataset: sim:test\nsampler_params:\n  alpha: .nan\n")
     with pytest.raises(InputError, match=re.escape("sampler_params.alpha=nan is not allowed")):
         load_config(path)
+
+
+def test_a_config_file_without_the_dataset_is_completed_by_the_options(tmp_path):
+    """`run --config FILE -d DATASET`: the file is read as a mapping and validated once the options are in."""
+    from msa_slam.cli.run import batch_config
+
+    path = tmp_path / "c.yaml"
+    path.write_text("sampler: constant\nsampler_params: {distance: 2}\n")
+    config = batch_config(path, {"dataset": "sim:test"}, [])
+    assert (config.dataset, config.sampler, config.sampler_params) == ("sim:test", "constant", {"distance": 2})
+    with pytest.raises(InputError, match="--dataset is required"):
+        batch_config(path, {}, [])

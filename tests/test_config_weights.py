@@ -78,3 +78,18 @@ def test_online_config_routes_and_checks_the_weights(weights, tmp_path):
     assert config.descriptor_params == {"weights": str(weights)}
     with pytest.raises(InputError, match="weights file not found: .*nope.pth"):
         apply_online_params({"dataset": "x"}, ["descriptor=ot", f"weights={tmp_path / 'nope.pth'}"])
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--descriptor", "foo"], "error: config: descriptor: unknown name 'foo'; choose one of sc, "),
+    (["--descriptor", "precomputed"], "error: config: descriptor 'precomputed' needs its descriptor file, "
+                                      "-p descriptor.path=FILE.npy"),
+])
+def test_cli_refuses_a_bad_descriptor_before_simulating_the_dataset(tmp_path, args, message):
+    """sim:test is simulated on first use: a typo in the descriptor must not cost that first."""
+    code = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
+    result = subprocess.run([sys.executable, "-c", code, "run", "--dataset", "sim:test", *args,
+                             "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=120,
+                            env={**os.environ, "MSA_SLAM_CACHE": str(tmp_path / "cache")})
+    assert result.returncode == 2 and result.stderr.startswith(message), result.stderr
+    assert not (tmp_path / "out").exists() and not (tmp_path / "cache").exists()

@@ -202,6 +202,9 @@ def test_bad_inputs_fail_clearly(base, tmp_path):
         apply_params(make_config(dataset="x"), ["lambda_z=3"])
     with pytest.raises(InputError, match="unknown simulated sequence 'atlantis'"):
         prepare_frontend(make_config(dataset="sim:atlantis"))
+    for empty in ("sim:", "sim: "):  # sim:$SEQUENCE with the variable unset: not the default (whole KITTI-05)
+        with pytest.raises(InputError, match="names no simulated sequence; give sim:NAME"):
+            prepare_frontend(make_config(dataset=empty))
 
 
 def test_mismatched_pose_file_is_rejected(base, odometry_file, tmp_path):

@@ -17,20 +17,6 @@ PARAM_HELP = ("override as key=value (repeatable): a config key (cloud_store=dis
               "odometry.translation_noise=0.02) or a bare sampler parameter")
 
 
-def _read_config(path: Path) -> dict:
-    """An online config file as a mapping (validated once merged with the options)."""
-    import yaml
-
-    from msa_slam.errors import InputError
-
-    if not path.is_file():
-        raise InputError(f"{path}: config file not found")
-    data = yaml.safe_load(path.read_text()) or {}
-    if not isinstance(data, dict):
-        raise InputError(f"{path}: expected a mapping of config keys")
-    return data
-
-
 @with_source_options
 def online_command(
     dataset: Optional[str] = typer.Option(None, "--dataset", "-d", help=DATASET_HELP),
@@ -58,6 +44,7 @@ def online_command(
     from msa_slam.errors import InputError
     from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
     from msa_slam.pipeline.online import run_online
+    from msa_slam.pipeline.config import read_config_file
     from msa_slam.pipeline.online_config import apply_online_params
     from msa_slam.pipeline.results import write_run_files
     from msa_slam.pipeline.source import open_source
@@ -67,7 +54,7 @@ def online_command(
         from msa_slam.viz.live import LiveViewer, check_viewer
 
         check_viewer(viewer_save)
-    base = _read_config(config) if config is not None else {}
+    base = read_config_file(config) if config is not None else {}
     given = {"dataset": dataset, "sampler": sampler, "descriptor": descriptor, "odometry": odometry, "mode": mode,
              "cloud_store": cloud_store, "cache_dir": cache_option(cache_dir),
              **source_options(base, **source)}

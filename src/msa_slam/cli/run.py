@@ -15,9 +15,9 @@ def batch_config(config_file: Optional[Path], given: dict, params: List[str], so
     """The RunConfig of `run` / `compare`: the options over --config, then the --param overrides; `source`:
     --loader and the source options (cli.config.source_options' arguments)."""
     from msa_slam.cli.config import merge_options, source_options
-    from msa_slam.pipeline.config import apply_params, load_config, make_config
+    from msa_slam.pipeline.config import apply_params, make_config, read_config_file
 
-    base = load_config(config_file).dump() if config_file else {}
+    base = read_config_file(config_file) if config_file else {}
     given = {**given, **source_options(base, **(source or {"loader": None}))}
     data = merge_options(base, given, "a sequence folder, a bag or sim:NAME")
     return apply_params(make_config(data), params)

@@ -108,11 +108,19 @@ def _check_sampler(sampler: str, params: Mapping[str, Any]) -> None:
         raise InputError(f"config: {exc}") from None
 
 
-def check_weights(descriptor: str, params: Mapping[str, Any]) -> None:
-    """The OverlapTransformer's weights file, missing from the config or from the disk, reported before any
-    scan is simulated (the descriptor itself is built after the dataset is opened). Not in make_config:
-    the CLI makes a config from its options before the -p overrides add the weights."""
-    if str(descriptor).lower() not in OT_NAMES:
+def check_descriptor(descriptor: str, params: Mapping[str, Any]) -> None:
+    """The descriptor's name and the file it needs (OverlapTransformer's weights, precomputed descriptors),
+    reported before any scan is simulated (the descriptor itself is built after the dataset is opened). Not
+    in make_config: the CLI makes a config from its options before the -p overrides add those files."""
+    from msa_slam.descriptors.registry import DESCRIPTOR_NAMES
+
+    name = str(descriptor).lower()
+    if name not in DESCRIPTOR_NAMES:
+        raise InputError(f"config: descriptor: unknown name {descriptor!r}; choose one of {', '.join(DESCRIPTOR_NAMES)}")
+    if name == "precomputed" and "path" not in params:
+        raise InputError("config: descriptor 'precomputed' needs its descriptor file, -p descriptor.path=FILE.npy "
+                         "(one descriptor per scan, e.g. a result folder's descriptors.npy)")
+    if name not in OT_NAMES:
         return
     from msa_slam.descriptors.overlap_transformer import WEIGHTS_HINT
 
@@ -124,7 +132,13 @@ def check_weights(descriptor: str, params: Mapping[str, Any]) -> None:
 
 
 def load_config(path: str | os.PathLike) -> RunConfig:
-    """Read a YAML config file (the `config.yaml` of a result folder works as input)."""
+    """Read a whole YAML config file (the `config.yaml` of a result folder works as input)."""
+    return make_config(read_config_file(path))
+
+
+def read_config_file(path: str | os.PathLike) -> dict[str, Any]:
+    """A YAML config file as a mapping, not yet validated: a command's --config, which its options complete
+    (a file without `dataset` is fine with --dataset)."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: config file not found")
@@ -134,7 +148,7 @@ def load_config(path: str | os.PathLike) -> RunConfig:
         raise InputError(f"{path}: not valid YAML ({exc})") from None
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a mapping of config keys, got {type(data).__name__}")
-    return make_config(data)
+    return data
 
 
 _SECTIONS = {"sampler": "sampler_params", "descriptor": "descriptor_params", "odometry": "odometry_params"}
@@ -147,10 +161,10 @@ def apply_params(config: RunConfig, params: list[str]) -> RunConfig:
     `graph.robust=cauchy`), a stage parameter (`sampler.lambda_u=5`, `descriptor.n_sector=60`,
     `odometry.max_range=80`), a bare sampler parameter (`lambda_u=5`), or the bare OverlapTransformer
     weights file (`weights=FILE`, as `--descriptor ot -p weights=FILE` reads in the docs).
-    The result is a command's final config, so the OverlapTransformer's weights file is checked here.
+    The result is a command's final config, so the descriptor (name, weights or descriptor file) is checked here.
     """
     config = make_config(apply_overrides(config.dump(), params, RunConfig))
-    check_weights(config.descriptor, config.descriptor_params)
+    check_descriptor(config.descriptor, config.descriptor_params)
     return config
 
 

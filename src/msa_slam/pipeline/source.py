@@ -33,7 +33,10 @@ def resolve_dataset(spec: str, cache_dir: str | os.PathLike | None = None, progr
     from msa_slam.sim import DEFAULT_CONFIGS, TRAJECTORY_NAMES, default_sequence, make_config, simulate_sequence
 
     items = spec[len(SIM_PREFIX):].split(",")
-    name, fields = ("", items) if "=" in items[0] else (items[0], items[1:])
+    name, fields = ("", items) if "=" in items[0] else (items[0].strip(), items[1:])
+    if not name and not fields:  # e.g. sim:$SEQUENCE with the variable unset
+        raise InputError(f"dataset {spec!r}: names no simulated sequence; give sim:NAME (one of "
+                         f"{', '.join([*DEFAULT_CONFIGS, *TRAJECTORY_NAMES])}) or fields (sim:trajectory=FILE,...)")
     if name in DEFAULT_CONFIGS and not fields:
         return default_sequence(name, cache_dir=cache_dir, progress=progress)
     if name in DEFAULT_CONFIGS:
