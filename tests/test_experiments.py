@@ -283,3 +283,13 @@ def test_report_and_experiment_cli_errors(tmp_path):
     result = CliRunner().invoke(app, ["experiment", str(bad), "--out", str(tmp_path / "o")])
     assert result.exit_code != 0 and "unknown key 'sampler'" in str(result.exception)
     assert not os.path.exists(tmp_path / "o")
+
+
+def test_report_names_a_cell_whose_files_are_damaged(tmp_path):
+    cells = _fake_experiment(tmp_path / "exp", TINY, {"all": 4000, "const-2m": 1000}, {"all": 0.5, "const-2m": 0.7})
+    (tmp_path / "exp" / "cells" / cells[1].id / "metrics.json").write_text('{"broken":')
+    assert CliRunner().invoke(app, ["report", str(tmp_path / "exp")]).exit_code == 0
+    text = (tmp_path / "exp" / "report.md").read_text()
+    assert "1 of 2 cell(s) finished" in text
+    assert f"Cells left out, their cell.json or metrics.json unreadable (run the experiment again to redo them): " \
+           f"cells/{cells[1].id}" in text

@@ -46,13 +46,13 @@ def sample_command(
     if times is not None:  # TUM: the times must make sense even though sampling does not read them
         check_times(times, lambda i: f"{poses}: pose {i + 1}")
     n = len(pose_stack)
-    chosen.expect_frames(n)
     desc = load_descriptor_file(descriptors, n) if descriptors is not None else None
     if desc is None and sampler == "msa":
         raise InputError("sampler 'msa' needs --descriptors (an .npy array with one descriptor per pose)")
     cloud_list = load_cloud_stack(clouds, n) if clouds is not None else None
     if cloud_list is None and chosen.needs_points:
         raise InputError(f"sampler {sampler!r} needs --clouds (a folder of scans or an .npy array)")
+    chosen.expect_frames(n)  # its warning (a window longer than the stream) after the errors above
 
     with open_result_folder(out, "sample", DEFAULT_RESULTS / "sample", overwrite=overwrite) as folder:
         with progress_bar(quiet, transient=False) as progress:

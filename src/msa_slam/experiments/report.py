@@ -234,6 +234,7 @@ def write_report(results_dir: str | os.PathLike, reference: str | None = None) -
     figures = _figures(cells, rows, reference, out / "figures") if rows else []
     done = {c["info"]["id"] for c in cells}
     failed = [c.id for c in expected if c.id not in done and (out / "errors" / f"{c.id}.txt").is_file()]
+    damaged = [c.id for c in expected if c.id not in done and c.id not in failed and cell_dir(out, c.id).is_dir()]
     stale = stale_cells(out, expected)
     lines = [f"# Experiment results: {out.name}", "",
              f"{len(rows)} of {len(expected)} cell(s) finished"
@@ -243,6 +244,9 @@ def write_report(results_dir: str | os.PathLike, reference: str | None = None) -
              "back-end seconds (everything after odometry); p99: per-frame back-end latency.", ""]
     if failed:
         lines += ["Failed cells: " + ", ".join(failed), ""]
+    if damaged:
+        lines += ["Cells left out, their cell.json or metrics.json unreadable (run the experiment again to redo "
+                  "them): " + ", ".join(f"cells/{cell}" for cell in damaged), ""]
     if stale:
         lines += [f"Stale cells (from an earlier grid, not in {GRID_FILE}; left out of every aggregate): "
                   + ", ".join(stale), ""]

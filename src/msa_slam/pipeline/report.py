@@ -45,8 +45,8 @@ def sweep_lines(sweep: list[dict[str, Any]] | None) -> list[str]:
 
 def _rss_growth(m: dict) -> str:
     """RSS growth over this run's back-end beside the accounted bytes it should be explained by."""
-    return (f"RSS growth over this run's back-end: {mib(m['rss_growth_bytes'])} (accounted: "
-            f"{mib(m['memory_bytes']['total'])})")
+    return (f"RSS growth over this run's back-end: {mib(m['rss_growth_bytes'])} (accounted in RAM: "
+            f"{mib(m['memory_bytes']['in_ram'])}, ratio {fmt(m['rss_growth_ratio'], '.2f')})")
 
 
 def _batch_lines(result: RunResult) -> list[str]:
@@ -69,11 +69,15 @@ def _online_lines(result: RunResult) -> list[str]:
     m = result.metrics
     lat = m["latency_ms"]
     return [
-        "| F1-max | memory (keyframes + graph) | bytes / keyframe | frames/s | back-end frames/s | "
+        "| PR-AUC / F1-max | memory (keyframes + graph) | bytes / keyframe | frames/s | back-end frames/s | "
         "real-time factor | back-end p99 [ms] |", "|---|---|---|---|---|---|---|",
-        f"| {fmt(m['f1_max'])} | {mib(m['memory_bytes']['total'])} ({m['memory_bytes']['cloud_store']}) | "
+        f"| {fmt(m['pr_auc'])} / {fmt(m['f1_max'])} | {mib(m['memory_bytes']['total'])} "
+        f"({m['memory_bytes']['cloud_store']}) | "
         f"{m['bytes_per_keyframe']:.0f} | {m['fps']:.1f} | {m['backend_fps']:.1f} | "
         f"{m['realtime_factor']:.2f} | {lat['backend']['p99']:.1f} |", "",
+        f"Real-time factor: frames/s over the data's {m['frame_rate_hz']:.1f} frames/s ("
+        + ("from its timestamps" if m["frame_rate_from"] == "timestamps" else
+           "the config's sensor_rate_hz: its timestamps span no time") + ").", "",
         f"{PROCESS_RSS_LABEL}: {mib(m['peak_rss_bytes'])}; {_rss_growth(m)}", "",
         "Step totals [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in m["time_s"].items())
         + ("  (odometry replayed from cache)" if m.get("odometry_cached") else ""), "",

@@ -51,7 +51,9 @@ class SimConfig(BaseModel):
             return v
         path = Path(v).expanduser()
         if not path.is_file():
-            raise ValueError(f"unknown trajectory {v!r}; choose one of {', '.join(TRAJECTORY_NAMES)} "
+            looks_like_a_file = "/" in v or "." in v  # no shipped name has either
+            what = "pose file not found:" if looks_like_a_file else "unknown trajectory"
+            raise ValueError(f"{what} {v!r}; choose one of {', '.join(TRAJECTORY_NAMES)} "
                              "or give a pose file (KITTI or TUM format)")
         return str(path.resolve())
 
