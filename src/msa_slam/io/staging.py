@@ -54,8 +54,8 @@ def is_result_folder(path: Path, kind: str | None = None) -> bool:
 def write_marker(folder: Path, kind: str, exclude: Collection[str] = ()) -> None:
     """Mark `folder` as msa-slam's result of `kind`, listing the files in it now (but `exclude`) as the ones
     msa-slam wrote: an --overwrite removes nothing else (foreign_files)."""
-    folder = Path(folder)
-    files = [name for name in _files(folder) if name not in set(exclude)]
+    folder, exclude = Path(folder), set(exclude)
+    files = [name for name in _files(folder) if name not in exclude]
     (folder / MARKER).write_text(json.dumps({"tool": "msa-slam", "kind": kind, "version": msa_slam.__version__,
                                              "files": files}) + "\n")
 

@@ -116,7 +116,8 @@ def check_descriptor(descriptor: str, params: Mapping[str, Any]) -> None:
 
     name = str(descriptor).lower()
     if name not in DESCRIPTOR_NAMES:
-        raise InputError(f"config: descriptor: unknown name {descriptor!r}; choose one of {', '.join(DESCRIPTOR_NAMES)}")
+        raise InputError(f"config: descriptor: unknown name {descriptor!r}; choose one of "
+                         f"{', '.join(DESCRIPTOR_NAMES)}")
     if name == "precomputed" and "path" not in params:
         raise InputError("config: descriptor 'precomputed' needs its descriptor file, -p descriptor.path=FILE.npy "
                          "(one descriptor per scan, e.g. a result folder's descriptors.npy)")

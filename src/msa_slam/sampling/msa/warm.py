@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import multiprocessing
 import os
-from multiprocessing.process import BaseProcess
 from collections.abc import Mapping
+from multiprocessing.process import BaseProcess
 from typing import Any
 
 import numpy as np
