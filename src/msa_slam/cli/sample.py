@@ -38,6 +38,7 @@ def sample_command(
     from msa_slam.io.poses import read_poses
     from msa_slam.progress import progress_bar
     from msa_slam.sampling.figure import plot_keyframes
+    from msa_slam.sampling.msa.warm import load_kernels
     from msa_slam.sampling.registry import make_sampler
 
     params = parse_params(param)
@@ -53,6 +54,8 @@ def sample_command(
     if cloud_list is None and chosen.needs_points:
         raise InputError(f"sampler {sampler!r} needs --clouds (a folder of scans or an .npy array)")
     chosen.expect_frames(n)  # its warning (a window longer than the stream) after the errors above
+    if desc is not None:  # compiled before the first window, not inside its optimisation_ms
+        load_kernels(sampler, params, desc.shape[1:])
 
     with open_result_folder(out, "sample", DEFAULT_RESULTS / "sample", overwrite=overwrite) as folder:
         with progress_bar(quiet, transient=False) as progress:
