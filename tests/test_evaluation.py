@@ -202,3 +202,12 @@ def test_fmt_prints_na_and_never_negative_zero():
     assert fmt(-0.04, ".1f", " %") == "0.0 %" and fmt(-0.0) == "0.000" and fmt(-0.0004, ".3f") == "0.000"
     assert fmt(-1.25, ".1f") == "-1.2" and fmt(-0.0004, ".1e") == "-4.0e-04"
     assert fmt(None) == fmt(float("nan")) == "n/a" and fmt(3, "d") == "3"
+
+
+def test_spec_for_gives_each_kind_of_metric_one_number_of_decimals():
+    from msa_slam.evaluation.display import spec_for
+
+    assert {spec_for(k) for k in ("ate_after_m", "rpe_pct", "rpe_kitti_rotation_deg_per_100m", "pr_auc",
+                                  "f1_max_reference")} == {".3f"}
+    assert {spec_for(k) for k in ("improvement_t_pct", "kf_improvement_r_pct")} == {".1f"}
+    assert {spec_for(k) for k in ("memory_mib", "rss_growth_mib", "time_s")} == {".2f"}

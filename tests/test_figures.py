@@ -132,3 +132,19 @@ def test_keyframe_figure_has_units_and_its_legend_off_the_path(figures, tmp_path
     assert (ax.get_xlabel(), ax.get_ylabel(), ax.get_aspect()) == ("x [m]", "y [m]", 1.0)
     assert ax.get_legend() is None
     assert not _overlaps(fig.legends[0].get_window_extent(), ax.get_window_extent())
+
+
+def test_step_time_panels_say_which_idle_steps_they_leave_out(figures, tmp_path):
+    from msa_slam.viz import plot_step_times
+
+    busy = np.linspace(0.1, 3.0, 40)
+    loops = busy.copy()
+    loops[:12] = 0.0  # idle keyframe steps: a log axis has no place for 0 ms
+    plot_step_times(tmp_path / "s.png", {"graph update": {"msa": busy}, "loop detection": {"msa": loops}})
+    plot_step_times(tmp_path / "m.png", {"loop detection": {"all": busy, "msa": loops, "never": np.zeros(5)}})
+    single, multi = figures[-2], figures[-1]
+    assert single.axes[0].get_xlabel() == ""  # nothing left out, nothing said
+    note = single.axes[1].get_xlabel().replace("\N{NO-BREAK SPACE}", " ")
+    assert "idle (0 ms" in note and "log axis" in note and "12 of 40 steps" in note
+    note = " ".join(multi.axes[0].get_xlabel().replace("\N{NO-BREAK SPACE}", " ").split())
+    assert "msa 12 of 40" in note and "never 5 of 5" in note and "all " not in note

@@ -125,6 +125,7 @@ def test_compare_writes_table(base, frontend, tmp_path):
     assert {(r["method"], r["protocol"]) for r in pr} == {(m, p) for m in ("constant-3m", "msa")
                                                           for p in ("paper", "reference")}
     assert "| method | 0.70 | 0.75 | 0.80 | 0.85 |" in report.read_text()
+    assert "| RPE 100-400 m [%] |" in (folder / "comparison.md").read_text() and "100-800" not in report.read_text()
 
 
 def test_compare_without_sweep_says_it_was_not_run(base, frontend, tmp_path):
@@ -146,6 +147,10 @@ def test_full_rate_trajectory_is_written_and_evaluated(base, frontend, tmp_path)
     assert m["frames"] == len(result) and m["after"]["ate_translation_m"] < m["before"]["ate_translation_m"]
     assert result.metrics["threshold_sweep"] is None
     folder = write_run(result, tmp_path / "out").parent
+    # the ~400 m figure-eight has segments of 100-400 m only: the report must not claim KITTI's 100-800 m
+    report = (folder / "report.md").read_text()
+    assert "100-800" not in report and "| RPE translation [%], 100-400 m |" in report
+    assert "segments of 100, 200, 300, 400 m only" in report
     np.testing.assert_allclose(read_poses(folder / "trajectories" / "optimised.kitti")[0], full, atol=1e-5)
     poses, stamps = read_poses(folder / "trajectories" / "optimised.tum")
     np.testing.assert_allclose(poses, full, atol=1e-5)
@@ -320,4 +325,36 @@ def test_improvement_rounding_to_zero_prints_unsigned(base, frontend, tmp_path):
     result.metrics["full_rate"]["improvement_pct"] = {"translation": -0.0004, "rotation": -0.0001}
     result.metrics["improvement_pct"] = {"translation": -0.0004, "rotation": -0.0001}
     table = table_markdown([table_row(result.metrics)])
-    assert "-0.0" not in table and "| 0.000 | 0.000 |" in table
+    assert "-0.0" not in table and "| 0.0 | 0.0 |" in table
+
+
+def _decimals(cell: str) -> int | None:
+    return len(cell.split(".")[1]) if "." in cell else None
+
+
+def test_comparison_table_columns_keep_one_number_of_decimals():
+    """A column never mixes 0.123 and 12.3 (values either side of 10 used to switch from 3 to 1 decimal)."""
+    small = {c: 0.5 + i for i, c in enumerate(COLUMNS)}
+    rows = [{**small, "method": "a", "keyframes": 7}, {**{c: 12.5 + 10 * i for i, c in enumerate(COLUMNS)},
+                                                       "method": "b", "keyframes": 70}]
+    lines = table_markdown(rows).splitlines()
+    header = [h.strip() for h in lines[0].strip("|").split("|")]
+    cells = [[c.strip() for c in line.strip("|").split("|")] for line in lines[2:]]
+    decimals = {h: {_decimals(row[i]) for row in cells} for i, h in enumerate(header)}
+    assert all(len(d) == 1 for d in decimals.values()), decimals
+    assert decimals["ATE after [m]"] == {3} and decimals["t. ATE impr. [%]"] == {1}
+    assert decimals["memory [MiB]"] == decimals["time [s]"] == {2} and decimals["keyframes"] == {None}
+
+
+@pytest.mark.parametrize("length, span, said", [
+    (250.0, "100-200 m", "segments of 100, 200 m only (the trajectory of 250.0 m is too short"),
+    (850.0, "100-800 m", "RPE over KITTI's 100-800 m segments"),
+    (50.0, "KITTI segments", "n/a: the trajectory of 50.0 m is shorter than the segment lengths (100-800 m)"),
+])
+def test_rpe_segments_name_the_lengths_evaluated(length, span, said):
+    from msa_slam.pipeline.report import rpe_segments
+
+    gt = np.tile(np.eye(4), (201, 1, 1))
+    gt[:, 0, 3] = np.linspace(0, length, 201)
+    assert rpe_segments(gt)[0] == span and said in rpe_segments(gt)[1]
+    assert "n/a" in rpe_segments(None)[1]

@@ -55,6 +55,15 @@ def test_seed_summary_reports_mean_std_ranks_and_verdicts():
     assert "| all | better, beyond the seed spread" in text and "paired t-test" in text
 
 
+def test_seed_table_gives_each_metric_one_number_of_decimals():
+    rows = {s: [{"method": "msa", "ate_after_m": 9.5 + s, "rpe_pct": 0.5 + s, "keyframes": 40 + s}]
+            for s in range(3)}
+    text = seed_markdown(seed_summary(rows))
+    # ATE crosses 10 m between seeds yet keeps 3 decimals; counts (a mean over seeds) take 1
+    assert "| 10.500 ± 1.000 |" in text and "| 1.500 ± 1.000 |" in text and "| 41.0 ± 1.0 |" in text
+    assert "100-800" not in text  # each seed's comparison.md names the segment lengths its trajectory covers
+
+
 def test_seeds_are_parsed_and_only_simulated_data_takes_them():
     assert parse_seeds("0, 1,2") == [0, 1, 2]
     for bad in ("0,x", "1,1", "-1", ""):

@@ -18,6 +18,21 @@ def fmt(value: float | None, spec: str = ".3f", unit: str = "") -> str:
     return text + unit
 
 
+COUNT_KEYS = ("keyframes", "candidates", "verified", "rejected", "false_loops")  # counted, not measured
+
+
+def spec_for(key: str) -> str:
+    """The format spec of a metric by the unit its key ends with (metrics.json keys, compare's columns), so a
+    table column never mixes 0.123 and 12.3: % improvements and counts (their means over seeds) 1 decimal;
+    MiB and seconds 2 (as `mib` and the stage times); errors (m, deg, RPE in % or deg/100 m) and scores
+    (PR-AUC, F1) 3."""
+    if "improvement" in key or key in COUNT_KEYS:
+        return ".1f"
+    if key.endswith(("_mib", "_s")):
+        return ".2f"
+    return ".3f"
+
+
 NOTE_LABELS = {"ate": "ATE (and its % improvement)", "ate_odometry": "ATE of the odometry",
                "ate_optimised": "ATE after optimisation", "improvement_translation": "translation ATE improvement",
                "improvement_rotation": "rotation ATE improvement", "pr": "PR-AUC / F1-max",

@@ -13,12 +13,14 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from msa_slam.evaluation import ATE_ALIGNMENT, NA, fmt, notes
+from msa_slam.evaluation.display import spec_for
 from msa_slam.io.atomic import atomic_path, write_text_atomic
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, staged_dir
 from msa_slam.io.tables import mib, rows_csv, write_json
 from msa_slam.pipeline.batch import SWEEP_NOT_RUN, run_batch
 from msa_slam.pipeline.config import RunConfig, make_config
 from msa_slam.pipeline.frontend import Frontend, prepare_frontend
+from msa_slam.pipeline.report import rpe_segments
 from msa_slam.pipeline.results import reference_xy, trajectory_panels, write_run_files
 from msa_slam.pipeline.seed_folder import (check_seed_folder, clean_leftovers, finished_metrics, left_out_seeds,
                                            reusable_seeds, seed_dir, seed_record, write_record)
@@ -47,7 +49,7 @@ COLUMNS = ("method", "keyframes", "candidates", "verified", "rejected", "false_l
            "f1_max_reference", "memory_mib", "rss_growth_mib", "time_s", "kf_ate_before_m", "kf_ate_after_m", "kf_improvement_t_pct",
            "kf_improvement_r_pct")
 HEADERS = ("method", "keyframes", "candidates", "verified", "rejected", "false loops", "ATE before [m]", "ATE after [m]",
-           "t. ATE impr. [%]", "R. ATE impr. [%]", "RPE 100-800 m [%]", "RPE 10 m [m]", "PR-AUC", "F1-max",
+           "t. ATE impr. [%]", "R. ATE impr. [%]", "RPE {rpe} [%]", "RPE 10 m [m]", "PR-AUC", "F1-max",
            "PR-AUC (ref.)", "F1-max (ref.)", "memory [MiB]", "RSS growth [MiB]", "time [s]", "kf ATE before [m]", "kf ATE after [m]",
            "kf t. impr. [%]", "kf R. impr. [%]")
 
@@ -74,15 +76,19 @@ def table_row(metrics: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def _fmt(value: Any) -> str:
+def _cell(column: str, value: Any) -> str:
+    """A float with its column's decimals (evaluation.display.spec_for), counts and names as they are."""
     if isinstance(value, float):
-        return fmt(value, ".3f" if abs(value) < 10 else ".1f")
+        return fmt(value, spec_for(column))
     return NA if value is None else str(value)
 
 
-def table_markdown(rows: Sequence[dict[str, Any]]) -> str:
-    lines = ["| " + " | ".join(HEADERS) + " |", "|" + "---|" * len(HEADERS)]
-    lines += ["| " + " | ".join(_fmt(r[c]) for c in COLUMNS) + " |" for r in rows]
+def table_markdown(rows: Sequence[dict[str, Any]], rpe_span: str = "KITTI segments") -> str:
+    """comparison.md: the rows of comparison.csv, each column with one number of decimals; `rpe_span`: the
+    KITTI segment lengths the RPE covered (pipeline.report.rpe_segments), for its header."""
+    headers = [h.format(rpe=rpe_span) for h in HEADERS]
+    lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
+    lines += ["| " + " | ".join(_cell(c, r[c]) for c in COLUMNS) + " |" for r in rows]
     return "\n".join(lines) + "\n"
 
 
@@ -149,6 +155,7 @@ def sweep_markdown(results: Sequence[RunResult]) -> str:
 
 def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: list[str]) -> str:
     cfg = results[0].config
+    rpe_text = rpe_segments(results[0].gt_poses)[1]  # every method runs on the same sequence
     cached = " (from cache)" if all(fe.cached.values()) else ""
     front = ", ".join(f"{k} {v:.1f} s" for k, v in fe.timer.seconds.items())
     lines = [f"# Sampler comparison on {fe.name}", "",
@@ -158,8 +165,8 @@ def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: lis
              f"ATE: the full-rate trajectory (every frame: its preceding keyframe's optimised pose and the "
              f"odometry since) vs ground truth after {ATE_ALIGNMENT} alignment (fitted on all frames of each "
              "estimate), before (odometry, the same for every method) and after pose-graph optimisation; "
-             "improvement = 100 (before - after) / before. RPE of the full-rate optimised trajectory over KITTI's "
-             "100-800 m segments (translation, % of the length) and over 10 m (m). kf columns: the same ATE on "
+             f"improvement = 100 (before - after) / before. {rpe_text}. RPE is of the full-rate optimised "
+             "trajectory (translation in % of the segment length), also over 10 m (m). kf columns: the same ATE on "
              "each method's own keyframes only. PR-AUC / F1-max: the paper's keyframe search (each keyframe's best "
              "older match) and, marked ref., the reference example's protocol (each frame against the 10 nearest "
              "keyframes); arrays in figures/pr.csv. False loops: verified loops whose ground-truth distance exceeds "
@@ -252,7 +259,7 @@ def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: boo
     frontend = prepare_frontend(configs[0], quiet)
     results, failed = _run_methods(configs, frontend, tmp / "runs", quiet, sweep)
     rows = [table_row(r.metrics) for r in results]
-    table = table_markdown(rows)
+    table = table_markdown(rows, rpe_segments(results[0].gt_poses)[0] if results else "KITTI segments")
     (tmp / "comparison.md").write_text(table)
     (tmp / "comparison.csv").write_text(rows_csv(rows, COLUMNS))
     write_json(tmp / "comparison.json", [r.metrics for r in results])

@@ -8,6 +8,7 @@ from typing import Any, Mapping, Sequence
 
 from msa_slam.errors import InputError
 from msa_slam.evaluation import NA, fmt
+from msa_slam.evaluation.display import spec_for
 from msa_slam.evaluation.spread import MIN_SEEDS, PAIRED_TEST, PAIRED_TEST_WHY, REFERENCE, paired_verdict, spreads
 
 SIM_PREFIX = "sim:"
@@ -16,7 +17,7 @@ SEED_METRICS: dict[str, tuple[str, bool | None]] = {
     "improvement_t_pct": ("t. ATE impr. [%]", True),
     "improvement_r_pct": ("R. ATE impr. [%]", True),
     "ate_after_m": ("ATE after [m]", False),
-    "rpe_pct": ("RPE 100-800 m [%]", False),
+    "rpe_pct": ("RPE KITTI segments [%]", False),  # lengths: each seed's comparison.md
     "rpe_10m_m": ("RPE 10 m [m]", False),
     "pr_auc": ("PR-AUC", True),
     "f1_max": ("F1-max", True),
@@ -77,10 +78,11 @@ def _value(row: Mapping[str, Any] | None, column: str) -> float | None:
     return None if value is None else float(value)
 
 
-def _cell(entry: Mapping[str, Any]) -> str:
-    digits = ".1f" if entry["mean"] is not None and abs(entry["mean"]) >= 10 else ".3f"
+def _cell(column: str, entry: Mapping[str, Any]) -> str:
+    """mean ± std with the column's decimals (evaluation.display.spec_for)."""
     if entry["mean"] is None:
         return NA
+    digits = spec_for(column)
     return f"{fmt(entry['mean'], digits)} ± {fmt(entry['std'], digits)}"
 
 
@@ -92,7 +94,7 @@ def seed_markdown(summary: Mapping[str, Any]) -> str:
     labels = [m["label"] for m in metrics.values()]
     lines = [f"Seeds {', '.join(map(str, seeds))}: mean ± sample std (ddof 1) over the seeds.", "",
              "| method | " + " | ".join(labels) + " |", "|" + "---|" * (len(labels) + 1)]
-    lines += [f"| {m} | " + " | ".join(_cell(e["methods"][m]) for e in metrics.values()) + " |" for m in methods]
+    lines += [f"| {m} | " + " | ".join(_cell(k, e["methods"][m]) for k, e in metrics.items()) + " |" for m in methods]
     ranked = {k: e for k, e in metrics.items() if e["higher_is_better"] is not None}
     lines += ["", "Rank per seed (1 = best, among the methods with a value; seeds " + ", ".join(map(str, seeds))
               + "):", "",

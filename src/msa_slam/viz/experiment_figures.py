@@ -3,6 +3,7 @@ distributions, the box plot of ATE differences to all samples and parameter swee
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -38,9 +39,24 @@ def plot_memory(path: str | Path, series: Mapping[str, tuple[np.ndarray, np.ndar
     return _save(fig, path)
 
 
+def idle_note(steps: Mapping[str, np.ndarray]) -> str:
+    """What a step-time panel leaves out: per label, the steps that took 0 ms (idle: the step had nothing to
+    do, or took less than the timer's resolution), which a log axis cannot place; "" when none."""
+    counts = {label: (int((np.asarray(ms) <= 0).sum()), len(ms)) for label, ms in steps.items()}
+    left_out = [f"{label} {idle} of {total}" if len(counts) > 1 else f"{idle} of {total} steps"
+                for label, (idle, total) in counts.items() if idle]
+    if not left_out:
+        return ""
+    text = "left out, idle (0 ms, no place on a log axis): " + ", ".join(t.replace(" ", "\N{NO-BREAK SPACE}")
+                                                                        for t in left_out)
+    return textwrap.fill(text, 60, break_on_hyphens=False)
+
+
 def plot_step_times(path: str | Path, steps: Mapping[str, Mapping[str, np.ndarray]],
                     title: str = "per-step time") -> Path:
-    """steps: step name -> (label -> per-step ms); one box-plot panel per step (log scale, as Fig. 8)."""
+    """steps: step name -> (label -> per-step ms); one box-plot panel per step (log scale, as Fig. 8).
+    Idle steps (0 ms) have no place on the log axis: each panel's x label counts those it leaves out, so a
+    thin or empty box is not read as the whole story."""
     names = list(steps)
     fig, axes = plt.subplots(1, len(names), figsize=(4.5 * len(names), 4), squeeze=False)
     for ax, name in zip(axes[0], names):
@@ -51,6 +67,7 @@ def plot_step_times(path: str | Path, steps: Mapping[str, Mapping[str, np.ndarra
         ax.set_xticks(range(1, len(labels) + 1), labels, rotation=30, ha="right", fontsize=8)
         ax.set_yscale("log")
         ax.set(ylabel="time per step [ms]", title=name)
+        ax.set_xlabel(idle_note(steps[name]), fontsize=8)
         ax.grid(alpha=0.3, axis="y")
     fig.suptitle(title)
     fig.tight_layout()
