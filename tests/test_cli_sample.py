@@ -107,11 +107,14 @@ def test_non_rigid_pose_and_bad_lines(stream):
 
 
 def test_tum_times_that_do_not_increase_are_refused(stream):
+    """read_poses checks the times (sample does not use them), naming the pose and its line in the file."""
     path, _, _ = stream
     lines = (path / "poses_tum.txt").read_text().splitlines()
-    for name, edit, message in (("back.txt", lambda t: t[3] - 0.5, "pose 5: time .* is before the previous one"),
-                                ("same.txt", lambda t: t[3], "pose 5: time .* repeats the previous one"),
-                                ("nan.txt", lambda t: float("nan"), "pose 5: time nan is not a finite number")):
+    for name, edit, message in (("back.txt", lambda t: t[3] - 0.5,
+                                 r"pose 5: time \S+ is before the previous one \(\S+ on line 4\) on line 5"),
+                                ("same.txt", lambda t: t[3],
+                                 r"pose 5: time \S+ repeats the previous one \(\S+ on line 4\) on line 5"),
+                                ("nan.txt", lambda t: float("nan"), "pose 5: time nan is not a finite number on line 5")):
         times = [float(line.split()[0]) for line in lines]
         changed = lines[:4] + [" ".join([repr(edit(times))] + lines[4].split()[1:])] + lines[5:]
         (path / name).write_text("\n".join(changed) + "\n")

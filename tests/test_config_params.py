@@ -8,7 +8,7 @@ import pytest
 import yaml
 
 from msa_slam.errors import InputError
-from msa_slam.pipeline.config import apply_params, load_config, make_config
+from msa_slam.pipeline.config import apply_params, load_config, make_config, read_config_file
 
 
 @pytest.fixture
@@ -70,7 +70,8 @@ def test_nan_in_a_config_file_is_refused(tmp_path):
 
 
 def test_a_config_file_without_the_dataset_is_completed_by_the_options(tmp_path):
-    """`run --config FILE -d DATASET`: the file is read as a mapping and validated once the options are in."""
+    """`run --config FILE -d DATASET`: the file is checked on its own as read (a missing dataset is no error)
+    and the whole config validated once the options are in."""
     from msa_slam.cli.run import batch_config
 
     path = tmp_path / "c.yaml"
@@ -79,3 +80,54 @@ def test_a_config_file_without_the_dataset_is_completed_by_the_options(tmp_path)
     assert (config.dataset, config.sampler, config.sampler_params) == ("sim:test", "constant", {"distance": 2})
     with pytest.raises(InputError, match="--dataset is required"):
         batch_config(path, {}, [])
+
+
+@pytest.mark.parametrize("text, problem", [
+    ("windw: 3\n", "unknown key 'windw'; valid keys: dataset, dataset_kind, source, "),
+    ("similarity_threshold: high\n", "similarity_threshold: Input should be a valid number"),
+    ("min_frame_gap: -1\n", "min_frame_gap: Input should be greater than or equal to 0"),
+    ("verifier:\n  max_residul: 0.2\n", "unknown key 'verifier.max_residul'; valid keys: voxel_size, "),
+    ("source: {frist: 3}\n", "unknown key 'source.frist'; valid keys: topic, "),
+    ("sampler: msa\nsampler_params: {windw: 3}\n", "sampler 'msa': unknown parameter(s) windw; it takes: window="),
+    ("sampler_params: {alpha: .inf}\n", "sampler_params.alpha=inf is not allowed; expected a finite number"),
+    ("1: 2\n", "key 1 is not a name; valid keys: dataset, "),
+])
+def test_a_bad_key_in_a_config_file_names_the_file(tmp_path, text, problem):
+    path = tmp_path / "config.yaml"
+    path.write_text(text)
+    with pytest.raises(InputError, match=f"^{re.escape(f'{path}: {problem}')}"):
+        read_config_file(path)
+
+
+def test_sampler_params_of_a_file_without_sampler_wait_for_the_options(tmp_path):
+    """Whose parameters they are is the --sampler option's to say: checked (as the config's) after the merge."""
+    from msa_slam.cli.run import batch_config
+
+    path = tmp_path / "c.yaml"
+    path.write_text("sampler_params: {distance: 2}\n")
+    assert read_config_file(path) == {"sampler_params": {"distance": 2}}
+    assert batch_config(path, {"dataset": "sim:test", "sampler": "constant"}, []).sampler_params == {"distance": 2}
+    with pytest.raises(InputError, match=re.escape("config: sampler 'msa': unknown parameter(s) distance")):
+        batch_config(path, {"dataset": "sim:test"}, [])
+
+
+@pytest.mark.parametrize("command, text, problem", [
+    ("run", "windw: 3\n", "unknown key 'windw'; valid keys: "),
+    ("compare", "verifier: {max_residual: x}\n", "verifier.max_residual: Input should be a valid number"),
+    ("online", "windw: 3\n", "unknown key 'windw'; valid keys: "),
+    ("online", "cloud_store: disk\nupdate_iterations: -1\n",  # online's own keys: checked as OnlineConfig
+     "update_iterations: Input should be greater than or equal to 0"),
+    ("run", "cloud_store: disk\n", "unknown key 'cloud_store'; valid keys: "),
+])
+def test_config_file_errors_of_the_commands_name_the_file(tmp_path, command, text, problem):
+    from typer.testing import CliRunner
+
+    from msa_slam.cli import app
+
+    path = tmp_path / "my-config.yaml"
+    path.write_text(text)
+    result = CliRunner().invoke(app, [command, "--config", str(path), "--dataset", "sim:test",
+                                      "--out", str(tmp_path / "out"), "--quiet"])
+    assert isinstance(result.exception, InputError), result.output
+    assert str(result.exception).startswith(f"{path}: {problem}")
+    assert not (tmp_path / "out").exists()

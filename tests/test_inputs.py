@@ -4,6 +4,7 @@ come through, and a wrong layout names what was expected where."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -334,3 +335,93 @@ def test_gt_format_option_reaches_the_pose_reader(tmp_path, command):
     assert "gt.txt:1: 8 values, expected 12 (kitti format)" in str(result.output) + str(result.exception)
     result = CliRunner().invoke(app, [*args, "--gt-format", "g2o"])
     assert result.exit_code != 0 and "gt_format" in str(result.output) + str(result.exception)
+
+
+TUM_HEADER = "# time tx ty tz qx qy qz qw\n"  # line 1; a blank line 3 follows pose 1, so pose k > 1 is on line k + 2
+
+
+def _tum_file(path: Path, rows: list[str]) -> Path:
+    """A TUM file whose line numbers differ from its pose numbers (a comment and a blank line)."""
+    path.write_text(TUM_HEADER + rows[0] + "\n\n" + "".join(row + "\n" for row in rows[1:]))
+    return path
+
+
+def _tum_rows(n: int = N) -> list[str]:
+    return [f"{0.1 * k:.1f} {2.0 * k} 0 0 0 0 0 1" for k in range(n)]
+
+
+@pytest.mark.parametrize(("time", "problem"), [
+    ("0.1", "time 0.1 repeats the previous one (0.1 on line 4) on line 5; times must increase strictly"),
+    ("0.05", "time 0.05 is before the previous one (0.1 on line 4) on line 5; times must increase strictly"),
+    ("nan", "time nan is not a finite number on line 5"),
+    ("inf", "time inf is not a finite number on line 5"),
+])
+def test_tum_times_are_checked_by_the_reader_naming_the_line(tmp_path, time, problem):
+    from msa_slam.io.poses import read_poses
+
+    rows = _tum_rows()
+    rows[2] = " ".join([time, *rows[2].split()[1:]])
+    path = _tum_file(tmp_path / "poses.txt", rows)
+    with pytest.raises(InputError, match=re.escape(f"{path}: pose 3: {problem}")):
+        read_poses(path)
+    with pytest.raises(InputError, match=re.escape(f"{path}: pose 3: {problem}")):
+        read_poses(path, "tum")
+    for k in range(N):  # the sequence loader gets the reader's message (it no longer checks the times itself)
+        _write_bin(tmp_path / "scans" / f"{k}.bin", _points(k))
+    with pytest.raises(InputError, match=re.escape(f"{path}: pose 3: {problem}")):
+        open_dataset(tmp_path / "scans", poses=path)
+
+
+@pytest.mark.parametrize(("quaternion", "norm"), [
+    ("0.7 0 0 0", "0.7"),  # corrupt, or the columns in another order
+    ("0 0 0 0", "0"),
+    ("0 0 nan 1", "nan"),
+    ("0 0 inf 1", "inf"),
+])
+def test_tum_quaternion_far_from_unit_norm_is_refused_naming_the_line(tmp_path, quaternion, norm):
+    from msa_slam.io.poses import read_poses
+
+    rows = _tum_rows()
+    rows[3] = " ".join([*rows[3].split()[:4], quaternion])
+    path = _tum_file(tmp_path / "poses.txt", rows)
+    with pytest.raises(InputError) as error:
+        read_poses(path)
+    message = str(error.value)
+    assert message.startswith(f"{path}:6: quaternion (qx qy qz qw) ")
+    assert f"has norm {norm}, not 1 (allowed deviation 0.01)" in message
+    assert message.endswith("TUM columns are time tx ty tz qx qy qz qw")
+
+
+def test_tum_quaternion_within_tolerance_is_normalised(tmp_path):
+    """Writers that print few decimals are accepted; just past QUATERNION_TOLERANCE is refused."""
+    from scipy.spatial.transform import Rotation
+
+    from msa_slam.io.poses import QUATERNION_TOLERANCE, read_poses
+
+    quat = Rotation.from_euler("z", 0.3).as_quat()
+    rows = _tum_rows()
+    rows[1] = " ".join([*rows[1].split()[:4], *(f"{q:.3f}" for q in quat)])
+    rows[2] = " ".join([*rows[2].split()[:4], *(f"{q:.9f}" for q in quat * (1 + 0.9 * QUATERNION_TOLERANCE))])
+    poses, times = read_poses(_tum_file(tmp_path / "ok.txt", rows))
+    for k in (1, 2):
+        np.testing.assert_allclose(poses[k, :3, :3], Rotation.from_euler("z", 0.3).as_matrix(), atol=2e-3)
+    np.testing.assert_allclose(times, 0.1 * np.arange(N))
+    rows[2] = " ".join([*rows[2].split()[:4], *(f"{q:.9f}" for q in quat * (1 + 1.1 * QUATERNION_TOLERANCE))])
+    with pytest.raises(InputError, match=re.escape("bad.txt:5: quaternion (qx qy qz qw) ")):
+        read_poses(_tum_file(tmp_path / "bad.txt", rows))
+
+
+def test_sample_command_refuses_a_bad_tum_quaternion(tmp_path):
+    from typer.testing import CliRunner
+
+    from msa_slam.cli import app
+
+    rows = _tum_rows()
+    rows[1] = " ".join([*rows[1].split()[:4], "1 0 0 0.7"])  # norm 1.22: e.g. qw written twice
+    path = _tum_file(tmp_path / "poses.txt", rows)
+    np.save(tmp_path / "desc.npy", np.zeros((N, 8)))
+    result = CliRunner().invoke(app, ["sample", "--poses", str(path), "--descriptors", str(tmp_path / "desc.npy"),
+                                      "--out", str(tmp_path / "out"), "--quiet"])
+    assert isinstance(result.exception, InputError), result.output
+    assert str(result.exception).startswith(f"{path}:4: quaternion (qx qy qz qw) [1.0, 0.0, 0.0, 0.7] has norm 1.22066")
+    assert not (tmp_path / "out").exists()

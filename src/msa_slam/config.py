@@ -51,6 +51,24 @@ def validation_message(exc: ValidationError, model: type[BaseModel], root: str =
     return "; ".join(problem(e, model, root) for e in exc.errors())
 
 
+def check_partial(model: type[BaseModel], data: Mapping[str, Any], where: str) -> None:
+    """Check `data` as constructing `model` would, except that keys the model requires may be missing.
+
+    A config file that command-line options complete (`run --config FILE -d DATASET`) is checked on its own
+    this way, so an unknown or wrongly typed key is reported with `where` (the file) rather than only once
+    the options are mixed in, when the message could no longer say where the key came from.
+    """
+    token = _nested.set(True)  # pydantic's own errors, so that the missing keys can be left out
+    try:
+        model.model_validate(dict(data))
+    except ValidationError as exc:
+        errors = [e for e in exc.errors() if not (e["type"] == "missing" and len(e["loc"]) == 1)]
+        if errors:
+            raise InputError(f"{where}: {'; '.join(problem(e, model) for e in errors)}") from None
+    finally:
+        _nested.reset(token)
+
+
 class StageConfig(BaseModel):
     """Base of every stage's configuration: unknown keys, NaN and infinity are errors; assignments are
     validated; a failed construction raises one InputError line starting with the model's SECTION."""

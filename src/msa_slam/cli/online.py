@@ -45,7 +45,7 @@ def online_command(
     from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
     from msa_slam.pipeline.online import run_online
     from msa_slam.pipeline.config import read_config_file
-    from msa_slam.pipeline.online_config import apply_online_params
+    from msa_slam.pipeline.online_config import OnlineConfig, apply_online_params
     from msa_slam.pipeline.results import write_run_files
     from msa_slam.pipeline.source import open_source
 
@@ -54,7 +54,7 @@ def online_command(
         from msa_slam.viz.live import LiveViewer, check_viewer
 
         check_viewer(viewer_save)
-    base = read_config_file(config) if config is not None else {}
+    base = read_config_file(config, OnlineConfig) if config is not None else {}
     given = {"dataset": dataset, "sampler": sampler, "descriptor": descriptor, "odometry": odometry, "mode": mode,
              "cloud_store": cloud_store, "cache_dir": cache_option(cache_dir),
              **source_options(base, **source)}

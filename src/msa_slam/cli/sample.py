@@ -30,7 +30,7 @@ def sample_command(
     import json
 
     from msa_slam import __version__
-    from msa_slam.datasets.sequences import check_times, load_cloud_stack
+    from msa_slam.datasets.sequences import load_cloud_stack
     from msa_slam.descriptors.precomputed import load_descriptor_file
     from msa_slam.errors import InputError
     from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
@@ -43,9 +43,7 @@ def sample_command(
 
     params = parse_params(param)
     chosen = make_sampler(sampler, **params)
-    pose_stack, times = read_poses(poses, pose_format)
-    if times is not None:  # TUM: the times must make sense even though sampling does not read them
-        check_times(times, lambda i: f"{poses}: pose {i + 1}")
+    pose_stack, _ = read_poses(poses, pose_format)  # read_poses checks TUM times; sampling does not use them
     n = len(pose_stack)
     desc = load_descriptor_file(descriptors, n) if descriptors is not None else None
     if desc is None and sampler == "msa":

@@ -14,7 +14,7 @@ from msa_slam.datasets.clouds import CLOUD_SUFFIXES, check_bin_size, read_cloud,
 from msa_slam.datasets.frame import Frame
 from msa_slam.datasets.point_times import TIMES_FOLDER, read_timed_scan, stored_times_path
 from msa_slam.errors import InputError
-from msa_slam.io.poses import read_poses
+from msa_slam.io.poses import check_times, read_poses
 from msa_slam.types import validate_poses
 
 
@@ -88,25 +88,6 @@ class ScanSequence:
 
     def __iter__(self) -> Iterator[Frame]:
         return (self[i] for i in range(len(self)))
-
-
-def check_times(times: Sequence[float], where: Callable[[int], str]) -> np.ndarray:
-    """`times` as a float64 array if finite and strictly increasing, else an InputError naming `where(i)`.
-
-    Frames are matched to evaluation tools by time, so a NaN, repeated or backward time would silently
-    break the TUM outputs rather than fail here.
-    """
-    times = np.asarray(times, dtype=np.float64).ravel()
-    bad = np.flatnonzero(~np.isfinite(times))
-    if len(bad):
-        raise InputError(f"{where(int(bad[0]))}: time {times[bad[0]]} is not a finite number")
-    steps = np.flatnonzero(np.diff(times) <= 0)
-    if len(steps):
-        i = int(steps[0]) + 1
-        what = "repeats" if times[i] == times[i - 1] else "is before"
-        raise InputError(f"{where(i)}: time {float(times[i])!r} {what} the previous one ({float(times[i - 1])!r}); "
-                         "times must increase strictly")
-    return times
 
 
 def read_times(path: Path) -> np.ndarray:
@@ -203,8 +184,6 @@ def folder_sequence(path: str | os.PathLike, poses: str | os.PathLike | None = N
         gt, times = read_poses(poses, pose_format)
         if len(gt) != len(files):
             raise InputError(f"{poses}: {len(gt)} poses but {path} has {len(files)} scans")
-        if times is not None:
-            times = check_times(times, lambda i: f"{poses}: pose {i + 1}")
     return ScanSequence(path, files, gt, times, timed_reader=read_timed_cloud)
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Callable, Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -13,6 +14,10 @@ from msa_slam.io.atomic import write_text_atomic
 from msa_slam.types import validate_poses
 
 POSE_FORMATS = ("auto", "kitti", "tum")
+TUM_COLUMNS = "time tx ty tz qx qy qz qw"
+# How far a TUM quaternion's norm may be from 1 and still be normalised rather than refused: writers that
+# print 4-6 decimals leave deviations up to ~1e-4, while a swapped column or a corrupt line is far off (0.7).
+QUATERNION_TOLERANCE = 1e-2
 
 
 def _read_rows(path: Path) -> list[tuple[int, list[float]]]:
@@ -37,7 +42,12 @@ def _read_rows(path: Path) -> list[tuple[int, list[float]]]:
 
 
 def read_poses(path: str | os.PathLike, fmt: str = "auto") -> tuple[np.ndarray, np.ndarray | None]:
-    """Read a pose file; return (poses (N,4,4), timestamps or None). `fmt`: auto, kitti or tum."""
+    """Read a pose file; return (poses (N,4,4), timestamps or None). `fmt`: auto, kitti or tum.
+
+    A TUM file's times must be finite and increase strictly and its quaternions be of unit norm (within
+    QUATERNION_TOLERANCE): every reader of the file (ground truth, odometry, `sample`) then gets the same
+    check, and its error names the line to fix.
+    """
     path = Path(path)
     if fmt not in POSE_FORMATS:
         raise InputError(f"unknown pose format {fmt!r}; choose one of {', '.join(POSE_FORMATS)}")
@@ -59,15 +69,49 @@ def read_poses(path: str | os.PathLike, fmt: str = "auto") -> tuple[np.ndarray, 
     if fmt == "kitti":
         poses[:, :3, :4] = data.reshape(-1, 3, 4)
     else:
-        times = data[:, 0]
+        lines = [lineno for lineno, _ in rows]
+        times = check_times(data[:, 0], lambda i: f"{path}: pose {i + 1}", lines)
         poses[:, :3, 3] = data[:, 1:4]
-        quat = data[:, 4:8]
-        norms = np.linalg.norm(quat, axis=1)
-        if not np.all(np.isfinite(quat)) or np.any(norms < 1e-9):
-            k = int(np.argmax(~np.isfinite(quat).all(axis=1) | (norms < 1e-9)))
-            raise InputError(f"{path}:{rows[k][0]}: invalid quaternion {quat[k].tolist()}")
-        poses[:, :3, :3] = Rotation.from_quat(quat).as_matrix()
+        poses[:, :3, :3] = Rotation.from_quat(_unit_quaternions(path, data[:, 4:8], lines)).as_matrix()
     return validate_poses(poses, where=str(path)), times
+
+
+def check_times(times: Sequence[float], where: Callable[[int], str],
+                lines: Sequence[int] | None = None) -> np.ndarray:
+    """`times` as a float64 array if finite and strictly increasing, else an InputError naming `where(i)`
+    (and, given the file `lines` the times were read from, the lines of the bad time and the one before).
+
+    Frames are matched to evaluation tools by time, so a NaN, repeated or backward time would silently
+    break the TUM outputs rather than fail here.
+    """
+    times = np.asarray(times, dtype=np.float64).ravel()
+
+    def on_line(i: int) -> str:
+        return "" if lines is None else f" on line {lines[i]}"
+
+    bad = np.flatnonzero(~np.isfinite(times))
+    if len(bad):
+        i = int(bad[0])
+        raise InputError(f"{where(i)}: time {times[i]} is not a finite number{on_line(i)}")
+    steps = np.flatnonzero(np.diff(times) <= 0)
+    if len(steps):
+        i = int(steps[0]) + 1
+        what = "repeats" if times[i] == times[i - 1] else "is before"
+        raise InputError(f"{where(i)}: time {float(times[i])!r} {what} the previous one ({float(times[i - 1])!r}"
+                         f"{on_line(i - 1)}){on_line(i)}; times must increase strictly")
+    return times
+
+
+def _unit_quaternions(path: Path, quats: np.ndarray, lines: Sequence[int]) -> np.ndarray:
+    """`quats` (qx qy qz qw rows) if each has norm 1 within QUATERNION_TOLERANCE, else an InputError naming the
+    line: normalising a far-off quaternion (a corrupt line, columns in another order) would hide the fault."""
+    norms = np.linalg.norm(quats, axis=1)
+    bad = np.flatnonzero(~(np.abs(norms - 1.0) <= QUATERNION_TOLERANCE))  # NaN norms compare False: refused
+    if len(bad):
+        k = int(bad[0])
+        raise InputError(f"{path}:{lines[k]}: quaternion (qx qy qz qw) {quats[k].tolist()} has norm {norms[k]:.6g}, "
+                         f"not 1 (allowed deviation {QUATERNION_TOLERANCE:g}); TUM columns are {TUM_COLUMNS}")
+    return quats
 
 
 def format_kitti(poses: np.ndarray) -> str:

@@ -16,7 +16,7 @@ import yaml
 from pydantic import BaseModel, Field, TypeAdapter, ValidationError
 
 from msa_slam.backend.graph import GraphConfig
-from msa_slam.config import StageConfig
+from msa_slam.config import StageConfig, check_partial
 from msa_slam.datasets.options import SourceOptions
 from msa_slam.errors import InputError
 from msa_slam.io.params import parse_key_value
@@ -80,32 +80,40 @@ class RunConfig(StageConfig):
 def make_config(data: Mapping[str, Any] | None = None, **overrides: Any) -> RunConfig:
     """A validated RunConfig from a mapping plus keyword overrides; problems become one InputError."""
     config = RunConfig(**{**(dict(data) if data else {}), **overrides})
-    for section in _SECTIONS.values():
-        check_finite(getattr(config, section), section)
-    _check_sampler(config.sampler, config.sampler_params)
+    _check_stages(dict(config), "config")
     return config
 
 
-def check_finite(value: Any, where: str) -> None:
-    """NaN or infinity anywhere in a stage's parameters is an error: YAML would save it as null."""
+def check_finite(value: Any, where: str, origin: str = "config") -> None:
+    """NaN or infinity anywhere in a stage's parameters is an error: YAML would save it as null. `where` is
+    the key, `origin` what holds it (the config, or the config file) for the message."""
     if isinstance(value, float) and not math.isfinite(value):
-        raise InputError(f"config: {where}={value!r} is not allowed; expected a finite number")
+        raise InputError(f"{origin}: {where}={value!r} is not allowed; expected a finite number")
     if isinstance(value, Mapping):
         for key, item in value.items():
-            check_finite(item, f"{where}.{key}")
+            check_finite(item, f"{where}.{key}", origin)
     elif isinstance(value, (list, tuple)):
         for k, item in enumerate(value):
-            check_finite(item, f"{where}[{k}]")
+            check_finite(item, f"{where}[{k}]", origin)
 
 
-def _check_sampler(sampler: str, params: Mapping[str, Any]) -> None:
+def _check_stages(data: Mapping[str, Any], origin: str) -> None:
+    """The stages' free-form parameters (validated by no model field): finite numbers only, and the sampler's
+    accepted by the sampler named in `data` (if it names one); problems start with `origin`."""
+    for section in _SECTIONS.values():
+        check_finite(data.get(section), section, origin)
+    if "sampler" in data:
+        _check_sampler(data["sampler"], data.get("sampler_params") or {}, origin)
+
+
+def _check_sampler(sampler: str, params: Mapping[str, Any], origin: str) -> None:
     """Build the sampler once: its constructor checks every parameter before any work starts."""
     from msa_slam.sampling import make_sampler
 
     try:
         make_sampler(sampler, **params)
     except InputError as exc:
-        raise InputError(f"config: {exc}") from None
+        raise InputError(f"{origin}: {exc}") from None
 
 
 def check_descriptor(descriptor: str, params: Mapping[str, Any]) -> None:
@@ -137,9 +145,15 @@ def load_config(path: str | os.PathLike) -> RunConfig:
     return make_config(read_config_file(path))
 
 
-def read_config_file(path: str | os.PathLike) -> dict[str, Any]:
-    """A YAML config file as a mapping, not yet validated: a command's --config, which its options complete
-    (a file without `dataset` is fine with --dataset)."""
+def read_config_file(path: str | os.PathLike, model: type[RunConfig] = RunConfig) -> dict[str, Any]:
+    """A YAML config file as a mapping: a command's --config, which its options complete (a file without
+    `dataset` is fine with --dataset), so the whole config is validated only once they are in.
+
+    What the file holds is checked here already, against `model` (OnlineConfig for `online`): an unknown or
+    wrongly typed key, a NaN parameter or one the file's sampler does not take is refused naming the file,
+    which the error of the merged config could not tell apart from the options. Sampler parameters in a
+    file that names no sampler wait for the merge (the --sampler option decides whose they are).
+    """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: config file not found")
@@ -149,6 +163,11 @@ def read_config_file(path: str | os.PathLike) -> dict[str, Any]:
         raise InputError(f"{path}: not valid YAML ({exc})") from None
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a mapping of config keys, got {type(data).__name__}")
+    odd = next((key for key in data if not isinstance(key, str)), None)
+    if odd is not None:
+        raise InputError(f"{path}: key {odd!r} is not a name; valid keys: {', '.join(model.model_fields)}")
+    check_partial(model, data, str(path))
+    _check_stages(data, str(path))
     return data
 
 
