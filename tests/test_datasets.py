@@ -61,6 +61,15 @@ def test_kitti_sequence_reads_scans_times_and_lidar_poses(tmp_path, poses_in_seq
         seq[3]
 
 
+def test_kitti_scans_without_zero_padding_keep_their_numeric_order(tmp_path):
+    seq = _kitti(tmp_path, n=12)
+    for k in range(12):  # 0.bin ... 11.bin: string order would read 10.bin and 11.bin after 1.bin
+        (seq / "velodyne" / f"{k:06d}.bin").rename(seq / "velodyne" / f"{k}.bin")
+    frames = open_dataset(seq)
+    for k in (2, 10, 11):
+        np.testing.assert_array_equal(frames[k].points, _points(k))
+
+
 def test_kitti_errors_name_the_file(tmp_path):
     seq = _kitti(tmp_path)
     (seq / "poses.txt").write_text(format_kitti(_lidar_poses(2)))

@@ -139,7 +139,7 @@ def kitti_sequence(path: str | os.PathLike) -> ScanSequence:
     velodyne = path / "velodyne"
     if not velodyne.is_dir():
         raise InputError(f"{path}: not a KITTI sequence (no velodyne/ folder)")
-    scans = sorted(velodyne.glob("*.bin"))
+    scans = sorted(velodyne.glob("*.bin"), key=_natural_key)  # 2.bin before 10.bin, as the folder loader
     if not scans:
         raise InputError(f"{velodyne}: no .bin scans")
     times = None
