@@ -93,6 +93,14 @@ def test_odometry_key_covers_threads_and_versions(data, monkeypatch):
     assert OdometryCache.key(seq, config) != key
 
 
+def test_odometry_key_covers_the_frame_times(data):
+    seq = open_dataset(data)
+    config = KissOdometry().config
+    key = OdometryCache.key(seq, config)
+    seq.times = seq.times * 2.0  # the same scans with other times (an edited times.txt): deskewing differs
+    assert OdometryCache.key(seq, config) != key
+
+
 def test_truncated_or_nan_entries_are_recomputed_with_a_warning(data, tmp_path, caplog):
     cfg = _config(data, tmp_path / "cache")
     first = prepare_frontend(cfg)

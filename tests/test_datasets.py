@@ -70,6 +70,18 @@ def test_kitti_scans_without_zero_padding_keep_their_numeric_order(tmp_path):
         np.testing.assert_array_equal(frames[k].points, _points(k))
 
 
+def test_hidden_files_are_not_scans(tmp_path):
+    seq = _kitti(tmp_path)
+    (seq / "velodyne" / "._000001.bin").write_bytes(b"\0" * 4096)  # a macOS resource fork
+    assert len(open_dataset(seq)) == 3
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    for k in range(3):
+        _write_bin(folder / f"{k}.bin", _points(k))
+    (folder / ".DS_Store.bin").write_bytes(b"\0" * 32)
+    assert len(open_dataset(folder)) == 3
+
+
 def test_kitti_errors_name_the_file(tmp_path):
     seq = _kitti(tmp_path)
     (seq / "poses.txt").write_text(format_kitti(_lidar_poses(2)))

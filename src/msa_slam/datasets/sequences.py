@@ -139,7 +139,7 @@ def kitti_sequence(path: str | os.PathLike) -> ScanSequence:
     velodyne = path / "velodyne"
     if not velodyne.is_dir():
         raise InputError(f"{path}: not a KITTI sequence (no velodyne/ folder)")
-    scans = sorted(velodyne.glob("*.bin"), key=_natural_key)  # 2.bin before 10.bin, as the folder loader
+    scans = sorted((f for f in velodyne.glob("*.bin") if not _hidden(f)), key=_natural_key)  # 2 before 10
     if not scans:
         raise InputError(f"{velodyne}: no .bin scans")
     times = None
@@ -174,7 +174,7 @@ def folder_sequence(path: str | os.PathLike, poses: str | os.PathLike | None = N
     path = Path(path)
     if not path.is_dir():
         raise InputError(f"{path}: scan folder not found")
-    files = [f for f in path.iterdir() if f.suffix.lower() in CLOUD_SUFFIXES and f.is_file()]
+    files = [f for f in path.iterdir() if f.suffix.lower() in CLOUD_SUFFIXES and f.is_file() and not _hidden(f)]
     suffixes = {f.suffix.lower() for f in files}
     if len(suffixes) > 1:
         raise InputError(f"{path}: mixes scan formats {sorted(suffixes)}; keep one format per folder")
@@ -204,6 +204,11 @@ def load_cloud_stack(source: str | os.PathLike, n_frames: int) -> list[np.ndarra
     if len(items) != n_frames:
         raise InputError(f"{source}: {len(items)} clouds, but the pose file has {n_frames} poses")
     return items
+
+
+def _hidden(path: Path) -> bool:
+    """Hidden files are not scans: macOS leaves ._000000.bin beside copied scans (resource forks)."""
+    return path.name.startswith(".")
 
 
 def _natural_key(path: Path) -> list:
