@@ -87,3 +87,19 @@ def test_lazy_package_exports_resolve_and_unknown_names_fail():
     assert callable(evaluation.ate)
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         sampling.nope
+
+
+def test_permission_error_is_one_line_without_traceback(monkeypatch, capsys):
+    import pytest
+
+    import msa_slam.cli as cli
+
+    def unreadable() -> None:  # what reading a chmod-000 scan raises deep inside a loader
+        raise PermissionError(13, "Permission denied", "/data/seq/velodyne/000007.bin")
+
+    monkeypatch.setattr(cli, "app", unreadable)
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main()
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err == ("error: /data/seq/velodyne/000007.bin: permission denied (check its "
+                                       "permissions)\n")

@@ -293,6 +293,11 @@ def test_bags_by_topic(tmp_path, kind):
     if kind != "ros1":
         files = sorted((bag).glob("*.mcap" if kind == "mcap" else "*.db3"))
         assert len(open_dataset(files[0], topic="/points")) == N  # the storage file itself
+        alone = tmp_path / "alone" / files[0].name  # copied out of its folder, without metadata.yaml
+        alone.parent.mkdir()
+        alone.write_bytes(files[0].read_bytes())
+        with pytest.raises(InputError, match=f"{alone}: a ROS2 bag file is read with its folder's metadata.yaml"):
+            open_dataset(alone, topic="/points")
 
 
 def test_open_sequence_options_and_oracle_needs_ground_truth(tmp_path):

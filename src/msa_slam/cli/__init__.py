@@ -49,9 +49,13 @@ app.command("report")(report.report_command)
 
 
 def main() -> None:
-    """Entry point: usage errors as click prints them; InputError as one clear line with exit code 2."""
+    """Entry point: usage errors as click prints them; InputError and PermissionError as one clear line with
+    exit code 2."""
     try:
         app()
     except InputError as exc:
         typer.echo(f"error: {exc}", err=True)
+        sys.exit(2)
+    except PermissionError as exc:  # an unreadable input or unwritable output anywhere: name it, no traceback
+        typer.echo(f"error: {exc.filename}: {exc.strerror.lower()} (check its permissions)", err=True)
         sys.exit(2)

@@ -34,6 +34,10 @@ def bag_files(path: Path) -> list[Path]:
     if path.is_dir() and not (path / "metadata.yaml").is_file():
         return sorted(path.glob("*.bag"))
     if path.is_file() and path.suffix.lower() in (".db3", ".mcap"):
+        if not (path.parent / "metadata.yaml").is_file():  # rosbags reads a ROS2 bag through its metadata
+            raise InputError(f"{path}: a ROS2 bag file is read with its folder's metadata.yaml, which "
+                             f"{path.parent} lacks; give the bag's folder as recorded (ros2 bag reindex "
+                             "rebuilds a lost metadata.yaml)")
         return [path.parent]
     return [path]
 
@@ -74,8 +78,8 @@ class BagSequence(ScanSequence):
         self.scan_files = bag_files(self.path)
         if not self.scan_files:
             raise InputError(f"{self.path}: no .bag files in this folder")
-        self._bag = _reader(self.scan_files)
         try:
+            self._bag = _reader(self.scan_files)
             self._bag.open()
         except Exception as exc:  # rosbags raises its own error types for every malformed bag
             raise InputError(f"{self.path}: cannot open as a ROS bag ({exc})") from None
