@@ -14,8 +14,9 @@ import numpy as np
 from msa_slam.datasets.clouds import checked_points
 from msa_slam.datasets.frame import Frame
 from msa_slam.datasets.pcd import TIME_FIELDS
-from msa_slam.datasets.sequences import ScanSequence, check_times
+from msa_slam.datasets.sequences import ScanSequence
 from msa_slam.errors import InputError
+from msa_slam.io.poses import check_times
 
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"

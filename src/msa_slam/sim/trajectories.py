@@ -16,15 +16,14 @@ from typing import Callable
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from msa_slam.datasets.sequences import check_times, read_kitti_calibration, read_times
+from msa_slam.datasets.sequences import read_kitti_calibration, read_times
 from msa_slam.errors import InputError
-from msa_slam.io.poses import POSE_FORMATS, _read_rows
+from msa_slam.io.poses import POSE_FORMATS, QUATERNION_TOLERANCE, _read_rows, check_times
 from msa_slam.sim.kitti_data import DATA_DIR, KITTI_SEQUENCES, cam0_to_lidar
 from msa_slam.types import ROTATION_TOLERANCE
 
 FRAME_RATE_HZ = 10.0
 MIN_POSES = 2
-QUATERNION_TOLERANCE = 1e-2  # TUM files often print quaternions with 4-6 decimals
 
 
 @dataclass(frozen=True)
