@@ -87,13 +87,13 @@ def test_mismatched_descriptor_count_names_the_file(stream):
                  "short.npy has 59 frames, the sequence has 60")
 
 
-def test_nan_pose_names_the_frame(stream):
+def test_nan_pose_names_the_line(stream):
     path, _, _ = stream
     lines = (path / "poses.txt").read_text().splitlines()
     lines[7] = lines[7].replace(lines[7].split()[3], "nan", 1)
     (path / "bad.txt").write_text("\n".join(lines) + "\n")
     expect_error(invoke("--poses", path / "bad.txt", "--descriptors", path / "desc.npy", "--out", path / "o"),
-                 "frame 7 has NaN")
+                 "bad.txt:8: pose has NaN")
 
 
 def test_non_rigid_pose_and_bad_lines(stream):

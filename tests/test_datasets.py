@@ -97,16 +97,31 @@ def test_kitti_errors_name_the_file(tmp_path):
         open_dataset(tmp_path / "nowhere")
 
 
-def test_corrupt_and_empty_scans_stop_the_open(tmp_path):
-    # Sizes are checked for every .bin when the sequence opens, not when frame 1 is reached after odometry.
+def test_corrupt_and_empty_scans_stop_the_run_before_any_work(tmp_path):
+    # The sizes of the scans a run selects are checked before odometry (select), not when frame 1 is reached.
     seq = _kitti(tmp_path)
     bad = seq / "velodyne" / "000001.bin"
     bad.write_bytes(b"\x00" * 20)
     with pytest.raises(InputError, match="000001.bin: 20 bytes is not a whole number"):
-        open_dataset(seq)
+        open_dataset(seq).select()
+    with pytest.raises(InputError, match="000001.bin: 20 bytes is not a whole number"):
+        open_dataset(seq).select(first=1, count=1)
     bad.write_bytes(b"")
     with pytest.raises(InputError, match="000001.bin: scan file is empty"):
-        open_dataset(seq)
+        open_dataset(seq).select()
+
+
+def test_a_scan_cut_short_outside_the_selection_does_not_stop_a_run(tmp_path):
+    """A last file cut short by a crashed recorder: `-n` (or --jump) that leaves it out still runs."""
+    seq = _kitti(tmp_path, n=4)
+    last = seq / "velodyne" / "000003.bin"
+    last.write_bytes(last.read_bytes()[:100])
+    part = open_dataset(seq).select(count=3)
+    assert [f.index for f in part] == [0, 1, 2]
+    np.testing.assert_array_equal(part[2].points, _points(2))
+    assert len(open_dataset(seq).select(jump=3, count=1)) == 1  # scan 0 only
+    with pytest.raises(InputError, match="000003.bin: 100 bytes is not a whole number"):
+        open_dataset(seq).select(first=2)
 
 
 def _as_float64(path: Path, points: np.ndarray) -> None:

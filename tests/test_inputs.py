@@ -430,3 +430,87 @@ def test_sample_command_refuses_a_bad_tum_quaternion(tmp_path):
     assert isinstance(result.exception, InputError), result.output
     assert str(result.exception).startswith(f"{path}:4: quaternion (qx qy qz qw) [1.0, 0.0, 0.0, 0.7] has norm 1.22066")
     assert not (tmp_path / "out").exists()
+
+
+def test_ascii_pcd_with_a_bad_token_names_its_line(tmp_path):
+    _pcd(tmp_path / "s.pcd", _points(0, 5), np.zeros(5), "ascii")
+    lines = (tmp_path / "s.pcd").read_text().splitlines()
+    lines[13] = "1.0 abc 3.0 0"  # header lines 1-11, points from line 12: the third point
+    (tmp_path / "s.pcd").write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=r"s.pcd:14: 'abc' is not a number \(PCD DATA ascii: 4 numbers a point\)"):
+        read_timed_pcd(tmp_path / "s.pcd")
+    lines[13] = "1.0 2.0 3.0"
+    (tmp_path / "s.pcd").write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=r"s.pcd:14: 3 values; its fields need 4 a point"):
+        read_timed_pcd(tmp_path / "s.pcd")
+
+
+def test_apollo_pose_file_with_a_bad_token_names_its_line(tmp_path):
+    apollo = tmp_path / "apollo"
+    for k in range(N):
+        _pcd(apollo / "pcds" / f"{k + 1}.pcd", _points(k), np.zeros(40), "binary")
+    (apollo / "poses").mkdir()
+    lines = [f"{k} {1500000000.5 + 0.1 * k} {k} 0 0 0 0 0 1" for k in range(N)]
+    lines[2] = lines[2].replace(" 0 0 0 0 1", " oops 0 0 0 1")
+    (apollo / "poses" / "gt_poses.txt").write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=r"gt_poses.txt:3: not a number .*'oops'"):
+        open_dataset(apollo)
+    lines[2] = f"2 {1500000000.5 + 0.2} 2 0 0 0 0 1"
+    (apollo / "poses" / "gt_poses.txt").write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=r"gt_poses.txt:3: 8 values; Apollo's gt_poses.txt has 9 a line \(index"):
+        open_dataset(apollo)
+
+
+@pytest.mark.parametrize("shift, first_bad", [(3600 * 10**9, 0), (None, 2)])
+def test_mulran_pose_file_not_covering_the_scans_is_refused(tmp_path, shift, first_bad):
+    """Poses an hour after the scans, or 2 poses for 4 scans, gave a constant ground truth without a word."""
+    _mulran(tmp_path / "M")
+    rows = np.loadtxt(tmp_path / "M" / "global_pose.csv", delimiter=",", ndmin=2)
+    rows = rows[:2] if shift is None else rows + np.r_[shift, np.zeros(12)]
+    np.savetxt(tmp_path / "M" / "global_pose.csv", rows, delimiter=",", fmt="%.17g")
+    with pytest.raises(InputError, match=rf"M/global_pose.csv: no pose within 0.05 s of scan {first_bad} "):
+        open_dataset(tmp_path / "M")
+
+
+def _tum(path: Path, times: np.ndarray, poses: np.ndarray) -> Path:
+    rows = np.column_stack([times, poses[:, :3, 3], np.tile([0, 0, 0, 1.0], (len(poses), 1))])
+    path.write_text("".join(" ".join(f"{v:.9f}" for v in r) + "\n" for r in rows))
+    return path
+
+
+def _timed_kitti(root: Path, n: int = N) -> Path:
+    """A KITTI layout with times.txt (0.1 s apart) and no poses."""
+    for k in range(n):
+        _write_bin(root / "velodyne" / f"{k:06d}.bin", _points(k))
+    (root / "times.txt").write_text("".join(f"{0.1 * k:.6f}\n" for k in range(n)))
+    return root
+
+
+def test_tum_ground_truth_with_one_pose_a_scan_is_matched_by_time(tmp_path):
+    """A TUM file with as many poses as scans was taken line by line, whatever its times said."""
+    seq = _timed_kitti(tmp_path / "k")
+    jittered = _tum(tmp_path / "same.tum", 0.1 * np.arange(N) + 0.01, _poses())
+    np.testing.assert_allclose(open_dataset(seq, poses=jittered).gt_poses, _poses())
+    shifted = _tum(tmp_path / "shifted.tum", 0.1 * np.arange(1, N + 1), _poses())  # one frame late
+    with pytest.raises(InputError, match=r"shifted.tum: no pose within 0.05 s of scan 0 \(time 0.000000 s; nearest "
+                                         r"pose at 0.100000 s\); the pose times must be the scans' clock"):
+        open_dataset(seq, poses=shifted)
+    other_clock = _tum(tmp_path / "clock.tum", 1.7e9 + 0.1 * np.arange(N), _poses())
+    with pytest.raises(InputError, match=r"clock.tum: no pose within 0.05 s of scan 0 "):
+        open_dataset(seq, poses=other_clock)
+
+
+def test_tum_ground_truth_gives_untimed_scans_its_times(tmp_path):
+    """Scans without timestamps take a TUM file's one pose a scan, in order, and its times (as a folder does)."""
+    seq = tmp_path / "k"
+    for k in range(N):
+        _write_bin(seq / "velodyne" / f"{k:06d}.bin", _points(k))
+    gt = _tum(tmp_path / "gt.tum", 50.0 + 0.1 * np.arange(N), _poses())
+    opened = open_dataset(seq, poses=gt)
+    np.testing.assert_allclose(opened.gt_poses, _poses())
+    np.testing.assert_allclose(opened.times, 50.0 + 0.1 * np.arange(N))
+    assert opened.times_known
+    short = _tum(tmp_path / "short.tum", 50.0 + 0.1 * np.arange(N - 1), _poses(N - 1))
+    with pytest.raises(InputError, match=r"short.tum: 3 poses but .*k has 4 scans, which have no timestamps to "
+                                         r"match the TUM times to; give one pose a scan"):
+        open_dataset(seq, poses=short)

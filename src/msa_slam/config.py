@@ -51,6 +51,27 @@ def validation_message(exc: ValidationError, model: type[BaseModel], root: str =
     return "; ".join(problem(e, model, root) for e in exc.errors())
 
 
+def check_key_names(model: type[BaseModel], data: Mapping[Any, Any], where: str, section: str = "") -> None:
+    """Every key of `data` and of its sections' mappings must be a name: pydantic hands a section's mapping to
+    its model as keyword arguments, where a number (YAML `verifier: {1: 2}`) raises TypeError, not a
+    validation error. `where` starts the InputError, `section` is the dotted path of `data` within it."""
+    for key, value in data.items():
+        if not isinstance(key, str):
+            raise InputError(f"{where}: {section + ': ' if section else ''}key {key!r} is not a name; valid keys: "
+                             f"{', '.join(model.model_fields)}")
+        field = model.model_fields.get(key)
+        if field is None or not isinstance(value, Mapping):
+            continue
+        path = f"{section}.{key}" if section else key
+        inner = _inner_model(field.annotation)
+        if inner is not None:
+            check_key_names(inner, value, where, path)
+            continue
+        odd = next((k for k in value if not isinstance(k, str)), None)
+        if odd is not None and typing.get_origin(field.annotation) is dict:  # a stage's parameters (odometry_params)
+            raise InputError(f"{where}: {path}: key {odd!r} is not a parameter name")
+
+
 def check_partial(model: type[BaseModel], data: Mapping[str, Any], where: str) -> None:
     """Check `data` as constructing `model` would, except that keys the model requires may be missing.
 
@@ -58,6 +79,7 @@ def check_partial(model: type[BaseModel], data: Mapping[str, Any], where: str) -
     this way, so an unknown or wrongly typed key is reported with `where` (the file) rather than only once
     the options are mixed in, when the message could no longer say where the key came from.
     """
+    check_key_names(model, data, where)
     token = _nested.set(True)  # pydantic's own errors, so that the missing keys can be left out
     try:
         model.model_validate(dict(data))
@@ -80,6 +102,7 @@ class StageConfig(BaseModel):
         if _nested.get():  # a section validated inside its parent: the parent reports the problem
             super().__init__(**data)
             return
+        check_key_names(type(self), data, self.SECTION)
         token = _nested.set(True)
         try:
             super().__init__(**data)

@@ -30,22 +30,30 @@ def validate_poses(poses: np.ndarray, where: str = "poses") -> np.ndarray:
     arr = np.asarray(poses, dtype=np.float64)
     if arr.ndim != 3 or arr.shape[1:] != (4, 4):
         raise InputError(f"{where}: expected poses of shape (N, 4, 4), got {arr.shape}")
-    finite = np.isfinite(arr).all(axis=(1, 2))
+    fault = pose_fault(arr)
+    if fault is not None:
+        raise InputError(f"{where}: frame {fault[0]} {fault[1]}")
+    return arr
+
+
+def pose_fault(poses: np.ndarray) -> tuple[int, str] | None:
+    """(index, what is wrong) of the first pose of an (N, 4, 4) stack that is not finite (checked first), else
+    of the first that is not rigid; None when all are fine. Apart from validate_poses so that a pose file's
+    reader can name the line instead of the frame."""
+    finite = np.isfinite(poses).all(axis=(1, 2))
     if not finite.all():
-        raise InputError(f"{where}: frame {int(np.argmin(finite))} has NaN or infinite values")
-    rot = arr[:, :3, :3]
+        return int(np.argmin(finite)), "has NaN or infinite values"
+    rot = poses[:, :3, :3]
     ortho_err = np.abs(rot @ rot.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
     det = np.linalg.det(rot)
     bad = (ortho_err > ROTATION_TOLERANCE) | (np.abs(det - 1.0) > ROTATION_TOLERANCE)
-    bottom_bad = np.abs(arr[:, 3, :] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=1) > 1e-9
+    bottom_bad = np.abs(poses[:, 3, :] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=1) > 1e-9
     bad |= bottom_bad
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise InputError(
-            f"{where}: frame {k} is not a rigid transform (|R R^T - I| = {ortho_err[k]:.2e}, "
-            f"det R = {det[k]:.6f}, last row {arr[k, 3].tolist()})"
-        )
-    return arr
+    if not bad.any():
+        return None
+    k = int(np.argmax(bad))
+    return k, (f"is not a rigid transform (|R R^T - I| = {ortho_err[k]:.2e}, det R = {det[k]:.6f}, "
+               f"last row {poses[k, 3].tolist()})")
 
 
 def as_points(points: np.ndarray, where: str = "points") -> np.ndarray:
@@ -101,6 +109,7 @@ class FrameSource:
     frames: Callable[[], Iterator[Any]]  # msa_slam.datasets.Frame objects, in time order
     path: Path | None = None
     length: int | None = None
+    times_known: bool = True  # False: the frames' times are frame numbers (a recording without timestamps)
 
     def __len__(self) -> int:
         return len(self.gt_poses) if self.length is None else self.length

@@ -6,8 +6,12 @@ Each command imports its library inside the function, so `msa-slam --help` loads
 
 from __future__ import annotations
 
+import contextlib
+import signal
 import sys
-from typing import Optional
+import warnings
+from types import FrameType
+from typing import Iterator, Optional, TextIO
 
 import typer
 
@@ -48,11 +52,38 @@ app.command("experiment")(experiment.experiment_command)
 app.command("report")(report.report_command)
 
 
+def _stop_on_sigterm(signum: int, frame: FrameType | None) -> None:
+    """SIGTERM (kill, a job scheduler, docker stop) unwinds the stack as Ctrl-C does, so the same cleanup runs
+    (the result folder's `.NAME.lock` and staging files are removed); the exit status is the shell's 128 + 15."""
+    raise SystemExit(128 + signum)
+
+
+@contextlib.contextmanager
+def _warnings_as_lines() -> Iterator[None]:
+    """Python warnings as `warning: TEXT` lines, each text once: Python would add the source path and code line,
+    and print a warning raised from two places (a sampler warns when told the stream's length and again at
+    its end) twice."""
+    seen: set[str] = set()
+
+    def show(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+             file: TextIO | None = None, line: str | None = None) -> None:
+        text = str(message)
+        if text not in seen:
+            seen.add(text)
+            typer.echo(f"warning: {text}", err=True)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield
+
+
 def main() -> None:
     """Entry point: usage errors as click prints them; InputError and PermissionError as one clear line with
-    exit code 2."""
+    exit code 2; warnings as one line each; SIGTERM cleans up as Ctrl-C does."""
+    signal.signal(signal.SIGTERM, _stop_on_sigterm)
     try:
-        app()
+        with _warnings_as_lines():
+            app()
     except InputError as exc:
         typer.echo(f"error: {exc}", err=True)
         sys.exit(2)

@@ -7,8 +7,8 @@ from typing import List, Optional
 
 import typer
 
-from msa_slam.cli.options import (CACHE_HELP, DESCRIPTOR_HELP, MODE_HELP, OVERWRITE_HELP, SAMPLER_HELP, out_help,
-                                  with_source_options)
+from msa_slam.cli.options import (CACHE_HELP, DESCRIPTOR_HELP, MODE_HELP, OVERWRITE_HELP, SAMPLER_HELP, WINDOW_FIX,
+                                  out_help, with_source_options)
 
 DATASET_HELP = ("sequence folder (any layout --loader lists), a ROS1/ROS2 bag, sim:NAME (cached on disk) or "
                 "live:NAME[,field=value...,laps=K] (simulated in memory, e.g. live:city-tour,laps=10)")
@@ -40,7 +40,7 @@ def online_command(
 ) -> None:
     """Run the online pipeline frame by frame (odometry, descriptor, sampler, loop detection, verification,
     iSAM2) and write its result folder; prints the path of its report.md."""
-    from msa_slam.cli.config import cache_option, merge_options, source_options
+    from msa_slam.cli.config import cache_option, check_window, merge_options, source_options
     from msa_slam.errors import InputError
     from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
     from msa_slam.pipeline.online import run_online
@@ -64,6 +64,8 @@ def online_command(
         if recording.gt_poses is None and cfg.odometry == "gt-noise":
             raise InputError(f"dataset {cfg.dataset!r}: odometry gt-noise perturbs ground truth, which this "
                              "recording lacks; use --odometry kiss or a pose file")
+        frames = len(recording) if cfg.max_frames is None else min(len(recording), cfg.max_frames)
+        check_window(cfg, frames, WINDOW_FIX)
         view = LiveViewer(save=viewer_save) if live else None
         try:
             result = run_online(cfg, recording, quiet=quiet, viewer=view)

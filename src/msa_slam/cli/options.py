@@ -70,6 +70,9 @@ def with_source_options(command: Callable[..., None]) -> Callable[..., None]:
     return wrapper
 
 
+# What to change when the sampler's window is longer than the frames read (cli.config.check_window: `frames`, `window`)
+WINDOW_FIX = "use a window of at most {frames} frames (-p window={frames}), -p flush=true or --sampler all"
+
 OVERWRITE_HELP = "replace a previous msa-slam result in --out (never anything msa-slam did not write)"
 CACHE_HELP = "cache root (default $MSA_SLAM_CACHE or ~/.cache/msa-slam)"
 PARAM_HELP = ("override as key=value (repeatable): a config key (similarity_threshold=0.7), a section field "

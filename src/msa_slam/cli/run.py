@@ -8,7 +8,7 @@ from typing import List, Optional
 import typer
 
 from msa_slam.cli.options import (CACHE_HELP, DATASET_HELP, DESCRIPTOR_HELP, MODE_HELP, OVERWRITE_HELP, PARAM_HELP,
-                                  SAMPLER_HELP, out_help, with_source_options)
+                                  SAMPLER_HELP, WINDOW_FIX, out_help, with_source_options)
 
 
 def batch_config(config_file: Optional[Path], given: dict, params: List[str], source: Optional[dict] = None):
@@ -39,7 +39,7 @@ def run_command(
     source: Optional[dict] = None,  # --loader, --gt, ... (added by with_source_options)
 ) -> None:
     """Run one sampler through the batch experiment and write its result folder; prints the path of its report.md."""
-    from msa_slam.cli.config import cache_option
+    from msa_slam.cli.config import cache_option, check_windows
     from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
     from msa_slam.pipeline.batch import run_batch
     from msa_slam.pipeline.results import write_run_files
@@ -48,6 +48,7 @@ def run_command(
              "mode": mode, "cache_dir": cache_option(cache_dir)}
     cfg = batch_config(config, given, param, source)
     with open_result_folder(out, "run", DEFAULT_RESULTS / "run", overwrite=overwrite) as folder:
+        check_windows([cfg], quiet, WINDOW_FIX)
         result = run_batch(cfg, quiet=quiet)
         with folder.staging() as tmp:
             write_run_files(result, tmp)

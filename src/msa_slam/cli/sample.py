@@ -30,6 +30,7 @@ def sample_command(
     import json
 
     from msa_slam import __version__
+    from msa_slam.datasets import check_scan_folder
     from msa_slam.datasets.sequences import load_cloud_stack
     from msa_slam.descriptors.precomputed import load_descriptor_file
     from msa_slam.errors import InputError
@@ -48,6 +49,8 @@ def sample_command(
     desc = load_descriptor_file(descriptors, n) if descriptors is not None else None
     if desc is None and sampler == "msa":
         raise InputError("sampler 'msa' needs --descriptors (an .npy array with one descriptor per pose)")
+    if clouds is not None and clouds.suffix != ".npy":
+        check_scan_folder(clouds, sequence_option=False)
     cloud_list = load_cloud_stack(clouds, n) if clouds is not None else None
     if cloud_list is None and chosen.needs_points:
         raise InputError(f"sampler {sampler!r} needs --clouds (a folder of scans or an .npy array)")

@@ -10,7 +10,7 @@ import os
 from pathlib import Path
 
 from msa_slam.datasets.bags import BagSequence, is_bag
-from msa_slam.datasets.clouds import read_bin, read_cloud, read_ply
+from msa_slam.datasets.clouds import CLOUD_SUFFIXES, read_bin, read_cloud, read_ply
 from msa_slam.datasets.frame import Frame
 from msa_slam.datasets.ground_truth import attach_ground_truth
 from msa_slam.datasets.helipr import HELIPR_SENSORS, helipr_sequence
@@ -63,6 +63,27 @@ def sequence_folder(path: Path, sequence: str) -> Path:
                      f"{path / sequence}); sequences there: {', '.join(found[:20]) or 'none'}")
 
 
+def check_scan_folder(path: Path, sequence_option: bool = True) -> None:
+    """Name the likely mix-up when `path`, to be read as a folder of scans, holds none: a single scan file, a
+    KITTI sequence (scans in velodyne/) or, where --sequence could pick one (`sequence_option`), a KITTI
+    dataset root (sequences/NN/velodyne). Otherwise the folder loader's errors follow."""
+    if path.is_file():
+        if path.suffix.lower() in CLOUD_SUFFIXES:
+            raise InputError(f"{path}: is a single scan file, not a folder of scans; pass the folder that holds "
+                             f"the scans ({path.parent})")
+        raise InputError(f"{path}: is a file, neither a folder of scans nor a ROS bag ({LOADERS['rosbag']})")
+    if not path.is_dir() or any(f.suffix.lower() in CLOUD_SUFFIXES and not f.name.startswith(".")
+                                for f in path.iterdir()):
+        return
+    missing = f"{path}: no scan files ({', '.join(CLOUD_SUFFIXES)}) found"
+    if (path / "velodyne").is_dir():
+        raise InputError(f"{missing}; it looks like a KITTI sequence: its scans are in {path / 'velodyne'}")
+    sequences = sorted(p.parent.name for p in (path / "sequences").glob("*/velodyne") if p.is_dir())
+    if sequences and sequence_option:
+        raise InputError(f"{missing}; it looks like a KITTI dataset root: pass --sequence {sequences[0]} "
+                         f"(sequences there: {', '.join(sequences)})")
+
+
 def open_dataset(path: str | os.PathLike, kind: str = "auto", poses: str | os.PathLike | None = None,
                  pose_format: str = "auto", topic: str | None = None, sequence: str | None = None) -> ScanSequence:
     """Open a sequence with loader `kind` (auto: from the layout; see LOADERS). `poses` (a LiDAR-frame KITTI
@@ -81,6 +102,7 @@ def open_dataset(path: str | os.PathLike, kind: str = "auto", poses: str | os.Pa
         raise InputError(f"--topic {topic}: {path} is read by the {kind} loader, not as a ROS bag "
                          f"({LOADERS['rosbag']})")
     if kind == "folder":
+        check_scan_folder(path)
         return folder_sequence(path, poses, pose_format)
     if kind == "kitti":
         opened = kitti_sequence(path)
@@ -99,6 +121,6 @@ def open_source_options(path: str | os.PathLike, kind: str, options: SourceOptio
     return sequence.select(options.first, options.jump, options.frames)
 
 
-__all__ = ["BagSequence", "Frame", "KISS_DATASETS", "LOADERS", "ScanSequence", "SourceOptions", "detect_loader",
-           "folder_sequence", "kiss_sequence", "kitti_sequence", "open_dataset", "open_source_options", "read_bin",
-           "read_cloud", "read_kitti_calibration", "read_pcd", "read_ply"]
+__all__ = ["BagSequence", "Frame", "KISS_DATASETS", "LOADERS", "ScanSequence", "SourceOptions", "check_scan_folder",
+           "detect_loader", "folder_sequence", "kiss_sequence", "kitti_sequence", "open_dataset", "open_source_options",
+           "read_bin", "read_cloud", "read_kitti_calibration", "read_pcd", "read_ply"]

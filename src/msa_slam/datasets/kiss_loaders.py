@@ -20,14 +20,17 @@ from pathlib import Path
 import numpy as np
 
 from msa_slam.datasets.clouds import read_bin
+from msa_slam.datasets.ground_truth import nearest_in_time
 from msa_slam.datasets.pcd import read_pcd
 from msa_slam.datasets.sequences import ScanSequence
 from msa_slam.errors import InputError
+from msa_slam.io.poses import _read_rows, check_times
 
 KISS_DATASETS = ("mulran", "apollo", "ncd")
 OUSTER_ROWS, OUSTER_COLUMNS = 64, 1024
 SWEEP_PERIOD = 0.1  # s: MulRan's and Newer College's Ousters turn at 10 Hz
 MULRAN_SCANS = ("sensor_data/Ouster", "Ouster")  # as shipped, kiss-icp's layout
+APOLLO_COLUMNS = "index time x y z qx qy qz qw"
 _NCD_NAME = re.compile(r"^cloud_(\d+)_(\d+)")
 
 
@@ -59,8 +62,9 @@ def mulran_folder(path: Path) -> Path | None:
     return next((path / sub for sub in MULRAN_SCANS if (path / sub).is_dir()), None)
 
 
-def mulran_poses(pose_file: Path, scan_ns: np.ndarray) -> np.ndarray:
-    """kiss_icp's MulRan ground truth: per scan the nearest pose in time, relative to the first, LiDAR frame."""
+def mulran_poses(pose_file: Path, scan_times: np.ndarray) -> np.ndarray:
+    """kiss_icp's MulRan ground truth: per scan (`scan_times` in s) the nearest pose in time, relative to the
+    first, LiDAR frame; a pose file that does not cover the scans is refused (see nearest_in_time)."""
     from kiss_icp.datasets.mulran import MulranDataset
 
     try:
@@ -69,9 +73,10 @@ def mulran_poses(pose_file: Path, scan_ns: np.ndarray) -> np.ndarray:
         raise InputError(f"{pose_file}: not MulRan's global_pose.csv (time, then 12 pose values a row): {exc}") from None
     if rows.shape[1] != 13:
         raise InputError(f"{pose_file}: {rows.shape[1]} values a row; MulRan's global_pose.csv has 13 (time, 3x4 pose)")
+    pose_times = check_times(rows[:, 0] * 1e-9, lambda i: f"{pose_file}: row {i + 1}")
     poses = np.tile(np.eye(4), (len(rows), 1, 1))
     poses[:, :3, :4] = rows[:, 1:].reshape(-1, 3, 4)
-    poses = poses[[int(np.argmin(np.abs(rows[:, 0] - t))) for t in scan_ns]]
+    poses = poses[nearest_in_time(pose_times, scan_times, pose_file)]
     poses = np.linalg.inv(poses[0]) @ poses
     lidar_to_base, base_to_lidar = MulranDataset._get_calibration(None)
     return lidar_to_base @ poses @ base_to_lidar
@@ -85,11 +90,21 @@ def mulran_sequence(path: Path) -> ScanSequence:
     bad = next((s for s in scans if not s.stem.isdigit()), None)
     if bad is not None:
         raise InputError(f"{bad}: MulRan scans are named by their time in nanoseconds")
-    scan_ns = [int(s.stem) for s in scans]
+    times = nanoseconds_to_seconds([int(s.stem) for s in scans])
     pose_file = path / "global_pose.csv"
-    gt = mulran_poses(pose_file, np.array(scan_ns, dtype=np.float64)) if pose_file.is_file() and scans else None
-    return ScanSequence(path, scans, gt, nanoseconds_to_seconds(scan_ns),
-                        timed_reader=partial(_with_ouster_times, read_bin))
+    gt = mulran_poses(pose_file, times) if pose_file.is_file() and scans else None
+    return ScanSequence(path, scans, gt, times, timed_reader=partial(_with_ouster_times, read_bin))
+
+
+def apollo_times(pose_file: Path) -> np.ndarray:
+    """The scan times of an Apollo-SouthBay gt_poses.txt (index, time, x y z, qx qy qz qw a line), after checking
+    every line, so that kiss_icp's reader, which gives a bare ValueError, only ever gets a well-formed file."""
+    rows, width = _read_rows(pose_file), len(APOLLO_COLUMNS.split())
+    for lineno, values in rows:
+        if len(values) != width:
+            raise InputError(f"{pose_file}:{lineno}: {len(values)} values; Apollo's gt_poses.txt has {width} a line "
+                             f"({APOLLO_COLUMNS})")
+    return np.array([values[1] for _, values in rows])
 
 
 def kiss_sequence(name: str, path: str | os.PathLike) -> ScanSequence:
@@ -103,7 +118,7 @@ def kiss_sequence(name: str, path: str | os.PathLike) -> ScanSequence:
         scans = sorted(_require(path / "pcds", "Apollo pcds/ folder").glob("*.pcd"), key=lambda p: int(p.stem)
                        if p.stem.isdigit() else p.stem)
         pose_file = _require(path / "poses" / "gt_poses.txt", "Apollo ground truth")
-        times = np.loadtxt(pose_file, ndmin=2)[:, 1]
+        times = apollo_times(pose_file)
         return ScanSequence(path, scans, ApolloDataset.read_poses(str(pose_file)), times, read_pcd)
     if name == "ncd":
         from kiss_icp.datasets.ncd import NewerCollegeDataset

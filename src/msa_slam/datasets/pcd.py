@@ -67,6 +67,29 @@ def _compressed(raw: bytes, offset: int, dtype: np.dtype, n: int, path: Path) ->
     return table
 
 
+def _ascii_fault(path: Path, lines: list[str], header_lines: int, width: int, exc: ValueError) -> str:
+    """What np.loadtxt refused in the DATA ascii `lines`, naming the file line (loadtxt's row numbers skip
+    blank lines and count from the data)."""
+    for k, line in enumerate(lines, start=header_lines + 1):
+        values = line.split("#")[0].split()
+        if not values:
+            continue
+        bad = next((v for v in values if not _is_number(v)), None)
+        if bad is not None:
+            return f"{path}:{k}: {bad!r} is not a number (PCD DATA ascii: {width} numbers a point)"
+        if len(values) != width:
+            return f"{path}:{k}: {len(values)} values; its fields need {width} a point"
+    return f"{path}: unreadable PCD ascii data ({exc})"
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def read_pcd_table(path: str | os.PathLike) -> np.ndarray:
     """Every field of every point of a PCD file as a structured array (one row a point)."""
     path = Path(path)
@@ -93,7 +116,11 @@ def read_pcd_table(path: str | os.PathLike) -> np.ndarray:
         if len(raw) - offset < n * dtype.itemsize:
             raise InputError(f"{path}: PCD data is truncated ({len(raw) - offset} bytes for {n} points)")
         return np.frombuffer(raw, dtype=dtype, count=n, offset=offset)
-    flat = np.loadtxt(raw[offset:].decode("ascii").splitlines(), ndmin=2)
+    lines = raw[offset:].decode("ascii", errors="replace").splitlines()
+    try:
+        flat = np.loadtxt(lines, ndmin=2)
+    except ValueError as exc:
+        raise InputError(_ascii_fault(path, lines, raw[:offset].count(b"\n"), sum(counts), exc)) from None
     if flat.shape != (n, sum(counts)):
         raise InputError(f"{path}: PCD declares {n} points but its data has shape {flat.shape}")
     table = np.empty(n, dtype=dtype)

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import copy
+import logging
 import os
-from functools import partial
+from functools import cache, partial
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
@@ -17,20 +18,29 @@ from msa_slam.errors import InputError
 from msa_slam.io.poses import check_times, read_poses
 from msa_slam.types import validate_poses
 
+log = logging.getLogger(__name__)
+
 
 class ScanSequence:
     """Scans read lazily from files, with optional times and ground-truth poses (LiDAR frame).
 
-    Opening checks what is cheap to check before any long work: .bin file sizes, the first scan, and that
-    times increase strictly; every scan is checked again as it is read. A `timed_reader` (instead of
-    `reader`) also gives each scan's per-point times, which frames then carry as `timestamps`; `kitti_bins`
-    False: .bin files are not KITTI's 16-byte records (HeLiPR).
+    Opening checks what is cheap to check before any long work: the first scan and that times increase
+    strictly; `select` (which every run calls) checks the sizes of the .bin files it selects, so a scan cut
+    short outside `--first/--jump/-n` does not stop a run; every scan is checked again as it is read. A
+    `timed_reader` (instead of `reader`) also gives each scan's per-point times, which frames then carry as
+    `timestamps`; `point_time_files` (one a scan) are the files those times are read from, part of the
+    sequence's identity for caches. `kitti_bins` False: .bin files are not KITTI's 16-byte records (HeLiPR).
+    Without `times` the scans have no timestamps (`times_known` False): frame k is taken to be at k s.
     """
+
+    # Defaults for subclasses that set their own fields (BagSequence: real times, no .bin files).
+    times_known = True  # False: `times` are frame numbers, not timestamps
+    kitti_bins = True
 
     def __init__(self, path: Path, scan_files: Sequence[Path], gt_poses: np.ndarray | None = None,
                  times: np.ndarray | None = None, reader: Callable[[Path], np.ndarray] = read_cloud,
                  timed_reader: Callable[[Path], tuple[np.ndarray, np.ndarray | None]] | None = None,
-                 kitti_bins: bool = True) -> None:
+                 kitti_bins: bool = True, point_time_files: Sequence[Path] = ()) -> None:
         self.path = Path(path)
         self.name = self.path.name
         self.scan_files = [Path(f) for f in scan_files]
@@ -40,14 +50,14 @@ class ScanSequence:
             if values is not None and len(values) != len(self.scan_files):
                 raise InputError(f"{self.path}: {len(values)} {what} but {len(self.scan_files)} scans")
         self.gt_poses = None if gt_poses is None else validate_poses(gt_poses, f"{self.path} poses")
+        self.times_known = times is not None
         if times is None:
             times = np.arange(len(self.scan_files), dtype=np.float64)
         self.times = check_times(times, lambda i: f"{self.path}: timestamp of scan {self.scan_files[i].name}")
+        self.point_time_files = [Path(f) for f in point_time_files]
         self._reader = reader
         self._timed_reader = timed_reader
-        for scan in self.scan_files if kitti_bins else ():
-            if scan.suffix.lower() == ".bin":
-                check_bin_size(scan)
+        self.kitti_bins = kitti_bins
         self._read(self.scan_files[0])
 
     def __len__(self) -> int:
@@ -55,21 +65,28 @@ class ScanSequence:
 
     def select(self, first: int = 0, jump: int = 1, count: int | None = None) -> "ScanSequence":
         """Part of the recording: every `jump`-th scan from scan `first`, at most `count` of them (the frames
-        keep their times and ground truth; indices restart at 0)."""
+        keep their times and ground truth; indices restart at 0). What a run reads is known only here, so
+        here the sizes of its .bin files are checked and missing timestamps warned about."""
         if first < 0 or jump < 1 or (count is not None and count < 1):
             raise InputError(f"{self.path}: bad selection first={first}, jump={jump}, n={count}; need first >= 0, "
                              "jump >= 1, n >= 1")
         if first >= len(self):
             raise InputError(f"{self.path}: --first {first} is beyond its {len(self)} scans (0..{len(self) - 1})")
-        if (first, jump, count) == (0, 1, None):
-            return self
-        part = copy.copy(self)
-        part._take(np.arange(first, len(self), jump)[:count])
+        part = self
+        if (first, jump, count) != (0, 1, None):
+            part = copy.copy(self)
+            part._take(np.arange(first, len(self), jump)[:count])
+        for scan in part.scan_files if part.kitti_bins else ():
+            if scan.suffix.lower() == ".bin":
+                check_bin_size(scan)
+        if not part.times_known:
+            _warn_untimed(self.path)
         return part
 
     def _take(self, rows: np.ndarray) -> None:
         """Keep only the scans at `rows` (of this copy)."""
         self.scan_files = [self.scan_files[i] for i in rows]
+        self.point_time_files = [self.point_time_files[i] for i in rows] if self.point_time_files else []
         self.gt_poses = None if self.gt_poses is None else self.gt_poses[rows]
         self.times = self.times[rows]
 
@@ -165,7 +182,8 @@ def kitti_sequence(path: str | os.PathLike) -> ScanSequence:
         if missing is not None:
             raise InputError(f"{missing}: missing; {path / TIMES_FOLDER} must hold the per-point times of "
                              "every scan (or be removed to derive them from azimuth)")
-    return ScanSequence(path, scans, gt, times, timed_reader=partial(read_timed_scan, stored=stored))
+    return ScanSequence(path, scans, gt, times, timed_reader=partial(read_timed_scan, stored=stored),
+                        point_time_files=[stored_times_path(s) for s in scans] if stored else ())
 
 
 def folder_sequence(path: str | os.PathLike, poses: str | os.PathLike | None = None,
@@ -204,6 +222,13 @@ def load_cloud_stack(source: str | os.PathLike, n_frames: int) -> list[np.ndarra
     if len(items) != n_frames:
         raise InputError(f"{source}: {len(items)} clouds, but the pose file has {n_frames} poses")
     return items
+
+
+@cache
+def _warn_untimed(path: Path) -> None:
+    """Warn once a folder and process: a run may open its dataset more than once (window check, front end)."""
+    log.warning("%s: the scans have no timestamps (no times.txt or TUM ground truth); taking frame k to be at k s "
+                "(1 frame/s)", path)
 
 
 def _hidden(path: Path) -> bool:

@@ -61,9 +61,11 @@ def input_identity(files: Iterable[str | os.PathLike], root: str | os.PathLike |
 
 def sequence_identity(sequence: Any) -> list[list]:
     """Identity of a ScanSequence's scans (`path`, `scan_files`, and the `selection` within those files a bag
-    sequence has: topic, messages) and of their frame times (deskewing uses them; a times.txt edited beside
-    the same scans must not reuse the old odometry): what odometry and descriptors are computed from."""
-    identity = input_identity(sequence.scan_files, sequence.path)
+    sequence has: topic, messages), of the files holding their per-point times (`point_time_files`) and of
+    their frame times (deskewing uses both; times edited beside the same scans must not reuse the old
+    odometry): what odometry and descriptors are computed from."""
+    files = [*sequence.scan_files, *getattr(sequence, "point_time_files", ())]
+    identity = input_identity(files, sequence.path)
     times = getattr(sequence, "times", None)
     if times is not None:
         digest = hashlib.sha256(np.ascontiguousarray(times, dtype="<f8").tobytes()).hexdigest()

@@ -33,7 +33,7 @@ from typing import Iterator
 from msa_slam.io.staging import (MARKER, OutputError, clean_stale, foreign_files, is_result_folder, staged_dir,
                                  write_marker)
 
-__all__ = ["DEFAULT_RESULTS", "MARKER", "OutputError", "ResultFolder", "is_result_folder",
+__all__ = ["DEFAULT_RESULTS", "MARKER", "OutputError", "ResultFolder", "check_output", "is_result_folder",
            "open_result_folder", "staged_dir", "timestamped", "write_marker"]
 
 DEFAULT_RESULTS = Path("msa_slam_results")  # parent of the default timestamped output folders
@@ -184,6 +184,25 @@ class ResultFolder:
         write_marker(self.path, self.kind, exclude=untouched)
 
 
+def _out_target(out: str | os.PathLike) -> Path:
+    """The folder an explicit --out names: the folder itself, not a link to it, is locked and checked."""
+    target = Path(out)
+    return target.resolve() if target.name in ("", ".", "..") or target.is_symlink() else target
+
+
+def check_output(out: str | os.PathLike | None, kind: str, default_parent: str | os.PathLike,
+                 overwrite: bool = False, resume: bool = False) -> None:
+    """open_result_folder's checks, without taking the lock: for a command that reads its input before it
+    opens its result folder (compare counts the frames for its samplers' windows), so that a bad --out is
+    still refused first. open_result_folder checks again under the lock."""
+    if out is None:
+        _check_writable(Path(default_parent))
+        return
+    target = _out_target(out)
+    _check_target(target, kind, overwrite, resume)
+    _check_writable(target.parent)
+
+
 @contextlib.contextmanager
 def open_result_folder(out: str | os.PathLike | None, kind: str, default_parent: str | os.PathLike,
                        overwrite: bool = False, resume: bool = False) -> Iterator[ResultFolder]:
@@ -192,18 +211,14 @@ def open_result_folder(out: str | os.PathLike | None, kind: str, default_parent:
     `out=None` picks a new timestamped folder under `default_parent` (and points `latest` at it).
     Raises OutputError (one line) for a target that must not be written.
     """
+    check_output(out, kind, default_parent, overwrite, resume)
     if out is None:
         parent = Path(default_parent)
-        _check_writable(parent)
         parent.mkdir(parents=True, exist_ok=True)
         folder = ResultFolder(timestamped(parent), kind, timestamped=True)
     else:
-        target = Path(out)
-        if target.name in ("", ".", "..") or target.is_symlink():  # lock and check the folder itself, not a link
-            target = target.resolve()
+        target = _out_target(out)
         folder = ResultFolder(target, kind)
-        _check_target(target, kind, overwrite, resume)
-        _check_writable(target.parent)
         target.parent.mkdir(parents=True, exist_ok=True)
     lock = _Lock(folder.path)
     try:

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from msa_slam.errors import InputError
 from msa_slam.io.atomic import write_text_atomic
-from msa_slam.types import validate_poses
+from msa_slam.types import pose_fault, validate_poses
 
 POSE_FORMATS = ("auto", "kitti", "tum")
 TUM_COLUMNS = "time tx ty tz qx qy qz qw"
@@ -21,6 +21,8 @@ QUATERNION_TOLERANCE = 1e-2
 
 
 def _read_rows(path: Path) -> list[tuple[int, list[float]]]:
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory; expected a pose file (KITTI or TUM)")
     if not path.is_file():
         raise InputError(f"{path}: pose file not found")
     rows = []
@@ -64,16 +66,19 @@ def read_poses(path: str | os.PathLike, fmt: str = "auto") -> tuple[np.ndarray, 
         if len(vals) != expected:
             raise InputError(f"{path}:{lineno}: {len(vals)} values, expected {expected} ({fmt} format)")
     data = np.array([vals for _, vals in rows], dtype=np.float64)
+    lines = [lineno for lineno, _ in rows]
     poses = np.tile(np.eye(4), (len(data), 1, 1))
     times = None
     if fmt == "kitti":
         poses[:, :3, :4] = data.reshape(-1, 3, 4)
     else:
-        lines = [lineno for lineno, _ in rows]
         times = check_times(data[:, 0], lambda i: f"{path}: pose {i + 1}", lines)
         poses[:, :3, 3] = data[:, 1:4]
         poses[:, :3, :3] = Rotation.from_quat(_unit_quaternions(path, data[:, 4:8], lines)).as_matrix()
-    return validate_poses(poses, where=str(path)), times
+    fault = pose_fault(poses)
+    if fault is not None:  # the file's line (comments counted), as the parse errors above name it
+        raise InputError(f"{path}:{lines[fault[0]]}: pose {fault[1]}")
+    return poses, times
 
 
 def check_times(times: Sequence[float], where: Callable[[int], str],

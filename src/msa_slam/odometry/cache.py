@@ -11,6 +11,7 @@ import numpy as np
 from msa_slam.datasets import ScanSequence, open_dataset
 from msa_slam.errors import InputError
 from msa_slam.io.cache import CacheDir, cache_key, check_entry, input_identity, sequence_identity
+from msa_slam.odometry.kiss import KissOdometry
 from msa_slam.progress import progress_bar
 from msa_slam.types import validate_poses
 
@@ -65,8 +66,12 @@ def sequence_odometry(sequence: ScanSequence, odometry: Odometry, cache: Odometr
                       quiet: bool = False, extra_inputs: Iterable[str | os.PathLike] = ()) -> tuple[np.ndarray, bool]:
     """(N, 4, 4) odometry poses of every frame of `sequence` and whether they came from `cache`.
 
-    `extra_inputs`: files the odometry reads besides the scans (they are part of the cache key).
+    `extra_inputs`: files the odometry reads besides the scans (they are part of the cache key). Scans without
+    per-point times turn KISS-ICP's deskewing off before the key is made, so cached and fresh runs record the
+    same; scans without timestamps give the odometry no scan times (see KissOdometry.register).
     """
+    if isinstance(odometry, KissOdometry) and odometry.params["deskew"] and sequence[0].timestamps is None:
+        odometry.without_point_times()
     key = None
     if cache is not None:
         key = OdometryCache.key(sequence, odometry.config, extra_inputs)
@@ -78,7 +83,7 @@ def sequence_odometry(sequence: ScanSequence, odometry: Odometry, cache: Odometr
         task = progress.add_task("odometry", total=len(sequence))
         for i in range(len(sequence)):
             frame = sequence[i]  # per-point and scan times: used by KISS-ICP only with deskew on
-            poses[i] = odometry.register(frame.points, frame.timestamps, frame.time)
+            poses[i] = odometry.register(frame.points, frame.timestamps, frame.time if sequence.times_known else None)
             progress.advance(task)
     if cache is not None and key is not None:
         cache.save(key, poses)

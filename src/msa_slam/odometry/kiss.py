@@ -125,6 +125,8 @@ class KissOdometry:
         prediction, which is logged as a warning and listed in `unregistered_frames`.
         """
         cloud = as_points(points, where=f"odometry frame {self._frames}")
+        if self._frames == 0 and timestamps is None:
+            self.without_point_times()
         stamps = None
         if self._icp.config.data.deskew and timestamps is not None:
             stamps = self._point_times(timestamps, len(cloud))
@@ -140,6 +142,14 @@ class KissOdometry:
         self._frames += 1
         self._last_time = None if time is None else float(time)
         return np.array(self._icp.last_pose, dtype=np.float64)
+
+    def without_point_times(self) -> None:
+        """The scans carry no per-point times, so deskewing (which needs them) cannot be done: switch it off,
+        with one warning, so that the configuration recorded with the results and in cache keys says what
+        was done (the poses are those of deskew off)."""
+        if self._icp.config.data.deskew:
+            log.warning("odometry: no per-point times: deskewing has no effect (recorded as deskew false)")
+            self._icp.config.data.deskew = False
 
     def _restart_deskewed(self) -> None:
         """Frames 0 and 1 come before any motion is known, so they are registered raw; a map built from

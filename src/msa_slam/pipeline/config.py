@@ -163,9 +163,6 @@ def read_config_file(path: str | os.PathLike, model: type[RunConfig] = RunConfig
         raise InputError(f"{path}: not valid YAML ({exc})") from None
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a mapping of config keys, got {type(data).__name__}")
-    odd = next((key for key in data if not isinstance(key, str)), None)
-    if odd is not None:
-        raise InputError(f"{path}: key {odd!r} is not a name; valid keys: {', '.join(model.model_fields)}")
     check_partial(model, data, str(path))
     _check_stages(data, str(path))
     return data

@@ -25,7 +25,7 @@ from msa_slam.evaluation.resources import current_rss_bytes
 from msa_slam.evaluation.sanity import frontend_warnings
 from msa_slam.odometry import NoisyOdometry, OdometryCache, ReplayedOdometry
 from msa_slam.pipeline.frontend import make_odometry, pipeline_cache
-from msa_slam.pipeline.online_config import OnlineConfig
+from msa_slam.pipeline.online_config import NO_TIMESTAMPS, OnlineConfig
 from msa_slam.pipeline.source import open_source
 from msa_slam.progress import LogProgress, Progress, progress_bar
 from msa_slam.registration import make_cloud_store
@@ -64,8 +64,9 @@ def _percentiles(values: np.ndarray) -> dict[str, float]:
             "max": round(float(v.max()), 3)}
 
 
-def _metrics(result: RunResult) -> dict[str, Any]:
-    """The shared metrics (msa_slam.slam.core_metrics) plus throughput, latency and the memory store."""
+def _metrics(result: RunResult, times_known: bool = True) -> dict[str, Any]:
+    """The shared metrics (msa_slam.slam.core_metrics) plus throughput, latency and the memory store
+    (`times_known` False: the frames' times are frame numbers, see frame_rate_hz)."""
     cfg, mem, n = result.config, result.memory, len(result)
     totals = {s: float(result.steps_ms[s].sum()) / 1e3 for s in STEPS}
     final_s = result.final_s["optimisation"]
@@ -75,7 +76,8 @@ def _metrics(result: RunResult) -> dict[str, Any]:
     memory = metrics["memory_bytes"]
     memory.update({"keyframe_clouds_on_disk": result.memory_bytes["cloud_disk_bytes"], "cloud_store": cfg.cloud_store})
     graph_steps = result.steps_ms["graph_update"][mem["keyframes"] > np.concatenate([[0], mem["keyframes"][:-1]])]
-    rate, rate_from = frame_rate_hz(float(result.times[0]), float(result.times[-1]), n, cfg.sensor_rate_hz)
+    rate, rate_from = frame_rate_hz(float(result.times[0]), float(result.times[-1]), n, cfg.sensor_rate_hz,
+                                    times_known)
     metrics.update({
         "bytes_per_keyframe": memory["total"] / metrics["keyframes"],
         "time_s": {**{s: round(v, 4) for s, v in totals.items()}, "final_optimisation": round(final_s, 4),
@@ -91,10 +93,14 @@ def _metrics(result: RunResult) -> dict[str, Any]:
     return metrics
 
 
-def frame_rate_hz(first: float, last: float, frames: int, fallback: float) -> tuple[float, str]:
+def frame_rate_hz(first: float, last: float, frames: int, fallback: float,
+                  times_known: bool = True) -> tuple[float, str]:
     """The data's frame rate and where it comes from: `frames` frames timed `first` to `last` (the frames' own
     timestamps, so a 20 Hz sensor or every other scan, `--jump 2`, counts as recorded), else `fallback` (the
-    config's sensor_rate_hz) while they span no time."""
+    config's sensor_rate_hz) while they span no time or are not timestamps (`times_known` False: frame
+    numbers, which would make the rate 1 frame/s)."""
+    if not times_known:
+        return fallback, NO_TIMESTAMPS
     span = last - first
     return ((frames - 1) / span, "timestamps") if frames > 1 and span > 0 else (fallback, "sensor_rate_hz")
 
@@ -145,27 +151,39 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     recorder = MemoryRecorder(n)
     backend = build_backend(config, descriptor, clouds, graph, n, source.name, config.update_iterations, recorder)
     front_ms = {s: np.zeros(n, dtype=np.float32) for s in STEPS[:2]}
+    times_known = source.times_known
+    if not times_known:
+        logger.warning("online: the frames have no timestamps; the real-time factor is taken against the config's "
+                       "sensor_rate_hz (%g Hz)", config.sensor_rate_hz)
     with threadpool_limits(limits=1, user_api="blas"), online_progress(quiet) as bar, closing(backend):
         task = bar.add_task(f"online {config.name}", total=n, fps=0.0, rtf=0.0, kf=0, loops=0)
         start, first_time = time.perf_counter(), None
+
+        def figures(frames: int, last_time: float, keyframes: int) -> dict[str, Any]:
+            """The progress line's fields after `frames` frames."""
+            if quiet:
+                return {}
+            fps = frames / max(time.perf_counter() - start, 1e-9)
+            rate = frame_rate_hz(first_time, last_time, frames, config.sensor_rate_hz, times_known)[0]
+            return {"fps": fps, "rtf": fps / rate, "kf": keyframes, "loops": sum(c.accepted for c in backend.loops)}
+
         for i, frame in enumerate(source.frames()):
             if i >= n:
                 break
             first_time = frame.time if first_time is None else first_time
             t0 = time.perf_counter()
-            pose = odometry.register(frame.points, frame.timestamps, frame.time)  # times: for deskew
+            pose = odometry.register(frame.points, frame.timestamps,  # times: for deskew
+                                     frame.time if times_known else None)
             t1 = time.perf_counter()
             desc = np.asarray(descriptor.compute(frame.points, frame=i), dtype=np.float64)
             front_ms["odometry"][i], front_ms["descriptor"][i] = (t1 - t0) * 1e3, (time.perf_counter() - t1) * 1e3
             new = backend.add_frame(pose, desc, frame.points, frame.gt_pose, frame.time)
             if viewer is not None:
                 viewer.frame(backend, i, frame.points, new)
-            if not quiet and (i % 10 == 9 or i == n - 1):
-                fps = (i + 1) / max(time.perf_counter() - start, 1e-9)
-                rate = frame_rate_hz(first_time, frame.time, i + 1, config.sensor_rate_hz)[0]
-                bar.update(task, completed=i + 1, fps=fps, rtf=fps / rate,
-                           kf=len(backend.store), loops=sum(c.accepted for c in backend.loops))
-        result = backend.finish()
+            if i < n - 1:  # every frame, so that a failure reports the frame it stopped at; the last: after finish()
+                bar.update(task, completed=i + 1, **figures(i + 1, frame.time, len(backend.store)))
+        result = backend.finish()  # flushes the sampler: the last line counts the keyframes the report does
+        bar.update(task, completed=len(result), **figures(len(result), float(result.times[-1]), len(result.keyframes)))
     if viewer is not None:
         viewer.finish(result)
     m = len(result)
@@ -173,7 +191,7 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     result.memory = {k: v[:m] for k, v in recorder.memory.items()}
     front = [result.steps_ms[s] for s in front_ms]
     result.memory_bytes["record_bytes"] += sum(v.nbytes for v in (*result.memory.values(), *front))  # per-frame series
-    result.metrics = {**_metrics(result), "odometry_cached": cached}
+    result.metrics = {**_metrics(result, times_known), "odometry_cached": cached}
     warnings = frontend_warnings(result.gt_poses, result.odometry, result.times)
     for warning in warnings:
         logger.warning(warning)

@@ -24,7 +24,8 @@ class OnlineConfig(RunConfig):
     in RAM, in a private folder under `store_dir` (default: the system temporary folder) that is removed when
     the run ends; pick a `store_dir` on a real disk when the temporary folder is in RAM (tmpfs).
     `sensor_rate_hz` is the data's frame rate for the real-time factor only while the frames' timestamps span
-    no time (fewer than two frames); otherwise the timestamps give it.
+    no time (fewer than two frames) or the frames have none (a folder without times.txt or TUM poses);
+    otherwise the timestamps give it.
     """
 
     SECTION: ClassVar[str] = "online config"
@@ -35,6 +36,9 @@ class OnlineConfig(RunConfig):
     sensor_rate_hz: float = Field(10.0, gt=0)
     max_frames: int | None = Field(None, ge=3)
     seed: int = 0
+
+
+NO_TIMESTAMPS = "sensor_rate_hz (the frames have no timestamps)"  # frame_rate_from without them
 
 
 def make_online_config(data: Mapping[str, Any] | None = None, **overrides: Any) -> OnlineConfig:

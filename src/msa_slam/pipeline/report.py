@@ -3,7 +3,7 @@ memory and time, the figures."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Collection
 
 import numpy as np
 
@@ -11,6 +11,7 @@ import msa_slam
 from msa_slam.evaluation import KITTI_LENGTHS_M, PROCESS_RSS_LABEL, fmt, notes, segment_errors
 from msa_slam.evaluation.full_rate import STEP_FRAMES, path_length
 from msa_slam.io.tables import mib
+from msa_slam.pipeline.online_config import NO_TIMESTAMPS
 from msa_slam.slam import RunResult
 from msa_slam.viz.labels import sampler_label
 
@@ -84,6 +85,15 @@ def _batch_lines(result: RunResult) -> list[str]:
     ]
 
 
+def _rate_source(frame_rate_from: str) -> str:
+    """Where the real-time factor's data rate came from (pipeline.online.frame_rate_hz)."""
+    if frame_rate_from == "timestamps":
+        return "from its timestamps"
+    if frame_rate_from == NO_TIMESTAMPS:
+        return "the config's sensor_rate_hz: the frames have no timestamps"
+    return "the config's sensor_rate_hz: its timestamps span no time"
+
+
 def _online_lines(result: RunResult) -> list[str]:
     m = result.metrics
     lat = m["latency_ms"]
@@ -95,16 +105,31 @@ def _online_lines(result: RunResult) -> list[str]:
         f"{m['bytes_per_keyframe']:.0f} | {m['fps']:.1f} | {m['backend_fps']:.1f} | "
         f"{m['realtime_factor']:.2f} | {lat['backend']['p99']:.1f} |", "",
         f"Real-time factor: frames/s over the data's {m['frame_rate_hz']:.1f} frames/s ("
-        + ("from its timestamps" if m["frame_rate_from"] == "timestamps" else
-           "the config's sensor_rate_hz: its timestamps span no time") + ").", "",
+        + _rate_source(m["frame_rate_from"]) + ").", "",
         f"{PROCESS_RSS_LABEL}: {mib(m['peak_rss_bytes'])}; {_rss_growth(m)}", "",
         "Step totals [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in m["time_s"].items())
         + ("  (odometry replayed from cache)" if m.get("odometry_cached") else ""), "",
     ]
 
 
-def report_markdown(result: RunResult, figures: list[str]) -> str:
-    """The run's report.md text; `figures` are file names under figures/."""
+# What the files of a result folder hold, in the order report.md lists them ({command}: run or online)
+RESULT_FILES = {
+    "config.yaml": "config.yaml (re-run with `msa-slam {command} --config`)",
+    "metrics.json": "metrics.json (every key explained in docs/metrics.md of msa-slam)",
+    "frames.csv": "frames.csv", "loops.csv": "loops.csv", "pr.csv": "pr.csv",
+    "steps.csv": "steps.csv (per-frame step times and memory)",
+    "descriptors.npy": "descriptors.npy (every frame's)",
+    "trajectories": "trajectories/ (KITTI and TUM with the frames' times: full-rate ground truth, odometry and "
+                    "optimised, keyframe trajectories)",
+    "map.ply": "map.ply (keyframe clouds at the optimised poses)",
+    "pose_graph.g2o": "pose_graph.g2o",
+    "provenance.json": "provenance.json (versions, command line, date, CPU)",
+}
+
+
+def report_markdown(result: RunResult, figures: list[str], files: Collection[str]) -> str:
+    """The run's report.md text; `figures` are file names under figures/, `files` the names in the result
+    folder (only those are listed: which files a run writes depends on what it produced)."""
     m, cfg = result.metrics, result.config
     online = m.get("pipeline") == "online"
     b, a, imp = m["before"], m["after"], m["improvement_pct"]
@@ -116,7 +141,8 @@ def report_markdown(result: RunResult, figures: list[str]) -> str:
         f"Sampler: {sampler_label(cfg.sampler, cfg.sampler_params)}.", "",
         f"{m['frames']} frames -> {m['keyframes']} keyframes; {m['candidates']} loop candidates "
         f"(similarity >= {cfg.similarity_threshold}), {m['verified']} verified, "
-        f"{m['false_loops']} false (ground-truth distance > {cfg.loop_radius} m)."
+        + (f"{m['false_loops']} false (ground-truth distance > {cfg.loop_radius} m)." if result.gt_poses is not None
+           else f"false loops n/a (no ground truth to tell a loop within {cfg.loop_radius} m from a false one).")
         + (" iSAM2 updated at every frame that finalised keyframes." if online else ""), "",
         f"| metric | odometry | {after} | improvement |", "|---|---|---|---|",
         *_full_rate_rows(m["full_rate"], rpe_span),
@@ -137,10 +163,7 @@ def report_markdown(result: RunResult, figures: list[str]) -> str:
         *(_online_lines(result) if online else _batch_lines(result)),
     ]
     lines += [f"![{name}](figures/{name})" for name in figures]
-    files = "steps.csv (per-frame step times and memory), " if online else "descriptors.npy (every frame's), "
-    lines += ["", f"Files: config.yaml (re-run with `msa-slam {'online' if online else 'run'} --config`), "
-              "metrics.json (every key explained in docs/metrics.md of msa-slam), frames.csv, loops.csv, pr.csv, "
-              f"{files}trajectories/ (KITTI and TUM with the frames' times: full-rate ground truth, odometry "
-              "and optimised, keyframe trajectories), map.ply (keyframe clouds at the optimised poses), pose_graph.g2o, "
-              "provenance.json (versions, command line, date, CPU).", f"msa-slam {msa_slam.__version__}", ""]
+    listed = [text.format(command="online" if online else "run") for name, text in RESULT_FILES.items()
+              if name in files]
+    lines += ["", f"Files: {', '.join(listed)}.", f"msa-slam {msa_slam.__version__}", ""]
     return "\n".join(lines)

@@ -209,7 +209,7 @@ def write_run_files(result: RunResult, folder: Path, figures: bool = True) -> No
     if result.descriptors is not None:
         np.save(folder / "descriptors.npy", result.descriptors)
     names = _write_figures(result, folder / "figures") if figures else []
-    (folder / "report.md").write_text(report_markdown(result, names))
+    (folder / "report.md").write_text(report_markdown(result, names, {p.name for p in folder.iterdir()}))
 
 
 def write_run(result: RunResult, out: str | os.PathLike | None, overwrite: bool = False) -> Path:

@@ -33,6 +33,7 @@ from msa_slam.types import LoopClosure
 BACKEND_STEPS = ("sampling", "keyframe_store", "loop_detection", "verification", "graph_update")
 Points = Union[np.ndarray, Callable[[], np.ndarray]]  # a scan, or how to read it when it becomes a keyframe
 RELEASE_EVERY = 100  # frames between returns of free heap pages (malloc_trim: well under 1 ms each)
+MIN_KEYFRAMES = 3  # the evaluation's minimum: its SE(3) alignment of the keyframe trajectories needs 3 poses
 
 
 class Graph(Protocol):
@@ -203,9 +204,11 @@ class SlamBackend:
             if self.recorder is not None:
                 self.recorder.record(self, n - 1)
         keys = np.array(self.graph.keys, dtype=np.int64)
-        if len(keys) < 3:
-            raise InputError(f"sampler {self.settings.name!r} kept {len(keys)} keyframes of {n} frames; "
-                             "the evaluation needs at least 3")
+        if len(keys) < MIN_KEYFRAMES:
+            flushed = len(self.sampler.flushed_keyframes)
+            split = f" ({len(keys) - flushed} online, {flushed} from the end-of-stream flush)" if flushed else ""
+            raise InputError(f"sampler {self.settings.name!r} kept {len(keys)} keyframes of {n} frames{split}; "
+                             f"the evaluation needs at least {MIN_KEYFRAMES}")
         memory = self.memory_bytes()
         t0 = time.perf_counter()
         optimised = self.graph.optimize()
