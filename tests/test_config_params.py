@@ -91,6 +91,10 @@ def test_a_config_file_without_the_dataset_is_completed_by_the_options(tmp_path)
     ("sampler: msa\nsampler_params: {windw: 3}\n", "sampler 'msa': unknown parameter(s) windw; it takes: window="),
     ("sampler_params: {alpha: .inf}\n", "sampler_params.alpha=inf is not allowed; expected a finite number"),
     ("1: 2\n", "key 1 is not a name; valid keys: dataset, "),
+    ("verifier: {1: 2}\n", "verifier: key 1 is not a name; valid keys: voxel_size, "),
+    ("source: {first: 0, 2: 3}\n", "source: key 2 is not a name; valid keys: topic, gt, "),
+    ("odometry_params: {1: 2}\n", "odometry_params: key 1 is not a parameter name"),
+    ("odometry: {1: 2}\n", "odometry: Input should be a valid string"),
 ])
 def test_a_bad_key_in_a_config_file_names_the_file(tmp_path, text, problem):
     path = tmp_path / "config.yaml"

@@ -19,7 +19,7 @@ from msa_slam.cli.options import WINDOW_FIX
 from msa_slam.datasets import check_scan_folder, open_dataset
 from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses, write_poses
-from msa_slam.pipeline.config import apply_params, make_config, read_config_file
+from msa_slam.pipeline.config import apply_params, make_config
 from msa_slam.types import validate_poses
 
 IDENTITY = "1 0 0 0 0 1 0 0 0 0 1 0"
@@ -251,20 +251,6 @@ def test_sigterm_removes_the_lock_and_the_partial_folder(tmp_path):
 
 
 # A number as a key inside a config section
-
-@pytest.mark.parametrize("yaml_text, message", [
-    ("verifier: {1: 2}\n", "verifier: key 1 is not a name; valid keys: voxel_size, "),
-    ("source: {first: 0, 2: 3}\n", "source: key 2 is not a name; valid keys: topic, gt, "),
-    ("odometry_params: {1: 2}\n", "odometry_params: key 1 is not a parameter name"),
-    ("odometry: {1: 2}\n", "odometry: Input should be a valid string"),
-])
-def test_a_number_as_a_section_key_names_the_file_and_key(tmp_path, yaml_text, message):
-    path = tmp_path / "config.yaml"
-    path.write_text(yaml_text)
-    with pytest.raises(InputError) as err:
-        read_config_file(path)
-    assert str(err.value).startswith(f"{path}: {message}")
-
 
 def test_a_number_as_a_section_key_in_a_param_is_one_line():
     with pytest.raises(InputError, match=r"^config: graph: key 1 is not a name; valid keys: "):

@@ -115,3 +115,17 @@ def test_kiss_icp_logs_frames_it_could_not_register(caplog):
     assert odometry.unregistered_frames == [1]
     assert [r.getMessage()[:60] for r in caplog.records] == [
         "KISS-ICP frame 1: none of its 2000 points lies within 0-50 m"]
+
+
+def test_camera_frame_ground_truth_is_named(kitti):
+    """KITTI's poses/NN.txt are cam0 poses (z forward); given as LiDAR-frame ground truth every error turns."""
+    gt, times = kitti
+    velo_to_cam = np.eye(4)
+    velo_to_cam[:3, :3] = [[0, -1, 0], [0, 0, -1], [1, 0, 0]]  # KITTI's Tr, up to its small offsets
+    cam = velo_to_cam @ gt @ np.linalg.inv(velo_to_cam)
+    warnings = frontend_warnings(cam, _drifted(gt), times)
+    assert len(warnings) == 1
+    assert re.fullmatch(r"ground truth: the sensor moves along its z axis on (\d+) of (\d+) moving steps, as a "
+                        r"camera does; .*calib\.txt's Tr.*", warnings[0])
+    along, moving = map(int, re.findall(r"\d+", warnings[0])[:2])
+    assert along > 0.9 * moving and moving > 250

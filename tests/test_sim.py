@@ -508,7 +508,8 @@ def test_bad_trajectory_files_name_the_line(tmp_path, defect, line):
         else:
             rows[3] = " ".join([*rows[3].split()[:4], "0.5", "0.5", "0.5", "0.9"])
     path.write_text("\n".join(rows) + "\n")
-    pattern = f"{path}: 1 pose" if defect == "few" else f"{path}:{line}: "
+    pattern = {"few": f"{path}: 1 pose", "backward": f"{path}: pose {line - 1}: .* on line {line}; times must"}.get(
+        defect, f"{path}:{line}: ")
     with pytest.raises(InputError, match=pattern):
         make_config(trajectory=str(path))
 
@@ -522,7 +523,8 @@ def test_trajectory_file_options_are_checked():
 
 def test_camera_poses_without_calib_are_refused(tmp_path):
     poses_file, _, calib_file = _write_camera_trajectory(tmp_path, _arc_poses())
-    with pytest.raises(InputError, match=f"{poses_file}:1: the sensor moves along its z axis.*--calib"):
+    with pytest.raises(InputError, match=f"{poses_file}: the sensor moves along its z axis on 39 of 39 moving "
+                                         "steps.*--calib"):
         make_config(trajectory=str(poses_file))
     assert make_config(trajectory=str(poses_file), calib=str(calib_file)).is_file
 

@@ -36,17 +36,17 @@ def validate_poses(poses: np.ndarray, where: str = "poses") -> np.ndarray:
     return arr
 
 
-def pose_fault(poses: np.ndarray) -> tuple[int, str] | None:
+def pose_fault(poses: np.ndarray, tolerance: float = ROTATION_TOLERANCE) -> tuple[int, str] | None:
     """(index, what is wrong) of the first pose of an (N, 4, 4) stack that is not finite (checked first), else
-    of the first that is not rigid; None when all are fine. Apart from validate_poses so that a pose file's
-    reader can name the line instead of the frame."""
+    of the first that is not rigid (rotation off orthonormal or det 1 by more than `tolerance`); None when all
+    are fine. Apart from validate_poses so that a pose file's reader can name the line instead of the frame."""
     finite = np.isfinite(poses).all(axis=(1, 2))
     if not finite.all():
         return int(np.argmin(finite)), "has NaN or infinite values"
     rot = poses[:, :3, :3]
     ortho_err = np.abs(rot @ rot.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
     det = np.linalg.det(rot)
-    bad = (ortho_err > ROTATION_TOLERANCE) | (np.abs(det - 1.0) > ROTATION_TOLERANCE)
+    bad = (ortho_err > tolerance) | (np.abs(det - 1.0) > tolerance)
     bottom_bad = np.abs(poses[:, 3, :] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=1) > 1e-9
     bad |= bottom_bad
     if not bad.any():

@@ -24,7 +24,7 @@ from msa_slam.datasets.ground_truth import nearest_in_time
 from msa_slam.datasets.pcd import read_pcd
 from msa_slam.datasets.sequences import ScanSequence
 from msa_slam.errors import InputError
-from msa_slam.io.poses import _read_rows, check_times
+from msa_slam.io.poses import check_times, read_number_rows
 
 KISS_DATASETS = ("mulran", "apollo", "ncd")
 OUSTER_ROWS, OUSTER_COLUMNS = 64, 1024
@@ -99,7 +99,7 @@ def mulran_sequence(path: Path) -> ScanSequence:
 def apollo_times(pose_file: Path) -> np.ndarray:
     """The scan times of an Apollo-SouthBay gt_poses.txt (index, time, x y z, qx qy qz qw a line), after checking
     every line, so that kiss_icp's reader, which gives a bare ValueError, only ever gets a well-formed file."""
-    rows, width = _read_rows(pose_file), len(APOLLO_COLUMNS.split())
+    rows, width = read_number_rows(pose_file), len(APOLLO_COLUMNS.split())
     for lineno, values in rows:
         if len(values) != width:
             raise InputError(f"{pose_file}:{lineno}: {len(values)} values; Apollo's gt_poses.txt has {width} a line "

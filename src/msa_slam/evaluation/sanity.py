@@ -51,6 +51,25 @@ def implausible_steps(poses: np.ndarray, times: np.ndarray, what: str) -> list[s
             f"{np.median(moves):.2f} m)"]
 
 
+def steps_along_z(poses: np.ndarray) -> tuple[np.ndarray, int]:
+    """Indices k of the steps (pose k to k + 1, over 1 cm) whose motion, in the sensor frame, is mostly along z,
+    and the number of such moving steps: a vehicle's LiDAR moves along x, a camera (KITTI's cam0) along z."""
+    moving = np.flatnonzero(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1) > 0.01)
+    local = np.einsum("kji,kj->ki", poses[moving, :3, :3], poses[moving + 1, :3, 3] - poses[moving, :3, 3])
+    return moving[np.abs(local[:, 2]) > 0.7 * np.linalg.norm(local, axis=1)], len(moving)
+
+
+def camera_frame_poses(gt_poses: np.ndarray) -> list[str]:
+    """A warning when the ground truth moves along the sensor's z axis on most steps: camera poses (KITTI's
+    poses/NN.txt are cam0's) given where LiDAR-frame poses belong, which rotates every error."""
+    along_z, moving = steps_along_z(validate_poses(gt_poses, "ground truth"))
+    if moving == 0 or len(along_z) <= 0.5 * moving:
+        return []
+    return [f"ground truth: the sensor moves along its z axis on {len(along_z)} of {moving} moving steps, as a "
+            "camera does; ground truth must be LiDAR-frame poses (x forward, z up): KITTI's cam0 poses need "
+            "calib.txt's Tr (a KITTI layout folder with calib.txt converts them)"]
+
+
 def stalled_odometry(gt_poses: np.ndarray, odometry: np.ndarray) -> list[str]:
     """Warnings when the odometry stands (nearly) still while the ground truth moves: at the start, or on a
     large share of the frames (registration that does not lock on, or scans that cannot be registered)."""
@@ -72,10 +91,11 @@ def stalled_odometry(gt_poses: np.ndarray, odometry: np.ndarray) -> list[str]:
 
 
 def frontend_warnings(gt_poses: np.ndarray | None, odometry: np.ndarray, times: np.ndarray) -> list[str]:
-    """Every plausibility warning of a front end: ground-truth jumps, implausible or stalled odometry."""
+    """Every plausibility warning of a front end: camera-frame or jumping ground truth, implausible or stalled
+    odometry."""
     warnings = []
     if gt_poses is not None:
-        warnings += implausible_steps(gt_poses, times, "ground truth")
+        warnings += camera_frame_poses(gt_poses) + implausible_steps(gt_poses, times, "ground truth")
     warnings += implausible_steps(odometry, times, "odometry")
     if gt_poses is not None:
         warnings += stalled_odometry(gt_poses, odometry)

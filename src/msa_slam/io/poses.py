@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from msa_slam.errors import InputError
 from msa_slam.io.atomic import write_text_atomic
-from msa_slam.types import pose_fault, validate_poses
+from msa_slam.types import ROTATION_TOLERANCE, pose_fault, validate_poses
 
 POSE_FORMATS = ("auto", "kitti", "tum")
 TUM_COLUMNS = "time tx ty tz qx qy qz qw"
@@ -20,7 +20,9 @@ TUM_COLUMNS = "time tx ty tz qx qy qz qw"
 QUATERNION_TOLERANCE = 1e-2
 
 
-def _read_rows(path: Path) -> list[tuple[int, list[float]]]:
+def read_number_rows(path: Path) -> list[tuple[int, list[float]]]:
+    """(line number, values) of every line of a text file of numbers (blank and # lines skipped); one
+    InputError naming the file and line for anything else."""
     if path.is_dir():
         raise InputError(f"{path}: is a directory; expected a pose file (KITTI or TUM)")
     if not path.is_file():
@@ -43,17 +45,18 @@ def _read_rows(path: Path) -> list[tuple[int, list[float]]]:
     return rows
 
 
-def read_poses(path: str | os.PathLike, fmt: str = "auto") -> tuple[np.ndarray, np.ndarray | None]:
+def read_poses(path: str | os.PathLike, fmt: str = "auto",
+               rotation_tolerance: float = ROTATION_TOLERANCE) -> tuple[np.ndarray, np.ndarray | None]:
     """Read a pose file; return (poses (N,4,4), timestamps or None). `fmt`: auto, kitti or tum.
 
     A TUM file's times must be finite and increase strictly and its quaternions be of unit norm (within
     QUATERNION_TOLERANCE): every reader of the file (ground truth, odometry, `sample`) then gets the same
-    check, and its error names the line to fix.
+    check, and its error names the line to fix. A KITTI rotation may be off orthonormal by `rotation_tolerance`.
     """
     path = Path(path)
     if fmt not in POSE_FORMATS:
         raise InputError(f"unknown pose format {fmt!r}; choose one of {', '.join(POSE_FORMATS)}")
-    rows = _read_rows(path)
+    rows = read_number_rows(path)
     width = len(rows[0][1])
     if fmt == "auto":
         fmt = {12: "kitti", 8: "tum"}.get(width, "")
@@ -75,7 +78,7 @@ def read_poses(path: str | os.PathLike, fmt: str = "auto") -> tuple[np.ndarray, 
         times = check_times(data[:, 0], lambda i: f"{path}: pose {i + 1}", lines)
         poses[:, :3, 3] = data[:, 1:4]
         poses[:, :3, :3] = Rotation.from_quat(_unit_quaternions(path, data[:, 4:8], lines)).as_matrix()
-    fault = pose_fault(poses)
+    fault = pose_fault(poses, rotation_tolerance)
     if fault is not None:  # the file's line (comments counted), as the parse errors above name it
         raise InputError(f"{path}:{lines[fault[0]]}: pose {fault[1]}")
     return poses, times

@@ -18,12 +18,13 @@ from scipy.spatial.transform import Rotation
 
 from msa_slam.datasets.sequences import read_kitti_calibration, read_times
 from msa_slam.errors import InputError
-from msa_slam.io.poses import POSE_FORMATS, QUATERNION_TOLERANCE, _read_rows, check_times
+from msa_slam.evaluation.sanity import steps_along_z
+from msa_slam.io.poses import read_poses
 from msa_slam.sim.kitti_data import DATA_DIR, KITTI_SEQUENCES, cam0_to_lidar
-from msa_slam.types import ROTATION_TOLERANCE
 
 FRAME_RATE_HZ = 10.0
 MIN_POSES = 2
+PRINTED_ROTATION_TOLERANCE = 1e-3  # KITTI files print rotations with few digits: orthonormalised after reading
 
 
 @dataclass(frozen=True)
@@ -196,18 +197,6 @@ def _orthonormal(rot: np.ndarray) -> np.ndarray:
     return u @ vt
 
 
-def _steps(poses: np.ndarray) -> np.ndarray:
-    """Indices k of the poses that move over 1 cm to pose k + 1."""
-    return np.flatnonzero(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1) > 0.01)
-
-
-def _moving_along_z(poses: np.ndarray) -> np.ndarray:
-    """Indices of the moving steps whose motion, in the sensor frame, is mostly along z (a camera's forward)."""
-    k = _steps(poses)
-    local = np.einsum("kji,kj->ki", poses[k, :3, :3], poses[k + 1, :3, 3] - poses[k, :3, 3])
-    return k[np.abs(local[:, 2]) > 0.7 * np.linalg.norm(local, axis=1)]
-
-
 def read_trajectory(path: str | Path, fmt: str = "auto", times_file: str | Path | None = None,
                     calib_file: str | Path | None = None) -> Trajectory:
     """A trajectory from a pose file: KITTI (12 numbers a line, times from `times_file` or 10 Hz) or TUM
@@ -217,47 +206,14 @@ def read_trajectory(path: str | Path, fmt: str = "auto", times_file: str | Path 
     is built with its ground below each pose), so a path driven along the sensor's z axis is refused.
     Every problem is one InputError naming the file and line."""
     path = Path(path)
-    if fmt not in POSE_FORMATS:
-        raise InputError(f"{path}: unknown trajectory format {fmt!r}; choose one of {', '.join(POSE_FORMATS)}")
-    rows = _read_rows(path)
-    lines = [lineno for lineno, _ in rows]
-    if fmt == "auto":
-        fmt = {12: "kitti", 8: "tum"}.get(len(rows[0][1]), "")
-        if not fmt:
-            raise InputError(f"{path}:{lines[0]}: {len(rows[0][1])} values a line; expected 12 (KITTI: a 3x4 "
-                             "pose matrix, row-major) or 8 (TUM: t x y z qx qy qz qw)")
-    width = 12 if fmt == "kitti" else 8
-    for lineno, vals in rows:
-        if len(vals) != width:
-            raise InputError(f"{path}:{lineno}: {len(vals)} values, expected {width} ({fmt} format)")
-    if len(rows) < MIN_POSES:
-        raise InputError(f"{path}: {len(rows)} pose(s); a trajectory needs at least {MIN_POSES}")
-    data = np.array([vals for _, vals in rows], dtype=np.float64)
-    bad = np.flatnonzero(~np.isfinite(data).all(axis=1))
-    if len(bad):
-        raise InputError(f"{path}:{lines[bad[0]]}: NaN or infinite value in {data[bad[0]].tolist()}")
-    poses = np.tile(np.eye(4), (len(data), 1, 1))
-    if fmt == "kitti":
-        poses[:, :3, :4] = data.reshape(-1, 3, 4)
-        rot = poses[:, :3, :3]
-        err = np.maximum(np.abs(rot @ rot.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2)),
-                         np.abs(np.linalg.det(rot) - 1.0))
-        tolerance = max(ROTATION_TOLERANCE, 1e-3)
-    else:
-        err = np.abs(np.linalg.norm(data[:, 4:8], axis=1) - 1.0)
-        tolerance = QUATERNION_TOLERANCE
-        poses[:, :3, 3] = data[:, 1:4]
-        poses[:, :3, :3] = Rotation.from_quat(data[:, 4:8]).as_matrix() if err.max() <= tolerance else np.eye(3)
-    bad = np.flatnonzero(err > tolerance)
-    if len(bad):
-        what = "rotation is not orthonormal with det 1" if fmt == "kitti" else "quaternion is not of unit norm"
-        raise InputError(f"{path}:{lines[bad[0]]}: not a rigid pose: the {what} (error {err[bad[0]]:.2e}, "
-                         f"allowed {tolerance:g})")
+    poses, stamps = read_poses(path, fmt, rotation_tolerance=PRINTED_ROTATION_TOLERANCE)
+    if len(poses) < MIN_POSES:
+        raise InputError(f"{path}: {len(poses)} pose(s); a trajectory needs at least {MIN_POSES}")
     poses[:, :3, :3] = _orthonormal(poses[:, :3, :3])
-    if fmt == "tum":
+    if stamps is not None:
         if times_file is not None:
             raise InputError(f"{times_file}: a TUM trajectory ({path}) carries its own times; give no times file")
-        times = check_times(data[:, 0], lambda i: f"{path}:{lines[i]}")
+        times = stamps
     elif times_file is not None:
         times = read_times(Path(times_file))
         if len(times) != len(poses):
@@ -266,10 +222,11 @@ def read_trajectory(path: str | Path, fmt: str = "auto", times_file: str | Path 
         times = np.arange(len(poses)) / FRAME_RATE_HZ
     if calib_file is not None:
         poses = cam0_to_lidar(poses, read_kitti_calibration(Path(calib_file)))
-    along_z = _moving_along_z(poses)
-    if len(along_z) > 0.5 * max(1, len(_steps(poses))):
-        raise InputError(f"{path}:{lines[along_z[0]]}: the sensor moves along its z axis (camera poses, z forward?) "
-                         "while a LiDAR frame has x forward, z up; give --calib with the KITTI calib.txt (Tr line)")
+    along_z, moving = steps_along_z(poses)
+    if len(along_z) > 0.5 * max(1, moving):
+        raise InputError(f"{path}: the sensor moves along its z axis on {len(along_z)} of {moving} moving steps "
+                         f"(from pose {along_z[0] + 1}; camera poses, z forward?) while a LiDAR frame has x forward, "
+                         "z up; give --calib with the KITTI calib.txt (Tr line)")
     poses[:, :3, 3] -= poses[0, :3, 3]
     return Trajectory(path.stem, poses, times - times[0], "car")
 
