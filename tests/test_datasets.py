@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -68,6 +69,23 @@ def test_kitti_scans_without_zero_padding_keep_their_numeric_order(tmp_path):
     frames = open_dataset(seq)
     for k in (2, 10, 11):
         np.testing.assert_array_equal(frames[k].points, _points(k))
+
+
+def test_unreadable_velodyne_folder_is_named_as_unreadable(tmp_path, monkeypatch):
+    """Not "no .bin scans": the folder is there but cannot be listed (the CLI prints permission denied)."""
+    seq = _kitti(tmp_path)
+    velodyne = seq / "velodyne"
+    listdir = os.listdir
+
+    def denied(path="."):
+        if Path(path) == velodyne:
+            raise PermissionError(13, "Permission denied", str(velodyne))
+        return listdir(path)
+
+    monkeypatch.setattr(os, "listdir", denied)
+    with pytest.raises(PermissionError) as err:
+        open_dataset(seq)
+    assert err.value.filename == str(velodyne)
 
 
 def test_hidden_files_are_not_scans(tmp_path):

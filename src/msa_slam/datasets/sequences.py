@@ -156,7 +156,8 @@ def kitti_sequence(path: str | os.PathLike) -> ScanSequence:
     velodyne = path / "velodyne"
     if not velodyne.is_dir():
         raise InputError(f"{path}: not a KITTI sequence (no velodyne/ folder)")
-    scans = sorted((f for f in velodyne.glob("*.bin") if not _hidden(f)), key=_natural_key)  # 2 before 10
+    # iterdir, unlike glob, raises PermissionError for an unreadable folder (glob would find "no scans")
+    scans = sorted((f for f in velodyne.iterdir() if f.suffix == ".bin" and not _hidden(f)), key=_natural_key)
     if not scans:
         raise InputError(f"{velodyne}: no .bin scans")
     times = None
