@@ -74,6 +74,16 @@ def test_point_based_sampler_reads_clouds(stream):
     assert json.loads((path / "out" / "keyframes.json").read_text())["keyframes"][0] == 0
 
 
+def test_a_descriptor_stack_is_not_taken_for_clouds(stream):
+    """A (N, 20, 60) Scan Context stack passed as --clouds would give 60 "coordinates" a point."""
+    path, _, desc = stream
+    np.save(path / "stack.npy", np.zeros((len(desc), 20, 60)))
+    result = invoke("--poses", path / "poses.txt", "--clouds", path / "stack.npy", "--sampler", "entropy",
+                    "--out", path / "out")
+    expect_error(result, "clouds must have shape (N, P, 3) (x y z) or (N, P, 4) (x y z intensity), got ")
+    assert not (path / "out").exists()
+
+
 def expect_error(result, fragment):
     assert result.exit_code != 0
     assert isinstance(result.exception, InputError), result.output

@@ -125,6 +125,8 @@ def test_sensor_models():
         get_sensor("hdl64", dropout=1.5)
     with pytest.raises(InputError, match="azimuth_steps"):
         get_sensor("hdl64", azimuth_steps=2)
+    with pytest.raises(InputError, match=r"azimuth_steps must be in 8\.\.8192, got 10000000"):
+        get_sensor("hdl64", azimuth_steps=10_000_000)
 
 
 def _room() -> World:
@@ -335,6 +337,8 @@ def test_config_errors_name_the_parameter():
         make_config(sensor="hdl32")
     with pytest.raises(InputError, match="colour"):
         make_config(colour="red")
+    with pytest.raises(InputError, match="seed: Input should be greater than or equal to 0"):
+        make_config(seed=-1)
     with pytest.raises(InputError, match="unknown default sequence 'huge'.*demo, test"):
         default_sequence("huge")
 

@@ -215,8 +215,9 @@ def load_cloud_stack(source: str | os.PathLike, n_frames: int) -> list[np.ndarra
             clouds = np.load(source, allow_pickle=False)
         except (OSError, ValueError, EOFError) as exc:
             raise InputError(f"{source}: not a readable .npy array ({exc})") from exc
-        if clouds.ndim != 3 or clouds.shape[2] < 3:
-            raise InputError(f"{source}: clouds must have shape (N, P, 3), got {clouds.shape}")
+        if clouds.ndim != 3 or clouds.shape[2] not in (3, 4):  # (N, 20, 60) would be descriptors, not points
+            raise InputError(f"{source}: clouds must have shape (N, P, 3) (x y z) or (N, P, 4) (x y z intensity), "
+                             f"got {clouds.shape}")
         items = list(clouds)
     else:
         items = [read_cloud(f) for f in folder_sequence(source).scan_files]

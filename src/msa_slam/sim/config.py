@@ -8,7 +8,8 @@ import hashlib
 from dataclasses import asdict
 from pathlib import Path
 
-from pydantic import BaseModel, ConfigDict, PrivateAttr, ValidationError, ValidationInfo, field_validator, model_validator
+from pydantic import (BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, ValidationInfo, field_validator,
+                      model_validator)
 
 from msa_slam.errors import InputError
 from msa_slam.io.cache import cache_key
@@ -35,7 +36,7 @@ class SimConfig(BaseModel):
     start: int = 0
     end: int | None = None
     stride: int = 1
-    seed: int = 0
+    seed: int = Field(0, ge=0)  # numpy's generators take no negative seed
     azimuth_steps: int | None = None
     max_range: float | None = None
     range_noise: float = 0.02

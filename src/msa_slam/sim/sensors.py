@@ -22,6 +22,8 @@ from msa_slam.sim.world import World
 from msa_slam.types import validate_pose, validate_poses
 
 CALIBRATION_STREAM = 2**40  # seeds the per-sequence calibration errors apart from any per-frame stream
+MAX_AZIMUTH_STEPS = 8192  # columns a revolution: beyond any spinning LiDAR (Ouster 2048, an HDL-64E at 5 Hz ~4500);
+# memory grows with beams x columns, and 10^7 columns exhausted this 24 GiB machine
 
 
 @dataclass(frozen=True)
@@ -38,8 +40,9 @@ class LidarModel:
     sweep_period: float = 0.1  # s per revolution (10 Hz)
 
     def __post_init__(self) -> None:
-        if self.azimuth_steps < 8:
-            raise InputError(f"sensor {self.name}: azimuth_steps must be >= 8, got {self.azimuth_steps}")
+        if not 8 <= self.azimuth_steps <= MAX_AZIMUTH_STEPS:
+            raise InputError(f"sensor {self.name}: azimuth_steps must be in 8..{MAX_AZIMUTH_STEPS}, got "
+                             f"{self.azimuth_steps}")
         if not 0 < self.min_range < self.max_range:
             raise InputError(f"sensor {self.name}: need 0 < min_range < max_range, got "
                              f"{self.min_range} and {self.max_range}")
