@@ -99,7 +99,7 @@ def test_largest_allowed_window_is_accepted():
 @pytest.mark.parametrize("params, fragment", [
     ({"window": 21, "mode": "fast", "pi": "canonical"},
      "window=21: up to 2^20 - 2 = 1048574 candidates per window optimisation, more than the limit of 524286 "
-     "(window + neighbours - 1 <= 20)"),
+     "(window + max(neighbours - 1, 0) <= 20)"),
     ({"window": 20, "mode": "exact", "pi": "canonical"}, "window=20: up to 2^19 - 2 = 524286 candidates"),
     ({"window": 17, "mode": "fast"}, "up to 20 with mode='fast', pi='canonical'"),
     ({"pi": "lapack"}, "pi"),
@@ -186,7 +186,7 @@ def test_point_based_baselines_require_points():
 def test_bad_pose_is_named():
     pose = np.eye(4)
     pose[0, 3] = np.nan
-    with pytest.raises(InputError, match="msa: frame 0 pose: frame 0 has NaN"):
+    with pytest.raises(InputError, match=r"^msa: frame 0 pose has NaN or infinite values$"):
         make_sampler("msa").push(pose, np.zeros(8))
     sheared = np.eye(4)
     sheared[0, 1] = 0.5
@@ -313,8 +313,26 @@ def test_batched_exact_equals_one_at_a_time_transcription(shape):
 
 
 def test_msa_without_descriptor_is_named():
-    with pytest.raises(InputError, match="msa: frame 0 needs a descriptor"):
-        make_sampler("msa").push(np.eye(4))
+    sampler = make_sampler("msa")
+    with pytest.raises(InputError, match="msa: frame 0 has no descriptor; this sampler needs descriptors"):
+        sampler.push(np.eye(4))
+    sampler.push(np.eye(4), np.ones(4))  # the refused frame was not counted: this one is frame 0
+    assert sampler.stats.frames == 1 and sampler.keyframes == [0]
+
+
+@pytest.mark.parametrize("descriptor, dtype", [(np.ones(4, complex), "complex128"), (np.array(["a", "b"]), "<U1")])
+def test_descriptors_must_be_real_numbers(descriptor, dtype):
+    with pytest.raises(InputError, match=f"msa: frame 0 descriptor must hold real numbers, got dtype {dtype}"):
+        make_sampler("msa").push(np.eye(4), descriptor)
+
+
+def test_a_window_that_never_fills_on_a_standing_stream_says_why():
+    sampler = make_sampler("msa", window=5)
+    for _ in range(20):  # twenty frames at one place: none joins the window
+        sampler.push(np.eye(4), np.ones(4))
+    with pytest.warns(UserWarning, match=r"window=5: the window never filled in 20 frames \(only 1 moved at least "
+                                         r"0.01 m from the member before them\), so only frame 0"):
+        sampler.finish()
 
 
 def test_ambiguity_of_exact_ties_and_clear_choices():

@@ -22,7 +22,10 @@ def validate_pose(pose: np.ndarray, where: str = "pose") -> np.ndarray:
     arr = np.asarray(pose, dtype=np.float64)
     if arr.shape != (4, 4):
         raise InputError(f"{where}: expected a 4x4 pose, got shape {arr.shape}")
-    return validate_poses(arr[None], where)[0]
+    fault = pose_fault(arr[None])
+    if fault is not None:  # "frame 3 pose has NaN ...", not validate_poses' "frame 3 pose: frame 0 has NaN ..."
+        raise InputError(f"{where} {fault[1]}")
+    return arr
 
 
 def validate_poses(poses: np.ndarray, where: str = "poses") -> np.ndarray:

@@ -66,6 +66,7 @@ class Sampler(ABC):
 
     name: str = "sampler"
     needs_points: bool = False
+    needs_descriptors: bool = False
 
     def __init__(self) -> None:
         self._online: list[int] = []
@@ -142,8 +143,13 @@ class Sampler(ABC):
 
     def _check_descriptor(self, descriptor, index: int) -> np.ndarray | None:
         if descriptor is None:
+            if self.needs_descriptors:  # before the frame is counted: a caller may catch this and push it again
+                raise InputError(f"{self.name}: frame {index} has no descriptor; this sampler needs descriptors")
             return None
-        desc = np.asarray(descriptor, dtype=np.float64)
+        desc = np.asarray(descriptor)
+        if desc.dtype.kind not in "biuf":  # complex would lose its imaginary part, text would not convert
+            raise InputError(f"{self.name}: frame {index} descriptor must hold real numbers, got dtype {desc.dtype}")
+        desc = desc.astype(np.float64, copy=False)
         if desc.ndim not in (1, 2) or desc.size == 0:
             raise InputError(f"{self.name}: frame {index} descriptor must be a non-empty 1-D or 2-D array, "
                              f"got shape {desc.shape}")

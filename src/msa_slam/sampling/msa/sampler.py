@@ -35,7 +35,8 @@ def check_candidate_count(window: int, neighbours: int, mode: str = "exact", pi:
     """Refuse windows whose power set is too large to enumerate (time, then memory, explode).
 
     A window optimisation scores every subset that starts with the window's first member: 2^(n-1) - 2
-    candidates for n members, and n reaches window + neighbours - 1 (old keyframes join a full window).
+    candidates for n members, and n reaches window + max(neighbours - 1, 0) (old keyframes join a full window,
+    the nearest one left out as the reference does).
     Canonical pi on the fast path goes to n = 20; the other combinations stay at 16.
     """
     members = window + max(neighbours - 1, 0)
@@ -46,14 +47,19 @@ def check_candidate_count(window: int, neighbours: int, mode: str = "exact", pi:
         joined = f" (+{neighbours - 1} neighbour{'s' * (neighbours > 2)})" if neighbours > 1 else ""
         raise InputError(f"sampler 'msa': window={window}{joined}: up to 2^{members - 1} - 2 = {count} candidates "
                          f"per window optimisation, more than the limit of {limit} "
-                         f"(window + neighbours - 1 <= {largest}"
+                         f"(window + max(neighbours - 1, 0) <= {largest}"
                          + ("" if canonical_fast else "; up to 20 with mode='fast', pi='canonical'") + ")")
 
 
-def warn_short_stream(frames: int, window: int) -> None:
-    """The window never filled: no subset was ever optimised, so only frame 0 is an online keyframe."""
-    warnings.warn(f"msa: window={window} is longer than the stream ({frames} frames): the window never "
-                  f"filled, so only frame 0 was selected online; use a smaller window or flush at the end",
+def warn_short_stream(frames: int, window: int, members: int | None = None) -> None:
+    """The window never filled: no subset was ever optimised, so only frame 0 is an online keyframe. Either the
+    stream is shorter than the window or (`members`, the frames that joined it) the frames did not move."""
+    if members is None or frames < window:
+        why = f"window={window} is longer than the stream ({frames} frames): the window never filled"
+    else:
+        why = (f"window={window}: the window never filled in {frames} frames (only {members} moved at least "
+               f"{MIN_WINDOW_STEP} m from the member before them)")
+    warnings.warn(f"msa: {why}, so only frame 0 was selected online; use a smaller window or flush at the end",
                   UserWarning, stacklevel=3)
 
 
@@ -70,6 +76,7 @@ class MSASampler(Sampler):
     """
 
     name = "msa"
+    needs_descriptors = True
 
     def __init__(self, window: int = 10, alpha: float = 1.0, beta: float = 1.0, lambda_l: float = 0.1,
                  lambda_u: float = 3.0, neighbours: int = 0, use_rho: bool = True, use_pi: bool = True,
@@ -117,8 +124,6 @@ class MSASampler(Sampler):
         return list(self._window)
 
     def _push(self, index, pose, descriptor, points):
-        if descriptor is None:
-            raise InputError(f"msa: frame {index} needs a descriptor")
         self._translation[index] = pose[:3, 3].copy()
         self._descriptor[index] = descriptor
         new: list[int] = []
@@ -139,7 +144,7 @@ class MSASampler(Sampler):
     def _finish(self) -> list[int]:
         """Flush: optimise whatever is left in the window over all its members (not in the reference)."""
         if self.stats.window_optimisations == 0 and self.stats.frames > 0:
-            warn_short_stream(self.stats.frames, self.window_size)
+            warn_short_stream(self.stats.frames, self.window_size, len(self._window))
         if len(self._window) < 2:
             return []
         self._update_bounds()
