@@ -13,6 +13,7 @@ from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.io.poses import write_poses
 from msa_slam.sampling import make_sampler
+from msa_slam.sampling.registry import sampler_parameters
 
 runner = CliRunner()
 
@@ -45,7 +46,8 @@ def test_sample_writes_text_json_and_png(stream):
     text = [int(v) for v in (path / "out" / "keyframes.txt").read_text().split()]
     record = json.loads((path / "out" / "keyframes.json").read_text())
     assert text == expected == record["keyframes"]
-    assert record["params"] == {"window": 8} and record["frames"] == 60
+    assert record["params"] == {**sampler_parameters("msa"), "window": 8} and record["frames"] == 60
+    assert record["params"]["lambda_u"] == 3.0 and record["params"]["mode"] == "exact"  # the defaults used
     assert (path / "out" / "keyframes.png").read_bytes()[:4] == b"\x89PNG"
 
 

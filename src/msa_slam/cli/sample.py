@@ -40,15 +40,15 @@ def sample_command(
     from msa_slam.progress import progress_bar
     from msa_slam.sampling.figure import plot_keyframes
     from msa_slam.sampling.msa.warm import load_kernels
-    from msa_slam.sampling.registry import make_sampler
+    from msa_slam.sampling.registry import make_sampler, sampler_parameters
 
     params = parse_params(param)
     chosen = make_sampler(sampler, **params)
     pose_stack, _ = read_poses(poses, pose_format)  # read_poses checks TUM times; sampling does not use them
     n = len(pose_stack)
     desc = load_descriptor_file(descriptors, n) if descriptors is not None else None
-    if desc is None and sampler == "msa":
-        raise InputError("sampler 'msa' needs --descriptors (an .npy array with one descriptor per pose)")
+    if desc is None and chosen.needs_descriptors:
+        raise InputError(f"sampler {sampler!r} needs --descriptors (an .npy array with one descriptor per pose)")
     if clouds is not None and clouds.suffix != ".npy":
         check_scan_folder(clouds, sequence_option=False)
     cloud_list = load_cloud_stack(clouds, n) if clouds is not None else None
@@ -68,7 +68,7 @@ def sample_command(
         flushed = chosen.finish() if flush else []
         keyframes = chosen.keyframes
         record = {
-            "version": __version__, "sampler": sampler, "params": params,
+            "version": __version__, "sampler": sampler, "params": {**sampler_parameters(sampler), **params},
             "inputs": {"poses": str(poses), "descriptors": str(descriptors) if descriptors else None,
                        "clouds": str(clouds) if clouds else None},
             "frames": n, "keyframes": keyframes, "online_keyframes": chosen.online_keyframes,
