@@ -10,6 +10,7 @@ import json
 import shutil
 
 import pytest
+import yaml
 
 import msa_slam.pipeline.compare as compare
 import msa_slam.slam.backend as backend
@@ -125,6 +126,26 @@ def test_other_settings_are_refused_and_overwrite_replaces(base, whole, calls, t
     record = json.loads((out / "seeds" / "seed-0" / "seed.json").read_text())
     assert record["methods"]["msa"]["similarity_threshold"] == 0.7 and record["failed"] == {}
     assert record["dataset"] == base.dataset and "cache_dir" not in record["methods"]["msa"]
+
+
+def test_sampler_parameters_reach_msa_and_are_settings_a_resume_compares(base, whole, calls, tmp_path):
+    out = tmp_path / "cmp"
+    shutil.copytree(whole, out)
+    windowed = make_config({**base.dump(), "sampler_params": {"window": 8}})  # as -p window=8 gives it
+    calls.clear()
+    with pytest.raises(OutputError) as refused:
+        run_compare(windowed, out, methods=METHODS, seeds=[0])
+    assert "seed 0 was run with other settings (methods.msa.sampler_params.window: absent there, 8 now)" in str(
+        refused.value)
+    assert calls == []
+
+    run_compare(windowed, out, methods=METHODS, seeds=[0], overwrite=True)
+    assert calls == [0]
+    used = {m: yaml.safe_load((out / "seeds" / "seed-0" / "runs" / m / "config.yaml").read_text())["sampler_params"]
+            for m in ("all", "msa")}
+    assert used == {"all": {}, "msa": {"window": 8}}
+    record = json.loads((out / "seeds" / "seed-0" / "seed.json").read_text())
+    assert {m: record["methods"][m]["sampler_params"] for m in ("all", "msa")} == used
 
 
 def test_a_rerun_with_fewer_seeds_keeps_the_others_out_of_the_spread(base, whole, calls, tmp_path):

@@ -211,3 +211,49 @@ def test_spec_for_gives_each_kind_of_metric_one_number_of_decimals():
                                   "f1_max_reference")} == {".3f"}
     assert {spec_for(k) for k in ("improvement_t_pct", "kf_improvement_r_pct")} == {".1f"}
     assert {spec_for(k) for k in ("memory_mib", "rss_growth_mib", "time_s")} == {".2f"}
+
+
+def test_seed_ranks_tie_values_equal_at_their_displayed_precision():
+    """QA M1: floating-point noise below a metric's displayed decimals must not decide a rank."""
+    from msa_slam.evaluation.display import spec_for
+    from msa_slam.evaluation.spread import seed_ranks
+
+    pr = {"msa": 0.9999999999999999, "all": 1.0, "entropy": 0.998}
+    assert seed_ranks(pr, True) == {"msa": 2, "all": 1, "entropy": 3}  # raw floats: noise ranks
+    assert seed_ranks(pr, True, spec_for("pr_auc")) == {"msa": 1, "all": 1, "entropy": 3}  # ties share the best
+    ate = {"msa": 0.412000003, "all": 0.412, "constant-1m": 0.4136}
+    assert seed_ranks(ate, False, spec_for("ate_after_m")) == {"msa": 1, "all": 1, "constant-1m": 3}
+    improvement = {"msa": -1e-11, "all": 2e-12, "entropy": 0.06}  # -0.0 and 0.0 at .1f: equal
+    assert seed_ranks(improvement, True, spec_for("improvement_t_pct")) == {"msa": 2, "all": 2, "entropy": 1}
+
+
+def test_seed_summary_ranks_at_each_metrics_displayed_precision():
+    from msa_slam.pipeline.seeds import seed_summary
+
+    rows = {0: [{"method": "msa", "pr_auc": 0.9999999999999999, "ate_after_m": 0.412000003},
+                {"method": "all", "pr_auc": 1.0, "ate_after_m": 0.412},
+                {"method": "entropy", "pr_auc": 0.5, "ate_after_m": 0.5}]}
+    metrics = seed_summary(rows)["metrics"]
+    assert {m: e["ranks"] for m, e in metrics["pr_auc"]["methods"].items()} == {"msa": [1], "all": [1], "entropy": [3]}
+    assert {m: e["ranks"] for m, e in metrics["ate_after_m"]["methods"].items()} == {
+        "msa": [1], "all": [1], "entropy": [3]}
+    assert metrics["pr_auc"]["methods"]["msa"]["values"] == [0.9999999999999999]  # the values stay as measured
+
+
+def test_ate_difference_figure_labels_its_reference(tmp_path, monkeypatch):
+    """QA M9: after `report --reference msa` the y axis must not still read ATE(all)."""
+    import msa_slam.viz.experiment_figures as figures
+
+    labels = []
+    real = figures._save
+
+    def recording(fig, path):
+        labels.append(fig.axes[0].get_ylabel())
+        return real(fig, path)
+
+    monkeypatch.setattr(figures, "_save", recording)
+    figures.plot_ate_difference(tmp_path / "msa.png", {"all": [0.1, 0.3, -0.05], "entropy": [0.02, -0.1, 0.0]},
+                                title="ATE after optimisation minus msa", reference="msa")
+    figures.plot_ate_difference(tmp_path / "all.png", {"msa": [-0.1]})
+    assert labels == ["ATE - ATE(msa) [m]", "ATE - ATE(all) [m]"]
+    assert (tmp_path / "msa.png").is_file()

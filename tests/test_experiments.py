@@ -10,6 +10,7 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
+import msa_slam
 from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.experiments import (expand, is_finished, load_cells, load_grid, make_rows, parse_grid, run_cell,
@@ -25,6 +26,9 @@ TINY = {
     "base": {"odometry": "gt-noise", "odometry_params": {"translation_noise": 0.02, "rotation_noise_deg": 0.1},
              "min_frame_gap": 20},
 }
+
+# One cell that fails fast (its single keyframe is too few), after a real start.
+TOO_SPARSE = {**TINY, "samplers": [{"label": "too-sparse", "sampler": "constant", "params": {"distance": 1000.0}}]}
 
 
 @pytest.mark.parametrize("change, message", [
@@ -91,8 +95,7 @@ def test_resume_skips_finished_cells_and_clears_half_written_ones(tmp_path):
 
 
 def test_failing_cell_is_recorded_and_retried(tmp_path):
-    grid = parse_grid({**TINY, "samplers": [{"label": "too-sparse", "sampler": "constant",
-                                             "params": {"distance": 1000.0}}]})
+    grid = parse_grid(TOO_SPARSE)
     run = run_grid(grid, tmp_path)
     (cell,) = expand(grid)
     assert list(run.failed) == [cell.id] and "kept 1 keyframes" in run.failed[cell.id]
@@ -127,7 +130,7 @@ def _fake_experiment(root: Path, grid_data: dict, memory: dict[str, int], ate_af
                    "improvement_pct": {"translation": 100 * (2.0 - ate) / 2.0, "rotation": 10.0},
                    "pr_auc": 0.9, "f1_max": 0.8, "memory_bytes": {"total": memory[cell.method]},
                    "peak_rss_bytes": 2**20, "time_s": {"backend_total": 1.0}, "fps": 50.0, "backend_fps": 60.0,
-                   "latency_ms": {"backend": {"p99": 12.0}}}
+                   "latency_ms": {"backend": {"p99": 12.0}}, "msa_slam_version": msa_slam.__version__}
         (folder / "cell.json").write_text(json.dumps(cell.info()))
         (folder / "metrics.json").write_text(json.dumps(metrics))
     write_marker(root, "experiment")  # last: it lists the files above as msa-slam's
@@ -150,6 +153,8 @@ def test_report_relative_memory_ate_difference_and_sweep_figure(tmp_path):
     for name in ("ate_difference.png", "distance_bounds.png"):
         assert (tmp_path / "figures" / name).is_file()
     assert "| msa lambda_l=1.0 | 50 | 55.0 % |" in (tmp_path / "results.md").read_text()
+    assert "before of the full-rate trajectory (every frame, posed from the keyframe before it; SE(3)-aligned)" \
+        in (tmp_path / "report.md").read_text()  # what the "(full rate)" columns show
 
 
 def test_report_reference_must_be_a_method_of_the_experiment(tmp_path):
@@ -234,8 +239,7 @@ def test_second_run_on_a_locked_experiment_refuses(tmp_path):
 
 def test_overwrite_discards_the_previous_experiment(tmp_path):
     old = _fake_experiment(tmp_path / "exp", TINY, {"all": 4000, "const-2m": 1000}, {"all": 0.5, "const-2m": 0.7})
-    missing = {**TINY, "datasets": [str(tmp_path / "no-such-sequence")], "samplers": ["all"]}
-    run = run_grid(parse_grid(missing), tmp_path / "exp", overwrite=True)
+    run = run_grid(parse_grid(TOO_SPARSE), tmp_path / "exp", overwrite=True)
     assert len(run.failed) == 1 and not run.stale
     assert not any((tmp_path / "exp" / "cells" / c.id).exists() for c in old)
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no .exp.old-* or lock left
@@ -245,24 +249,23 @@ def test_overwrite_refuses_an_experiment_holding_someone_elses_files(tmp_path):
     _fake_experiment(tmp_path / "exp", TINY, {"all": 4000, "const-2m": 1000}, {"all": 0.5, "const-2m": 0.7})
     (tmp_path / "exp" / "notes.md").write_text("mine")
     assert CliRunner().invoke(app, ["report", str(tmp_path / "exp")]).exit_code == 0  # in place: notes stay not ours
-    missing = {**TINY, "datasets": [str(tmp_path / "no-such-sequence")], "samplers": ["all"]}
     with pytest.raises(OutputError, match=r"holds files msa-slam did not write \(notes.md\)"):
-        run_grid(parse_grid(missing), tmp_path / "exp", overwrite=True)
+        run_grid(parse_grid(TOO_SPARSE), tmp_path / "exp", overwrite=True)
     assert (tmp_path / "exp" / "notes.md").read_text() == "mine"
 
 
 def test_experiment_exit_code_names_failed_cells_and_keeps_their_log(tmp_path):
     grid_file = tmp_path / "g.yaml"
-    grid_file.write_text(yaml.safe_dump({**TINY, "datasets": [str(tmp_path / "no-such-sequence")]}))
+    grid_file.write_text(yaml.safe_dump(TOO_SPARSE))
     result = run_cli("experiment", str(grid_file), "--out", str(tmp_path / "o"), "--quiet")
     cells = expand(load_grid(grid_file))
     assert result.returncode == 1, result.stderr
     failed = [line for line in result.stderr.splitlines() if line.startswith("failed: ")]
     assert [line.split(": ")[1] for line in failed] == [c.id for c in cells]
-    assert all("no-such-sequence" in line for line in failed)
+    assert all("kept 1 keyframes" in line for line in failed)
     assert all((tmp_path / "o" / "errors" / f"{c.id}.txt").is_file() for c in cells)
     assert result.stdout.strip() == str(tmp_path / "o" / "report.md")
-    assert "0 of 2 cell(s) finished, 2 failed" in (tmp_path / "o" / "report.md").read_text()
+    assert "0 of 1 cell(s) finished, 1 failed" in (tmp_path / "o" / "report.md").read_text()
 
 
 def test_grid_without_cells_is_an_error_before_any_work(tmp_path):

@@ -157,8 +157,7 @@ def test_compare_refuses_it_naming_what_compare_can_change(tmp_path):
                      str(tmp_path / "out"), "--cache-dir", str(tmp_path / "cache"))
     assert result.returncode == 2, result.stderr
     assert result.stderr.splitlines()[-1].endswith(
-        "the evaluation needs at least 3: compare runs msa with window=10: read at least 10 frames, or pass "
-        "-p flush=true")
+        "the evaluation needs at least 3: use a window of at most 4 frames (-p window=4) or -p flush=true")
     assert "odometry" not in result.stderr
 
 

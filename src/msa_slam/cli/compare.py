@@ -10,9 +10,11 @@ import typer
 from msa_slam.cli.options import (CACHE_HELP, DATASET_HELP, DESCRIPTOR_HELP, MODE_HELP, OVERWRITE_HELP, PARAM_HELP,
                                   out_help, reporting_failed_methods, with_source_options)
 
-# What to change when MSA's window is longer than the frames read (cli.config.check_window): compare runs
-# every method with its paper parameters, so -p window does not reach it
-COMPARE_WINDOW_FIX = "compare runs msa with window={window}: read at least {window} frames, or pass -p flush=true"
+# What to change when MSA's window is longer than the frames read (cli.config.check_window): as for run
+# (-p window reaches msa, pipeline.compare.method_configs), except --sampler, which compare does not have
+COMPARE_WINDOW_FIX = "use a window of at most {frames} frames (-p window={frames}) or -p flush=true"
+COMPARE_PARAM_HELP = (PARAM_HELP + "; sampler parameters (window=8, sampler.lambda_u=5) go to msa, the baselines "
+                      "keep the paper's settings")
 
 
 @with_source_options
@@ -21,8 +23,8 @@ def compare_command(
     descriptor: Optional[str] = typer.Option(None, help=DESCRIPTOR_HELP),
     odometry: Optional[str] = typer.Option(None, help="kiss (default) or a KITTI/TUM pose file"),
     mode: Optional[str] = typer.Option(None, help=MODE_HELP),
-    param: List[str] = typer.Option([], "--param", "-p", help=PARAM_HELP),
-    config: Optional[Path] = typer.Option(None, help="YAML config (its sampler is replaced by the method set)"),
+    param: List[str] = typer.Option([], "--param", "-p", help=COMPARE_PARAM_HELP),
+    config: Optional[Path] = typer.Option(None, help="YAML config (its sampler is replaced by the method set; its sampler parameters go to msa)"),
     out: Optional[Path] = typer.Option(None, help=out_help("compare") + "; with --seeds, a previous run of the "
                                        "same settings is resumed (its finished seeds are reused)"),
     overwrite: bool = typer.Option(False, "--overwrite", help=OVERWRITE_HELP),

@@ -26,7 +26,8 @@ def experiment_command(
     from msa_slam.experiments.grid import load_grid
     from msa_slam.experiments.runner import run_grid
 
-    run = run_grid(load_grid(grid), out, scheduler=scheduler, workers=workers, quiet=quiet, overwrite=overwrite)
+    run = run_grid(load_grid(grid), out, scheduler=scheduler, workers=workers, quiet=quiet, overwrite=overwrite,
+                   where=grid)
     typer.echo(f"{len(run.ran)} cell(s) run, {len(run.skipped)} already finished, {len(run.failed)} failed",
                err=True)
     echo_stale(run.stale)

@@ -40,9 +40,14 @@ class Spread:
     ranks: list[int | None]
 
 
-def seed_ranks(values: Mapping[str, float | None], higher_is_better: bool) -> dict[str, int | None]:
-    """Rank of each method on one seed (1 = best, ties share the best rank); None for unavailable values."""
-    known = {m: v for m, v in values.items() if v is not None and not math.isnan(v)}
+def seed_ranks(values: Mapping[str, float | None], higher_is_better: bool, spec: str | None = None
+               ) -> dict[str, int | None]:
+    """Rank of each method on one seed (1 = best; None for unavailable values). Values equal once formatted
+    with `spec` (the metric's display format, evaluation.display.spec_for; None: as they are) are ties and
+    share the best of their ranks ("min": 1, 1, 3), so a PR-AUC of 0.9999999999999999 is not behind 1.0 and
+    ATEs 3e-9 m apart do not rank 1 and 2 when the tables show them as equal."""
+    known = {m: v if spec is None else float(format(v, spec)) for m, v in values.items()
+             if v is not None and not math.isnan(v)}
     if not known:
         return dict.fromkeys(values)
     signed = np.array([-v if higher_is_better else v for v in known.values()])
@@ -50,12 +55,12 @@ def seed_ranks(values: Mapping[str, float | None], higher_is_better: bool) -> di
     return {m: ranked.get(m) for m in values}
 
 
-def spreads(per_seed: Sequence[Mapping[str, float | None]], higher_is_better: bool | None
+def spreads(per_seed: Sequence[Mapping[str, float | None]], higher_is_better: bool | None, spec: str | None = None
             ) -> dict[str, Spread]:
     """Spread of every method of `per_seed` (one mapping method -> value per seed); ranks only when the
-    metric has a direction (`higher_is_better` not None)."""
+    metric has a direction (`higher_is_better` not None), at the display format `spec` (seed_ranks)."""
     methods = list(dict.fromkeys(m for seed in per_seed for m in seed))
-    ranks = [seed_ranks({m: seed.get(m) for m in methods}, higher_is_better) if higher_is_better is not None
+    ranks = [seed_ranks({m: seed.get(m) for m in methods}, higher_is_better, spec) if higher_is_better is not None
              else dict.fromkeys(methods) for seed in per_seed]
     out = {}
     for m in methods:

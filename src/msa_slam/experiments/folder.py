@@ -3,7 +3,8 @@
     .msa-slam-result          marker (msa_slam.io.outputs): the folder was written by `msa-slam experiment`
     grid.yaml                 the grid as last run: the only cells reported are the ones it expands to
     cells/<cell id>/          one finished run per cell (cell.json, metrics.json, ...); ids hash the config,
-                              so a cell left by an earlier, different grid is recognised as stale
+                              so a cell left by an earlier, different grid is recognised as stale; metrics.json
+                              records the msa-slam version, and a resume refuses cells of another version
     errors/<cell id>.txt      the traceback of a cell that failed (removed when it later succeeds)
     results.csv, results.md, figures/, report.md    the aggregate (msa_slam.experiments.report)
 """
@@ -17,9 +18,11 @@ from typing import Any
 
 import yaml
 
+import msa_slam
 from msa_slam.errors import InputError
 from msa_slam.experiments.grid import Cell, GridSpec, expand, parse_grid
 from msa_slam.io.atomic import write_text_atomic
+from msa_slam.io.outputs import OutputError
 
 KIND = "experiment"  # the result-folder kind of msa_slam.io.outputs
 GRID_FILE = "grid.yaml"
@@ -42,6 +45,18 @@ def read_cell(folder: Path) -> tuple[dict[str, Any], dict[str, Any]] | None:
     if not isinstance(info, dict) or not isinstance(metrics, dict) or info.get("id") != folder.name:
         return None
     return info, metrics
+
+
+def check_versions(out: str | os.PathLike, cells: list[Cell]) -> None:
+    """Finished cells of `cells` must come from this msa-slam version: resuming would mix results of old and
+    new code in one table (the cell id hashes the config, not the code)."""
+    for cell in cells:
+        found = read_cell(cell_dir(out, cell.id))
+        version = found[1].get("msa_slam_version") if found else msa_slam.__version__
+        if version != msa_slam.__version__:
+            raise OutputError(f"--out {out}: cell {cell.id} was run by msa-slam {version or '(unknown version)'}, "
+                              f"this is {msa_slam.__version__}; pass --overwrite to rerun every cell or choose "
+                              "another --out")
 
 
 def write_grid(out: Path, grid: GridSpec) -> None:

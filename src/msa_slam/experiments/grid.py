@@ -13,6 +13,12 @@ pipeline config with a stable id (a hash of that config), so a re-run recognises
     parameters: {similarity_threshold: [0.8]}   # product over all cells; keys as in --param
     seeds: [0, 1]               # online: odometry noise seed (and {seed} in datasets)
     base: {odometry: gt-noise, mode: oracle}    # config keys shared by every cell
+
+A cell's config must be what its label says, so a key is set in one place only: `parameters` may not name a
+key that a method sets in its `params` or `sweep`, and `base` may not set what the grid varies (dataset,
+descriptor, sampler, seed, label: they belong in `datasets`, `descriptors`, `samplers`, `seeds`). `base:
+{sampler_params: {...}}` applies to every method whose sampler takes those parameters, below the method's own
+`params` and swept values. A batch grid has no seed of its own, so several `seeds` need `{seed}` in every dataset.
 """
 
 from __future__ import annotations
@@ -24,10 +30,11 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, Mapping
+from typing import Annotated, Any, Literal, Mapping
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (BaseModel, ConfigDict, Field, StrictInt, ValidationError, field_validator,
+                      model_validator)
 
 from msa_slam.config import validation_message
 from msa_slam.errors import InputError
@@ -70,7 +77,7 @@ class GridSpec(_Strict):
     descriptors: list[str] = Field(default_factory=lambda: ["sc"], min_length=1)
     samplers: list[SamplerSpec] = Field(min_length=1)
     parameters: dict[str, list[Any]] = Field(default_factory=dict)
-    seeds: list[int] = Field(default_factory=lambda: [0], min_length=1)
+    seeds: list[Annotated[StrictInt, Field(ge=0)]] = Field(default_factory=lambda: [0], min_length=1)  # not true
     base: dict[str, Any] = Field(default_factory=dict)
     reference: str | None = None  # default: `all` when the grid has it, else its first method
     figures: bool = False
@@ -88,20 +95,28 @@ class GridSpec(_Strict):
             data = {**data, "samplers": [{"sampler": s} if isinstance(s, str) else s for s in data["samplers"]]}
         return data
 
-    def methods(self) -> list[tuple[str, str, dict[str, Any], dict[str, Any]]]:
-        """(label, sampler, params, swept values) of every method after expanding sweeps."""
+    def methods(self, where: str = "grid") -> list[tuple[str, str, dict[str, Any], dict[str, Any]]]:
+        """(label, sampler, params, swept values) of every method after expanding sweeps; params are the base
+        sampler_params the sampler takes, then the method's params, then its swept values."""
+        from msa_slam.sampling.registry import sampler_parameters
+
+        shared = self.base.get("sampler_params") or {}
         out = []
         for spec in self.samplers:
             label = spec.label or spec.sampler
+            try:
+                base = {k: v for k, v in shared.items() if k in sampler_parameters(spec.sampler)} if shared else {}
+            except InputError as exc:  # an unknown sampler name
+                raise InputError(f"{where}: method {label!r}: {exc}") from None
             keys = list(spec.sweep)
             for values in itertools.product(*(spec.sweep[k] for k in keys)):
                 swept = dict(zip(keys, values))
                 suffix = "".join(f" {k}={v}" for k, v in swept.items())
-                out.append((label + suffix, spec.sampler, {**spec.params, **swept}, swept))
+                out.append((label + suffix, spec.sampler, {**base, **spec.params, **swept}, swept))
         labels = [m[0] for m in out]
         duplicates = sorted({x for x in labels if labels.count(x) > 1})
         if duplicates:
-            raise InputError(f"grid {self.name!r}: method labels repeat ({', '.join(duplicates)}); give each a label")
+            raise InputError(f"{where}: method labels repeat ({', '.join(duplicates)}); give each a label")
         return out
 
     def labels(self) -> list[str]:
@@ -144,12 +159,64 @@ def parse_grid(data: Any, where: str = "grid") -> GridSpec:
         grid = GridSpec(**data)
     except ValidationError as exc:
         raise InputError(f"{where}: {validation_message(exc, GridSpec, 'grid')}") from None
+    _check_one_place(grid, where)
     expand(grid, where)  # every cell must be a valid config before anything runs
+    _check_base_sampler_params(grid, where)
     methods = grid.labels()
     if grid.reference is not None and grid.reference not in methods:
         raise InputError(f"{where}: reference {grid.reference!r} is not a method of the grid; methods: "
                          f"{', '.join(methods)} (set `reference:` to one of them)")
     return grid
+
+
+# Config keys the grid sets per cell, and where a grid file sets them.
+GRID_KEYS = {"dataset": "datasets", "descriptor": "descriptors", "sampler": "samplers", "seed": "seeds",
+             "label": "samplers (as a method's label)", "sampler_params": "samplers (as a method's params)"}
+
+
+def _check_one_place(grid: GridSpec, where: str) -> None:
+    """Refuse a key set in two places: the later one would silently win while labels show the other."""
+    for key in grid.base:
+        if key in GRID_KEYS and key != "sampler_params":
+            raise InputError(f"{where}: base: {key!r} is set by the grid per cell; list it under "
+                             f"`{GRID_KEYS[key]}:` instead")
+    if not isinstance(grid.base.get("sampler_params", {}), Mapping):
+        raise InputError(f"{where}: base: sampler_params must be a mapping of sampler parameters")
+    for key in grid.parameters:
+        if key in GRID_KEYS:
+            raise InputError(f"{where}: parameters: {key!r} is set by the grid per cell; list it under "
+                             f"`{GRID_KEYS[key]}:` instead")
+        name = key.removeprefix("sampler.")
+        for spec in grid.samplers:
+            for part in ("sweep", "params"):
+                if name in getattr(spec, part):
+                    raise InputError(f"{where}: {key!r} is set both in `parameters` and in the `{part}` of method "
+                                     f"{spec.label or spec.sampler!r}; set it in one place")
+
+
+def _check_base_sampler_params(grid: GridSpec, where: str) -> None:
+    """A base sampler parameter that no method's sampler takes is a typo, not a setting."""
+    from msa_slam.sampling.registry import sampler_parameters
+
+    taken = {k for spec in grid.samplers for k in sampler_parameters(spec.sampler)}
+    unused = sorted(set(grid.base.get("sampler_params") or {}) - taken)
+    if unused:
+        raise InputError(f"{where}: base: sampler_params {', '.join(unused)}: no method's sampler takes "
+                         f"{'them' if len(unused) > 1 else 'it'} (samplers: "
+                         f"{', '.join(dict.fromkeys(s.sampler for s in grid.samplers))})")
+
+
+def check_datasets(grid: GridSpec, where: str = "grid") -> None:
+    """Refuse a missing dataset folder or an unknown simulated name before any cell runs (and before the result
+    folder is made), as `run` and `online` would in their first step; nothing is simulated here."""
+    from msa_slam.pipeline.source import check_dataset
+
+    for spec in dict.fromkeys(d.replace("{seed}", str(seed)) for d in grid.datasets for seed in grid.seeds):
+        try:
+            check_dataset(spec)
+        except InputError as exc:
+            message = str(exc) if str(exc).startswith("dataset ") else f"dataset {spec!r}: {exc}"
+            raise InputError(f"{where}: {message}") from None
 
 
 def load_grid(path: str | os.PathLike) -> GridSpec:
@@ -193,7 +260,12 @@ def expand(grid: GridSpec, where: str = "grid") -> list[Cell]:
     """All cells of the grid in a stable order; each config validated (sampler parameters included)."""
     from msa_slam.sampling import make_sampler
 
-    methods = grid.methods()
+    methods = grid.methods(where)
+    if grid.pipeline == "batch" and len(grid.seeds) > 1:
+        same = next((d for d in grid.datasets if "{seed}" not in d), None)
+        if same is not None:
+            raise InputError(f"{where}: seeds {grid.seeds} but dataset {same!r} has no {{seed}}: every seed would "
+                             "run the same cell (a batch run takes its seed from the dataset)")
     keys = list(grid.parameters)
     cells = []
     for dataset, descriptor, (label, sampler, params, swept), values, seed in itertools.product(
@@ -211,7 +283,7 @@ def expand(grid: GridSpec, where: str = "grid") -> list[Cell]:
                      + "".join(f"-{k}={v}" for k, v in parameters.items()) + f"-s{seed}")
         cells.append(Cell(f"{name}-{digest}", grid.pipeline, dataset, descriptor, label, sampler, swept, parameters,
                           seed, config, len(cells)))
-    ids = [c.id for c in cells]
-    if len(set(ids)) != len(ids):
+    digests = [c.id.rsplit("-", 1)[1] for c in cells]  # the config hash: names differ by seed even when configs do not
+    if len(set(digests)) != len(digests):
         raise InputError(f"{where}: some cells have identical configs (repeated datasets, seeds or methods)")
     return cells

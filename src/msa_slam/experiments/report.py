@@ -170,7 +170,8 @@ def _figures(cells: list[dict[str, Any]], rows: list[dict[str, Any]], reference:
         if ref is not None and r["method"] != reference:
             diffs[r["method"]].append(r["ate_after_m"] - ref)
     if diffs:
-        plot_ate_difference(folder / "ate_difference.png", diffs, title=f"ATE after optimisation minus {reference}")
+        plot_ate_difference(folder / "ate_difference.png", diffs, title=f"ATE after optimisation minus {reference}",
+                            reference=reference)
         names.append("ate_difference.png")
     by_dataset: dict[str, list[dict[str, Any]]] = defaultdict(list)
     for c in cells:
@@ -239,7 +240,8 @@ def write_report(results_dir: str | os.PathLike, reference: str | None = None) -
     lines = [f"# Experiment results: {out.name}", "",
              f"{len(rows)} of {len(expected)} cell(s) finished"
              + (f", {len(failed)} failed (see errors/)" if failed else "") + ". "
-             "ATE improvement: 100 (before - after) / before of the keyframe trajectory (SE(3)-aligned); memory: "
+             "ATE improvement: 100 (before - after) / before of the full-rate trajectory (every frame, posed from "
+             "the keyframe before it; SE(3)-aligned); memory: "
              f"accounted bytes of keyframe clouds, descriptors and graph (vs the `{reference}` method); time: "
              "back-end seconds (everything after odometry); p99: per-frame back-end latency.", ""]
     if failed:

@@ -20,8 +20,9 @@ from pathlib import Path
 from typing import Any
 
 from msa_slam.errors import InputError
-from msa_slam.experiments.folder import CELL_FILE, KIND, cell_dir, read_cell, stale_cells, write_grid
-from msa_slam.experiments.grid import Cell, GridSpec, expand
+from msa_slam.experiments.folder import (CELL_FILE, KIND, cell_dir, check_versions, read_cell, stale_cells,
+                                        write_grid)
+from msa_slam.experiments.grid import Cell, GridSpec, check_datasets, expand
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, staged_dir
 
@@ -105,22 +106,28 @@ def _record(run: GridRun, cell: Cell, error: BaseException | None) -> None:
 
 
 def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | None = None, workers: int = 1,
-             client=None, quiet: bool = True, overwrite: bool = False) -> GridRun:
+             client=None, quiet: bool = True, overwrite: bool = False, where: str = "grid") -> GridRun:
     """Run the unfinished cells of `grid` into `out`, then write the aggregate report.
 
     `out` is checked and locked first (msa_slam.io.outputs): None picks a new timestamped folder under
     msa_slam_results/experiments; a previous experiment folder is resumed, or with `overwrite` replaced.
     In this process when `workers == 1` and no scheduler/client; otherwise through Dask: `client` (any
     distributed.Client, e.g. on a LocalCluster), else the cluster at `scheduler`, else a LocalCluster of
-    `workers` single-threaded processes.
+    `workers` single-threaded processes. Bad input (datasets, the scheduler address, finished cells of another
+    msa-slam version) is refused before any cell runs; `where` (the grid file) starts those messages.
     """
     from msa_slam.experiments.report import write_report
 
     if workers < 1:
         raise InputError(f"--workers must be >= 1, got {workers}")
-    cells = expand(grid)
+    cells = expand(grid, where)
+    check_datasets(grid, where)
+    if scheduler is not None:
+        _check_scheduler(scheduler)
     with open_result_folder(out, kind=KIND, default_parent=DEFAULT_PARENT, overwrite=overwrite,
                             resume=True) as folder:
+        if not overwrite and folder.path.is_dir():
+            check_versions(folder.path, cells)
         folder.prepare_in_place(fresh=overwrite, grows=("cells",))
         run = GridRun(folder.path)
         (run.out / "cells").mkdir(exist_ok=True)
@@ -137,6 +144,16 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
         write_report(run.out)
         folder.record_files()
     return run
+
+
+def _check_scheduler(scheduler: str) -> None:
+    """A malformed address is refused before the result folder is made (whether it answers is known later)."""
+    from distributed.comm.addressing import get_address_host_port
+
+    try:
+        get_address_host_port(scheduler)
+    except ValueError as exc:
+        raise InputError(f"--scheduler {scheduler!r}: {exc}; give the address as tcp://host:port") from None
 
 
 def _run_cells(grid: GridSpec, todo: list[Cell], run: GridRun, scheduler: str | None, workers: int, client,

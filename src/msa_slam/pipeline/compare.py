@@ -12,6 +12,7 @@ import traceback
 from pathlib import Path
 from typing import Any, Sequence
 
+from msa_slam.errors import InputError
 from msa_slam.evaluation import ATE_ALIGNMENT, NA, fmt, notes
 from msa_slam.evaluation.display import spec_for
 from msa_slam.io.atomic import atomic_path, write_text_atomic
@@ -42,6 +43,7 @@ PAPER_METHODS: tuple[tuple[str, str, dict[str, Any]], ...] = (
     ("spaciousness", "spaciousness", {}),
     ("msa", "msa", {}),
 )
+UNDER_STUDY = "msa"  # the sampler that gets the user's sampler parameters (method_configs)
 
 # Primary columns: full-rate (every frame, the same "ATE before" for every method); kf_*: keyframes only.
 COLUMNS = ("method", "keyframes", "candidates", "verified", "rejected", "false_loops", "ate_before_m", "ate_after_m",
@@ -205,9 +207,24 @@ def _sweep_lines(results: Sequence[RunResult]) -> list[str]:
 
 def method_configs(base: RunConfig, methods: Sequence[tuple[str, str, dict[str, Any]]] = PAPER_METHODS
                    ) -> list[RunConfig]:
-    """One validated config per method: `base` with the method's sampler, parameters and label."""
+    """One validated config per method: `base` with the method's sampler, parameters and label.
+
+    The user's sampler parameters (`base.sampler_params`: -p window=8, -p sampler.lambda_u=5) go to every
+    method of the sampler under study (UNDER_STUDY), under the method's own, so compare measures the MSA the
+    user asked for; the baselines keep the paper's settings. A parameter MSA does not take is an InputError."""
     data = base.dump()
-    return [make_config({**data, "sampler": s, "sampler_params": p, "label": label}) for label, s, p in methods]
+    configs = []
+    for label, sampler, params in methods:
+        if sampler == UNDER_STUDY:
+            params = {**base.sampler_params, **params}
+        try:
+            configs.append(make_config({**data, "sampler": sampler, "sampler_params": params, "label": label}))
+        except InputError as exc:
+            if sampler != UNDER_STUDY:
+                raise
+            raise InputError(f"compare: the sampler parameters go to {UNDER_STUDY} (the baselines keep the "
+                             f"paper's settings): {exc}") from None
+    return configs
 
 
 class MethodsFailed(Exception):

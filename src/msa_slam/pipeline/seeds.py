@@ -61,7 +61,7 @@ def seed_summary(rows: Mapping[int, Sequence[Mapping[str, Any]]]) -> dict[str, A
     metrics: dict[str, Any] = {}
     for column, (label, higher) in SEED_METRICS.items():
         values = [{m: _value(per_seed[s].get(m), column) for m in methods} for s in seeds]
-        spread = spreads(values, higher)
+        spread = spreads(values, higher, spec_for(column))  # ranks as the tables show the values
         verdicts = {}
         if higher is not None and REFERENCE in spread:
             for m in methods:

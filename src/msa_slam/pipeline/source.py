@@ -5,12 +5,16 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import yaml
 
 from msa_slam.datasets import ScanSequence, SourceOptions, open_source_options
 from msa_slam.errors import InputError
 from msa_slam.types import FrameSource
+
+if TYPE_CHECKING:
+    from msa_slam.sim import SimConfig
 
 SIM_PREFIX = "sim:"
 PATH_FIELDS = ("trajectory", "times", "calib")  # taken verbatim: a file named 1e3 stays a path
@@ -26,11 +30,38 @@ def resolve_dataset(spec: str, cache_dir: str | os.PathLike | None = None, progr
     with `calib=` a KITTI calib.txt for cam0 poses). Items are split at commas, so paths cannot hold one.
     """
     if not spec.startswith(SIM_PREFIX):
-        path = Path(spec).expanduser()
-        if not path.exists():
-            raise InputError(f"dataset {spec!r}: not found (give a sequence folder, a bag or sim:NAME)")
-        return path
-    from msa_slam.sim import DEFAULT_CONFIGS, TRAJECTORY_NAMES, default_sequence, make_config, simulate_sequence
+        return _existing_path(spec)
+    from msa_slam.sim import default_sequence, simulate_sequence
+
+    default, config = sim_settings(spec)
+    if config is None:
+        return default_sequence(default, cache_dir=cache_dir, progress=progress)
+    return simulate_sequence(config, cache_dir=cache_dir, progress=progress)
+
+
+def check_dataset(spec: str) -> None:
+    """What resolve_dataset and the live source check before any work, without simulating or reading: that a
+    folder or bag exists, that a sim: or live: spec names a known sequence with valid fields."""
+    from msa_slam.sim.live import LIVE_PREFIX, live_settings
+
+    if spec.startswith(LIVE_PREFIX):
+        live_settings(spec)
+    elif spec.startswith(SIM_PREFIX):
+        sim_settings(spec)
+    else:
+        _existing_path(spec)
+
+
+def _existing_path(spec: str) -> Path:
+    path = Path(spec).expanduser()
+    if not path.exists():
+        raise InputError(f"dataset {spec!r}: not found (give a sequence folder, a bag or sim:NAME)")
+    return path
+
+
+def sim_settings(spec: str) -> tuple[str, "SimConfig | None"]:
+    """(default name, None) for an embedded default as it is (`sim:demo`), else ("", its validated SimConfig)."""
+    from msa_slam.sim import DEFAULT_CONFIGS, TRAJECTORY_NAMES, make_config
 
     items = spec[len(SIM_PREFIX):].split(",")
     name, fields = ("", items) if "=" in items[0] else (items[0].strip(), items[1:])
@@ -38,7 +69,7 @@ def resolve_dataset(spec: str, cache_dir: str | os.PathLike | None = None, progr
         raise InputError(f"dataset {spec!r}: names no simulated sequence; give sim:NAME (one of "
                          f"{', '.join([*DEFAULT_CONFIGS, *TRAJECTORY_NAMES])}) or fields (sim:trajectory=FILE,...)")
     if name in DEFAULT_CONFIGS and not fields:
-        return default_sequence(name, cache_dir=cache_dir, progress=progress)
+        return name, None
     if name in DEFAULT_CONFIGS:
         base = DEFAULT_CONFIGS[name].model_dump()
     elif name in TRAJECTORY_NAMES:
@@ -55,7 +86,7 @@ def resolve_dataset(spec: str, cache_dir: str | os.PathLike | None = None, progr
             raise InputError(f"dataset {spec!r}: expected field=value, got {item!r}")
         value = yaml.safe_load(raw)
         base[key.strip()] = raw.strip() if key.strip() in PATH_FIELDS else value
-    return simulate_sequence(make_config(**base), cache_dir=cache_dir, progress=progress)
+    return "", make_config(**base)
 
 
 def open_sequence(spec: str, kind: str = "auto", cache_dir: str | os.PathLike | None = None,

@@ -5,7 +5,7 @@ the path stays continuous and every pass revisits the whole route; each pass has
 
 from __future__ import annotations
 
-from typing import Any, Iterator
+from typing import TYPE_CHECKING, Any, Iterator
 
 import numpy as np
 import yaml
@@ -14,12 +14,15 @@ from msa_slam.datasets import Frame
 from msa_slam.errors import InputError
 from msa_slam.types import FrameSource
 
+if TYPE_CHECKING:
+    from msa_slam.sim.config import SimConfig
+
 LIVE_PREFIX = "live:"
 
 
-def live_source(spec: str) -> FrameSource:
-    """The frame source of a `live:` spec (its scans are simulated as the frames are read)."""
-    from msa_slam.sim import make_config, prepare
+def live_settings(spec: str) -> tuple["SimConfig", int]:
+    """(validated SimConfig, laps) of a `live:` spec: a trajectory name or pose file, then field=value items."""
+    from msa_slam.sim import make_config
 
     name, *fields = spec[len(LIVE_PREFIX):].split(",")
     params: dict[str, Any] = {"trajectory": name}
@@ -35,7 +38,16 @@ def live_source(spec: str) -> FrameSource:
             laps = value
         else:
             params[key.strip()] = value
-    sim = prepare(make_config(**params))
+    return make_config(**params), laps
+
+
+def live_source(spec: str) -> FrameSource:
+    """The frame source of a `live:` spec (its scans are simulated as the frames are read)."""
+    from msa_slam.sim import prepare
+
+    config, laps = live_settings(spec)
+    sim = prepare(config)
+    name = spec[len(LIVE_PREFIX):].split(",")[0]
     order = [np.arange(len(sim)) if lap % 2 == 0 else np.arange(len(sim))[::-1] for lap in range(laps)]
     lap_of = np.repeat(np.arange(laps), len(sim))
     index = np.concatenate(order)

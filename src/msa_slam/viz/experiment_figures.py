@@ -75,14 +75,15 @@ def plot_step_times(path: str | Path, steps: Mapping[str, Mapping[str, np.ndarra
 
 
 def plot_ate_difference(path: str | Path, differences: Mapping[str, Sequence[float]],
-                        title: str = "ATE difference to all samples") -> Path:
-    """Box plot per method of ATE(method) - ATE(all samples) [m] over datasets/seeds (negative: better)."""
+                        title: str = "ATE difference to all samples", reference: str = "all") -> Path:
+    """Box plot per method of ATE(method) - ATE(`reference`) [m] over datasets/seeds (negative: better); the
+    y label names the reference, as `report --reference` changes it."""
     labels = list(differences)
     fig, ax = plt.subplots(figsize=(max(5.0, 0.9 * len(labels) + 2), 4))
     ax.boxplot([np.asarray(differences[k], dtype=float) for k in labels])
     ax.set_xticks(range(1, len(labels) + 1), labels, rotation=30, ha="right", fontsize=8)
     ax.axhline(0.0, color="grey", lw=0.8)
-    ax.set(ylabel="ATE - ATE(all) [m]", title=title)
+    ax.set(ylabel=f"ATE - ATE({reference}) [m]", title=title)
     ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
     return _save(fig, path)

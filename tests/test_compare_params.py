@@ -1,0 +1,55 @@
+"""`compare` gives the user's sampler parameters (-p window=8, -p sampler.lambda_u=5, a config file's) to MSA,
+the method under study, and keeps the baselines at the paper's settings; a parameter MSA does not take is
+refused (QA finding H1: they used to be dropped silently)."""
+
+from __future__ import annotations
+
+import pytest
+
+from msa_slam.errors import InputError
+from msa_slam.pipeline.compare import PAPER_METHODS, method_configs
+from msa_slam.pipeline.config import apply_params, make_config
+from test_messages_real import run_cli, write_scans
+
+
+def test_sampler_parameters_reach_msa_only():
+    base = apply_params(make_config(dataset="sim:test"), ["window=8", "sampler.lambda_u=5"])
+    configs = {c.name: c for c in method_configs(base)}
+    assert configs["msa"].sampler == "msa" and configs["msa"].sampler_params == {"window": 8, "lambda_u": 5}
+    assert {name: (c.sampler, c.sampler_params) for name, c in configs.items() if name != "msa"} == {
+        label: (sampler, params) for label, sampler, params in PAPER_METHODS if label != "msa"}
+
+
+def test_a_method_keeps_its_own_msa_parameters_over_the_users():
+    base = make_config(dataset="sim:test", sampler_params={"window": 8, "lambda_u": 5})
+    (study,) = method_configs(base, (("msa-w12", "msa", {"window": 12}),))
+    assert study.sampler_params == {"window": 12, "lambda_u": 5}
+
+
+@pytest.mark.parametrize("param, message", [
+    ("distance=2", r"^--param 'distance': not a config key .*a parameter of sampler 'msa' \(window, "),
+    ("sampler.distance=2", r"^config: sampler 'msa': unknown parameter\(s\) distance; it takes: window=10")])
+def test_a_parameter_msa_does_not_take_is_refused_by_the_existing_checks(param, message):
+    with pytest.raises(InputError, match=message):
+        apply_params(make_config(dataset="sim:test"), [param])
+
+
+def test_another_samplers_parameters_are_refused_naming_where_they_go():
+    base = apply_params(make_config(dataset="sim:test"), ["sampler=constant", "distance=2"])  # fine for run
+    with pytest.raises(InputError) as err:
+        method_configs(base)
+    assert str(err.value).startswith("compare: the sampler parameters go to msa (the baselines keep the paper's "
+                                     "settings): config: sampler 'msa': unknown parameter(s) distance; it takes: ")
+    assert "\n" not in str(err.value)
+
+
+def test_compare_checks_the_window_given_with_p(tmp_path):
+    scans = write_scans(tmp_path / "scans", 4)
+    result = run_cli("compare", "-d", str(scans), "--mode", "realistic", "-p", "flush=false", "-p", "window=6",
+                     "--out", str(tmp_path / "out"), "--cache-dir", str(tmp_path / "cache"))
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.splitlines()[-1] == (
+        "error: sampler 'msa': window=6 is longer than the 4 frames read, so it never fills and only frame 0 becomes "
+        "a keyframe (flush is off); the evaluation needs at least 3: use a window of at most 4 frames "
+        "(-p window=4) or -p flush=true")
+    assert not (tmp_path / "out").exists()

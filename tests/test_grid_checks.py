@@ -1,0 +1,103 @@
+"""Grid checks made before any cell runs: a cell's config agrees with its label, seeds are real and distinct,
+datasets and the scheduler address exist, and a resume never mixes msa-slam versions."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import yaml
+
+import msa_slam
+from msa_slam.errors import InputError
+from msa_slam.experiments import expand, parse_grid, run_grid
+from msa_slam.io.outputs import OutputError
+from test_cli_main import run_cli
+from test_experiments import TINY, _fake_experiment
+
+MSA_SWEEP = {"sampler": "msa", "sweep": {"window": [6, 12]}}
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"samplers": [MSA_SWEEP], "parameters": {"window": [9]}},
+     "g.yaml: 'window' is set both in `parameters` and in the `sweep` of method 'msa'; set it in one place"),
+    ({"samplers": [MSA_SWEEP], "parameters": {"sampler.window": [9]}},
+     "g.yaml: 'sampler.window' is set both in `parameters` and in the `sweep` of method 'msa'; set it in one place"),
+    ({"samplers": [{"label": "a10", "sampler": "msa", "params": {"alpha": 10}}], "parameters": {"alpha": [2]}},
+     "g.yaml: 'alpha' is set both in `parameters` and in the `params` of method 'a10'; set it in one place"),
+    ({"parameters": {"sampler": ["msa"]}},
+     "g.yaml: parameters: 'sampler' is set by the grid per cell; list it under `samplers:` instead"),
+    ({"base": {**TINY["base"], "sampler": "constant"}},
+     "g.yaml: base: 'sampler' is set by the grid per cell; list it under `samplers:` instead"),
+    ({"base": {**TINY["base"], "dataset": "sim:test"}},
+     "g.yaml: base: 'dataset' is set by the grid per cell; list it under `datasets:` instead"),
+    ({"base": {**TINY["base"], "seed": 7}},
+     "g.yaml: base: 'seed' is set by the grid per cell; list it under `seeds:` instead"),
+    ({"base": {**TINY["base"], "sampler_params": {"windw": 5}}},
+     "g.yaml: base: sampler_params windw: no method's sampler takes it (samplers: all, constant)"),
+    ({"pipeline": "batch", "datasets": ["sim:test"], "seeds": [0, 1], "base": {}},
+     "g.yaml: seeds [0, 1] but dataset 'sim:test' has no {seed}: every seed would run the same cell (a batch run "
+     "takes its seed from the dataset)"),
+    ({"seeds": [True]}, "g.yaml: seeds.0: Input should be a valid integer"),
+    ({"seeds": [-1]}, "g.yaml: seeds.0: Input should be greater than or equal to 0"),
+    ({"samplers": ["msa", "msa"]}, "g.yaml: method labels repeat (msa); give each a label"),
+])
+def test_grid_refuses_what_its_labels_would_misreport(change, message):
+    with pytest.raises(InputError) as error:
+        parse_grid({**TINY, **change}, "g.yaml")
+    assert str(error.value) == message
+
+
+def test_batch_seeds_with_seed_in_the_dataset_are_distinct_cells():
+    cells = expand(parse_grid({**TINY, "pipeline": "batch", "datasets": ["sim:test,seed={seed}"], "seeds": [0, 1],
+                               "base": {}}))
+    assert [c.config["dataset"] for c in cells] == ["sim:test,seed=0", "sim:test,seed=1"] * 2
+
+
+def test_base_sampler_params_apply_below_the_methods_own_and_swept_values(tmp_path):
+    grid = parse_grid({**TINY, "samplers": ["all", {"label": "a10", "sampler": "msa", "params": {"alpha": 10}},
+                                            MSA_SWEEP],
+                       "base": {**TINY["base"], "sampler_params": {"window": 5, "alpha": 3}}})
+    assert {c.method: c.config["sampler_params"] for c in expand(grid)} == {
+        "all": {}, "a10": {"window": 5, "alpha": 10},
+        "msa window=6": {"window": 6, "alpha": 3}, "msa window=12": {"window": 12, "alpha": 3}}
+    ran = parse_grid({**TINY, "samplers": ["constant"], "base": {**TINY["base"], "sampler_params": {"distance": 2.0}}})
+    run = run_grid(ran, tmp_path)
+    assert not run.failed
+    config = yaml.safe_load((tmp_path / "cells" / run.ran[0] / "config.yaml").read_text())
+    assert config["sampler"] == "constant" and config["sampler_params"] == {"distance": 2.0}
+
+
+@pytest.mark.parametrize("dataset, message", [
+    ("sim:nosuch", "dataset 'sim:nosuch': unknown simulated sequence 'nosuch'; choose one of demo, test, kitti-00"),
+    ("/nonexistent/folder", "dataset '/nonexistent/folder': not found (give a sequence folder, a bag or sim:NAME)"),
+    ("live:nosuch,stride=2", "dataset 'live:nosuch,stride=2': simulation config: trajectory: unknown trajectory "
+                             "'nosuch'"),
+])
+def test_unknown_dataset_is_one_line_before_the_result_folder(tmp_path, dataset, message):
+    grid_file = tmp_path / "g.yaml"
+    grid_file.write_text(yaml.safe_dump({**TINY, "datasets": ["live:figure-eight", dataset]}))
+    result = run_cli("experiment", str(grid_file), "--out", str(tmp_path / "o"), "--quiet")
+    assert result.returncode == 2
+    assert result.stderr.startswith(f"error: {grid_file}: {message}") and len(result.stderr.splitlines()) == 1
+    assert not (tmp_path / "o").exists()
+
+
+def test_malformed_scheduler_is_one_line_before_the_result_folder(tmp_path):
+    result = run_cli("experiment", "tiny", "--scheduler", "notaurl", "--out", str(tmp_path / "o"), "--quiet")
+    assert result.returncode == 2
+    assert result.stderr.strip() == ("error: --scheduler 'notaurl': missing port number in address 'notaurl'; give "
+                                     "the address as tcp://host:port")
+    assert not (tmp_path / "o").exists()
+
+
+def test_resume_refuses_cells_of_another_version(tmp_path):
+    cells = _fake_experiment(tmp_path, TINY, {"all": 4000, "const-2m": 1000}, {"all": 0.5, "const-2m": 0.7})
+    metrics = tmp_path / "cells" / cells[1].id / "metrics.json"
+    metrics.write_text(json.dumps({**json.loads(metrics.read_text()), "msa_slam_version": "0.0.1"}))
+    grid_yaml = (tmp_path / "grid.yaml").read_text()
+    with pytest.raises(OutputError) as error:
+        run_grid(parse_grid(TINY), tmp_path)
+    assert str(error.value) == (f"--out {tmp_path}: cell {cells[1].id} was run by msa-slam 0.0.1, this is "
+                                f"{msa_slam.__version__}; pass --overwrite to rerun every cell or choose another --out")
+    assert (tmp_path / "grid.yaml").read_text() == grid_yaml and not (tmp_path / "report.md").exists()
