@@ -312,7 +312,9 @@ def test_short_straight_run_warns_and_has_no_pr(sequence, cache_dir, tmp_path):
     report = write_run(result, tmp_path / "out").read_text()
     assert "| ATE rotation [deg] (unreliable: see notes), keyframes only |" in report and "| n/a / n/a |" in report
     assert f"- warning: {m['warnings'][0]}" in report and f"- PR-AUC / F1-max n/a: {m['unavailable']['pr']}" in report
-    assert f"ATE alignment: {m['ate_alignment']} (`evo_ape tum" in report
+    assert f"of the keyframe rows: {m['ate_alignment']} (`evo_ape tum" in report
+    assert (f"ATE alignment of the full-rate rows: {m['full_rate']['ate_alignment']} (`evo_ape tum trajectories/gt.tum "
+            "trajectories/optimised.tum -a`") in report and "on all" in m["full_rate"]["ate_alignment"]
 
 
 def test_improvement_rounding_to_zero_prints_unsigned(base, frontend, tmp_path):

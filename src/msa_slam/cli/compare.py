@@ -44,13 +44,14 @@ def compare_command(
     from msa_slam.cli.config import cache_option, check_windows
     from msa_slam.cli.run import batch_config
     from msa_slam.io.outputs import DEFAULT_RESULTS, check_output
-    from msa_slam.pipeline.compare import MethodsFailed, method_configs, run_compare
+    from msa_slam.pipeline.compare import MethodsFailed, check_compare_sampler, method_configs, run_compare
     from msa_slam.pipeline.config import make_config
     from msa_slam.pipeline.seeds import parse_seeds, seeded_datasets
 
     given = {"dataset": dataset, "descriptor": descriptor, "odometry": odometry, "mode": mode,
              "cache_dir": cache_option(cache_dir)}
     cfg = batch_config(config, given, param, source)
+    check_compare_sampler(cfg)
     seed_list = None if seeds is None else parse_seeds(seeds)
     first = cfg
     if seed_list is not None:  # refuse non-simulated data before any work; every seed has the same frames

@@ -209,22 +209,24 @@ def method_configs(base: RunConfig, methods: Sequence[tuple[str, str, dict[str, 
                    ) -> list[RunConfig]:
     """One validated config per method: `base` with the method's sampler, parameters and label.
 
-    The user's sampler parameters (`base.sampler_params`: -p window=8, -p sampler.lambda_u=5) go to every
-    method of the sampler under study (UNDER_STUDY), under the method's own, so compare measures the MSA the
-    user asked for; the baselines keep the paper's settings. A parameter MSA does not take is an InputError."""
+    When `base` is a config of the sampler under study (UNDER_STUDY), its sampler parameters (-p window=8,
+    -p sampler.lambda_u=5) go to every method of that sampler, under the method's own, so compare measures
+    the MSA the user asked for; the baselines keep the paper's settings (check_compare_sampler refuses
+    parameters given for another sampler, which would have nowhere to go)."""
     data = base.dump()
-    configs = []
-    for label, sampler, params in methods:
-        if sampler == UNDER_STUDY:
-            params = {**base.sampler_params, **params}
-        try:
-            configs.append(make_config({**data, "sampler": sampler, "sampler_params": params, "label": label}))
-        except InputError as exc:
-            if sampler != UNDER_STUDY:
-                raise
-            raise InputError(f"compare: the sampler parameters go to {UNDER_STUDY} (the baselines keep the "
-                             f"paper's settings): {exc}") from None
-    return configs
+    given = base.sampler_params if base.sampler == UNDER_STUDY else {}
+    return [make_config({**data, "sampler": sampler, "sampler_params": {**given, **params} if sampler == UNDER_STUDY
+                         else params, "label": label}) for label, sampler, params in methods]
+
+
+def check_compare_sampler(base: RunConfig) -> None:
+    """compare runs the paper's methods and gives the sampler parameters to MSA: parameters given for another
+    sampler (-p sampler=constant -p distance=2) would be dropped without a word, so they are refused."""
+    if base.sampler != UNDER_STUDY and base.sampler_params:
+        given = ", ".join(f"{k}={v!r}" for k, v in base.sampler_params.items())
+        raise InputError(f"compare: the sampler parameters go to {UNDER_STUDY} (the baselines keep the paper's "
+                         f"settings); {given} are for sampler {base.sampler!r}: drop them, or give them to "
+                         f"`msa-slam run -p sampler={base.sampler}`")
 
 
 class MethodsFailed(Exception):
