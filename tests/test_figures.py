@@ -148,3 +148,18 @@ def test_step_time_panels_say_which_idle_steps_they_leave_out(figures, tmp_path)
     assert "idle (0 ms" in note and "log axis" in note and "12 of 40 steps" in note
     note = " ".join(multi.axes[0].get_xlabel().replace("\N{NO-BREAK SPACE}", " ").split())
     assert "msa 12 of 40" in note and "never 5 of 5" in note and "all " not in note
+
+
+def test_a_panel_without_loops_counts_none_in_its_title(figures, tmp_path):
+    """The odometry panel: loops belong to the optimised estimates (compare draws one odometry panel beside all
+    methods, so counting one method's loops there would mislead)."""
+    from msa_slam.viz import TrajectoryPanel, plot_trajectories
+    from msa_slam.viz.trajectories import TRUE_LOOP
+
+    panel = _panel()
+    odometry = TrajectoryPanel("odometry", panel.xy, panel.errors)
+    plot_trajectories(tmp_path / "t.png", panel.xy, [odometry, panel])
+    first, second = [ax for ax in figures[-1].axes if ax.get_label() != "<colorbar>"]
+    assert first.get_title() == "odometry\n60 keyframes" and not [ln for ln in first.get_lines()
+                                                                  if ln.get_color() == TRUE_LOOP]
+    assert second.get_title() == "msa optimised\n60 keyframes, 1 loops, 1 false"

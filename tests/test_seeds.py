@@ -27,7 +27,7 @@ def test_paired_verdicts():
     seeds = [0, 1, 2, 3]
     # MSA ahead by 10 +- 1 on worlds that differ by 50: beyond the spread of the differences
     msa, base = [60.0, 11.0, 35.0, 85.0], [49.0, 2.0, 24.0, 76.0]
-    assert paired_verdict(msa, base, True, seeds)["verdict"].startswith("better, beyond the seed spread (p=")
+    assert paired_verdict(msa, base, True, seeds)["verdict"].startswith("better, beyond the seed spread (p")
     assert paired_verdict(msa, base, False, seeds)["verdict"].startswith("worse, beyond")
     # differences of both signs: within the spread
     assert paired_verdict([1.0, 2.0, 3.0, 4.0], [2.0, 1.0, 4.0, 3.0], True, seeds)["verdict"].startswith("within")
@@ -40,6 +40,9 @@ def test_paired_verdicts():
     rounding = paired_verdict([6.3e-12, -1.3e-12, -2.2e-12], [1.7e-12, 4.6e-13, -3.1e-12], True, [0, 1, 2])
     assert rounding["verdict"] == "no difference on any seed" and rounding["p"] is None
     assert paired_verdict([1e-6, 2e-6, 4e-6], [0.0, 0.0, 0.0], True, [0, 1, 2])["p"] is not None
+    # a p-value under 0.001 prints as such, not as p=0.000
+    far = paired_verdict([10.0, 20.0, 30.0, 40.0], [0.0, 10.001, 20.0, 29.999], True, seeds)
+    assert far["p"] < 0.001 and far["verdict"] == "better, beyond the seed spread (p<0.001)"
 
 
 def test_seed_summary_reports_mean_std_ranks_and_verdicts():

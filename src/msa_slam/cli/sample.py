@@ -24,7 +24,7 @@ def sample_command(
                                        "previous result (with --overwrite)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a previous msa-slam result in --out."),
     flush: bool = typer.Option(False, "--flush", help="Flush the last window at the end (reported apart)."),
-    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
 ) -> None:
     """Select keyframes from a pose stream; write keyframes.txt, keyframes.json and keyframes.png."""
     import json

@@ -95,6 +95,7 @@ def paired_verdict(reference: Sequence[float | None], baseline: Sequence[float |
         return {"p": None, "mean_difference": mean,
                 "verdict": f"{'better' if better else 'worse'} by the same amount on every seed"}
     p = float(stats.ttest_rel(ref, base).pvalue)
-    verdict = (f"{'better' if better else 'worse'}, beyond the seed spread (p={p:.3f})" if p < ALPHA
-               else f"within the seed spread (p={p:.3f})")
+    shown = "p<0.001" if p < 0.001 else f"p={p:.3f}"  # a p-value is never 0
+    verdict = (f"{'better' if better else 'worse'}, beyond the seed spread ({shown})" if p < ALPHA
+               else f"within the seed spread ({shown})")
     return {"p": p, "mean_difference": mean, "verdict": verdict}

@@ -126,9 +126,9 @@ def loop_edges(result: RunResult) -> tuple[list, list]:
 
 
 def trajectory_panel(name: str, ate_m: float | None, estimate: np.ndarray, gt: np.ndarray | None,
-                     errors: np.ndarray | None, loops: tuple[list, list]) -> TrajectoryPanel:
+                     errors: np.ndarray | None, loops: tuple[list, list] | None = None) -> TrajectoryPanel:
     """A keyframe trajectory SE(3)-aligned to `gt` and coloured by its ATE; drawn as estimated (error 0)
-    when the alignment is undetermined."""
+    when the alignment is undetermined. `loops` (true, false) are drawn on it; None: none belong to it."""
     if gt is None:
         xy, name = estimate[:, :2, 3], f"{name} (no ground truth)"
     else:
@@ -137,16 +137,18 @@ def trajectory_panel(name: str, ate_m: float | None, estimate: np.ndarray, gt: n
         except AlignmentError:
             xy, name = estimate[:, :2, 3], f"{name} (not aligned)"
     shown = np.zeros(len(estimate)) if errors is None else errors
-    return TrajectoryPanel(f"{name}, keyframe ATE {fmt(ate_m, '.3f', ' m')}", xy, shown, *loops)
+    title = f"{name}, keyframe ATE {fmt(ate_m, '.3f', ' m')}"
+    return TrajectoryPanel(title, xy, shown) if loops is None else TrajectoryPanel(title, xy, shown, *loops)
 
 
 def trajectory_panels(result: RunResult) -> tuple[TrajectoryPanel, TrajectoryPanel]:
-    """Odometry and optimised keyframe trajectories (SE(3)-aligned to GT) with their loops."""
+    """Odometry and optimised keyframe trajectories (SE(3)-aligned to GT); the loops on the optimised one (the
+    odometry knows none, and compare draws one odometry panel beside every method's)."""
     kf, m = result.keyframes, result.metrics
     gt, loops = None if result.gt_poses is None else result.gt_poses[kf], loop_edges(result)
     optimiser = "iSAM2" if m.get("pipeline") == "online" else "optimised"
     return (trajectory_panel("odometry", m["before"]["ate_translation_m"], result.odometry[kf], gt,
-                             result.ate_errors["odometry"], loops),
+                             result.ate_errors["odometry"]),
             trajectory_panel(f"{m['method']} {optimiser}", m["after"]["ate_translation_m"], result.optimised, gt,
                              result.ate_errors["optimised"], loops))
 

@@ -24,12 +24,13 @@ from msa_slam.viz.save import save_figure  # noqa: E402
 
 @dataclass(frozen=True)
 class TrajectoryPanel:
-    """One panel: an estimate's xy (K, 2) with per-point error (m), and loops as index pairs into it."""
+    """One panel: an estimate's xy (K, 2) with per-point error (m), and loops as index pairs into it (None: an
+    estimate loops play no part in, such as the odometry, whose title then counts none)."""
 
     title: str
     xy: np.ndarray
     errors: np.ndarray
-    loops: Sequence[tuple[int, int]] = ()
+    loops: Sequence[tuple[int, int]] | None = None
     false_loops: Sequence[tuple[int, int]] = ()
 
 
@@ -45,11 +46,12 @@ def _draw(ax, gt_xy: np.ndarray, panel: TrajectoryPanel, norm: Normalize, cmap: 
     ax.scatter(panel.xy[:, 0], panel.xy[:, 1], c=panel.errors, cmap=cmap, norm=norm, s=5, zorder=3)
     # Loop edges over everything, with hollow end markers: a loop between nearby keyframes is a short edge
     # that a line alone would hide.
-    for pairs, colour, marker in ((panel.loops, TRUE_LOOP, "o"), (panel.false_loops, FALSE_LOOP, "X")):
+    for pairs, colour, marker in ((panel.loops or (), TRUE_LOOP, "o"), (panel.false_loops, FALSE_LOOP, "X")):
         for a, b in pairs:
             ax.plot(*panel.xy[[a, b]].T, color=colour, lw=1.2, zorder=4, marker=marker, ms=3.5, mfc="none", mew=0.8)
-    ax.set_title(f"{panel.title}\n{len(panel.xy)} keyframes, {len(panel.loops)} loops"
-                 + (f", {len(panel.false_loops)} false" if len(panel.false_loops) else ""), fontsize=8)
+    counts = "" if panel.loops is None else (f", {len(panel.loops)} loops" + (
+        f", {len(panel.false_loops)} false" if len(panel.false_loops) else ""))
+    ax.set_title(f"{panel.title}\n{len(panel.xy)} keyframes{counts}", fontsize=8)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]", fontsize=8)
     ax.set_ylabel("y [m]", fontsize=8)
@@ -62,7 +64,7 @@ def _legend_handles(panels: Sequence[TrajectoryPanel], cmap: str) -> list[Line2D
     handles = [Line2D([], [], color="0.8", lw=3.0, label="ground truth"),
                Line2D([], [], color=plt.get_cmap(cmap)(0.5), marker="o", ms=3, lw=1.2,
                       label="keyframes, SE(3)-aligned to ground truth (colour: ATE)")]
-    if any(len(p.loops) for p in panels):
+    if any(p.loops for p in panels):
         handles.append(Line2D([], [], color=TRUE_LOOP, marker="o", mfc="none", lw=1.4, label="loop (true)"))
     if any(len(p.false_loops) for p in panels):
         handles.append(Line2D([], [], color=FALSE_LOOP, marker="X", mfc="none", lw=1.4, label="loop (false)"))
