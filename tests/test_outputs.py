@@ -105,6 +105,19 @@ def test_overwrite_never_removes_a_file_msa_slam_did_not_write(stream, tmp_path)
     assert tree(out) == first
 
 
+def test_overwrite_never_loses_a_users_edit_of_a_file_msa_slam_wrote(stream, tmp_path):
+    out = tmp_path / "out"
+    assert sample(stream, "--out", out).exit_code == 0
+    (out / "keyframes.txt").write_text((out / "keyframes.txt").read_text() + "# checked by hand\n")
+    first = tree(out)
+    result = sample(stream, "--out", out, "-p", "lambda_u=2", "--overwrite")
+    assert result.exit_code != 0
+    assert "holds files changed since msa-slam wrote them (keyframes.txt)" in str(result.exception)
+    assert tree(out) == first
+    (out / "keyframes.txt").write_text(first["keyframes.txt"].decode().replace("# checked by hand\n", ""))
+    assert sample(stream, "--out", out, "-p", "lambda_u=2", "--overwrite").exit_code == 0  # restored: ours again
+
+
 def test_empty_folder_is_taken(stream, tmp_path):
     out = tmp_path / "empty"
     out.mkdir()

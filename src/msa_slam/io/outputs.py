@@ -7,7 +7,8 @@ A result folder is recognised by its marker file (`.msa-slam-result`, JSON: tool
   anything in it) is refused; an empty folder is taken;
 - a previous result folder is replaced only with `overwrite=True` (`resume=True` reuses it in place:
   experiment grids, `compare --seeds`), and only when every file in it is one its marker lists as
-  msa-slam's (a user's notes added to a result are never removed: the overwrite is refused);
+  msa-slam's, unchanged since it wrote them (a user's notes added to a result, or edits to its files, are
+  never removed: the overwrite is refused);
 - a lock file beside the target (`.NAME.lock`, flock) makes a second run on the same `--out` refuse
   instead of silently losing one result;
 - leftovers of a killed run on the same target (`.NAME.partial-*`, `.NAME.old-*`) are removed, and a
@@ -30,8 +31,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
-from msa_slam.io.staging import (MARKER, OutputError, clean_stale, foreign_files, is_result_folder, staged_dir,
-                                 write_marker)
+from msa_slam.io.staging import (MARKER, OutputError, clean_stale, edited_files, foreign_files, is_result_folder,
+                                 staged_dir, write_marker)
 
 __all__ = ["DEFAULT_RESULTS", "MARKER", "OutputError", "ResultFolder", "check_output", "is_result_folder",
            "open_result_folder", "staged_dir", "timestamped", "write_marker"]
@@ -94,14 +95,26 @@ def _check_target(target: Path, kind: str, overwrite: bool, resume: bool) -> Non
 
 
 def _refuse_foreign(target: Path) -> None:
-    """--overwrite replaces a previous result only when all its files are msa-slam's (staging.foreign_files)."""
+    """--overwrite replaces a previous result only when all its files are msa-slam's (staging.foreign_files),
+    as msa-slam wrote them (staging.edited_files)."""
     foreign = foreign_files(target)
     if foreign:
-        more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
-        raise OutputError(f"--out {target}: holds files msa-slam did not write ({', '.join(foreign[:3])}{more}); "
+        raise OutputError(f"--out {target}: holds files msa-slam did not write ({_some(foreign)}); "
                           "--overwrite would remove them: move them elsewhere or choose another --out (files of a "
                           "killed experiment or `compare --seeds` run count too: rerun it without --overwrite to "
                           "finish it first)")
+    edited = edited_files(target)
+    if edited:
+        raise OutputError(f"--out {target}: holds files changed since msa-slam wrote them ({_some(edited)}); "
+                          "--overwrite would lose the changes: copy them elsewhere or choose another --out (a killed "
+                          "experiment or `compare --seeds` run leaves its reports so too: rerun it without "
+                          "--overwrite to finish it first)")
+
+
+def _some(names: list[str]) -> str:
+    """The first three names, and how many more."""
+    more = f" and {len(names) - 3} more" if len(names) > 3 else ""
+    return ", ".join(names[:3]) + more
 
 
 def _check_writable(folder: Path) -> None:

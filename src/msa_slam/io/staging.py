@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import errno
+import hashlib
 import json
 import os
 import shutil
@@ -53,11 +54,33 @@ def is_result_folder(path: Path, kind: str | None = None) -> bool:
 
 def write_marker(folder: Path, kind: str, exclude: Collection[str] = ()) -> None:
     """Mark `folder` as msa-slam's result of `kind`, listing the files in it now (but `exclude`) as the ones
-    msa-slam wrote: an --overwrite removes nothing else (foreign_files)."""
+    msa-slam wrote, with a digest of each: an --overwrite removes nothing else (foreign_files) and nothing
+    changed since (edited_files)."""
     folder, exclude = Path(folder), set(exclude)
     files = [name for name in _files(folder) if name not in exclude]
     (folder / MARKER).write_text(json.dumps({"tool": "msa-slam", "kind": kind, "version": msa_slam.__version__,
-                                             "files": files}) + "\n")
+                                             "files": files,
+                                             "digests": {name: _digest(folder / name) for name in files}}) + "\n")
+
+
+def _digest(path: Path) -> str:
+    """SHA-256 of a file's bytes, or of a link's target (links are not followed)."""
+    if path.is_symlink():
+        return hashlib.sha256(os.fsencode(os.readlink(path))).hexdigest()
+    digest = hashlib.sha256()
+    with open(path, "rb") as stream:
+        for block in iter(lambda: stream.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def edited_files(folder: Path) -> list[str]:
+    """Files msa-slam wrote in a result folder (its marker lists them) whose content changed since: a user's
+    edits, which --overwrite must not remove. Markers of versions without digests list none."""
+    folder = Path(folder)
+    digests = json.loads((folder / MARKER).read_text()).get("digests", {})
+    present = {name for name in digests if (folder / name).is_symlink() or (folder / name).is_file()}
+    return [name for name, digest in sorted(digests.items()) if name in present and _digest(folder / name) != digest]
 
 
 def foreign_files(folder: Path, outside: tuple[str, ...] = ()) -> list[str]:
