@@ -9,6 +9,8 @@ import re
 from pathlib import Path
 from typing import Any
 
+from msa_slam.io.staging import MARKER
+
 # Keys of measured wall-clock time, memory high-water marks and cache hits: they differ between runs.
 VOLATILE_KEY = re.compile(r"time|(^|_)ms(_|$)|rss|fps|latency|cached|realtime|_s$")
 # Files that carry those figures as text or pixels (report.md, figures, per-step timings), and provenance.json
@@ -41,7 +43,9 @@ def stable_content(folder: Path) -> dict[str, Any]:
         rel = path.relative_to(folder).as_posix()
         if not path.is_file() or VOLATILE_FILE.search(rel):
             continue
-        if path.suffix == ".json":
+        if path.name == MARKER:  # the files' digests follow their timings; the list of files does not
+            out[rel] = {k: v for k, v in json.loads(path.read_text()).items() if k != "digests"}
+        elif path.suffix == ".json":
             out[rel] = _strip(json.loads(path.read_text()))
         elif path.suffix == ".csv":
             out[rel] = _strip_csv(path.read_text())
