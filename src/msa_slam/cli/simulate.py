@@ -25,7 +25,8 @@ def simulate_command(
     stride: int = typer.Option(1, help="keep every stride-th frame"),
     seed: int = typer.Option(0, help="seed of the world and the sensor noise"),
     azimuth_steps: Optional[int] = typer.Option(None, help="rays per beam per revolution (sensor default)"),
-    max_range: Optional[float] = typer.Option(None, help="maximum range, metres (sensor default)"),
+    max_range: Optional[float] = typer.Option(None, help="maximum range, metres (sensor default); at least the "
+                                              "lowest beam's way down to the ground (4.1 m for hdl64 on a car)"),
     range_noise: float = typer.Option(0.02, help="Gaussian range noise sigma, metres"),
     dropout: float = typer.Option(0.0, help="fraction of returns dropped at random"),
     style: Optional[str] = typer.Option(None, help="world style: city or campus (default from the platform)"),

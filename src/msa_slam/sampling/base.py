@@ -34,11 +34,16 @@ class AmbiguousWindow:
 
 @dataclass
 class SamplerStats:
-    """Work counters of a sampler; `optimisation_ms` holds one entry per window optimisation."""
+    """Work counters of a sampler; `optimisation_ms` holds one entry per window optimisation.
+
+    `fallback_windows` counts window optimisations whose distance bounds admitted no candidate, so the
+    window's first and last member were taken without a choice (MSA; many of them mean unusable bounds).
+    """
 
     frames: int = 0
     window_optimisations: int = 0
     candidates_evaluated: int = 0
+    fallback_windows: int = 0
     optimisation_ms: list[float] = field(default_factory=list)
     ambiguous: list[AmbiguousWindow] = field(default_factory=list)
 
@@ -53,6 +58,7 @@ class SamplerStats:
             "frames": self.frames,
             "window_optimisations": self.window_optimisations,
             "candidates_evaluated": self.candidates_evaluated,
+            "fallback_windows": self.fallback_windows,
             "ambiguous_windows": self.ambiguous_windows,
             "ambiguous_frames": [a.frame for a in self.ambiguous],
             "optimisation_ms_median": float(np.median(times)) if times.size else 0.0,

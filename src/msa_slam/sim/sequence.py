@@ -35,6 +35,7 @@ from msa_slam.io.cache import cache_root, partial_dir, remove_orphans
 from msa_slam.io.poses import format_kitti
 from msa_slam.progress import progress_bar
 from msa_slam.sim.config import SIM_VERSION, SimConfig
+from msa_slam.sim.coverage import empty_scan_error, warn_sparse_scans
 from msa_slam.sim.simulation import Simulation, prepare
 
 META_FILE = "sim.json"
@@ -133,7 +134,9 @@ def _write(sim: Simulation, target: Path, progress: bool, workers: int) -> None:
     with progress_bar(quiet=not progress, transient=False) as bar:
         task = bar.add_task(f"simulating {sim.config.label} / {sim.config.sensor}", total=len(sim))
         sizes, times_sizes = [], []
-        for scan_bytes, times_bytes in _written_scans(sim, target, workers):
+        for k, (scan_bytes, times_bytes) in enumerate(_written_scans(sim, target, workers)):
+            if scan_bytes == 0:
+                raise empty_scan_error(sim.config, k, len(sim))
             sizes.append(scan_bytes)
             if times_bytes is not None:
                 times_sizes.append(times_bytes)
@@ -160,6 +163,7 @@ def _write(sim: Simulation, target: Path, progress: bool, workers: int) -> None:
                    else KITTI_CITATION if sim.config.trajectory.startswith("kitti") else "procedural"),
     }
     (target / META_FILE).write_text(json.dumps(meta, indent=1))  # written last: marks completeness
+    warn_sparse_scans(sim.config, sizes)
 
 
 def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
@@ -169,7 +173,9 @@ def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
 
     Without `out` the directory is <cache>/<trajectory>_<sensor>_<key>. An existing complete
     simulation of the same config is returned as is; one of the same config with a missing or truncated
-    scan is simulated again (with a warning); any other existing non-empty `out` is an error.
+    scan is simulated again (with a warning); any other existing non-empty `out` is an error. A scan without
+    points is an error as soon as it is cast (nothing is written); scans too sparse to register give one
+    warning, again whenever the sequence is reused (sim/coverage.py).
     `workers`: processes casting scans (0: this one; None: `default_workers`); the bytes do not depend on it.
     """
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
@@ -178,6 +184,7 @@ def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
     target = Path(out) if out is not None else cache_root(cache_dir) / f"{config.label}_{config.sensor}_{key}"
     remove_orphans(target.parent, f".{target.name}.partial-*")
     if is_complete(target, key):
+        warn_sparse_scans(config, _read_meta(target)["scan_bytes"])  # as when it was written
         return target
     damaged = _is_ours(target, key)
     if damaged:

@@ -9,6 +9,7 @@ from typing import Iterator, NamedTuple
 import numpy as np
 
 from msa_slam.sim.config import SimConfig
+from msa_slam.sim.coverage import check_reaches_ground
 from msa_slam.sim.realism import REALISM, Realism
 from msa_slam.sim.sensors import Lidar, LidarModel, get_sensor
 from msa_slam.sim.trajectories import Trajectory, frame_indices
@@ -60,16 +61,17 @@ class Simulation:
 
 
 def prepare(config: SimConfig) -> Simulation:
-    """Load the trajectory, select frames and build the world around the whole selected range (unstrided,
-    so every stride of the same range sees the same world)."""
+    """Load the trajectory, select frames, check the sensor (before the long work) and build the world around
+    the whole selected range (unstrided, so every stride of the same range sees the same world)."""
     traj = config.load_trajectory()
     frames = frame_indices(len(traj), config.start, config.end, config.stride, config.label)
+    model: LidarModel = get_sensor(config.sensor, azimuth_steps=config.azimuth_steps, max_range=config.max_range,
+                                   range_noise=config.range_noise, dropout=config.dropout)
+    check_reaches_ground(model, traj.sensor_height)
     span = traj.poses[frames[0]:frames[-1] + 1]
     style = config.style or ("campus" if traj.platform == "walk" else "city")
     realism = REALISM[config.realism]
     world = build_world(span, style, config.seed, traj.sensor_height, realism.world)
-    model: LidarModel = get_sensor(config.sensor, azimuth_steps=config.azimuth_steps, max_range=config.max_range,
-                                   range_noise=config.range_noise, dropout=config.dropout)
     return Simulation(config, frames, traj, world, Lidar(model, world, realism.sensor, config.seed), realism)
 
 

@@ -20,7 +20,7 @@ from msa_slam.sampling import checks
 from msa_slam.sampling.base import AmbiguousWindow, Sampler, Timer
 from msa_slam.sampling.msa.exact import ExactWorkspace
 from msa_slam.sampling.msa.terms import ScoreWeights
-from msa_slam.sampling.msa.window import MODES, PI_DEFINITIONS, optimise_window
+from msa_slam.sampling.msa.window import MODES, PI_DEFINITIONS, fell_back, optimise_window
 
 MAX_CANDIDATES = 2 ** 15 - 2  # per window optimisation, i.e. N <= 16: measured 5 s a window in exact mode
 # (sc20x60, 17811 feasible candidates), 1 s in fast mode; N = 20 took 116 s for 150 frames, N = 30 runs out of memory
@@ -29,6 +29,7 @@ MAX_CANDIDATES_CANONICAL = 2 ** 19 - 2  # N <= 20 with pi="canonical" in fast mo
 MIN_WINDOW_STEP = 0.01  # a frame joins the window only if it moved this far from the last member
 INITIAL_DMIN, INITIAL_DMAX = 1.0, 5.0  # the bounds before the first window is optimised
 DMIN_FLOOR, DMAX_CAP = 0.01, 5.0  # the reference's limits on the bounds, in metres
+FALLBACK_WARN_MIN = 3  # finish() warns from this many fallback windows, when they are also most windows
 
 
 def check_candidate_count(window: int, neighbours: int, mode: str = "exact", pi: str = "reference") -> None:
@@ -72,7 +73,8 @@ class MSASampler(Sampler):
     floating-point path) or "fast" (Gram-matrix formulation), pi "reference" (LAPACK's eigenvectors, the
     authors' keyframes) or "canonical" (eigenvectors fixed from the data alone: the same keyframes on
     every machine, msa/canonical.py). Windows whose choice rounding could change are counted in
-    `stats.ambiguous` (msa/decision.py).
+    `stats.ambiguous` (msa/decision.py); windows whose bounds admitted no candidate in
+    `stats.fallback_windows`, with a warning at `finish()` when they are most of them.
     """
 
     name = "msa"
@@ -145,10 +147,23 @@ class MSASampler(Sampler):
         """Flush: optimise whatever is left in the window over all its members (not in the reference)."""
         if self.stats.window_optimisations == 0 and self.stats.frames > 0:
             warn_short_stream(self.stats.frames, self.window_size, len(self._window))
-        if len(self._window) < 2:
-            return []
-        self._update_bounds()
-        return self._optimise(len(self._window), update_bounds=False)
+        new: list[int] = []
+        if len(self._window) >= 2:
+            self._update_bounds()
+            new = self._optimise(len(self._window), update_bounds=False)
+        self._warn_fallback_windows()
+        return new
+
+    def _warn_fallback_windows(self) -> None:
+        """Most windows admitted no candidate under the distance bounds: their keyframes (each window's first and
+        last member) were then fixed by the window length, not chosen by the score, and nothing else says so."""
+        fallbacks, windows = self.stats.fallback_windows, self.stats.window_optimisations
+        if fallbacks < FALLBACK_WARN_MIN or 2 * fallbacks <= windows:
+            return
+        warnings.warn(f"msa: {fallbacks} of {windows} windows had no subset whose consecutive members lie within "
+                      f"the distance bounds (last [{self.dmin:.3g}, {self.dmax:.3g}] m for an average step of "
+                      f"{self._avg_step:.3g} m), so each kept only its first and last member; check "
+                      f"lambda_l={self.lambda_l:g} and lambda_u={self.lambda_u:g}", UserWarning, stacklevel=4)
 
     def _optimise(self, n: int, update_bounds: bool = True) -> list[int]:
         """Section IV-C over the window's first n members; returns the frames that became keyframes."""
@@ -156,11 +171,11 @@ class MSASampler(Sampler):
             if update_bounds:  # 1. bounds, eq. (7), from the running average step
                 self._update_bounds()
             members = self._window[:n]  # 2-3. terms and score of every candidate subset, eqs. (3)-(8)
-            result = optimise_window(
-                np.array([self._translation[f] for f in members]),
-                np.array([self._descriptor[f] for f in members]),
-                self.dmin, self.dmax, self.weights, self.mode, self._workspace, self.pi)
+            translations = np.array([self._translation[f] for f in members])
+            result = optimise_window(translations, np.array([self._descriptor[f] for f in members]),
+                                     self.dmin, self.dmax, self.weights, self.mode, self._workspace, self.pi)
         self._record(result, members, timer.ms)
+        self.stats.fallback_windows += fell_back(result, translations, self.dmin, self.dmax)
         new: list[int] = []  # 4. emit: the chosen members after the first (already a keyframe)
         for pos in result.positions[1:]:
             new += self._add_keyframe(self._window[pos])

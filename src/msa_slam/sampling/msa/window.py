@@ -24,3 +24,13 @@ def optimise_window(translations: np.ndarray, descriptors: np.ndarray, dmin: flo
     if mode == "fast":
         return optimise_fast(translations, descriptors, dmin, dmax, weights, pi)
     return optimise_exact(translations, descriptors, dmin, dmax, weights, workspace or ExactWorkspace(), pi)
+
+
+def fell_back(result: WindowResult, translations: np.ndarray, dmin: float, dmax: float) -> bool:
+    """True when no subset met the bounds and the window's first and last member were taken (the reference's
+    fallback). Both optimisers return that as a single candidate (0, n-1), as they would a pair (0, n-1)
+    that alone met them, so the pair's own distance tells the two apart."""
+    n = len(translations)
+    if result.candidates != 1 or result.positions != (0, n - 1):
+        return False
+    return not dmin <= float(np.linalg.norm(translations[-1] - translations[0])) <= dmax
