@@ -162,4 +162,13 @@ def test_a_panel_without_loops_counts_none_in_its_title(figures, tmp_path):
     first, second = [ax for ax in figures[-1].axes if ax.get_label() != "<colorbar>"]
     assert first.get_title() == "odometry\n60 keyframes" and not [ln for ln in first.get_lines()
                                                                   if ln.get_color() == TRUE_LOOP]
-    assert second.get_title() == "msa optimised\n60 keyframes, 1 loops, 1 false"
+    assert second.get_title() == "msa optimised\n60 keyframes, 1 loop, 1 false"  # not "1 loops"
+
+
+def test_panel_titles_count_in_the_right_number(figures, tmp_path):
+    from msa_slam.viz import plot_trajectories
+
+    panels = [_panel(loops=(), false_loops=()), _panel(loops=((1, 40), (3, 45)), false_loops=())]
+    plot_trajectories(tmp_path / "t.png", panels[0].xy, panels)
+    titles = [ax.get_title() for ax in figures[-1].axes if ax.get_label() != "<colorbar>"]
+    assert titles == ["msa optimised\n60 keyframes, 0 loops", "msa optimised\n60 keyframes, 2 loops"]

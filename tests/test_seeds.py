@@ -34,7 +34,7 @@ def test_paired_verdicts():
     assert paired_verdict([1.0, 2.0], [0.0, 1.0], True, [0, 1])["verdict"] == (
         "n/a: 2 seed(s), the paired test needs at least 3")
     assert paired_verdict([1.0, None, 3.0], [0.0, 1.0, 2.0], True, [0, 1, 2])["verdict"] == (
-        "n/a: unavailable on seed(s) 1")
+        "n/a: a value is n/a on seed(s) 1 (that seed's notes say why)")
     assert paired_verdict([1.0, 2.0, 3.0], [1.0, 2.0, 3.0], True, [0, 1, 2])["verdict"] == "no difference on any seed"
     # no loop closed by either (simulated KITTI-09): improvements of +-1e-11 % are the optimiser's rounding
     rounding = paired_verdict([6.3e-12, -1.3e-12, -2.2e-12], [1.7e-12, 4.6e-13, -3.1e-12], True, [0, 1, 2])
@@ -95,10 +95,11 @@ def test_grid_table_reports_the_spread_over_seeds():
         return {"dataset": "sim:test", "descriptor": "scan_context", "parameters": "", "method": method, "seed": seed,
                 "keyframes": 10, "improvement_t_pct": impr, "improvement_r_pct": 1.0, "f1_max": 0.5,
                 "memory_mib": 1.0, "memory_vs_reference_pct": 100.0, "time_s": 1.0, "fps": None,
-                "backend_p99_ms": None}
+                "backend_p99_ms": None, "unavailable": '{"backend_p99_ms": "not timed", "fps": "not timed"}'}
 
     rows = [row("all", s, 10.0 * s) for s in range(3)] + [row("msa", s, 10.0 * s + 5 + 0.1 * s) for s in range(3)]
     text = table2_markdown(rows)
     assert "| msa | 10 ± 0 | 15.1 ± 10.1 % |" in text  # sample std (ddof 1) over the 3 seeds
     assert "Spread over seeds:" in text and "| all | better, beyond the seed spread" in text
     assert "Spread over seeds:" not in table2_markdown([r for r in rows if r["seed"] == 0])
+    assert "- frames/s, back-end p99 n/a (every method and seed): not timed" in text  # n/a with its reason

@@ -79,8 +79,8 @@ def paired_verdict(reference: Sequence[float | None], baseline: Sequence[float |
     missing = [s for s, a, b in zip(seeds, reference, baseline) if a is None or b is None
                or math.isnan(a) or math.isnan(b)]
     if missing:
-        return {"p": None, "mean_difference": None,
-                "verdict": f"n/a: unavailable on seed(s) {', '.join(map(str, missing))}"}
+        return {"p": None, "mean_difference": None, "verdict": f"n/a: a value is n/a on seed(s) "
+                f"{', '.join(map(str, missing))} (that seed's notes say why)"}
     if len(seeds) < MIN_SEEDS:
         return {"p": None, "mean_difference": None,
                 "verdict": f"n/a: {len(seeds)} seed(s), the paired test needs at least {MIN_SEEDS}"}

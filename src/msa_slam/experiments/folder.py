@@ -20,7 +20,7 @@ import yaml
 
 import msa_slam
 from msa_slam.errors import InputError
-from msa_slam.experiments.grid import Cell, GridSpec, expand, parse_grid
+from msa_slam.experiments.grid import Cell, GridSpec, expand, parse_grid, read_yaml
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.outputs import OutputError
 
@@ -47,14 +47,23 @@ def read_cell(folder: Path) -> tuple[dict[str, Any], dict[str, Any]] | None:
     return info, metrics
 
 
-def check_versions(out: str | os.PathLike, cells: list[Cell]) -> None:
-    """Finished cells of `cells` must come from this msa-slam version: resuming would mix results of old and
-    new code in one table (the cell id hashes the config, not the code)."""
-    for cell in cells:
-        found = read_cell(cell_dir(out, cell.id))
-        version = found[1].get("msa_slam_version") if found else msa_slam.__version__
+FinishedCells = dict[str, tuple[dict[str, Any], dict[str, Any]]]  # cell id -> (cell info, metrics)
+
+
+def finished_cells(out: str | os.PathLike, cells: list[Cell]) -> FinishedCells:
+    """The finished cells of `cells` in `out`, each read once (read_cell): a resume checks their versions,
+    skips them and reports them from this one reading."""
+    found = {cell.id: read_cell(cell_dir(out, cell.id)) for cell in cells}
+    return {cell_id: read for cell_id, read in found.items() if read is not None}
+
+
+def check_versions(out: str | os.PathLike, finished: FinishedCells) -> None:
+    """The `finished` cells (finished_cells) must come from this msa-slam version: resuming would mix results
+    of old and new code in one table (the cell id hashes the config, not the code)."""
+    for cell_id, (_, metrics) in finished.items():
+        version = metrics.get("msa_slam_version")
         if version != msa_slam.__version__:
-            raise OutputError(f"--out {out}: cell {cell.id} was run by msa-slam {version or '(unknown version)'}, "
+            raise OutputError(f"--out {out}: cell {cell_id} was run by msa-slam {version or '(unknown version)'}, "
                               f"this is {msa_slam.__version__}; pass --overwrite to rerun every cell or choose "
                               "another --out")
 
@@ -67,21 +76,22 @@ def grid_cells(out: str | os.PathLike) -> tuple[GridSpec, list[Cell]]:
     """The grid recorded in `out` and its cells (the cells a report of `out` may use)."""
     path = Path(out) / GRID_FILE
     try:
-        data = yaml.safe_load(path.read_text())
+        data = read_yaml(path)
     except OSError as exc:
         raise InputError(f"{path}: cannot read the experiment's grid ({exc.strerror}); "
                          "rerun `msa-slam experiment` into this folder") from None
-    except yaml.YAMLError as exc:
-        raise InputError(f"{path}: not valid YAML ({exc})") from None
     grid = parse_grid(data, str(path))
     return grid, expand(grid, str(path))
 
 
 def stale_cells(out: str | os.PathLike, cells: list[Cell]) -> list[str]:
-    """Ids of cell folders in `out` that the current grid does not contain (left by an earlier grid)."""
+    """Ids of cell folders in `out` that the current grid does not contain (left by an earlier grid). Only
+    folders msa-slam wrote count, those with a cell.json (a cell folder appears only once complete): a
+    person's own folder under cells/ is no cell, stale or not, and is neither listed nor touched."""
     folder = Path(out) / "cells"
     if not folder.is_dir():
         return []
     current = {c.id for c in cells}
     return sorted(p.name for p in folder.iterdir()
-                  if p.is_dir() and not p.name.startswith(".") and p.name not in current)
+                  if p.is_dir() and not p.name.startswith(".") and p.name not in current
+                  and (p / CELL_FILE).is_file())

@@ -15,20 +15,38 @@ from typing import Any
 import numpy as np
 
 from msa_slam.errors import InputError
-from msa_slam.experiments.folder import GRID_FILE, cell_dir, grid_cells, read_cell, stale_cells
+from msa_slam.experiments.folder import GRID_FILE, FinishedCells, cell_dir, grid_cells, read_cell, stale_cells
 from msa_slam.experiments.grid import Cell, GridSpec, slug
 from msa_slam.evaluation import NA, fmt
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.viz import plot_ate_difference, plot_memory, plot_step_times, plot_sweeps
 from msa_slam.io.tables import rows_csv
 from msa_slam.pipeline.results import accounted_bytes
-from msa_slam.pipeline.seeds import seed_markdown, seed_summary
+from msa_slam.pipeline.seeds import SEED_METRICS, seed_markdown, seed_summary
 
 COLUMNS = ("cell", "pipeline", "dataset", "descriptor", "method", "sampler", "seed", "parameters", "frames",
            "keyframes", "candidates", "verified", "false_loops", "ate_before_m", "ate_after_m", "improvement_t_pct",
            "improvement_r_pct", "rpe_pct", "rpe_10m_m", "kf_ate_before_m", "kf_ate_after_m", "kf_improvement_t_pct",
            "pr_auc", "f1_max", "memory_mib", "memory_vs_reference_pct", "bytes_per_keyframe",
-           "time_s", "fps", "backend_fps", "backend_p99_ms", "process_peak_rss_mib")
+           "time_s", "fps", "backend_fps", "backend_p99_ms", "process_peak_rss_mib", "rss_growth_mib", "rejected",
+           "unavailable")
+# The metrics.json `unavailable` keys that say why a column is n/a, most specific first (a run without ground
+# truth for every frame has no full-rate block at all: only full_rate_ate then says why).
+_FULL_RATE = ("full_rate_ate_optimised", "full_rate_ate")
+UNAVAILABLE_KEYS = {
+    "ate_before_m": ("full_rate_ate",), "ate_after_m": _FULL_RATE,
+    "improvement_t_pct": ("full_rate_improvement_translation", *_FULL_RATE),
+    "improvement_r_pct": ("full_rate_improvement_rotation", *_FULL_RATE),
+    "rpe_pct": ("rpe_kitti", *_FULL_RATE), "rpe_10m_m": ("rpe_10m", *_FULL_RATE),
+    "kf_ate_before_m": ("ate_odometry", "ate"), "kf_ate_after_m": ("ate_optimised", "ate"),
+    "kf_improvement_t_pct": ("improvement_translation", "ate_optimised", "ate"),
+    "pr_auc": ("pr",), "f1_max": ("pr",),
+}
+PER_FRAME = ("fps", "backend_fps", "backend_p99_ms")
+BATCH_UNTIMED = ("the batch pipeline (Table I protocol) optimises the whole sequence at once, so it has no per-frame "
+                 "throughput or latency (an online grid measures them)")
+NO_REASON = ("this cell's metrics.json holds neither a value nor a reason (cells written by older msa-slam versions "
+             "lack some metrics)")
 SWEEP_METRICS = {"t. ATE impr. [%]": "improvement_t_pct", "R. ATE impr. [%]": "improvement_r_pct",
                  "F1-max": "f1_max", "memory vs reference [%]": "memory_vs_reference_pct"}
 
@@ -45,11 +63,11 @@ def _grid_of(out: Path) -> tuple[GridSpec, list[Cell]]:
     return grid_cells(out)
 
 
-def _finished(out: Path, cells: list[Cell]) -> list[dict[str, Any]]:
+def _finished(out: Path, cells: list[Cell], known: FinishedCells | None = None) -> list[dict[str, Any]]:
     found = []
     for cell in cells:
         folder = cell_dir(out, cell.id)
-        read = read_cell(folder)
+        read = (known or {}).get(cell.id) or read_cell(folder)
         if read is not None:
             found.append({"info": {**read[0], "index": cell.index}, "metrics": read[1], "folder": folder})
     return found
@@ -69,7 +87,7 @@ def make_rows(cells: list[dict[str, Any]], reference: str = "all") -> list[dict[
         info, m = c["info"], c["metrics"]
         ref = ref_memory.get(_group(info))
         latency = m.get("latency_ms", {}).get("backend", {})
-        rows.append({
+        row = {
             "cell": info["id"], "pipeline": info["pipeline"], "dataset": info["dataset"],
             "descriptor": info["descriptor"], "method": info["method"], "sampler": info["sampler"],
             "seed": info["seed"], "parameters": json.dumps(info["parameters"], sort_keys=True) if info["parameters"]
@@ -84,8 +102,26 @@ def make_rows(cells: list[dict[str, Any]], reference: str = "all") -> list[dict[
             "time_s": m["time_s"]["backend_total"], "fps": m.get("fps"), "backend_fps": m.get("backend_fps"),
             "backend_p99_ms": latency.get("p99"),
             "process_peak_rss_mib": m["peak_rss_bytes"] / 2**20,  # the cell's whole process, not the method
-        })
+            "rss_growth_mib": m["rss_growth_bytes"] / 2**20 if "rss_growth_bytes" in m else None,
+            "rejected": sum(m["loop_closing"]["rejected"].values()) if "loop_closing" in m else None,
+        }
+        why = {column: _na_reason(column, m, info["pipeline"], reference, ref) for column, value in row.items()
+               if value is None}
+        rows.append({**row, "unavailable": json.dumps(why, sort_keys=True) if why else ""})
     return rows
+
+
+def _na_reason(column: str, m: dict[str, Any], pipeline: str, reference: str, ref_memory: int | None) -> str:
+    """Why a row's `column` is n/a: the cell's own reason (metrics.json `unavailable`), else what the pipeline
+    or the reference leave out."""
+    if column in PER_FRAME and pipeline == "batch":
+        return BATCH_UNTIMED
+    if column == "memory_vs_reference_pct":
+        return (f"the `{reference}` cell of this dataset, descriptor, parameters and seed has 0 bytes"
+                if ref_memory == 0 else f"no finished `{reference}` cell of this dataset, descriptor, parameters "
+                "and seed to compare with")
+    unavailable = m.get("unavailable") or {}
+    return next((unavailable[k] for k in UNAVAILABLE_KEYS.get(column, ()) if k in unavailable), NO_REASON)
 
 
 def _full_rate(m: dict[str, Any]) -> dict[str, Any]:
@@ -112,17 +148,48 @@ def _seed_lines(methods: dict[str, list[dict[str, Any]]]) -> list[str]:
     return ["Spread over seeds:", "", seed_markdown(seed_summary(dict(sorted(by_seed.items())))), ""]
 
 
-def _mean(rows: list[dict[str, Any]], key: str) -> tuple[float, float] | None:
+def _mean(rows: list[dict[str, Any]], key: str) -> tuple[float, float | None] | None:
+    """Mean and sample std (None below 2 values) of the available values; None when there are none."""
     values = [r[key] for r in rows if r[key] is not None]
     if not values:
         return None
-    return float(np.mean(values)), float(np.std(values, ddof=1)) if len(values) > 1 else 0.0  # sample std
+    return float(np.mean(values)), float(np.std(values, ddof=1)) if len(values) > 1 else None
 
 
-def _cell(stat: tuple[float, float] | None, spec: str, n: int, unit: str = "") -> str:
+def _cell(stat: tuple[float, float | None] | None, spec: str, unit: str = "") -> str:
     if stat is None:
         return NA
-    return fmt(stat[0], spec) + (f" ± {fmt(stat[1], spec)}" if n > 1 else "") + unit
+    return fmt(stat[0], spec) + (f" ± {fmt(stat[1], spec)}" if stat[1] is not None else "") + unit
+
+
+def _na_notes(methods: dict[str, list[dict[str, Any]]], labels: dict[str, str]) -> list[str]:
+    """One line per reason for the section's n/a values among the `labels` columns (column -> label shown),
+    naming the columns and who lacks them (with several seeds, on which seeds when not on all of a method's:
+    its mean is then over the others)."""
+    ran = {m: {r["seed"] for r in rs} for m, rs in methods.items()}  # the seeds each method has a row on
+    found: dict[str, dict[str, Any]] = {}  # reason -> {"columns": {...}, "who": {method: {seeds}}}
+    for method, rs in methods.items():
+        for r in rs:
+            for column, reason in (json.loads(r["unavailable"]) if r["unavailable"] else {}).items():
+                if column in labels:
+                    entry = found.setdefault(reason, {"columns": set(), "who": defaultdict(set)})
+                    entry["columns"].add(column)
+                    entry["who"][method].add(r["seed"])
+    several = len(set().union(*ran.values())) > 1
+    lines = []
+    for reason, entry in found.items():
+        who = entry["who"]
+        if who == ran:
+            whom = "every method" + (" and seed" if several else "")
+        else:
+            whom = "; ".join(m if who[m] == ran[m] else f"{m} on seed(s) {', '.join(map(str, sorted(who[m])))}"
+                             for m in who)
+        named = ", ".join(label for column, label in labels.items() if column in entry["columns"])
+        lines.append(f"- {named} n/a ({whom}): {reason}")
+    if not lines:
+        return []
+    return [f"Notes (n/a values{'; a mean leaves out the seeds where its value is n/a' if several else ''}):", "",
+            *lines, ""]
 
 
 def table2_markdown(rows: list[dict[str, Any]]) -> str:
@@ -130,24 +197,29 @@ def table2_markdown(rows: list[dict[str, Any]]) -> str:
     sections: dict[tuple, dict[str, list]] = defaultdict(lambda: defaultdict(list))
     for r in rows:
         sections[(r["dataset"], r["descriptor"], r["parameters"])][r["method"]].append(r)
-    head = ["method", "keyframes", "t. ATE impr. (full rate)", "R. ATE impr. (full rate)", "F1-max", "mem.", "mem. vs ref.", "time",
-            "frames/s", "back-end p99"]
+    shown = {"keyframes": "keyframes", "improvement_t_pct": "t. ATE impr. (full rate)",
+             "improvement_r_pct": "R. ATE impr. (full rate)", "f1_max": "F1-max", "memory_mib": "mem.",
+             "memory_vs_reference_pct": "mem. vs ref.", "time_s": "time", "fps": "frames/s",
+             "backend_p99_ms": "back-end p99"}
+    head = ["method", *shown.values()]
     lines = []
     for (dataset, descriptor, params), methods in sections.items():
         seeds = max(len(v) for v in methods.values())
         lines += [f"### {dataset} ({descriptor}{', ' + params if params else ''}; {seeds} seed(s))", "",
                   "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         for method, rs in methods.items():
-            n = len(rs)
             lines.append("| " + " | ".join([
-                method, _cell(_mean(rs, "keyframes"), ".0f", n), _cell(_mean(rs, "improvement_t_pct"), ".1f", n, " %"),
-                _cell(_mean(rs, "improvement_r_pct"), ".1f", n, " %"), _cell(_mean(rs, "f1_max"), ".3f", n),
-                _cell(_mean(rs, "memory_mib"), ".2f", n, " MiB"),
-                _cell(_mean(rs, "memory_vs_reference_pct"), ".0f", n, " %"),
-                _cell(_mean(rs, "time_s"), ".1f", n, " s"), _cell(_mean(rs, "fps"), ".1f", n),
-                _cell(_mean(rs, "backend_p99_ms"), ".1f", n, " ms")]) + " |")
+                method, _cell(_mean(rs, "keyframes"), ".0f"), _cell(_mean(rs, "improvement_t_pct"), ".1f", " %"),
+                _cell(_mean(rs, "improvement_r_pct"), ".1f", " %"), _cell(_mean(rs, "f1_max"), ".3f"),
+                _cell(_mean(rs, "memory_mib"), ".2f", " MiB"),
+                _cell(_mean(rs, "memory_vs_reference_pct"), ".0f", " %"),
+                _cell(_mean(rs, "time_s"), ".1f", " s"), _cell(_mean(rs, "fps"), ".1f"),
+                _cell(_mean(rs, "backend_p99_ms"), ".1f", " ms")]) + " |")
         lines.append("")
-        lines += _seed_lines(methods)
+        spread = _seed_lines(methods)
+        lines += spread
+        lines += _na_notes(methods, {**({k: label for k, (label, _) in SEED_METRICS.items()} if spread else {}),
+                                     **shown})
     return "\n".join(lines)
 
 
@@ -167,7 +239,7 @@ def _figures(cells: list[dict[str, Any]], rows: list[dict[str, Any]], reference:
     diffs: dict[str, list[float]] = defaultdict(list)
     for r in rows:
         ref = ref_ate.get((r["dataset"], r["descriptor"], r["parameters"], r["seed"]))
-        if ref is not None and r["method"] != reference:
+        if ref is not None and r["ate_after_m"] is not None and r["method"] != reference:  # else n/a: see notes
             diffs[r["method"]].append(r["ate_after_m"] - ref)
     if diffs:
         plot_ate_difference(folder / "ate_difference.png", diffs, title=f"ATE after optimisation minus {reference}",
@@ -216,9 +288,11 @@ def _figures(cells: list[dict[str, Any]], rows: list[dict[str, Any]], reference:
     return names
 
 
-def write_report(results_dir: str | os.PathLike, reference: str | None = None) -> Path:
+def write_report(results_dir: str | os.PathLike, reference: str | None = None,
+                 finished: FinishedCells | None = None) -> Path:
     """Write results.csv, results.md, figures/ and report.md into `results_dir` from the finished cells of its
-    grid.yaml; return report.md. `reference` (default: the grid's) must be one of the grid's methods."""
+    grid.yaml; return report.md. `reference` (default: the grid's) must be one of the grid's methods.
+    `finished`: cells already read from this folder (folder.finished_cells, by a resume), not read again."""
     out = Path(results_dir)
     grid, expected = _grid_of(out)
     methods = grid.labels()
@@ -227,7 +301,7 @@ def write_report(results_dir: str | os.PathLike, reference: str | None = None) -
     elif reference not in methods:
         raise InputError(f"--reference {reference!r}: not a method of this experiment; available: "
                          f"{', '.join(methods)}")
-    cells = _finished(out, expected)
+    cells = _finished(out, expected, finished)
     rows = make_rows(cells, reference)
     write_text_atomic(out / "results.csv", rows_csv(rows, COLUMNS))
     table = table2_markdown(rows)

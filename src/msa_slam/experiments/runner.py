@@ -20,8 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from msa_slam.errors import InputError
-from msa_slam.experiments.folder import (CELL_FILE, KIND, cell_dir, check_versions, read_cell, stale_cells,
-                                        write_grid)
+from msa_slam.experiments.folder import (CELL_FILE, KIND, cell_dir, check_versions, finished_cells, read_cell,
+                                        stale_cells, write_grid)
 from msa_slam.experiments.grid import Cell, GridSpec, check_datasets, expand
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, staged_dir
@@ -126,22 +126,18 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
         _check_scheduler(scheduler)
     with open_result_folder(out, kind=KIND, default_parent=DEFAULT_PARENT, overwrite=overwrite,
                             resume=True) as folder:
-        if not overwrite and folder.path.is_dir():
-            check_versions(folder.path, cells)
+        finished = {} if overwrite or not folder.path.is_dir() else finished_cells(folder.path, cells)
+        check_versions(folder.path, finished)
         folder.prepare_in_place(fresh=overwrite, grows=("cells",))
         run = GridRun(folder.path)
         (run.out / "cells").mkdir(exist_ok=True)
         write_grid(run.out, grid)
         clean_partials(run.out)
         run.stale = stale_cells(run.out, cells)
-        todo = []
-        for cell in cells:
-            if is_finished(run.out, cell):
-                run.skipped.append(cell.id)
-            else:
-                todo.append(cell)
+        run.skipped = [cell.id for cell in cells if cell.id in finished]
+        todo = [cell for cell in cells if cell.id not in finished]
         _run_cells(grid, todo, run, scheduler, workers, client, quiet)
-        write_report(run.out)
+        write_report(run.out, finished=finished)
         folder.record_files()
     return run
 

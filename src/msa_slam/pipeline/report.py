@@ -8,18 +8,29 @@ from typing import Any, Collection
 import numpy as np
 
 import msa_slam
+from msa_slam.datasets.options import SourceOptions
 from msa_slam.evaluation import KITTI_LENGTHS_M, NA, PROCESS_RSS_LABEL, fmt, notes, segment_errors
 from msa_slam.evaluation.full_rate import STEP_FRAMES, path_length
 from msa_slam.io.tables import mib
 from msa_slam.pipeline.online_config import NO_TIMESTAMPS
 from msa_slam.slam import RunResult
-from msa_slam.viz.labels import sampler_label
+from msa_slam.viz.labels import display_name, sampler_label
 
 
 def notes_markdown(metrics: dict[str, Any]) -> list[str]:
     """report.md lines: why each n/a metric is unavailable, then the warnings (nothing when all is well)."""
     items = notes(metrics)
     return ["Notes:", "", *(f"- {item}" for item in items), ""] if items else []
+
+
+def scans_read(source: SourceOptions) -> str:
+    """Which scans of the dataset a run read (--first, --jump, -n), with the options that chose them: a
+    result on the first 200 scans is not one on the whole sequence, and the frame count alone cannot tell
+    a short sequence from a cut one."""
+    parts = ([f"from scan {source.first} (--first {source.first})"] if source.first else []) + (
+        [f"one scan in {source.jump} (--jump {source.jump})"] if source.jump > 1 else []) + (
+        [f"at most {source.frames} scans (-n {source.frames})"] if source.frames is not None else [])
+    return ", ".join(parts) or "every scan"
 
 
 def rpe_segments(gt: np.ndarray | None) -> tuple[str, str]:
@@ -137,8 +148,9 @@ def report_markdown(result: RunResult, figures: list[str], files: Collection[str
     after = "iSAM2" if online else "optimised"
     rpe_span, rpe_text = rpe_segments(result.gt_poses)
     lines = [
-        f"# {m['method']}{' online' if online else ''} on {m['sequence']} ({m['mode']} loops)", "",
+        f"# {m['method']}{' online' if online else ''} on {display_name(m['sequence'])} ({m['mode']} loops)", "",
         f"Sampler: {sampler_label(cfg.sampler, cfg.sampler_params)}.", "",
+        f"Dataset `{cfg.dataset}` (sequence {m['sequence']}), {scans_read(cfg.source)}: "
         f"{m['frames']} frames -> {m['keyframes']} keyframes; {m['candidates']} loop candidates "
         f"(similarity >= {cfg.similarity_threshold}), {m['verified']} verified, "
         + (f"{m['false_loops']} false (ground-truth distance > {cfg.loop_radius} m)." if result.gt_poses is not None

@@ -1,5 +1,6 @@
 """Names as a person reads them in figure titles and reports: cache hashes dropped from sequence names
-(`figure-eight_hdl64_32fb48a...` -> `figure-eight (hdl64)`), samplers with the parameters a run gave them."""
+(`figure-eight_hdl64_32fb48a...` -> `figure-eight (hdl64)`), samplers with the parameters a run gave them,
+counts with their noun in the right number ("1 loop", "7 loops")."""
 
 from __future__ import annotations
 
@@ -24,3 +25,9 @@ def sampler_label(sampler: str, params: Mapping[str, Any]) -> str:
     """A sampler with the parameters the run gave it, e.g. `constant (distance=2)`; the name alone with none."""
     given = ", ".join(f"{key}={value}" for key, value in sorted(params.items()))
     return f"{sampler} ({given})" if given else sampler
+
+
+def counted(n: int, noun: str) -> str:
+    """`n` and `noun`, the noun in the plural unless `n` is 1 ("1 loop", "0 loops", "7 loops"): a title reading
+    "1 loops" looks like a typo and makes a reader doubt the number."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"

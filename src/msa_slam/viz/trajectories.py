@@ -19,6 +19,7 @@ from matplotlib.collections import LineCollection  # noqa: E402
 from matplotlib.colors import Normalize  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 
+from msa_slam.viz.labels import counted  # noqa: E402
 from msa_slam.viz.save import save_figure  # noqa: E402
 
 
@@ -49,9 +50,9 @@ def _draw(ax, gt_xy: np.ndarray, panel: TrajectoryPanel, norm: Normalize, cmap: 
     for pairs, colour, marker in ((panel.loops or (), TRUE_LOOP, "o"), (panel.false_loops, FALSE_LOOP, "X")):
         for a, b in pairs:
             ax.plot(*panel.xy[[a, b]].T, color=colour, lw=1.2, zorder=4, marker=marker, ms=3.5, mfc="none", mew=0.8)
-    counts = "" if panel.loops is None else (f", {len(panel.loops)} loops" + (
+    counts = "" if panel.loops is None else (f", {counted(len(panel.loops), 'loop')}" + (
         f", {len(panel.false_loops)} false" if len(panel.false_loops) else ""))
-    ax.set_title(f"{panel.title}\n{len(panel.xy)} keyframes{counts}", fontsize=8)
+    ax.set_title(f"{panel.title}\n{counted(len(panel.xy), 'keyframe')}{counts}", fontsize=8)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]", fontsize=8)
     ax.set_ylabel("y [m]", fontsize=8)
