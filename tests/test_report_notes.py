@@ -201,3 +201,12 @@ def test_run_report_names_the_sequence_readably_and_the_scans_read(sequence, odo
     assert display_name(sequence.name) != sequence.name  # the simulated sequence's cache name has a hash
     assert title == f"# {cfg.name} on {display_name(sequence.name)} ({cfg.mode} loops)"
     assert f"Dataset `{sequence}` (sequence {sequence.name}), at most 80 scans (-n 80): 80 frames -> " in report
+
+
+def test_invalid_config_yaml_is_one_line_naming_line_and_column(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text("sampler: msa\nsampler_params: {window: 8\n")
+    result = CliRunner().invoke(app, ["run", "--config", str(path), "--out", str(tmp_path / "o"), "--quiet"])
+    assert isinstance(result.exception, InputError)
+    assert str(result.exception).startswith(f"{path}: not valid YAML at line 3, column 1: ")
+    assert "\n" not in str(result.exception) and not (tmp_path / "o").exists()

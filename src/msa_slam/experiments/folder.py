@@ -20,8 +20,9 @@ import yaml
 
 import msa_slam
 from msa_slam.errors import InputError
-from msa_slam.experiments.grid import Cell, GridSpec, expand, parse_grid, read_yaml
+from msa_slam.experiments.grid import Cell, GridSpec, expand, parse_grid
 from msa_slam.io.atomic import write_text_atomic
+from msa_slam.io.yaml_file import read_yaml
 from msa_slam.io.outputs import OutputError
 
 KIND = "experiment"  # the result-folder kind of msa_slam.io.outputs

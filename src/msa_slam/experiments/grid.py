@@ -32,12 +32,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal, Mapping
 
-import yaml
 from pydantic import (BaseModel, ConfigDict, Field, StrictInt, ValidationError, field_validator,
                       model_validator)
 
 from msa_slam.config import validation_message
 from msa_slam.errors import InputError
+from msa_slam.io.yaml_file import read_yaml
 
 GRID_DIR = Path(__file__).parent / "grids"
 
@@ -228,28 +228,6 @@ def load_grid(path: str | os.PathLike) -> GridSpec:
         presets = ", ".join(sorted(p.stem for p in GRID_DIR.glob("*.yaml")))
         raise InputError(f"{path}: grid file not found (shipped presets: {presets})")
     return parse_grid(read_yaml(path), str(path))
-
-
-def read_yaml(path: Path) -> Any:
-    """The YAML document in `path` (OSError to the caller). A file that is not UTF-8 text or not valid YAML is
-    one InputError line naming the file, the line and column and the problem: PyYAML's own message spans up
-    to 7 lines with the offending text quoted, which a one-line error of the CLI cannot hold."""
-    try:
-        return yaml.safe_load(path.read_text())
-    except UnicodeDecodeError as exc:
-        raise InputError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
-    except yaml.MarkedYAMLError as exc:
-        mark = exc.problem_mark or exc.context_mark
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        problem = exc.problem or exc.context
-        context = ""
-        if exc.problem and exc.context:
-            start = exc.context_mark
-            context = f" ({exc.context}" + (f" started at line {start.line + 1}, column {start.column + 1}"
-                                            if start and start is not mark else "") + ")"
-        raise InputError(f"{path}: not valid YAML{where}: {problem}{context}") from None
-    except yaml.YAMLError as exc:  # e.g. a control character: no line and column, only a position
-        raise InputError(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from None
 
 
 def slug(text: str) -> str:

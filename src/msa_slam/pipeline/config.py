@@ -12,7 +12,6 @@ import os
 from pathlib import Path
 from typing import Any, Literal, Mapping, get_args
 
-import yaml
 from pydantic import BaseModel, Field, TypeAdapter, ValidationError
 
 from msa_slam.backend.graph import GraphConfig
@@ -20,6 +19,7 @@ from msa_slam.config import StageConfig, check_partial
 from msa_slam.datasets.options import SourceOptions
 from msa_slam.errors import InputError
 from msa_slam.io.params import parse_key_value
+from msa_slam.io.yaml_file import read_yaml
 from msa_slam.registration.verify import VerifierConfig
 
 
@@ -157,10 +157,7 @@ def read_config_file(path: str | os.PathLike, model: type[RunConfig] = RunConfig
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: config file not found")
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as exc:
-        raise InputError(f"{path}: not valid YAML ({exc})") from None
+    data = read_yaml(path) or {}
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a mapping of config keys, got {type(data).__name__}")
     check_partial(model, data, str(path))
