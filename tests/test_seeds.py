@@ -8,7 +8,7 @@ from typer.testing import CliRunner
 from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.evaluation.spread import paired_verdict, seed_ranks, spreads
-from msa_slam.pipeline.seeds import parse_seeds, seed_markdown, seed_summary, seeded_datasets
+from msa_slam.pipeline.seeds import SEED_METRICS, parse_seeds, seed_markdown, seed_summary, seeded_datasets
 
 
 def test_ranks_follow_the_metric_direction_and_skip_missing_values():
@@ -65,6 +65,18 @@ def test_seed_table_gives_each_metric_one_number_of_decimals():
     # ATE crosses 10 m between seeds yet keeps 3 decimals; counts (a mean over seeds) take 1
     assert "| 10.500 ± 1.000 |" in text and "| 1.500 ± 1.000 |" in text and "| 41.0 ± 1.0 |" in text
     assert "100-800" not in text  # each seed's comparison.md names the segment lengths its trajectory covers
+
+
+def test_seed_table_says_why_a_value_is_n_a_or_has_no_spread():
+    rows = {s: [{"method": "all", "pr_auc": None, "ate_after_m": 1.0 if s == 0 else None},
+                {"method": "msa", "pr_auc": 0.9, "ate_after_m": 2.0 + s}] for s in range(3)}
+    text = seed_markdown(seed_summary(rows))
+    assert "| all | n/a¹ | n/a¹ | 1.000² |" in text
+    assert "¹ n/a: the value is n/a on every seed" in text and "² known on one seed only" in text
+    assert "| all | n/a, n/a, n/a | n/a, n/a, n/a | 1, n/a, n/a |" in text and "Ranks: n/a where that seed has no value" in text
+    full = seed_markdown(seed_summary({s: [{"method": "msa", **{k: 1.0 + s for k in SEED_METRICS}}]
+                                       for s in range(3)}))
+    assert "¹" not in full and "²" not in full and "Ranks: n/a" not in full
 
 
 def test_seeds_are_parsed_and_only_simulated_data_takes_them():

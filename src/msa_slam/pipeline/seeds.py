@@ -79,11 +79,20 @@ def _value(row: Mapping[str, Any] | None, column: str) -> float | None:
 
 
 def _cell(column: str, entry: Mapping[str, Any]) -> str:
-    """mean ± std with the column's decimals (evaluation.display.spec_for)."""
+    """mean ± std with the column's decimals (evaluation.display.spec_for); a value known on one seed only is
+    shown alone, marked (SEED_NOTES says why)."""
     if entry["mean"] is None:
-        return NA
+        return NA + "¹"
     digits = spec_for(column)
+    if entry["std"] is None:
+        return f"{fmt(entry['mean'], digits)}²"
     return f"{fmt(entry['mean'], digits)} ± {fmt(entry['std'], digits)}"
+
+
+# Why a cell of the seed tables holds no (full) figure: the seeds' own reports give each value's reason.
+SEED_NOTES = ["¹ n/a: the value is n/a on every seed (each seed's report under seeds/seed-<n>/ says why).",
+              "² known on one seed only: no spread over seeds.",
+              "Ranks: n/a where that seed has no value for the method."]
 
 
 def seed_markdown(summary: Mapping[str, Any]) -> str:
@@ -94,7 +103,10 @@ def seed_markdown(summary: Mapping[str, Any]) -> str:
     labels = [m["label"] for m in metrics.values()]
     lines = [f"Seeds {', '.join(map(str, seeds))}: mean ± sample std (ddof 1) over the seeds.", "",
              "| method | " + " | ".join(labels) + " |", "|" + "---|" * (len(labels) + 1)]
-    lines += [f"| {m} | " + " | ".join(_cell(k, e["methods"][m]) for k, e in metrics.items()) + " |" for m in methods]
+    cells = [[_cell(k, e["methods"][m]) for k, e in metrics.items()] for m in methods]
+    lines += [f"| {m} | " + " | ".join(row) + " |" for m, row in zip(methods, cells)]
+    marks = [note for mark, note in zip("¹²", SEED_NOTES) if any(c.endswith(mark) for row in cells for c in row)]
+    lines += ["", *marks] if marks else []
     ranked = {k: e for k, e in metrics.items() if e["higher_is_better"] is not None}
     lines += ["", "Rank per seed (1 = best, among the methods with a value; seeds " + ", ".join(map(str, seeds))
               + "):", "",
@@ -102,6 +114,8 @@ def seed_markdown(summary: Mapping[str, Any]) -> str:
               "|" + "---|" * (len(ranked) + 1)]
     lines += [f"| {m} | " + " | ".join(", ".join(NA if r is None else str(r) for r in e["methods"][m]["ranks"])
                                         for e in ranked.values()) + " |" for m in methods]
+    if any(r is None for e in ranked.values() for m in methods for r in e["methods"][m]["ranks"]):
+        lines += ["", SEED_NOTES[2]]
     baselines = [m for m in methods if m != REFERENCE]
     if any(e["msa_vs"] for e in ranked.values()):
         lines += ["", f"MSA against each baseline, {summary['test']} over the seeds: does the difference exceed "
