@@ -51,9 +51,9 @@ def calls(monkeypatch):
     done: list[int] = []
     real = compare._comparison
 
-    def counting(configs, tmp, quiet, sweep):
+    def counting(configs, tmp, *args):
         done.append(int(configs[0].dataset.rsplit("seed=", 1)[1]))
-        return real(configs, tmp, quiet, sweep)
+        return real(configs, tmp, *args)
 
     monkeypatch.setattr(compare, "_comparison", counting)
     return done
@@ -67,11 +67,11 @@ def _interrupt_on_seed_1(monkeypatch):
     """Seed 1's work writes part of its folder, then dies (as a crash or Ctrl-C would)."""
     real = compare._comparison
 
-    def failing(configs, tmp, quiet, sweep):
+    def failing(configs, tmp, *args):
         if configs[0].dataset.endswith("seed=1"):
             (tmp / "comparison.md").write_text("half")
             raise KeyboardInterrupt
-        return real(configs, tmp, quiet, sweep)
+        return real(configs, tmp, *args)
 
     monkeypatch.setattr(compare, "_comparison", failing)
 

@@ -271,6 +271,24 @@ def _write_bag(path: Path, kind: str) -> None:
         writer.write(conns["/other"], stamps[0], store.serialize_cdr(_cloud_msg(store, 9, stamps[0]), msgtype))
 
 
+def test_a_damaged_first_bag_message_stops_only_a_run_that_reads_it(tmp_path):
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store, msgtype, bag = get_typestore(Stores.ROS1_NOETIC), "sensor_msgs/msg/PointCloud2", tmp_path / "run.bag"
+    with Writer(bag) as writer:
+        conn = writer.add_connection("/points", msgtype, typestore=store)
+        for k in range(N):
+            msg = _cloud_msg(store, k, 1_700_000_000_000_000_000 + k * 100_000_000)
+            if k == 0:  # its first field renamed: no x
+                msg.fields[0] = store.types["sensor_msgs/msg/PointField"](name="a", offset=0, datatype=7, count=1)
+            writer.write(conn, 1_700_000_000_000_000_000 + k * 100_000_000, store.serialize_ros1(msg, msgtype))
+    seq = open_dataset(bag)
+    assert len(seq) == N and seq.select(first=1).point_times
+    with pytest.raises(InputError, match=r"run.bag /points message 0: PointCloud2 has fields .*needs x, y and z"):
+        seq.select(first=0)
+
+
 @pytest.mark.parametrize("kind", ["ros1", "ros2", "mcap"])
 def test_bags_by_topic(tmp_path, kind):
     bag = tmp_path / ("run.bag" if kind == "ros1" else "run")
@@ -285,6 +303,7 @@ def test_bags_by_topic(tmp_path, kind):
     np.testing.assert_allclose(seq.times - seq.times[0], 0.1 * np.arange(N), atol=1e-6)
     np.testing.assert_allclose(seq[2].points, _points(2), atol=1e-6)
     np.testing.assert_allclose(seq[2].timestamps, np.arange(40) * 1e-6)
+    assert seq.point_times
     part = seq.select(first=1, jump=2)
     np.testing.assert_allclose(part[1].points, _points(3), atol=1e-6)
     from msa_slam.io.cache import sequence_identity

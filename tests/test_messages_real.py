@@ -14,12 +14,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from msa_slam.cli.config import check_window
 from msa_slam.cli.options import WINDOW_FIX
 from msa_slam.datasets import check_scan_folder, open_dataset
 from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses, write_poses
 from msa_slam.pipeline.config import apply_params, make_config
+from msa_slam.pipeline.frontend import check_window
 from msa_slam.types import validate_poses
 
 IDENTITY = "1 0 0 0 0 1 0 0 0 0 1 0"

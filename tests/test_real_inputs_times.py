@@ -16,6 +16,8 @@ from msa_slam.datasets import Frame, open_dataset
 from msa_slam.errors import InputError
 from msa_slam.io.cache import sequence_identity
 from msa_slam.odometry import KissOdometry, OdometryCache, sequence_odometry
+from msa_slam.pipeline.config import make_config
+from msa_slam.pipeline.frontend import make_odometry
 from msa_slam.pipeline.online import frame_rate_hz, run_online
 from msa_slam.pipeline.online_config import NO_TIMESTAMPS, make_online_config
 from msa_slam.pipeline.report import _online_lines as online_report_lines
@@ -72,7 +74,7 @@ def test_scans_without_timestamps_are_marked_and_warned_once(tmp_path, caplog):
     untimed = _kitti(tmp_path / "untimed", times=False)
     with caplog.at_level(logging.WARNING, logger="msa_slam.datasets"):
         first = open_dataset(untimed).select()
-        open_dataset(untimed).select(count=3)  # a run opens its dataset again (window check, front end)
+        open_dataset(untimed).select(count=3)  # the next cell of an experiment grid opens it again
         timed = open_dataset(_kitti(tmp_path / "timed")).select()
     assert not first.times_known and timed.times_known
     assert not open_source(str(untimed)).times_known and open_source(str(tmp_path / "timed")).times_known
@@ -109,11 +111,13 @@ def test_deskew_without_per_point_times_is_warned_and_recorded_off(tmp_path, cap
     for k in range(N):
         _write_bin(folder / f"{k}.bin", _points(k))
     cache = OdometryCache(tmp_path / "cache")
+    config = make_config(dataset=str(folder), odometry_params={"max_range": 30.0, "deskew": True})
     for fresh in (True, False):  # computed, then from the cache: both warn and record what was done
+        sequence = open_dataset(folder).select()  # warns once that the scans have no timestamps
         caplog.clear()
-        odometry = KissOdometry(max_range=30.0, deskew=True)
         with caplog.at_level(logging.WARNING, logger="msa_slam.odometry"):
-            poses, from_cache = sequence_odometry(open_dataset(folder), odometry, cache, quiet=True)
+            odometry = make_odometry(config, len(sequence), sequence.point_times)
+            poses, from_cache = sequence_odometry(sequence, odometry, cache, quiet=True)
         assert from_cache is not fresh and odometry.config["data"]["deskew"] is False
         assert [r.getMessage() for r in caplog.records] == [
             "odometry: no per-point times: deskewing has no effect (recorded as deskew false)"]
@@ -123,14 +127,6 @@ def test_deskew_without_per_point_times_is_warned_and_recorded_off(tmp_path, cap
     timed = KissOdometry(max_range=30.0, deskew=True)  # a KITTI layout: times derived from azimuth
     sequence_odometry(open_dataset(_kitti(tmp_path / "kitti")), timed, quiet=True)
     assert timed.config["data"]["deskew"] is True
-
-
-def test_online_frame_without_point_times_turns_deskew_off_once(caplog):
-    odometry = KissOdometry(max_range=30.0, deskew=True)
-    with caplog.at_level(logging.WARNING, logger="msa_slam.odometry"):
-        for k in range(3):
-            odometry.register(_points(k), None, 0.1 * k)
-    assert odometry.config["data"]["deskew"] is False and len(caplog.records) == 1
 
 
 def test_real_time_factor_uses_the_sensor_rate_when_frames_have_no_timestamps(caplog):
@@ -162,7 +158,7 @@ def _coarse(n: int, fail_at: int | None = None) -> FrameSource:
                 raise InputError(f"frame {i}: unreadable")
             yield Frame(i, 0.1 * i, scan.points, scan.gt_pose)
 
-    return FrameSource("coarse", np.stack([s.gt_pose for s in scans]), frames)
+    return FrameSource("coarse", np.stack([s.gt_pose for s in scans]), frames, point_times=False)
 
 
 def test_online_progress_stops_at_the_failing_frame(capsys):

@@ -105,7 +105,9 @@ class LoopClosure:
 class FrameSource:
     """A stream of frames with known length and (when known) ground truth (what the online pipeline reads);
     `path` identifies the sequence for cached odometry (None for scans made in memory); `length` is needed
-    only without ground truth."""
+    only without ground truth; `point_times`: whether the frames carry per-point times (`timestamps`, which
+    deskewing needs): False makes the odometry with deskew off; None (not known) keeps the configured deskew,
+    and KISS-ICP refuses a first frame without them when deskew is on."""
 
     name: str
     gt_poses: np.ndarray | None
@@ -113,6 +115,7 @@ class FrameSource:
     path: Path | None = None
     length: int | None = None
     times_known: bool = True  # False: the frames' times are frame numbers (a recording without timestamps)
+    point_times: bool | None = None
 
     def __len__(self) -> int:
         return len(self.gt_poses) if self.length is None else self.length

@@ -10,7 +10,7 @@ import typer
 from msa_slam.cli.options import (CACHE_HELP, DATASET_HELP, DESCRIPTOR_HELP, MODE_HELP, OVERWRITE_HELP, PARAM_HELP,
                                   out_help, reporting_failed_methods, with_source_options)
 
-# What to change when MSA's window is longer than the frames read (cli.config.check_window): as for run
+# What to change when MSA's window is longer than the frames read (pipeline.frontend.check_window): as for run
 # (-p window reaches msa, pipeline.compare.method_configs), except --sampler, which compare does not have
 COMPARE_WINDOW_FIX = "use a window of at most {frames} frames (-p window={frames}) or -p flush=true"
 COMPARE_PARAM_HELP = (PARAM_HELP + "; sampler parameters (window=8, sampler.lambda_u=5) go to msa, the baselines "
@@ -41,26 +41,20 @@ def compare_command(
     """Run the paper's method set (all, constant 1/2/3 m, entropy, spaciousness, MSA) on one sequence and
     write the Table-I-style comparison; prints the path of its report.md (with --seeds, first the spread over
     seeds)."""
-    from msa_slam.cli.config import cache_option, check_windows
+    from msa_slam.cli.config import cache_option
     from msa_slam.cli.run import batch_config
-    from msa_slam.io.outputs import DEFAULT_RESULTS, check_output
-    from msa_slam.pipeline.compare import MethodsFailed, check_compare_sampler, method_configs, run_compare
-    from msa_slam.pipeline.config import make_config
-    from msa_slam.pipeline.seeds import parse_seeds, seeded_datasets
+    from msa_slam.pipeline.compare import MethodsFailed, check_compare_sampler, run_compare
+    from msa_slam.pipeline.seeds import parse_seeds
 
     given = {"dataset": dataset, "descriptor": descriptor, "odometry": odometry, "mode": mode,
              "cache_dir": cache_option(cache_dir)}
     cfg = batch_config(config, given, param, source)
     check_compare_sampler(cfg)
     seed_list = None if seeds is None else parse_seeds(seeds)
-    first = cfg
-    if seed_list is not None:  # refuse non-simulated data before any work; every seed has the same frames
-        first = make_config({**cfg.dump(), "dataset": seeded_datasets(cfg.dataset, seed_list)[0]})
-    check_output(out, "compare", DEFAULT_RESULTS / "compare", overwrite, resume=seed_list is not None)
-    check_windows(method_configs(first), quiet, COMPARE_WINDOW_FIX)  # opens the dataset: after the --out checks
     with reporting_failed_methods():
-        try:
-            report = run_compare(cfg, out, quiet=quiet, overwrite=overwrite, seeds=seed_list, sweep=sweep)
+        try:  # run_compare checks --out, then (with the dataset opened once) the methods' windows, before any work
+            report = run_compare(cfg, out, quiet=quiet, overwrite=overwrite, seeds=seed_list, sweep=sweep,
+                                 window_fix=COMPARE_WINDOW_FIX)
         except MethodsFailed as exc:  # the spread over the seeds that finished is still worth printing
             _echo_seeds(exc.report, seed_list)
             raise

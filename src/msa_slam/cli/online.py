@@ -40,7 +40,8 @@ def online_command(
 ) -> None:
     """Run the online pipeline frame by frame (odometry, descriptor, sampler, loop detection, verification,
     iSAM2) and write its result folder; prints the path of its report.md."""
-    from msa_slam.cli.config import cache_option, check_window, merge_options, source_options
+    from msa_slam.cli.config import cache_option, merge_options, source_options
+    from msa_slam.pipeline.frontend import check_window
     from msa_slam.errors import InputError
     from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
     from msa_slam.pipeline.online import run_online

@@ -39,7 +39,7 @@ def run_command(
     source: Optional[dict] = None,  # --loader, --gt, ... (added by with_source_options)
 ) -> None:
     """Run one sampler through the batch experiment and write its result folder; prints the path of its report.md."""
-    from msa_slam.cli.config import cache_option, check_windows
+    from msa_slam.cli.config import cache_option
     from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
     from msa_slam.pipeline.batch import run_batch
     from msa_slam.pipeline.results import write_run_files
@@ -48,8 +48,7 @@ def run_command(
              "mode": mode, "cache_dir": cache_option(cache_dir)}
     cfg = batch_config(config, given, param, source)
     with open_result_folder(out, "run", DEFAULT_RESULTS / "run", overwrite=overwrite) as folder:
-        check_windows([cfg], quiet, WINDOW_FIX)
-        result = run_batch(cfg, quiet=quiet)
+        result = run_batch(cfg, quiet=quiet, window_fix=WINDOW_FIX)  # checks the window before any work
         with folder.staging() as tmp:
             write_run_files(result, tmp)
     typer.echo(str(folder.path / "report.md"))

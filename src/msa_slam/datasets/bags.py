@@ -99,8 +99,8 @@ class BagSequence(ScanSequence):
         self.times = check_times(times, lambda i: f"{self.path}: {self.topic} message {i}")
         self._rows = np.arange(len(self.times))
         self.gt_poses = None
-        self.selection = {"topic": self.topic, "rows": self._rows.tolist()}
-        self[0]
+        self.selection = {"topic": self.topic, "rows": self._rows.tolist()}  # no message read yet: select reads
+        # the first one a run reads (a damaged message 0 stops only a run that reads it)
 
     def _pick_topic(self, topic: str | None) -> str:
         clouds = sorted(t for t, info in self._bag.topics.items() if info.msgtype == POINTCLOUD2)

@@ -24,9 +24,10 @@ log = logging.getLogger(__name__)
 class ScanSequence:
     """Scans read lazily from files, with optional times and ground-truth poses (LiDAR frame).
 
-    Opening checks what is cheap to check before any long work: the first scan and that times increase
-    strictly; `select` (which every run calls) checks the sizes of the .bin files it selects, so a scan cut
-    short outside `--first/--jump/-n` does not stop a run; every scan is checked again as it is read. A
+    Opening checks what is cheap to check before any long work and reads no scan: that times increase
+    strictly; `select` (which every run calls) checks the sizes of the .bin files it selects and reads the
+    first of them, so a scan cut short or damaged outside `--first/--jump/-n` (scan 0 with `--first 1`) does
+    not stop a run; every scan is checked again as it is read. A
     `timed_reader` (instead of `reader`) also gives each scan's per-point times, which frames then carry as
     `timestamps`; `point_time_files` (one a scan) are the files those times are read from, part of the
     sequence's identity for caches. `kitti_bins` False: .bin files are not KITTI's 16-byte records (HeLiPR).
@@ -36,6 +37,7 @@ class ScanSequence:
     # Defaults for subclasses that set their own fields (BagSequence: real times, no .bin files).
     times_known = True  # False: `times` are frame numbers, not timestamps
     kitti_bins = True
+    _point_times: bool | None = None  # see point_times: None until a scan was read for it
 
     def __init__(self, path: Path, scan_files: Sequence[Path], gt_poses: np.ndarray | None = None,
                  times: np.ndarray | None = None, reader: Callable[[Path], np.ndarray] = read_cloud,
@@ -58,15 +60,24 @@ class ScanSequence:
         self._reader = reader
         self._timed_reader = timed_reader
         self.kitti_bins = kitti_bins
-        self._read(self.scan_files[0])
 
     def __len__(self) -> int:
         return len(self.scan_files)
 
+    @property
+    def point_times(self) -> bool:
+        """Whether the frames carry per-point times (`Frame.timestamps`, which deskewing needs). That depends
+        on the loader and the scan format, so the first frame tells: `select` reads it (the first scan a run
+        reads, so a broken one fails before any long work); a sequence never selected reads it when asked."""
+        if self._point_times is None:
+            self._point_times = self[0].timestamps is not None
+        return self._point_times
+
     def select(self, first: int = 0, jump: int = 1, count: int | None = None) -> "ScanSequence":
         """Part of the recording: every `jump`-th scan from scan `first`, at most `count` of them (the frames
         keep their times and ground truth; indices restart at 0). What a run reads is known only here, so
-        here the sizes of its .bin files are checked and missing timestamps warned about."""
+        here the sizes of its .bin files are checked, its first scan read (point_times) and missing timestamps
+        warned about."""
         if first < 0 or jump < 1 or (count is not None and count < 1):
             raise InputError(f"{self.path}: bad selection first={first}, jump={jump}, n={count}; need first >= 0, "
                              "jump >= 1, n >= 1")
@@ -79,6 +90,7 @@ class ScanSequence:
         for scan in part.scan_files if part.kitti_bins else ():
             if scan.suffix.lower() == ".bin":
                 check_bin_size(scan)
+        part._point_times = part[0].timestamps is not None
         if not part.times_known:
             _warn_untimed(self.path)
         return part
@@ -228,7 +240,8 @@ def load_cloud_stack(source: str | os.PathLike, n_frames: int) -> list[np.ndarra
 
 @cache
 def _warn_untimed(path: Path) -> None:
-    """Warn once a folder and process: a run may open its dataset more than once (window check, front end)."""
+    """Warn once a folder and process: a run opens its dataset once, but an experiment grid runs its cells
+    on one dataset one after another in one process, each opening it."""
     log.warning("%s: the scans have no timestamps (no times.txt or TUM ground truth); taking frame k to be at k s "
                 "(1 frame/s)", path)
 

@@ -34,7 +34,7 @@ from typing import Iterator
 from msa_slam.io.staging import (MARKER, OutputError, clean_stale, edited_files, foreign_files, is_result_folder,
                                  staged_dir, write_marker)
 
-__all__ = ["DEFAULT_RESULTS", "MARKER", "OutputError", "ResultFolder", "check_output", "is_result_folder",
+__all__ = ["DEFAULT_RESULTS", "MARKER", "OutputError", "ResultFolder", "is_result_folder",
            "open_result_folder", "staged_dir", "timestamped", "write_marker"]
 
 DEFAULT_RESULTS = Path("msa_slam_results")  # parent of the default timestamped output folders
@@ -203,11 +203,9 @@ def _out_target(out: str | os.PathLike) -> Path:
     return target.resolve() if target.name in ("", ".", "..") or target.is_symlink() else target
 
 
-def check_output(out: str | os.PathLike | None, kind: str, default_parent: str | os.PathLike,
+def _check_output(out: str | os.PathLike | None, kind: str, default_parent: str | os.PathLike,
                  overwrite: bool = False, resume: bool = False) -> None:
-    """open_result_folder's checks, without taking the lock: for a command that reads its input before it
-    opens its result folder (compare counts the frames for its samplers' windows), so that a bad --out is
-    still refused first. open_result_folder checks again under the lock."""
+    """open_result_folder's checks of `out`, made again under its lock."""
     if out is None:
         _check_writable(Path(default_parent))
         return
@@ -224,7 +222,7 @@ def open_result_folder(out: str | os.PathLike | None, kind: str, default_parent:
     `out=None` picks a new timestamped folder under `default_parent` (and points `latest` at it).
     Raises OutputError (one line) for a target that must not be written.
     """
-    check_output(out, kind, default_parent, overwrite, resume)
+    _check_output(out, kind, default_parent, overwrite, resume)
     if out is None:
         parent = Path(default_parent)
         parent.mkdir(parents=True, exist_ok=True)
@@ -245,6 +243,26 @@ def open_result_folder(out: str | os.PathLike | None, kind: str, default_parent:
         clean_stale(folder.path)
         if out is not None:  # re-check under the lock: a concurrent run may have finished meanwhile
             _check_target(folder.path, kind, overwrite, resume)
-        yield folder
+        existed = folder.path.exists() or folder.path.is_symlink()
+        try:
+            yield folder
+        except BaseException:
+            if not existed:
+                _remove_if_bare(folder)
+            raise
     finally:
         lock.release()
+
+
+def _remove_if_bare(folder: ResultFolder) -> None:
+    """A folder this run created in place (prepare_in_place) and then failed before writing any file into it
+    but the marker (an input error found once the data was open) is removed, with the `latest` link to it:
+    nothing half-written stays behind. A folder holding results (finished seeds or cells) is kept to resume."""
+    path = folder.path
+    if path.is_symlink() or not path.is_dir() or any(p.name != MARKER and (p.is_symlink() or not p.is_dir())
+                                                     for p in path.rglob("*")):
+        return
+    shutil.rmtree(path)
+    link = path.parent / LATEST
+    if folder.timestamped and link.is_symlink() and os.readlink(link) == path.name:
+        link.unlink()

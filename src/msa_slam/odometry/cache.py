@@ -11,7 +11,6 @@ import numpy as np
 from msa_slam.datasets import ScanSequence, open_dataset
 from msa_slam.errors import InputError
 from msa_slam.io.cache import CacheDir, cache_key, check_entry, input_identity, sequence_identity
-from msa_slam.odometry.kiss import KissOdometry
 from msa_slam.progress import progress_bar
 from msa_slam.types import validate_poses
 
@@ -66,12 +65,11 @@ def sequence_odometry(sequence: ScanSequence, odometry: Odometry, cache: Odometr
                       quiet: bool = False, extra_inputs: Iterable[str | os.PathLike] = ()) -> tuple[np.ndarray, bool]:
     """(N, 4, 4) odometry poses of every frame of `sequence` and whether they came from `cache`.
 
-    `extra_inputs`: files the odometry reads besides the scans (they are part of the cache key). Scans without
-    per-point times turn KISS-ICP's deskewing off before the key is made, so cached and fresh runs record the
-    same; scans without timestamps give the odometry no scan times (see KissOdometry.register).
+    `extra_inputs`: files the odometry reads besides the scans (they are part of the cache key). The key is
+    made from `odometry.config`, so the odometry comes configured for these scans (KISS-ICP's deskewing off
+    when they have no per-point times: pipeline.frontend.make_odometry); scans without timestamps give the
+    odometry no scan times (see KissOdometry.register).
     """
-    if isinstance(odometry, KissOdometry) and odometry.params["deskew"] and sequence[0].timestamps is None:
-        odometry.without_point_times()
     key = None
     if cache is not None:
         key = OdometryCache.key(sequence, odometry.config, extra_inputs)

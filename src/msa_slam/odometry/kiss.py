@@ -125,8 +125,11 @@ class KissOdometry:
         prediction, which is logged as a warning and listed in `unregistered_frames`.
         """
         cloud = as_points(points, where=f"odometry frame {self._frames}")
-        if self._frames == 0 and timestamps is None:
-            self.without_point_times()
+        if self._frames == 0 and timestamps is None and self._icp.config.data.deskew:
+            raise InputError("odometry frame 0: deskew is on but the scan has no per-point times; call "
+                             "without_point_times() first for a source without them (the pipelines do for a "
+                             "FrameSource with point_times=False, see pipeline.frontend.make_odometry) or give "
+                             "deskew=False")
         stamps = None
         if self._icp.config.data.deskew and timestamps is not None:
             stamps = self._point_times(timestamps, len(cloud))
@@ -145,8 +148,9 @@ class KissOdometry:
 
     def without_point_times(self) -> None:
         """The scans carry no per-point times, so deskewing (which needs them) cannot be done: switch it off,
-        with one warning, so that the configuration recorded with the results and in cache keys says what
-        was done (the poses are those of deskew off)."""
+        with one warning, before the first scan and any cache key, so that the configuration recorded with the
+        results and in cache keys says what was done (the poses are those of deskew off). `register` refuses
+        deskew on a first scan without per-point times rather than record a deskew it did not do."""
         if self._icp.config.data.deskew:
             log.warning("odometry: no per-point times: deskewing has no effect (recorded as deskew false)")
             self._icp.config.data.deskew = False

@@ -18,7 +18,7 @@ from threadpoolctl import threadpool_limits
 from msa_slam.backend import PoseGraph
 from msa_slam.errors import InputError
 from msa_slam.pipeline.config import RunConfig
-from msa_slam.pipeline.frontend import Frontend, prepare_frontend
+from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, Frontend, prepare_frontend
 from msa_slam.pipeline.sweep import threshold_sweep
 from msa_slam.place_recognition import precision_recall
 from msa_slam.place_recognition.metrics import reference_protocol_matches
@@ -32,15 +32,17 @@ SWEEP_NOT_RUN = "not run: left out with `--no-sweep` (the demo leaves it out to 
 
 
 def run_batch(config: RunConfig, frontend: Frontend | None = None, quiet: bool = True,
-              sweep: bool = True) -> RunResult:
+              sweep: bool = True, window_fix: str = CONFIG_WINDOW_FIX) -> RunResult:
     """Run one sampler through the batch protocol; pass `frontend` to reuse odometry and descriptors;
-    `sweep=False` leaves out the threshold sweep (metrics["threshold_sweep"] None).
+    `sweep=False` leaves out the threshold sweep (metrics["threshold_sweep"] None). A front end built here
+    first refuses a sampler window the frames read never fill (prepare_frontend; `window_fix`: what the
+    error says to change).
 
     BLAS runs single-threaded: the descriptor searches are many small matrix products, which OpenBLAS
     threads slow down ~10x on a busy 2-core machine.
     """
     if frontend is None:
-        frontend = prepare_frontend(config, quiet)
+        frontend = prepare_frontend(config, quiet, window_fix=window_fix)
     elif not frontend.matches(config):
         raise InputError("run_batch: the given front end was built with other odometry/descriptor settings")
     load_kernels(config.sampler, config.sampler_params, frontend.descriptors.shape[1:])  # not in the timings

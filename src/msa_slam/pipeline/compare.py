@@ -20,8 +20,8 @@ from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, staged_dir
 from msa_slam.io.tables import mib, rows_csv, write_json
 from msa_slam.pipeline.batch import SWEEP_NOT_RUN, run_batch
 from msa_slam.pipeline.config import RunConfig, make_config
-from msa_slam.pipeline.frontend import Frontend, prepare_frontend
-from msa_slam.pipeline.report import rpe_segments
+from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, Frontend, prepare_frontend
+from msa_slam.pipeline.report import rpe_segments, scans_read
 from msa_slam.pipeline.results import reference_xy, trajectory_panels, write_run_files
 from msa_slam.pipeline.seed_folder import (check_seed_folder, clean_leftovers, finished_metrics, left_out_seeds,
                                            reusable_seeds, seed_dir, seed_record, write_record)
@@ -160,8 +160,8 @@ def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: lis
     rpe_text = rpe_segments(results[0].gt_poses)[1]  # every method runs on the same sequence
     cached = " (from cache)" if all(fe.cached.values()) else ""
     front = ", ".join(f"{k} {v:.1f} s" for k, v in fe.timer.seconds.items())
-    lines = [f"# Sampler comparison on {fe.name}", "",
-             f"Dataset `{cfg.dataset}`: {len(fe)} frames. Odometry `{cfg.odometry}`, descriptor `{cfg.descriptor}`, "
+    lines = [f"# Sampler comparison on {display_name(fe.name)}", "",
+             f"Dataset `{cfg.dataset}` (sequence {fe.name}), {scans_read(cfg.source)}: {len(fe)} frames. Odometry `{cfg.odometry}`, descriptor `{cfg.descriptor}`, "
              f"loops: similarity >= {cfg.similarity_threshold}, {cfg.mode} verification (small_gicp residual < "
              f"{cfg.verifier.max_residual} m), GTSAM Levenberg-Marquardt. Shared front end: {front}{cached}.", "",
              f"ATE: the full-rate trajectory (every frame: its preceding keyframe's optimised pose and the "
@@ -240,7 +240,7 @@ class MethodsFailed(Exception):
 def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = True,
                 methods: Sequence[tuple[str, str, dict[str, Any]]] = PAPER_METHODS, overwrite: bool = False,
                 default_parent: Path = DEFAULT_RESULTS / "compare", seeds: Sequence[int] | None = None,
-                sweep: bool = True) -> Path:
+                sweep: bool = True, window_fix: str = CONFIG_WINDOW_FIX) -> Path:
     """Run every method on the sequence of `base` and write the comparison folder; return its report.md.
 
     `out` is checked before any work (msa_slam.io.outputs; None: a new timestamped folder under
@@ -254,28 +254,30 @@ def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = Tr
     finished seeds run with the same settings (msa_slam.pipeline.seed_folder); `overwrite` starts afresh.
 
     `sweep=False` leaves out each method's threshold sweep (pipeline/sweep.py), about half of a method's time.
+    A method whose sampler window the frames read never fill is refused before the shared front end
+    (prepare_frontend; `window_fix`: what the error says to change).
     """
     plans = None if seeds is None else {seed: method_configs(make_config({**base.dump(), "dataset": dataset}), methods)
                                         for seed, dataset in zip(seeds, seeded_datasets(base.dataset, seeds))}
     with open_result_folder(out, "compare", default_parent, overwrite=overwrite, resume=plans is not None) as folder:
         if plans is None:
             with folder.staging() as tmp:
-                _, failed = _comparison(method_configs(base, methods), tmp, quiet, sweep)
+                _, failed = _comparison(method_configs(base, methods), tmp, quiet, sweep, window_fix)
         else:
             if not overwrite:
                 check_seed_folder(folder.path)
             failed = _seed_comparisons(base, plans, folder.prepare_in_place(fresh=overwrite, grows=("seeds",)),
-                                       quiet, sweep)
+                                       quiet, sweep, window_fix)
             folder.record_files()
     if failed:
         raise MethodsFailed(folder.path / "report.md", failed)
     return folder.path / "report.md"
 
 
-def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: bool
+def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: bool, window_fix: str
                 ) -> tuple[list[dict[str, Any]], dict[str, str]]:
     """One comparison folder's files in `tmp`; its table rows and failed methods."""
-    frontend = prepare_frontend(configs[0], quiet)
+    frontend = prepare_frontend(configs[0], quiet, configs, window_fix)
     results, failed = _run_methods(configs, frontend, tmp / "runs", quiet, sweep)
     rows = [table_row(r.metrics) for r in results]
     table = table_markdown(rows, rpe_segments(results[0].gt_poses)[0] if results else "KITTI segments")
@@ -284,7 +286,7 @@ def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: boo
     write_json(tmp / "comparison.json", [r.metrics for r in results])
     figures = _figures(results, tmp / "figures") if results else []
     report = (_report(frontend, results, table, figures) if results
-              else f"# Sampler comparison on {frontend.name}\n")
+              else f"# Sampler comparison on {display_name(frontend.name)}\n")
     if failed:
         report += "\n## Failed methods\n\n" + "".join(f"- {name}: {error} (traceback: runs/{name}/error.txt)\n"
                                                      for name, error in failed.items())
@@ -293,7 +295,7 @@ def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: boo
 
 
 def _seed_comparisons(base: RunConfig, plans: dict[int, list[RunConfig]], out: Path, quiet: bool,
-                      sweep: bool) -> dict[str, str]:
+                      sweep: bool, window_fix: str) -> dict[str, str]:
     """Each seed's comparison (`plans`: seed -> method configs) under out/seeds/, reusing the ones finished
     earlier with the same settings, then the spread over seeds at the top of `out`."""
     records = {seed: seed_record(base.dataset, configs, sweep) for seed, configs in plans.items()}
@@ -307,11 +309,11 @@ def _seed_comparisons(base: RunConfig, plans: dict[int, list[RunConfig]], out: P
         else:
             _say(quiet, f"seed {seed}: running")
             with staged_dir(target) as tmp:
-                _, seed_failed = _comparison(configs, tmp, quiet, sweep)
+                _, seed_failed = _comparison(configs, tmp, quiet, sweep, window_fix)
                 write_record(tmp, records[seed], seed_failed)
             failed.update({f"seed {seed}: {name}": error for name, error in seed_failed.items()})
         rows[seed] = [table_row(m) for m in finished_metrics(target) or []]
-    _write_spread(out, base.dataset, rows, failed, left_out_seeds(out, list(plans)))
+    _write_spread(out, base, rows, failed, left_out_seeds(out, list(plans)))
     return failed
 
 
@@ -320,7 +322,7 @@ def _say(quiet: bool, line: str) -> None:
         print(line, file=sys.stderr, flush=True)
 
 
-def _write_spread(out: Path, dataset: str, rows: dict[int, list[dict[str, Any]]], failed: dict[str, str],
+def _write_spread(out: Path, base: RunConfig, rows: dict[int, list[dict[str, Any]]], failed: dict[str, str],
                   left_out: list[int]) -> None:
     """seeds.md, seeds.csv, seeds.json and report.md at the top of `out`, each replaced atomically."""
     summary = seed_summary(rows)
@@ -329,10 +331,11 @@ def _write_spread(out: Path, dataset: str, rows: dict[int, list[dict[str, Any]]]
     write_text_atomic(out / "seeds.csv", rows_csv(seed_rows(summary), SEED_COLUMNS))
     with atomic_path(out / "seeds.json") as path:
         write_json(path, summary)
-    lines = [f"# Sampler comparison over world seeds: `{dataset}`", "",
+    lines = [f"# Sampler comparison over world seeds: `{base.dataset}`", "",
              "Each seed simulates a different world along the same trajectory; every seed's full comparison "
              "(table, figures, per-method runs) is under seeds/seed-<n>/. Metrics as in those reports (ATE and "
-             "improvement on the full-rate trajectory).", "", table]
+             f"improvement on the full-rate trajectory). Scans read on every seed: {scans_read(base.source)}.", "",
+             table]
     lines += [f"- [seed {s}](seeds/seed-{s}/report.md)" for s in rows]
     if left_out:
         lines += ["", "Also in seeds/, left out of the spread (not among --seeds): "

@@ -11,7 +11,7 @@ import logging
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -26,8 +26,14 @@ from msa_slam.odometry.kiss import PARAMETERS as KISS_PARAMETERS
 from msa_slam.pipeline.config import RunConfig
 from msa_slam.progress import progress_bar
 from msa_slam.pipeline.source import open_sequence
+from msa_slam.sampling import make_sampler
+from msa_slam.slam.backend import MIN_KEYFRAMES
 
 logger = logging.getLogger(__name__)
+
+# What to change when a sampler's window is longer than the frames read (check_window: `frames`, `window`), in
+# the config's terms; the commands name their options instead (cli.options.WINDOW_FIX)
+CONFIG_WINDOW_FIX = "use a window of at most {frames} frames (sampler_params window={frames}) or flush=true"
 
 
 @dataclass
@@ -71,16 +77,23 @@ def pipeline_cache(config: RunConfig) -> Path:
     return cache_root(config.cache_dir) / "pipeline"
 
 
-def make_odometry(config: RunConfig, n_frames: int):
+def make_odometry(config: RunConfig, n_frames: int, point_times: bool = True):
     """KISS-ICP with `odometry_params`, or the pose file named by `config.odometry`: one pose a scan of the
     recording, cut by the same --first/--jump/-n as the scans (a file with one pose a selected scan is
-    taken as it is)."""
+    taken as it is).
+
+    Without per-point times (`point_times` False: the source's frames carry none) KISS-ICP's deskewing is
+    switched off here, before any cache key is made, so that cached and fresh runs (batch and online)
+    record and key what is done."""
     if config.odometry == "kiss":
         try:
-            return KissOdometry(**config.odometry_params)
+            odometry = KissOdometry(**config.odometry_params)
         except TypeError as exc:
             raise InputError(f"odometry kiss: bad parameters {sorted(config.odometry_params)} ({exc}); "
                              f"it takes {', '.join(KISS_PARAMETERS)}") from None
+        if not point_times:
+            odometry.without_point_times()
+        return odometry
     if config.odometry_params:
         raise InputError(f"odometry from a pose file takes no parameters, got {sorted(config.odometry_params)}")
     path = Path(config.odometry).expanduser()
@@ -132,18 +145,39 @@ def compute_descriptors(sequence: ScanSequence, descriptor: Descriptor, cache: C
     return out, False
 
 
-def prepare_frontend(config: RunConfig, quiet: bool = True) -> Frontend:
-    """Open the dataset, then odometry and descriptors for all frames (cached per sequence)."""
+def check_window(config: RunConfig, n_frames: int, fix: str = CONFIG_WINDOW_FIX) -> None:
+    """Before the front end: a sampler window longer than the `n_frames` read never fills, so the run could end,
+    after odometry and descriptors, with too few keyframes for the evaluation. Without the end-of-stream flush
+    only frame 0 is ever a keyframe: an error with `fix` (formatted with `frames` and `window`); with it, the
+    sampler's own warning now rather than after the front end (a warning, as the flush may still pick enough)."""
+    sampler = make_sampler(config.sampler, **config.sampler_params)
+    window = getattr(sampler, "window_size", None)
+    if window is None or n_frames >= window:
+        return
+    if not config.flush:
+        raise InputError(f"sampler {config.name!r}: window={window} is longer than the {n_frames} frames read, so it "
+                         f"never fills and only frame 0 becomes a keyframe (flush is off); the evaluation needs at "
+                         f"least {MIN_KEYFRAMES}: " + fix.format(frames=n_frames, window=window))
+    sampler.expect_frames(n_frames)
+
+
+def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[RunConfig] = (),
+                     window_fix: str = CONFIG_WINDOW_FIX) -> Frontend:
+    """Open the dataset (once: for a large bag that is a full indexing), check that the sampler windows of
+    `samplers` (default: `config`'s; compare: every method's) fit the frames read (check_window, with
+    `window_fix`), then odometry and descriptors for all frames (cached per sequence)."""
     timer = StageTimer()
     with timer.stage("dataset"):
         sequence = open_sequence(config.dataset, config.dataset_kind, config.cache_dir, not quiet, config.source,
                                  config.mode)
+    n = len(sequence)
+    for checked in samplers or (config,):
+        check_window(checked, n, window_fix)
     if sequence.gt_poses is None and config.sample_on == "gt":
         raise InputError(f"dataset {config.dataset!r}: sample_on=gt needs ground-truth poses; this recording has "
                          "none (use sample_on=odometry, or give them with --gt FILE)")
     cache = CacheDir(pipeline_cache(config))
-    n = len(sequence)
-    odometry = make_odometry(config, n)
+    odometry = make_odometry(config, n, sequence.point_times)
     params = dict(config.descriptor_params)
     if config.descriptor == "precomputed":
         params.setdefault("n_frames", n)

@@ -114,14 +114,15 @@ class LiveView(Protocol):
 
 def make_online_odometry(config: OnlineConfig, source: FrameSource, n: int):
     """(odometry object, cached) - gt-noise, a pose file, or KISS-ICP (replayed from the batch pipeline's
-    per-sequence cache when it has this sequence, so grids do not redo it; live otherwise)."""
+    per-sequence cache when it has this sequence, so grids do not redo it; live otherwise; deskew off when
+    the source's frames have no per-point times, as in the batch pipeline's key)."""
     if config.odometry == "gt-noise":
         try:
             return NoisyOdometry(source.gt_poses[:n], seed=config.seed, **config.odometry_params), False
         except TypeError:
             raise InputError(f"odometry gt-noise: bad parameters {sorted(config.odometry_params)}; it takes "
                              "translation_noise, rotation_noise_deg") from None
-    odometry = make_odometry(config, len(source))
+    odometry = make_odometry(config, len(source), source.point_times is not False)
     if config.odometry == "kiss" and source.path is not None:
         cached = OdometryCache(pipeline_cache(config)).load(OdometryCache.key(source.path, odometry.config),
                                                             len(source))
@@ -158,14 +159,18 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     with threadpool_limits(limits=1, user_api="blas"), online_progress(quiet) as bar, closing(backend):
         task = bar.add_task(f"online {config.name}", total=n, fps=0.0, rtf=0.0, kf=0, loops=0)
         start, first_time = time.perf_counter(), None
+        counted = accepted = 0  # backend.loops only grows: the loops counted so far, and how many were accepted
 
         def figures(frames: int, last_time: float, keyframes: int) -> dict[str, Any]:
             """The progress line's fields after `frames` frames."""
+            nonlocal counted, accepted
             if quiet:
                 return {}
+            accepted += sum(c.accepted for c in backend.loops[counted:])
+            counted = len(backend.loops)
             fps = frames / max(time.perf_counter() - start, 1e-9)
             rate = frame_rate_hz(first_time, last_time, frames, config.sensor_rate_hz, times_known)[0]
-            return {"fps": fps, "rtf": fps / rate, "kf": keyframes, "loops": sum(c.accepted for c in backend.loops)}
+            return {"fps": fps, "rtf": fps / rate, "kf": keyframes, "loops": accepted}
 
         for i, frame in enumerate(source.frames()):
             if i >= n:

@@ -61,4 +61,4 @@ def live_source(spec: str) -> FrameSource:
             yield Frame(i, i * dt, points, gt[i])
 
     label = f"live-{name}" + (f"-x{laps}" if laps > 1 else "")
-    return FrameSource(label, gt, frames)
+    return FrameSource(label, gt, frames, point_times=False)  # the simulated frames carry no per-point times
