@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import Callable
 
 import pytest
 import yaml
@@ -16,6 +17,7 @@ from msa_slam.errors import InputError
 from msa_slam.experiments import (expand, is_finished, load_cells, load_grid, make_rows, parse_grid, run_cell,
                                   run_grid, write_report)
 from msa_slam.experiments.folder import write_grid
+from msa_slam.experiments.grid import Cell
 from msa_slam.io.outputs import OutputError, open_result_folder, write_marker
 from test_cli_main import run_cli
 
@@ -114,9 +116,9 @@ def test_dask_local_cluster_runs_two_cells(tmp_path):
 SWEEP = {**TINY, "samplers": ["all", {"sampler": "msa", "sweep": {"lambda_l": [0.0, 1.0]}}]}
 
 
-def _fake_experiment(root: Path, grid_data: dict, memory: dict[str, int], ate_after: dict[str, float]) -> list:
-    """An experiment folder whose grid.yaml is `grid_data` and whose cells are finished with made-up metrics
-    (per method); returns the cells."""
+def finished_experiment(root: Path, grid_data: dict, metrics_of: Callable[[Cell], dict]) -> list:
+    """An experiment folder whose grid.yaml is `grid_data` and whose cells are finished with the metrics
+    `metrics_of(cell)`; returns the cells."""
     grid = parse_grid(grid_data)
     root.mkdir(exist_ok=True)
     write_grid(root, grid)
@@ -124,17 +126,24 @@ def _fake_experiment(root: Path, grid_data: dict, memory: dict[str, int], ate_af
     for cell in cells:
         folder = root / "cells" / cell.id
         folder.mkdir(parents=True)
-        ate = ate_after[cell.method]
-        metrics = {"frames": 100, "keyframes": 50, "candidates": 4, "verified": 3, "false_loops": 0,
-                   "before": {"ate_translation_m": 2.0}, "after": {"ate_translation_m": ate},
-                   "improvement_pct": {"translation": 100 * (2.0 - ate) / 2.0, "rotation": 10.0},
-                   "pr_auc": 0.9, "f1_max": 0.8, "memory_bytes": {"total": memory[cell.method]},
-                   "peak_rss_bytes": 2**20, "time_s": {"backend_total": 1.0}, "fps": 50.0, "backend_fps": 60.0,
-                   "latency_ms": {"backend": {"p99": 12.0}}, "msa_slam_version": msa_slam.__version__}
         (folder / "cell.json").write_text(json.dumps(cell.info()))
-        (folder / "metrics.json").write_text(json.dumps(metrics))
+        (folder / "metrics.json").write_text(json.dumps(metrics_of(cell)))
     write_marker(root, "experiment")  # last: it lists the files above as msa-slam's
     return cells
+
+
+def _fake_experiment(root: Path, grid_data: dict, memory: dict[str, int], ate_after: dict[str, float]) -> list:
+    """finished_experiment with made-up metrics per method (`memory` bytes, `ate_after` metres)."""
+    def metrics(cell: Cell) -> dict:
+        ate = ate_after[cell.method]
+        return {"frames": 100, "keyframes": 50, "candidates": 4, "verified": 3, "false_loops": 0,
+                "before": {"ate_translation_m": 2.0}, "after": {"ate_translation_m": ate},
+                "improvement_pct": {"translation": 100 * (2.0 - ate) / 2.0, "rotation": 10.0},
+                "pr_auc": 0.9, "f1_max": 0.8, "memory_bytes": {"total": memory[cell.method]},
+                "peak_rss_bytes": 2**20, "time_s": {"backend_total": 1.0}, "fps": 50.0, "backend_fps": 60.0,
+                "latency_ms": {"backend": {"p99": 12.0}}, "msa_slam_version": msa_slam.__version__}
+
+    return finished_experiment(root, grid_data, metrics)
 
 
 def _sweep_experiment(root: Path) -> list:

@@ -22,7 +22,7 @@ from msa_slam.experiments.folder import grid_cells, write_grid
 from msa_slam.experiments.report import BATCH_UNTIMED
 from msa_slam.io.outputs import write_marker
 from msa_slam.pipeline.report import scans_read
-from test_experiments import TINY, _fake_experiment
+from test_experiments import TINY, _fake_experiment, finished_experiment
 
 PR_REASON = "no keyframe had an older keyframe to query"
 
@@ -49,18 +49,8 @@ def _metrics(method: str, seed: int, batch: bool) -> dict:
 
 
 def _experiment(root: Path, grid_data: dict) -> list:
-    grid = parse_grid(grid_data)
-    root.mkdir(exist_ok=True)
-    write_grid(root, grid)
-    cells = expand(grid)
-    for cell in cells:
-        folder = root / "cells" / cell.id
-        folder.mkdir(parents=True)
-        (folder / "cell.json").write_text(json.dumps(cell.info()))
-        metrics = _metrics(cell.method, cell.seed, grid.pipeline == "batch")
-        (folder / "metrics.json").write_text(json.dumps(metrics))
-    write_marker(root, "experiment")
-    return cells
+    return finished_experiment(root, grid_data,
+                               lambda cell: _metrics(cell.method, cell.seed, grid_data.get("pipeline") == "batch"))
 
 
 BATCH = {"name": "b", "pipeline": "batch", "datasets": ["sim:test"], "samplers": ["all", "msa"]}
