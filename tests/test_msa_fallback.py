@@ -1,8 +1,9 @@
 """MSA windows whose distance bounds admit no candidate (the reference's fallback to the first and last member)
-are counted in `stats.fallback_windows`, and `finish()` warns when they are most windows."""
+are counted in `stats.fallback_windows`, with one warning once they are most windows so far."""
 
 from __future__ import annotations
 
+import re
 import warnings
 
 import numpy as np
@@ -26,13 +27,17 @@ def walk(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
 def test_tiny_bounds_make_every_window_fall_back_and_warn(mode):
     poses, desc = walk(60)
     sampler = make_sampler("msa", window=6, lambda_l=0.001, lambda_u=0.01, mode=mode)  # dmax ~ 1 cm, steps ~ 1 m
-    sampler.run(poses, desc)
+    with pytest.warns(UserWarning) as caught:  # during the stream: a caller need not finish() it to be told
+        sampler.run(poses, desc)
+    told = [str(w.message) for w in caught if "windows so far" in str(w.message)]
+    assert len(told) == 1 and re.fullmatch(r"msa: 3 of the 3 windows so far had no subset whose consecutive members "
+                                           r"lie within the distance bounds \(last \[0\.001\d*, 0\.01\d*\] m .*"
+                                           r"check lambda_l=0\.001 and lambda_u=0\.01", told[0]), told
     online = sampler.stats.window_optimisations
     assert online > 3 and sampler.stats.fallback_windows == online
-    with pytest.warns(UserWarning, match=rf"msa: {online + 1} of {online + 1} windows had no subset whose consecutive "
-                                         r"members lie within the distance bounds \(last \[0\.001\d*, 0\.01\d*\] m .*"
-                                         r"check lambda_l=0\.001 and lambda_u=0\.01"):
-        sampler.finish()  # the flush window falls back too
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sampler.finish()  # the flush window falls back too, without a second warning
     stats = sampler.stats.as_dict()
     assert stats["fallback_windows"] == stats["window_optimisations"] == online + 1
     assert stats["candidates_evaluated"] == online + 1  # one candidate each: the first and last member
@@ -66,3 +71,21 @@ def test_a_lone_feasible_first_last_pair_is_not_a_fallback():
     assert chosen == forced == WindowResult((0, 2), 1)  # the optimisers report both alike
     assert not fell_back(chosen, translations, 1.0, 3.0)
     assert fell_back(forced, translations, 1.0, 1.5)
+
+
+def test_sample_warns_once_without_flush_and_not_for_its_kernel_warm_up(tmp_path):
+    from typer.testing import CliRunner
+
+    from msa_slam.cli import app
+    from msa_slam.io.poses import write_poses
+
+    poses, desc = walk(40)
+    write_poses(tmp_path / "poses.txt", poses)
+    np.save(tmp_path / "desc.npy", desc)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = CliRunner().invoke(app, ["sample", "--poses", str(tmp_path / "poses.txt"), "--descriptors",
+                                          str(tmp_path / "desc.npy"), "-p", "window=6", "-p", "lambda_l=0.001",
+                                          "-p", "lambda_u=0.01", "--out", str(tmp_path / "out"), "-q"])
+    assert result.exit_code == 0, result.output
+    assert len([w for w in caught if "windows so far had no subset" in str(w.message)]) == 1

@@ -29,7 +29,7 @@ MAX_CANDIDATES_CANONICAL = 2 ** 19 - 2  # N <= 20 with pi="canonical" in fast mo
 MIN_WINDOW_STEP = 0.01  # a frame joins the window only if it moved this far from the last member
 INITIAL_DMIN, INITIAL_DMAX = 1.0, 5.0  # the bounds before the first window is optimised
 DMIN_FLOOR, DMAX_CAP = 0.01, 5.0  # the reference's limits on the bounds, in metres
-FALLBACK_WARN_MIN = 3  # finish() warns from this many fallback windows, when they are also most windows
+FALLBACK_WARN_MIN = 3  # a warning from this many fallback windows, when they are also most windows so far
 
 
 def check_candidate_count(window: int, neighbours: int, mode: str = "exact", pi: str = "reference") -> None:
@@ -74,7 +74,7 @@ class MSASampler(Sampler):
     authors' keyframes) or "canonical" (eigenvectors fixed from the data alone: the same keyframes on
     every machine, msa/canonical.py). Windows whose choice rounding could change are counted in
     `stats.ambiguous` (msa/decision.py); windows whose bounds admitted no candidate in
-    `stats.fallback_windows`, with a warning at `finish()` when they are most of them.
+    `stats.fallback_windows`, with a warning once they are most of them.
     """
 
     name = "msa"
@@ -109,6 +109,7 @@ class MSASampler(Sampler):
         #   so from the second window on the newest member waits for the window after.
         self._index = 0
         self._widx = 0
+        self._fallback_warned = False  # _warn_fallback_windows warns once a stream
         self._avg_step = 0.0  # g of eq. (7): running average step, halved towards each window's mean
         self.dmin, self.dmax = INITIAL_DMIN, INITIAL_DMAX
         self._tree: cKDTree | None = None
@@ -147,23 +148,23 @@ class MSASampler(Sampler):
         """Flush: optimise whatever is left in the window over all its members (not in the reference)."""
         if self.stats.window_optimisations == 0 and self.stats.frames > 0:
             warn_short_stream(self.stats.frames, self.window_size, len(self._window))
-        new: list[int] = []
-        if len(self._window) >= 2:
-            self._update_bounds()
-            new = self._optimise(len(self._window), update_bounds=False)
-        self._warn_fallback_windows()
-        return new
+        if len(self._window) < 2:
+            return []
+        self._update_bounds()
+        return self._optimise(len(self._window), update_bounds=False)
 
     def _warn_fallback_windows(self) -> None:
-        """Most windows admitted no candidate under the distance bounds: their keyframes (each window's first and
-        last member) were then fixed by the window length, not chosen by the score, and nothing else says so."""
+        """Once, as soon as most windows so far (at least FALLBACK_WARN_MIN) admitted no candidate under the
+        distance bounds: their keyframes (each window's first and last member) were then fixed by the window
+        length, not chosen by the score, and nothing else says so (whether or not the stream is finished)."""
         fallbacks, windows = self.stats.fallback_windows, self.stats.window_optimisations
-        if fallbacks < FALLBACK_WARN_MIN or 2 * fallbacks <= windows:
+        if self._fallback_warned or fallbacks < FALLBACK_WARN_MIN or 2 * fallbacks <= windows:
             return
-        warnings.warn(f"msa: {fallbacks} of {windows} windows had no subset whose consecutive members lie within "
-                      f"the distance bounds (last [{self.dmin:.3g}, {self.dmax:.3g}] m for an average step of "
+        self._fallback_warned = True
+        warnings.warn(f"msa: {fallbacks} of the {windows} windows so far had no subset whose consecutive members lie "
+                      f"within the distance bounds (last [{self.dmin:.3g}, {self.dmax:.3g}] m for an average step of "
                       f"{self._avg_step:.3g} m), so each kept only its first and last member; check "
-                      f"lambda_l={self.lambda_l:g} and lambda_u={self.lambda_u:g}", UserWarning, stacklevel=4)
+                      f"lambda_l={self.lambda_l:g} and lambda_u={self.lambda_u:g}", UserWarning, stacklevel=5)
 
     def _optimise(self, n: int, update_bounds: bool = True) -> list[int]:
         """Section IV-C over the window's first n members; returns the frames that became keyframes."""
@@ -176,6 +177,7 @@ class MSASampler(Sampler):
                                      self.dmin, self.dmax, self.weights, self.mode, self._workspace, self.pi)
         self._record(result, members, timer.ms)
         self.stats.fallback_windows += fell_back(result, translations, self.dmin, self.dmax)
+        self._warn_fallback_windows()
         new: list[int] = []  # 4. emit: the chosen members after the first (already a keyframe)
         for pos in result.positions[1:]:
             new += self._add_keyframe(self._window[pos])

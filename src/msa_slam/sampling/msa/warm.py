@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import warnings
 from collections.abc import Mapping
 from multiprocessing.process import BaseProcess
 from typing import Any
@@ -24,14 +25,17 @@ _LOADED: set[tuple[str, tuple[int, ...]]] = set()  # settings whose kernels this
 
 def compile_kernels(params: dict[str, Any], shape: tuple[int, ...]) -> None:
     """Run MSA with `params` on a short synthetic stream of descriptors of `shape` (a straight drive at
-    ~1 m per frame), so that every kernel those settings use is compiled and cached."""
+    ~1 m per frame), so that every kernel those settings use is compiled and cached. Its warnings (the
+    settings' bounds may not suit this stream) are not the user's data's, and are dropped."""
     from msa_slam.sampling import make_sampler
 
     rng = np.random.default_rng(0)
     poses = np.tile(np.eye(4), (_FRAMES, 1, 1))
     poses[:, 0, 3] = np.cumsum(rng.uniform(0.6, 1.4, _FRAMES))
     descriptors = np.abs(np.cumsum(rng.standard_normal((_FRAMES, *shape)), axis=0))
-    make_sampler("msa", **params).run(poses, descriptors)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        make_sampler("msa", **params).run(poses, descriptors)
 
 
 def load_kernels(sampler: str, params: Mapping[str, Any], shape: tuple[int, ...]) -> None:
