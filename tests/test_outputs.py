@@ -198,3 +198,47 @@ def test_unwritable_parent_is_refused_before_work(tmp_path):
     with pytest.raises(OutputError, match="cannot write there"):
         with open_result_folder(blocker / "out", "run", tmp_path):
             pass
+
+
+def _grow(out: Path, tmp_path: Path, units: dict[str, str], overwrite: bool = False) -> None:
+    """One run of a folder that grows in place (as experiment grids do): writes the `units` (cells/<name> with
+    its cell.json and `x.txt` holding the text) and rewrites report.md."""
+    with open_result_folder(out, "experiment", tmp_path, overwrite=overwrite, resume=True) as folder:
+        folder.prepare_in_place(fresh=overwrite, grows=("cells",), unit_record="cell.json")
+        (out / "cells").mkdir(exist_ok=True)
+        for name, text in units.items():
+            with staged_dir(out / "cells" / name) as tmp:
+                (tmp / "cell.json").write_text("{}")
+                (tmp / "x.txt").write_text(text)
+        (out / "report.md").write_text(f"cells: {sorted(p.name for p in (out / 'cells').iterdir())}\n")
+        folder.record_files()
+
+
+def test_a_folder_grown_in_place_never_takes_a_users_files_or_edits_for_its_own(tmp_path):
+    out = tmp_path / "exp"
+    _grow(out, tmp_path, {"a": "first"})
+    (out / "cells" / "mine").mkdir()
+    (out / "cells" / "mine" / "notes.txt").write_text("mine")  # a person's folder beside the cells
+    (out / "cells" / "a" / "mine.txt").write_text("mine too")  # and a file inside a cell
+    (out / "cells" / "c").mkdir()
+    (out / "cells" / "c" / "cell.json").write_text("{}")  # a cell a killed run finished (not listed yet)
+    _grow(out, tmp_path, {"b": "second"})  # a resume: lists its new cell and the killed run's, nothing else
+    with pytest.raises(OutputError, match=r"holds files msa-slam did not write \(cells/a/mine.txt, "
+                                          r"cells/mine/notes.txt\)"):
+        _grow(out, tmp_path, {}, overwrite=True)
+    (out / "cells" / "a" / "mine.txt").unlink()
+    (out / "cells" / "mine" / "notes.txt").unlink()
+    (out / "report.md").write_text("my notes\n")
+    before = tree(out)
+    with pytest.raises(OutputError, match=r"holds files changed since msa-slam wrote them \(report.md\); this run "
+                                          r"would replace them"):
+        _grow(out, tmp_path, {"d": "third"})  # a plain rerun would have replaced report.md
+    assert tree(out) == before
+    (out / "report.md").write_text("cells: ['a', 'b', 'c', 'mine']\n")
+    (out / "cells" / "b" / "x.txt").write_text("edited")  # an edit inside a cell: a resume leaves it alone...
+    _grow(out, tmp_path, {"d": "third"})
+    with pytest.raises(OutputError, match=r"holds files changed since msa-slam wrote them \(cells/b/x.txt\)"):
+        _grow(out, tmp_path, {}, overwrite=True)  # ...and does not take it for msa-slam's
+    (out / "cells" / "b" / "x.txt").write_text("second")
+    _grow(out, tmp_path, {}, overwrite=True)  # all msa-slam's again (the empty folder aside): replaced
+    assert sorted(p.name for p in (out / "cells").iterdir()) == []

@@ -17,7 +17,7 @@ def report_command(
     current grid.yaml (cells of an earlier grid are listed and left out)."""
     from msa_slam.cli.experiment import echo_stale
     from msa_slam.errors import InputError
-    from msa_slam.experiments.folder import KIND, grid_cells, stale_cells
+    from msa_slam.experiments.folder import CELL_FILE, KIND, grid_cells, stale_cells
     from msa_slam.experiments.report import write_report
     from msa_slam.experiments.runner import DEFAULT_PARENT
     from msa_slam.io.outputs import MARKER, is_result_folder, open_result_folder
@@ -26,7 +26,7 @@ def report_command(
         raise InputError(f"{results_dir}: not a folder written by `msa-slam experiment` (no {MARKER} of an "
                          "experiment); nothing written")
     with open_result_folder(results_dir, kind=KIND, default_parent=DEFAULT_PARENT, resume=True) as folder:
-        folder.prepare_in_place(grows=("cells",))
+        folder.prepare_in_place(grows=("cells",), unit_record=CELL_FILE)
         report = write_report(results_dir, reference)
         folder.record_files()
         echo_stale(stale_cells(results_dir, grid_cells(results_dir)[1]))

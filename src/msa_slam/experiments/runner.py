@@ -128,7 +128,7 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
                             resume=True) as folder:
         finished = {} if overwrite or not folder.path.is_dir() else finished_cells(folder.path, cells)
         check_versions(folder.path, finished)
-        folder.prepare_in_place(fresh=overwrite, grows=("cells",))
+        folder.prepare_in_place(fresh=overwrite, grows=("cells",), unit_record=CELL_FILE)
         run = GridRun(folder.path)
         (run.out / "cells").mkdir(exist_ok=True)
         write_grid(run.out, grid)

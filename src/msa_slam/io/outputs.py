@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import json
 import os
 import shutil
 import time
@@ -32,7 +33,7 @@ from pathlib import Path
 from typing import Iterator
 
 from msa_slam.io.staging import (MARKER, OutputError, clean_stale, edited_files, foreign_files, is_result_folder,
-                                 staged_dir, write_marker)
+                                 recorded_digests, staged_dir, write_marker)
 
 __all__ = ["DEFAULT_RESULTS", "MARKER", "OutputError", "ResultFolder", "is_result_folder",
            "open_result_folder", "staged_dir", "timestamped", "write_marker"]
@@ -157,6 +158,9 @@ class ResultFolder:
     timestamped: bool = False
     _lock: _Lock | None = field(default=None, repr=False)
     _not_ours: dict[str, int] = field(default_factory=dict, repr=False)  # growing in place: foreign files, mtimes
+    _grows: tuple[str, ...] = field(default=(), repr=False)
+    _unit_record: str = field(default="", repr=False)
+    _edited: dict[str, tuple[int, str]] = field(default_factory=dict, repr=False)  # in the units: mtime, digest
 
     @contextlib.contextmanager
     def staging(self) -> Iterator[Path]:
@@ -166,13 +170,16 @@ class ResultFolder:
         if self.timestamped:
             point_latest(self.path)
 
-    def prepare_in_place(self, fresh: bool = False, grows: tuple[str, ...] = ()) -> Path:
+    def prepare_in_place(self, fresh: bool = False, grows: tuple[str, ...] = (), unit_record: str = "") -> Path:
         """Create (or reuse) `path` itself with its marker, for outputs that grow in place (experiment grids,
-        `compare --seeds`) in the subfolders `grows` (where msa-slam writes whole folders at a time). `fresh`
+        `compare --seeds`) in the subfolders `grows`, where msa-slam writes whole folders at a time (units: an
+        experiment's cells/<id>, a comparison's seeds/seed-<n>), each holding its `unit_record` file. `fresh`
         (--overwrite, checked: only msa-slam's files) first removes a previous result there, moved aside
-        first so a kill leaves the old result (put back by the next run) or none, never half of one. The
-        files outside `grows` that the marker does not list are remembered, so that record_files lists them
-        only if this run writes them anew (grid.yaml after a killed run), never someone else's."""
+        first so a kill leaves the old result (put back by the next run) or none, never half of one. Reused
+        (not fresh), a folder whose files outside the units changed since msa-slam wrote them is refused (this
+        run rewrites its reports); edits inside the units stay recorded as such (record_files). The files the marker does not list are remembered, so that record_files lists
+        them only if this run writes them anew (grid.yaml after a killed run) or they make a unit no listed
+        file belongs to (one a killed run finished), never someone else's."""
         if fresh and is_result_folder(self.path):
             old = self.path.parent / f".{self.path.name}.old-{os.getpid()}-{time.monotonic_ns()}"
             os.replace(self.path, old)
@@ -180,21 +187,45 @@ class ResultFolder:
         self.path.mkdir(parents=True, exist_ok=True)
         if not is_result_folder(self.path, self.kind):
             write_marker(self.path, self.kind)
-        self._not_ours = {name: (self.path / name).lstat().st_mtime_ns
-                          for name in foreign_files(self.path, outside=grows)}
+        edited = edited_files(self.path)
+        rewritten = [name for name in edited if not any(name.startswith(f"{sub}/") for sub in grows)]
+        if rewritten:
+            raise OutputError(f"--out {self.path}: holds files changed since msa-slam wrote them ({_some(rewritten)}); "
+                              "this run would replace them: copy them elsewhere first or choose another --out")
+        recorded = recorded_digests(self.path)
+        self._edited = {name: ((self.path / name).lstat().st_mtime_ns, recorded[name]) for name in edited}
+        self._not_ours = {name: (self.path / name).lstat().st_mtime_ns for name in foreign_files(self.path)}
+        self._grows, self._unit_record = grows, unit_record
         if self.timestamped:
             point_latest(self.path)
         return self.path
 
     def record_files(self) -> None:
         """After a run that grew the folder in place: list its files as msa-slam's in the marker, but the
-        unlisted ones it found there and left untouched (prepare_in_place)."""
+        unlisted ones it found there and left untouched (prepare_in_place), unless they make a whole unit of
+        msa-slam's (with its record file, and no file of it listed before)."""
+        listed_units = {self._unit(name) for name in json.loads((self.path / MARKER).read_text()).get("files", [])}
         untouched = []
         for name, mtime in self._not_ours.items():
             with contextlib.suppress(FileNotFoundError):  # gone: nothing to list
-                if (self.path / name).lstat().st_mtime_ns == mtime:
+                if (self.path / name).lstat().st_mtime_ns == mtime and not self._whole_unit(name, listed_units):
                     untouched.append(name)
-        write_marker(self.path, self.kind, exclude=untouched)
+        kept = {}  # edits inside the units, left in place: recorded as msa-slam wrote them (an --overwrite refuses)
+        for name, (mtime, digest) in self._edited.items():
+            with contextlib.suppress(FileNotFoundError):
+                if (self.path / name).lstat().st_mtime_ns == mtime:
+                    kept[name] = digest
+        write_marker(self.path, self.kind, exclude=untouched, digests=kept)
+
+    def _unit(self, name: str) -> str | None:
+        """The unit folder (`grows`/<unit>) a relative file name lies in, or None."""
+        parts = name.split("/")
+        return "/".join(parts[:2]) if len(parts) > 2 and parts[0] in self._grows else None
+
+    def _whole_unit(self, name: str, listed_units: set[str | None]) -> bool:
+        unit = self._unit(name)
+        return (unit is not None and unit not in listed_units and bool(self._unit_record)
+                and (self.path / unit / self._unit_record).is_file())
 
 
 def _out_target(out: str | os.PathLike) -> Path:

@@ -13,7 +13,7 @@ import shutil
 import tempfile
 import time
 from pathlib import Path
-from typing import Collection, Iterator
+from typing import Collection, Iterator, Mapping
 
 import msa_slam
 from msa_slam.errors import InputError
@@ -52,15 +52,23 @@ def is_result_folder(path: Path, kind: str | None = None) -> bool:
     return isinstance(meta, dict) and meta.get("tool") == "msa-slam" and (kind is None or meta.get("kind") == kind)
 
 
-def write_marker(folder: Path, kind: str, exclude: Collection[str] = ()) -> None:
+def write_marker(folder: Path, kind: str, exclude: Collection[str] = (), digests: Mapping[str, str] | None = None
+                 ) -> None:
     """Mark `folder` as msa-slam's result of `kind`, listing the files in it now (but `exclude`) as the ones
     msa-slam wrote, with a digest of each: an --overwrite removes nothing else (foreign_files) and nothing
-    changed since (edited_files)."""
-    folder, exclude = Path(folder), set(exclude)
+    changed since (edited_files). `digests` keeps the recorded digest of files changed since (a resume
+    leaves a user's edit in place and must not take it for msa-slam's content)."""
+    folder, exclude, kept = Path(folder), set(exclude), dict(digests or {})
     files = [name for name in _files(folder) if name not in exclude]
     (folder / MARKER).write_text(json.dumps({"tool": "msa-slam", "kind": kind, "version": msa_slam.__version__,
                                              "files": files,
-                                             "digests": {name: _digest(folder / name) for name in files}}) + "\n")
+                                             "digests": {name: kept.get(name) or _digest(folder / name)
+                                                         for name in files}}) + "\n")
+
+
+def recorded_digests(folder: Path) -> dict[str, str]:
+    """The digests a result folder's marker records (none for markers of versions without them)."""
+    return json.loads((Path(folder) / MARKER).read_text()).get("digests", {})
 
 
 def _digest(path: Path) -> str:
@@ -78,7 +86,7 @@ def edited_files(folder: Path) -> list[str]:
     """Files msa-slam wrote in a result folder (its marker lists them) whose content changed since: a user's
     edits, which --overwrite must not remove. Markers of versions without digests list none."""
     folder = Path(folder)
-    digests = json.loads((folder / MARKER).read_text()).get("digests", {})
+    digests = recorded_digests(folder)
     present = {name for name in digests if (folder / name).is_symlink() or (folder / name).is_file()}
     return [name for name, digest in sorted(digests.items()) if name in present and _digest(folder / name) != digest]
 

@@ -23,7 +23,7 @@ from msa_slam.pipeline.config import RunConfig, make_config
 from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, Frontend, prepare_frontend
 from msa_slam.pipeline.report import rpe_segments, scans_read
 from msa_slam.pipeline.results import reference_xy, trajectory_panels, write_run_files
-from msa_slam.pipeline.seed_folder import (check_seed_folder, clean_leftovers, finished_metrics, left_out_seeds,
+from msa_slam.pipeline.seed_folder import (RECORD, check_seed_folder, clean_leftovers, finished_metrics, left_out_seeds,
                                            reusable_seeds, seed_dir, seed_record, write_record)
 from msa_slam.pipeline.seeds import SEED_COLUMNS, seed_markdown, seed_rows, seed_summary, seeded_datasets
 from msa_slam.place_recognition import PRCurve
@@ -266,7 +266,7 @@ def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = Tr
         else:
             if not overwrite:
                 check_seed_folder(folder.path)
-            failed = _seed_comparisons(base, plans, folder.prepare_in_place(fresh=overwrite, grows=("seeds",)),
+            failed = _seed_comparisons(base, plans, folder.prepare_in_place(fresh=overwrite, grows=("seeds",), unit_record=RECORD),
                                        quiet, sweep, window_fix)
             folder.record_files()
     if failed:
