@@ -27,7 +27,7 @@ from msa_slam.pipeline.report import report_markdown
 from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.slam import RunResult
 from msa_slam.viz import TrajectoryPanel, plot_memory, plot_step_times, plot_trajectories
-from msa_slam.viz.labels import display_name, sampler_label
+from msa_slam.viz.labels import counted, display_name, sampler_label
 
 
 def frames_csv(result: RunResult) -> str:
@@ -172,7 +172,8 @@ def _write_figures(result: RunResult, folder: Path) -> list[str]:
     cfg = result.config  # a labelled run (compare's "constant-2m") says its parameters in its label
     method = m["method"] if cfg.label else sampler_label(cfg.sampler, cfg.sampler_params)
     plot_trajectories(folder / "trajectories.png", reference_xy(result), trajectory_panels(result),
-                      title=f"{sequence}: {method}{online} ({m['keyframes']} keyframes, {m['verified']} loops, "
+                      title=f"{sequence}: {method}{online} ({counted(m['keyframes'], 'keyframe')}, "
+                            f"{counted(m['verified'], 'loop')}, "
                             f"{m['mode']} mode)")
     names = ["trajectories.png"]
     if result.memory:
