@@ -177,9 +177,10 @@ class ResultFolder:
         (--overwrite, checked: only msa-slam's files) first removes a previous result there, moved aside
         first so a kill leaves the old result (put back by the next run) or none, never half of one. Reused
         (not fresh), a folder whose files outside the units changed since msa-slam wrote them is refused (this
-        run rewrites its reports); edits inside the units stay recorded as such (record_files). The files the marker does not list are remembered, so that record_files lists
-        them only if this run writes them anew (grid.yaml after a killed run) or they make a unit no listed
-        file belongs to (one a killed run finished), never someone else's."""
+        run rewrites its reports); edits inside the units stay recorded as such (record_files). The files the
+        marker does not list are remembered, so that record_files lists them only if this run writes them anew
+        (grid.yaml after a killed run) or they make a unit no listed file belongs to (one a killed run
+        finished), never someone else's."""
         if fresh and is_result_folder(self.path):
             old = self.path.parent / f".{self.path.name}.old-{os.getpid()}-{time.monotonic_ns()}"
             os.replace(self.path, old)

@@ -75,11 +75,8 @@ def _digest(path: Path) -> str:
     """SHA-256 of a file's bytes, or of a link's target (links are not followed)."""
     if path.is_symlink():
         return hashlib.sha256(os.fsencode(os.readlink(path))).hexdigest()
-    digest = hashlib.sha256()
     with open(path, "rb") as stream:
-        for block in iter(lambda: stream.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+        return hashlib.file_digest(stream, "sha256").hexdigest()
 
 
 def edited_files(folder: Path) -> list[str]:
@@ -91,14 +88,11 @@ def edited_files(folder: Path) -> list[str]:
     return [name for name, digest in sorted(digests.items()) if name in present and _digest(folder / name) != digest]
 
 
-def foreign_files(folder: Path, outside: tuple[str, ...] = ()) -> list[str]:
+def foreign_files(folder: Path) -> list[str]:
     """Files (relative paths) in a result folder that its marker does not list as msa-slam's: someone else put
-    them there, or a run that grows the folder in place was killed before listing its own. With `outside`,
-    only those not under these subfolders."""
-    meta = json.loads((Path(folder) / MARKER).read_text())
-    ours = set(meta.get("files", []))
-    return [name for name in _files(Path(folder))
-            if name not in ours and not any(name.startswith(f"{sub}/") for sub in outside)]
+    them there, or a run that grows the folder in place was killed before listing its own."""
+    ours = set(json.loads((Path(folder) / MARKER).read_text()).get("files", []))
+    return [name for name in _files(Path(folder)) if name not in ours]
 
 
 def _files(folder: Path) -> list[str]:

@@ -266,8 +266,8 @@ def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = Tr
         else:
             if not overwrite:
                 check_seed_folder(folder.path)
-            failed = _seed_comparisons(base, plans, folder.prepare_in_place(fresh=overwrite, grows=("seeds",), unit_record=RECORD),
-                                       quiet, sweep, window_fix)
+            grown = folder.prepare_in_place(fresh=overwrite, grows=("seeds",), unit_record=RECORD)
+            failed = _seed_comparisons(base, plans, grown, quiet, sweep, window_fix)
             folder.record_files()
     if failed:
         raise MethodsFailed(folder.path / "report.md", failed)
