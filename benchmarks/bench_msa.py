@@ -22,6 +22,7 @@ import numpy as np
 import numba
 from numba import njit
 
+from msa_slam.io.provenance import cpu_model
 from msa_slam.sampling import make_sampler
 from msa_slam.sampling.msa import ScoreWeights, fast, optimise_window
 from msa_slam.sampling.msa.eigen import LANE_WORK, LANES, symmetric_eigh, symmetric_eigh_lanes
@@ -198,7 +199,7 @@ def canonical_targets(shapes, repeats: int = 3) -> None:
     targets = {10: 0.5, 16: 10.0, 20: 100.0}
     most = numba.config.NUMBA_NUM_THREADS
     print(f"\nCanonical vs reference pi, fast mode (random-walk streams; reference refuses N > 16); "
-          f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs; ms per window: median over "
+          f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs ({cpu_model()}); ms per window: median over "
           f"{repeats} runs of each run's median window (wall)")
     print(f"{'shape':8} {'N':>3} {'cand/window':>12} {'reference':>10} {f'canon. {most} thr':>13} "
           f"{'(range)':>15} {'canon. 1 thr':>13} {f'all threaded':>13} {'run CPU us/c':>12} {'target ms':>10}")
