@@ -162,7 +162,10 @@ def test_compute_from_raw_scan_and_similarity(model, golden):
     d1 = golden["descriptors"][1]
     assert model.similarity(d0, d1) == pytest.approx(1.0 / (1.0 + np.linalg.norm(d0.astype(np.float64) - d1)), rel=1e-12)
     assert model.similarity(d0, d0) == 1.0
-    np.testing.assert_allclose(model.similarity_many(d0, golden["descriptors"][:2]), [model.similarity(d0, d0), model.similarity(d0, d1)], atol=1e-6)
+    # d0 matches golden[0] only to the network's cross-CPU tolerance (1e-5 above), so compare like with like
+    bank = golden["descriptors"][:2]
+    np.testing.assert_allclose(model.similarity_many(d0, bank), [model.similarity(d0, bank[0]), model.similarity(d0, d1)],
+                               rtol=1e-12)
 
 
 def test_registry_builds_overlap_transformer(weights):
