@@ -26,6 +26,9 @@ from msa_slam.io.cache import CacheDir, locked_temp
 from msa_slam.io.poses import read_poses, write_poses
 from msa_slam.odometry import KissOdometry, OdometryCache
 from msa_slam.pipeline import make_config, prepare_frontend
+from msa_slam.pipeline.online import make_online_odometry
+from msa_slam.pipeline.online_config import make_online_config
+from msa_slam.pipeline.source import open_source
 from msa_slam.sim.sequence import CALIB_TEXT
 
 N_SCANS = 12
@@ -82,7 +85,6 @@ def test_odometry_key_covers_threads_and_versions(data, monkeypatch):
     seq = open_dataset(data)
     config = KissOdometry().config
     key = OdometryCache.key(seq, config)
-    assert OdometryCache.key(data, config) == key  # a caller holding only the folder (online) finds it
     threads = {**config, "registration": {**config["registration"], "max_num_threads": 7}}
     assert OdometryCache.key(seq, threads) != key
     real_version = metadata.version
@@ -99,6 +101,25 @@ def test_odometry_key_covers_the_frame_times(data):
     key = OdometryCache.key(seq, config)
     seq.times = seq.times * 2.0  # the same scans with other times (an edited times.txt): deskewing differs
     assert OdometryCache.key(seq, config) != key
+
+
+def test_online_replays_the_odometry_of_the_scans_it_reads(data, tmp_path, caplog):
+    """Each selection of scans (-n) has its own odometry entry, and online finds the one of the scans it reads:
+    keyed as the whole recording, online -n 6 found the 12 rows of a full run and warned as if it were damaged."""
+    cache = tmp_path / "cache"
+    runs = {frames: prepare_frontend(_config(data, cache, sampler="all", source={"frames": frames}))
+            for frames in (None, 6)}
+    assert not any(run.cached["odometry"] for run in runs.values())
+    assert len(list((cache / "pipeline").glob("odometry-*.npy"))) == 2
+    for frames, run in runs.items():
+        config = make_online_config(dataset=str(data), cache_dir=str(cache), source={"frames": frames})
+        source = open_source(config.dataset, source=config.source)
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            odometry, cached = make_online_odometry(config, source, len(source))
+        assert cached and [r.getMessage() for r in caplog.records] == []
+        replayed = np.stack([odometry.register() for _ in range(len(source))])
+        np.testing.assert_array_equal(replayed, run.odometry)
 
 
 def test_truncated_or_nan_entries_are_recomputed_with_a_warning(data, tmp_path, caplog):

@@ -7,12 +7,14 @@ Points are (P, 3) float32/float64 in the sensor frame.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import TYPE_CHECKING, Any, Callable, Iterator
 
 import numpy as np
 
 from msa_slam.errors import InputError
+
+if TYPE_CHECKING:
+    from msa_slam.datasets import ScanSequence
 
 ROTATION_TOLERANCE = 1e-4
 
@@ -104,15 +106,16 @@ class LoopClosure:
 @dataclass
 class FrameSource:
     """A stream of frames with known length and (when known) ground truth (what the online pipeline reads);
-    `path` identifies the sequence for cached odometry (None for scans made in memory); `length` is needed
-    only without ground truth; `point_times`: whether the frames carry per-point times (`timestamps`, which
+    `sequence`: the scans the frames are read from, as selected (--first/--jump/-n): they key cached odometry
+    as in the batch pipeline (None for scans made in memory); `length` is needed only without ground truth;
+    `point_times`: whether the frames carry per-point times (`timestamps`, which
     deskewing needs): False makes the odometry with deskew off; None (not known) keeps the configured deskew,
     and KISS-ICP refuses a first frame without them when deskew is on."""
 
     name: str
     gt_poses: np.ndarray | None
     frames: Callable[[], Iterator[Any]]  # msa_slam.datasets.Frame objects, in time order
-    path: Path | None = None
+    sequence: ScanSequence | None = None
     length: int | None = None
     times_known: bool = True  # False: the frames' times are frame numbers (a recording without timestamps)
     point_times: bool | None = None

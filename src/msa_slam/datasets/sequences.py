@@ -20,6 +20,9 @@ from msa_slam.types import validate_poses
 
 log = logging.getLogger(__name__)
 
+# Warned when a run reads scans without timestamps (and put in the run's report by the pipelines)
+UNTIMED = "the scans have no timestamps (no times.txt or TUM ground truth); taking frame k to be at k s (1 frame/s)"
+
 
 class ScanSequence:
     """Scans read lazily from files, with optional times and ground-truth poses (LiDAR frame).
@@ -242,8 +245,7 @@ def load_cloud_stack(source: str | os.PathLike, n_frames: int) -> list[np.ndarra
 def _warn_untimed(path: Path) -> None:
     """Warn once a folder and process: a run opens its dataset once, but an experiment grid runs its cells
     on one dataset one after another in one process, each opening it."""
-    log.warning("%s: the scans have no timestamps (no times.txt or TUM ground truth); taking frame k to be at k s "
-                "(1 frame/s)", path)
+    log.warning("%s: %s", path, UNTIMED)
 
 
 def _hidden(path: Path) -> bool:

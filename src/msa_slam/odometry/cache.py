@@ -8,8 +8,7 @@ from typing import Any, Iterable, Mapping, Protocol
 
 import numpy as np
 
-from msa_slam.datasets import ScanSequence, open_dataset
-from msa_slam.errors import InputError
+from msa_slam.datasets import ScanSequence
 from msa_slam.io.cache import CacheDir, cache_key, check_entry, input_identity, sequence_identity
 from msa_slam.progress import progress_bar
 from msa_slam.types import validate_poses
@@ -31,25 +30,17 @@ class OdometryCache:
         self.store = cache if isinstance(cache, CacheDir) else CacheDir(cache)
 
     @staticmethod
-    def key(sequence: ScanSequence | str | os.PathLike, config: Mapping[str, Any],
-            extra_inputs: Iterable[str | os.PathLike] = ()) -> str | None:
-        """Key of the odometry of `sequence` (its scans' identity) with `config` and `extra_inputs` (e.g. the
-        pose file the odometry reads). Given only a folder, it is opened to list its scans; None when that fails."""
-        if not isinstance(sequence, ScanSequence):
-            try:
-                sequence = open_dataset(sequence)
-            except InputError:
-                return None
+    def key(sequence: ScanSequence, config: Mapping[str, Any], extra_inputs: Iterable[str | os.PathLike] = ()) -> str:
+        """Key of the odometry of `sequence` (the identity of the scans it selects: another --first/--jump/-n
+        is another entry) with `config` and `extra_inputs` (e.g. the pose file the odometry reads)."""
         inputs = {"scans": sequence_identity(sequence), "files": input_identity(extra_inputs)}
         return cache_key("odometry", inputs, dict(config), ODOMETRY_LIBRARIES)
 
     def path(self, key: str) -> Path:
         return self.store.path(f"odometry-{key}")
 
-    def load(self, key: str | None, expected_length: int | None = None) -> np.ndarray | None:
+    def load(self, key: str, expected_length: int | None = None) -> np.ndarray | None:
         """Cached poses, or None when absent or bad (truncated, NaN, not rigid, wrong length: then recomputed)."""
-        if key is None:
-            return None
 
         def check(poses: np.ndarray) -> np.ndarray:
             return validate_poses(check_entry(poses, expected_length), "odometry poses")

@@ -21,6 +21,8 @@ from msa_slam.types import as_points
 
 log = logging.getLogger(__name__)
 
+# Logged when deskew is switched off for scans without per-point times (and put in the run's report by the pipelines)
+NO_POINT_TIMES = "odometry: no per-point times: deskewing has no effect (recorded as deskew false)"
 MAX_LOGGED_FRAMES = 5  # frames whose registration problems are logged one by one; the rest are only counted
 _process_threads: int | None = None  # KISS-ICP's thread count, fixed for the whole process at first use
 
@@ -152,7 +154,7 @@ class KissOdometry:
         results and in cache keys says what was done (the poses are those of deskew off). `register` refuses
         deskew on a first scan without per-point times rather than record a deskew it did not do."""
         if self._icp.config.data.deskew:
-            log.warning("odometry: no per-point times: deskewing has no effect (recorded as deskew false)")
+            log.warning(NO_POINT_TIMES)
             self._icp.config.data.deskew = False
 
     def _restart_deskewed(self) -> None:

@@ -18,7 +18,7 @@ from threadpoolctl import threadpool_limits
 from msa_slam.backend import PoseGraph
 from msa_slam.errors import InputError
 from msa_slam.pipeline.config import RunConfig
-from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, Frontend, prepare_frontend
+from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, Frontend, config_as_run, prepare_frontend
 from msa_slam.pipeline.sweep import threshold_sweep
 from msa_slam.place_recognition import precision_recall
 from msa_slam.place_recognition.metrics import reference_protocol_matches
@@ -45,6 +45,7 @@ def run_batch(config: RunConfig, frontend: Frontend | None = None, quiet: bool =
         frontend = prepare_frontend(config, quiet, window_fix=window_fix)
     elif not frontend.matches(config):
         raise InputError("run_batch: the given front end was built with other odometry/descriptor settings")
+    config = config_as_run(config, frontend.sequence.point_times)  # what result.config (config.yaml) records
     load_kernels(config.sampler, config.sampler_params, frontend.descriptors.shape[1:])  # not in the timings
     with threadpool_limits(limits=1, user_api="blas"):
         return _run_backend(config, frontend, quiet, sweep)

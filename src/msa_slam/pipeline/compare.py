@@ -21,7 +21,7 @@ from msa_slam.io.tables import mib, rows_csv, write_json
 from msa_slam.pipeline.batch import SWEEP_NOT_RUN, run_batch
 from msa_slam.pipeline.config import RunConfig, make_config
 from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, Frontend, prepare_frontend
-from msa_slam.pipeline.report import rpe_segments, scans_read
+from msa_slam.pipeline.report import rpe_segments, scans_read, sequence_title
 from msa_slam.pipeline.results import reference_xy, trajectory_panels, write_run_files
 from msa_slam.pipeline.seed_folder import (RECORD, check_seed_folder, clean_leftovers, finished_metrics, left_out_seeds,
                                            reusable_seeds, seed_dir, seed_record, write_record)
@@ -97,6 +97,7 @@ def table_markdown(rows: Sequence[dict[str, Any]], rpe_span: str = "KITTI segmen
 def _figures(results: Sequence[RunResult], folder: Path) -> list[str]:
     folder.mkdir()
     labels = [r.config.name for r in results]
+    sequence = sequence_title(results[0].metrics["sequence"], results[0].config.source, len(results[0]))
     rows = [{k: float("nan") if v is None else v for k, v in table_row(r.metrics).items()} for r in results]
     plot_metric_bars(folder / "metrics.png", labels, {
         "ATE translation, every frame [m]": {"odometry": [r["ate_before_m"] for r in rows],
@@ -105,14 +106,13 @@ def _figures(results: Sequence[RunResult], folder: Path) -> list[str]:
                                              "rotation": [r["improvement_r_pct"] for r in rows]},
         "memory [MiB]": {"keyframes + graph": [r["memory_mib"] for r in rows]},
         "back-end time [s]": {"time": [r["time_s"] for r in rows]},
-    }, title=f"{display_name(results[0].metrics['sequence'])} ({results[0].config.mode} loops)")
+    }, title=f"{sequence} ({results[0].config.mode} loops)")
     gt_xy = reference_xy(results[0])
     panels = [trajectory_panels(r)[1] for r in results]
     plot_trajectories(folder / "trajectories.png", gt_xy, [trajectory_panels(results[0])[0], *panels],
-                      title=f"{display_name(results[0].metrics['sequence'])}: keyframe trajectories of every sampler "
-                      "after optimisation, coloured by ATE", columns=4)
+                      title=f"{sequence}: keyframe trajectories of every sampler after optimisation, coloured by ATE",
+                      columns=4)
     names = ["metrics.png", "trajectories.png"]
-    sequence = display_name(results[0].metrics["sequence"])
     for protocol, file, what in (("paper", "pr_curves.png", "loop candidates per method (paper: keyframe search)"),
                                  ("reference", "pr_curves_reference.png",
                                   "best match per frame (reference example's protocol)")):

@@ -11,18 +11,19 @@ import logging
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Sequence, TypeVar
 
 import numpy as np
 
 from msa_slam.datasets import ScanSequence
+from msa_slam.datasets.sequences import UNTIMED
 from msa_slam.descriptors import Descriptor, make_descriptor
 from msa_slam.errors import InputError
 from msa_slam.evaluation import StageTimer
 from msa_slam.evaluation.sanity import frontend_warnings
 from msa_slam.io.cache import CacheDir, cache_key, cache_root, check_entry, input_identity, sequence_identity
 from msa_slam.odometry import KissOdometry, OdometryCache, PosesFromFile, sequence_odometry
-from msa_slam.odometry.kiss import PARAMETERS as KISS_PARAMETERS
+from msa_slam.odometry.kiss import NO_POINT_TIMES, PARAMETERS as KISS_PARAMETERS
 from msa_slam.pipeline.config import RunConfig
 from msa_slam.progress import progress_bar
 from msa_slam.pipeline.source import open_sequence
@@ -30,6 +31,7 @@ from msa_slam.sampling import make_sampler
 from msa_slam.slam.backend import MIN_KEYFRAMES
 
 logger = logging.getLogger(__name__)
+Config = TypeVar("Config", bound=RunConfig)  # a batch or online (OnlineConfig) run's config
 
 # What to change when a sampler's window is longer than the frames read (check_window: `frames`, `window`), in
 # the config's terms; the commands name their options instead (cli.options.WINDOW_FIX)
@@ -51,7 +53,7 @@ class Frontend:
     cached: dict[str, bool] = field(default_factory=dict)
     descriptor_settings: tuple = (None, None)
     odometry_effective: dict[str, Any] = field(default_factory=dict)  # the odometry's full effective config
-    warnings: list[str] = field(default_factory=list)  # degenerate odometry or ground truth (evaluation.sanity)
+    warnings: list[str] = field(default_factory=list)  # source_warnings, degenerate odometry or ground truth
 
     def __len__(self) -> int:
         return len(self.sequence)
@@ -83,15 +85,15 @@ def make_odometry(config: RunConfig, n_frames: int, point_times: bool = True):
     taken as it is).
 
     Without per-point times (`point_times` False: the source's frames carry none) KISS-ICP's deskewing is
-    switched off here, before any cache key is made, so that cached and fresh runs (batch and online)
-    record and key what is done."""
+    switched off here (deskew_dropped), before any cache key is made, so that cached and fresh runs (batch
+    and online) record and key what is done."""
     if config.odometry == "kiss":
         try:
             odometry = KissOdometry(**config.odometry_params)
         except TypeError as exc:
             raise InputError(f"odometry kiss: bad parameters {sorted(config.odometry_params)} ({exc}); "
                              f"it takes {', '.join(KISS_PARAMETERS)}") from None
-        if not point_times:
+        if deskew_dropped(config, point_times):
             odometry.without_point_times()
         return odometry
     if config.odometry_params:
@@ -110,6 +112,27 @@ def make_odometry(config: RunConfig, n_frames: int, point_times: bool = True):
                          f"{selection}; give one pose a scan of the recording, or one a scan read")
     odometry.select(rows)
     return odometry
+
+
+def deskew_dropped(config: RunConfig, point_times: bool) -> bool:
+    """Whether `config` asks KISS-ICP to deskew scans that have no per-point times (`point_times` False), which
+    make_odometry then switches off."""
+    return config.odometry == "kiss" and not point_times and bool(config.odometry_params.get("deskew"))
+
+
+def config_as_run(config: Config, point_times: bool) -> Config:
+    """`config` as its odometry runs: deskew false when make_odometry switches it off (deskew_dropped), so that
+    config.yaml agrees with metrics.json and re-runs what ran."""
+    if not deskew_dropped(config, point_times):
+        return config
+    return config.model_copy(update={"odometry_params": {**config.odometry_params, "deskew": False}})
+
+
+def source_warnings(config: RunConfig, name: str, times_known: bool, point_times: bool) -> list[str]:
+    """The run's warnings about its scans (`name`) for report.md, each logged once where it is decided: no
+    timestamps (frame k at k s, datasets.sequences), deskew switched off without per-point times (make_odometry)."""
+    return ([f"{name}: {UNTIMED}"] if not times_known else []) + (
+        [NO_POINT_TIMES] if deskew_dropped(config, point_times) else [])
 
 
 DESCRIPTOR_LIBRARIES = ("numpy", "numba", "torch")
@@ -191,10 +214,12 @@ def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[R
         key = descriptor_key(sequence, config.descriptor, config.descriptor_params)
         descriptors, cached["descriptors"] = compute_descriptors(sequence, descriptor, cache if use_cache else None,
                                                                  key, quiet)
+    sanity = frontend_warnings(sequence.gt_poses, poses, sequence.times)
+    for warning in sanity:
+        logger.warning(warning)
+    warnings = [*source_warnings(config, sequence.name, sequence.times_known, sequence.point_times), *sanity]
     frontend = Frontend(sequence, sequence.gt_poses, poses, descriptors, descriptor,
                         _odometry_config(config, n), timer, cached, odometry_effective=dict(odometry.config),
-                        warnings=frontend_warnings(sequence.gt_poses, poses, sequence.times))
-    for warning in frontend.warnings:
-        logger.warning(warning)
+                        warnings=warnings)
     frontend.descriptor_settings = (config.descriptor, config.descriptor_params)
     return frontend

@@ -24,7 +24,7 @@ from msa_slam.errors import InputError
 from msa_slam.evaluation.resources import current_rss_bytes
 from msa_slam.evaluation.sanity import frontend_warnings
 from msa_slam.odometry import NoisyOdometry, OdometryCache, ReplayedOdometry
-from msa_slam.pipeline.frontend import make_odometry, pipeline_cache
+from msa_slam.pipeline.frontend import config_as_run, make_odometry, pipeline_cache, source_warnings
 from msa_slam.pipeline.online_config import NO_TIMESTAMPS, OnlineConfig
 from msa_slam.pipeline.source import open_source
 from msa_slam.progress import LogProgress, Progress, progress_bar
@@ -114,8 +114,9 @@ class LiveView(Protocol):
 
 def make_online_odometry(config: OnlineConfig, source: FrameSource, n: int):
     """(odometry object, cached) - gt-noise, a pose file, or KISS-ICP (replayed from the batch pipeline's
-    per-sequence cache when it has this sequence, so grids do not redo it; live otherwise; deskew off when
-    the source's frames have no per-point times, as in the batch pipeline's key)."""
+    cache when it has the scans this run reads, keyed as there by the selection (--first/--jump/-n), so grids
+    do not redo it; live otherwise; deskew off when the source's frames have no per-point times, as in the
+    batch pipeline's key)."""
     if config.odometry == "gt-noise":
         try:
             return NoisyOdometry(source.gt_poses[:n], seed=config.seed, **config.odometry_params), False
@@ -123,8 +124,8 @@ def make_online_odometry(config: OnlineConfig, source: FrameSource, n: int):
             raise InputError(f"odometry gt-noise: bad parameters {sorted(config.odometry_params)}; it takes "
                              "translation_noise, rotation_noise_deg") from None
     odometry = make_odometry(config, len(source), source.point_times is not False)
-    if config.odometry == "kiss" and source.path is not None:
-        cached = OdometryCache(pipeline_cache(config)).load(OdometryCache.key(source.path, odometry.config),
+    if config.odometry == "kiss" and source.sequence is not None:
+        cached = OdometryCache(pipeline_cache(config)).load(OdometryCache.key(source.sequence, odometry.config),
                                                             len(source))
         if cached is not None:
             return ReplayedOdometry(cached), True
@@ -145,6 +146,9 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     source = source or open_source(config.dataset, config.dataset_kind, config.cache_dir, progress=not quiet)
     n = len(source) if config.max_frames is None else min(len(source), config.max_frames)
     odometry, cached = make_online_odometry(config, source, n)
+    point_times = source.point_times is not False
+    notes = source_warnings(config, source.name, source.times_known, point_times)  # logged where decided
+    config = config_as_run(config, point_times)  # what result.config (config.yaml) records
     descriptor = make_descriptor(config.descriptor, **config.descriptor_params)
     clouds = make_cloud_store(config.cloud_store, config.verifier.voxel_size, config.store_dir)
     load_kernels(config.sampler, config.sampler_params, descriptor.shape)  # before the back end: not in its timings
@@ -153,7 +157,7 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     backend = build_backend(config, descriptor, clouds, graph, n, source.name, config.update_iterations, recorder)
     front_ms = {s: np.zeros(n, dtype=np.float32) for s in STEPS[:2]}
     times_known = source.times_known
-    if not times_known:
+    if not times_known and source.sequence is None:  # a sequence opened from files has said so (UNTIMED)
         logger.warning("online: the frames have no timestamps; the real-time factor is taken against the config's "
                        "sensor_rate_hz (%g Hz)", config.sensor_rate_hz)
     with threadpool_limits(limits=1, user_api="blas"), online_progress(quiet) as bar, closing(backend):
@@ -200,5 +204,5 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     warnings = frontend_warnings(result.gt_poses, result.odometry, result.times)
     for warning in warnings:
         logger.warning(warning)
-    result.metrics["warnings"] = [*warnings, *result.metrics["warnings"]]
+    result.metrics["warnings"] = [*notes, *warnings, *result.metrics["warnings"]]
     return result

@@ -14,7 +14,7 @@ from msa_slam.evaluation.full_rate import STEP_FRAMES, path_length
 from msa_slam.io.tables import mib
 from msa_slam.pipeline.online_config import NO_TIMESTAMPS
 from msa_slam.slam import RunResult
-from msa_slam.viz.labels import display_name, sampler_label
+from msa_slam.viz.labels import counted, display_name, sampler_label
 
 
 def notes_markdown(metrics: dict[str, Any]) -> list[str]:
@@ -31,6 +31,17 @@ def scans_read(source: SourceOptions) -> str:
         [f"one scan in {source.jump} (--jump {source.jump})"] if source.jump > 1 else []) + (
         [f"at most {source.frames} scans (-n {source.frames})"] if source.frames is not None else [])
     return ", ".join(parts) or "every scan"
+
+
+def sequence_title(sequence: str, source: SourceOptions, frames: int) -> str:
+    """The sequence as figure titles name it, with the scans read (`frames` of them) when --first, --jump or -n
+    chose part of it: a figure of 200 scans must not pass for one of the whole recording."""
+    name = display_name(sequence)
+    if (source.first, source.jump, source.frames) == (0, 1, None):
+        return name
+    first, jump = source.first, source.jump
+    last = first + jump * (frames - 1)
+    return f"{name}, scans {first}-{last}" if jump == 1 else f"{name}, scans {first}, {first + jump}, ... {last}"
 
 
 def rpe_segments(gt: np.ndarray | None) -> tuple[str, str]:
@@ -151,7 +162,7 @@ def report_markdown(result: RunResult, figures: list[str], files: Collection[str
         f"# {m['method']}{' online' if online else ''} on {display_name(m['sequence'])} ({m['mode']} loops)", "",
         f"Sampler: {sampler_label(cfg.sampler, cfg.sampler_params)}.", "",
         f"Dataset `{cfg.dataset}` (sequence {m['sequence']}), {scans_read(cfg.source)}: "
-        f"{m['frames']} frames -> {m['keyframes']} keyframes; {m['candidates']} loop candidates "
+        f"{m['frames']} frames -> {m['keyframes']} keyframes; {counted(m['candidates'], 'loop candidate')} "
         f"(similarity >= {cfg.similarity_threshold}), {m['verified']} verified, "
         + (f"{m['false_loops']} false (ground-truth distance > {cfg.loop_radius} m)." if result.gt_poses is not None
            else f"false loops n/a (no ground truth to tell a loop within {cfg.loop_radius} m from a false one).")

@@ -23,11 +23,11 @@ from msa_slam.io.ply import write_ply
 from msa_slam.io.poses import write_poses
 from msa_slam.io.provenance import provenance
 from msa_slam.io.tables import rows_csv, write_json
-from msa_slam.pipeline.report import report_markdown
+from msa_slam.pipeline.report import report_markdown, sequence_title
 from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.slam import RunResult
 from msa_slam.viz import TrajectoryPanel, plot_memory, plot_step_times, plot_trajectories
-from msa_slam.viz.labels import counted, display_name, sampler_label
+from msa_slam.viz.labels import counted, sampler_label
 
 
 def frames_csv(result: RunResult) -> str:
@@ -166,10 +166,10 @@ def accounted_bytes(memory: dict[str, np.ndarray]) -> np.ndarray:
 
 def _write_figures(result: RunResult, folder: Path) -> list[str]:
     folder.mkdir()
-    m = result.metrics
+    m, cfg = result.metrics, result.config
     online = " online" if m.get("pipeline") == "online" else ""
-    sequence = display_name(m["sequence"])
-    cfg = result.config  # a labelled run (compare's "constant-2m") says its parameters in its label
+    sequence = sequence_title(m["sequence"], cfg.source, len(result))
+    # a labelled run (compare's "constant-2m") says its parameters in its label
     method = m["method"] if cfg.label else sampler_label(cfg.sampler, cfg.sampler_params)
     plot_trajectories(folder / "trajectories.png", reference_xy(result), trajectory_panels(result),
                       title=f"{sequence}: {method}{online} ({counted(m['keyframes'], 'keyframe')}, "

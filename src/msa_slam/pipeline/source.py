@@ -112,5 +112,5 @@ def open_source(spec: str, kind: str = "auto", cache_dir: str | os.PathLike | No
     if spec.startswith(LIVE_PREFIX):
         return live_source(spec)
     sequence = open_sequence(spec, kind, cache_dir, progress, source, mode)
-    return FrameSource(sequence.name, sequence.gt_poses, lambda: iter(sequence), sequence.path, len(sequence),
+    return FrameSource(sequence.name, sequence.gt_poses, lambda: iter(sequence), sequence, len(sequence),
                        sequence.times_known, sequence.point_times)
