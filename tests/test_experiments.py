@@ -100,7 +100,7 @@ def test_failing_cell_is_recorded_and_retried(tmp_path):
     grid = parse_grid(TOO_SPARSE)
     run = run_grid(grid, tmp_path)
     (cell,) = expand(grid)
-    assert list(run.failed) == [cell.id] and "kept 1 keyframes" in run.failed[cell.id]
+    assert list(run.failed) == [cell.id] and "kept only 1 of" in run.failed[cell.id]
     assert (tmp_path / "errors" / f"{cell.id}.txt").is_file() and not is_finished(tmp_path, cell)
 
 
@@ -271,7 +271,7 @@ def test_experiment_exit_code_names_failed_cells_and_keeps_their_log(tmp_path):
     assert result.returncode == 1, result.stderr
     failed = [line for line in result.stderr.splitlines() if line.startswith("failed: ")]
     assert [line.split(": ")[1] for line in failed] == [c.id for c in cells]
-    assert all("kept 1 keyframes" in line for line in failed)
+    assert all("kept only 1 of" in line for line in failed)
     assert all((tmp_path / "o" / "errors" / f"{c.id}.txt").is_file() for c in cells)
     assert result.stdout.strip() == str(tmp_path / "o" / "report.md")
     assert "0 of 1 cell(s) finished, 1 failed" in (tmp_path / "o" / "report.md").read_text()

@@ -176,6 +176,21 @@ def test_short_stream_warning_is_one_line_before_the_front_end(tmp_path):
     assert warned[0] < next(i for i, line in enumerate(lines) if line.startswith("descriptors"))
 
 
+def test_compare_warns_of_a_short_stream_without_advising_the_flush_it_does(tmp_path):
+    scans = write_scans(tmp_path / "scans", 6)
+    poses = np.tile(np.eye(4), (6, 1, 1))
+    poses[:, 0, 3] = np.arange(6) * 1.5
+    write_poses(tmp_path / "odometry.txt", poses)
+    result = run_cli("compare", "-d", str(scans), "--mode", "realistic", "--odometry", str(tmp_path / "odometry.txt"),
+                     "--no-sweep", "--quiet", "--out", str(tmp_path / "out"), "--cache-dir", str(tmp_path / "cache"))
+    warned = [line for line in result.stderr.splitlines() if "window=10 is longer than the stream" in line]
+    assert warned == ["warning: msa: window=10 is longer than the stream (6 frames): the window never filled, so only "
+                      "frame 0 was selected online; only the end-of-stream flush chooses keyframes after it; use a "
+                      "smaller window"], result.stderr
+    assert "flush at the end" not in result.stderr
+    assert (tmp_path / "out" / "runs" / "msa" / "metrics.json").is_file()  # msa ran (and flushed) despite it
+
+
 # L5, L10: report.md
 
 @pytest.fixture(scope="module")

@@ -12,6 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 from msa_slam.cli import app
+from msa_slam.errors import InputError
 from msa_slam.io.outputs import (MARKER, OutputError, is_result_folder, open_result_folder, staged_dir,
                                  write_marker)
 
@@ -228,6 +229,7 @@ def test_a_folder_grown_in_place_never_takes_a_users_files_or_edits_for_its_own(
         _grow(out, tmp_path, {}, overwrite=True)
     (out / "cells" / "a" / "mine.txt").unlink()
     (out / "cells" / "mine" / "notes.txt").unlink()
+    (out / "cells" / "mine").rmdir()  # even empty, it would keep an --overwrite off (test_..._empty_user_folder)
     (out / "report.md").write_text("my notes\n")
     before = tree(out)
     with pytest.raises(OutputError, match=r"holds files changed since msa-slam wrote them \(report.md\); this run "
@@ -240,5 +242,55 @@ def test_a_folder_grown_in_place_never_takes_a_users_files_or_edits_for_its_own(
     with pytest.raises(OutputError, match=r"holds files changed since msa-slam wrote them \(cells/b/x.txt\)"):
         _grow(out, tmp_path, {}, overwrite=True)  # ...and does not take it for msa-slam's
     (out / "cells" / "b" / "x.txt").write_text("second")
-    _grow(out, tmp_path, {}, overwrite=True)  # all msa-slam's again (the empty folder aside): replaced
+    _grow(out, tmp_path, {}, overwrite=True)  # all msa-slam's again: replaced
     assert sorted(p.name for p in (out / "cells").iterdir()) == []
+
+
+@pytest.mark.parametrize("overwrite, resume", [(True, True), (True, False), (False, False)])
+def test_a_run_writing_the_folder_is_named_before_its_half_written_files(tmp_path, overwrite, resume):
+    out = tmp_path / "exp"
+    _grow(out, tmp_path, {"a": "first"})
+    with open_result_folder(out, "experiment", tmp_path, resume=True) as folder:  # another run, growing it now
+        folder.prepare_in_place(grows=("cells",), unit_record="cell.json")
+        (out / "cells" / "b").mkdir()
+        (out / "cells" / "b" / "x.txt").write_text("half")  # its unit, not listed yet
+        (out / "report.md").write_text("being rewritten\n")  # its report, not recorded yet
+        before = tree(out)
+        with pytest.raises(OutputError, match=r"exp: another msa-slam run is writing this output folder; wait for "
+                                              r"it or choose another --out"):
+            with open_result_folder(out, "experiment", tmp_path, overwrite=overwrite, resume=resume):
+                pass
+        assert tree(out) == before
+
+
+def test_a_run_failing_early_leaves_no_empty_folder_it_made(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    missing = str(tmp_path / "missing")
+    result = runner.invoke(app, ["run", "-d", missing, "--quiet"])  # the dataset is opened in the result's block
+    assert isinstance(result.exception, InputError) and "not found" in str(result.exception)
+    assert list(tmp_path.iterdir()) == []  # no msa_slam_results/run/
+    (tmp_path / "msa_slam_results").mkdir()  # the user's own: stays, even empty
+    result = runner.invoke(app, ["run", "-d", missing, "--quiet"])
+    assert isinstance(result.exception, InputError)
+    result = runner.invoke(app, ["run", "-d", missing, "--out", "a/b/out", "--quiet"])
+    assert isinstance(result.exception, InputError)
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["msa_slam_results"]
+
+
+def test_overwrite_never_removes_an_empty_user_folder(stream, tmp_path):
+    out = tmp_path / "out"
+    with open_result_folder(out, "run", tmp_path) as folder, folder.staging() as tmp:
+        (tmp / "figures").mkdir()  # an empty folder msa-slam wrote: its own to replace
+    with open_result_folder(out, "run", tmp_path, overwrite=True) as folder, folder.staging() as tmp:
+        (tmp / "a.txt").write_text("second")
+    (out / "mine" / "empty").mkdir(parents=True)
+    result = sample(stream, "--out", out, "--overwrite")
+    assert "holds files msa-slam did not write (mine/empty/)" in str(result.exception)
+    assert (out / "mine" / "empty").is_dir() and (out / "a.txt").read_text() == "second"
+    grown = tmp_path / "exp"
+    _grow(grown, tmp_path, {"a": "first"})
+    (grown / "cells" / "mine").mkdir()
+    _grow(grown, tmp_path, {"b": "second"})  # a resume does not take it for msa-slam's
+    with pytest.raises(OutputError, match=r"holds files msa-slam did not write \(cells/mine/\)"):
+        _grow(grown, tmp_path, {}, overwrite=True)
+    assert (grown / "cells" / "mine").is_dir()

@@ -1,11 +1,13 @@
-"""Experiment reports and their inputs: every n/a with its reason, user folders under cells/ are no cells,
-one-line YAML errors, each finished cell read once on a resume, and per-run reports naming the scans read."""
+"""Experiment reports and their inputs: every n/a with its reason (failed cells too), user folders under cells/
+are no cells, one-line YAML errors, each finished cell read once on a resume, and per-run reports naming the
+scans read."""
 
 from __future__ import annotations
 
 import csv
 import io
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -20,6 +22,7 @@ from msa_slam.experiments import folder as folder_module
 from msa_slam.experiments import report as report_module
 from msa_slam.experiments.folder import grid_cells, write_grid
 from msa_slam.experiments.report import BATCH_UNTIMED
+from msa_slam.experiments.runner import GridRun, _record
 from msa_slam.io.outputs import write_marker
 from msa_slam.pipeline.report import scans_read
 from test_experiments import TINY, _fake_experiment, finished_experiment
@@ -93,6 +96,36 @@ def test_every_na_of_an_experiment_report_has_a_note(tmp_path):
     notes = table.split("Notes (n/a values")[1]
     assert "frames/s, back-end p99 n/a (every method and seed)" in notes
     assert f"PR-AUC, F1-max n/a (msa on seed(s) 1): {PR_REASON}" in notes
+
+
+def _fail(root: Path, cell, error: Exception) -> None:
+    """Make a finished cell one that failed with `error`, its traceback recorded as the runner records it."""
+    shutil.rmtree(root / "cells" / cell.id)
+    try:
+        raise error
+    except Exception as exc:
+        _record(GridRun(root), cell, exc)
+
+
+def test_a_method_whose_cells_failed_has_an_na_row_and_a_note_saying_why(tmp_path):
+    cells = _experiment(tmp_path, SEEDS)
+    kept = "sampler 'msa' kept 1 keyframes of 27 frames; the evaluation needs at least 3"
+    for cell in cells:
+        if cell.method == "msa":
+            _fail(tmp_path, cell, InputError(kept))
+        elif cell.seed == 2:
+            _fail(tmp_path, cell, RuntimeError("degenerate scan statistics\n  on every frame"))
+    write_report(tmp_path)
+    table = (tmp_path / "results.md").read_text()
+    row = next(line for line in table.splitlines() if line.startswith("| msa |"))
+    assert {c.strip() for c in row.strip("|").split("|")[1:]} == {"n/a"}
+    notes = table.split("Notes (n/a values")[1].splitlines()
+    assert f"- every value n/a (msa): the cell failed with InputError: {kept} (traceback in errors/<cell id>.txt)" \
+        in notes
+    assert ("- every value n/a (all on seed(s) 2): the cell failed with RuntimeError: degenerate scan statistics "
+            "(traceback in errors/<cell id>.txt)") in notes  # a message's first line
+    assert "2 of 6 cell(s) finished, 4 failed" in (tmp_path / "report.md").read_text()
+    assert len((tmp_path / "results.csv").read_text().splitlines()) == 1 + 2  # finished cells only
 
 
 def test_a_user_folder_under_cells_is_no_stale_cell(tmp_path):

@@ -323,7 +323,7 @@ def test_partial_simulation_of_a_killed_writer_is_removed(tmp_path, monkeypatch)
 def test_failed_simulation_leaves_nothing(tmp_path):
     cfg = make_config(trajectory="kitti-07", start=1100, end=1101, azimuth_steps=128, dropout=0.99)
     out = tmp_path / "seq"
-    with pytest.warns(UserWarning, match="1 of 1 scans have fewer than 100 points"):
+    with pytest.warns(UserWarning, match="1 of 1 scans have fewer than 200 points"):
         simulate_sequence(cfg, out=out)  # a valid, nearly empty scan still completes, with a warning
     assert is_complete(out, cfg.key())
     with pytest.raises(InputError, match="dropout"):

@@ -54,7 +54,7 @@ def sample_command(
     cloud_list = load_cloud_stack(clouds, n) if clouds is not None else None
     if cloud_list is None and chosen.needs_points:
         raise InputError(f"sampler {sampler!r} needs --clouds (a folder of scans or an .npy array)")
-    chosen.expect_frames(n)  # its warning (a window longer than the stream) after the errors above
+    chosen.expect_frames(n, flush)  # its warning (a window longer than the stream) after the errors above
     if desc is not None:  # compiled before the first window, not inside its optimisation_ms
         load_kernels(sampler, params, desc.shape[1:])
 

@@ -90,8 +90,7 @@ def make_rows(cells: list[dict[str, Any]], reference: str = "all") -> list[dict[
         row = {
             "cell": info["id"], "pipeline": info["pipeline"], "dataset": info["dataset"],
             "descriptor": info["descriptor"], "method": info["method"], "sampler": info["sampler"],
-            "seed": info["seed"], "parameters": json.dumps(info["parameters"], sort_keys=True) if info["parameters"]
-            else "", "frames": m["frames"], "keyframes": m["keyframes"], "candidates": m["candidates"],
+            "seed": info["seed"], "parameters": _parameters(info["parameters"]), "frames": m["frames"], "keyframes": m["keyframes"], "candidates": m["candidates"],
             "verified": m["verified"], "false_loops": m["false_loops"],
             **_full_rate(m), "kf_ate_before_m": m["before"]["ate_translation_m"],
             "kf_ate_after_m": m["after"]["ate_translation_m"], "kf_improvement_t_pct": m["improvement_pct"]["translation"],
@@ -109,6 +108,32 @@ def make_rows(cells: list[dict[str, Any]], reference: str = "all") -> list[dict[
                if value is None}
         rows.append({**row, "unavailable": json.dumps(why, sort_keys=True) if why else ""})
     return rows
+
+
+def _parameters(parameters: dict[str, Any]) -> str:
+    """A cell's grid parameters as its row (and its section of results.md) shows them."""
+    return json.dumps(parameters, sort_keys=True) if parameters else ""
+
+
+def _failed_row(cell: Cell, error_file: Path) -> dict[str, Any]:
+    """results.md's row of a cell that failed (its traceback in `error_file`): every value n/a, the error as the
+    reason, so that a method whose cells failed is shown, with why, not left out of the table."""
+    reason = f"the cell failed with {_error_line(error_file)} (traceback in errors/<cell id>.txt)"
+    metrics = COLUMNS[COLUMNS.index("frames"):COLUMNS.index("unavailable")]
+    return {**dict.fromkeys(COLUMNS), "cell": cell.id, "pipeline": cell.pipeline, "dataset": cell.dataset,
+            "descriptor": cell.descriptor, "method": cell.method, "sampler": cell.sampler, "seed": cell.seed,
+            "parameters": _parameters(cell.parameters),
+            "unavailable": json.dumps(dict.fromkeys(metrics, reason), sort_keys=True)}
+
+
+def _error_line(path: Path) -> str:
+    """`Type: message` of the exception a traceback file ends with: its first line after the last traceback's
+    (indented) frames; a message's further lines are left out."""
+    lines = path.read_text(errors="replace").splitlines()
+    start = max((i for i, line in enumerate(lines) if line.startswith("Traceback (")), default=-1) + 1
+    line = next((line for line in lines[start:] if line.strip() and not line.startswith(" ")), "an error")
+    name, colon, message = line.partition(": ")
+    return name.rsplit(".", 1)[-1] + colon + message  # the type without its module, as the run's own lines
 
 
 def _na_reason(column: str, m: dict[str, Any], pipeline: str, reference: str, ref_memory: int | None) -> str:
@@ -184,7 +209,8 @@ def _na_notes(methods: dict[str, list[dict[str, Any]]], labels: dict[str, str]) 
         else:
             whom = "; ".join(m if who[m] == ran[m] else f"{m} on seed(s) {', '.join(map(str, sorted(who[m])))}"
                              for m in who)
-        named = ", ".join(label for column, label in labels.items() if column in entry["columns"])
+        named = ("every value" if entry["columns"] >= set(labels)  # a failed cell's
+                 else ", ".join(label for column, label in labels.items() if column in entry["columns"]))
         lines.append(f"- {named} n/a ({whom}): {reason}")
     if not lines:
         return []
@@ -291,8 +317,9 @@ def _figures(cells: list[dict[str, Any]], rows: list[dict[str, Any]], reference:
 def write_report(results_dir: str | os.PathLike, reference: str | None = None,
                  finished: FinishedCells | None = None) -> Path:
     """Write results.csv, results.md, figures/ and report.md into `results_dir` from the finished cells of its
-    grid.yaml; return report.md. `reference` (default: the grid's) must be one of the grid's methods.
-    `finished`: cells already read from this folder (folder.finished_cells, by a resume), not read again."""
+    grid.yaml (results.md also shows the failed ones: n/a, with their error in its notes); return report.md.
+    `reference` (default: the grid's) must be one of the grid's methods. `finished`: cells already read from
+    this folder (folder.finished_cells, by a resume), not read again."""
     out = Path(results_dir)
     grid, expected = _grid_of(out)
     methods = grid.labels()
@@ -304,11 +331,14 @@ def write_report(results_dir: str | os.PathLike, reference: str | None = None,
     cells = _finished(out, expected, finished)
     rows = make_rows(cells, reference)
     write_text_atomic(out / "results.csv", rows_csv(rows, COLUMNS))
-    table = table2_markdown(rows)
+    done = {c["info"]["id"] for c in cells}
+    failed_cells = [c for c in expected if c.id not in done and (out / "errors" / f"{c.id}.txt").is_file()]
+    failed = [c.id for c in failed_cells]
+    order = {c.id: i for i, c in enumerate(expected)}
+    shown = rows + [_failed_row(c, out / "errors" / f"{c.id}.txt") for c in failed_cells]
+    table = table2_markdown(sorted(shown, key=lambda r: order[r["cell"]]))
     write_text_atomic(out / "results.md", table)
     figures = _figures(cells, rows, reference, out / "figures") if rows else []
-    done = {c["info"]["id"] for c in cells}
-    failed = [c.id for c in expected if c.id not in done and (out / "errors" / f"{c.id}.txt").is_file()]
     damaged = [c.id for c in expected if c.id not in done and c.id not in failed and cell_dir(out, c.id).is_dir()]
     stale = stale_cells(out, expected)
     lines = [f"# Experiment results: {out.name}", "",

@@ -6,11 +6,12 @@ A result folder is recognised by its marker file (`.msa-slam-result`, JSON: tool
 - an explicit `--out` that exists and is not a result folder (a file, a dataset, a user's folder with
   anything in it) is refused; an empty folder is taken;
 - a previous result folder is replaced only with `overwrite=True` (`resume=True` reuses it in place:
-  experiment grids, `compare --seeds`), and only when every file in it is one its marker lists as
-  msa-slam's, unchanged since it wrote them (a user's notes added to a result, or edits to its files, are
-  never removed: the overwrite is refused);
+  experiment grids, `compare --seeds`), and only when every file (and empty folder) in it is one its marker
+  lists as msa-slam's, unchanged since it wrote them (a user's notes or folders, even empty, added to a
+  result, or edits to its files, are never removed: the overwrite is refused);
 - a lock file beside the target (`.NAME.lock`, flock) makes a second run on the same `--out` refuse
-  instead of silently losing one result;
+  instead of silently losing one result (checked before the files of a previous result are: those of a run
+  writing them now are not reported as a user's);
 - leftovers of a killed run on the same target (`.NAME.partial-*`, `.NAME.old-*`) are removed, and a
   result displaced by a swap that was interrupted is put back.
 
@@ -75,8 +76,10 @@ class _Lock:
             self.fd = None
 
 
-def _check_target(target: Path, kind: str, overwrite: bool, resume: bool) -> None:
-    """Refuse a target that is not ours, or ours but not to be replaced; say what to do instead."""
+def _check_target(target: Path, kind: str, overwrite: bool, resume: bool, locked: bool = True) -> None:
+    """Refuse a target that is not ours, or ours but not to be replaced; say what to do instead. A previous
+    result is looked into only under its lock (`locked`): a run writing it now is then named as such, not by
+    the files it has half written."""
     if target.is_symlink() and not target.exists():
         raise OutputError(f"--out {target}: a dangling link; choose another --out")
     if not target.exists():
@@ -88,6 +91,8 @@ def _check_target(target: Path, kind: str, overwrite: bool, resume: bool) -> Non
     if not is_result_folder(target):
         raise OutputError(f"--out {target}: exists and is not a msa-slam result folder (no {MARKER}); "
                           "msa-slam never replaces files it did not write: choose a new or empty folder")
+    if not locked:
+        return
     if overwrite:
         _refuse_foreign(target)
     elif not (resume and is_result_folder(target, kind)):
@@ -242,7 +247,7 @@ def _check_output(out: str | os.PathLike | None, kind: str, default_parent: str 
         _check_writable(Path(default_parent))
         return
     target = _out_target(out)
-    _check_target(target, kind, overwrite, resume)
+    _check_target(target, kind, overwrite, resume, locked=False)
     _check_writable(target.parent)
 
 
@@ -252,28 +257,26 @@ def open_result_folder(out: str | os.PathLike | None, kind: str, default_parent:
     """Check and lock the output of a command before its work starts; release the lock at the end.
 
     `out=None` picks a new timestamped folder under `default_parent` (and points `latest` at it).
-    Raises OutputError (one line) for a target that must not be written.
+    Raises OutputError (one line) for a target that must not be written. The folders made to hold the result
+    (`default_parent`, the parents of `out`) are removed at the end when the run left them empty.
     """
     _check_output(out, kind, default_parent, overwrite, resume)
-    if out is None:
-        parent = Path(default_parent)
-        parent.mkdir(parents=True, exist_ok=True)
-        folder = ResultFolder(timestamped(parent), kind, timestamped=True)
-    else:
-        target = _out_target(out)
-        folder = ResultFolder(target, kind)
-        target.parent.mkdir(parents=True, exist_ok=True)
+    parent = Path(default_parent) if out is None else _out_target(out).parent
+    created = _missing_folders(parent)
+    parent.mkdir(parents=True, exist_ok=True)
+    folder = (ResultFolder(timestamped(parent), kind, timestamped=True) if out is None
+              else ResultFolder(_out_target(out), kind))
     lock = _Lock(folder.path)
     try:
-        lock.acquire()
-    except OSError as exc:
-        if isinstance(exc, OutputError):
-            raise
-        raise OutputError(f"{folder.path}: cannot create the lock file beside it ({exc.strerror})") from None
-    folder._lock = lock
-    try:
+        try:
+            lock.acquire()
+        except OSError as exc:
+            if isinstance(exc, OutputError):
+                raise
+            raise OutputError(f"{folder.path}: cannot create the lock file beside it ({exc.strerror})") from None
+        folder._lock = lock
         clean_stale(folder.path)
-        if out is not None:  # re-check under the lock: a concurrent run may have finished meanwhile
+        if out is not None:  # under the lock: a previous result's files, and a concurrent run may have finished
             _check_target(folder.path, kind, overwrite, resume)
         existed = folder.path.exists() or folder.path.is_symlink()
         try:
@@ -284,6 +287,27 @@ def open_result_folder(out: str | os.PathLike | None, kind: str, default_parent:
             raise
     finally:
         lock.release()
+        _remove_empty(created)
+
+
+def _missing_folders(path: Path) -> list[Path]:
+    """`path` and those of its ancestors that do not exist yet, deepest first (what mkdir(parents=True) makes)."""
+    missing = []
+    while not (path.exists() or path.is_symlink()) and path != path.parent:
+        missing.append(path)
+        path = path.parent
+    return missing
+
+
+def _remove_empty(created: list[Path]) -> None:
+    """Remove the folders this run created (`created`, deepest first) and left empty: a run that failed early
+    (a bad parameter, a missing input) leaves no empty msa_slam_results/<command>/ behind. A folder holding
+    anything (a result, another run's lock file) stays, and with it its parents."""
+    for path in created:
+        try:
+            path.rmdir()
+        except OSError:
+            return
 
 
 def _remove_if_bare(folder: ResultFolder) -> None:

@@ -54,16 +54,16 @@ def is_result_folder(path: Path, kind: str | None = None) -> bool:
 
 def write_marker(folder: Path, kind: str, exclude: Collection[str] = (), digests: Mapping[str, str] | None = None
                  ) -> None:
-    """Mark `folder` as msa-slam's result of `kind`, listing the files in it now (but `exclude`) as the ones
-    msa-slam wrote, with a digest of each: an --overwrite removes nothing else (foreign_files) and nothing
-    changed since (edited_files). `digests` keeps the recorded digest of files changed since (a resume
-    leaves a user's edit in place and must not take it for msa-slam's content)."""
+    """Mark `folder` as msa-slam's result of `kind`, listing the files and empty folders in it now (but
+    `exclude`) as the ones msa-slam wrote, with a digest of each file: an --overwrite removes nothing else
+    (foreign_files) and nothing changed since (edited_files). `digests` keeps the recorded digest of files
+    changed since (a resume leaves a user's edit in place and must not take it for msa-slam's content)."""
     folder, exclude, kept = Path(folder), set(exclude), dict(digests or {})
     files = [name for name in _files(folder) if name not in exclude]
     (folder / MARKER).write_text(json.dumps({"tool": "msa-slam", "kind": kind, "version": msa_slam.__version__,
                                              "files": files,
                                              "digests": {name: kept.get(name) or _digest(folder / name)
-                                                         for name in files}}) + "\n")
+                                                         for name in files if not name.endswith("/")}}) + "\n")
 
 
 def recorded_digests(folder: Path) -> dict[str, str]:
@@ -89,16 +89,24 @@ def edited_files(folder: Path) -> list[str]:
 
 
 def foreign_files(folder: Path) -> list[str]:
-    """Files (relative paths) in a result folder that its marker does not list as msa-slam's: someone else put
-    them there, or a run that grows the folder in place was killed before listing its own."""
+    """Files and empty folders (relative paths, a folder's ending in /) in a result folder that its marker does
+    not list as msa-slam's: someone else put them there, or a run that grows the folder in place was killed
+    before listing its own."""
     ours = set(json.loads((Path(folder) / MARKER).read_text()).get("files", []))
     return [name for name in _files(Path(folder)) if name not in ours]
 
 
 def _files(folder: Path) -> list[str]:
-    """Every file and link under `folder` but the marker, as sorted relative POSIX paths."""
-    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*")
-                  if (p.is_symlink() or not p.is_dir()) and p.name != MARKER)
+    """Every file and link under `folder` but the marker, and every empty folder (ending in /: a user's, even
+    empty, is no more msa-slam's to remove than a file), as sorted relative POSIX paths."""
+    names = []
+    for p in folder.rglob("*"):
+        if p.is_symlink() or not p.is_dir():
+            if p.name != MARKER:
+                names.append(p.relative_to(folder).as_posix())
+        elif not any(p.iterdir()):
+            names.append(p.relative_to(folder).as_posix() + "/")
+    return sorted(names)
 
 
 def _exchange(a: Path, b: Path) -> bool:

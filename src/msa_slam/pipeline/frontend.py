@@ -181,7 +181,7 @@ def check_window(config: RunConfig, n_frames: int, fix: str = CONFIG_WINDOW_FIX)
         raise InputError(f"sampler {config.name!r}: window={window} is longer than the {n_frames} frames read, so it "
                          f"never fills and only frame 0 becomes a keyframe (flush is off); the evaluation needs at "
                          f"least {MIN_KEYFRAMES}: " + fix.format(frames=n_frames, window=window))
-    sampler.expect_frames(n_frames)
+    sampler.expect_frames(n_frames, flush=True)
 
 
 def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[RunConfig] = (),

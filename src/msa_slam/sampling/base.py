@@ -96,8 +96,9 @@ class Sampler(ABC):
         """Keyframes added by `finish()` only."""
         return list(self._flushed)
 
-    def expect_frames(self, frames: int) -> None:
-        """Announce the stream's length before pushing, so a sampler can warn about a useless setting."""
+    def expect_frames(self, frames: int, flush: bool = False) -> None:
+        """Announce the stream's length (and whether finish() will flush) before pushing, so a sampler can warn
+        about a useless setting."""
 
     def push(self, pose: np.ndarray, descriptor: np.ndarray | None = None,
              points: np.ndarray | None = None) -> list[int]:
@@ -127,7 +128,7 @@ class Sampler(ABC):
             clouds=None, flush: bool = False) -> list[int]:
         """Convenience: push a whole stream and return the keyframe list."""
         n = len(poses)
-        self.expect_frames(n)
+        self.expect_frames(n, flush)
         if descriptors is not None and len(descriptors) != n:
             raise InputError(f"{self.name}: {n} poses but {len(descriptors)} descriptors")
         if clouds is not None and len(clouds) != n:

@@ -13,7 +13,7 @@ from msa_slam.errors import InputError
 from msa_slam.sim.config import SimConfig
 from msa_slam.sim.sensors import SENSORS, LidarModel
 
-SPARSE_SCAN_POINTS = 100  # a scan with fewer points is too sparse for KISS-ICP and Scan Context to work with
+SPARSE_SCAN_POINTS = 200  # a scan with fewer points is too sparse for KISS-ICP to register (warn_sparse_scans)
 POINT_BYTES = 16  # a scan file's point: float32 x, y, z, intensity
 
 
@@ -54,7 +54,14 @@ def empty_scan_error(config: SimConfig, k: int, frames: int) -> InputError:
 
 
 def warn_sparse_scans(config: SimConfig, scan_bytes: list[int]) -> None:
-    """One warning when some scans (sizes in bytes) hold fewer than SPARSE_SCAN_POINTS points."""
+    """One warning when some scans (sizes in bytes) hold fewer than SPARSE_SCAN_POINTS points.
+
+    Why 200: thinned by dropout (hdl64, kitti-05, full range, 50 frames, 40 m), KISS-ICP's odometry ATE is
+    0.03 m at 11,000 points a scan and stays within 0.5 % of the path down to about 200 (0.10-0.20 m), then
+    reaches ten times the dense value by 100 (0.3-0.4 m) and breaks down below 50 (2.7 m). Scans cut by a short
+    max_range are another matter, which no number of points tells: at 4.5-10 m odometry fails (ATE 3.6-11.8 m)
+    with 1,400 to 60,000 points a scan, as they hold only the ground and the nearest objects.
+    """
     points = np.asarray(scan_bytes, dtype=np.int64) // POINT_BYTES
     sparse = int((points < SPARSE_SCAN_POINTS).sum())
     if sparse:

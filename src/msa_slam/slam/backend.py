@@ -69,7 +69,7 @@ class SlamBackend:
         self.loop_closer, self.graph = loop_closer, graph
         self.name, self.update_iterations, self.recorder = name, int(update_iterations), recorder
         self.n = int(n_frames)
-        self.sampler.expect_frames(self.n)
+        self.sampler.expect_frames(self.n, self.settings.flush)
         self.odometry = np.zeros((self.n, 4, 4))
         self.gt = np.full((self.n, 4, 4), np.nan)  # NaN without ground truth: loop distances are then NaN
         self.has_gt: bool | None = None  # decided by the first frame; every frame must agree
@@ -207,8 +207,8 @@ class SlamBackend:
         if len(keys) < MIN_KEYFRAMES:
             flushed = len(self.sampler.flushed_keyframes)
             split = f" ({len(keys) - flushed} online, {flushed} from the end-of-stream flush)" if flushed else ""
-            raise InputError(f"sampler {self.settings.name!r} kept {len(keys)} keyframes of {n} frames{split}; "
-                             f"the evaluation needs at least {MIN_KEYFRAMES}")
+            raise InputError(f"sampler {self.settings.name!r} kept only {len(keys)} of {n} frames as keyframes"
+                             f"{split}; the evaluation needs at least {MIN_KEYFRAMES}")
         memory = self.memory_bytes()
         t0 = time.perf_counter()
         optimised = self.graph.optimize()

@@ -52,16 +52,18 @@ def check_candidate_count(window: int, neighbours: int, mode: str = "exact", pi:
                          + ("" if canonical_fast else "; up to 20 with mode='fast', pi='canonical'") + ")")
 
 
-def warn_short_stream(frames: int, window: int, members: int | None = None) -> None:
+def warn_short_stream(frames: int, window: int, members: int | None = None, flush: bool = False) -> None:
     """The window never filled: no subset was ever optimised, so only frame 0 is an online keyframe. Either the
-    stream is shorter than the window or (`members`, the frames that joined it) the frames did not move."""
+    stream is shorter than the window or (`members`, the frames that joined it) the frames did not move. With
+    `flush` (the caller flushes at the end) the end-of-stream flush picks the rest, so flushing is not advised."""
     if members is None or frames < window:
         why = f"window={window} is longer than the stream ({frames} frames): the window never filled"
     else:
         why = (f"window={window}: the window never filled in {frames} frames (only {members} moved at least "
                f"{MIN_WINDOW_STEP} m from the member before them)")
-    warnings.warn(f"msa: {why}, so only frame 0 was selected online; use a smaller window or flush at the end",
-                  UserWarning, stacklevel=3)
+    advice = ("only the end-of-stream flush chooses keyframes after it; use a smaller window" if flush
+              else "use a smaller window or flush at the end")
+    warnings.warn(f"msa: {why}, so only frame 0 was selected online; {advice}", UserWarning, stacklevel=3)
 
 
 class MSASampler(Sampler):
@@ -116,10 +118,10 @@ class MSASampler(Sampler):
         self._tree_size = 0
         self._workspace = ExactWorkspace()
 
-    def expect_frames(self, frames: int) -> None:
+    def expect_frames(self, frames: int, flush: bool = False) -> None:
         """Warn up front when the stream is too short for the window ever to fill."""
         if frames < self.window_size:
-            warn_short_stream(frames, self.window_size)
+            warn_short_stream(frames, self.window_size, flush=flush)
 
     @property
     def window(self) -> list[int]:
@@ -147,7 +149,7 @@ class MSASampler(Sampler):
     def _finish(self) -> list[int]:
         """Flush: optimise whatever is left in the window over all its members (not in the reference)."""
         if self.stats.window_optimisations == 0 and self.stats.frames > 0:
-            warn_short_stream(self.stats.frames, self.window_size, len(self._window))
+            warn_short_stream(self.stats.frames, self.window_size, len(self._window), flush=True)
         if len(self._window) < 2:
             return []
         self._update_bounds()
