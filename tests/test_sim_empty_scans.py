@@ -13,7 +13,8 @@ import msa_slam.sim.simulation
 from msa_slam.datasets.sequences import kitti_sequence
 from msa_slam.errors import InputError
 from msa_slam.sim import get_sensor, make_config, simulate_sequence
-from msa_slam.sim.coverage import POINT_BYTES, check_reaches_ground, likely_settings, warn_sparse_scans
+from msa_slam.sim.coverage import (POINT_BYTES, SHORT_RANGE_M, check_reaches_ground, likely_settings, warn_short_range,
+                                    warn_sparse_scans)
 
 
 def _no_world(*args, **kwargs):
@@ -71,7 +72,7 @@ def test_sparse_scans_warn_when_written_and_when_reused(tmp_path):
         path = simulate_sequence(config, out=tmp_path / "seq")
     with pytest.warns(UserWarning, match=message):
         assert simulate_sequence(config, out=tmp_path / "seq") == path  # the cached sequence
-    assert len(written) == 1
+    assert sum("fewer than" in str(w.message) for w in written) == 1
     assert len(kitti_sequence(path).select()) == 4  # sparse, but readable
 
 
@@ -99,3 +100,18 @@ def test_likely_settings_name_only_what_thins_the_scans():
         "no setting thins them: the sensor sees little around this trajectory")
     assert likely_settings(make_config(max_range=30.0, sensor="os1-64", azimuth_steps=512)) == (
         "check max_range=30 m, azimuth_steps=512")
+
+
+def test_a_max_range_too_short_for_odometry_warns_when_written_and_reused(tmp_path):
+    """Under SHORT_RANGE_M the scans hold only the ground and the nearest objects (warn_short_range's measurements):
+    one warning when the sequence is written and again when it is reused; none at the limit or unset."""
+    config = make_config(trajectory="kitti-07", end=2, azimuth_steps=64, max_range=12.0, realism="clean")
+    message = r"^simulate: max_range=12 m leaves the scans only the ground and the nearest objects; odometry fails"
+    for _ in range(2):
+        with pytest.warns(UserWarning, match=message) as caught:
+            simulate_sequence(config, out=tmp_path / "seq", workers=0)
+        assert sum("max_range" in str(w.message) for w in caught) == 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warn_short_range(make_config(trajectory="kitti-07", max_range=SHORT_RANGE_M))
+        warn_short_range(make_config(trajectory="kitti-07"))

@@ -35,7 +35,7 @@ from msa_slam.io.cache import cache_root, partial_dir, remove_orphans
 from msa_slam.io.poses import format_kitti
 from msa_slam.progress import progress_bar
 from msa_slam.sim.config import SIM_VERSION, SimConfig
-from msa_slam.sim.coverage import empty_scan_error, warn_sparse_scans
+from msa_slam.sim.coverage import empty_scan_error, warn_short_range, warn_sparse_scans
 from msa_slam.sim.simulation import Simulation, prepare
 
 META_FILE = "sim.json"
@@ -174,8 +174,8 @@ def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
     Without `out` the directory is <cache>/<trajectory>_<sensor>_<key>. An existing complete
     simulation of the same config is returned as is; one of the same config with a missing or truncated
     scan is simulated again (with a warning); any other existing non-empty `out` is an error. A scan without
-    points is an error as soon as it is cast (nothing is written); scans too sparse to register give one
-    warning, again whenever the sequence is reused (sim/coverage.py).
+    points is an error as soon as it is cast (nothing is written); scans too sparse to register, or a max_range
+    too short for odometry, give one warning each, again whenever the sequence is reused (sim/coverage.py).
     `workers`: processes casting scans (0: this one; None: `default_workers`); the bytes do not depend on it.
     """
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
@@ -184,6 +184,7 @@ def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
     target = Path(out) if out is not None else cache_root(cache_dir) / f"{config.label}_{config.sensor}_{key}"
     remove_orphans(target.parent, f".{target.name}.partial-*")
     if is_complete(target, key):
+        warn_short_range(config)
         warn_sparse_scans(config, _read_meta(target)["scan_bytes"])  # as when it was written
         return target
     damaged = _is_ours(target, key)

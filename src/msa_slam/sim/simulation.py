@@ -9,7 +9,7 @@ from typing import Iterator, NamedTuple
 import numpy as np
 
 from msa_slam.sim.config import SimConfig
-from msa_slam.sim.coverage import check_reaches_ground
+from msa_slam.sim.coverage import check_reaches_ground, warn_short_range
 from msa_slam.sim.realism import REALISM, Realism
 from msa_slam.sim.sensors import Lidar, LidarModel, get_sensor
 from msa_slam.sim.trajectories import Trajectory, frame_indices
@@ -68,6 +68,7 @@ def prepare(config: SimConfig) -> Simulation:
     model: LidarModel = get_sensor(config.sensor, azimuth_steps=config.azimuth_steps, max_range=config.max_range,
                                    range_noise=config.range_noise, dropout=config.dropout)
     check_reaches_ground(model, traj.sensor_height)
+    warn_short_range(config)
     span = traj.poses[frames[0]:frames[-1] + 1]
     style = config.style or ("campus" if traj.platform == "walk" else "city")
     realism = REALISM[config.realism]
