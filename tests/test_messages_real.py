@@ -161,12 +161,17 @@ def test_compare_refuses_it_naming_what_compare_can_change(tmp_path):
     assert "odometry" not in result.stderr
 
 
-def test_short_stream_warning_is_one_line_before_the_front_end(tmp_path):
-    scans = write_scans(tmp_path / "scans", 4)
-    poses = np.tile(np.eye(4), (4, 1, 1))
-    poses[:, 0, 3] = np.arange(4) * 1.5
+def _straight_scans(tmp_path, frames: int) -> tuple[Path, Path]:
+    """`frames` scans and an odometry pose file of a straight drive, 1.5 m a frame."""
+    poses = np.tile(np.eye(4), (frames, 1, 1))
+    poses[:, 0, 3] = np.arange(frames) * 1.5
     write_poses(tmp_path / "odometry.txt", poses)
-    result = run_cli("run", "-d", str(scans), "--mode", "realistic", "--odometry", str(tmp_path / "odometry.txt"),
+    return write_scans(tmp_path / "scans", frames), tmp_path / "odometry.txt"
+
+
+def test_short_stream_warning_is_one_line_before_the_front_end(tmp_path):
+    scans, odometry = _straight_scans(tmp_path, 4)
+    result = run_cli("run", "-d", str(scans), "--mode", "realistic", "--odometry", str(odometry),
                      "--out", str(tmp_path / "out"), "--cache-dir", str(tmp_path / "cache"))
     lines = result.stderr.splitlines()
     warned = [i for i, line in enumerate(lines) if "window=10 is longer than the stream" in line]
@@ -174,14 +179,12 @@ def test_short_stream_warning_is_one_line_before_the_front_end(tmp_path):
     assert lines[warned[0]].startswith("warning: msa: window=10")
     assert "UserWarning" not in result.stderr and ".py:" not in result.stderr
     assert warned[0] < next(i for i, line in enumerate(lines) if line.startswith("descriptors"))
+    assert "flush at the end" not in result.stderr  # run flushes by default
 
 
 def test_compare_warns_of_a_short_stream_without_advising_the_flush_it_does(tmp_path):
-    scans = write_scans(tmp_path / "scans", 6)
-    poses = np.tile(np.eye(4), (6, 1, 1))
-    poses[:, 0, 3] = np.arange(6) * 1.5
-    write_poses(tmp_path / "odometry.txt", poses)
-    result = run_cli("compare", "-d", str(scans), "--mode", "realistic", "--odometry", str(tmp_path / "odometry.txt"),
+    scans, odometry = _straight_scans(tmp_path, 6)
+    result = run_cli("compare", "-d", str(scans), "--mode", "realistic", "--odometry", str(odometry),
                      "--no-sweep", "--quiet", "--out", str(tmp_path / "out"), "--cache-dir", str(tmp_path / "cache"))
     warned = [line for line in result.stderr.splitlines() if "window=10 is longer than the stream" in line]
     assert warned == ["warning: msa: window=10 is longer than the stream (6 frames): the window never filled, so only "
