@@ -205,11 +205,12 @@ def test_online_progress_counts_the_accepted_loops(capsys):
 
 def test_a_seeds_comparison_refused_once_the_data_is_open_leaves_no_folder(tmp_path):
     """compare --seeds creates its folder to grow it in place; a window refused on seed 0 removes it again
-    (with the `latest` link, for a timestamped folder), as nothing was written into it."""
+    (with the `latest` link, for a timestamped folder), as nothing was written into it, and the default parent
+    it made for it, left empty."""
     config = make_config(dataset="sim:test", sampler="msa", flush=False, cache_dir=str(tmp_path / "cache"),
                          source={"frames": 5})
     methods = (("all", "all", {}), ("msa", "msa", {}))
     for out in (tmp_path / "out", None):
         with pytest.raises(InputError, match="window=10 is longer than the 5 frames read"):
             run_compare(config, out, methods=methods, seeds=[0, 1], default_parent=tmp_path / "results")
-    assert not (tmp_path / "out").exists() and list((tmp_path / "results").iterdir()) == []
+    assert not (tmp_path / "out").exists() and not (tmp_path / "results").exists()
