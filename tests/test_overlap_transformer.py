@@ -164,8 +164,8 @@ def test_compute_from_raw_scan_and_similarity(model, golden):
     assert model.similarity(d0, d0) == 1.0
     # d0 matches golden[0] only to the network's cross-CPU tolerance (1e-5 above), so compare like with like
     bank = golden["descriptors"][:2]
-    np.testing.assert_allclose(model.similarity_many(d0, bank), [model.similarity(d0, bank[0]), model.similarity(d0, d1)],
-                               rtol=1e-12)
+    expected = [model.similarity(d0, bank[0]), model.similarity(d0, d1)]
+    np.testing.assert_allclose(model.similarity_many(d0, bank), expected, rtol=1e-12)
 
 
 def test_registry_builds_overlap_transformer(weights):

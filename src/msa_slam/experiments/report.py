@@ -90,7 +90,8 @@ def make_rows(cells: list[dict[str, Any]], reference: str = "all") -> list[dict[
         row = {
             "cell": info["id"], "pipeline": info["pipeline"], "dataset": info["dataset"],
             "descriptor": info["descriptor"], "method": info["method"], "sampler": info["sampler"],
-            "seed": info["seed"], "parameters": _parameters(info["parameters"]), "frames": m["frames"], "keyframes": m["keyframes"], "candidates": m["candidates"],
+            "seed": info["seed"], "parameters": _parameters(info["parameters"]), "frames": m["frames"],
+            "keyframes": m["keyframes"], "candidates": m["candidates"],
             "verified": m["verified"], "false_loops": m["false_loops"],
             **_full_rate(m), "kf_ate_before_m": m["before"]["ate_translation_m"],
             "kf_ate_after_m": m["after"]["ate_translation_m"], "kf_improvement_t_pct": m["improvement_pct"]["translation"],
