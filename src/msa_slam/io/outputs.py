@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
-import json
 import os
 import shutil
 import time
@@ -34,7 +33,7 @@ from pathlib import Path
 from typing import Iterator
 
 from msa_slam.io.staging import (MARKER, OutputError, clean_stale, edited_files, foreign_files, is_result_folder,
-                                 recorded_digests, staged_dir, write_marker)
+                                 listed_files, recorded_digests, staged_dir, write_marker)
 
 __all__ = ["DEFAULT_RESULTS", "MARKER", "OutputError", "ResultFolder", "is_result_folder",
            "open_result_folder", "staged_dir", "timestamped", "write_marker"]
@@ -210,7 +209,7 @@ class ResultFolder:
         """After a run that grew the folder in place: list its files as msa-slam's in the marker, but the
         unlisted ones it found there and left untouched (prepare_in_place), unless they make a whole unit of
         msa-slam's (with its record file, and no file of it listed before)."""
-        listed_units = {self._unit(name) for name in json.loads((self.path / MARKER).read_text()).get("files", [])}
+        listed_units = {self._unit(name) for name in listed_files(self.path)}
         untouched = []
         for name, mtime in self._not_ours.items():
             with contextlib.suppress(FileNotFoundError):  # gone: nothing to list

@@ -71,6 +71,11 @@ def recorded_digests(folder: Path) -> dict[str, str]:
     return json.loads((Path(folder) / MARKER).read_text()).get("digests", {})
 
 
+def listed_files(folder: Path) -> set[str]:
+    """The files (and empty folders, ending in /) a result folder's marker lists as msa-slam's."""
+    return set(json.loads((Path(folder) / MARKER).read_text()).get("files", []))
+
+
 def _digest(path: Path) -> str:
     """SHA-256 of a file's bytes, or of a link's target (links are not followed)."""
     if path.is_symlink():
@@ -92,7 +97,7 @@ def foreign_files(folder: Path) -> list[str]:
     """Files and empty folders (relative paths, a folder's ending in /) in a result folder that its marker does
     not list as msa-slam's: someone else put them there, or a run that grows the folder in place was killed
     before listing its own."""
-    ours = set(json.loads((Path(folder) / MARKER).read_text()).get("files", []))
+    ours = listed_files(folder)
     return [name for name in _files(Path(folder)) if name not in ours]
 
 
