@@ -156,6 +156,25 @@ def test_streamed_candidates_are_the_constrained_power_set_in_order(n):
     assert rho.tolist() == [sum(sim[b, a] for a, b in zip(s, s[1:])) / (len(s) - 1) for s in got]
 
 
+def test_candidate_batches_hold_one_size_each_and_cover_every_candidate():
+    """The threads' work units: consecutive candidates of one size, at most `lanes` of them, in order."""
+    rng = np.random.default_rng(5)
+    n = 13
+    t = np.zeros((n, 3))
+    t[:, 0] = np.cumsum(rng.uniform(0.5, 1.5, n))
+    dist, sim = exact.pairwise(t, rng.standard_normal((n, 8)))
+    masks = feasible_subsets(dist, sim, 0.1, 3.0)[0]
+    starts = fast.candidate_batches(masks, 32)
+    sizes = np.array([bin(int(k)).count("1") for k in masks])
+    assert starts[0] == 0 and starts[-1] == len(masks) and (np.diff(starts) > 0).all()
+    assert (np.diff(starts) <= 32).all()
+    for a, b in zip(starts[:-1], starts[1:]):
+        assert len(set(sizes[a:b])) == 1
+    full_or_last = [b - a == 32 or b == len(masks) or sizes[b] != sizes[a] for a, b in zip(starts[:-1], starts[1:])]
+    assert all(full_or_last)  # a batch is cut short only where the size changes
+    assert fast.candidate_batches(masks[:0], 32).tolist() == [0]
+
+
 def test_thread_count_does_not_change_canonical_keyframes(monkeypatch):
     import numba
 

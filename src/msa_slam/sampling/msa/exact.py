@@ -169,8 +169,7 @@ def fast_path_extremes(pi: np.ndarray, dist: np.ndarray, sim: np.ndarray, dmin: 
     perturbed eigen-decompositions land elsewhere, the exact value could too on another machine.
     """
     masks, _ = feasible_subsets(dist, sim, dmin, dmax)
-    value, low, high = fast.information_rows(masks, dist, gram, fast.PROBES, canonical,
-                                             8 * numba.get_num_threads())
+    value, low, high = fast.information_rows(masks, dist, gram, fast.PROBES, canonical, numba.get_num_threads())
     return np.minimum(value, pi + (low - value)), np.maximum(value, pi + (high - value))
 
 

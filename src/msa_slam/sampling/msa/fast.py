@@ -24,7 +24,7 @@ from numba import get_num_threads, njit, prange
 
 from msa_slam.sampling.msa.canonical import SOLVER_RTOL, canonicalise, cluster_scan_lanes, sign_convention_lanes
 from msa_slam.sampling.msa.decision import decide
-from msa_slam.sampling.msa.eigen import lane_buffers, symmetric_eigh, symmetric_eigh_lanes
+from msa_slam.sampling.msa.eigen import LANES, lane_buffers, symmetric_eigh, symmetric_eigh_lanes
 from msa_slam.sampling.msa.powerset import feasible_subsets
 from msa_slam.sampling.msa.terms import C_CLIP, EIGENVALUE_FLOOR, ScoreWeights, WindowResult
 
@@ -356,60 +356,76 @@ PARALLEL_FROM = 1000  # candidates per window from which threads share them: bel
 
 
 @njit(cache=True)
+def candidate_batches(masks: np.ndarray, lanes: int) -> np.ndarray:  # pragma: no cover
+    """Batches of at most `lanes` consecutive candidates of one size (candidates come ordered by size):
+    batch b is masks[starts[b]:starts[b + 1]]. Size-aligned, so that canonical pi decomposes each batch's C
+    together (a chunk that straddles two sizes splits into two part-filled batches, and a batch of a few
+    lanes costs nearly what a full one does)."""
+    starts = np.empty(len(masks) + 1, dtype=np.int64)
+    count, size, filled = 0, -1, 0
+    for i in range(len(masks)):
+        m = 0
+        x = masks[i]
+        while x:
+            x &= x - 1
+            m += 1
+        if m != size or filled == lanes:
+            starts[count] = i
+            count += 1
+            size, filled = m, 0
+        filled += 1
+    starts[count] = len(masks)
+    return starts[:count + 1]
+
+
+@njit(cache=True)
 def _information_block(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, probes: int, canonical: bool,
-                       out: np.ndarray, first: int, step: int) -> None:  # pragma: no cover
-    """information_rows for the chunks of candidates first, first + step, ... (their columns of out;
-    a chunk is eigen.LANES consecutive candidates). Canonical pi takes them in batches of up to
-    eigen.LANES of the same size, whose C are decomposed together (_canonical_batch: the same values
-    as one at a time); candidates come ordered by size, so a chunk is one batch but where the size
-    changes (dealing single candidates in turn left every block a small batch of each size, and a
-    batch of a few lanes costs nearly what a full one does)."""
+                       out: np.ndarray, starts: np.ndarray, first: int, step: int) -> None:  # pragma: no cover
+    """information_rows for the batches first, first + step, ... (candidate_batches; their columns of
+    out). Canonical pi decomposes each batch's C together (_canonical_batch: the same values as one at a
+    time); the reference pi takes its candidates one by one (information_gram)."""
     width = dist.shape[0]
     buffers = _batch_buffers(width)
     lanes = buffers[0].shape[2]
     scratch = np.empty(scratch_size(width))
     members = np.empty(width, dtype=np.int64)
-    waiting = np.empty((width, lanes), dtype=np.int64)  # the members of the candidates of the next batch
+    waiting = np.empty((width, lanes), dtype=np.int64)  # the members of the batch's candidates
     index = np.empty(lanes, dtype=np.int64)
-    batch, batch_m = 0, 0  # candidates waiting, and their size
-    for chunk in range(first, (len(masks) + lanes - 1) // lanes, step):
-        for i in range(chunk * lanes, min((chunk + 1) * lanes, len(masks))):
+    for b in range(first, len(starts) - 1, step):
+        batch, batch_m = 0, 0
+        for i in range(starts[b], starts[b + 1]):
             m = 0
             for p in range(width):
                 if masks[i] >> p & 1:
                     members[m] = p
                     m += 1
             if m <= 2:
-                continue
+                break  # pi = 0 by definition; the whole batch has this size
             if not canonical:
                 out[0, i], out[1, i], out[2, i] = information_gram(members, m, dist, gram, scratch, probes, False)
                 continue
-            if batch > 0 and m != batch_m:
-                _canonical_batch(waiting, batch, batch_m, dist, gram, buffers, scratch, out, index)
-                batch = 0
             waiting[:m, batch] = members[:m]
             index[batch] = i
             batch_m = m
             batch += 1
-            if batch == lanes:
-                _canonical_batch(waiting, batch, m, dist, gram, buffers, scratch, out, index)
-                batch = 0
-    if batch > 0:
-        _canonical_batch(waiting, batch, batch_m, dist, gram, buffers, scratch, out, index)
+        if batch > 0:
+            _canonical_batch(waiting, batch, batch_m, dist, gram, buffers, scratch, out, index)
 
 
 @njit(cache=True, parallel=True)
 def information_rows(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, probes: int,
-                     canonical: bool = False, blocks: int = 16) -> np.ndarray:  # pragma: no cover
+                     canonical: bool = False, blocks: int = 2) -> np.ndarray:  # pragma: no cover
     """(3, candidates): pi of the candidates (bit masks, powerset.feasible_subsets), and its lowest and
-    highest value under rounding. Chunks of eigen.LANES consecutive candidates are dealt to `blocks` in
-    turn (candidates come ordered by size, so contiguous ranges left the thread with the last blocks most
-    of the work), and the blocks are shared by numba's threads (pass a few per thread); each
-    candidate's arithmetic is the same whatever the thread count."""
+    highest value under rounding. The size-aligned batches (candidate_batches) are dealt to `blocks` in
+    turn, batch b to block b % blocks (candidates come ordered by size, so contiguous ranges left the
+    thread with the last blocks most of the work), and the blocks are shared by numba's threads (pass
+    the thread count: each then takes every other batch of each size); each candidate's arithmetic is
+    the same whatever the thread count."""
     out = np.zeros((3, len(masks)))
-    blocks = max(min(len(masks), blocks), 1)
+    starts = candidate_batches(masks, LANES)
+    blocks = max(min(len(starts) - 1, blocks), 1)
     for block in prange(blocks):
-        _information_block(masks, dist, gram, probes, canonical, out, block, blocks)
+        _information_block(masks, dist, gram, probes, canonical, out, starts, block, blocks)
     return out
 
 
@@ -418,7 +434,7 @@ def information_rows_serial(masks: np.ndarray, dist: np.ndarray, gram: np.ndarra
                             canonical: bool = False) -> np.ndarray:  # pragma: no cover
     """information_rows on the calling thread (windows of fewer than PARALLEL_FROM candidates)."""
     out = np.zeros((3, len(masks)))
-    _information_block(masks, dist, gram, probes, canonical, out, 0, 1)
+    _information_block(masks, dist, gram, probes, canonical, out, candidate_batches(masks, LANES), 0, 1)
     return out
 
 
@@ -444,7 +460,7 @@ def optimise_fast(translations: np.ndarray, descriptors: np.ndarray, dmin: float
             pi, pi_low, pi_high = information_rows_serial(masks, dist, gram(descriptors), PROBES, canonical)
         else:
             pi, pi_low, pi_high = information_rows(masks, dist, gram(descriptors), PROBES, canonical,
-                                                   8 * get_num_threads())
+                                                   get_num_threads())
     best, ambiguous, margin = decide(int(masks.size), rho if weights.use_rho else None, pi, pi_low, pi_high, weights)
     return WindowResult(mask_positions(int(masks[best])), int(masks.size), ambiguous, margin)
 
