@@ -126,7 +126,7 @@ def test_truncated_or_nan_entries_are_recomputed_with_a_warning(data, tmp_path, 
     cfg = _config(data, tmp_path / "cache")
     first = prepare_frontend(cfg)
     entries = {p.name.split("-")[0]: p for p in (tmp_path / "cache" / "pipeline").glob("*.npy")}
-    assert sorted(entries) == ["descriptors", "odometry"]
+    assert sorted(entries) == ["descriptors", "odometry", "unregistered"]  # the odometry's unregistered frames
     odometry = entries["odometry"]
     odometry.write_bytes(odometry.read_bytes()[:300])
     poisoned = np.load(entries["descriptors"])

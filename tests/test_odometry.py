@@ -136,7 +136,9 @@ def test_sequence_odometry_is_cached_by_scans_and_config(tmp_path, caplog):
     other_scans = _CountingOdometry()
     sequence_odometry(_scan_folder(tmp_path / "seq2", n=3), other_scans, cache, quiet=True)
     assert other_scans.calls == 3
-    assert sorted(p.suffix for p in (tmp_path / "cache").iterdir()) == [".npy"] * 3  # no temp files left
+    names = sorted(p.name.split("-")[0] for p in (tmp_path / "cache").iterdir())
+    assert names == ["odometry"] * 3 + ["unregistered"] * 3  # no temp files left
+    assert {p.suffix for p in (tmp_path / "cache").iterdir()} == {".npy"}
     # A corrupt cache entry is recomputed, not trusted, with a warning naming it.
     key = OdometryCache.key(seq, first.config)
     cache.path(key).write_bytes(b"garbage")
@@ -144,3 +146,31 @@ def test_sequence_odometry_is_cached_by_scans_and_config(tmp_path, caplog):
     _, cached = sequence_odometry(seq, recomputed, cache, quiet=True)
     assert recomputed.calls == 4 and not cached
     assert str(cache.path(key)) in caplog.text
+
+
+def test_a_cached_run_knows_the_frames_kiss_icp_could_not_register(tmp_path):
+    """Frame 1 lies beyond max_range: the fresh run and the run from the cache both list it and say so in one
+    line for the report; a cache entry without that list (an older msa-slam's) is recomputed."""
+    rng = np.random.default_rng(1)
+    near = np.hstack([rng.normal(size=(2000, 3)) * 10.0, np.zeros((2000, 1))]).astype(np.float32)
+    folder = tmp_path / "seq"
+    folder.mkdir()
+    for k, scan in enumerate([near, near + np.float32(500.0), near]):
+        scan.tofile(folder / f"{k:06d}.bin")
+    cache = OdometryCache(tmp_path / "cache")
+    fresh = KissOdometry(max_range=50.0)
+    poses, cached = sequence_odometry(folder_sequence(folder), fresh, cache, quiet=True)
+    assert not cached and fresh.unregistered_frames == [1]
+    replayed = KissOdometry(max_range=50.0)
+    again, cached = sequence_odometry(folder_sequence(folder), replayed, cache, quiet=True)
+    assert cached and replayed.unregistered_frames == [1]
+    np.testing.assert_array_equal(again, poses)
+    assert replayed.unregistered_warning(3) == [
+        "odometry: KISS-ICP could not register 1 of 3 frames (frame 1): none of their points lies within 0-50 m, "
+        "so their poses were extrapolated at constant velocity"]
+    assert KissOdometry().unregistered_warning(3) == []
+    key = OdometryCache.key(folder_sequence(folder), fresh.config)
+    cache.store.path(f"unregistered-{key}").unlink()
+    legacy = KissOdometry(max_range=50.0)
+    _, cached = sequence_odometry(folder_sequence(folder), legacy, cache, quiet=True)
+    assert not cached and legacy.unregistered_frames == [1]

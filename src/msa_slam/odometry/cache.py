@@ -17,6 +17,9 @@ ODOMETRY_LIBRARIES = ("kiss-icp", "numpy")
 
 
 class Odometry(Protocol):
+    """What sequence_odometry needs; an odometry may also list `unregistered_frames` (KissOdometry: frames it
+    could only extrapolate), which the cache keeps beside the poses."""
+
     config: Mapping[str, Any]
 
     def register(self, points: np.ndarray, timestamps: np.ndarray | None = None,
@@ -47,14 +50,30 @@ class OdometryCache:
 
         return self.store.load(f"odometry-{key}", check)
 
-    def save(self, key: str, poses: np.ndarray) -> Path | None:
-        """Store the poses; None when the cache cannot be written (warned once)."""
+    def load_unregistered(self, key: str, frames: int) -> list[int] | None:
+        """The frames the cached odometry could not register (entry `unregistered-<key>`), or None when the entry
+        is absent or bad (an entry written before these were kept: the odometry is then recomputed)."""
+
+        def check(listed: np.ndarray) -> np.ndarray:
+            listed = check_entry(listed)
+            if listed.ndim != 1 or not ((listed >= 0) & (listed < frames) & (listed == np.round(listed))).all():
+                raise ValueError(f"expected frame indices below {frames}")
+            return listed
+
+        listed = self.store.load(f"unregistered-{key}", check)
+        return None if listed is None else [int(f) for f in listed]
+
+    def save(self, key: str, poses: np.ndarray, unregistered: Iterable[int] = ()) -> Path | None:
+        """Store the poses and the frames among them that were not registered; None when the cache cannot be
+        written (warned once). The list goes first: poses without it are recomputed, never read alone."""
+        self.store.save(f"unregistered-{key}", np.asarray(list(unregistered), dtype=np.float64))
         return self.store.save(f"odometry-{key}", validate_poses(poses, "odometry poses"))
 
 
 def sequence_odometry(sequence: ScanSequence, odometry: Odometry, cache: OdometryCache | None = None,
                       quiet: bool = False, extra_inputs: Iterable[str | os.PathLike] = ()) -> tuple[np.ndarray, bool]:
-    """(N, 4, 4) odometry poses of every frame of `sequence` and whether they came from `cache`.
+    """(N, 4, 4) odometry poses of every frame of `sequence` and whether they came from `cache` (which then
+    also restores the odometry's `unregistered_frames`, so a cached run reports them as a fresh one does).
 
     `extra_inputs`: files the odometry reads besides the scans (they are part of the cache key). The key is
     made from `odometry.config`, so the odometry comes configured for these scans (KISS-ICP's deskewing off
@@ -65,7 +84,10 @@ def sequence_odometry(sequence: ScanSequence, odometry: Odometry, cache: Odometr
     if cache is not None:
         key = OdometryCache.key(sequence, odometry.config, extra_inputs)
         cached = cache.load(key, expected_length=len(sequence))
-        if cached is not None:
+        unregistered = None if cached is None else cache.load_unregistered(key, len(sequence))
+        if cached is not None and unregistered is not None:
+            if hasattr(odometry, "unregistered_frames"):
+                odometry.unregistered_frames = unregistered
             return cached, True
     poses = np.empty((len(sequence), 4, 4))
     with progress_bar(quiet) as progress:
@@ -75,5 +97,5 @@ def sequence_odometry(sequence: ScanSequence, odometry: Odometry, cache: Odometr
             poses[i] = odometry.register(frame.points, frame.timestamps, frame.time if sequence.times_known else None)
             progress.advance(task)
     if cache is not None and key is not None:
-        cache.save(key, poses)
+        cache.save(key, poses, getattr(odometry, "unregistered_frames", ()))
     return poses, False

@@ -196,6 +196,18 @@ class KissOdometry:
         rho, phi = se3_log(motion)
         return deskew(cloud, (stamps - stamps.min()) / span, share * rho, share * phi)
 
+    def unregistered_warning(self, frames: int) -> list[str]:
+        """One line on the frames that were not registered (none: []), for the run's notes: a cached run logs
+        nothing per frame, so this is where its report learns of them."""
+        if not self.unregistered_frames:
+            return []
+        data, listed = self._icp.config.data, self.unregistered_frames
+        shown = ", ".join(map(str, listed[:MAX_LOGGED_FRAMES])) + (f" and {len(listed) - MAX_LOGGED_FRAMES} more"
+                                                                   if len(listed) > MAX_LOGGED_FRAMES else "")
+        return [f"odometry: KISS-ICP could not register {len(listed)} of {frames} frames (frame{'s' * (len(listed) > 1)} "
+                f"{shown}): none of their points lies within {data.min_range:g}-{data.max_range:g} m, so their poses "
+                f"were extrapolated at constant velocity"]
+
     def _not_registered(self, n_points: int) -> None:
         self.unregistered_frames.append(self._frames)
         if len(self.unregistered_frames) <= MAX_LOGGED_FRAMES:

@@ -215,6 +215,8 @@ def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[R
         descriptors, cached["descriptors"] = compute_descriptors(sequence, descriptor, cache if use_cache else None,
                                                                  key, quiet)
     sanity = frontend_warnings(sequence.gt_poses, poses, sequence.times)
+    if isinstance(odometry, KissOdometry):
+        sanity += odometry.unregistered_warning(n)
     for warning in sanity:
         logger.warning(warning)
     warnings = [*source_warnings(config, sequence.name, sequence.times_known, sequence.point_times), *sanity]
