@@ -204,9 +204,10 @@ class KissOdometry:
         data, listed = self._icp.config.data, self.unregistered_frames
         shown = ", ".join(map(str, listed[:MAX_LOGGED_FRAMES])) + (f" and {len(listed) - MAX_LOGGED_FRAMES} more"
                                                                    if len(listed) > MAX_LOGGED_FRAMES else "")
-        return [f"odometry: KISS-ICP could not register {len(listed)} of {frames} frames (frame{'s' * (len(listed) > 1)} "
-                f"{shown}): none of their points lies within {data.min_range:g}-{data.max_range:g} m, so their poses "
-                f"were extrapolated at constant velocity"]
+        which = f"frame{'s' * (len(listed) > 1)} {shown}"
+        return [f"odometry: KISS-ICP could not register {len(listed)} of {frames} frames ({which}): none of their "
+                f"points lies within {data.min_range:g}-{data.max_range:g} m, so their poses were extrapolated at "
+                f"constant velocity"]
 
     def _not_registered(self, n_points: int) -> None:
         self.unregistered_frames.append(self._frames)
