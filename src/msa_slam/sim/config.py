@@ -20,7 +20,7 @@ from msa_slam.sim.sensors import SENSORS
 from msa_slam.sim.trajectories import TRAJECTORY_NAMES, Trajectory, load_trajectory, read_trajectory
 
 SIM_VERSION = "9"  # bump when generated worlds or scans change, so stale caches are not reused
-SIM_LIBRARIES = ("trimesh", "embreex", "numpy")  # ray casting and noise: part of the cache key
+SIM_LIBRARIES = ("trimesh", "embreex", "numpy", "scipy")  # ray casting, noise, poses (Rotation): the cache key
 
 
 class SimConfig(BaseModel):
