@@ -13,7 +13,7 @@ from msa_slam.io.cache import CacheDir, cache_key, check_entry, input_identity, 
 from msa_slam.progress import progress_bar
 from msa_slam.types import validate_poses
 
-ODOMETRY_LIBRARIES = ("kiss-icp", "numpy")
+ODOMETRY_LIBRARIES = ("kiss-icp", "numpy", "scipy")  # scipy: the deskew's rotations (odometry.deskew)
 
 
 class Odometry(Protocol):
