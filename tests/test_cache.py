@@ -122,6 +122,27 @@ def test_online_replays_the_odometry_of_the_scans_it_reads(data, tmp_path, caplo
         np.testing.assert_array_equal(replayed, run.odometry)
 
 
+def test_run_and_online_from_the_cache_name_the_frames_kiss_icp_could_not_register(tmp_path):
+    """A cached front end (run) and a replayed one (online) say which frames were only extrapolated, as a fresh
+    run does: frame 5 lies beyond max_range."""
+    rng = np.random.default_rng(1)
+    near = np.hstack([rng.normal(size=(3000, 3)) * 10.0, np.zeros((3000, 1))]).astype(np.float32)
+    data = tmp_path / "seq"
+    data.mkdir()
+    for k in range(12):
+        (near + np.float32(500.0) if k == 5 else near).tofile(data / f"{k:06d}.bin")
+    line = ("odometry: KISS-ICP could not register 1 of 12 frames (frame 5): none of their points lies within "
+            "0-50 m, so their poses were extrapolated at constant velocity")
+    cfg = _config(data, tmp_path / "cache", sampler="all", mode="realistic", odometry_params={"max_range": 50.0})
+    fresh, cached = prepare_frontend(cfg), prepare_frontend(cfg)
+    assert not fresh.cached["odometry"] and cached.cached["odometry"]
+    assert line in fresh.warnings and line in cached.warnings
+    config = make_online_config(dataset=str(data), cache_dir=str(tmp_path / "cache"), mode="realistic",
+                                odometry_params={"max_range": 50.0})
+    odometry, replayed = make_online_odometry(config, open_source(config.dataset, mode="realistic"), 12)
+    assert replayed and odometry.notes == [line]
+
+
 def test_truncated_or_nan_entries_are_recomputed_with_a_warning(data, tmp_path, caplog):
     cfg = _config(data, tmp_path / "cache")
     first = prepare_frontend(cfg)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -53,10 +53,12 @@ class NoisyOdometry:
 
 
 class ReplayedOdometry:
-    """Odometry poses computed earlier for this sequence, handed out frame by frame."""
+    """Odometry poses computed earlier for this sequence, handed out frame by frame; `notes` are what that
+    odometry reported of them (frames it could not register), for the run's notes."""
 
-    def __init__(self, poses: np.ndarray) -> None:
+    def __init__(self, poses: np.ndarray, notes: Sequence[str] = ()) -> None:
         self.poses, self._i = poses, 0
+        self.notes = list(notes)
 
     def register(self, points: np.ndarray | None = None, timestamps: np.ndarray | None = None,
                  time: float | None = None) -> np.ndarray:

@@ -23,7 +23,7 @@ from msa_slam.descriptors import make_descriptor
 from msa_slam.errors import InputError
 from msa_slam.evaluation.resources import current_rss_bytes
 from msa_slam.evaluation.sanity import frontend_warnings
-from msa_slam.odometry import NoisyOdometry, OdometryCache, ReplayedOdometry
+from msa_slam.odometry import KissOdometry, NoisyOdometry, OdometryCache, ReplayedOdometry
 from msa_slam.pipeline.frontend import config_as_run, make_odometry, pipeline_cache, source_warnings
 from msa_slam.pipeline.online_config import NO_TIMESTAMPS, OnlineConfig
 from msa_slam.pipeline.source import open_source
@@ -125,10 +125,13 @@ def make_online_odometry(config: OnlineConfig, source: FrameSource, n: int):
                              "translation_noise, rotation_noise_deg") from None
     odometry = make_odometry(config, len(source), source.point_times is not False)
     if config.odometry == "kiss" and source.sequence is not None:
-        cached = OdometryCache(pipeline_cache(config)).load(OdometryCache.key(source.sequence, odometry.config),
-                                                            len(source))
-        if cached is not None:
-            return ReplayedOdometry(cached), True
+        cache = OdometryCache(pipeline_cache(config))
+        key = OdometryCache.key(source.sequence, odometry.config)
+        cached = cache.load(key, len(source))
+        unregistered = None if cached is None else cache.load_unregistered(key, len(source))
+        if cached is not None and unregistered is not None:
+            odometry.unregistered_frames = [frame for frame in unregistered if frame < n]
+            return ReplayedOdometry(cached, odometry.unregistered_warning(n)), True
     return odometry, False
 
 
@@ -202,6 +205,10 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     result.memory_bytes["record_bytes"] += sum(v.nbytes for v in (*result.memory.values(), *front))  # per-frame series
     result.metrics = {**_metrics(result, times_known), "odometry_cached": cached}
     warnings = frontend_warnings(result.gt_poses, result.odometry, result.times)
+    if isinstance(odometry, KissOdometry):
+        warnings += odometry.unregistered_warning(m)
+    elif isinstance(odometry, ReplayedOdometry):
+        warnings += odometry.notes
     for warning in warnings:
         logger.warning(warning)
     result.metrics["warnings"] = [*notes, *warnings, *result.metrics["warnings"]]
