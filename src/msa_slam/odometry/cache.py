@@ -63,6 +63,13 @@ class OdometryCache:
         listed = self.store.load(f"unregistered-{key}", check)
         return None if listed is None else [int(f) for f in listed]
 
+    def load_entry(self, key: str, frames: int) -> tuple[np.ndarray, list[int]] | None:
+        """The cached poses of `frames` frames and the frames among them that were not registered, or None when
+        either is absent or bad (the odometry is then recomputed)."""
+        poses = self.load(key, expected_length=frames)
+        unregistered = None if poses is None else self.load_unregistered(key, frames)
+        return None if unregistered is None else (poses, unregistered)
+
     def save(self, key: str, poses: np.ndarray, unregistered: Iterable[int] = ()) -> Path | None:
         """Store the poses and the frames among them that were not registered; None when the cache cannot be
         written (warned once). The list goes first: poses without it are recomputed, never read alone."""
@@ -83,12 +90,11 @@ def sequence_odometry(sequence: ScanSequence, odometry: Odometry, cache: Odometr
     key = None
     if cache is not None:
         key = OdometryCache.key(sequence, odometry.config, extra_inputs)
-        cached = cache.load(key, expected_length=len(sequence))
-        unregistered = None if cached is None else cache.load_unregistered(key, len(sequence))
-        if cached is not None and unregistered is not None:
+        entry = cache.load_entry(key, len(sequence))
+        if entry is not None:
             if hasattr(odometry, "unregistered_frames"):
-                odometry.unregistered_frames = unregistered
-            return cached, True
+                odometry.unregistered_frames = entry[1]
+            return entry[0], True
     poses = np.empty((len(sequence), 4, 4))
     with progress_bar(quiet) as progress:
         task = progress.add_task("odometry", total=len(sequence))

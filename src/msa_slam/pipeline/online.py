@@ -125,13 +125,11 @@ def make_online_odometry(config: OnlineConfig, source: FrameSource, n: int):
                              "translation_noise, rotation_noise_deg") from None
     odometry = make_odometry(config, len(source), source.point_times is not False)
     if config.odometry == "kiss" and source.sequence is not None:
-        cache = OdometryCache(pipeline_cache(config))
-        key = OdometryCache.key(source.sequence, odometry.config)
-        cached = cache.load(key, len(source))
-        unregistered = None if cached is None else cache.load_unregistered(key, len(source))
-        if cached is not None and unregistered is not None:
-            odometry.unregistered_frames = [frame for frame in unregistered if frame < n]
-            return ReplayedOdometry(cached, odometry.unregistered_warning(n)), True
+        entry = OdometryCache(pipeline_cache(config)).load_entry(OdometryCache.key(source.sequence, odometry.config),
+                                                                 len(source))
+        if entry is not None:
+            odometry.unregistered_frames = [frame for frame in entry[1] if frame < n]
+            return ReplayedOdometry(entry[0], odometry.unregistered_warning(n)), True
     return odometry, False
 
 
