@@ -264,8 +264,8 @@ def main() -> int:
           f"at a time and {LANES} at a time")
     print(f"{'m':>3} {'dsyevd':>8} {'compiled':>9} {'speed-up':>9} {'lanes':>8} {'speed-up':>9}")
     for m, lapack, compiled, lanes in eigensolver_timings():
-        print(f"{m:>3} {lapack:>8.2f} {compiled:>9.2f} {lapack / compiled:>8.2f}x {lanes:>8.2f} {lapack / lanes:>8.2f}x",
-              flush=True)
+        print(f"{m:>3} {lapack:>8.2f} {compiled:>9.2f} {lapack / compiled:>8.2f}x "
+              f"{lanes:>8.2f} {lapack / lanes:>8.2f}x", flush=True)
 
     if args.quick:
         return 0

@@ -160,7 +160,8 @@ def grid_for(variants_: Sequence[Variant], sequence: str, seeds: Sequence[int], 
         base["source"] = {"frames": frames}
     runnable = [v for v in variants_ if v.refused is None]
     labels = [v.label for v in runnable]
-    return GridSpec(name="msa_windows", pipeline="batch", datasets=[f"sim:kitti-{sequence},azimuth_steps=720,seed={{seed}}"],
+    return GridSpec(name="msa_windows", pipeline="batch",
+                    datasets=[f"sim:kitti-{sequence},azimuth_steps=720,seed={{seed}}"],
                     samplers=[SamplerSpec(sampler="msa", label=v.label, params=v.params) for v in runnable],
                     seeds=list(seeds), base=base,
                     reference=Variant(*BASELINE).label if Variant(*BASELINE).label in labels else None)
@@ -190,7 +191,8 @@ def run(args: argparse.Namespace) -> str:
             failed[key] = "; ".join(filter(None, [failed.get(key), f"seed {cell.seed}: {done.failed[cell.id]}"]))
     base = list(runs.get(BASELINE, {}).values())
     chance = (f"\nChance level of the Jaccard column: two random keyframe sets of the N=10 reference row's size "
-              f"would share {fmt(sum(chance_jaccard_pct(r['keyframes'], r['frames']) for r in base) / len(base), '.1f')} % "
+              "would share "
+              f"{fmt(sum(chance_jaccard_pct(r['keyframes'], r['frames']) for r in base) / len(base), '.1f')} % "
               "(mean over seeds).\n" if base else "")
     text = (header(sequence, args.frames, seeds, args.mode, runs) + "\n\n" + table_markdown(rows, runs, seeds, failed)
             + chance

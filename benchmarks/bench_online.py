@@ -142,10 +142,12 @@ def memory(laps: int, quiet: bool) -> None:
     mib = lambda b: f"{b / 2**20:.1f}"  # noqa: E731
     print(f"\n{r.name}: {m['frames']} frames, {m['keyframes']} keyframes, {m['verified']} loops, {wall:.0f} s\n")
     print("| part | MiB |\n|---|---|")
-    for label, value in [("keyframe descriptors", acc["keyframe_descriptors"]), ("pose graph (GTSAM, iSAM2)", acc["graph"]),
+    for label, value in [("keyframe descriptors", acc["keyframe_descriptors"]),
+                         ("pose graph (GTSAM, iSAM2)", acc["graph"]),
                          ("keyframe clouds in RAM", acc["keyframe_clouds"] - acc["keyframe_clouds_on_disk"]),
                          ("run records (per frame, loops)", acc["run_records"]), ("map", acc["map"]),
-                         ("accounted in RAM", acc["in_ram"]), ("(keyframe clouds on disk)", acc["keyframe_clouds_on_disk"]),
+                         ("accounted in RAM", acc["in_ram"]),
+                         ("(keyframe clouds on disk)", acc["keyframe_clouds_on_disk"]),
                          ("RSS growth over the run", m["rss_growth_bytes"])]:
         print(f"| {label} | {mib(value)} |")
     print(f"| ratio RSS growth / accounted | {m['rss_growth_ratio']:.2f} |")

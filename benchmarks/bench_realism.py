@@ -152,7 +152,8 @@ def _auc_targets(per_seq: dict[str, list[dict]], all_key: str, c2_key: str) -> s
     undefined are counted with the reason the metric gives; a run whose all-samples matches are all true is
     scored with perfect_precision_auc (counted apart)."""
     scored = {seq: [(_scored(r, all_key), r) for r in rs] for seq, rs in per_seq.items()}
-    defined = {seq: [(a, r) for a, r in rows if a is not None and r[c2_key] is not None] for seq, rows in scored.items()}
+    defined = {seq: [(a, r) for a, r in rows if a is not None and r[c2_key] is not None]
+               for seq, rows in scored.items()}
     gap = sum(np.mean([a - r[c2_key] for a, r in rows]) >= 0.05 for rows in defined.values() if rows)
     aucs = [a for rows in defined.values() for a, _ in rows]
     runs = [(a, r) for rows in scored.values() for a, r in rows]
@@ -203,8 +204,8 @@ def main() -> None:
     print(f"realism {args.realism}, frames {args.frames or 'all'}, azimuth steps {args.azimuth_steps or 'default'}, "
           f"far pairs on every {args.pair_step}. frame\n")
     header = ("seq", "seed", "frames", "RTE %", "horiz %", "vert %", "max far SC", "far > 0.8 %",
-              "AUC all", "all matches", "all rec@0.8", "AUC c2m", "batch AUC all", "batch AUC c2m", "spac vs c3m kf diff %", "kf spac/c3m",
-              "scans/s", "KiB/scan")
+              "AUC all", "all matches", "all rec@0.8", "AUC c2m", "batch AUC all", "batch AUC c2m",
+              "spac vs c3m kf diff %", "kf spac/c3m", "scans/s", "KiB/scan")
     print(" | ".join(header))
     print("|".join("---" for _ in header))
     rows = []
@@ -217,8 +218,8 @@ def main() -> None:
             rows.append((seq, r))
             rte = r["rte"] or (float("nan"),) * 3
             print(" | ".join([seq, str(seed), str(r["frames"]), *(f"{v:.2f}" for v in rte), f"{r['best']:.3f}",
-                              f"{100 * r['above']:.3f}", _auc_all(r), str(r["matches_all"]), _pct(r["recall_all_08"]), _pct(r["auc_c2"]),
-                              _pct(r["batch_all"]), _pct(r["batch_c2"]),
+                              f"{100 * r['above']:.3f}", _auc_all(r), str(r["matches_all"]), _pct(r["recall_all_08"]),
+                              _pct(r["auc_c2"]), _pct(r["batch_all"]), _pct(r["batch_c2"]),
                               f"{100 * r['spac_diff']:.1f}", "/".join(map(str, r["kf"])),
                               "cached" if r["scans_per_s"] is None else f"{r['scans_per_s']:.1f}",
                               f"{r['disk'] / 1024:.0f}"]), flush=True)

@@ -67,7 +67,8 @@ def main() -> int:
     world = sim.world
     rows = [("world mesh (vertices, faces)", f"{len(world.mesh.faces)} faces",
              digest(np.asarray(world.mesh.vertices), np.asarray(world.mesh.faces))),
-            ("world reflectance, materials", f"{len(world.reflectance)} faces", digest(world.reflectance, world.material))]
+            ("world reflectance, materials", f"{len(world.reflectance)} faces",
+             digest(world.reflectance, world.material))]
     descriptor = make_descriptor("sc")
     scans, times, descriptors, odometry_scans = [], [], [], []
     every_scan = hashlib.sha256()  # = `cat velodyne/*.bin | sha256sum` of the demo's cached sequence

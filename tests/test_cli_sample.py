@@ -126,7 +126,8 @@ def test_tum_times_that_do_not_increase_are_refused(stream):
                                  r"pose 5: time \S+ is before the previous one \(\S+ on line 4\) on line 5"),
                                 ("same.txt", lambda t: t[3],
                                  r"pose 5: time \S+ repeats the previous one \(\S+ on line 4\) on line 5"),
-                                ("nan.txt", lambda t: float("nan"), "pose 5: time nan is not a finite number on line 5")):
+                                ("nan.txt", lambda t: float("nan"),
+                                 "pose 5: time nan is not a finite number on line 5")):
         times = [float(line.split()[0]) for line in lines]
         changed = lines[:4] + [" ".join([repr(edit(times))] + lines[4].split()[1:])] + lines[5:]
         (path / name).write_text("\n".join(changed) + "\n")

@@ -82,7 +82,8 @@ def test_registry_names_and_errors(npy):
     assert isinstance(make_descriptor("Scan_Context", n_ring=10).shape, tuple)
     assert make_descriptor("scan_context", n_ring=10).shape == (10, 60)
     assert isinstance(make_descriptor("precomputed", path=npy), PrecomputedDescriptors)
-    with pytest.raises(InputError, match="unknown name 'nope'; choose one of sc, scan_context, ot, overlap_transformer, precomputed"):
+    with pytest.raises(InputError, match="unknown name 'nope'; choose one of sc, scan_context, ot, "
+                                         "overlap_transformer, precomputed"):
         make_descriptor("nope")
     with pytest.raises(InputError, match="bad parameters"):
         make_descriptor("sc", rings=3)

@@ -90,7 +90,8 @@ def _drift(deskew_on: bool, dataset: str, cache: str) -> tuple[float, float]:
     frontend = prepare_frontend(config)
     gt = np.linalg.inv(frontend.gt_poses[0]) @ frontend.gt_poses
     est = frontend.odometry
-    steps = [np.linalg.norm((np.linalg.inv(np.linalg.inv(gt[k - 1]) @ gt[k]) @ np.linalg.inv(est[k - 1]) @ est[k])[:3, 3])
+    steps = [np.linalg.norm((np.linalg.inv(np.linalg.inv(gt[k - 1]) @ gt[k])
+                             @ np.linalg.inv(est[k - 1]) @ est[k])[:3, 3])
              for k in range(1, len(gt))]
     return float(np.mean(steps)), float(np.linalg.norm((np.linalg.inv(gt[-1]) @ est[-1])[:3, 3]))
 

@@ -185,7 +185,8 @@ def test_changed_grid_into_same_out_reports_only_its_own_cells(tmp_path):
     assert run.stale == sorted(c.id for c in old)
     assert [c["info"]["id"] for c in load_cells(tmp_path)] == [new.id]
     assert len((tmp_path / "results.csv").read_text().splitlines()) == 2
-    assert "1 seed(s)" in (tmp_path / "results.md").read_text() and "const-2m" not in (tmp_path / "results.md").read_text()
+    assert ("1 seed(s)" in (tmp_path / "results.md").read_text()
+            and "const-2m" not in (tmp_path / "results.md").read_text())
     report = (tmp_path / "report.md").read_text()
     assert "1 of 1 cell(s) finished" in report
     assert all(c.id in report.split("Stale cells")[1].splitlines()[0] for c in old)

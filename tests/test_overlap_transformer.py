@@ -160,7 +160,8 @@ def test_compute_from_raw_scan_and_similarity(model, golden):
     d0 = model.compute(load_scan("000000"))
     np.testing.assert_allclose(d0, golden["descriptors"][0], atol=1e-5, rtol=0)
     d1 = golden["descriptors"][1]
-    assert model.similarity(d0, d1) == pytest.approx(1.0 / (1.0 + np.linalg.norm(d0.astype(np.float64) - d1)), rel=1e-12)
+    assert model.similarity(d0, d1) == pytest.approx(1.0 / (1.0 + np.linalg.norm(d0.astype(np.float64) - d1)),
+                                                     rel=1e-12)
     assert model.similarity(d0, d0) == 1.0
     # d0 matches golden[0] only to the network's cross-CPU tolerance (1e-5 above), so compare like with like
     bank = golden["descriptors"][:2]

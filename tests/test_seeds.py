@@ -73,7 +73,8 @@ def test_seed_table_says_why_a_value_is_n_a_or_has_no_spread():
     text = seed_markdown(seed_summary(rows))
     assert "| all | n/a¹ | n/a¹ | 1.000² |" in text
     assert "¹ n/a: the value is n/a on every seed" in text and "² known on one seed only" in text
-    assert "| all | n/a, n/a, n/a | n/a, n/a, n/a | 1, n/a, n/a |" in text and "Ranks: n/a where that seed has no value" in text
+    assert ("| all | n/a, n/a, n/a | n/a, n/a, n/a | 1, n/a, n/a |" in text
+            and "Ranks: n/a where that seed has no value" in text)
     full = seed_markdown(seed_summary({s: [{"method": "msa", **{k: 1.0 + s for k in SEED_METRICS}}]
                                        for s in range(3)}))
     assert "¹" not in full and "²" not in full and "Ranks: n/a" not in full

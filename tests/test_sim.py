@@ -158,13 +158,16 @@ def test_scan_points_lie_on_surfaces_in_sensor_frame():
 
 def test_range_noise_dropout_and_max_range():
     room = _room()
-    clean = Lidar(get_sensor("hdl64", azimuth_steps=512, range_noise=0.0), room).scan(np.eye(4), np.random.default_rng(0))
-    noisy = Lidar(get_sensor("hdl64", azimuth_steps=512, range_noise=0.05), room).scan(np.eye(4), np.random.default_rng(0))
+    clean = Lidar(get_sensor("hdl64", azimuth_steps=512, range_noise=0.0), room).scan(
+        np.eye(4), np.random.default_rng(0))
+    noisy = Lidar(get_sensor("hdl64", azimuth_steps=512, range_noise=0.05), room).scan(
+        np.eye(4), np.random.default_rng(0))
     delta = np.linalg.norm(noisy[:, :3], axis=1) - np.linalg.norm(clean[:, :3], axis=1)
     assert np.std(delta) == pytest.approx(0.05, rel=0.05)
     dropped = Lidar(get_sensor("hdl64", azimuth_steps=512, dropout=0.3), room).scan(np.eye(4), np.random.default_rng(0))
     assert len(dropped) / len(clean) == pytest.approx(0.7, abs=0.02)
-    short = Lidar(get_sensor("hdl64", azimuth_steps=512, max_range=16.0), room).scan(np.eye(4), np.random.default_rng(0))
+    short = Lidar(get_sensor("hdl64", azimuth_steps=512, max_range=16.0), room).scan(
+        np.eye(4), np.random.default_rng(0))
     assert 0 < len(short) < len(clean) and np.linalg.norm(short[:, :3], axis=1).max() < 16.1
 
 

@@ -23,9 +23,9 @@ def _no_world(*args, **kwargs):
 
 def test_a_max_range_short_of_the_ground_is_refused_before_the_world_is_built(tmp_path, monkeypatch):
     monkeypatch.setattr(msa_slam.sim.simulation, "build_world", _no_world)
-    with pytest.raises(InputError, match=r"^simulation config: max_range=1\.5 m is shorter than the 4\.1 m at which the "
-                                         r"lowest beam of hdl64 \(-24\.8 deg\) meets the ground from 1\.73 m up, so the "
-                                         r"scans would be empty; give max_range >= 5 m or leave it unset"):
+    with pytest.raises(InputError, match=r"^simulation config: max_range=1\.5 m is shorter than the 4\.1 m at which "
+                                         r"the lowest beam of hdl64 \(-24\.8 deg\) meets the ground from 1\.73 m up, "
+                                         r"so the scans would be empty; give max_range >= 5 m or leave it unset"):
         simulate_sequence(make_config(trajectory="kitti-07", end=3, max_range=1.5), out=tmp_path / "seq")
     assert list(tmp_path.iterdir()) == []
 

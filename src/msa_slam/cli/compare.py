@@ -24,7 +24,8 @@ def compare_command(
     odometry: Optional[str] = typer.Option(None, help="kiss (default) or a KITTI/TUM pose file"),
     mode: Optional[str] = typer.Option(None, help=MODE_HELP),
     param: List[str] = typer.Option([], "--param", "-p", help=COMPARE_PARAM_HELP),
-    config: Optional[Path] = typer.Option(None, help="YAML config (its sampler is replaced by the method set; its sampler parameters go to msa)"),
+    config: Optional[Path] = typer.Option(None, help="YAML config (its sampler is replaced by the method set; its "
+                                          "sampler parameters go to msa)"),
     out: Optional[Path] = typer.Option(None, help=out_help("compare") + "; with --seeds, a previous run of the "
                                        "same settings is resumed (its finished seeds are reused)"),
     overwrite: bool = typer.Option(False, "--overwrite", help=OVERWRITE_HELP),

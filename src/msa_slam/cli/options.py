@@ -77,7 +77,8 @@ OVERWRITE_HELP = "replace a previous msa-slam result in --out (never anything ms
 CACHE_HELP = "cache root (default $MSA_SLAM_CACHE or ~/.cache/msa-slam)"
 PARAM_HELP = ("override as key=value (repeatable): a config key (similarity_threshold=0.7), a section field "
               "(verifier.max_residual=0.2, graph.robust=cauchy), a stage parameter (sampler.lambda_u=5, "
-              "odometry.max_range=80) or a bare sampler parameter, or weights=FILE (the OverlapTransformer's, with --descriptor ot)")
+              "odometry.max_range=80) or a bare sampler parameter, or weights=FILE "
+              "(the OverlapTransformer's, with --descriptor ot)")
 
 
 def out_help(command: str) -> str:

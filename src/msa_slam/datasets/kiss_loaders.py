@@ -70,7 +70,8 @@ def mulran_poses(pose_file: Path, scan_times: np.ndarray) -> np.ndarray:
     try:
         rows = np.loadtxt(pose_file, delimiter=",", ndmin=2)
     except ValueError as exc:
-        raise InputError(f"{pose_file}: not MulRan's global_pose.csv (time, then 12 pose values a row): {exc}") from None
+        raise InputError(f"{pose_file}: not MulRan's global_pose.csv "
+                         f"(time, then 12 pose values a row): {exc}") from None
     if rows.shape[1] != 13:
         raise InputError(f"{pose_file}: {rows.shape[1]} values a row; MulRan's global_pose.csv has 13 (time, 3x4 pose)")
     pose_times = check_times(rows[:, 0] * 1e-9, lambda i: f"{pose_file}: row {i + 1}")

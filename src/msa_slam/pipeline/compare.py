@@ -48,12 +48,12 @@ UNDER_STUDY = "msa"  # the sampler that gets the user's sampler parameters (meth
 # Primary columns: full-rate (every frame, the same "ATE before" for every method); kf_*: keyframes only.
 COLUMNS = ("method", "keyframes", "candidates", "verified", "rejected", "false_loops", "ate_before_m", "ate_after_m",
            "improvement_t_pct", "improvement_r_pct", "rpe_pct", "rpe_10m_m", "pr_auc", "f1_max", "pr_auc_reference",
-           "f1_max_reference", "memory_mib", "rss_growth_mib", "time_s", "kf_ate_before_m", "kf_ate_after_m", "kf_improvement_t_pct",
-           "kf_improvement_r_pct")
-HEADERS = ("method", "keyframes", "candidates", "verified", "rejected", "false loops", "ATE before [m]", "ATE after [m]",
-           "t. ATE impr. [%]", "R. ATE impr. [%]", "RPE {rpe} [%]", "RPE 10 m [m]", "PR-AUC", "F1-max",
-           "PR-AUC (ref.)", "F1-max (ref.)", "memory [MiB]", "RSS growth [MiB]", "time [s]", "kf ATE before [m]", "kf ATE after [m]",
-           "kf t. impr. [%]", "kf R. impr. [%]")
+           "f1_max_reference", "memory_mib", "rss_growth_mib", "time_s", "kf_ate_before_m", "kf_ate_after_m",
+           "kf_improvement_t_pct", "kf_improvement_r_pct")
+HEADERS = ("method", "keyframes", "candidates", "verified", "rejected", "false loops", "ATE before [m]",
+           "ATE after [m]", "t. ATE impr. [%]", "R. ATE impr. [%]", "RPE {rpe} [%]", "RPE 10 m [m]", "PR-AUC", "F1-max",
+           "PR-AUC (ref.)", "F1-max (ref.)", "memory [MiB]", "RSS growth [MiB]", "time [s]", "kf ATE before [m]",
+           "kf ATE after [m]", "kf t. impr. [%]", "kf R. impr. [%]")
 
 
 def table_row(metrics: dict[str, Any]) -> dict[str, Any]:
@@ -64,7 +64,8 @@ def table_row(metrics: dict[str, Any]) -> dict[str, Any]:
     reference = m.get("pr_reference") or {}
     return {
         "method": m["method"], "keyframes": m["keyframes"], "candidates": m["candidates"], "verified": m["verified"],
-        "rejected": sum(m["loop_closing"]["rejected"].values()), "false_loops": m["false_loops"], "ate_before_m": full["before"]["ate_translation_m"],
+        "rejected": sum(m["loop_closing"]["rejected"].values()), "false_loops": m["false_loops"],
+        "ate_before_m": full["before"]["ate_translation_m"],
         "ate_after_m": full["after"]["ate_translation_m"], "improvement_t_pct": full["improvement_pct"]["translation"],
         "improvement_r_pct": full["improvement_pct"]["rotation"],
         "rpe_pct": full["after"]["rpe_kitti_translation_pct"], "rpe_10m_m": full["after"]["rpe_10m_translation_m"],
@@ -161,7 +162,8 @@ def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: lis
     cached = " (from cache)" if all(fe.cached.values()) else ""
     front = ", ".join(f"{k} {v:.1f} s" for k, v in fe.timer.seconds.items())
     lines = [f"# Sampler comparison on {display_name(fe.name)}", "",
-             f"Dataset `{cfg.dataset}` (sequence {fe.name}), {scans_read(cfg.source)}: {len(fe)} frames. Odometry `{cfg.odometry}`, descriptor `{cfg.descriptor}`, "
+             f"Dataset `{cfg.dataset}` (sequence {fe.name}), {scans_read(cfg.source)}: {len(fe)} frames. "
+             f"Odometry `{cfg.odometry}`, descriptor `{cfg.descriptor}`, "
              f"loops: similarity >= {cfg.similarity_threshold}, {cfg.mode} verification (small_gicp residual < "
              f"{cfg.verifier.max_residual} m), GTSAM Levenberg-Marquardt. Shared front end: {front}{cached}.", "",
              f"ATE: the full-rate trajectory (every frame: its preceding keyframe's optimised pose and the "

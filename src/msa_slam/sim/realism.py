@@ -40,8 +40,8 @@ REALISM: dict[str, Realism] = {
                       azimuth_sigma_deg=0.05, range_bias_sigma=0.02, range_noise_per_m=0.0005,
                       incidence_noise=0.002, min_return_power=0.005, mixed_pixel_prob=0.3, mixed_pixel_edge=0.5,
                       vegetation_dropout=0.3, vegetation_depth=0.2),
-        WorldRealism(moving_cars=2.0, pedestrians=2.0, transient_parking=0.4, parked_occupancy=0.85, catalogue_designs=2,
-                     km_per_design=1.0, design_variants=3,
+        WorldRealism(moving_cars=2.0, pedestrians=2.0, transient_parking=0.4, parked_occupancy=0.85,
+                     catalogue_designs=2, km_per_design=1.0, design_variants=3,
                      catalogue_share=0.6, hard_share=0.25, foliage_gap=0.3),
     ),
 }
