@@ -12,9 +12,9 @@ above -5 %).
 Each comparison's full result folder (reports, figures, per-method runs) is kept under --out
 (default: ./msa_slam_results/bench_fairness/), one per sequence and mode; a finished one over the same
 seeds is reused as is; an interrupted one, or one finished on other seeds, is resumed (its finished seeds are
-kept, the missing ones run); delete it, or pass a new --out, to rerun. Simulations, odometry and \
-descriptors are cached as
-everywhere else (the same simulated sequences as benchmarks/bench_realism.py at the same azimuth steps).
+kept, the missing ones run); delete it, or pass a new --out, to rerun. Simulations, odometry and
+descriptors are cached as everywhere else (the same simulated sequences as benchmarks/bench_realism.py at the
+same azimuth steps).
 """
 
 from __future__ import annotations

@@ -1,10 +1,9 @@
 """The demo (the README's main job): the paper's sampler comparison on the embedded simulated sequence.
 
 `sim:demo` is the simulator's default: the whole KITTI-06 trajectory at the native 10 Hz (1101 scans)
-with a 64 x 720 HDL-64 and the calibrated `kitti` realism preset. It is simulated, run through KISS-ICP and \
-described (Scan Context) on
-first use and cached, so later runs only redo the back-end per sampler. Meanwhile MSA's numba kernels compile
-on the other core (msa_slam.sampling.msa.warm).
+with a 64 x 720 HDL-64 and the calibrated `kitti` realism preset. It is simulated, run through KISS-ICP and
+described (Scan Context) on first use and cached, so later runs only redo the back-end per sampler. Meanwhile
+MSA's numba kernels compile on the other core (msa_slam.sampling.msa.warm).
 """
 
 from __future__ import annotations

@@ -7,9 +7,9 @@ presets other than "clean") it also holds velodyne_times/NNNNNN.npy: float32 sec
 sweep's start (datasets.point_times). KITTI's convention: scan k's timestamp t_k (times.txt) and ground-truth
 pose are those of the forward-facing column, which fires at mid-sweep; the sweep turns clockwise from the
 back over [t_k - 0.05 s, t_k + 0.05 s], each column cast from the pose interpolated (trajectories.pose_at)
-at its firing time, and each point is reported in the sensor frame of its own firing time (not deskewed). \
-For kiss-icp's KITTI loader it
-also holds sequences/00/ and poses/00.txt as relative links: `KITTIOdometryDataset(DIR, "00")`.
+at its firing time, and each point is reported in the sensor frame of its own firing time (not deskewed).
+For kiss-icp's KITTI loader it also holds sequences/00/ and poses/00.txt as relative links:
+`KITTIOdometryDataset(DIR, "00")`.
 Directories are written under a locked temporary name (`.NAME.partial-*`, removed by the next run if
 its writer was killed) and renamed when complete, so a partial one is never mistaken for a cached sequence;
 sim.json records every scan's size, so a truncated scan makes the sequence incomplete (simulated again).

@@ -3,10 +3,9 @@
 numba compiles a kernel on its first call (about a minute of CPU for the kernels MSA's default mode uses, on
 this project's 2-core machine) and keeps the machine code in its on-disk cache (the kernels use cache=True).
 The demo spends its first minutes simulating (on every core, where this low-priority process yields) and
-running KISS-ICP on one core, so the other core can compile meanwhile; MSA's first window then loads the cache \
-instead of compiling. The compiled code, and so every result,
-is the same either way; if the background process cannot start, or has not finished in time, MSA compiles the
-kernels itself as before.
+running KISS-ICP on one core, so the other core can compile meanwhile; MSA's first window then loads the cache
+instead of compiling. The compiled code, and so every result, is the same either way; if the background process
+cannot start, or has not finished in time, MSA compiles the kernels itself as before.
 """
 
 from __future__ import annotations
