@@ -208,6 +208,17 @@ def test_kitti_root_sequence_and_part_of_a_recording(tmp_path):
         open_dataset(seq_dir).select(first=9)
 
 
+@pytest.mark.parametrize("selection, message", [
+    ({"first": 5000}, r"dataset 'sim:test': --first 5000 is beyond its 214 scans \(0\.\.213\)"),
+    ({"first": 212}, r"dataset 'sim:test': 2 scans; a run needs at least 3"),
+    ({"jump": 200}, r"dataset 'sim:test': 2 scans; a run needs at least 3"),
+    ({"frames": 2}, r"dataset 'sim:test': 2 scans; a run needs at least 3")])
+def test_a_simulated_sequence_refuses_what_it_cannot_select_before_it_is_simulated(tmp_path, selection, message):
+    with pytest.raises(InputError, match=f"^{message}$"):
+        open_sequence("sim:test", cache_dir=tmp_path, source=SourceOptions(**selection))
+    assert not any(tmp_path.iterdir())  # nothing was cast
+
+
 def test_apollo_and_newer_college_times_are_real(tmp_path):
     apollo = tmp_path / "apollo"
     for k in range(N):

@@ -377,6 +377,8 @@ def test_default_sequences_are_the_documented_ones(test_sequence):
     assert (demo.trajectory, demo.stride, demo.realism) == ("kitti-06", 1, "kitti")
     poses, _ = read_poses(test_sequence / "poses.txt")
     assert 150 <= len(poses) <= 250
+    assert DEFAULT_CONFIGS["test"].frame_count() == len(poses) == len(list((test_sequence / "velodyne").glob("*.bin")))
+    assert demo.frame_count() == 1101
     assert _revisit_pairs(poses[:, :3, 3], 3.0, 50)
 
 

@@ -81,11 +81,7 @@ class ScanSequence:
         keep their times and ground truth; indices restart at 0). What a run reads is known only here, so
         here the sizes of its .bin files are checked, its first scan read (point_times) and missing timestamps
         warned about."""
-        if first < 0 or jump < 1 or (count is not None and count < 1):
-            raise InputError(f"{self.path}: bad selection first={first}, jump={jump}, n={count}; need first >= 0, "
-                             "jump >= 1, n >= 1")
-        if first >= len(self):
-            raise InputError(f"{self.path}: --first {first} is beyond its {len(self)} scans (0..{len(self) - 1})")
+        selected_count(len(self), first, jump, count, str(self.path))
         part = self
         if (first, jump, count) != (0, 1, None):
             part = copy.copy(self)
@@ -120,6 +116,19 @@ class ScanSequence:
 
     def __iter__(self) -> Iterator[Frame]:
         return (self[i] for i in range(len(self)))
+
+
+def selected_count(total: int, first: int, jump: int, count: int | None, where: str) -> int:
+    """How many of `total` scans every `jump`-th scan from `first`, at most `count`, selects; an InputError naming
+    `where` for a selection that is malformed or starts beyond the last scan. Also checked before a simulated
+    sequence is cast, from its frame count alone."""
+    if first < 0 or jump < 1 or (count is not None and count < 1):
+        raise InputError(f"{where}: bad selection first={first}, jump={jump}, n={count}; need first >= 0, "
+                         "jump >= 1, n >= 1")
+    if first >= total:
+        raise InputError(f"{where}: --first {first} is beyond its {total} scans (0..{total - 1})")
+    selected = len(range(first, total, jump))
+    return selected if count is None else min(selected, count)
 
 
 def read_times(path: Path) -> np.ndarray:

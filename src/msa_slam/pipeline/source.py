@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import yaml
 
 from msa_slam.datasets import ScanSequence, SourceOptions, open_source_options
+from msa_slam.datasets.sequences import selected_count
 from msa_slam.errors import InputError
 from msa_slam.types import FrameSource
 
@@ -31,12 +32,9 @@ def resolve_dataset(spec: str, cache_dir: str | os.PathLike | None = None, progr
     """
     if not spec.startswith(SIM_PREFIX):
         return _existing_path(spec)
-    from msa_slam.sim import default_sequence, simulate_sequence
+    from msa_slam.sim import simulate_sequence
 
-    default, config = sim_settings(spec)
-    if config is None:
-        return default_sequence(default, cache_dir=cache_dir, progress=progress)
-    return simulate_sequence(config, cache_dir=cache_dir, progress=progress)
+    return simulate_sequence(sim_config(spec), cache_dir=cache_dir, progress=progress)
 
 
 def check_dataset(spec: str) -> None:
@@ -89,19 +87,35 @@ def sim_settings(spec: str) -> tuple[str, "SimConfig | None"]:
     return "", make_config(**base)
 
 
+def sim_config(spec: str) -> "SimConfig":
+    """The validated SimConfig of a `sim:` spec, an embedded default's included."""
+    from msa_slam.sim import DEFAULT_CONFIGS
+
+    default, config = sim_settings(spec)
+    return DEFAULT_CONFIGS[default] if config is None else config
+
+
 def open_sequence(spec: str, kind: str = "auto", cache_dir: str | os.PathLike | None = None,
                   progress: bool = False, source: SourceOptions | None = None,
                   mode: str = "realistic") -> ScanSequence:
     """The scan sequence of `spec` (the part `source` selects); ground truth is optional, but the oracle
     `mode` verifies loops by ground-truth distance and so refuses a sequence without it."""
-    sequence = open_source_options(resolve_dataset(spec, cache_dir, progress), kind, source or SourceOptions())
+    source = source or SourceOptions()
+    if spec.startswith(SIM_PREFIX):  # what the run selects, checked before the sequence is simulated
+        _check_enough_scans(spec, selected_count(sim_config(spec).frame_count(), source.first, source.jump,
+                                                 source.frames, f"dataset {spec!r}"))
+    sequence = open_source_options(resolve_dataset(spec, cache_dir, progress), kind, source)
     if sequence.gt_poses is None and mode == "oracle":
         raise InputError(f"dataset {spec!r}: no ground-truth poses, which the oracle mode needs (it verifies only "
                          "loops that ground truth confirms); use --mode realistic, or give ground truth with --gt "
                          "FILE (KITTI or TUM, LiDAR frame)")
-    if len(sequence) < 3:
-        raise InputError(f"dataset {spec!r}: {len(sequence)} scans; a run needs at least 3")
+    _check_enough_scans(spec, len(sequence))
     return sequence
+
+
+def _check_enough_scans(spec: str, scans: int) -> None:
+    if scans < 3:
+        raise InputError(f"dataset {spec!r}: {scans} scans; a run needs at least 3")
 
 
 def open_source(spec: str, kind: str = "auto", cache_dir: str | os.PathLike | None = None,

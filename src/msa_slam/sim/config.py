@@ -17,7 +17,8 @@ from msa_slam.io.poses import POSE_FORMATS
 from msa_slam.sim.layout import STYLES
 from msa_slam.sim.realism import DEFAULT_REALISM, REALISM
 from msa_slam.sim.sensors import SENSORS
-from msa_slam.sim.trajectories import TRAJECTORY_NAMES, Trajectory, load_trajectory, read_trajectory
+from msa_slam.sim.trajectories import (TRAJECTORY_NAMES, Trajectory, frame_indices, load_trajectory,
+                                       read_trajectory)
 
 SIM_VERSION = "9"  # bump when generated worlds or scans change, so stale caches are not reused
 SIM_LIBRARIES = ("trimesh", "embreex", "numpy", "scipy")  # ray casting, noise, poses (Rotation): the cache key
@@ -104,6 +105,11 @@ class SimConfig(BaseModel):
         if not self.is_file:
             return load_trajectory(self.trajectory)
         return read_trajectory(self.trajectory, self.trajectory_format, self.times, self.calib)
+
+    def frame_count(self) -> int:
+        """How many scans the simulation casts (its trajectory's frames start..end by stride), known without
+        casting, so that a run can check what it selects before the long work."""
+        return len(frame_indices(len(self.load_trajectory()), self.start, self.end, self.stride, self.label))
 
     @field_validator("sensor", "realism", "style")
     @classmethod
