@@ -210,9 +210,10 @@ def test_kitti_root_sequence_and_part_of_a_recording(tmp_path):
 
 @pytest.mark.parametrize("selection, message", [
     ({"first": 5000}, r"dataset 'sim:test': --first 5000 is beyond its 214 scans \(0\.\.213\)"),
-    ({"first": 212}, r"dataset 'sim:test': 2 scans; a run needs at least 3"),
-    ({"jump": 200}, r"dataset 'sim:test': 2 scans; a run needs at least 3"),
-    ({"frames": 2}, r"dataset 'sim:test': 2 scans; a run needs at least 3")])
+    ({"first": 212}, r"dataset 'sim:test': 2 scans selected; a run needs at least 3"),
+    ({"jump": 200}, r"dataset 'sim:test': 2 scans selected; a run needs at least 3"),
+    ({"frames": 2}, r"dataset 'sim:test': 2 scans selected; a run needs at least 3"),
+    ({"first": 213}, r"dataset 'sim:test': 1 scan selected; a run needs at least 3")])
 def test_a_simulated_sequence_refuses_what_it_cannot_select_before_it_is_simulated(tmp_path, selection, message):
     with pytest.raises(InputError, match=f"^{message}$"):
         open_sequence("sim:test", cache_dir=tmp_path, source=SourceOptions(**selection))

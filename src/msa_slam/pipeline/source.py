@@ -115,7 +115,7 @@ def open_sequence(spec: str, kind: str = "auto", cache_dir: str | os.PathLike | 
 
 def _check_enough_scans(spec: str, scans: int) -> None:
     if scans < 3:
-        raise InputError(f"dataset {spec!r}: {scans} scans; a run needs at least 3")
+        raise InputError(f"dataset {spec!r}: {scans} scan{'' if scans == 1 else 's'} selected; a run needs at least 3")
 
 
 def open_source(spec: str, kind: str = "auto", cache_dir: str | os.PathLike | None = None,
