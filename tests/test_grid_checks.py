@@ -83,6 +83,20 @@ def test_unknown_dataset_is_one_line_before_the_result_folder(tmp_path, dataset,
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("source, message", [
+    ({"first": 5000}, "dataset 'sim:test': --first 5000 is beyond its 214 scans (0..213)"),
+    ({"first": 10, "frames": 2}, "dataset 'sim:test': 2 scans selected; a run needs at least 3")])
+def test_a_selection_beyond_a_simulated_sequence_is_one_line_before_the_result_folder(tmp_path, monkeypatch, source,
+                                                                                        message):
+    monkeypatch.setenv("MSA_SLAM_CACHE", str(tmp_path / "cache"))
+    grid_file = tmp_path / "g.yaml"
+    grid_file.write_text(yaml.safe_dump({**TINY, "datasets": ["sim:test"], "base": {**TINY["base"], "source": source}}))
+    result = run_cli("experiment", str(grid_file), "--out", str(tmp_path / "o"), "--quiet")
+    assert result.returncode == 2
+    assert result.stderr.strip() == f"error: {grid_file}: {message}"
+    assert not (tmp_path / "o").exists() and not (tmp_path / "cache").exists()  # nothing simulated
+
+
 def test_malformed_scheduler_is_one_line_before_the_result_folder(tmp_path):
     result = run_cli("experiment", "tiny", "--scheduler", "notaurl", "--out", str(tmp_path / "o"), "--quiet")
     assert result.returncode == 2

@@ -30,7 +30,7 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Literal, Mapping
+from typing import Annotated, Any, Literal, Mapping, Sequence
 
 from pydantic import (BaseModel, ConfigDict, Field, StrictInt, ValidationError, field_validator,
                       model_validator)
@@ -206,17 +206,24 @@ def _check_base_sampler_params(grid: GridSpec, where: str) -> None:
                          f"{', '.join(dict.fromkeys(s.sampler for s in grid.samplers))})")
 
 
-def check_datasets(grid: GridSpec, where: str = "grid") -> None:
-    """Refuse a missing dataset folder or an unknown simulated name before any cell runs (and before the result
-    folder is made), as `run` and `online` would in their first step; nothing is simulated here."""
-    from msa_slam.pipeline.source import check_dataset
+def check_datasets(grid: GridSpec, where: str = "grid", cells: Sequence[Cell] = ()) -> None:
+    """Refuse a missing dataset folder, an unknown simulated name or (for the `cells`' simulated datasets) a
+    selection beyond the sequence before any cell runs (and before the result folder is made), as `run` and
+    `online` would in their first step; nothing is simulated here."""
+    from msa_slam.datasets import SourceOptions
+    from msa_slam.pipeline.source import check_dataset, check_simulated_selection
 
-    for spec in dict.fromkeys(d.replace("{seed}", str(seed)) for d in grid.datasets for seed in grid.seeds):
-        try:
+    specs = dict.fromkeys(d.replace("{seed}", str(seed)) for d in grid.datasets for seed in grid.seeds)
+    selections = dict.fromkeys((c.config["dataset"], tuple(sorted(c.config["source"].items())))
+                               for c in cells if "source" in c.config)
+    try:
+        for spec in specs:
             check_dataset(spec)
-        except InputError as exc:
-            message = str(exc) if str(exc).startswith("dataset ") else f"dataset {spec!r}: {exc}"
-            raise InputError(f"{where}: {message}") from None
+        for spec, source in selections:
+            check_simulated_selection(spec, SourceOptions(**dict(source)))
+    except InputError as exc:
+        message = str(exc) if str(exc).startswith("dataset ") else f"dataset {spec!r}: {exc}"
+        raise InputError(f"{where}: {message}") from None
 
 
 def load_grid(path: str | os.PathLike) -> GridSpec:

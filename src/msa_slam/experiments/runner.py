@@ -121,7 +121,7 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
     if workers < 1:
         raise InputError(f"--workers must be >= 1, got {workers}")
     cells = expand(grid, where)
-    check_datasets(grid, where)
+    check_datasets(grid, where, cells)
     if scheduler is not None:
         _check_scheduler(scheduler)
     with open_result_folder(out, kind=KIND, default_parent=DEFAULT_PARENT, overwrite=overwrite,
