@@ -130,7 +130,26 @@ def open_source(spec: str, kind: str = "auto", cache_dir: str | os.PathLike | No
     from msa_slam.sim.live import LIVE_PREFIX, live_source
 
     if spec.startswith(LIVE_PREFIX):
+        _refuse_recording_options(spec, kind, source or SourceOptions())
         return live_source(spec)
     sequence = open_sequence(spec, kind, cache_dir, progress, source, mode)
     return FrameSource(sequence.name, sequence.gt_poses, lambda: iter(sequence), sequence, len(sequence),
                        sequence.times_known, sequence.point_times)
+
+
+# SourceOptions' fields as run and online name them
+RECORDING_FLAGS = {"topic": "--topic", "gt": "--gt", "gt_format": "--gt-format", "sequence": "--sequence",
+                   "first": "--first", "jump": "--jump", "frames": "-n"}
+
+
+def _refuse_recording_options(spec: str, kind: str, source: SourceOptions) -> None:
+    """A live: source is simulated frame by frame, so the options that read or select part of a recording do
+    not apply to it; given, they are refused rather than silently ignored."""
+    default = SourceOptions()
+    given = ([] if kind == "auto" else ["--loader"]) + [flag for field, flag in RECORDING_FLAGS.items()
+                                                        if getattr(source, field) != getattr(default, field)]
+    if given:
+        verbs = "reads or selects" if len(given) == 1 else "read or select"
+        raise InputError(f"dataset {spec!r}: {', '.join(given)} {verbs} part of a recording, not of a live: "
+                         "source (simulated as it runs); choose its frames in the spec (start=, end=, stride=, e.g. "
+                         "live:figure-eight,start=100,stride=2) or cap them with -p max_frames=N")
