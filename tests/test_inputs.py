@@ -220,6 +220,16 @@ def test_a_simulated_sequence_refuses_what_it_cannot_select_before_it_is_simulat
     assert not any(tmp_path.iterdir())  # nothing was cast
 
 
+@pytest.mark.parametrize("kind, selection, given", [
+    ("mulran", {}, "--loader applies"), ("auto", {"topic": "/points"}, "--topic applies"),
+    ("helipr", {"sequence": "05"}, "--loader, --sequence apply")])
+def test_a_simulated_sequence_refuses_options_of_recordings_before_it_is_simulated(tmp_path, kind, selection, given):
+    with pytest.raises(InputError, match=f"^dataset 'sim:test': {given} to recordings; a sim: dataset is one "
+                                         "simulated sequence in KITTI's layout"):
+        open_sequence("sim:test", kind, cache_dir=tmp_path, source=SourceOptions(**selection))
+    assert not any(tmp_path.iterdir())
+
+
 def test_apollo_and_newer_college_times_are_real(tmp_path):
     apollo = tmp_path / "apollo"
     for k in range(N):

@@ -227,10 +227,11 @@ def test_bad_sources_and_odometry_parameters():
         open_source("live:figure-eight,laps=0")
     with pytest.raises(InputError, match="unknown trajectory"):
         open_source("live:moon-walk")
-    with pytest.raises(InputError, match=r"^dataset 'live:figure-eight': --first reads or selects part of a recording, "
-                                         r"not of a live: source .*start=, end=, stride=.*-p max_frames=N$"):
+    with pytest.raises(InputError, match=r"^dataset 'live:figure-eight': --first applies to recordings, not to a live: "
+                                         r"source .*start=, end=, stride=.*-p max_frames=N$"):
         open_source("live:figure-eight", source=SourceOptions(first=100))
-    with pytest.raises(InputError, match=r"^dataset 'live:figure-eight': --loader, --gt, --jump, -n read or select "):
+    with pytest.raises(InputError, match=r"^dataset 'live:figure-eight': --loader, --gt, --jump, -n apply to "
+                                         r"recordings"):
         open_source("live:figure-eight", "kitti", source=SourceOptions(gt="poses.txt", jump=2, frames=9))
     cfg = make_online_config(dataset=COARSE, odometry="gt-noise", odometry_params={"drift": 1})
     with pytest.raises(InputError, match="translation_noise, rotation_noise_deg"):

@@ -101,6 +101,8 @@ def open_sequence(spec: str, kind: str = "auto", cache_dir: str | os.PathLike | 
     """The scan sequence of `spec` (the part `source` selects); ground truth is optional, but the oracle
     `mode` verifies loops by ground-truth distance and so refuses a sequence without it."""
     source = source or SourceOptions()
+    if spec.startswith(SIM_PREFIX):  # checked before the sequence is simulated
+        _refuse_recording_options(spec, kind, source, SIMULATED_FLAGS)
     check_simulated_selection(spec, source)
     sequence = open_source_options(resolve_dataset(spec, cache_dir, progress), kind, source)
     if sequence.gt_poses is None and mode == "oracle":
@@ -140,16 +142,25 @@ def open_source(spec: str, kind: str = "auto", cache_dir: str | os.PathLike | No
 # SourceOptions' fields as run and online name them
 RECORDING_FLAGS = {"topic": "--topic", "gt": "--gt", "gt_format": "--gt-format", "sequence": "--sequence",
                    "first": "--first", "jump": "--jump", "frames": "-n"}
+SIMULATED_FLAGS = ("topic", "sequence")  # what a sim: sequence, one folder of scans, has no use for
 
 
-def _refuse_recording_options(spec: str, kind: str, source: SourceOptions) -> None:
-    """A live: source is simulated frame by frame, so the options that read or select part of a recording do
-    not apply to it; given, they are refused rather than silently ignored."""
+def _refuse_recording_options(spec: str, kind: str, source: SourceOptions, fields=tuple(RECORDING_FLAGS)) -> None:
+    """Options that read or select part of a recording but do not apply to a simulated `spec` (a live: source:
+    every one; a sim: sequence: `fields` and --loader) are refused before anything is simulated, rather than
+    ignored or failing on the simulation's cache folder."""
     default = SourceOptions()
-    given = ([] if kind == "auto" else ["--loader"]) + [flag for field, flag in RECORDING_FLAGS.items()
-                                                        if getattr(source, field) != getattr(default, field)]
-    if given:
-        verbs = "reads or selects" if len(given) == 1 else "read or select"
-        raise InputError(f"dataset {spec!r}: {', '.join(given)} {verbs} part of a recording, not of a live: "
-                         "source (simulated as it runs); choose its frames in the spec (start=, end=, stride=, e.g. "
-                         "live:figure-eight,start=100,stride=2) or cap them with -p max_frames=N")
+    simulated = spec.startswith(SIM_PREFIX)
+    loader = kind not in ("auto", "kitti") if simulated else kind != "auto"  # a sim: sequence has KITTI's layout
+    given = (["--loader"] if loader else []) + [RECORDING_FLAGS[field] for field in fields
+                                                if getattr(source, field) != getattr(default, field)]
+    if not given:
+        return
+    verb = "applies" if len(given) == 1 else "apply"
+    if simulated:
+        raise InputError(f"dataset {spec!r}: {', '.join(given)} {verb} to recordings; a sim: dataset is one "
+                         "simulated sequence in KITTI's layout (choose its frames with --first/--jump/-n or start=, "
+                         "end=, stride= in the spec)")
+    raise InputError(f"dataset {spec!r}: {', '.join(given)} {verb} to recordings, not to a live: source "
+                     "(simulated as it runs); choose its frames in the spec (start=, end=, stride=, e.g. "
+                     "live:figure-eight,start=100,stride=2) or cap them with -p max_frames=N")
