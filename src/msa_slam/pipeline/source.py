@@ -145,7 +145,8 @@ RECORDING_FLAGS = {"topic": "--topic", "gt": "--gt", "gt_format": "--gt-format",
 SIMULATED_FLAGS = ("topic", "sequence")  # what a sim: sequence, one folder of scans, has no use for
 
 
-def _refuse_recording_options(spec: str, kind: str, source: SourceOptions, fields=tuple(RECORDING_FLAGS)) -> None:
+def _refuse_recording_options(spec: str, kind: str, source: SourceOptions,
+                              fields: tuple[str, ...] = tuple(RECORDING_FLAGS)) -> None:
     """Options that read or select part of a recording but do not apply to a simulated `spec` (a live: source:
     every one; a sim: sequence: `fields` and --loader) are refused before anything is simulated, rather than
     ignored or failing on the simulation's cache folder."""
