@@ -83,14 +83,21 @@ def test_unknown_dataset_is_one_line_before_the_result_folder(tmp_path, dataset,
     assert not (tmp_path / "o").exists()
 
 
-@pytest.mark.parametrize("source, message", [
-    ({"first": 5000}, "dataset 'sim:test': --first 5000 is beyond its 214 scans (0..213)"),
-    ({"first": 10, "frames": 2}, "dataset 'sim:test': 2 scans selected; a run needs at least 3")])
-def test_a_selection_beyond_a_simulated_sequence_is_one_line_before_the_result_folder(tmp_path, monkeypatch, source,
-                                                                                        message):
+RECORDINGS_ONLY = ("applies to recordings; a sim: dataset is one simulated sequence in KITTI's layout (choose its "
+                   "frames with --first/--jump/-n or start=, end=, stride= in the spec)")
+
+
+@pytest.mark.parametrize("base, message", [
+    ({"source": {"first": 5000}}, "dataset 'sim:test': --first 5000 is beyond its 214 scans (0..213)"),
+    ({"source": {"first": 10, "frames": 2}}, "dataset 'sim:test': 2 scans selected; a run needs at least 3"),
+    ({"source": {"topic": "/points"}}, f"dataset 'sim:test': --topic {RECORDINGS_ONLY}"),
+    ({"dataset_kind": "bag"}, f"dataset 'sim:test': --loader {RECORDINGS_ONLY}")])
+def test_a_simulated_cell_that_cannot_run_is_one_line_before_the_result_folder(tmp_path, monkeypatch, base, message):
+    """A selection beyond the simulated sequence, or an option only recordings have, is refused before anything
+    is simulated and before the result folder is made."""
     monkeypatch.setenv("MSA_SLAM_CACHE", str(tmp_path / "cache"))
     grid_file = tmp_path / "g.yaml"
-    grid_file.write_text(yaml.safe_dump({**TINY, "datasets": ["sim:test"], "base": {**TINY["base"], "source": source}}))
+    grid_file.write_text(yaml.safe_dump({**TINY, "datasets": ["sim:test"], "base": {**TINY["base"], **base}}))
     result = run_cli("experiment", str(grid_file), "--out", str(tmp_path / "o"), "--quiet")
     assert result.returncode == 2
     assert result.stderr.strip() == f"error: {grid_file}: {message}"

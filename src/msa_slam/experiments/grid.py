@@ -208,19 +208,20 @@ def _check_base_sampler_params(grid: GridSpec, where: str) -> None:
 
 def check_datasets(grid: GridSpec, where: str = "grid", cells: Sequence[Cell] = ()) -> None:
     """Refuse a missing dataset folder, an unknown simulated name or (for the `cells`' simulated datasets) a
-    selection beyond the sequence before any cell runs (and before the result folder is made), as `run` and
-    `online` would in their first step; nothing is simulated here."""
+    selection beyond the sequence or options of recordings (--loader, --topic, --sequence) before any cell runs
+    (and before the result folder is made), as `run` and `online` would in their first step; nothing is
+    simulated here."""
     from msa_slam.datasets import SourceOptions
-    from msa_slam.pipeline.source import check_dataset, check_simulated_selection
+    from msa_slam.pipeline.source import check_dataset, check_simulated_source
 
     specs = dict.fromkeys(d.replace("{seed}", str(seed)) for d in grid.datasets for seed in grid.seeds)
-    selections = dict.fromkeys((c.config["dataset"], tuple(sorted(c.config["source"].items())))
-                               for c in cells if "source" in c.config)
+    selections = dict.fromkeys((c.config["dataset"], c.config.get("dataset_kind", "auto"),
+                                tuple(sorted(c.config["source"].items()))) for c in cells if "source" in c.config)
     try:
         for spec in specs:
             check_dataset(spec)
-        for spec, source in selections:
-            check_simulated_selection(spec, SourceOptions(**dict(source)))
+        for spec, kind, source in selections:
+            check_simulated_source(spec, kind, SourceOptions(**dict(source)))
     except InputError as exc:
         message = str(exc) if str(exc).startswith("dataset ") else f"dataset {spec!r}: {exc}"
         raise InputError(f"{where}: {message}") from None

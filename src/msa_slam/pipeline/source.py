@@ -101,9 +101,7 @@ def open_sequence(spec: str, kind: str = "auto", cache_dir: str | os.PathLike | 
     """The scan sequence of `spec` (the part `source` selects); ground truth is optional, but the oracle
     `mode` verifies loops by ground-truth distance and so refuses a sequence without it."""
     source = source or SourceOptions()
-    if spec.startswith(SIM_PREFIX):  # checked before the sequence is simulated
-        _refuse_recording_options(spec, kind, source, SIMULATED_FLAGS)
-    check_simulated_selection(spec, source)
+    check_simulated_source(spec, kind, source)
     sequence = open_source_options(resolve_dataset(spec, cache_dir, progress), kind, source)
     if sequence.gt_poses is None and mode == "oracle":
         raise InputError(f"dataset {spec!r}: no ground-truth poses, which the oracle mode needs (it verifies only "
@@ -113,10 +111,12 @@ def open_sequence(spec: str, kind: str = "auto", cache_dir: str | os.PathLike | 
     return sequence
 
 
-def check_simulated_selection(spec: str, source: SourceOptions) -> None:
-    """For a `sim:` spec, what `source` selects (--first/--jump/-n), from the sequence's frame count, before
-    anything is simulated; other datasets' selections are checked when they are opened (ScanSequence.select)."""
+def check_simulated_source(spec: str, kind: str, source: SourceOptions) -> None:
+    """For a `sim:` spec, before anything is simulated: the recording options it has no use for (the loader
+    `kind`, --topic, --sequence) and what `source` selects (--first/--jump/-n, from the sequence's frame count);
+    other datasets' selections are checked when they are opened (ScanSequence.select)."""
     if spec.startswith(SIM_PREFIX):
+        _refuse_recording_options(spec, kind, source, SIMULATED_FLAGS)
         _check_enough_scans(spec, selected_count(sim_config(spec).frame_count(), source.first, source.jump,
                                                  source.frames, f"dataset {spec!r}"))
 
