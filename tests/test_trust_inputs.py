@@ -3,7 +3,13 @@ stated before it starts, and no compile process left running after its demo is k
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pytest
@@ -37,3 +43,56 @@ def test_a_non_rigid_tr_is_named_in_calib_txt_not_as_a_pose(tmp_path):
     assert str(err.value) == (f"{calib}:2: Tr (the Velodyne->camera extrinsic) is not a rigid transform "
                               "(|R R^T - I| = 2.10e-01, det R = 1.100000); it must be a rotation and a translation")
 
+
+
+# The demo's role: start the background compile, then work until killed (stdin stays open until then).
+_COMPILING_PARENT = """
+import sys
+from msa_slam.sampling.msa.warm import compile_in_background
+print(compile_in_background({}, (20, 60)).pid, flush=True)
+sys.stdin.read()
+"""
+
+
+def _proc_stat(pid: int) -> list[str] | None:
+    """Fields 3 onwards of /proc/PID/stat (state first, nice at index 16); None once the process is gone or is
+    a zombie (dead, not yet reaped by whoever adopted it)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (FileNotFoundError, ProcessLookupError):
+        return None
+    return None if fields[0] in ("Z", "X") else fields
+
+
+def _poll(condition: Callable[[], bool], timeout: float) -> bool:
+    """Whether `condition` holds within `timeout` s, checked every 50 ms."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    return True
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states from /proc")
+@pytest.mark.parametrize("when", ["compiling", "starting"])
+def test_a_killed_parent_takes_its_compile_child_with_it(tmp_path, when):
+    """kill -9 of the demo left its compile process running on for minutes. `compiling`: killed once the child
+    lowered its priority (it is past its start-up); `starting`: killed at once, maybe before the child set up
+    anything. An empty numba cache makes the child compile (about a minute of CPU) rather than load."""
+    parent = subprocess.Popen([sys.executable, "-c", _COMPILING_PARENT], stdin=subprocess.PIPE,
+                              stdout=subprocess.PIPE, text=True, env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)})
+    child = int(parent.stdout.readline())
+    try:
+        if when == "compiling":
+            assert _poll(lambda: (_proc_stat(child) or [""] * 17)[16] == "19", timeout=60)
+        parent.send_signal(signal.SIGKILL)
+        parent.wait()
+        assert _poll(lambda: _proc_stat(child) is None, timeout=30), "the compile child outlived its killed parent"
+    finally:
+        parent.kill()
+        parent.wait()
+        parent.stdout.close()
+        parent.stdin.close()
+        if _proc_stat(child) is not None:
+            os.kill(child, signal.SIGKILL)
