@@ -3,6 +3,7 @@ stated before it starts, and no compile process left running after its demo is k
 
 from __future__ import annotations
 
+import logging
 import os
 import signal
 import subprocess
@@ -18,6 +19,7 @@ from scipy.spatial.transform import Rotation
 from msa_slam.datasets import open_dataset
 from msa_slam.errors import InputError
 from msa_slam.io.poses import format_kitti
+from msa_slam.odometry import KissOdometry
 
 
 def _kitti_with_tr(root: Path, tr_line: str) -> Path:
@@ -43,6 +45,27 @@ def test_a_non_rigid_tr_is_named_in_calib_txt_not_as_a_pose(tmp_path):
     assert str(err.value) == (f"{calib}:2: Tr (the Velodyne->camera extrinsic) is not a rigid transform "
                               "(|R R^T - I| = 2.10e-01, det R = 1.100000); it must be a rotation and a translation")
 
+
+
+def test_a_scan_too_sparse_to_register_is_extrapolated_and_named(caplog):
+    """A 1-point scan was registered (one point cannot fix a pose) with no word; now it is not registered, its
+    pose is KISS-ICP's constant-velocity prediction, and the frame is named in the log and the run's notes."""
+    scene = np.random.default_rng(1).normal(size=(2000, 3)) * 10.0
+    odometry = KissOdometry(max_range=50.0)
+    with caplog.at_level(logging.WARNING, logger="msa_slam.odometry.kiss"):
+        poses = [odometry.register(scene - [0.5 * k, 0.0, 0.0]) for k in range(3)]
+        poses.append(odometry.register(np.array([[5.0, 1.0, 0.0]])))
+        poses.append(odometry.register(np.array([[5.0, 1.0, 0.0], [60.0, 0.0, 0.0], [0.0, 7.0, 1.0]])))
+    assert odometry.unregistered_frames == [3, 4]
+    assert [r.getMessage() for r in caplog.records] == [
+        "KISS-ICP frame 3: it has only 1 point (registration needs 3), so it was not registered (pose extrapolated "
+        "at constant velocity)",
+        "KISS-ICP frame 4: only 2 of its 3 points lie within 0-50 m (registration needs 3), so it was not "
+        "registered (pose extrapolated at constant velocity)"]
+    np.testing.assert_allclose(poses[3], poses[2] @ np.linalg.inv(poses[1]) @ poses[2], atol=1e-9)
+    assert odometry.unregistered_warning(5) == [
+        "odometry: KISS-ICP could not register 2 of 5 frames (frames 3, 4): fewer than 3 of their points lie within "
+        "0-50 m, so their poses were extrapolated at constant velocity"]
 
 
 # The demo's role: start the background compile, then work until killed (stdin stays open until then).
