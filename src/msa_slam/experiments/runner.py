@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import sys
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +23,7 @@ from typing import Any
 from msa_slam.errors import InputError
 from msa_slam.experiments.folder import (CELL_FILE, KIND, cell_dir, check_versions, finished_cells, read_cell,
                                         stale_cells, write_grid)
+from msa_slam.experiments.estimate import GridClock, GridEstimate, estimate_grid
 from msa_slam.experiments.grid import Cell, GridSpec, check_datasets, expand
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, staged_dir
@@ -136,7 +138,11 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
         run.stale = stale_cells(run.out, cells)
         run.skipped = [cell.id for cell in cells if cell.id in finished]
         todo = [cell for cell in cells if cell.id not in finished]
-        _run_cells(grid, todo, run, scheduler, workers, client, quiet)
+        local = scheduler is None and client is None
+        estimate = estimate_grid(grid.name, cells, finished, todo, workers if local else None)
+        if not quiet:  # before the first cell, on a terminal or not
+            print(estimate.line(), file=sys.stderr, flush=True)
+        _run_cells(grid, todo, run, scheduler, workers, client, quiet, estimate)
         write_report(run.out, finished=finished)
         folder.record_files()
     return run
@@ -153,11 +159,16 @@ def _check_scheduler(scheduler: str) -> None:
 
 
 def _run_cells(grid: GridSpec, todo: list[Cell], run: GridRun, scheduler: str | None, workers: int, client,
-               quiet: bool) -> None:
+               quiet: bool, estimate: GridEstimate) -> None:
     from msa_slam.progress import progress_bar
 
-    with progress_bar(quiet, transient=False) as bar:
-        task = bar.add_task(f"grid {grid.name} ({len(run.skipped)} done before)", total=len(todo))
+    clock = GridClock(estimate)
+    with progress_bar(quiet, transient=False, fields="{task.fields[left]}") as bar:
+        task = bar.add_task(f"grid {grid.name} ({len(run.skipped)} done before)", total=len(todo), left=clock.left([]))
+
+        def advance() -> None:
+            bar.update(task, advance=1, left=clock.left(run.ran + list(run.failed)))
+
         if todo and client is None and scheduler is None and workers == 1:
             for cell in todo:
                 bar.update(task, description=f"{cell.method} on {cell.dataset}")
@@ -166,9 +177,9 @@ def _run_cells(grid: GridSpec, todo: list[Cell], run: GridRun, scheduler: str | 
                     _record(run, cell, None)
                 except Exception as exc:  # a failing cell must not stop the grid
                     _record(run, cell, exc)
-                bar.advance(task)
+                advance()
         elif todo:
-            _run_dask(todo, run.out, grid.figures, scheduler, workers, client, run, lambda: bar.advance(task))
+            _run_dask(todo, run.out, grid.figures, scheduler, workers, client, run, advance)
 
 
 def _run_dask(todo: list[Cell], out: Path, figures: bool, scheduler: str | None, workers: int, client,
