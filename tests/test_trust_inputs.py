@@ -112,6 +112,17 @@ from msa_slam.sampling.msa.warm import compile_in_background
 print(compile_in_background({}, (20, 60)).pid, flush=True)
 sys.stdin.read()
 """
+# The same with a child that has only the fallback (a thread watching its parent) and creates READY once set up.
+_WATCHED_PARENT = f"""
+import multiprocessing, os, sys
+sys.path.insert(0, {str(Path(__file__).parent)!r})
+from helpers.orphans import fallback_child
+child = multiprocessing.get_context("spawn").Process(target=fallback_child, args=(os.getpid(), sys.argv[1]),
+                                                     daemon=True)
+child.start()
+print(child.pid, flush=True)
+sys.stdin.read()
+"""
 
 
 def _proc_stat(pid: int) -> list[str] | None:
@@ -135,17 +146,21 @@ def _poll(condition: Callable[[], bool], timeout: float) -> bool:
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states from /proc")
-@pytest.mark.parametrize("when", ["compiling", "starting"])
+@pytest.mark.parametrize("when", ["compiling", "starting", "fallback"])
 def test_a_killed_parent_takes_its_compile_child_with_it(tmp_path, when):
     """kill -9 of the demo left its compile process running on for minutes. `compiling`: killed once the child
     lowered its priority (it is past its start-up); `starting`: killed at once, maybe before the child set up
-    anything. An empty numba cache makes the child compile (about a minute of CPU) rather than load."""
-    parent = subprocess.Popen([sys.executable, "-c", _COMPILING_PARENT], stdin=subprocess.PIPE,
+    anything; `fallback`: a child with only the thread watching its parent (no prctl), killed once that runs.
+    An empty numba cache makes the compile child compile (about a minute of CPU) rather than load."""
+    script, ready = (_WATCHED_PARENT if when == "fallback" else _COMPILING_PARENT), tmp_path / "ready"
+    parent = subprocess.Popen([sys.executable, "-c", script, str(ready)], stdin=subprocess.PIPE,
                               stdout=subprocess.PIPE, text=True, env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)})
     child = int(parent.stdout.readline())
     try:
         if when == "compiling":
             assert _poll(lambda: (_proc_stat(child) or [""] * 17)[16] == "19", timeout=60)
+        elif when == "fallback":
+            assert _poll(ready.exists, timeout=60), "the child did not set up its end with the parent"
         parent.send_signal(signal.SIGKILL)
         parent.wait()
         assert _poll(lambda: _proc_stat(child) is None, timeout=30), "the compile child outlived its killed parent"

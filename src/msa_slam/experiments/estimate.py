@@ -47,7 +47,7 @@ class GridEstimate:
         if not self.cell_s:
             return counts
         if self.seconds is None:
-            return f"{counts}; no estimate of their time ({self.basis})"
+            return f"{counts}; no estimate of their time: {self.basis}"
         return f"{counts}; estimated time {duration(self.seconds)} ({self.basis})"
 
 
@@ -64,16 +64,18 @@ def estimate_grid(name: str, cells: Sequence[Cell], finished: Mapping[str, tuple
             "rough: each cell's frames times an assumed cost a frame of its stages on a 2-core machine like this "
             f"project's: {_stage_costs()}")
     known = [s for s in cell_s.values() if s is not None]
+    if not known:  # no frame count (recordings that cannot be opened yet): the clock weighs the cells alike
+        return GridEstimate(name, len(cells), len(finished), dict.fromkeys(cell_s, 1.0), None,
+                            f"the frames of {len(cell_s)} cell(s) are not known before they run")
+    mean = sum(known) / len(known)
     unknown = len(cell_s) - len(known)
-    serial = sum(known) if known else None
     if unknown:
-        basis += f"; {unknown} cell(s) of unknown length not counted"
+        basis += f"; {unknown} cell(s) of unknown length counted as an average one"
+    cell_s = {cid: mean if s is None else s for cid, s in cell_s.items()}
     used = 1 if workers is None else max(1, min(workers, len(todo)))
     spread = "on one worker" if workers is None else f"on {used} worker{'s' * (used > 1)}"
-    seconds = None if serial is None else serial / used
-    mean = sum(known) / len(known) if known else 1.0  # the clock weighs a cell of unknown length as an average one
-    return GridEstimate(name, len(cells), len(finished), {cid: mean if s is None else s for cid, s in cell_s.items()},
-                        seconds, f"{basis}; {spread}; start-up and writing results not included")
+    return GridEstimate(name, len(cells), len(finished), cell_s, sum(cell_s.values()) / used,
+                        f"{basis}; {spread}; start-up and writing results not included")
 
 
 def _stage_costs() -> str:
