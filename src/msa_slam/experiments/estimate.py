@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from functools import cache
 from typing import Any, Collection, Mapping, Sequence
 
 from msa_slam.errors import InputError
@@ -55,7 +54,8 @@ def estimate_grid(name: str, cells: Sequence[Cell], finished: Mapping[str, tuple
                   workers: int | None) -> GridEstimate:
     """The estimate of running `todo` (of the grid's `cells`; `finished`: read_cell's (info, metrics) by id) on
     `workers` local processes (None: a Dask cluster of unknown size, then stated for one worker)."""
-    sizes = {cell.id: _size(cell) for cell in todo}
+    opened: dict[tuple, tuple[int | None, int | None]] = {}  # each dataset is looked at once
+    sizes = {cell.id: _size(cell, opened) for cell in todo}
     per_frame, basis = _recorded_cost(finished)
     if per_frame is not None:
         cell_s = {cid: None if frames is None else frames * per_frame for cid, (frames, _) in sizes.items()}
@@ -141,18 +141,19 @@ def _assumed_costs(todo: Sequence[Cell], sizes: Mapping[str, tuple[int | None, i
     return costs
 
 
-def _size(cell: Cell) -> tuple[int | None, int | None]:
-    """(frames, points a scan) the cell processes; (None, None) when that cannot be told without the long work."""
+def _size(cell: Cell, opened: dict[tuple, tuple[int | None, int | None]]) -> tuple[int | None, int | None]:
+    """(frames, points a scan) the cell processes; (None, None) when that cannot be told without the long work.
+    `opened`: the sizes of the datasets already looked at, by (spec, loader, source options)."""
     config = cell.config
-    source = config.get("source") or {}
-    frames, points = _dataset_size(config["dataset"], config.get("dataset_kind", "auto"),
-                                   tuple(sorted(source.items())))
+    key = (config["dataset"], config.get("dataset_kind", "auto"), tuple(sorted((config.get("source") or {}).items())))
+    if key not in opened:
+        opened[key] = _dataset_size(*key)
+    frames, points = opened[key]
     if frames is not None and config.get("max_frames"):
         frames = min(frames, config["max_frames"])
     return frames, points
 
 
-@cache
 def _dataset_size(spec: str, kind: str, source: tuple) -> tuple[int | None, int | None]:
     """(frames, points a scan) of a dataset as a run selects it: simulated ones from their settings (nothing is
     simulated), recordings by opening them and reading their first scan (as a run does first)."""
