@@ -22,8 +22,8 @@ from scipy.spatial.transform import Rotation
 
 from msa_slam.datasets import open_dataset
 from msa_slam.errors import InputError
-from msa_slam.io.poses import format_kitti
 from msa_slam.experiments import expand, parse_grid
+from msa_slam.io.poses import format_kitti
 from msa_slam.odometry import KissOdometry
 from test_cli_main import run_cli
 from test_experiments import TINY
