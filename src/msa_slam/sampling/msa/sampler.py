@@ -76,7 +76,11 @@ class MSASampler(Sampler):
     authors' keyframes) or "canonical" (eigenvectors fixed from the data alone: the same keyframes on
     every machine, msa/canonical.py). Windows whose choice rounding could change are counted in
     `stats.ambiguous` (msa/decision.py); windows whose bounds admitted no candidate in
-    `stats.fallback_windows`, with a warning once they are most of them.
+    `stats.fallback_windows`, with a warning once they are most of them. min_motion / min_rotation: the
+    standstill gate of every sampler (sampling/base.py; off by default, as in the reference, whose keyframes
+    the parity tests check; the SLAM pipelines switch it on): odometry jitter at a standstill moves frames by
+    more than MIN_WINDOW_STEP (1 cm), so without the gate a robot that stands still keeps filling windows and
+    making keyframes.
     """
 
     name = "msa"
@@ -84,8 +88,9 @@ class MSASampler(Sampler):
 
     def __init__(self, window: int = 10, alpha: float = 1.0, beta: float = 1.0, lambda_l: float = 0.1,
                  lambda_u: float = 3.0, neighbours: int = 0, use_rho: bool = True, use_pi: bool = True,
-                 mode: str = "exact", pi: str = "reference") -> None:
-        super().__init__()
+                 mode: str = "exact", pi: str = "reference", min_motion: float = 0.0,
+                 min_rotation: float = 0.0) -> None:
+        super().__init__(min_motion, min_rotation)
         self.window_size = checks.integer(self.name, "window", window, 3)
         self.neighbours = checks.integer(self.name, "neighbours", neighbours, 0)
         alpha = checks.finite_float(self.name, "alpha", alpha, 0.0, exclusive=True)
@@ -122,6 +127,13 @@ class MSASampler(Sampler):
         """Warn up front when the stream is too short for the window ever to fill."""
         if frames < self.window_size:
             warn_short_stream(frames, self.window_size, flush=flush)
+
+    @property
+    def nbytes(self) -> int:
+        """The base's records plus the buffered translations and descriptors, the window and the keyframe set
+        (8 bytes an index): bounded by the window unless neighbours > 0 (keyframes' poses and descriptors)."""
+        buffered = sum(t.nbytes for t in self._translation.values()) + sum(d.nbytes for d in self._descriptor.values())
+        return super().nbytes + buffered + 8 * (len(self._window) + len(self._keyframe_set))
 
     @property
     def window(self) -> list[int]:
