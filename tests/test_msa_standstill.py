@@ -6,7 +6,7 @@ default is off (the reference's behaviour, which the parity tests check); the SL
 (slam/backend.py, STANDSTILL_GATE: 0.1 m, 0.5 deg) for every sampler but "all".
 
 The jitter below is that of KISS-ICP on simulated KITTI-like scans from one fixed pose (docs/msa.md, "Standing
-still"): steps of about 1.2 cm (median), at most 5.2 cm and 0.1 deg from the first pose over 1,000 frames.
+still"): steps of about 1.2 cm (median), at most 5.2 cm and 0.115 deg from the first pose over 1,000 frames.
 Bound: over a 1,000-frame standstill that starts at a passed frame, the gated samplers make no keyframe (only
 frame 0 when the stream starts standing), and neither the sampler's nor the SLAM core's accounted bytes grow
 apart from the run's per-frame trajectory record (its pose, ground truth, time and step times).
@@ -24,7 +24,8 @@ from conftest import SHARED_DIR
 from msa_slam.backend import PoseGraph
 from msa_slam.descriptors import make_descriptor
 from msa_slam.errors import InputError
-from msa_slam.pipeline.config import make_config
+from msa_slam.pipeline.compare import method_configs
+from msa_slam.pipeline.config import apply_params, make_config
 from msa_slam.registration import KeyframeCloudStore
 from msa_slam.sampling import make_sampler, sampler_parameters
 from msa_slam.sampling.registry import SAMPLERS
@@ -159,6 +160,18 @@ def test_the_gate_is_off_in_the_samplers_own_defaults_so_parity_is_unchanged():
     gated = make_sampler("msa", window=10, lambda_u=3.0, **GATE)
     gated.run(poses, descriptors)
     assert gated.stats.standstill_frames >= 1
+
+
+def test_compare_gives_the_gate_given_to_every_method_but_all():
+    """-p min_motion=... reaches the baselines too (the same frames for every method); other MSA parameters
+    stay with MSA."""
+    base = apply_params(make_config(dataset="sim:test"), ["window=8", "min_motion=0.2", "min_rotation=1"])
+    configs = {c.name: c.sampler_params for c in method_configs(base)}
+    assert configs["msa"] == {"window": 8, "min_motion": 0.2, "min_rotation": 1}
+    assert configs["constant-2m"] == {"min_motion": 0.2, "min_rotation": 1, "distance": 2.0}
+    assert configs["entropy"] == configs["spaciousness"] == {"min_motion": 0.2, "min_rotation": 1}
+    assert configs["all"] == {}
+    assert {c.name: c.sampler_params for c in method_configs(make_config(dataset="sim:test"))}["entropy"] == {}
 
 
 def test_the_slam_core_gates_every_sampler_but_all():

@@ -23,6 +23,7 @@ from msa_slam.errors import InputError
 from msa_slam.sampling import checks
 from msa_slam.types import validate_pose
 
+GATE_PARAMETERS = ("min_motion", "min_rotation")  # the standstill gate's, taken by every sampler
 MAX_MIN_ROTATION = 180.0  # degrees: no rotation is larger, so a larger min_rotation would mean nothing else
 
 
