@@ -178,7 +178,10 @@ def test_the_slam_core_gates_every_sampler_but_all():
     for name in SAMPLERS:
         params = slam_sampler_params(name, {})
         assert params == ({} if name == "all" else GATE)
-    assert slam_sampler_params("msa", {"min_motion": 0.0}) == {"min_motion": 0.0, "min_rotation": 0.5}
+    assert slam_sampler_params("msa", {"min_motion": 0}) == {"min_motion": 0, "min_rotation": 0.0}  # gate off
+    assert slam_sampler_params("msa", {"min_motion": 0.2}) == {"min_motion": 0.2, "min_rotation": 0.5}
+    assert slam_sampler_params("constant", {"min_rotation": 2}) == {"min_motion": 0.1, "min_rotation": 2}
+    make_sampler("msa", **slam_sampler_params("msa", {"min_motion": 0}))  # no "min_rotation needs min_motion"
     assert all({"min_motion", "min_rotation"} <= set(sampler_parameters(name)) for name in SAMPLERS)
 
 

@@ -278,7 +278,10 @@ def slam_sampler_params(sampler: str, params: dict[str, Any]) -> dict[str, Any]:
     cost memory (keyframe clouds, descriptors, graph nodes), as KISS-ICP and KISS-SLAM skip them."""
     if sampler in UNGATED_SAMPLERS:
         return dict(params)
-    return {**STANDSTILL_GATE, **params}
+    merged = {**STANDSTILL_GATE, **params}
+    if merged["min_motion"] == 0 and "min_rotation" not in params:  # -p min_motion=0 switches the whole gate off
+        merged["min_rotation"] = 0.0
+    return merged
 
 
 def build_backend(config: RunSettings, descriptor: Descriptor, clouds: CloudStore, graph: Graph, n_frames: int,
