@@ -94,7 +94,8 @@ def test_a_1000_frame_standstill_makes_no_keyframe_with_the_gate():
     assert len(ungated.online_keyframes) > STANDSTILL // 20  # the problem the gate solves
     gated = make_sampler("msa", window=10, **GATE)
     sizes = []
-    with pytest.warns(UserWarning, match="never filled"):
+    with pytest.warns(UserWarning, match=r"never filled in 1000 frames \(only 1 moved at least 0\.01 m from the "
+                                         r"member before them; the standstill gate held back 999 that moved < 0\.1 m\)"):
         for pose, descriptor in zip(poses, descriptors):
             gated.push(pose, descriptor)
             sizes.append(gated.nbytes)

@@ -90,7 +90,7 @@ def rotation_deg(a: np.ndarray, b: np.ndarray) -> float:
 class Sampler(ABC):
     """Base class: validates each frame, numbers it, applies the standstill gate and keeps the keyframe lists.
 
-    The standstill gate (`min_motion` metres, `min_rotation` degrees; both 0, the default, switch it off): a
+    The standstill gate (`min_motion` metres, `min_rotation` degrees; `min_motion` 0, the default, is off): a
     frame whose translation from the ANCHOR (the last frame passed on to the algorithm; the first frame always
     is) is below `min_motion` and whose rotation from it is below `min_rotation` (with `min_rotation` 0, any
     rotation) is held back: it keeps its index and is counted in `stats.frames` and `stats.standstill_frames`,

@@ -52,15 +52,18 @@ def check_candidate_count(window: int, neighbours: int, mode: str = "exact", pi:
                          + ("" if canonical_fast else "; up to 20 with mode='fast', pi='canonical'") + ")")
 
 
-def warn_short_stream(frames: int, window: int, members: int | None = None, flush: bool = False) -> None:
+def warn_short_stream(frames: int, window: int, members: int | None = None, flush: bool = False,
+                      held: int = 0, min_motion: float = 0.0) -> None:
     """The window never filled: no subset was ever optimised, so only frame 0 is an online keyframe. Either the
-    stream is shorter than the window or (`members`, the frames that joined it) the frames did not move. With
-    `flush` (the caller flushes at the end) the end-of-stream flush picks the rest, so flushing is not advised."""
+    stream is shorter than the window or (`members`, the frames that joined it) the frames did not move (`held`
+    of them held back by the standstill gate, which `min_motion` sets). With `flush` (the caller flushes at the
+    end) the end-of-stream flush picks the rest, so flushing is not advised."""
     if members is None or frames < window:
         why = f"window={window} is longer than the stream ({frames} frames): the window never filled"
     else:
+        gate = f"; the standstill gate held back {held} that moved < {min_motion:g} m" if held else ""
         why = (f"window={window}: the window never filled in {frames} frames (only {members} moved at least "
-               f"{MIN_WINDOW_STEP} m from the member before them)")
+               f"{MIN_WINDOW_STEP} m from the member before them{gate})")
     advice = ("only the end-of-stream flush chooses keyframes after it; use a smaller window" if flush
               else "use a smaller window or flush at the end")
     warnings.warn(f"msa: {why}, so only frame 0 was selected online; {advice}", UserWarning, stacklevel=3)
@@ -161,7 +164,8 @@ class MSASampler(Sampler):
     def _finish(self) -> list[int]:
         """Flush: optimise whatever is left in the window over all its members (not in the reference)."""
         if self.stats.window_optimisations == 0 and self.stats.frames > 0:
-            warn_short_stream(self.stats.frames, self.window_size, len(self._window), flush=True)
+            warn_short_stream(self.stats.frames, self.window_size, len(self._window), flush=True,
+                              held=self.stats.standstill_frames, min_motion=self.min_motion)
         if len(self._window) < 2:
             return []
         self._update_bounds()
