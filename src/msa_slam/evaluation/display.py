@@ -18,7 +18,9 @@ def fmt(value: float | None, spec: str = ".3f", unit: str = "") -> str:
     return text + unit
 
 
-COUNT_KEYS = ("keyframes", "candidates", "verified", "rejected", "false_loops")  # counted, not measured
+# counted, not measured (as are compare's rejected_<reason> columns)
+COUNT_KEYS = ("keyframes", "candidates", "verified", "rejected", "false_loops", "true_candidates", "false_accepted",
+              "revisits")
 
 
 def spec_for(key: str) -> str:
@@ -26,7 +28,7 @@ def spec_for(key: str) -> str:
     table column never mixes 0.123 and 12.3: % improvements and counts (their means over seeds) 1 decimal;
     MiB and seconds 2 (as `mib` and the stage times); errors (m, deg, RPE in % or deg/100 m) and scores
     (PR-AUC, F1) 3."""
-    if "improvement" in key or key in COUNT_KEYS:
+    if "improvement" in key or key in COUNT_KEYS or key.startswith("rejected_"):
         return ".1f"
     if key.endswith(("_mib", "_s")):
         return ".2f"
@@ -41,7 +43,9 @@ NOTE_LABELS = {"ate": "ATE (and its % improvement)", "ate_odometry": "ATE of the
                "full_rate_improvement_translation": "full-rate translation ATE improvement",
                "full_rate_improvement_rotation": "full-rate rotation ATE improvement",
                "rpe_kitti": "RPE over KITTI's 100-800 m segments", "rpe_10m": "RPE over 10 m",
-               "pr_reference": "PR-AUC / F1-max of the reference example's protocol"}
+               "pr_reference": "PR-AUC / F1-max of the reference example's protocol",
+               "loop_truth": "true candidates, false accepted loops and revisit recall",
+               "revisit_recall": "revisit recall"}
 
 
 def notes(metrics: Mapping[str, Any]) -> list[str]:

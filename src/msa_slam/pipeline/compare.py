@@ -32,6 +32,7 @@ from msa_slam.progress import progress_bar
 from msa_slam.sampling.base import GATE_PARAMETERS
 from msa_slam.slam import RunResult
 from msa_slam.slam.backend import UNGATED_SAMPLERS
+from msa_slam.slam.loop_closing import REJECTION_REASONS
 from msa_slam.viz import plot_metric_bars, plot_trajectories
 from msa_slam.viz.labels import display_name
 
@@ -47,15 +48,21 @@ PAPER_METHODS: tuple[tuple[str, str, dict[str, Any]], ...] = (
 )
 UNDER_STUDY = "msa"  # the sampler that gets the user's sampler parameters (method_configs)
 
-# Primary columns: full-rate (every frame, the same "ATE before" for every method); kf_*: keyframes only.
-COLUMNS = ("method", "keyframes", "candidates", "verified", "rejected", "false_loops", "ate_before_m", "ate_after_m",
-           "improvement_t_pct", "improvement_r_pct", "rpe_pct", "rpe_10m_m", "pr_auc", "f1_max", "pr_auc_reference",
-           "f1_max_reference", "memory_mib", "rss_growth_mib", "time_s", "kf_ate_before_m", "kf_ate_after_m",
-           "kf_improvement_t_pct", "kf_improvement_r_pct")
-HEADERS = ("method", "keyframes", "candidates", "verified", "rejected", "false loops", "ATE before [m]",
-           "ATE after [m]", "t. ATE impr. [%]", "R. ATE impr. [%]", "RPE {rpe} [%]", "RPE 10 m [m]", "PR-AUC", "F1-max",
-           "PR-AUC (ref.)", "F1-max (ref.)", "memory [MiB]", "RSS growth [MiB]", "time [s]", "kf ATE before [m]",
-           "kf ATE after [m]", "kf t. impr. [%]", "kf R. impr. [%]")
+# Primary columns: full-rate (every frame, the same "ATE before" for every method); kf_*: keyframes only. Loop columns:
+# what became of the candidates (rejected_<reason>: slam.loop_closing.REJECTION_REASONS) and, against ground truth,
+# how many accepted loops were false and which share of the revisits got one (evaluation.loops).
+REJECTED_COLUMNS = tuple(f"rejected_{reason}" for reason in REJECTION_REASONS)
+COLUMNS = ("method", "keyframes", "candidates", "true_candidates", "verified", "rejected", *REJECTED_COLUMNS,
+           "false_loops", "false_accepted", "revisits", "revisit_recall", "revisit_keyframe_recall", "ate_before_m",
+           "ate_after_m", "improvement_t_pct", "improvement_r_pct", "rpe_pct", "rpe_10m_m", "pr_auc", "f1_max",
+           "pr_auc_reference", "f1_max_reference", "memory_mib", "rss_growth_mib", "time_s", "kf_ate_before_m",
+           "kf_ate_after_m", "kf_improvement_t_pct", "kf_improvement_r_pct")
+HEADERS = ("method", "keyframes", "candidates", "true cand.", "verified", "rejected",
+           *(f"rej. {reason}" for reason in REJECTION_REASONS), "false loops", "false accepted", "revisits",
+           "revisit recall", "revisit kf recall", "ATE before [m]", "ATE after [m]", "t. ATE impr. [%]",
+           "R. ATE impr. [%]", "RPE {rpe} [%]", "RPE 10 m [m]", "PR-AUC", "F1-max", "PR-AUC (ref.)", "F1-max (ref.)",
+           "memory [MiB]", "RSS growth [MiB]", "time [s]", "kf ATE before [m]", "kf ATE after [m]", "kf t. impr. [%]",
+           "kf R. impr. [%]")
 
 
 def table_row(metrics: dict[str, Any]) -> dict[str, Any]:
@@ -64,9 +71,15 @@ def table_row(metrics: dict[str, Any]) -> dict[str, Any]:
     time: back-end stages)."""
     m, full = metrics, metrics["full_rate"]
     reference = m.get("pr_reference") or {}
+    loops = m.get("loop_accounting") or {}  # absent from metrics written before loops were accounted (n/a)
+    rejected = loops.get("rejected") or m["loop_closing"]["rejected"]
     return {
-        "method": m["method"], "keyframes": m["keyframes"], "candidates": m["candidates"], "verified": m["verified"],
-        "rejected": sum(m["loop_closing"]["rejected"].values()), "false_loops": m["false_loops"],
+        "method": m["method"], "keyframes": m["keyframes"], "candidates": m["candidates"],
+        "true_candidates": loops.get("true_candidates"), "verified": m["verified"], "rejected": sum(rejected.values()),
+        **{f"rejected_{reason}": rejected.get(reason, 0) for reason in REJECTION_REASONS},
+        "false_loops": m["false_loops"], "false_accepted": loops.get("false_accepted"),
+        "revisits": loops.get("revisits"),
+        "revisit_recall": loops.get("revisit_recall"), "revisit_keyframe_recall": loops.get("revisit_keyframe_recall"),
         "ate_before_m": full["before"]["ate_translation_m"],
         "ate_after_m": full["after"]["ate_translation_m"], "improvement_t_pct": full["improvement_pct"]["translation"],
         "improvement_r_pct": full["improvement_pct"]["rotation"],

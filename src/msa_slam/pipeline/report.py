@@ -11,6 +11,7 @@ import msa_slam
 from msa_slam.datasets.options import SourceOptions
 from msa_slam.evaluation import KITTI_LENGTHS_M, NA, PROCESS_RSS_LABEL, fmt, notes, segment_errors
 from msa_slam.evaluation.full_rate import STEP_FRAMES, path_length
+from msa_slam.evaluation.loops import FALSE_LOOP_ANGLE_DEG
 from msa_slam.io.tables import mib
 from msa_slam.pipeline.online_config import NO_TIMESTAMPS
 from msa_slam.slam import RunResult
@@ -22,6 +23,29 @@ def notes_markdown(metrics: dict[str, Any]) -> list[str]:
     """report.md lines: why each n/a metric is unavailable, then the warnings (nothing when all is well)."""
     items = notes(metrics)
     return ["Notes:", "", *(f"- {item}" for item in items), ""] if items else []
+
+
+def loop_accounting_text(metrics: dict[str, Any], loop_radius: float, min_travel_m: float) -> str:
+    """One paragraph on what became of the loop candidates (metrics.json `loop_accounting`): rejections by
+    reason, false accepted loops and the revisits closed (n/a without ground truth: the notes say why)."""
+    acc = metrics.get("loop_accounting")
+    if acc is None:
+        return ""
+    rejected = ", ".join(f"{reason} {n}" for reason, n in acc["rejected"].items() if n) or "none"
+    text = (f"Loop accounting: {acc['registered']} of {counted(acc['candidates'], 'candidate')} registered, "
+            f"{acc['accepted']} accepted, rejected: {rejected}.")
+    if acc["true_candidates"] is None:
+        return text + " True candidates, false accepted loops and revisit recall n/a (no ground truth)."
+    text += (f" {acc['true_candidates']} true candidates (within {loop_radius:g} m in ground truth); "
+             f"{acc['false_accepted']} accepted loops false (measured pose off ground truth by > {loop_radius:g} m "
+             f"or > {FALSE_LOOP_ANGLE_DEG:g} deg).")
+    apart = f"keyframe pairs within {loop_radius:g} m, >= {min_travel_m:g} m of path apart"
+    if not acc["revisits"]:
+        return text + f" No ground-truth revisit ({apart})."
+    return text + (f" Revisits ({apart}): "
+                   f"{acc['revisits_closed']} of {acc['revisits']} closed by an accepted loop (recall "
+                   f"{fmt(acc['revisit_recall'])}); keyframes with a revisit: {acc['revisit_keyframes_closed']} of "
+                   f"{acc['revisit_keyframes']} closed (recall {fmt(acc['revisit_keyframe_recall'])}).")
 
 
 def scans_read(source: SourceOptions) -> str:
@@ -180,6 +204,7 @@ def report_markdown(result: RunResult, figures: list[str], files: Collection[str
         + (f"{m['false_loops']} false (ground-truth distance > {cfg.loop_radius} m)." if result.gt_poses is not None
            else f"false loops n/a (no ground truth to tell a loop within {cfg.loop_radius} m from a false one).")
         + (" iSAM2 updated at every frame that finalised keyframes." if online else ""), "",
+        loop_accounting_text(m, cfg.loop_radius, cfg.min_travel_m), "",
         f"| metric | odometry | {after} | improvement |", "|---|---|---|---|",
         *_full_rate_rows(m["full_rate"], rpe_span),
         f"| ATE translation [m], keyframes only | {fmt(b['ate_translation_m'])} | {fmt(a['ate_translation_m'])} | "

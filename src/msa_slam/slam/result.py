@@ -14,9 +14,10 @@ from typing import Any, Protocol
 import numpy as np
 
 from msa_slam.evaluation import TrajectoryEvaluation, evaluate_full_rate, full_rate_poses, peak_rss_bytes
+from msa_slam.evaluation.loops import account_loops
 from msa_slam.place_recognition import PRCurve
 from msa_slam.registration import VerifierConfig
-from msa_slam.slam.loop_closing import loop_summary
+from msa_slam.slam.loop_closing import REJECTION_REASONS, loop_summary
 from msa_slam.types import LoopClosure
 
 
@@ -36,6 +37,7 @@ class RunSettings(Protocol):
     exclude_recent: int
     top_k: int
     loop_radius: float
+    min_travel_m: float
 
     @property
     def name(self) -> str: ...
@@ -94,11 +96,14 @@ class RunResult:
 
 
 def core_metrics(result: RunResult) -> dict[str, Any]:
-    """The metrics both protocols report: counts, loops, keyframe and full-rate ATE/RPE, PR, accounted memory,
-    sampler statistics."""
+    """The metrics both protocols report: counts, loops (and their accounting against ground truth,
+    evaluation.loops), keyframe and full-rate ATE/RPE, PR, accounted memory, sampler statistics."""
     cfg, loops, ev = result.config, result.loops, result.evaluation
     accepted = result.accepted_loops
     unavailable = dict(ev.metrics["unavailable"])
+    accounting = account_loops(loops, result.keyframes, result.gt_poses, cfg.loop_radius, cfg.min_travel_m,
+                               REJECTION_REASONS)
+    unavailable.update(accounting.unavailable)
     pr = result.pr
     if pr is None or pr.unavailable:
         unavailable["pr"] = pr.unavailable if pr is not None else (
@@ -113,12 +118,11 @@ def core_metrics(result: RunResult) -> dict[str, Any]:
     return {
         "sequence": result.name, "dataset": cfg.dataset, "method": cfg.name, "sampler": cfg.sampler,
         "descriptor": cfg.descriptor, "mode": cfg.mode, "frames": len(result), "keyframes": int(len(result.keyframes)),
-        "candidates": len(loops),
-        "true_candidates": int(sum(c.gt_distance <= cfg.loop_radius for c in loops)),
-        "verified": len(accepted),
-        "registrations": int(sum(c.verified for c in loops)),
+        "candidates": accounting.candidates, "true_candidates": accounting.true_candidates,
+        "verified": accounting.accepted, "registrations": accounting.registered,
         "false_loops": int(sum(c.gt_distance > cfg.loop_radius for c in accepted)),
         "loop_closing": loop_summary(loops, cfg),
+        "loop_accounting": accounting.as_dict(),
         **ev.metrics,
         "full_rate": full_rate,
         "unavailable": unavailable,
