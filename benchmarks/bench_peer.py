@@ -1,0 +1,214 @@
+"""msa-slam against the peer, KISS-SLAM (PRBonn: KISS-ICP + local maps + MapClosures + pose graph), on the same
+simulated scans: per sequence and world seed, the APE of KISS-ICP alone, KISS-SLAM and each msa-slam method,
+with the wall time of each.
+
+    python benchmarks/bench_peer.py [--sequences 07,09] [--seeds 0] [--end N] [--methods msa,constant-2m]
+                                    [--peer-python PATH] [--peer-threads 1] [--out DIR] [--cache-dir DIR]
+
+Each sequence is simulated once per seed as a KITTI-layout folder (`msa-slam simulate --trajectory kitti-NN
+--seed S [--end N] --out DIR/data/...`, per-point times in velodyne_times/). msa-slam runs `compare --mode
+realistic --no-sweep` on that folder (the paper's method set, or --methods); the peer runs through
+benchmarks/peer_kiss_slam.py with the Python that has kiss-slam (--peer-python; kiss-slam pins numpy and
+pydantic older than msa-slam's, so it lives in its own venv), given the same scans and per-point times.
+
+APE: evo, SE(3) Umeyama alignment (rotation + translation, no scale) fitted on every frame, translation RMSE over
+every frame (msa-slam: the full-rate trajectory, trajectories/optimised.kitti) against the simulator's ground
+truth; rotation RMSE beside it. Time: KISS-ICP and KISS-SLAM, the seconds of their processing (scans' reading
+excluded) with --peer-threads KISS-ICP threads; msa-slam, the shared front end (odometry with 1 thread, Scan
+Context) plus the method's back end (sampling, loop search, verification, optimisation), each from its
+metrics.json (a front end read from the cache would not be timed: the default --cache-dir is fresh under --out).
+Two conventions differ and are printed with the table: KISS-ICP deskews to the sweep's end (its poses lead the
+mid-sweep ground truth by half a sweep), msa-slam's odometry to mid-sweep.
+
+Results are kept under --out (default ./msa_slam_results/bench_peer/): a finished comparison or peer run is
+reused on a rerun (delete it to rerun); the table goes to stdout and --out/table.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from msa_slam.evaluation import ATE_ALIGNMENT, fmt
+from msa_slam.evaluation.trajectory import ate
+from msa_slam.io.poses import read_poses
+from msa_slam.io.provenance import cpu_model
+from msa_slam.pipeline import make_config
+from msa_slam.pipeline.compare import PAPER_METHODS, run_compare
+
+DRIVER = Path(__file__).with_name("peer_kiss_slam.py")
+CLI = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
+INSTALL = ("KISS-SLAM (the peer) is not installed for {python}: {error}\n"
+           "Install it into its own venv (kiss-slam pins numpy and pydantic older than msa-slam's):\n"
+           "    python3 -m venv peer-venv && peer-venv/bin/pip install 'kiss-slam>=0.0.2'\n"
+           "    (open3d, which kiss-slam imports, needs libusb: apt-get install libusb-1.0-0)\n"
+           "then pass --peer-python peer-venv/bin/python (or set MSA_SLAM_PEER_PYTHON). "
+           "The peer's rows are n/a until then.")
+
+
+def run_name(sequence: str, seed: int, end: int | None) -> str:
+    return f"kitti-{sequence}-seed{seed}" + ("" if end is None else f"-end{end}")
+
+
+def peer_missing(python: str) -> str | None:
+    """Why `python` cannot run KISS-SLAM (None when it can)."""
+    try:
+        done = subprocess.run([python, "-c", "import kiss_slam.slam, kiss_icp"], capture_output=True, text=True)
+    except OSError as exc:
+        return str(exc)
+    lines = done.stderr.strip().splitlines()
+    return None if done.returncode == 0 else (lines[-1] if lines else f"exit status {done.returncode}")
+
+
+def simulated(sequence: str, seed: int, end: int | None, root: Path) -> Path:
+    """The KITTI-layout folder of the simulated sequence (made once; sim.json marks a finished one)."""
+    folder = root / run_name(sequence, seed, end)
+    if not (folder / "sim.json").is_file():
+        shutil.rmtree(folder, ignore_errors=True)
+        command = [sys.executable, "-c", CLI, "simulate", "--trajectory", f"kitti-{sequence}", "--seed", str(seed),
+                   "--out", str(folder), "--quiet", *([] if end is None else ["--end", str(end)])]
+        subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+    return folder
+
+
+def peer_run(python: str, method: str, folder: Path, out: Path, threads: int) -> dict:
+    """The peer's poses and seconds (from peer_kiss_slam.py, run once and kept in `out`)."""
+    if not out.is_file():
+        tmp = out.with_suffix(".partial.npz")
+        start = time.perf_counter()
+        done = subprocess.run([python, str(DRIVER), method, str(folder), str(tmp), "--threads", str(threads)],
+                              capture_output=True, text=True)  # the peer's optimiser prints every iteration
+        wall = time.perf_counter() - start
+        if done.returncode:
+            raise RuntimeError(f"{DRIVER.name} {method} failed (exit status {done.returncode}):\n"
+                               + "\n".join(done.stderr.splitlines()[-20:]))
+        with np.load(tmp) as data:
+            np.savez(out, **data, wall=np.float64(wall))
+        tmp.unlink()
+    with np.load(out) as data:
+        return {k: data[k] for k in data}
+
+
+def compared(folder: Path, out: Path, methods: list[tuple], cache_dir: Path) -> tuple[Path, float | None]:
+    """msa-slam's comparison folder (run once) and its wall seconds (None when reused)."""
+    if (out / "comparison.csv").is_file():
+        return out, None
+    cfg = make_config(dataset=str(folder), mode="realistic", cache_dir=str(cache_dir))
+    start = time.perf_counter()
+    run_compare(cfg, out, quiet=True, methods=methods, sweep=False, overwrite=out.exists())
+    return out, time.perf_counter() - start
+
+
+def ape(estimate: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
+    """Translation (m) and rotation (deg) RMSE after SE(3) Umeyama alignment on every frame (evo)."""
+    error = ate(estimate, gt)
+    return error.translation_rmse, error.rotation_rmse
+
+
+def rows_for(sequence: str, seed: int, args: argparse.Namespace, peer: str | None) -> tuple[list[dict], dict]:
+    """One table row per estimator on one simulated sequence, and the conditions to print with them."""
+    out = args.out / run_name(sequence, seed, args.end)
+    folder = simulated(sequence, seed, args.end, args.out / "data")
+    gt, _ = read_poses(folder / "poses.txt")
+    rows = []
+    for label, method in (("KISS-ICP (peer config)", "icp"), ("KISS-SLAM", "slam")):
+        if peer is None:
+            rows.append({"estimator": label, "ape": None, "rot": None, "loops": None, "time": None,
+                         "note": "peer not installed"})
+            continue
+        run = peer_run(peer, method, folder, out.with_name(out.name + f"-peer-{method}.npz"), args.peer_threads)
+        t, r = ape(run["poses"], gt)
+        loops = None if int(run["closures"]) < 0 else f"{int(run['closures'])} closures"
+        rows.append({"estimator": label, "ape": t, "rot": r, "loops": loops, "time": float(run["seconds"]),
+                     "note": f"{int(run['threads'])} thread(s); deskew to sweep end"})
+    methods = [m for m in PAPER_METHODS if args.methods is None or m[0] in args.methods]
+    comparison, wall = compared(folder, out.with_name(out.name + "-compare"), methods, args.cache_dir)
+    first = True
+    for label, _, _ in methods:
+        run = comparison / "runs" / label
+        if not (run / "metrics.json").is_file():
+            rows.append({"estimator": f"msa-slam {label}", "ape": None, "rot": None, "loops": None, "time": None,
+                         "note": "failed: see " + str(run / "error.txt")})
+            continue
+        m = json.loads((run / "metrics.json").read_text())
+        front = sum(m["frontend_time_s"].values())
+        if first:  # the odometry every msa-slam method shares
+            t, r = ape(read_poses(run / "trajectories" / "odometry.kitti")[0], gt)
+            cached = " (cached: not timed)" if all(m["frontend_cached"].values()) else ""
+            rows.append({"estimator": "msa-slam odometry (KISS-ICP)", "ape": t, "rot": r, "loops": None,
+                         "time": m["frontend_time_s"].get("odometry"),
+                         "note": f"{m['threads']['odometry']} thread; deskew to mid-sweep{cached}"})
+            first = False
+        t, r = ape(read_poses(run / "trajectories" / "optimised.kitti")[0], gt)
+        acc = m["loop_accounting"]
+        recall = fmt(acc["revisit_keyframe_recall"], ".2f")
+        rows.append({"estimator": f"msa-slam {label}", "ape": t, "rot": r,
+                     "loops": f"{acc['accepted']} of {acc['candidates']} cand. ({acc['false_accepted']} false), "
+                              f"revisit kf recall {recall}",
+                     "time": front + m["time_s"]["backend_total"],
+                     "note": f"{m['keyframes']} keyframes; front end {front:.1f} s + back end "
+                             f"{m['time_s']['backend_total']:.1f} s"})
+    conditions = {"sequence": f"simulated KITTI-{sequence}", "seed": seed, "frames": len(gt),
+                  "compare_wall_s": wall}
+    return rows, conditions
+
+
+def table(rows: list[dict], conditions: dict) -> str:
+    wall = conditions["compare_wall_s"]
+    lines = [f"### {conditions['sequence']}, world seed {conditions['seed']}, {conditions['frames']} frames"
+             + ("" if wall is None else f" (msa-slam compare: {wall:.0f} s wall)"), "",
+             "| estimator | APE t RMSE [m] | APE rot RMSE [deg] | loops | time [s] | conditions |",
+             "|---|---|---|---|---|---|"]
+    lines += [f"| {r['estimator']} | {fmt(r['ape'])} | {fmt(r['rot'])} | {r['loops'] or ''} | {fmt(r['time'], '.1f')} "
+              f"| {r['note']} |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sequences", default="07", help="KITTI trajectories to simulate, e.g. 07,09")
+    parser.add_argument("--seeds", default="0", help="world seeds, e.g. 0,1")
+    parser.add_argument("--end", type=int, default=None, help="first N frames of each trajectory only")
+    parser.add_argument("--methods", default=None,
+                        help="msa-slam methods (compare's labels, e.g. msa,constant-2m; default: all seven)")
+    parser.add_argument("--peer-python", default=os.environ.get("MSA_SLAM_PEER_PYTHON", sys.executable),
+                        help="Python with kiss-slam installed (default: $MSA_SLAM_PEER_PYTHON, else this one)")
+    parser.add_argument("--peer-threads", type=int, default=1, help="KISS-ICP threads of the peer (0: all cores)")
+    parser.add_argument("--out", type=Path, default=Path("msa_slam_results/bench_peer"))
+    parser.add_argument("--cache-dir", type=Path, default=None, help="msa-slam's cache (default: --out/cache)")
+    args = parser.parse_args()
+    args.methods = None if args.methods is None else args.methods.split(",")
+    known = [label for label, _, _ in PAPER_METHODS]
+    if args.methods is not None and not set(args.methods) <= set(known):
+        parser.error(f"--methods: choose from {', '.join(known)}")
+    args.cache_dir = args.cache_dir or args.out / "cache"
+    args.out.mkdir(parents=True, exist_ok=True)
+    missing = peer_missing(args.peer_python)
+    if missing is not None:
+        print(INSTALL.format(python=args.peer_python, error=missing), file=sys.stderr)
+    peer = None if missing is not None else args.peer_python
+    date = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    text = [f"bench_peer, {date}, {cpu_model()} ({os.cpu_count()} CPUs). APE: evo, {ATE_ALIGNMENT} fitted on "
+            "every frame, RMSE over every frame against the simulator's ground truth. msa-slam: compare --mode "
+            "realistic --no-sweep (full-rate trajectory; loops: accepted of candidates, false accepted = pose off "
+            "ground truth by > 3 m or 5 deg, revisit keyframe recall); time = front end + back end.", ""]
+    print(text[0] + "\n", flush=True)
+    for sequence in args.sequences.split(","):
+        for seed in (int(s) for s in args.seeds.split(",")):
+            rows, conditions = rows_for(sequence.strip().zfill(2), seed, args, peer)
+            text.append(table(rows, conditions))
+            print(text[-1], flush=True)
+    (args.out / "table.md").write_text("\n".join(text))
+
+
+if __name__ == "__main__":
+    main()
