@@ -3,7 +3,8 @@ simulated scans: per sequence and world seed, the APE of KISS-ICP alone, KISS-SL
 with the wall time of each.
 
     python benchmarks/bench_peer.py [--sequences 07,09] [--seeds 0] [--end N] [--methods msa,constant-2m]
-                                    [--peer-python PATH] [--peer-threads 1] [--out DIR] [--cache-dir DIR]
+                                    [--peer-python PATH] [--peer-threads 1] [--peer-methods icp,slam]
+                                    [--out DIR] [--cache-dir DIR]
 
 Each sequence is simulated once per seed as a KITTI-layout folder (`msa-slam simulate --trajectory kitti-NN
 --seed S [--end N] --out DIR/data/...`, per-point times in velodyne_times/). msa-slam runs `compare --mode
@@ -121,6 +122,8 @@ def rows_for(sequence: str, seed: int, args: argparse.Namespace, peer: str | Non
     gt, _ = read_poses(folder / "poses.txt")
     rows = []
     for label, method in (("KISS-ICP (peer config)", "icp"), ("KISS-SLAM", "slam")):
+        if method not in args.peer_methods:
+            continue
         if peer is None:
             rows.append({"estimator": label, "ape": None, "rot": None, "loops": None, "time": None,
                          "note": "peer not installed"})
@@ -183,6 +186,8 @@ def main() -> None:
     parser.add_argument("--peer-python", default=os.environ.get("MSA_SLAM_PEER_PYTHON", sys.executable),
                         help="Python with kiss-slam installed (default: $MSA_SLAM_PEER_PYTHON, else this one)")
     parser.add_argument("--peer-threads", type=int, default=1, help="KISS-ICP threads of the peer (0: all cores)")
+    parser.add_argument("--peer-methods", default="icp,slam",
+                        help="the peer's runs: icp (KISS-ICP alone, KISS-SLAM's odometry settings), slam (KISS-SLAM)")
     parser.add_argument("--out", type=Path, default=Path("msa_slam_results/bench_peer"))
     parser.add_argument("--cache-dir", type=Path, default=None, help="msa-slam's cache (default: --out/cache)")
     args = parser.parse_args()
@@ -190,6 +195,9 @@ def main() -> None:
     known = [label for label, _, _ in PAPER_METHODS]
     if args.methods is not None and not set(args.methods) <= set(known):
         parser.error(f"--methods: choose from {', '.join(known)}")
+    args.peer_methods = args.peer_methods.split(",")
+    if not set(args.peer_methods) <= {"icp", "slam"}:
+        parser.error("--peer-methods: icp, slam or both")
     args.cache_dir = args.cache_dir or args.out / "cache"
     args.out.mkdir(parents=True, exist_ok=True)
     missing = peer_missing(args.peer_python)
