@@ -3,7 +3,7 @@ simulated scans: per sequence and world seed, the APE of KISS-ICP alone, KISS-SL
 with the wall time of each.
 
     python benchmarks/bench_peer.py [--sequences 07,09] [--seeds 0] [--end N] [--methods msa,constant-2m]
-                                    [--peer-python PATH] [--peer-threads 1] [--peer-methods icp,slam]
+                                    [--peer-python PATH] [--peer-threads 1] [--peer-methods icp,slam,slam-raw]
                                     [--out DIR] [--cache-dir DIR]
 
 Each sequence is simulated once per seed as a KITTI-layout folder (`msa-slam simulate --trajectory kitti-NN
@@ -18,9 +18,10 @@ truth; rotation RMSE beside it. Time: KISS-ICP and KISS-SLAM, the seconds of the
 excluded) with --peer-threads KISS-ICP threads; msa-slam, the shared front end (odometry with 1 thread, Scan
 Context) plus the method's back end (sampling, loop search, verification, optimisation), each from its
 metrics.json (a front end read from the cache would not be timed: the default --cache-dir is fresh under --out).
-Deskewing differs and is printed with the table: the peer deskews with the per-point times (its default), to
-the sweep's end (its poses lead the mid-sweep ground truth by half a sweep); msa-slam's odometry does not deskew
-by default (`-p odometry.deskew=true` deskews to mid-sweep), which the table says from the run's metrics.json.
+Deskewing differs and is printed with the table: given the per-point times, the peer deskews (its default) to
+the sweep's end (its poses lead the mid-sweep ground truth by half a sweep); "KISS-SLAM, no per-point times" is
+the peer as its CLI runs on .bin scans, without deskewing; msa-slam's odometry does not deskew by default
+(`-p odometry.deskew=true` deskews to mid-sweep), which the table says from the run's metrics.json.
 
 Results are kept under --out (default ./msa_slam_results/bench_peer/): a finished comparison or peer run is
 reused on a rerun (delete it to rerun); the table goes to stdout and --out/table.md.
@@ -82,12 +83,20 @@ def simulated(sequence: str, seed: int, end: int | None, root: Path) -> Path:
     return folder
 
 
-def peer_run(python: str, method: str, folder: Path, out: Path, threads: int) -> dict:
+# --peer-methods: (row label, peer_kiss_slam.py method, its extra arguments, conditions)
+PEER_RUNS = {
+    "icp": ("KISS-ICP (peer config)", "icp", [], "deskew to sweep end"),
+    "slam": ("KISS-SLAM", "slam", [], "deskew to sweep end"),
+    "slam-raw": ("KISS-SLAM, no per-point times", "slam", ["--no-times"], "no deskew (as its CLI reads .bin scans)"),
+}
+
+
+def peer_run(python: str, method: str, folder: Path, out: Path, threads: int, extra: list[str]) -> dict:
     """The peer's poses and seconds (from peer_kiss_slam.py, run once and kept in `out`)."""
     if not out.is_file():
         tmp = out.with_suffix(".partial.npz")
         start = time.perf_counter()
-        done = subprocess.run([python, str(DRIVER), method, str(folder), str(tmp), "--threads", str(threads)],
+        done = subprocess.run([python, str(DRIVER), method, str(folder), str(tmp), "--threads", str(threads), *extra],
                               capture_output=True, text=True)  # the peer's optimiser prints every iteration
         wall = time.perf_counter() - start
         if done.returncode:
@@ -127,18 +136,17 @@ def rows_for(sequence: str, seed: int, args: argparse.Namespace, peer: str | Non
     folder = simulated(sequence, seed, args.end, args.out / "data")
     gt, _ = read_poses(folder / "poses.txt")
     rows = []
-    for label, method in (("KISS-ICP (peer config)", "icp"), ("KISS-SLAM", "slam")):
-        if method not in args.peer_methods:
-            continue
+    for key in args.peer_methods:
+        label, method, extra, deskew = PEER_RUNS[key]
         if peer is None:
             rows.append({"estimator": label, "ape": None, "rot": None, "loops": None, "time": None,
                          "note": "peer not installed"})
             continue
-        run = peer_run(peer, method, folder, out.with_name(out.name + f"-peer-{method}.npz"), args.peer_threads)
+        run = peer_run(peer, method, folder, out.with_name(out.name + f"-peer-{key}.npz"), args.peer_threads, extra)
         t, r = ape(run["poses"], gt)
         loops = None if int(run["closures"]) < 0 else f"{int(run['closures'])} closures"
         rows.append({"estimator": label, "ape": t, "rot": r, "loops": loops, "time": float(run["seconds"]),
-                     "note": f"{int(run['threads'])} thread(s); deskew to sweep end"})
+                     "note": f"{int(run['threads'])} thread(s); {deskew}"})
     methods = [m for m in PAPER_METHODS if args.methods is None or m[0] in args.methods]
     comparison, wall = compared(folder, out.with_name(out.name + "-compare"), methods, args.cache_dir)
     first = True
@@ -192,8 +200,9 @@ def main() -> None:
     parser.add_argument("--peer-python", default=os.environ.get("MSA_SLAM_PEER_PYTHON", sys.executable),
                         help="Python with kiss-slam installed (default: $MSA_SLAM_PEER_PYTHON, else this one)")
     parser.add_argument("--peer-threads", type=int, default=1, help="KISS-ICP threads of the peer (0: all cores)")
-    parser.add_argument("--peer-methods", default="icp,slam",
-                        help="the peer's runs: icp (KISS-ICP alone, KISS-SLAM's odometry settings), slam (KISS-SLAM)")
+    parser.add_argument("--peer-methods", default=",".join(PEER_RUNS),
+                        help="the peer's runs: icp (KISS-ICP alone, KISS-SLAM's odometry settings), slam (KISS-SLAM "
+                             "with the per-point times), slam-raw (KISS-SLAM without them, as its CLI reads .bin)")
     parser.add_argument("--out", type=Path, default=Path("msa_slam_results/bench_peer"))
     parser.add_argument("--cache-dir", type=Path, default=None, help="msa-slam's cache (default: --out/cache)")
     args = parser.parse_args()
@@ -202,8 +211,8 @@ def main() -> None:
     if args.methods is not None and not set(args.methods) <= set(known):
         parser.error(f"--methods: choose from {', '.join(known)}")
     args.peer_methods = args.peer_methods.split(",")
-    if not set(args.peer_methods) <= {"icp", "slam"}:
-        parser.error("--peer-methods: icp, slam or both")
+    if not set(args.peer_methods) <= set(PEER_RUNS):
+        parser.error(f"--peer-methods: choose from {', '.join(PEER_RUNS)}")
     args.cache_dir = args.cache_dir or args.out / "cache"
     args.out.mkdir(parents=True, exist_ok=True)
     missing = peer_missing(args.peer_python)

@@ -4,9 +4,10 @@ that has kiss-slam installed (a separate venv: kiss-slam pins numpy and pydantic
 
 It imports numpy and the peer only (no msa_slam). Scans are velodyne/NNNNNN.bin (x, y, z, intensity) and,
 when the folder has them, velodyne_times/NNNNNN.npy (per-point seconds from the sweep start), given to the peer
-as its per-point timestamps so that it deskews as it does with any loader that has them. The kiss_slam_pipeline
-CLI cannot be used for this: its KITTI and generic loaders read .bin scans without per-point times (and the
-KITTI loader also applies the real HDL-64's intrinsic correction, which simulated scans do not need).
+as its per-point timestamps so that it deskews as it does with any loader that has them (--no-times: none, so
+no deskew, as the kiss_slam_pipeline CLI runs on .bin scans). The CLI cannot give them: its KITTI and generic
+loaders read .bin scans without per-point times (and the KITTI loader also applies the real HDL-64's intrinsic
+correction, which simulated scans do not need).
 
 The sequence is processed as kiss_slam.pipeline.SlamPipeline does (process_scan per frame, then the last
 local map closed and the fine-grained optimisation over every frame); KISS-ICP alone registers every frame
@@ -14,7 +15,7 @@ with KISS-SLAM's odometry configuration. Written to OUT (.npz): `poses` (frames,
 the first scan's frame, `seconds` (processing time, scans' reading excluded), `closures` (KISS-SLAM: loop
 closures found between local maps; -1 for KISS-ICP), `threads`.
 
-    peer-python benchmarks/peer_kiss_slam.py {slam,icp} SEQUENCE_DIR OUT.npz [--end N] [--threads 1]
+    peer-python benchmarks/peer_kiss_slam.py {slam,icp} SEQUENCE_DIR OUT.npz [--end N] [--threads 1] [--no-times]
 """
 
 from __future__ import annotations
@@ -26,16 +27,17 @@ from pathlib import Path
 import numpy as np
 
 
-def frames(folder: Path, end: int | None):
-    """(points (P, 3) float64, per-point times (P,) or an empty array) of each scan, in order."""
+def frames(folder: Path, end: int | None, times: bool = True):
+    """(points (P, 3) float64, per-point times (P,) or an empty array: none stored, or `times` False) of each
+    scan, in order."""
     scans = sorted((folder / "velodyne").glob("*.bin"))[:end]
     for scan in scans:
         points = np.fromfile(scan, dtype=np.float32).reshape(-1, 4)[:, :3].astype(np.float64)
         stamps = folder / "velodyne_times" / f"{scan.stem}.npy"
-        yield points, (np.load(stamps).astype(np.float64) if stamps.is_file() else np.zeros(0))
+        yield points, (np.load(stamps).astype(np.float64) if times and stamps.is_file() else np.zeros(0))
 
 
-def run(method: str, folder: Path, end: int | None, threads: int) -> dict[str, np.ndarray]:
+def run(method: str, folder: Path, end: int | None, threads: int, times: bool = True) -> dict[str, np.ndarray]:
     from kiss_slam.config import KissSLAMConfig
     from kiss_slam.slam import KissSLAM
 
@@ -46,7 +48,7 @@ def run(method: str, folder: Path, end: int | None, threads: int) -> dict[str, n
     seconds, poses = 0.0, []
     if method == "slam":
         slam = KissSLAM(config)
-        for points, stamps in frames(folder, end):
+        for points, stamps in frames(folder, end, times):
             start = time.perf_counter()
             slam.process_scan(points, stamps)
             seconds += time.perf_counter() - start
@@ -60,7 +62,7 @@ def run(method: str, folder: Path, end: int | None, threads: int) -> dict[str, n
         from kiss_icp.kiss_icp import KissICP
 
         odometry = KissICP(config.kiss_icp_config())
-        for points, stamps in frames(folder, end):
+        for points, stamps in frames(folder, end, times):
             start = time.perf_counter()
             odometry.register_frame(points, stamps)
             poses.append(np.array(odometry.last_pose))
@@ -77,8 +79,10 @@ def main() -> None:
     parser.add_argument("out", type=Path)
     parser.add_argument("--end", type=int, default=None, help="first N scans only")
     parser.add_argument("--threads", type=int, default=1, help="KISS-ICP threads (0: all cores)")
+    parser.add_argument("--no-times", action="store_true",
+                        help="give no per-point times (no deskew), as the peer's CLI reads .bin scans")
     args = parser.parse_args()
-    np.savez(args.out, **run(args.method, args.sequence, args.end, args.threads))
+    np.savez(args.out, **run(args.method, args.sequence, args.end, args.threads, not args.no_times))
 
 
 if __name__ == "__main__":
