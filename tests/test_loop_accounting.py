@@ -16,6 +16,7 @@ from msa_slam.pipeline import make_config
 from msa_slam.pipeline.compare import COLUMNS, REJECTED_COLUMNS, run_compare
 from msa_slam.slam.loop_closing import REJECTION_REASONS
 from msa_slam.types import LoopClosure
+from msa_slam.viz.labels import counted
 
 RADIUS, MIN_TRAVEL = 3.0, 30.0
 # Out along x and back 0.5 m beside the way out: path 0, 10, 20, 50, 80, 90, 100 m; frames 4, 5, 6 come back
@@ -161,3 +162,6 @@ def test_compare_reports_the_loop_accounting(sequence, odometry_file, cache_dir,
     assert any(int(r["rejected"]) > 0 for r in rows) and any(int(r["verified"]) > 0 for r in rows)
     report = (folder / "report.md").read_text()
     assert "| true cand. | verified | rejected | rej. sparse |" in report and "revisit recall" in report
+    msa = json.loads((folder / "runs" / "msa" / "metrics.json").read_text())["loop_accounting"]
+    assert (f"Loop accounting: {msa['registered']} of {counted(msa['candidates'], 'candidate')} registered, "
+            f"{msa['accepted']} accepted") in (folder / "runs" / "msa" / "report.md").read_text()
