@@ -47,6 +47,7 @@ from msa_slam.io.poses import read_poses
 from msa_slam.io.provenance import cpu_model
 from msa_slam.pipeline import make_config
 from msa_slam.pipeline.compare import PAPER_METHODS, run_compare
+from msa_slam.viz.labels import counted
 
 DRIVER = Path(__file__).with_name("peer_kiss_slam.py")
 CLI = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
@@ -144,9 +145,9 @@ def rows_for(sequence: str, seed: int, args: argparse.Namespace, peer: str | Non
             continue
         run = peer_run(peer, method, folder, out.with_name(out.name + f"-peer-{key}.npz"), args.peer_threads, extra)
         t, r = ape(run["poses"], gt)
-        loops = None if int(run["closures"]) < 0 else f"{int(run['closures'])} closures"
+        loops = None if int(run["closures"]) < 0 else counted(int(run["closures"]), "closure")
         rows.append({"estimator": label, "ape": t, "rot": r, "loops": loops, "time": float(run["seconds"]),
-                     "note": f"{int(run['threads'])} thread(s); {deskew}"})
+                     "note": f"{counted(int(run['threads']), 'thread')}; {deskew}"})
     methods = [m for m in PAPER_METHODS if args.methods is None or m[0] in args.methods]
     comparison, wall = compared(folder, out.with_name(out.name + "-compare"), methods, args.cache_dir)
     first = True
@@ -161,9 +162,10 @@ def rows_for(sequence: str, seed: int, args: argparse.Namespace, peer: str | Non
         if first:  # the odometry every msa-slam method shares
             t, r = ape(read_poses(run / "trajectories" / "odometry.kitti")[0], gt)
             cached = " (cached: not timed)" if all(m["frontend_cached"].values()) else ""
+            threads = counted(m["threads"]["odometry"], "thread")
             rows.append({"estimator": "msa-slam odometry (KISS-ICP)", "ape": t, "rot": r, "loops": None,
                          "time": m["frontend_time_s"].get("odometry"),
-                         "note": f"{m['threads']['odometry']} thread; {deskew_note(m['odometry_config'])}{cached}"})
+                         "note": f"{threads}; {deskew_note(m['odometry_config'])}{cached}"})
             first = False
         t, r = ape(read_poses(run / "trajectories" / "optimised.kitti")[0], gt)
         acc = m["loop_accounting"]
