@@ -166,8 +166,8 @@ def test_a_cached_run_knows_the_frames_kiss_icp_could_not_register(tmp_path):
     assert cached and replayed.unregistered_frames == [1]
     np.testing.assert_array_equal(again, poses)
     assert replayed.unregistered_warning(3) == [
-        "odometry: KISS-ICP could not register 1 of 3 frames (frame 1): none of their points lies within 0-50 m, "
-        "so their poses were extrapolated at constant velocity"]
+        "odometry: KISS-ICP could not register 1 of 3 frames (frame 1): fewer than 3 of their points lie within "
+        "0-50 m, so their poses were extrapolated at constant velocity"]
     assert KissOdometry().unregistered_warning(3) == []
     key = OdometryCache.key(folder_sequence(folder), fresh.config)
     cache.store.path(f"unregistered-{key}").unlink()

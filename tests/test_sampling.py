@@ -32,7 +32,7 @@ def random_walk(n: int, seed: int = 0, dim: int = 32):
 def test_registry_lists_all_paper_methods():
     assert set(SAMPLERS) == {"all", "constant", "entropy", "spaciousness", "msa"}
     assert sampler_parameters("msa")["window"] == 10
-    assert sampler_parameters("constant") == {"distance": 1.0}
+    assert sampler_parameters("constant") == {"distance": 1.0, "min_motion": 0.0, "min_rotation": 0.0}  # the gate
 
 
 def test_unknown_sampler_name_lists_available():

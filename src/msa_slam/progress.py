@@ -97,7 +97,9 @@ class LogProgress:
         return f"{task.completed:g}/{task.total:g}" if task.total is not None else f"{task.completed:g}"
 
     def _fields(self, task: _Task) -> str:
-        return f", {self.fields.format(task=task).strip()}" if self.fields else ""
+        """`fields` formatted for a line; nothing when they are empty (no trailing comma)."""
+        text = self.fields.format(task=task).strip() if self.fields else ""
+        return f", {text}" if text else ""
 
     def _log(self, line: str) -> None:
         print(line, file=self.stream, flush=True)

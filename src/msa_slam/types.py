@@ -57,8 +57,8 @@ def pose_fault(poses: np.ndarray, tolerance: float = ROTATION_TOLERANCE) -> tupl
     if not bad.any():
         return None
     k = int(np.argmax(bad))
-    return k, (f"is not a rigid transform (|R R^T - I| = {ortho_err[k]:.2e}, det R = {det[k]:.6f}, "
-               f"last row {poses[k, 3].tolist()})")
+    last_row = f", last row {poses[k, 3].tolist()}" if bottom_bad[k] else ""  # named only when it is the fault
+    return k, f"is not a rigid transform (|R R^T - I| = {ortho_err[k]:.2e}, det R = {det[k]:.6f}{last_row})"
 
 
 def as_points(points: np.ndarray, where: str = "points") -> np.ndarray:

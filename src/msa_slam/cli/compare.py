@@ -14,7 +14,8 @@ from msa_slam.cli.options import (CACHE_HELP, DATASET_HELP, DESCRIPTOR_HELP, MOD
 # (-p window reaches msa, pipeline.compare.method_configs), except --sampler, which compare does not have
 COMPARE_WINDOW_FIX = "use a window of at most {frames} frames (-p window={frames}) or -p flush=true"
 COMPARE_PARAM_HELP = (PARAM_HELP + "; sampler parameters (window=8, sampler.lambda_u=5) go to msa, the baselines "
-                      "keep the paper's settings")
+                      "keep the paper's settings, except the standstill gate's (min_motion=0.1, min_rotation=0.5 "
+                      "by default; min_motion=0 switches it off), which go to every method but all")
 
 
 @with_source_options

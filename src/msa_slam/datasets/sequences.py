@@ -16,7 +16,7 @@ from msa_slam.datasets.frame import Frame
 from msa_slam.datasets.point_times import TIMES_FOLDER, read_timed_scan, stored_times_path
 from msa_slam.errors import InputError
 from msa_slam.io.poses import check_times, read_poses
-from msa_slam.types import validate_poses
+from msa_slam.types import pose_fault, validate_poses
 
 log = logging.getLogger(__name__)
 
@@ -153,7 +153,11 @@ def read_times(path: Path) -> np.ndarray:
 
 
 def read_kitti_calibration(path: Path) -> np.ndarray:
-    """The Velodyne->cam0 extrinsic `Tr` of a KITTI calib.txt as a 4x4 matrix."""
+    """The Velodyne->cam0 extrinsic `Tr` of a KITTI calib.txt as a 4x4 matrix.
+
+    Tr must be rigid (rotation orthonormal with det 1 within ROTATION_TOLERANCE; KITTI's print 12 digits and
+    are off by ~1e-7): the poses are converted as inv(Tr) P Tr, so a sheared or scaled Tr would otherwise be
+    reported as the first converted pose not being rigid, naming the pose file instead of calib.txt."""
     for lineno, line in enumerate(path.read_text().splitlines(), start=1):
         if line.startswith("Tr:"):
             values = line.split()[1:]
@@ -164,6 +168,10 @@ def read_kitti_calibration(path: Path) -> np.ndarray:
                 tr[:3, :4] = np.array(values, dtype=np.float64).reshape(3, 4)
             except ValueError as exc:
                 raise InputError(f"{path}:{lineno}: Tr is not numeric ({exc})") from exc
+            fault = pose_fault(tr[None])
+            if fault is not None:
+                raise InputError(f"{path}:{lineno}: Tr (the Velodyne->camera extrinsic) {fault[1]}; it must be a "
+                                 "rotation and a translation")
             return tr
     raise InputError(f"{path}: no 'Tr:' line (the Velodyne->camera extrinsic)")
 

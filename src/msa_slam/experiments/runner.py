@@ -16,12 +16,14 @@ from __future__ import annotations
 import logging
 import os
 import shutil
+import sys
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from msa_slam.errors import InputError
+from msa_slam.experiments.estimate import GridClock, GridEstimate, estimate_grid
 from msa_slam.experiments.folder import CELL_FILE, KIND, cell_dir, finished_cells, read_cell, stale_cells, write_grid
 from msa_slam.experiments.grid import Cell, GridSpec, check_datasets, expand
 from msa_slam.experiments.identity import CELL_IDENTITY, cell_identities, outdated_cells
@@ -147,7 +149,11 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
         run.stale = stale_cells(run.out, cells)
         run.skipped = [cell.id for cell in cells if cell.id in finished]
         todo = [cell for cell in cells if cell.id not in finished]
-        _run_cells(grid, todo, run, scheduler, workers, client, quiet, identities)
+        local = scheduler is None and client is None
+        estimate = estimate_grid(grid.name, cells, finished, todo, workers if local else None)
+        if not quiet:  # before the first cell, on a terminal or not
+            print(estimate.line(), file=sys.stderr, flush=True)
+        _run_cells(grid, todo, run, scheduler, workers, client, quiet, estimate, identities)
         write_report(run.out, finished=finished, rerun=list(run.rerun.values()))
         folder.record_files()
     return run
@@ -164,14 +170,18 @@ def _check_scheduler(scheduler: str) -> None:
 
 
 def _run_cells(grid: GridSpec, todo: list[Cell], run: GridRun, scheduler: str | None, workers: int, client,
-               quiet: bool, identities: dict[str, dict[str, str | None]]) -> None:
+               quiet: bool, estimate: GridEstimate, identities: dict[str, dict[str, str | None]]) -> None:
     """Run the `todo` cells, each recording its identity (cell_identities) in its cell.json."""
     from msa_slam.progress import progress_bar
 
     infos = {cell.id: {**cell.info(), CELL_IDENTITY: identities[cell.id]} for cell in todo}
+    clock = GridClock(estimate)
+    with progress_bar(quiet, transient=False, fields="{task.fields[left]}") as bar:
+        task = bar.add_task(f"grid {grid.name} ({len(run.skipped)} done before)", total=len(todo), left=clock.left([]))
 
-    with progress_bar(quiet, transient=False) as bar:
-        task = bar.add_task(f"grid {grid.name} ({len(run.skipped)} done before)", total=len(todo))
+        def advance() -> None:
+            bar.update(task, advance=1, left=clock.left(run.ran + list(run.failed)))
+
         if todo and client is None and scheduler is None and workers == 1:
             for cell in todo:
                 bar.update(task, description=f"{cell.method} on {cell.dataset}")
@@ -180,9 +190,9 @@ def _run_cells(grid: GridSpec, todo: list[Cell], run: GridRun, scheduler: str | 
                     _record(run, cell, None)
                 except Exception as exc:  # a failing cell must not stop the grid
                     _record(run, cell, exc)
-                bar.advance(task)
+                advance()
         elif todo:
-            _run_dask(todo, infos, run.out, grid.figures, scheduler, workers, client, run, lambda: bar.advance(task))
+            _run_dask(todo, infos, run.out, grid.figures, scheduler, workers, client, run, advance)
 
 
 def _run_dask(todo: list[Cell], infos: dict[str, dict[str, Any]], out: Path, figures: bool, scheduler: str | None,

@@ -24,6 +24,9 @@ log = logging.getLogger(__name__)
 # Logged when deskew is switched off for scans without per-point times (and put in the run's report by the pipelines)
 NO_POINT_TIMES = "odometry: no per-point times: deskewing has no effect (recorded as deskew false)"
 MAX_LOGGED_FRAMES = 5  # frames whose registration problems are logged one by one; the rest are only counted
+# The fewest points within range a scan is registered with: point-to-point ICP needs three (not on a line) to fix
+# a rigid transform; KISS-ICP registers any non-empty scan, and one or two points leave its pose unconstrained.
+MIN_REGISTRATION_POINTS = 3
 _process_threads: int | None = None  # KISS-ICP's thread count, fixed for the whole process at first use
 
 
@@ -122,9 +125,11 @@ class KissOdometry:
         in the map. `time` (the scan's timestamp, s) scales the motion to the sweep:
         with every 2nd scan read (--jump 2) a sweep covers half the interval between frames.
 
-        KISS-ICP does not report whether its ICP converged; what it does expose is the set of points it
-        registered: a frame with none (all outside [min_range, max_range]) only gets the constant-velocity
-        prediction, which is logged as a warning and listed in `unregistered_frames`.
+        KISS-ICP does not report whether its ICP converged; what can be checked is what it registers: a scan
+        with fewer than MIN_REGISTRATION_POINTS points within (min_range, max_range) is not registered (nor
+        mapped) and only gets the constant-velocity prediction, as KISS-ICP does for an empty scan; such a
+        frame is logged as a warning and listed in `unregistered_frames` (for the run's notes). The run goes
+        on: a scan or two a sensor hardly saw is not fatal in a recording.
         """
         cloud = as_points(points, where=f"odometry frame {self._frames}")
         if self._frames == 0 and timestamps is None and self._icp.config.data.deskew:
@@ -137,9 +142,11 @@ class KissOdometry:
             stamps = self._point_times(timestamps, len(cloud))
             if self._frames >= 2:
                 cloud = self._deskew(cloud, stamps, self._sweep_share(stamps, time), self._icp.last_delta)
-        _, source = self._icp.register_frame(cloud, np.zeros(0))  # no times: KISS-ICP's own deskew skipped
-        if len(source) == 0 and self._frames > 0:
-            self._not_registered(len(cloud))
+        registered, in_range = self._registrable(cloud)
+        # no times: KISS-ICP's own deskew skipped; no points: KISS-ICP predicts the pose at constant velocity
+        self._icp.register_frame(registered, np.zeros(0))
+        if in_range < MIN_REGISTRATION_POINTS:
+            self._not_registered(in_range, len(cloud))
         if self._frames < 2:
             self._first.append((cloud, stamps, time))
             if self._frames == 1 and all(first[1] is not None for first in self._first):
@@ -168,8 +175,16 @@ class KissOdometry:
         self._last_time = None if time0 is None else float(time0)
         share = self._sweep_share(stamps1, time1)
         for cloud, stamps in ((cloud0, stamps0), (cloud1, stamps1)):
-            self._icp.register_frame(self._deskew(cloud, stamps, share, motion), np.zeros(0))
+            self._icp.register_frame(self._registrable(self._deskew(cloud, stamps, share, motion))[0], np.zeros(0))
         self._first.clear()
+
+    def _registrable(self, cloud: np.ndarray) -> tuple[np.ndarray, int]:
+        """(`cloud`, or no points when fewer than MIN_REGISTRATION_POINTS are in range; how many are in range):
+        KISS-ICP keeps the points strictly between min_range and max_range."""
+        data = self._icp.config.data
+        squared = np.einsum("ij,ij->i", cloud, cloud)
+        in_range = int(np.count_nonzero((squared > data.min_range**2) & (squared < data.max_range**2)))
+        return (cloud if in_range >= MIN_REGISTRATION_POINTS else cloud[:0]), in_range
 
     def _point_times(self, timestamps: np.ndarray, n_points: int) -> np.ndarray:
         stamps = np.asarray(timestamps, dtype=np.float64).ravel()
@@ -205,18 +220,25 @@ class KissOdometry:
         shown = ", ".join(map(str, listed[:MAX_LOGGED_FRAMES])) + (f" and {len(listed) - MAX_LOGGED_FRAMES} more"
                                                                    if len(listed) > MAX_LOGGED_FRAMES else "")
         which = f"frame{'s' * (len(listed) > 1)} {shown}"
-        return [f"odometry: KISS-ICP could not register {len(listed)} of {frames} frames ({which}): none of their "
-                f"points lies within {data.min_range:g}-{data.max_range:g} m, so their poses were extrapolated at "
-                f"constant velocity"]
+        return [f"odometry: KISS-ICP could not register {len(listed)} of {frames} frames ({which}): fewer than "
+                f"{MIN_REGISTRATION_POINTS} of their points lie within {data.min_range:g}-{data.max_range:g} m, so "
+                f"their poses were extrapolated at constant velocity"]
 
-    def _not_registered(self, n_points: int) -> None:
+    def _not_registered(self, in_range: int, n_points: int) -> None:
+        """List this frame as not registered, and log it (the first MAX_LOGGED_FRAMES such frames)."""
         self.unregistered_frames.append(self._frames)
         if len(self.unregistered_frames) <= MAX_LOGGED_FRAMES:
             data = self._icp.config.data
             more = " (further such frames are not logged)" if len(self.unregistered_frames) == MAX_LOGGED_FRAMES else ""
-            log.warning("KISS-ICP frame %d: none of its %d points lies within %g-%g m, so it was not registered "
-                        "(pose extrapolated at constant velocity)%s", self._frames, n_points, data.min_range,
-                        data.max_range, more)
+            span, needs = f"{data.min_range:g}-{data.max_range:g} m", f"registration needs {MIN_REGISTRATION_POINTS}"
+            if in_range == 0:
+                seen = f"none of its {n_points} points lies within {span}"
+            elif in_range == n_points:
+                seen = f"it has only {n_points} point{'s' * (n_points > 1)} ({needs})"
+            else:
+                seen = f"only {in_range} of its {n_points} points lie within {span} ({needs})"
+            log.warning("KISS-ICP frame %d: %s, so it was not registered (pose extrapolated at constant velocity)%s",
+                        self._frames, seen, more)
 
 
 PARAMETERS = tuple(inspect.signature(KissOdometry).parameters)  # the odometry_params KissOdometry takes

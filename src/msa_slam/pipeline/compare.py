@@ -29,7 +29,9 @@ from msa_slam.pipeline.seeds import SEED_COLUMNS, seed_markdown, seed_rows, seed
 from msa_slam.place_recognition import PRCurve
 from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.progress import progress_bar
+from msa_slam.sampling.base import GATE_PARAMETERS
 from msa_slam.slam import RunResult
+from msa_slam.slam.backend import UNGATED_SAMPLERS
 from msa_slam.viz import plot_metric_bars, plot_trajectories
 from msa_slam.viz.labels import display_name
 
@@ -214,11 +216,20 @@ def method_configs(base: RunConfig, methods: Sequence[tuple[str, str, dict[str, 
     When `base` is a config of the sampler under study (UNDER_STUDY), its sampler parameters (-p window=8,
     -p sampler.lambda_u=5) go to every method of that sampler, under the method's own, so compare measures
     the MSA the user asked for; the baselines keep the paper's settings (check_compare_sampler refuses
-    parameters given for another sampler, which would have nowhere to go)."""
+    parameters given for another sampler, which would have nowhere to go). The standstill gate's parameters
+    (min_motion, min_rotation) are the exception: they go to every method but those the SLAM core leaves ungated
+    ("all"), so that all methods are compared on the same frames."""
     data = base.dump()
     given = base.sampler_params if base.sampler == UNDER_STUDY else {}
-    return [make_config({**data, "sampler": sampler, "sampler_params": {**given, **params} if sampler == UNDER_STUDY
-                         else params, "label": label}) for label, sampler, params in methods]
+    gate = {k: v for k, v in given.items() if k in GATE_PARAMETERS}
+
+    def params_of(sampler: str, params: dict[str, Any]) -> dict[str, Any]:
+        if sampler == UNDER_STUDY:
+            return {**given, **params}
+        return params if sampler in UNGATED_SAMPLERS else {**gate, **params}
+
+    return [make_config({**data, "sampler": sampler, "sampler_params": params_of(sampler, params), "label": label})
+            for label, sampler, params in methods]
 
 
 def check_compare_sampler(base: RunConfig) -> None:

@@ -14,6 +14,7 @@ from msa_slam.evaluation.full_rate import STEP_FRAMES, path_length
 from msa_slam.io.tables import mib
 from msa_slam.pipeline.online_config import NO_TIMESTAMPS
 from msa_slam.slam import RunResult
+from msa_slam.slam.backend import slam_sampler_params
 from msa_slam.viz.labels import counted, display_name, sampler_label
 
 
@@ -149,6 +150,18 @@ RESULT_FILES = {
 }
 
 
+def standstill_note(cfg: Any, m: dict[str, Any]) -> str:
+    """The standstill gate the SLAM core ran the sampler with, and the frames it held back (empty when off)."""
+    gate = slam_sampler_params(cfg.sampler, cfg.sampler_params)
+    motion, rotation = float(gate.get("min_motion", 0.0)), float(gate.get("min_rotation", 0.0))
+    if motion <= 0:
+        return ""
+    turned = f" and turned < {rotation:g} deg" if rotation > 0 else ""
+    held = (m.get("sampler_stats") or {}).get("standstill_frames")
+    return (f" Standstill gate: a frame that moved < {motion:g} m{turned} since the last frame passed on is no "
+            f"keyframe candidate" + ("" if held is None else f" ({counted(held, 'frame')} held back)") + ".")
+
+
 def report_markdown(result: RunResult, figures: list[str], files: Collection[str]) -> str:
     """The run's report.md text; `figures` are file names under figures/, `files` the names in the result
     folder (only those are listed: which files a run writes depends on what it produced)."""
@@ -160,7 +173,7 @@ def report_markdown(result: RunResult, figures: list[str], files: Collection[str
     rpe_span, rpe_text = rpe_segments(result.gt_poses)
     lines = [
         f"# {m['method']}{' online' if online else ''} on {display_name(m['sequence'])} ({m['mode']} loops)", "",
-        f"Sampler: {sampler_label(cfg.sampler, cfg.sampler_params)}.", "",
+        f"Sampler: {sampler_label(cfg.sampler, cfg.sampler_params)}.{standstill_note(cfg, m)}", "",
         f"Dataset `{cfg.dataset}` (sequence {m['sequence']}), {scans_read(cfg.source)}: "
         f"{m['frames']} frames -> {m['keyframes']} keyframes; {counted(m['candidates'], 'loop candidate')} "
         f"(similarity >= {cfg.similarity_threshold}), {m['verified']} verified, "

@@ -73,7 +73,9 @@ class Verifier:
 
     def verify(self, target: np.ndarray, source: np.ndarray,
                initial_guess: np.ndarray | None = None) -> Verification:
-        """Estimate T_target_source from `initial_guess` (identity by default) and decide acceptance."""
+        """Estimate T_target_source from `initial_guess` (identity by default) and decide acceptance. A cloud
+        with fewer than `num_neighbors` points after voxel downsampling (a 1-point scan) cannot be registered:
+        an InputError saying so, which loop closing records as the candidate's rejection (`sparse`)."""
         cfg = self.config
         tgt_pts = as_points(target, "verification target cloud")
         src_pts = as_points(source, "verification source cloud")

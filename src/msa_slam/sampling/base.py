@@ -4,6 +4,11 @@ Every sampler (MSA and the paper's baselines) shares this interface so a pipelin
 `push(pose, descriptor, points=None) -> list[int]` returns the frame indices that this frame finalised
 as keyframes; `finish()` flushes what is still pending at the end of the stream (reported apart,
 because the reference implementation does not flush).
+
+Every sampler also takes the standstill gate (`min_motion`, `min_rotation`, off by default, which is the
+reference's behaviour): a frame that moved less than `min_motion` metres from the last frame the gate passed
+on, and turned less than `min_rotation` degrees from it, is counted but not passed to the algorithm, so it
+is never a keyframe candidate (docs/msa.md, "Standing still"). The SLAM pipelines switch it on.
 """
 
 from __future__ import annotations
@@ -15,7 +20,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from msa_slam.errors import InputError
+from msa_slam.sampling import checks
 from msa_slam.types import validate_pose
+
+GATE_PARAMETERS = ("min_motion", "min_rotation")  # the standstill gate's, taken by every sampler
+MAX_MIN_ROTATION = 180.0  # degrees: no rotation is larger, so a larger min_rotation would mean nothing else
 
 
 @dataclass(frozen=True)
@@ -38,9 +47,11 @@ class SamplerStats:
 
     `fallback_windows` counts window optimisations whose distance bounds admitted no candidate, so the
     window's first and last member were taken without a choice (MSA; many of them mean unusable bounds).
+    `standstill_frames` counts frames the standstill gate held back (counted in `frames`, never candidates).
     """
 
     frames: int = 0
+    standstill_frames: int = 0
     window_optimisations: int = 0
     candidates_evaluated: int = 0
     fallback_windows: int = 0
@@ -56,6 +67,7 @@ class SamplerStats:
         times = np.asarray(self.optimisation_ms)
         return {
             "frames": self.frames,
+            "standstill_frames": self.standstill_frames,
             "window_optimisations": self.window_optimisations,
             "candidates_evaluated": self.candidates_evaluated,
             "fallback_windows": self.fallback_windows,
@@ -67,19 +79,60 @@ class SamplerStats:
         }
 
 
+def rotation_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle in degrees of the rotation between two poses' orientations (atan2 form: exact near 0 too)."""
+    r = a[:3, :3].T @ b[:3, :3]
+    sine = 0.5 * float(np.linalg.norm([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]]))
+    cosine = 0.5 * (float(np.trace(r)) - 1.0)
+    return float(np.degrees(np.arctan2(sine, cosine)))
+
+
 class Sampler(ABC):
-    """Base class: validates each frame, numbers it, and keeps the keyframe lists."""
+    """Base class: validates each frame, numbers it, applies the standstill gate and keeps the keyframe lists.
+
+    The standstill gate (`min_motion` metres, `min_rotation` degrees; `min_motion` 0, the default, is off): a
+    frame whose translation from the ANCHOR (the last frame passed on to the algorithm; the first frame always
+    is) is below `min_motion` and whose rotation from it is below `min_rotation` (with `min_rotation` 0, any
+    rotation) is held back: it keeps its index and is counted in `stats.frames` and `stats.standstill_frames`,
+    but the algorithm never sees it, so it can neither be a keyframe nor occupy a window. Measuring from the
+    anchor rather than from the previous frame lets slow motion through once it adds up to `min_motion`, and
+    a sampler with the gate behaves exactly as the same sampler without it run on the passed frames. It is
+    off by default because the reference processes every frame (the parity vectors include frames that moved
+    less than a millimetre); the SLAM pipelines switch it on (slam/backend.py, STANDSTILL_GATE).
+    """
 
     name: str = "sampler"
     needs_points: bool = False
     needs_descriptors: bool = False
 
-    def __init__(self) -> None:
+    def __init__(self, min_motion: float = 0.0, min_rotation: float = 0.0) -> None:
+        self.min_motion = checks.finite_float(self.name, "min_motion", min_motion, 0.0)
+        self.min_rotation = checks.finite_float(self.name, "min_rotation", min_rotation, 0.0,
+                                                below=MAX_MIN_ROTATION)
+        if self.min_rotation > 0 and self.min_motion == 0:
+            raise InputError(f"sampler {self.name!r}: min_rotation={min_rotation!r} needs min_motion > 0 (the "
+                             f"standstill gate holds back frames that moved less than min_motion metres, unless they "
+                             f"turned at least min_rotation degrees); set min_motion, or min_rotation=0")
+        self._anchor: np.ndarray | None = None  # pose of the last frame the standstill gate passed on
         self._online: list[int] = []
         self._flushed: list[int] = []
         self._descriptor_shape: tuple[int, ...] | None = None
         self._finished = False
         self.stats = SamplerStats()
+
+    @property
+    def gated(self) -> bool:
+        """Whether the standstill gate is on (min_motion > 0)."""
+        return self.min_motion > 0
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the data the sampler keeps about the stream (8 per keyframe index and per window
+        optimisation's time, the ambiguous-window records, the gate's anchor pose); subclasses add the poses and
+        descriptors they buffer. Python's object overhead is not counted."""
+        ambiguous = sum(8 * (4 + len(a.members)) for a in self.stats.ambiguous)
+        anchor = 0 if self._anchor is None else self._anchor.nbytes
+        return 8 * (len(self._online) + len(self._flushed) + len(self.stats.optimisation_ms)) + ambiguous + anchor
 
     @property
     def keyframes(self) -> list[int]:
@@ -111,6 +164,9 @@ class Sampler(ABC):
         if self.needs_points:
             points = self._check_points(points, index)
         self.stats.frames += 1
+        if self._stands_still(pose):
+            self.stats.standstill_frames += 1
+            return []
         new = self._push(index, pose, descriptor, points)
         self._online.extend(new)
         return new
@@ -139,6 +195,16 @@ class Sampler(ABC):
         if flush:
             self.finish()
         return self.keyframes
+
+    def _stands_still(self, pose: np.ndarray) -> bool:
+        """The standstill gate: True holds the frame back; False passes it on and makes it the anchor."""
+        if not self.gated:
+            return False
+        if self._anchor is not None and np.linalg.norm(pose[:3, 3] - self._anchor[:3, 3]) < self.min_motion \
+                and (self.min_rotation == 0 or rotation_deg(self._anchor, pose) < self.min_rotation):
+            return True
+        self._anchor = pose.copy()
+        return False
 
     @abstractmethod
     def _push(self, index: int, pose: np.ndarray, descriptor: np.ndarray | None,

@@ -4,6 +4,8 @@ All are online and the first frame is always a keyframe (docs/msa.md, "Baselines
 - all samples; constant distance d (>= d from the last keyframe);
 - entropy (Zeng et al.): histogram entropy ratio against the last keyframe, or > max distance;
 - spaciousness (as in DLO, Chen et al.): distance threshold from a smoothed mean point range.
+Each also takes the standstill gate `min_motion` / `min_rotation` (sampling/base.py, off by default): the same
+rule as MSA's, so that methods are compared on the same frames.
 """
 
 from __future__ import annotations
@@ -19,8 +21,8 @@ MAX_BINS = 100  # per axis: 10^6 histogram cells, 8 MB (1000 would ask numpy for
 class _DistanceGated(Sampler):
     """Shared bookkeeping: the last keyframe's translation."""
 
-    def __init__(self) -> None:
-        super().__init__()
+    def __init__(self, min_motion: float = 0.0, min_rotation: float = 0.0) -> None:
+        super().__init__(min_motion, min_rotation)
         self._last_t: np.ndarray | None = None
 
     def _distance_to_last(self, pose: np.ndarray) -> float:
@@ -32,6 +34,9 @@ class AllSamples(Sampler):
 
     name = "all"
 
+    def __init__(self, min_motion: float = 0.0, min_rotation: float = 0.0) -> None:
+        super().__init__(min_motion, min_rotation)
+
     def _push(self, index, pose, descriptor, points):
         return [index]
 
@@ -41,8 +46,8 @@ class ConstantDistance(_DistanceGated):
 
     name = "constant"
 
-    def __init__(self, distance: float = 1.0) -> None:
-        super().__init__()
+    def __init__(self, distance: float = 1.0, min_motion: float = 0.0, min_rotation: float = 0.0) -> None:
+        super().__init__(min_motion, min_rotation)
         self.distance = checks.finite_float(self.name, "distance", distance, 0.0)
 
     def _push(self, index, pose, descriptor, points):
@@ -65,8 +70,9 @@ class Entropy(_DistanceGated):
     name = "entropy"
     needs_points = True
 
-    def __init__(self, threshold: float = 0.05, max_distance: float = 5.0, bins: int = 10) -> None:
-        super().__init__()
+    def __init__(self, threshold: float = 0.05, max_distance: float = 5.0, bins: int = 10,
+                 min_motion: float = 0.0, min_rotation: float = 0.0) -> None:
+        super().__init__(min_motion, min_rotation)
         self.threshold = checks.finite_float(self.name, "threshold", threshold, 0.0)
         self.max_distance = checks.finite_float(self.name, "max_distance", max_distance, 0.0, exclusive=True)
         self.bins = checks.integer(self.name, "bins", bins, 1, MAX_BINS)
@@ -104,8 +110,8 @@ class Spaciousness(_DistanceGated):
     name = "spaciousness"
     needs_points = True
 
-    def __init__(self, smoothing: float = 0.85) -> None:
-        super().__init__()
+    def __init__(self, smoothing: float = 0.85, min_motion: float = 0.0, min_rotation: float = 0.0) -> None:
+        super().__init__(min_motion, min_rotation)
         self.smoothing = checks.finite_float(self.name, "smoothing", smoothing, 0.0, below=1.0)
         self.spaciousness: float | None = None
 

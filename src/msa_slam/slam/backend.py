@@ -34,6 +34,13 @@ BACKEND_STEPS = ("sampling", "keyframe_store", "loop_detection", "verification",
 Points = Union[np.ndarray, Callable[[], np.ndarray]]  # a scan, or how to read it when it becomes a keyframe
 RELEASE_EVERY = 100  # frames between returns of free heap pages (malloc_trim: well under 1 ms each)
 MIN_KEYFRAMES = 3  # the evaluation's minimum: its SE(3) alignment of the keyframe trajectories needs 3 poses
+# The standstill gate the SLAM core gives every sampler but "all" (sampling/base.py; docs/msa.md, "Standing still"):
+# a frame that moved < 0.1 m and turned < 0.5 deg since the last frame passed on is no keyframe candidate. KISS-ICP
+# at a standstill on simulated KITTI-like scans jitters up to 5.2 cm and 0.115 deg (1,000 frames, three places), and
+# 0.1 m is also KISS-ICP's own min_motion_th, below which it takes a frame as not moving. A run's sampler_params
+# override either value (min_motion=0 gives the reference's behaviour).
+STANDSTILL_GATE = {"min_motion": 0.1, "min_rotation": 0.5}
+UNGATED_SAMPLERS = ("all",)  # every frame by definition: the paper's upper bound on memory and loop candidates
 
 
 class Graph(Protocol):
@@ -264,11 +271,24 @@ def no_ground_truth_pr() -> PRCurve:
     return PRCurve(empty, empty, empty, empty, None, None, None, NO_GROUND_TRUTH)
 
 
+def slam_sampler_params(sampler: str, params: dict[str, Any]) -> dict[str, Any]:
+    """The parameters the SLAM core builds `sampler` with: STANDSTILL_GATE under the run's own `params`, except
+    for UNGATED_SAMPLERS. The gate lives here rather than in the samplers' defaults because make_sampler's
+    defaults are the reference's behaviour (the parity tests' API) and SLAM is where frames that do not move
+    cost memory (keyframe clouds, descriptors, graph nodes), as KISS-ICP and KISS-SLAM skip them."""
+    if sampler in UNGATED_SAMPLERS:
+        return dict(params)
+    merged = {**STANDSTILL_GATE, **params}
+    if merged["min_motion"] == 0 and "min_rotation" not in params:  # -p min_motion=0 switches the whole gate off
+        merged["min_rotation"] = 0.0
+    return merged
+
+
 def build_backend(config: RunSettings, descriptor: Descriptor, clouds: CloudStore, graph: Graph, n_frames: int,
                   name: str, update_iterations: int = 0, recorder: Recorder | None = None) -> SlamBackend:
     """The SLAM core for a run configuration (msa_slam.pipeline.config.RunConfig): its sampler, a keyframe
     store over `clouds`, loop closing with its verifier, and `graph` (batch LM or iSAM2)."""
     store = KeyframeStore(descriptor, clouds)
     loops = LoopCloser(store, Verifier(config.verifier), config)
-    sampler = make_sampler(config.sampler, **config.sampler_params)
+    sampler = make_sampler(config.sampler, **slam_sampler_params(config.sampler, config.sampler_params))
     return SlamBackend(config, sampler, store, loops, graph, n_frames, name, update_iterations, recorder)

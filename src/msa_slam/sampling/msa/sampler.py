@@ -52,15 +52,18 @@ def check_candidate_count(window: int, neighbours: int, mode: str = "exact", pi:
                          + ("" if canonical_fast else "; up to 20 with mode='fast', pi='canonical'") + ")")
 
 
-def warn_short_stream(frames: int, window: int, members: int | None = None, flush: bool = False) -> None:
+def warn_short_stream(frames: int, window: int, members: int | None = None, flush: bool = False,
+                      held: int = 0, min_motion: float = 0.0) -> None:
     """The window never filled: no subset was ever optimised, so only frame 0 is an online keyframe. Either the
-    stream is shorter than the window or (`members`, the frames that joined it) the frames did not move. With
-    `flush` (the caller flushes at the end) the end-of-stream flush picks the rest, so flushing is not advised."""
+    stream is shorter than the window or (`members`, the frames that joined it) the frames did not move (`held`
+    of them held back by the standstill gate, which `min_motion` sets). With `flush` (the caller flushes at the
+    end) the end-of-stream flush picks the rest, so flushing is not advised."""
     if members is None or frames < window:
         why = f"window={window} is longer than the stream ({frames} frames): the window never filled"
     else:
+        gate = f"; the standstill gate held back {held} that moved < {min_motion:g} m" if held else ""
         why = (f"window={window}: the window never filled in {frames} frames (only {members} moved at least "
-               f"{MIN_WINDOW_STEP} m from the member before them)")
+               f"{MIN_WINDOW_STEP} m from the member before them{gate})")
     advice = ("only the end-of-stream flush chooses keyframes after it; use a smaller window" if flush
               else "use a smaller window or flush at the end")
     warnings.warn(f"msa: {why}, so only frame 0 was selected online; {advice}", UserWarning, stacklevel=3)
@@ -76,7 +79,11 @@ class MSASampler(Sampler):
     authors' keyframes) or "canonical" (eigenvectors fixed from the data alone: the same keyframes on
     every machine, msa/canonical.py). Windows whose choice rounding could change are counted in
     `stats.ambiguous` (msa/decision.py); windows whose bounds admitted no candidate in
-    `stats.fallback_windows`, with a warning once they are most of them.
+    `stats.fallback_windows`, with a warning once they are most of them. min_motion / min_rotation: the
+    standstill gate of every sampler (sampling/base.py; off by default, as in the reference, whose keyframes
+    the parity tests check; the SLAM pipelines switch it on): odometry jitter at a standstill moves frames by
+    more than MIN_WINDOW_STEP (1 cm), so without the gate a robot that stands still keeps filling windows and
+    making keyframes.
     """
 
     name = "msa"
@@ -84,8 +91,9 @@ class MSASampler(Sampler):
 
     def __init__(self, window: int = 10, alpha: float = 1.0, beta: float = 1.0, lambda_l: float = 0.1,
                  lambda_u: float = 3.0, neighbours: int = 0, use_rho: bool = True, use_pi: bool = True,
-                 mode: str = "exact", pi: str = "reference") -> None:
-        super().__init__()
+                 mode: str = "exact", pi: str = "reference", min_motion: float = 0.0,
+                 min_rotation: float = 0.0) -> None:
+        super().__init__(min_motion, min_rotation)
         self.window_size = checks.integer(self.name, "window", window, 3)
         self.neighbours = checks.integer(self.name, "neighbours", neighbours, 0)
         alpha = checks.finite_float(self.name, "alpha", alpha, 0.0, exclusive=True)
@@ -124,6 +132,13 @@ class MSASampler(Sampler):
             warn_short_stream(frames, self.window_size, flush=flush)
 
     @property
+    def nbytes(self) -> int:
+        """The base's records plus the buffered translations and descriptors, the window and the keyframe set
+        (8 bytes an index): bounded by the window unless neighbours > 0 (keyframes' poses and descriptors)."""
+        buffered = sum(t.nbytes for t in self._translation.values()) + sum(d.nbytes for d in self._descriptor.values())
+        return super().nbytes + buffered + 8 * (len(self._window) + len(self._keyframe_set))
+
+    @property
     def window(self) -> list[int]:
         """Current window members (frame indices)."""
         return list(self._window)
@@ -149,7 +164,8 @@ class MSASampler(Sampler):
     def _finish(self) -> list[int]:
         """Flush: optimise whatever is left in the window over all its members (not in the reference)."""
         if self.stats.window_optimisations == 0 and self.stats.frames > 0:
-            warn_short_stream(self.stats.frames, self.window_size, len(self._window), flush=True)
+            warn_short_stream(self.stats.frames, self.window_size, len(self._window), flush=True,
+                              held=self.stats.standstill_frames, min_motion=self.min_motion)
         if len(self._window) < 2:
             return []
         self._update_bounds()

@@ -1,0 +1,221 @@
+"""What an experiment grid will cost: said before its first cell, and kept up to date while it runs.
+
+Before the first cell, one line gives the cell count (in the grid, finished earlier, to run) and an estimate
+of the time with its basis:
+- resuming a grid with finished cells: the seconds a frame those cells recorded (the stage times in their
+  metrics.json: `time_s` and, batch, `frontend_time_s`) times the frames of each cell to run;
+- otherwise: the frames each cell processes times an assumed cost a frame of each of its pipeline stages
+  (STAGE_S: this project's 2-core machine on the demo's scans, scaled by the points of a scan), which is
+  rough (another machine, other scans or samplers differ).
+Either leaves out what a cell spends outside its stages (start-up, evaluation, writing its files), which
+dominates only seconds-long cells. As cells finish, the time left is the estimate of the cells not yet run
+scaled by what the finished ones took against theirs (so it also learns how many Dask workers share them).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, Collection, Mapping, Sequence
+
+from msa_slam.errors import InputError
+from msa_slam.experiments.grid import Cell
+
+# Seconds a frame of each stage on this project's machine (2-core AMD EPYC, one thread a stage) for a scan of
+# REFERENCE_POINTS points, from the demo (1101 HDL-64 scans of 64 x 720: simulation 30 s on both cores, KISS-ICP
+# 139 s, Scan Context 8 s, seven samplers' back ends 117 s). Simulation and KISS-ICP grow with a scan's points.
+REFERENCE_POINTS = 64 * 720
+STAGE_S = {"simulation": 0.027, "kiss-icp": 0.126, "descriptor": 0.007, "back end": 0.017}
+
+
+@dataclass(frozen=True)
+class GridEstimate:
+    """The cell counts and estimated time of a grid about to run; `cell_s`: the estimated seconds of each cell
+    to run (by id, on one worker; the weights of GridClock), `seconds`: the wall time for `workers`."""
+
+    name: str
+    total: int
+    finished: int
+    cell_s: dict[str, float]
+    seconds: float | None
+    basis: str
+
+    def line(self) -> str:
+        """The line printed before the first cell."""
+        counts = f"grid {self.name}: {self.total} cells, {self.finished} finished earlier, {len(self.cell_s)} to run"
+        if not self.cell_s:
+            return counts
+        if self.seconds is None:
+            return f"{counts}; no estimate of their time: {self.basis}"
+        return f"{counts}; estimated time {duration(self.seconds)} ({self.basis})"
+
+
+def estimate_grid(name: str, cells: Sequence[Cell], finished: Mapping[str, tuple[dict, dict]], todo: Sequence[Cell],
+                  workers: int | None) -> GridEstimate:
+    """The estimate of running `todo` (of the grid's `cells`; `finished`: read_cell's (info, metrics) by id) on
+    `workers` local processes (None: a Dask cluster of unknown size, then stated for one worker)."""
+    opened: dict[tuple, tuple[int | None, int | None]] = {}  # each dataset is looked at once
+    sizes = {cell.id: _size(cell, opened) for cell in todo}
+    per_frame, basis = _recorded_cost(finished)
+    if per_frame is not None:
+        cell_s = {cid: None if frames is None else frames * per_frame for cid, (frames, _) in sizes.items()}
+    else:
+        cell_s, basis = _assumed_costs(todo, sizes), (
+            "rough: each cell's frames times an assumed cost a frame of its stages on a 2-core machine like this "
+            f"project's: {_stage_costs()}")
+    known = [s for s in cell_s.values() if s is not None]
+    if not known:  # no frame count (recordings that cannot be opened yet): the clock weighs the cells alike
+        return GridEstimate(name, len(cells), len(finished), dict.fromkeys(cell_s, 1.0), None,
+                            f"the frames of {len(cell_s)} cell(s) are not known before they run")
+    mean = sum(known) / len(known)
+    unknown = len(cell_s) - len(known)
+    if unknown:
+        basis += f"; {unknown} cell(s) of unknown length counted as an average one"
+    cell_s = {cid: mean if s is None else s for cid, s in cell_s.items()}
+    used = 1 if workers is None else max(1, min(workers, len(todo)))
+    spread = "on one worker" if workers is None else f"on {used} worker{'s' * (used > 1)}"
+    return GridEstimate(name, len(cells), len(finished), cell_s, sum(cell_s.values()) / used,
+                        f"{basis}; {spread}; start-up and writing results not included")
+
+
+def _stage_costs() -> str:
+    """STAGE_S for the estimate's basis."""
+    scaled = ", ".join(f"{stage} {1e3 * STAGE_S[stage]:g} ms" for stage in ("simulation", "kiss-icp"))
+    return (f"{scaled} for {REFERENCE_POINTS} points a scan (scaled by a scan's points), "
+            f"descriptor {1e3 * STAGE_S['descriptor']:g} ms, back end {1e3 * STAGE_S['back end']:g} ms")
+
+
+def _recorded_cost(finished: Mapping[str, tuple[dict, dict]]) -> tuple[float | None, str]:
+    """(seconds a frame, basis) from the stage times finished cells recorded; (None, "") when none did."""
+    seconds = frames = 0.0
+    counted = 0
+    for _, metrics in finished.values():
+        recorded = recorded_seconds(metrics)
+        if recorded is not None and isinstance(metrics.get("frames"), int) and metrics["frames"] > 0:
+            seconds, frames, counted = seconds + recorded, frames + metrics["frames"], counted + 1
+    if not counted:
+        return None, ""
+    per_frame = seconds / frames
+    return per_frame, (f"the stage times {counted} finished cell(s) of this grid recorded (metrics.json time_s), "
+                       f"{1e3 * per_frame:.3g} ms a frame, times each cell's frames")
+
+
+def recorded_seconds(metrics: Mapping[str, Any]) -> float | None:
+    """The seconds a finished cell's stages took: the stages of `time_s` (not their `backend_total`) and the
+    batch front end's `frontend_time_s`; None when metrics.json has no such figures."""
+    stages = metrics.get("time_s")
+    if not isinstance(stages, dict):
+        return None
+    front = metrics.get("frontend_time_s") if isinstance(metrics.get("frontend_time_s"), dict) else {}
+    values = [v for k, v in stages.items() if k != "backend_total"] + list(front.values())
+    return float(sum(v for v in values if isinstance(v, (int, float))))
+
+
+def _assumed_costs(todo: Sequence[Cell], sizes: Mapping[str, tuple[int | None, int | None]]) -> dict[str, float | None]:
+    """Each cell's seconds from STAGE_S. Work the cells share is counted once, with the first cell needing it:
+    a sim: dataset is simulated once (then cached), and batch cells share the cached odometry and descriptors
+    of their dataset; a live: dataset is simulated by every cell, and an online cell runs its own front end."""
+    shared: set[tuple] = set()
+    costs: dict[str, float | None] = {}
+    for cell in todo:
+        frames, points = sizes[cell.id]
+        if frames is None:
+            costs[cell.id] = None
+            continue
+        config, scale = cell.config, (points or REFERENCE_POINTS) / REFERENCE_POINTS
+        dataset = (config["dataset"], config.get("dataset_kind"), repr(config.get("source")))
+        seconds = frames * STAGE_S["back end"]
+        if config["dataset"].startswith("live:"):
+            seconds += frames * STAGE_S["simulation"] * scale
+        elif config["dataset"].startswith("sim:") and config["dataset"] not in shared:
+            shared.add(config["dataset"])
+            seconds += _simulated_frames(config["dataset"]) * STAGE_S["simulation"] * scale
+        front = [("kiss-icp", (config.get("odometry"), repr(config.get("odometry_params"))), scale)] \
+            if config.get("odometry") == "kiss" else []
+        front.append(("descriptor", (config["descriptor"], repr(config.get("descriptor_params"))), 1.0))
+        for stage, key, factor in front:
+            if cell.pipeline == "online" or (dataset, key) not in shared:
+                shared.add((dataset, key))
+                seconds += frames * STAGE_S[stage] * factor
+        costs[cell.id] = seconds
+    return costs
+
+
+def _size(cell: Cell, opened: dict[tuple, tuple[int | None, int | None]]) -> tuple[int | None, int | None]:
+    """(frames, points a scan) the cell processes; (None, None) when that cannot be told without the long work.
+    `opened`: the sizes of the datasets already looked at, by (spec, loader, source options)."""
+    config = cell.config
+    key = (config["dataset"], config.get("dataset_kind", "auto"), tuple(sorted((config.get("source") or {}).items())))
+    if key not in opened:
+        opened[key] = _dataset_size(*key)
+    frames, points = opened[key]
+    if frames is not None and config.get("max_frames"):
+        frames = min(frames, config["max_frames"])
+    return frames, points
+
+
+def _dataset_size(spec: str, kind: str, source: tuple) -> tuple[int | None, int | None]:
+    """(frames, points a scan) of a dataset as a run selects it: simulated ones from their settings (nothing is
+    simulated), recordings by opening them and reading their first scan (as a run does first)."""
+    from msa_slam.datasets import SourceOptions
+    from msa_slam.datasets.sequences import selected_count
+    from msa_slam.pipeline.source import SIM_PREFIX, open_sequence, sim_config
+    from msa_slam.sim import get_sensor
+    from msa_slam.sim.live import LIVE_PREFIX, live_settings
+
+    options = SourceOptions(**dict(source))
+    try:
+        if spec.startswith(LIVE_PREFIX):
+            config, laps = live_settings(spec)
+            frames = config.frame_count() * laps
+        elif spec.startswith(SIM_PREFIX):
+            config = sim_config(spec)
+            frames = selected_count(config.frame_count(), options.first, options.jump, options.frames, spec)
+        else:
+            sequence = open_sequence(spec, kind, source=options)
+            return len(sequence), len(sequence[0].points)
+    except (InputError, OSError):  # the cell will say what is wrong when it runs
+        return None, None
+    sensor = get_sensor(config.sensor, azimuth_steps=config.azimuth_steps)
+    return frames, sensor.beams * sensor.azimuth_steps
+
+
+def _simulated_frames(spec: str) -> int:
+    """The scans a sim: dataset casts (all of them, whatever part a run selects)."""
+    from msa_slam.pipeline.source import sim_config
+
+    return sim_config(spec).frame_count()
+
+
+class GridClock:
+    """The time left of a running grid: the estimate of the cells not yet run times the wall time the finished
+    ones took over their estimate (the first estimate until a cell finishes)."""
+
+    def __init__(self, estimate: GridEstimate) -> None:
+        self.estimate = estimate
+        self.start = time.monotonic()
+
+    def left(self, done: Collection[str]) -> str:
+        """'~N left' after the cells `done` (ids, finished or failed) in this run; '' with no estimate or no
+        cell left."""
+        weights = self.estimate.cell_s
+        spent = sum(weights[cid] for cid in done if cid in weights)
+        remaining = sum(s for cid, s in weights.items() if cid not in done)
+        if not remaining:
+            return ""
+        if spent > 0:
+            return f"~{duration(remaining * (time.monotonic() - self.start) / spent)} left"
+        return "" if self.estimate.seconds is None else f"~{duration(self.estimate.seconds)} left (estimate)"
+
+
+def duration(seconds: float) -> str:
+    """`seconds` for a person: 40 s, 12 min, 3 h 20 min, 2 d 5 h."""
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    minutes = round(seconds / 60)
+    if minutes < 90:
+        return f"{minutes} min"
+    hours, minutes = divmod(minutes, 60)
+    if hours < 48:
+        return f"{hours} h {minutes:02d} min"
+    return f"{hours // 24} d {hours % 24} h"
