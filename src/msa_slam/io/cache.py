@@ -11,6 +11,7 @@ is skipped, each with one warning naming the file: a cache only ever saves time.
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import hashlib
 import json
@@ -210,7 +211,7 @@ class CacheDir:
         except OSError as exc:
             self.writable = False
             culprit = exc.filename and Path(os.fsdecode(exc.filename)).parent != path.parent  # e.g. a parent folder
-            reason = "no space left on the device" if is_disk_full(exc, path) else exc.strerror or exc
+            reason = exc.strerror or (os.strerror(errno.ENOSPC) if is_disk_full(exc, path) else exc)
             log.warning("cache: cannot write %s (%s%s; needs %.2f MiB); continuing without the cache", path,
                         f"{os.fsdecode(exc.filename)}: " if culprit else "", reason, array.nbytes / 2**20)
             return None

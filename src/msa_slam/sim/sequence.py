@@ -269,8 +269,8 @@ def _repair(config: SimConfig, target: Path, progress: bool, workers: int | None
         raise InputError(f"{target}: velodyne/ holds scans {META_FILE} does not list ({', '.join(extra[:3])}); "
                          "move them elsewhere (msa-slam never removes files it did not write)")
     frames = _damaged_frames(target, meta)
-    log.warning("%s: %d scan(s) missing or truncated (sizes differ from %s); casting them again in place",
-                target, len(frames), META_FILE)
+    log.warning("%s: a scan is missing or truncated (sizes differ from %s); casting %d scan(s) again in place",
+                target, META_FILE, len(frames))
     sim = prepare(config)
     with _writing(target), partial_dir(target.parent, target.name) as tmp:
         sizes, times_sizes = _cast(sim, tmp, progress, default_workers(len(frames)) if workers is None else workers,
