@@ -136,6 +136,9 @@ def _exchange(a: Path, b: Path) -> bool:
 
 
 def _folder_bytes(path: Path) -> int:
+    """Bytes in the files under `path` (or in the file `path`)."""
+    if path.is_file():
+        return path.stat().st_size
     return sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file() and not p.is_symlink())
 
 

@@ -227,7 +227,7 @@ def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
     sim = prepare(config)
     with _writing(target):
         target.parent.mkdir(parents=True, exist_ok=True)
-        with partial_dir(target.parent, target.name) as tmp:
+        with partial_dir(target.parent, target.name) as tmp, _writing(target, tmp):  # mapped before tmp goes
             _write(sim, tmp / "seq", progress, default_workers(len(sim)) if workers is None else workers)
             if target.exists():
                 target.rmdir()  # an empty directory (checked above) is replaced
@@ -240,12 +240,13 @@ def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
 
 
 @contextlib.contextmanager
-def _writing(target: Path) -> Iterator[None]:
-    """A failed write of the sequence as one line (a full disk, no permission: staging.write_error)."""
+def _writing(target: Path, written: Path | None = None) -> Iterator[None]:
+    """A failed write of the sequence (staged in `written`) as one line (a full disk, no permission:
+    staging.write_error), told while what was written is still there (its size, the space then free)."""
     try:
         yield
     except OSError as exc:
-        raise write_error(exc, target, writing=True,
+        raise write_error(exc, target, written, writing=True,
                           advice="choose a writable --out or cache folder (MSA_SLAM_CACHE)") from None
 
 
@@ -272,7 +273,7 @@ def _repair(config: SimConfig, target: Path, progress: bool, workers: int | None
     log.warning("%s: a scan is missing or truncated (sizes differ from %s); casting %d scan(s) again in place",
                 target, META_FILE, len(frames))
     sim = prepare(config)
-    with _writing(target), partial_dir(target.parent, target.name) as tmp:
+    with _writing(target), partial_dir(target.parent, target.name) as tmp, _writing(target, tmp):
         sizes, times_sizes = _cast(sim, tmp, progress, default_workers(len(frames)) if workers is None else workers,
                                    frames)
         for folder in ("velodyne", *([] if sim.realism.is_clean else [TIMES_FOLDER])):
