@@ -4,8 +4,9 @@ A key hashes what an entry was computed from: every input file (its path relativ
 its size and modification time, so data replaced in place is a miss and a moved folder a hit), the
 effective configuration, and the versions of msa-slam and of the libraries that computed it.
 Entries are written under a locked temporary name and renamed; a writer killed before the rename leaves an
-unlocked temporary that a later run removes (scratch folders likewise: staging.Writer). A bad entry is recomputed and a cache that cannot be written
-is skipped, each with one warning naming the file: a cache only ever saves time.
+unlocked temporary that a later run removes (scratch folders likewise: staging.Writer). A bad entry is
+recomputed and a cache that cannot be written is skipped, each with one warning naming the file: a cache only
+ever saves time.
 """
 
 from __future__ import annotations

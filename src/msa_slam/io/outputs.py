@@ -9,13 +9,18 @@ A result folder is recognised by its marker file (`.msa-slam-result`, JSON: tool
   experiment grids, `compare --seeds`), and only when every file (and empty folder) in it is one its marker
   lists as msa-slam's, unchanged since it wrote them (a user's notes or folders, even empty, added to a
   result, or edits to its files, are never removed: the overwrite is refused);
-- a lock file beside the target (`.NAME.lock`, flock) makes a second run on the same `--out` refuse
-  instead of silently losing one result (checked before the files of a previous result are: those of a run
-  writing them now are not reported as a user's);
-- leftovers of a killed run on the same target (`.NAME.partial-*`, `.NAME.old-*`) are removed, and a
-  result displaced by a swap that was interrupted is put back.
+- `--out` expands `~`; the working directory or one of its parents is refused;
+- a lock file beside the target (`.NAME.lock`, flock, holding msa-slam's stamp) makes a second run on the
+  same `--out` refuse instead of silently losing one result (checked before the files of a previous result
+  are: those of a run writing them now are not reported as a user's);
+- leftovers of a killed run on the same target (`.NAME.partial-*`, `.NAME.old-*`, NAME taken literally) are
+  removed when their WRITER file proves them msa-slam's and its lock shows their writer dead (never
+  anything else), and a result displaced by a swap that was interrupted is put back.
 
-Without `--out`, results go to `<parent>/<timestamp>` with a `latest` link beside it (as kiss-icp does).
+Without `--out`, results go to `<parent>/<timestamp>` with a `latest` link beside it (as kiss-icp does); the
+name is claimed under its lock, so two runs started in the same second get `<timestamp>` and
+`<timestamp>-2`, and each such run first removes what killed default runs left in `<parent>` (their staging
+folders and stamped lock files, as above; anything else stays).
 The folder is built under `.NAME.partial-*` and moved into place by one rename, or, over an old result,
 by an atomic exchange (Linux renameat2), so a kill at any point leaves either the old or the new result.
 Folders get 0777 and files 0666 minus the umask, like any other tool's output.

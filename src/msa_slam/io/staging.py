@@ -210,8 +210,12 @@ class Writer:
     def __init__(self, folder: Path) -> None:
         self.path = Path(folder) / WRITER
         self.fd: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-        fcntl.flock(self.fd, fcntl.LOCK_EX)
-        os.write(self.fd, stamp())
+        try:
+            fcntl.flock(self.fd, fcntl.LOCK_EX)
+            os.write(self.fd, stamp())
+        except OSError:
+            self.release()
+            raise
 
     def release(self) -> None:
         """Remove the file, then drop its lock (in this order: a cleaner that waited for the lock finds no
@@ -233,9 +237,10 @@ def new_scratch(parent: Path, name: str, kind: str = "partial") -> tuple[Path, W
         raise
 
 
-def _remove_marked(folder: Path, writer: Writer | None = None) -> None:
-    """Remove a marked scratch folder: its content first and its WRITER last, so that a kill on the way leaves
-    a folder a later run can still prove is msa-slam's."""
+def remove_scratch(folder: Path, writer: Writer | None = None) -> None:
+    """Remove a marked scratch folder, if it is still there: its content first and its WRITER last (released
+    through `writer` when this process holds it), so that a kill on the way leaves a folder a later run can
+    still prove is msa-slam's."""
     if folder.is_dir() and not folder.is_symlink():
         for entry in folder.iterdir():
             if entry.name == WRITER:
@@ -252,11 +257,6 @@ def _remove_marked(folder: Path, writer: Writer | None = None) -> None:
             (folder / WRITER).unlink()
     with contextlib.suppress(OSError):
         folder.rmdir()
-
-
-def remove_scratch(folder: Path, writer: Writer) -> None:
-    """Remove a scratch folder this process made (new_scratch), if it is still there."""
-    _remove_marked(folder, writer)
 
 
 def abandoned(path: Path) -> bool:
@@ -289,7 +289,7 @@ def remove_abandoned(paths: list[Path]) -> list[Path]:
     """Remove those of `paths` that are `abandoned` (msa-slam's, their writer dead); return them."""
     removed = [path for path in paths if abandoned(path)]
     for path in removed:
-        _remove_marked(path)
+        remove_scratch(path)
     return removed
 
 
@@ -324,7 +324,7 @@ def staged_dir(target: Path, kind: str | None = None) -> Iterator[Path]:
 
     For folders msa-slam owns (a result folder already checked by `open_result_folder`, or a cell inside
     an experiment): an existing `target` is replaced. With `kind`, the marker is written first. The
-    temporary folder carries a Writer until just before it moves, so a killed run's is removed by the next.
+    temporary folder carries a Writer until it has moved, so a killed run's is removed by the next.
     A failed write (full disk, no permission) is one line (OutputError).
     """
     target = Path(target)
