@@ -9,7 +9,8 @@ A result folder is recognised by its marker file (`.msa-slam-result`, JSON: tool
   experiment grids, `compare --seeds`), and only when every file (and empty folder) in it is one its marker
   lists as msa-slam's, unchanged since it wrote them (a user's notes or folders, even empty, added to a
   result, or edits to its files, are never removed: the overwrite is refused);
-- `--out` expands `~`; the working directory or one of its parents is refused;
+- `--out` expands `~`; the working directory or one of its parents is refused for an output that would take
+  its place (not for one that grows in place: an experiment resumed, `report`);
 - a lock file beside the target (`.NAME.lock`, flock, holding msa-slam's stamp) makes a second run on the
   same `--out` refuse instead of silently losing one result (checked before the files of a previous result
   are: those of a run writing them now are not reported as a user's);
@@ -44,7 +45,7 @@ from msa_slam.io.staging import (MARKER, OutputError, clean_stale, discard, edit
                                  staged_dir, stamp, write_marker)
 
 __all__ = ["DEFAULT_RESULTS", "MARKER", "OutputError", "ResultFolder", "claim_timestamped", "is_result_folder",
-           "open_result_folder", "out_path", "staged_dir", "write_marker"]
+           "open_result_folder", "out_path", "refuse_working_directory", "staged_dir", "write_marker"]
 
 DEFAULT_RESULTS = Path("msa_slam_results")  # parent of the default timestamped output folders
 LATEST = "latest"
@@ -299,31 +300,39 @@ class ResultFolder:
 
 
 def out_path(out: str | os.PathLike) -> Path:
-    """The folder an explicit --out names, `~` expanded (a quoted "~" must not make a folder named ~). The
-    working directory or one of its parents is refused: replacing it would pull the floor from under the user."""
+    """The folder an explicit --out names, `~` expanded (a quoted "~" must not make a folder named ~), and
+    named by its own name (`.` or `..` resolved: the temporary folders beside it are named after it)."""
     target = Path(out).expanduser()
+    return target.resolve() if target.name in ("", ".", "..") else target
+
+
+def refuse_working_directory(out: str | os.PathLike) -> None:
+    """Refuse an --out that is the working directory or one of its parents, for an output that takes the
+    folder's place: replacing it would pull the floor from under the user."""
     try:
-        here, there = Path.cwd().resolve(), target.resolve()
+        here, there = Path.cwd().resolve(), out_path(out).resolve()
     except (OSError, RuntimeError):  # no working directory, or a loop of links: nothing to compare
-        return target
+        return
     if there == here or there in here.parents:
         what = "the current working directory" if there == here else "a parent of the current working directory"
         raise OutputError(f"--out {out}: is {what}; choose a new folder for the result")
-    return target
 
 
 def _out_target(out: str | os.PathLike) -> Path:
     """The folder an explicit --out names (out_path): the folder itself, not a link to it, is locked and checked."""
     target = out_path(out)
-    return target.resolve() if target.name in ("", ".", "..") or target.is_symlink() else target
+    return target.resolve() if target.is_symlink() else target
 
 
 def _check_output(out: str | os.PathLike | None, kind: str, default_parent: str | os.PathLike,
                   overwrite: bool = False, resume: bool = False) -> None:
-    """open_result_folder's checks of `out`, made again under its lock."""
+    """open_result_folder's checks of `out`, made again under its lock (but the working directory's: an output
+    that grows in place (`resume`) may be the folder the user works in, one that replaces it may not)."""
     if out is None:
         _check_writable(Path(default_parent))
         return
+    if overwrite or not resume:
+        refuse_working_directory(out)
     target = _out_target(out)
     _check_target(target, kind, overwrite, resume, locked=False)
     _check_writable(target.parent)

@@ -37,7 +37,7 @@ from msa_slam.datasets.point_times import TIMES_FOLDER
 from msa_slam.errors import InputError
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.cache import cache_root, partial_dir, remove_partials
-from msa_slam.io.outputs import out_path
+from msa_slam.io.outputs import out_path, refuse_working_directory
 from msa_slam.io.staging import write_error
 from msa_slam.io.poses import format_kitti
 from msa_slam.progress import progress_bar
@@ -224,6 +224,8 @@ def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
     if target.exists() and (not target.is_dir() or any(target.iterdir())):
         raise InputError(f"{target}: exists and is not a complete simulation of this config (key {key}); "
                          "remove it or choose another output directory")
+    if out is not None:  # the new sequence takes the folder's place (reused or repaired, it stays)
+        refuse_working_directory(out)
     sim = prepare(config)
     with _writing(target):
         target.parent.mkdir(parents=True, exist_ok=True)
