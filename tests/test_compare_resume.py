@@ -14,6 +14,7 @@ import yaml
 
 import msa_slam.pipeline.compare as compare
 import msa_slam.slam.backend as backend
+from msa_slam.io import staging
 from msa_slam.io.outputs import MARKER, OutputError, write_marker
 from msa_slam.pipeline import make_config
 from msa_slam.pipeline.compare import run_compare
@@ -87,7 +88,8 @@ def test_an_interrupted_run_resumes_reusing_finished_seeds(base, whole, calls, m
     assert {"seed.json", "comparison.json", "report.md"} <= {p.name for p in (seeds / "seed-0").iterdir()}
     assert not (out / "seeds.json").exists()
     assert calls == [0]
-    (seeds / ".seed-1.partial-killed").mkdir()  # what a SIGKILL inside seed 1 leaves
+    (seeds / ".seed-1.partial-killed").mkdir()  # what a SIGKILL inside seed 1 leaves: its writer's stamp
+    (seeds / ".seed-1.partial-killed" / staging.WRITER).write_bytes(staging.stamp())
 
     calls.clear()
     _run(base, out, quiet=False)

@@ -20,6 +20,7 @@ from msa_slam.experiments.folder import write_grid
 from msa_slam.experiments.grid import Cell
 from msa_slam.experiments.identity import CELL_IDENTITY, cell_identities
 from msa_slam.io.outputs import OutputError, open_result_folder, write_marker
+from msa_slam.io import staging
 from test_cli_main import run_cli
 
 TINY = {
@@ -84,6 +85,7 @@ def test_resume_skips_finished_cells_and_clears_half_written_ones(tmp_path):
     partial = tmp_path / "cells" / f".{second.id}.partial-abc123"  # killed while writing
     partial.mkdir()
     (partial / "metrics.json").write_text("{")
+    (partial / staging.WRITER).write_bytes(staging.stamp())  # its writer's stamp, no longer locked: the writer is gone
     assert is_finished(tmp_path, first) and not is_finished(tmp_path, second)
 
     run = run_grid(grid, tmp_path)

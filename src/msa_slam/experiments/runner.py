@@ -29,9 +29,11 @@ from msa_slam.experiments.grid import Cell, GridSpec, check_datasets, expand
 from msa_slam.experiments.identity import CELL_IDENTITY, cell_identities, outdated_cells
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, staged_dir
+from msa_slam.io.staging import remove_abandoned, unmark_finished
 
 DEFAULT_PARENT = DEFAULT_RESULTS / "experiments"
 log = logging.getLogger(__name__)
+STORES = "stores"  # out/stores/<cell>: the keyframe clouds of online cells with cloud_store=disk
 
 
 def is_finished(out: str | os.PathLike, cell: Cell) -> bool:
@@ -40,14 +42,33 @@ def is_finished(out: str | os.PathLike, cell: Cell) -> bool:
 
 
 def clean_partials(out: str | os.PathLike) -> list[Path]:
-    """Remove temporary folders of cells interrupted by a crash or kill (and their on-disk keyframe stores);
-    return what was removed."""
-    cells = Path(out) / "cells"
-    stale = sorted(list(cells.glob(".*.partial-*")) + list(cells.glob(".*.old-*"))) if cells.is_dir() else []
-    stale += [Path(out) / "stores"] if (Path(out) / "stores").is_dir() else []
-    for path in stale:
-        shutil.rmtree(path, ignore_errors=True)
-    return stale
+    """Remove what cells interrupted by a crash or kill left: their staging folders and on-disk keyframe
+    stores, only those proven msa-slam's whose writer is gone (io.staging.abandoned, disk_store's own rule),
+    and the store folders then left empty; anything else stays. Return what was removed."""
+    from msa_slam.registration.disk_store import remove_stale_stores  # loads small_gicp
+
+    cells, stores = Path(out) / "cells", Path(out) / STORES
+    removed = []
+    if cells.is_dir():
+        removed += remove_abandoned(sorted(list(cells.glob(".*.partial-*")) + list(cells.glob(".*.old-*"))))
+        for cell in cells.iterdir():
+            unmark_finished(cell)
+    if stores.is_dir() and not stores.is_symlink():
+        for folder in sorted(stores.iterdir()):
+            if folder.is_dir() and not folder.is_symlink():
+                removed += remove_stale_stores(folder)
+                removed += _remove_empty_folder(folder)
+        removed += _remove_empty_folder(stores)
+    return removed
+
+
+def _remove_empty_folder(path: Path) -> list[Path]:
+    """[path] when it was an empty folder, now removed; [] when it holds anything."""
+    try:
+        path.rmdir()
+    except OSError:
+        return []
+    return [path]
 
 
 def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bool = False) -> dict[str, Any]:
@@ -62,14 +83,12 @@ def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bo
         from msa_slam.pipeline.online_config import make_online_config
 
         cfg = make_online_config(config)
-        if cfg.cloud_store == "disk" and cfg.store_dir is None:
-            cfg = make_online_config({**config, "store_dir": str(Path(out) / "stores" / info["id"])})
+        if cfg.cloud_store == "disk" and cfg.store_dir is None:  # the store removes it again when it closes
+            cfg = make_online_config({**config, "store_dir": str(Path(out) / STORES / info["id"])})
         result = run_online(cfg, quiet=True)
         with staged_dir(target) as tmp:
             write_run_files(result, tmp, figures)
             write_json(tmp / CELL_FILE, info)
-        if cfg.store_dir and Path(out) in Path(cfg.store_dir).parents:
-            shutil.rmtree(cfg.store_dir, ignore_errors=True)
     else:
         from msa_slam.pipeline.batch import run_batch
         from msa_slam.pipeline.config import make_config

@@ -7,7 +7,7 @@ moved folder a hit), the effective configuration, a fingerprint of msa-slam's co
 (msa_slam.io.fingerprint) and the versions of the libraries that computed it. File digests are memoised per
 absolute path, size, mtime, inode and ctime in the cache folder's DIGESTS_FILE, so a warm run only stats its
 inputs. Entries are written under a locked temporary name and renamed; a writer killed before the rename leaves
-an unlocked temporary that a later run removes. A bad entry (unreadable, or not finite float64 of the expected
+an unlocked temporary that a later run removes (scratch folders likewise: staging.Writer). A bad entry (unreadable, or not finite float64 of the expected
 shape in this machine's byte order) is recomputed and a cache that cannot be written is skipped, each with one
 warning naming the file: a cache only ever saves time.
 """
@@ -15,12 +15,12 @@ warning naming the file: a cache only ever saves time.
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import hashlib
 import json
 import logging
 import os
-import shutil
 import tempfile
 import time
 from importlib import metadata
@@ -30,13 +30,13 @@ from typing import Any, BinaryIO, Callable, Iterable, Iterator
 import numpy as np
 
 from msa_slam.errors import InputError
-from msa_slam.io.staging import current_umask
+from msa_slam.io.staging import (current_umask, is_disk_full, leftovers, new_scratch, remove_abandoned,
+                                remove_scratch)
 
 log = logging.getLogger(__name__)
 
 RUN_START_NS = time.time_ns()  # a leftover older than this run and not locked has lost its writer
 TEMP_SUFFIX = ".tmp"
-LOCK_FILE = ".writer.lock"  # inside a partial folder: held by its writer while it is alive
 DIGESTS_FILE = "input-digests.json"  # in a CacheDir: the memo of its input files' digests (DigestIndex)
 
 
@@ -221,46 +221,48 @@ def locked_temp(target: Path) -> Iterator[BinaryIO]:
 
 @contextlib.contextmanager
 def partial_dir(parent: Path, name: str) -> Iterator[Path]:
-    """A locked scratch folder `.NAME.partial-*` in `parent` for building NAME; removed when the block ends."""
-    tmp = Path(tempfile.mkdtemp(prefix=f".{name}.partial-", dir=parent))
+    """A scratch folder `.NAME.partial-*` in `parent` for building NAME, marked as msa-slam's and locked while
+    this process lives (staging.Writer: a killed one's is removed by `remove_partials`); removed when the block
+    ends."""
+    tmp, writer = new_scratch(parent, name)
     try:
-        with open(tmp / LOCK_FILE, "wb") as lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)
-            yield tmp
+        yield tmp
     finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        remove_scratch(tmp, writer)
+
+
+def remove_partials(parent: Path, name: str) -> list[Path]:
+    """Remove the scratch folders of NAME in `parent` that killed writers left (only those proven msa-slam's,
+    their writer dead: staging.abandoned); return them."""
+    return remove_abandoned(leftovers(parent, name, ("partial",)))
 
 
 def _abandoned(path: Path) -> bool:
-    """True when `path` (a temp file, or a partial folder) predates this run and no live writer holds its lock."""
+    """True when the temp file `path` predates this run and no live writer holds its lock."""
     try:
         if path.lstat().st_mtime_ns >= RUN_START_NS:
             return False
-        fd = os.open(path / LOCK_FILE if path.is_dir() else path, os.O_RDWR)
+        fd = os.open(path, os.O_RDWR | os.O_NOFOLLOW)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         finally:
             os.close(fd)
-    except FileNotFoundError:
-        return path.is_dir()  # a partial folder whose writer died before making its lock
     except OSError:
-        return False  # locked (BlockingIOError) or unreadable: leave it
+        return False  # gone, locked (BlockingIOError) or unreadable: leave it
     return True
 
 
-def remove_orphans(folder: Path, pattern: str = f".*{TEMP_SUFFIX}") -> list[Path]:
-    """Delete the entries of `folder` matching `pattern` that killed writers left; return them."""
+def remove_orphans(folder: Path) -> list[Path]:
+    """Delete the temporary files (`.*.tmp`, locked_temp's) in the cache folder `folder` that killed writers
+    left; return them."""
     try:
-        candidates = [p for p in folder.glob(pattern) if not p.is_symlink()]
+        candidates = [p for p in folder.glob(f".*{TEMP_SUFFIX}") if p.is_file() and not p.is_symlink()]
     except OSError:
         return []
     removed = [p for p in candidates if _abandoned(p)]
     for path in removed:
-        if path.is_dir():
-            shutil.rmtree(path, ignore_errors=True)
-        else:
-            with contextlib.suppress(OSError):
-                path.unlink()
+        with contextlib.suppress(OSError):
+            path.unlink()
         log.debug("cache: removed %s (left by a writer that was killed)", path)
     return removed
 
@@ -337,5 +339,6 @@ class CacheDir:
         failed) and the reason."""
         self.writable = False
         culprit = exc.filename and Path(os.fsdecode(exc.filename)).parent != path.parent  # e.g. a parent folder
+        reason = exc.strerror or (os.strerror(errno.ENOSPC) if is_disk_full(exc, path) else exc)
         log.warning("cache: cannot write %s (%s%s%s); continuing without the cache", path,
-                    f"{os.fsdecode(exc.filename)}: " if culprit else "", exc.strerror or exc, needs)
+                    f"{os.fsdecode(exc.filename)}: " if culprit else "", reason, needs)
