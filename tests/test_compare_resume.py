@@ -31,7 +31,7 @@ def _no_rss_growth(patch: pytest.MonkeyPatch) -> None:
 @pytest.fixture(scope="module")
 def base(tmp_path_factory):
     cache = tmp_path_factory.mktemp("compare-resume-cache")
-    return make_config(dataset="sim:test,end=60,azimuth_steps=180", cache_dir=str(cache))
+    return make_config(dataset="sim:test,end=60,azimuth_steps=360", cache_dir=str(cache))
 
 
 @pytest.fixture(scope="module")
