@@ -268,7 +268,8 @@ def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = Tr
     `seeds` (simulated data only) repeats the comparison on each world seed under seeds/seed-<n>/ and
     writes the spread over seeds (seeds.md, seeds.csv, seeds.json) and its report.md at the top. That folder
     grows in place so an interrupted run resumes: each seed appears when complete, and a rerun reuses the
-    finished seeds run with the same settings (msa_slam.pipeline.seed_folder); `overwrite` starts afresh.
+    finished seeds run with the same settings on the same data and code, and reruns those whose data or code
+    changed since (msa_slam.pipeline.seed_folder); `overwrite` starts afresh.
 
     `sweep=False` leaves out each method's threshold sweep (pipeline/sweep.py), about half of a method's time.
     A method whose sampler window the frames read never fill is refused before the shared front end
