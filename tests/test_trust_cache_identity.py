@@ -25,6 +25,7 @@ from msa_slam.descriptors.cache import DESCRIPTOR_CODE, descriptor_key
 from msa_slam.experiments import expand, parse_grid, run_grid
 from msa_slam.io.cache import DIGESTS_FILE
 from msa_slam.io.fingerprint import PACKAGE_DIR, code_fingerprint, import_closure
+from msa_slam.io.outputs import OutputError
 from msa_slam.odometry import KissOdometry, OdometryCache
 from msa_slam.pipeline import make_config, prepare_frontend
 from msa_slam.sim import DEFAULT_CONFIGS
@@ -169,6 +170,24 @@ def test_a_resumed_grid_reruns_only_the_cells_whose_data_changed(sequence, tmp_p
     after = json.loads((out / "cells" / on_first.id / "metrics.json").read_text())
     assert after["before"] != before["before"]  # the new data's odometry, not the old cell's
     assert run_grid(grid, out).skipped == [on_first.id, on_second.id]  # recorded anew: a third run reuses both
+
+
+def test_a_cell_to_rerun_holding_a_persons_file_is_refused_and_kept(sequence, tmp_path):
+    first, second = _fill(tmp_path / "a", sequence, 0), _fill(tmp_path / "b", sequence, 40)
+    grid = parse_grid(_two_dataset_grid(first, second, tmp_path / "cache"))
+    on_first, _ = expand(grid)
+    out = tmp_path / "out"
+    run_grid(grid, out)
+    notes = out / "cells" / on_first.id / "notes.txt"
+    notes.write_text("mine\n")
+    for k in range(8, 12):
+        _shift_keeping_times(first / "velodyne" / f"{k:06d}.bin", 3.0)
+    with pytest.raises(OutputError, match=rf"cell {on_first.id} must be rerun, but its folder holds files msa-slam "
+                                          rf"did not write or that changed since \(cells/{on_first.id}/notes.txt\)"):
+        run_grid(grid, out)
+    assert notes.read_text() == "mine\n" and (out / "cells" / on_first.id / "cell.json").is_file()
+    notes.unlink()
+    assert run_grid(grid, out).ran == [on_first.id]  # without the person's file, the cell is rerun
 
 
 @pytest.mark.parametrize("kind, damage, reason", [

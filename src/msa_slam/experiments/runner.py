@@ -28,8 +28,9 @@ from msa_slam.experiments.folder import CELL_FILE, KIND, cell_dir, finished_cell
 from msa_slam.experiments.grid import Cell, GridSpec, check_datasets, expand
 from msa_slam.experiments.identity import CELL_IDENTITY, cell_identities, outdated_cells
 from msa_slam.io.atomic import write_text_atomic
-from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, staged_dir
-from msa_slam.io.staging import remove_abandoned, unmark_finished
+from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, some_names, staged_dir
+from msa_slam.io.staging import (OutputError, edited_files, foreign_files, listed_files, remove_abandoned,
+                                 unmark_finished)
 
 DEFAULT_PARENT = DEFAULT_RESULTS / "experiments"
 log = logging.getLogger(__name__)
@@ -60,6 +61,24 @@ def clean_partials(out: str | os.PathLike) -> list[Path]:
                 removed += _remove_empty_folder(folder)
         removed += _remove_empty_folder(stores)
     return removed
+
+
+def check_replaceable(out: Path, cell_ids: list[str]) -> None:
+    """Before a cell folder that exists is rerun (its data or code changed, or its files are damaged) and so
+    replaced: refuse, in one line, when it holds files the result marker does not list as msa-slam's or that
+    changed since msa-slam wrote them (a person's notes in a cell are not msa-slam's to remove). A cell no file
+    of which is listed was finished by a killed run (it appears only whole, by rename) and is msa-slam's."""
+    listed = listed_files(out)
+    theirs = [*foreign_files(out), *edited_files(out)]
+    for cell_id in cell_ids:
+        prefix = f"cells/{cell_id}/"
+        if not any(name.startswith(prefix) for name in listed):
+            continue
+        found = sorted({name for name in theirs if name.startswith(prefix)})
+        if found:
+            raise OutputError(f"--out {out}: cell {cell_id} must be rerun, but its folder holds files msa-slam did not "
+                              f"write or that changed since ({some_names(found)}); move them elsewhere or choose "
+                              "another --out")
 
 
 def _remove_empty_folder(path: Path) -> list[Path]:
@@ -158,6 +177,7 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
         identities = cell_identities(cells)
         folder.prepare_in_place(fresh=overwrite, grows=("cells",), unit_record=CELL_FILE)
         run = GridRun(folder.path, rerun=outdated_cells(finished, identities))
+        check_replaceable(run.out, [*run.rerun, *(c.id for c in cells if c.id not in finished)])
         for cell_id, line in run.rerun.items():  # never reported beside cells of the current data and code
             log.warning("experiment: %s", line)
             shutil.rmtree(cell_dir(run.out, cell_id), ignore_errors=True)

@@ -45,7 +45,8 @@ from msa_slam.io.staging import (MARKER, OutputError, clean_stale, discard, edit
                                  staged_dir, stamp, write_marker)
 
 __all__ = ["DEFAULT_RESULTS", "MARKER", "OutputError", "ResultFolder", "claim_timestamped", "is_result_folder",
-           "open_result_folder", "out_path", "refuse_working_directory", "staged_dir", "write_marker"]
+           "open_result_folder", "out_path", "refuse_working_directory", "some_names", "staged_dir",
+           "write_marker"]
 
 DEFAULT_RESULTS = Path("msa_slam_results")  # parent of the default timestamped output folders
 LATEST = "latest"
@@ -132,19 +133,19 @@ def _refuse_foreign(target: Path) -> None:
     as msa-slam wrote them (staging.edited_files)."""
     foreign = foreign_files(target)
     if foreign:
-        raise OutputError(f"--out {target}: holds files msa-slam did not write ({_some(foreign)}); "
+        raise OutputError(f"--out {target}: holds files msa-slam did not write ({some_names(foreign)}); "
                           "--overwrite would remove them: move them elsewhere or choose another --out (files of a "
                           "killed experiment or `compare --seeds` run count too: rerun it without --overwrite to "
                           "finish it first)")
     edited = edited_files(target)
     if edited:
-        raise OutputError(f"--out {target}: holds files changed since msa-slam wrote them ({_some(edited)}); "
+        raise OutputError(f"--out {target}: holds files changed since msa-slam wrote them ({some_names(edited)}); "
                           "--overwrite would lose the changes: copy them elsewhere or choose another --out (a killed "
                           "experiment or `compare --seeds` run leaves its reports so too: rerun it without "
                           "--overwrite to finish it first)")
 
 
-def _some(names: list[str]) -> str:
+def some_names(names: list[str]) -> str:
     """The first three names, and how many more."""
     more = f" and {len(names) - 3} more" if len(names) > 3 else ""
     return ", ".join(names[:3]) + more
@@ -261,7 +262,7 @@ class ResultFolder:
         edited = edited_files(self.path)
         rewritten = [name for name in edited if not any(name.startswith(f"{sub}/") for sub in grows)]
         if rewritten:
-            raise OutputError(f"--out {self.path}: holds files changed since msa-slam wrote them ({_some(rewritten)}); "
+            raise OutputError(f"--out {self.path}: holds files changed since msa-slam wrote them ({some_names(rewritten)}); "
                               "this run would replace them: copy them elsewhere first or choose another --out")
         recorded = recorded_digests(self.path)
         self._edited = {name: ((self.path / name).lstat().st_mtime_ns, recorded[name]) for name in edited}
