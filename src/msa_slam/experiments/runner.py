@@ -29,8 +29,7 @@ from msa_slam.experiments.grid import Cell, GridSpec, check_datasets, expand
 from msa_slam.experiments.identity import CELL_IDENTITY, cell_identities, outdated_cells
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, some_names, staged_dir
-from msa_slam.io.staging import (OutputError, edited_files, foreign_files, listed_files, remove_abandoned,
-                                 unmark_finished)
+from msa_slam.io.staging import OutputError, foreign_in_units, remove_abandoned, unmark_finished
 
 DEFAULT_PARENT = DEFAULT_RESULTS / "experiments"
 log = logging.getLogger(__name__)
@@ -65,19 +64,14 @@ def clean_partials(out: str | os.PathLike) -> list[Path]:
 
 def check_replaceable(out: Path, cell_ids: list[str]) -> None:
     """Before a cell folder that exists is rerun (its data or code changed, or its files are damaged) and so
-    replaced: refuse, in one line, when it holds files the result marker does not list as msa-slam's or that
-    changed since msa-slam wrote them (a person's notes in a cell are not msa-slam's to remove). A cell no file
-    of which is listed was finished by a killed run (it appears only whole, by rename) and is msa-slam's."""
-    listed = listed_files(out)
-    theirs = [*foreign_files(out), *edited_files(out)]
+    replaced: refuse, in one line, when it holds files the result marker does not list as msa-slam's (a
+    person's notes in a cell are not msa-slam's to remove; staging.foreign_in_units). msa-slam's own files there,
+    damaged or changed, are what the rerun replaces."""
+    found = foreign_in_units(out, [f"cells/{cell_id}" for cell_id in cell_ids])
     for cell_id in cell_ids:
-        prefix = f"cells/{cell_id}/"
-        if not any(name.startswith(prefix) for name in listed):
-            continue
-        found = sorted({name for name in theirs if name.startswith(prefix)})
-        if found:
+        if found[f"cells/{cell_id}"]:
             raise OutputError(f"--out {out}: cell {cell_id} must be rerun, but its folder holds files msa-slam did not "
-                              f"write or that changed since ({some_names(found)}); move them elsewhere or choose "
+                              f"write ({some_names(found[f'cells/{cell_id}'])}); move them elsewhere or choose "
                               "another --out")
 
 

@@ -15,7 +15,7 @@ import shutil
 import tempfile
 import time
 from pathlib import Path
-from typing import Collection, Iterator, Mapping
+from typing import Collection, Iterable, Iterator, Mapping
 
 import msa_slam
 from msa_slam.errors import InputError
@@ -104,6 +104,21 @@ def foreign_files(folder: Path) -> list[str]:
     before listing its own."""
     ours = listed_files(folder)
     return [name for name in _files(Path(folder)) if name not in ours]
+
+
+def foreign_in_units(folder: Path, units: Iterable[str], edited: bool = False) -> dict[str, list[str]]:
+    """Per unit folder (relative to the result `folder`, e.g. cells/<id>), its files the marker does not list as
+    msa-slam's (with `edited`, also those changed since msa-slam wrote them): what must stay when the unit is
+    rerun and replaced. A unit none of whose files is listed was finished by a killed run before it listed it
+    (a unit appears whole, by one rename): all of it is msa-slam's."""
+    listed = listed_files(folder)
+    others = [*foreign_files(folder), *(edited_files(folder) if edited else [])]
+    out = {}
+    for unit in units:
+        prefix = f"{unit}/"
+        ours = any(name.startswith(prefix) for name in listed)
+        out[unit] = sorted({name for name in others if name.startswith(prefix)}) if ours else []
+    return out
 
 
 def _files(folder: Path) -> list[str]:

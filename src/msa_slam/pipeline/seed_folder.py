@@ -25,7 +25,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import msa_slam
 from msa_slam.io.outputs import MARKER, OutputError
-from msa_slam.io.staging import clean_stale, edited_files, foreign_files, listed_files
+from msa_slam.io.staging import clean_stale, foreign_in_units
 from msa_slam.io.tables import write_json
 from msa_slam.pipeline.config import RunConfig
 from msa_slam.pipeline.identity import changed_identity, run_identities
@@ -153,14 +153,9 @@ def remove_seeds(out: Path, seeds: Mapping[int, str]) -> None:
 
 def not_msa_slams(out: Path, seeds: Iterable[int]) -> dict[int, list[str]]:
     """Per seed, the files in its folder (paths relative to `out`) that the result marker does not list as
-    msa-slam's or that changed since it wrote them. A seed folder none of whose files is listed is one a killed
-    run finished before listing it (it appears by one rename, with its record): all of it is msa-slam's."""
-    units = {seed: f"{SEEDS}/seed-{seed}/" for seed in seeds}
-    if not units:
-        return {}
-    listed, others = listed_files(out), [*foreign_files(out), *edited_files(out)]
-    return {seed: [name for name in others if name.startswith(unit)] if any(n.startswith(unit) for n in listed)
-            else [] for seed, unit in units.items()}
+    msa-slam's or that changed since it wrote them (staging.foreign_in_units)."""
+    found = foreign_in_units(out, [f"{SEEDS}/seed-{seed}" for seed in seeds], edited=True)
+    return {seed: found[f"{SEEDS}/seed-{seed}"] for seed in seeds}
 
 
 def left_out_seeds(out: Path, seeds: Sequence[int]) -> list[int]:
