@@ -47,7 +47,9 @@ class LoopSettings(Protocol):
     graph: GraphConfig
 
 
-REJECTION_REASONS = ("sparse", *REJECTIONS, "drift")  # every reason a registered candidate can be rejected for
+# every reason a registered candidate can be rejected for; "inconsistent": accepted by loop closing, then left out
+# of the batch graph by the pairwise consistency check (backend/inliers.py)
+REJECTION_REASONS = ("sparse", *REJECTIONS, "drift", "inconsistent")
 
 
 def yaw_guess(descriptor: Descriptor, query_desc: np.ndarray, match_desc: np.ndarray) -> np.ndarray:
@@ -146,10 +148,12 @@ def drift_check_on(settings: LoopSettings) -> bool:
     return settings.drift_check == "on" or settings.drift_check == "auto" and settings.mode == "realistic"
 
 
-def loop_summary(loops: list[LoopClosure], settings: LoopSettings) -> dict[str, Any]:
+def loop_summary(loops: list[LoopClosure], settings: LoopSettings,
+                 graph_info: dict[str, Any] | None = None) -> dict[str, Any]:
     """What metrics.json reports about loop closing: rejections by reason, accepted loops that are revisits
     (at least 2 x loop_radius of odometry path between the keyframes) apart from the others, and the
-    noise models and robust kernel the loop factors had."""
+    noise models, inlier selection and robust kernel the loop factors had (`graph_info`, the graph's own
+    account; without it, what a batch graph in the run's mode does)."""
     accepted = [c for c in loops if c.accepted]
     revisits = sum(c.travelled_m >= 2 * settings.loop_radius for c in accepted)
     graph = settings.graph
@@ -158,5 +162,7 @@ def loop_summary(loops: list[LoopClosure], settings: LoopSettings) -> dict[str, 
         "revisit_loops": int(revisits), "other_loops": len(accepted) - int(revisits),
         "min_travel_m": settings.min_travel_m, "drift_check": drift_check_on(settings),
         "loop_kernel": graph.loop_kernel(settings.mode),
+        "loop_inliers": "consistent" if graph.selects_inliers(settings.mode) else "all",
+        **(graph_info or {}),
         "loop_noise": graph.loop_noise, "odometry_noise": graph.odometry_noise,
     }
