@@ -46,11 +46,6 @@ class DriftModel:
             cov += w * ad @ q @ ad.T
         return length * cov
 
-    def allowance(self, distance: float) -> tuple[float, float]:
-        """Largest drift (metres, radians) the model expects over `distance` metres of path: relative
-        translation error, plus the lateral error of a heading error that grows along the path."""
-        return (self.translation * distance + self.rotation * distance**2 / 2, self.rotation * distance)
-
 
 class PathCovariance:
     """Odometry covariance accumulated along a pose sequence, for any two of its poses.
