@@ -1,4 +1,5 @@
-"""Loops the batch graph uses: the pairwise-consistent set, decided before optimisation, optimised in full.
+"""Loops the batch graph uses: the pairwise-consistent set, decided before optimisation, optimised in full;
+the drift gate of loop closing against the odometry covariance accumulated along the path.
 
 A constructed drive: a 100 m x 60 m rectangle in 2 m steps, then its first 40 m again (a revisit). The
 odometry turns 0.1 deg too far and runs 1 % long every step, so at the revisit it is ~16 m off, far beyond
@@ -207,3 +208,42 @@ def test_oracle_mode_and_isam2_use_every_loop():
 
     online = IncrementalPoseGraph(GraphConfig(), mode="realistic")
     assert not online.selects_inliers and online.kernel == "cauchy"
+
+
+def _closer(length_m: float, **settings):
+    """A LoopCloser over straight odometry of `length_m` in 1 m frames (only the drift check is used)."""
+    from msa_slam.pipeline.config import make_config
+    from msa_slam.slam import LoopCloser
+
+    odometry = np.tile(np.eye(4), (int(length_m) + 1, 1, 1))
+    odometry[:, 0, 3] = np.arange(len(odometry))
+    closer = LoopCloser(None, None, make_config(dataset="unused", mode="realistic", **settings))
+    closer._odometry = odometry
+    return closer, len(odometry) - 1
+
+
+def _lateral_loop(closer, query: int, metres: float):
+    from msa_slam.types import LoopClosure
+
+    T = np.linalg.inv(closer._odometry[0]) @ closer._odometry[query]
+    T[1, 3] += metres  # the loop puts the query `metres` to the left of where odometry has it
+    return LoopClosure(query, 0, 1.0, 0.0, travelled_m=float(query)), T
+
+
+@pytest.mark.parametrize("length_m, accepted", [(100.0, False), (1000.0, True)])
+def test_the_drift_gate_scales_with_the_accumulated_odometry_covariance(length_m, accepted):
+    """A 5 m sideways correction: beyond what 100 m of odometry can drift (sigma ~0.5 m), within what 1,000 m
+    can (sigma ~5.6 m, mostly from the heading error's lever arm), with the default drift model, gate and slack."""
+    closer, query = _closer(length_m)
+    cand, T = _lateral_loop(closer, query, 5.0)
+    assert closer.exceeds_drift(cand, T) is not accepted
+
+
+def test_the_drift_gate_follows_the_configured_drift_model():
+    """The same correction passes once the sequence's odometry is declared to drift 4 times as much."""
+    closer, query = _closer(100.0)
+    cand, T = _lateral_loop(closer, query, 4.0)
+    assert closer.exceeds_drift(cand, T)
+    loose, _ = _closer(100.0, graph={"drift_rotation": 4 * GraphConfig().drift_rotation,
+                                     "drift_translation": 4 * GraphConfig().drift_translation})
+    assert not loose.exceeds_drift(cand, T)
