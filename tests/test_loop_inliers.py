@@ -247,3 +247,19 @@ def test_the_drift_gate_follows_the_configured_drift_model():
     loose, _ = _closer(100.0, graph={"drift_rotation": 4 * GraphConfig().drift_rotation,
                                      "drift_translation": 4 * GraphConfig().drift_translation})
     assert not loose.exceeds_drift(cand, T)
+
+
+def test_beyond_the_search_budget_a_greedy_clique_is_kept(drive, monkeypatch):
+    """The exact search stops after MAX_CLIQUE_CALLS calls; the greedy set it falls back to is still pairwise
+    consistent and here the same as the exact one."""
+    import msa_slam.backend.inliers as inliers
+
+    gt, odom = drive
+    loops = [_true(gt, 2), _wrong(gt, 5, 15), _true(gt, 12), _true(gt, 17), _wrong(gt, 8, 30)]
+    exact = _graph(odom, loops)
+    exact.optimize()
+    monkeypatch.setattr(inliers, "MAX_CLIQUE_CALLS", 1)
+    greedy = _graph(odom, loops)
+    greedy.optimize()
+    assert exact.inliers.method == "exact" and greedy.inliers.method == "greedy"
+    assert greedy.inliers.kept == exact.inliers.kept == (0, 2, 3)
