@@ -145,7 +145,7 @@ class _KeyframeGraph:
         self._kernel = {"huber": gtsam.noiseModel.mEstimator.Huber, "cauchy": gtsam.noiseModel.mEstimator.Cauchy,
                         "none": None}[self.kernel]
         self._keys: list[int] = []
-        self._position: dict[int, int] = {}  # key -> position in the keyframe sequence
+        self._position: dict[int, int] = {}  # key -> position in the keyframe sequence (consistency checks)
         self._initial: dict[int, np.ndarray] = {}
         self.num_factors = 0
         self.num_loops = 0
@@ -212,9 +212,11 @@ class _KeyframeGraph:
             return self._odometry
         return gtsam.noiseModel.Gaussian.Covariance(self.config.drift.edge_covariance(motion) + self._odometry_floor)
 
-    def _track_path(self, pose: np.ndarray, motion: np.ndarray | None) -> None:
-        """Accumulate the odometry covariance the consistency check needs (only when it runs)."""
+    def _track_path(self, key: int, pose: np.ndarray, motion: np.ndarray | None) -> None:
+        """Accumulate the odometry covariance and keyframe positions the consistency check needs (only when it
+        runs: other graphs keep nothing more than before)."""
         if self.selects_inliers:
+            self._position[key] = len(self._keys)
             self._path.append(pose, None if motion is None else self.config.odometry_covariance(motion))
 
     def _loop_noise(self, covariance: np.ndarray | None) -> gtsam.noiseModel.Base:
@@ -244,8 +246,7 @@ class _KeyframeGraph:
         else:
             graph.add(gtsam.PriorFactorPose3(key, gtsam.Pose3(pose), self._prior))
         values.insert(key, gtsam.Pose3(pose))
-        self._track_path(pose, motion)
-        self._position[key] = len(self._keys)
+        self._track_path(key, pose, motion)
         self._keys.append(key)
         self._initial[key] = pose
         self.num_factors += 1
@@ -293,7 +294,7 @@ class PoseGraph(_KeyframeGraph):
         super().__init__(config, mode)
         self.max_iterations = self.config.max_iterations
         self._graph = gtsam.NonlinearFactorGraph()  # prior and odometry factors, in keyframe order
-        self._loops: list[gtsam.NonlinearFactorGraph] = []  # loop factors, in the order they were added
+        self._loops = gtsam.NonlinearFactorGraph()  # loop factors, in the order they were added
         self._values = gtsam.Values()
 
     def add_keyframe(self, key: int, pose: np.ndarray) -> None:
@@ -306,7 +307,7 @@ class PoseGraph(_KeyframeGraph):
                  covariance: np.ndarray | None = None) -> None:
         """Add a verified loop: the pose of `source_key` seen from `target_key`, with the registration's
         6x6 covariance (rotation, translation) when it has one."""
-        self._loops.append(self._loop_factor(target_key, source_key, T_target_source, covariance))
+        self._loops.push_back(self._loop_factor(target_key, source_key, T_target_source, covariance))
 
     def update(self, extra_iterations: int = 0) -> None:
         """Nothing to do while frames arrive: the batch graph is optimised once, by `optimize`."""
@@ -321,14 +322,14 @@ class PoseGraph(_KeyframeGraph):
             raise InputError("pose graph has no keyframes to optimise")
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(self.max_iterations)
-        kept = range(len(self._loops))
-        if self.selects_inliers and self._loops:
+        kept = range(self._loops.size())
+        if self.selects_inliers and self.num_loops:
             self.inliers = select_inliers(self._loop_edges, self._path, self.config.inlier_confidence)
             kept = self.inliers.kept
         graph = gtsam.NonlinearFactorGraph()
         graph.push_back(self._graph)
         for i in kept:
-            graph.push_back(self._loops[i])
+            graph.push_back(self._loops.at(i))
         result = gtsam.LevenbergMarquardtOptimizer(graph, self._values, params).optimize()
         return self._poses(result)
 
