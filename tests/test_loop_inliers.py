@@ -263,3 +263,55 @@ def test_beyond_the_search_budget_a_greedy_clique_is_kept(drive, monkeypatch):
     greedy.optimize()
     assert exact.inliers.method == "exact" and greedy.inliers.method == "greedy"
     assert greedy.inliers.kept == exact.inliers.kept == (0, 2, 3)
+
+
+def test_the_slam_core_records_loops_left_out_as_inconsistent(drive):
+    """Through the SLAM core: the loops the graph leaves out are the wrong ones, recorded as rejected for being
+    inconsistent (not accepted, not counted as verified), and the g2o factors leave them out too."""
+    from dataclasses import replace
+
+    from msa_slam.descriptors import make_descriptor
+    from msa_slam.pipeline.config import make_config
+    from msa_slam.registration import KeyframeCloudStore
+    from msa_slam.sampling import make_sampler
+    from msa_slam.slam import KeyframeStore, SlamBackend
+    from msa_slam.slam.loop_closing import loop_summary
+    from msa_slam.types import LoopClosure
+
+    gt, odom = drive
+    planned = {source: (target, measured, wrong) for (target, source, measured), wrong in
+               ((_true(gt, 2), False), (_wrong(gt, 5, 15), True), (_true(gt, 12), False))}
+
+    class Closer:  # loop closing as if these three loops were found and verified
+        best_similarity: list[float] = []
+
+        def candidates(self, frame, descriptor, gt_poses, odometry):
+            if frame not in planned:
+                return []
+            target = planned[frame][0]
+            distance = float(np.linalg.norm(gt_poses[frame, :3, 3] - gt_poses[target, :3, 3]))
+            return [LoopClosure(frame, target, 0.9, distance, travelled_m=2.0 * (frame - target))]
+
+        def verify(self, candidates):
+            return [replace(c, verified=True, accepted=True, T_match_query=planned[c.query][1], covariance=LOOP_COV)
+                    for c in candidates]
+
+        def pr_curve(self):
+            return None
+
+    config = make_config(dataset="unused", sampler="all", mode="realistic")
+    descriptor = make_descriptor("sc")
+    cloud = np.random.default_rng(0).uniform(-20, 20, (200, 3))
+    store = KeyframeStore(descriptor, KeyframeCloudStore(config.verifier.voxel_size))
+    backend = SlamBackend(config, make_sampler("all"), store, Closer(), PoseGraph(config.graph, mode="realistic"),
+                          len(odom), "constructed")
+    desc = descriptor.compute(cloud)
+    for i, pose in enumerate(odom):
+        backend.add_frame(pose, desc, cloud, gt[i], 0.1 * i)
+    result = backend.finish()
+    assert [(c.query, c.accepted, c.rejected) for c in result.loops] == [
+        (LAP + 2, True, ""), (LAP + 5, False, "inconsistent"), (LAP + 12, True, "")]
+    summary = loop_summary(result.loops, config, result.graph_info)
+    assert summary["rejected"]["inconsistent"] == 1 and summary["inlier_selection"]["kept"] == 2
+    assert summary["loop_kernel"] == "none" and summary["loop_inliers"] == "consistent"
+    assert result.graph_factors.size() == len(odom) + 2
