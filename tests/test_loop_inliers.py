@@ -230,12 +230,15 @@ def _lateral_loop(closer, query: int, metres: float):
     return LoopClosure(query, 0, 1.0, 0.0, travelled_m=float(query)), T
 
 
-@pytest.mark.parametrize("length_m, accepted", [(100.0, False), (1000.0, True)])
-def test_the_drift_gate_scales_with_the_accumulated_odometry_covariance(length_m, accepted):
-    """A 5 m sideways correction: beyond what 100 m of odometry can drift (sigma ~0.5 m), within what 1,000 m
-    can (sigma ~5.6 m, mostly from the heading error's lever arm), with the default drift model, gate and slack."""
+@pytest.mark.parametrize("length_m, metres, accepted", [(100.0, 5.0, False), (1000.0, 5.0, True),
+                                                       (1000.0, 30.0, True), (1000.0, 120.0, False)])
+def test_the_drift_gate_scales_with_the_accumulated_odometry_covariance(length_m, metres, accepted):
+    """Sideways corrections with the default drift model, gate and slack: 5 m is beyond what 100 m of odometry
+    can drift (sigma ~0.5 m); over 1,000 m the random walk's sigma is ~5.6 m (mostly the heading error's lever
+    arm), 3.2 times that as systematic drift (~18 m), so 30 m passes (the random walk alone would refuse it:
+    chi-square ~29) and 120 m does not."""
     closer, query = _closer(length_m)
-    cand, T = _lateral_loop(closer, query, 5.0)
+    cand, T = _lateral_loop(closer, query, metres)
     assert closer.exceeds_drift(cand, T) is not accepted
 
 

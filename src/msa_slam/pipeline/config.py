@@ -38,8 +38,9 @@ class RunConfig(StageConfig):
     realistic mode only, where no ground truth vets candidates) a registered loop is also rejected when its
     correction of the odometry between its keyframes fails a chi-square test (quantile `drift_confidence`)
     against the odometry covariance accumulated along the path (graph.drift_*, the covariance the pose graph
-    weights odometry with) widened `drift_gate` times in sigma (1: as is), plus the loop's covariance and a
-    slack of `drift_slack_m` / `drift_slack_deg` (slam/loop_closing.py).
+    weights odometry with, grown as systematic drift beyond graph.drift_reference_m) widened `drift_gate` times
+    in sigma (1: as is), plus the loop's covariance and a slack of `drift_slack_m` / `drift_slack_deg`
+    (slam/loop_closing.py).
     `loop_radius` (3 m) defines a true loop: oracle verification, false loops and the PR curve.
     """
 

@@ -9,7 +9,8 @@ the loop is rejected when the clouds are too sparse, overlap too little, have to
 large a residual (registration.verify), or (drift check on: by default in realistic mode) when its
 correction of the odometry between the two keyframes is not explained by the odometry covariance
 accumulated frame by frame along the path between them (the drift model's, backend/noise.py PathCovariance,
-widened `drift_gate` times in sigma), the loop's own covariance and a slack (`drift_slack_m`,
+scaled to systematic growth beyond the model's reference length and widened `drift_gate` times in sigma),
+the loop's own covariance and a slack (`drift_slack_m`,
 `drift_slack_deg`: the correction allowed in one direction with no path at all): a chi-square test at
 `drift_confidence`, 6 degrees of freedom. An accepted loop
 whose ground-truth distance exceeds `loop_radius` is a false loop; one over at least 2 x `loop_radius`
@@ -156,13 +157,20 @@ class LoopCloser:
 
         Why a covariance, not a per-metre allowance on the travelled distance: it follows the path, so a
         heading or pitch error picked up early moves the later positions sideways or vertically by the lever
-        arm the path actually has, and it is the same quantity the pose graph weights odometry with."""
+        arm the path actually has, and it is the same quantity the pose graph weights odometry with. The drift
+        model is a random walk calibrated over `graph.drift_reference_m`; odometry drift is mostly systematic
+        (KITTI's relative error is about the same fraction of 100 m and 800 m segments), so over a longer path
+        the covariance is scaled by path / reference: the sigma then grows with the path, not its square root
+        (x2.6 over 690 m). The pose graph keeps the random walk: there it only weights the chain."""
         s = self.settings
         odometry, path_cov = self._drift_to(cand.query).between(cand.match, cand.query)
         correction = gtsam.Pose3.Logmap(gtsam.Pose3(np.linalg.inv(odometry) @ T_match_query))
         bound = float(chi2.ppf(s.drift_confidence, 6))
         slack = np.repeat([np.radians(s.drift_slack_deg), s.drift_slack_m], 3) ** 2 / bound
-        total = s.drift_gate**2 * path_cov + s.graph.loop_covariance(covariance) + np.diag(slack)
+        # Beyond the calibration length the random walk's variance (growing with the path) becomes systematic
+        # drift's (growing with its square), as KITTI's relative error, a constant fraction over 100-800 m, has it
+        systematic = max(1.0, cand.travelled_m / s.graph.drift_reference_m) if np.isfinite(cand.travelled_m) else 1.0
+        total = s.drift_gate**2 * systematic * path_cov + s.graph.loop_covariance(covariance) + np.diag(slack)
         return float(correction @ np.linalg.solve(total, correction))
 
     def pr_curve(self) -> PRCurve | None:
