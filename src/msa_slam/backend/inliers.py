@@ -46,6 +46,10 @@ def _log(T: np.ndarray) -> np.ndarray:
     return gtsam.Pose3.Logmap(gtsam.Pose3(T))
 
 
+def _adjoint(T: np.ndarray) -> np.ndarray:
+    return gtsam.Pose3(T).AdjointMap()
+
+
 def _chi2(residual: np.ndarray, covariance: np.ndarray) -> float:
     return float(residual @ np.linalg.solve(covariance, residual))
 
@@ -63,7 +67,7 @@ def pair_chi2(a: LoopEdge, b: LoopEdge, path: PathCovariance) -> float:
     o1, c1 = path.between(a.target, b.target)
     o2, c2 = path.between(b.source, a.source)
     # Right perturbations of each factor of the product, carried to the cycle's end frame (a.source)
-    ad = lambda T: gtsam.Pose3(T).AdjointMap()  # noqa: E731
+    ad = _adjoint
     inv_a = np.linalg.inv(a.measured)
     tail_b = b.measured @ o2  # what follows o1
     cov = (ad(np.linalg.inv(o1 @ tail_b)) @ ad(a.measured) @ a.covariance @ ad(a.measured).T
