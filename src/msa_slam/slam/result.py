@@ -69,6 +69,7 @@ class RunResult:
     descriptors: np.ndarray | None = None  # per-frame descriptors, when the pipeline kept them (batch)
     graph_factors: Any = None  # the pose graph's factors (gtsam.NonlinearFactorGraph), for pose_graph.g2o
     rss_growth_bytes: int = 0  # process RSS after the final optimisation minus at the back-end's start
+    graph_info: dict[str, Any] = field(default_factory=dict)  # how loops entered the graph (Graph.describe)
 
     @property
     def accepted_loops(self) -> list[LoopClosure]:
@@ -118,7 +119,7 @@ def core_metrics(result: RunResult) -> dict[str, Any]:
         "verified": len(accepted),
         "registrations": int(sum(c.verified for c in loops)),
         "false_loops": int(sum(c.gt_distance > cfg.loop_radius for c in accepted)),
-        "loop_closing": loop_summary(loops, cfg),
+        "loop_closing": loop_summary(loops, cfg, result.graph_info),
         **ev.metrics,
         "full_rate": full_rate,
         "unavailable": unavailable,
