@@ -1,6 +1,6 @@
 """GTSAM pose graphs on a constructed drifting loop: a loop factor reduces ATE; LM and iSAM2 agree; odometry
 edges weighted by a drift model give a chain whose stiffness does not depend on how it is split; loop
-covariances stay within bounds; the robust kernel follows the verification mode."""
+covariances stay within bounds; the robust kernel follows the verification mode and loop selection."""
 
 from __future__ import annotations
 
@@ -243,5 +243,9 @@ def test_loop_covariance_weights_the_loop(square):
 
 
 def test_robust_kernel_follows_the_mode():
-    assert PoseGraph(mode="realistic").kernel == "cauchy" and PoseGraph(mode="oracle").kernel == "none"
+    """"auto": none in oracle mode and where the batch graph keeps only consistent loops (realistic mode);
+    Cauchy in realistic mode when every loop is used (iSAM2, or loop_inliers=all)."""
+    assert PoseGraph(mode="realistic").kernel == "none" and PoseGraph(mode="oracle").kernel == "none"
+    assert PoseGraph(GraphConfig(loop_inliers="all"), mode="realistic").kernel == "cauchy"
+    assert IncrementalPoseGraph(mode="realistic").kernel == "cauchy"
     assert PoseGraph(GraphConfig(robust="huber"), mode="oracle").kernel == "huber"

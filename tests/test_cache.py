@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import msa_slam
 import msa_slam.io.cache
+import msa_slam.odometry.cache
 from msa_slam.datasets import open_dataset
 from msa_slam.io.cache import CacheDir, locked_temp
 from msa_slam.io.poses import read_poses, write_poses
@@ -81,7 +81,7 @@ def test_same_data_elsewhere_is_a_hit_and_settings_are_part_of_the_key(data, tmp
     assert other.cached == {"odometry": False, "descriptors": True}
 
 
-def test_odometry_key_covers_threads_and_versions(data, monkeypatch):
+def test_odometry_key_covers_threads_versions_and_code(data, monkeypatch):
     seq = open_dataset(data)
     config = KissOdometry().config
     key = OdometryCache.key(seq, config)
@@ -91,7 +91,7 @@ def test_odometry_key_covers_threads_and_versions(data, monkeypatch):
     monkeypatch.setattr(metadata, "version", lambda name: "0.0.1" if name == "kiss-icp" else real_version(name))
     assert OdometryCache.key(seq, config) != key
     monkeypatch.undo()
-    monkeypatch.setattr(msa_slam, "__version__", "99.0")
+    monkeypatch.setattr(msa_slam.odometry.cache, "code_fingerprint", lambda modules: "other code")
     assert OdometryCache.key(seq, config) != key
 
 
@@ -172,7 +172,7 @@ def test_rotated_poses_entry_is_not_trusted(tmp_path, caplog):
     np.save(cache.path("k"), skewed)
     assert cache.load("k", 3) is None and "not a rigid transform" in caplog.text
     np.save(cache.path("k"), poses)
-    assert cache.load("k", 4) is None and "3 rows, expected 4" in caplog.text
+    assert cache.load("k", 4) is None and "shape (3, 4, 4), expected (4, 4, 4)" in caplog.text
 
 
 def test_unwritable_cache_only_costs_the_cache(data, tmp_path, caplog):

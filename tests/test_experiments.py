@@ -18,7 +18,9 @@ from msa_slam.experiments import (expand, is_finished, load_cells, load_grid, ma
                                   run_grid, write_report)
 from msa_slam.experiments.folder import write_grid
 from msa_slam.experiments.grid import Cell
+from msa_slam.experiments.identity import CELL_IDENTITY, cell_identities
 from msa_slam.io.outputs import OutputError, open_result_folder, write_marker
+from msa_slam.io import staging
 from test_cli_main import run_cli
 
 TINY = {
@@ -77,12 +79,13 @@ def test_resume_skips_finished_cells_and_clears_half_written_ones(tmp_path):
     grid = parse_grid(TINY)
     first, second = expand(grid)
     write_marker(tmp_path, "experiment")
-    run_cell(first.info(), first.config, str(tmp_path))  # finished before the "crash"
+    run_cell(recorded_info(first), first.config, str(tmp_path))  # finished before the "crash"
     finished = tmp_path / "cells" / first.id / "metrics.json"
     stamp = finished.stat().st_mtime_ns
     partial = tmp_path / "cells" / f".{second.id}.partial-abc123"  # killed while writing
     partial.mkdir()
     (partial / "metrics.json").write_text("{")
+    (partial / staging.WRITER).write_bytes(staging.stamp())  # its writer's stamp, no longer locked: the writer is gone
     assert is_finished(tmp_path, first) and not is_finished(tmp_path, second)
 
     run = run_grid(grid, tmp_path)
@@ -116,9 +119,14 @@ def test_dask_local_cluster_runs_two_cells(tmp_path):
 SWEEP = {**TINY, "samplers": ["all", {"sampler": "msa", "sweep": {"lambda_l": [0.0, 1.0]}}]}
 
 
+def recorded_info(cell: Cell) -> dict:
+    """The cell.json of `cell` as run_grid writes it now (with the identity of its data and code)."""
+    return {**cell.info(), CELL_IDENTITY: cell_identities([cell])[cell.id]}
+
+
 def finished_experiment(root: Path, grid_data: dict, metrics_of: Callable[[Cell], dict]) -> list:
-    """An experiment folder whose grid.yaml is `grid_data` and whose cells are finished with the metrics
-    `metrics_of(cell)`; returns the cells."""
+    """An experiment folder whose grid.yaml is `grid_data` and whose cells are finished, on the current data and
+    code, with the metrics `metrics_of(cell)`; returns the cells."""
     grid = parse_grid(grid_data)
     root.mkdir(exist_ok=True)
     write_grid(root, grid)
@@ -126,7 +134,7 @@ def finished_experiment(root: Path, grid_data: dict, metrics_of: Callable[[Cell]
     for cell in cells:
         folder = root / "cells" / cell.id
         folder.mkdir(parents=True)
-        (folder / "cell.json").write_text(json.dumps(cell.info()))
+        (folder / "cell.json").write_text(json.dumps(recorded_info(cell)))
         (folder / "metrics.json").write_text(json.dumps(metrics_of(cell)))
     write_marker(root, "experiment")  # last: it lists the files above as msa-slam's
     return cells

@@ -1,5 +1,5 @@
 """Grid checks made before any cell runs: a cell's config agrees with its label, seeds are real and distinct,
-datasets and the scheduler address exist, and a resume never mixes msa-slam versions."""
+datasets and the scheduler address exist, and a resume never mixes cells of other code."""
 
 from __future__ import annotations
 
@@ -11,7 +11,6 @@ import yaml
 import msa_slam
 from msa_slam.errors import InputError
 from msa_slam.experiments import expand, parse_grid, run_grid
-from msa_slam.io.outputs import OutputError
 from test_cli_main import run_cli
 from test_experiments import TINY, _fake_experiment
 
@@ -112,13 +111,16 @@ def test_malformed_scheduler_is_one_line_before_the_result_folder(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
-def test_resume_refuses_cells_of_another_version(tmp_path):
+def test_resume_reruns_a_cell_of_other_code_instead_of_mixing_it_in(tmp_path, caplog):
+    """A cell run by another msa-slam (another version, or edited code: another fingerprint) is rerun, saying
+    so, rather than refused (the version refusal gave no way to resume) or reported beside the others."""
     cells = _fake_experiment(tmp_path, TINY, {"all": 4000, "const-2m": 1000}, {"all": 0.5, "const-2m": 0.7})
-    metrics = tmp_path / "cells" / cells[1].id / "metrics.json"
-    metrics.write_text(json.dumps({**json.loads(metrics.read_text()), "msa_slam_version": "0.0.1"}))
-    grid_yaml = (tmp_path / "grid.yaml").read_text()
-    with pytest.raises(OutputError) as error:
-        run_grid(parse_grid(TINY), tmp_path)
-    assert str(error.value) == (f"--out {tmp_path}: cell {cells[1].id} was run by msa-slam 0.0.1, this is "
-                                f"{msa_slam.__version__}; pass --overwrite to rerun every cell or choose another --out")
-    assert (tmp_path / "grid.yaml").read_text() == grid_yaml and not (tmp_path / "report.md").exists()
+    cell_json = tmp_path / "cells" / cells[1].id / "cell.json"
+    info = json.loads(cell_json.read_text())
+    cell_json.write_text(json.dumps({**info, "identity": {**info["identity"], "code": "0" * 24}}))
+    run = run_grid(parse_grid(TINY), tmp_path)
+    line = f"cell {cells[1].id}: its code changed since it ran; rerun"
+    assert run.rerun == {cells[1].id: line} and run.ran == [cells[1].id] and run.skipped == [cells[0].id]
+    assert f"experiment: {line}" in caplog.text and f"- {line}" in (tmp_path / "report.md").read_text()
+    assert json.loads(cell_json.read_text())["identity"] == info["identity"]
+    assert json.loads((cell_json.parent / "metrics.json").read_text())["msa_slam_version"] == msa_slam.__version__

@@ -74,7 +74,7 @@ def test_accounting_counts_candidates_rejections_false_loops_and_recall():
     ]
     acc = account_loops(loops, np.arange(len(XS)), gt, RADIUS, MIN_TRAVEL, REJECTION_REASONS)
     assert (acc.candidates, acc.registered, acc.accepted) == (8, 7, 4)
-    assert acc.rejected == {"sparse": 1, "overlap": 1, "inliers": 0, "residual": 0, "drift": 1}
+    assert acc.rejected == {**dict.fromkeys(REJECTION_REASONS, 0), "sparse": 1, "overlap": 1, "drift": 1}
     assert acc.accepted + sum(acc.rejected.values()) == acc.registered
     assert acc.true_candidates == 3  # (2, 4), (0, 6), (1, 5): 0.5 m apart
     assert acc.false_accepted == 2  # (0, 6) by its shift, (1, 4) by its rotation; (0, 5) is within both

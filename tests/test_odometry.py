@@ -137,8 +137,8 @@ def test_sequence_odometry_is_cached_by_scans_and_config(tmp_path, caplog):
     sequence_odometry(_scan_folder(tmp_path / "seq2", n=3), other_scans, cache, quiet=True)
     assert other_scans.calls == 3
     names = sorted(p.name.split("-")[0] for p in (tmp_path / "cache").iterdir())
-    assert names == ["odometry"] * 3 + ["unregistered"] * 3  # no temp files left
-    assert {p.suffix for p in (tmp_path / "cache").iterdir()} == {".npy"}
+    assert names == ["input"] + ["odometry"] * 3 + ["unregistered"] * 3  # the scans' digests; no temp files left
+    assert {p.suffix for p in (tmp_path / "cache").iterdir()} == {".json", ".npy"}
     # A corrupt cache entry is recomputed, not trusted, with a warning naming it.
     key = OdometryCache.key(seq, first.config)
     cache.path(key).write_bytes(b"garbage")

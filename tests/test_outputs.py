@@ -15,6 +15,7 @@ from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.io.outputs import (MARKER, OutputError, is_result_folder, open_result_folder, staged_dir,
                                  write_marker)
+from msa_slam.io.staging import WRITER, stamp
 
 runner = CliRunner()
 
@@ -169,6 +170,7 @@ def test_leftovers_of_a_killed_swap_are_repaired(tmp_path):
     partial = tmp_path / ".out.partial-abc"
     partial.mkdir()
     (partial / "half.txt").write_text("half")
+    (partial / WRITER).write_bytes(stamp())  # what a killed writer leaves: its stamp, no longer locked
     with open_result_folder(tmp_path / "out", "run", tmp_path, overwrite=True):
         assert (tmp_path / "out" / "a.txt").read_text() == "old"  # restored before anything else
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]

@@ -21,6 +21,7 @@ from msa_slam.experiments import expand, load_grid, parse_grid, run_grid, write_
 from msa_slam.experiments import folder as folder_module
 from msa_slam.experiments import report as report_module
 from msa_slam.experiments.folder import grid_cells, write_grid
+from msa_slam.experiments.identity import cell_identities, outdated_cells
 from msa_slam.experiments.report import BATCH_UNTIMED
 from msa_slam.experiments.runner import GridRun, _record
 from msa_slam.io.outputs import write_marker
@@ -190,15 +191,16 @@ def test_a_resume_reads_each_finished_cell_once(tmp_path, monkeypatch):
     assert "2 of 2 cell(s) finished" in (tmp_path / "report.md").read_text()
 
 
-def test_check_versions_uses_what_was_read(tmp_path):
+def test_outdated_cells_uses_what_was_read(tmp_path):
     cells = _fake_experiment(tmp_path, TINY, {"all": 4000, "const-2m": 1000}, {"all": 0.5, "const-2m": 0.7})
     finished = folder_module.finished_cells(tmp_path, cells)
     assert set(finished) == {c.id for c in cells}
-    folder_module.check_versions(tmp_path, finished)
+    identities = cell_identities(cells)
+    assert outdated_cells(finished, identities) == {}
     info, metrics = finished[cells[0].id]
-    finished[cells[0].id] = (info, {**metrics, "msa_slam_version": "0.0.1"})
-    with pytest.raises(Exception, match=f"cell {cells[0].id} was run by msa-slam 0.0.1"):
-        folder_module.check_versions(tmp_path, finished)
+    finished[cells[0].id] = ({**info, "identity": {**info["identity"], "data": "0" * 24}}, metrics)
+    assert outdated_cells(finished, identities) == {cells[0].id: f"cell {cells[0].id}: its data changed since it "
+                                                                 "ran; rerun"}
 
 
 @pytest.mark.parametrize("options, said", [

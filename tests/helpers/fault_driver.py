@@ -7,7 +7,8 @@ WHERE is where the kill happens, just before the n-th (OCCURRENCE) rename whose 
 - `final`: is the path given by MSA_FAULT_OUT (the result folder moving into place),
 - `inside`: lies inside MSA_FAULT_OUT (cells and tables of an experiment folder that grows in place),
 or `none` to run without a kill. Every rename is logged to stdout as `rename <destination>` (for the test's
-bookkeeping). A kill by SIGKILL runs no cleanup at all: the harshest interruption there is.
+bookkeeping). A kill by SIGKILL runs no cleanup at all: the harshest interruption there is. The environment
+variable MSA_FAULT_SIGNAL names another signal to send instead (SIGHUP: the terminal closed).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ def main() -> None:
     args = sys.argv[sys.argv.index("--") + 1:]
     cache = Path(os.environ.get("MSA_FAULT_CACHE", "/nonexistent")).resolve()
     out = Path(os.environ.get("MSA_FAULT_OUT", "/nonexistent")).resolve()
+    kill = signal.Signals[os.environ.get("MSA_FAULT_SIGNAL", "SIGKILL")]
     seen = 0
 
     def matches(dst: Path) -> bool:
@@ -43,7 +45,7 @@ def main() -> None:
             seen += 1
             if seen == occurrence:
                 sys.stdout.flush()
-                os.kill(os.getpid(), signal.SIGKILL)
+                os.kill(os.getpid(), kill)
 
     real_replace = os.replace
 

@@ -4,9 +4,16 @@ Keyframe poses enter as odometry poses (world-from-LiDAR, 4x4). Consecutive keyf
 between factor whose measurement is the odometry motion between them and whose covariance grows with that
 motion (backend/noise.py DriftModel, `odometry_noise="drift"`), so the chain has the same stiffness however
 many keyframes a sampler keeps. Verified loops add between factors T_target_source weighted by the
-registration's covariance kept within bounds (`loop_noise="hessian"`), optionally under a robust kernel
-(Huber or Cauchy; "auto": Cauchy in realistic mode, none in oracle mode) so a wrong loop cannot drag the
-whole graph. Tangent-space order in GTSAM's Pose3 is (rotation, translation), so sigmas are given that way.
+registration's covariance kept within bounds (`loop_noise="hessian"`).
+
+Which loops are used: with `loop_inliers="consistent"` ("auto": in realistic mode, batch graph) the batch
+graph keeps, when it optimises, the largest set of pairwise consistent loops (backend/inliers.py: each pair's
+cycle through odometry tested against the odometry covariance accumulated along its paths) and optimises
+them without a robust kernel: a kernel on whitened residuals discounts the true loops that correct the most
+drift, which the consistency test, unlike the kernel, tells from wrong ones. Otherwise every loop is used,
+optionally under a robust kernel (`robust`: Huber or Cauchy; "auto": none when inliers are selected or in
+oracle mode, Cauchy otherwise, e.g. in realistic mode on iSAM2, which adds loops as they come). Tangent-space
+order in GTSAM's Pose3 is (rotation, translation), so sigmas are given that way.
 
 Drift defaults: KISS-ICP (Vizzo et al., RA-L 2023) on the KITTI odometry training sequences, about 0.5 %
 relative translation error and 0.17 deg per 100 m relative rotation error (KITTI's metric over 100-800 m
@@ -16,13 +23,14 @@ segments); `drift_reference_m=100` calibrates the random walk at the shortest KI
 from __future__ import annotations
 
 import math
-from typing import ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
 import gtsam
 import numpy as np
 from pydantic import Field
 
-from msa_slam.backend.noise import DriftModel, bounded_covariance
+from msa_slam.backend.inliers import InlierSelection, LoopEdge, select_inliers
+from msa_slam.backend.noise import DriftModel, PathCovariance, bounded_covariance
 from msa_slam.config import StageConfig
 from msa_slam.errors import InputError
 from msa_slam.types import validate_pose
@@ -49,7 +57,9 @@ class GraphConfig(StageConfig):
     `drift_reference_m`, plus a per-edge floor (`odometry_floor_*`, for edges that barely move); with
     `odometry_noise="fixed"` every edge has `odometry_rotation`/`odometry_translation` instead. Loops: the
     registration's covariance with each direction's sigma within [loop_min_*, loop_max_*]; with
-    `loop_noise="fixed"` (or no covariance) `loop_rotation`/`loop_translation`.
+    `loop_noise="fixed"` (or no covariance) `loop_rotation`/`loop_translation`. `loop_inliers`: "consistent"
+    keeps the largest pairwise-consistent set of loops (chi-square quantile `inlier_confidence`, 6 dof) in the
+    batch graph, "all" uses every loop, "auto" is consistent in realistic mode and all in oracle mode.
     """
 
     SECTION: ClassVar[str] = "graph"
@@ -73,17 +83,40 @@ class GraphConfig(StageConfig):
     loop_translation: float = Field(0.1, gt=0)
     robust: Literal["auto", "none", "huber", "cauchy"] = "auto"
     robust_threshold: float = Field(1.0, gt=0)
+    loop_inliers: Literal["auto", "consistent", "all"] = "auto"
+    inlier_confidence: float = Field(0.999, gt=0, lt=1)
     max_iterations: int = Field(100, ge=1)  # Levenberg-Marquardt (batch)
 
     @property
     def drift(self) -> DriftModel:
         return DriftModel(self.drift_translation, self.drift_rotation, self.drift_reference_m)
 
-    def loop_kernel(self, mode: str) -> str:
-        """The robust kernel of loop factors in `mode` ("auto": Cauchy for realistic, none for oracle)."""
+    def selects_inliers(self, mode: str) -> bool:
+        """Whether a batch graph keeps only the pairwise-consistent loops in `mode` ("auto": realistic)."""
+        return self.loop_inliers == "consistent" or self.loop_inliers == "auto" and mode == "realistic"
+
+    def loop_kernel(self, mode: str, selects_inliers: bool | None = None) -> str:
+        """The robust kernel of loop factors in `mode` ("auto": none when the graph selects consistent loops
+        (`selects_inliers`, default: what a batch graph does in `mode`) or in oracle mode, else Cauchy)."""
         if self.robust != "auto":
             return self.robust
-        return "cauchy" if mode == "realistic" else "none"
+        if selects_inliers is None:
+            selects_inliers = self.selects_inliers(mode)
+        return "cauchy" if mode == "realistic" and not selects_inliers else "none"
+
+    def loop_covariance(self, covariance: np.ndarray | None) -> np.ndarray:
+        """The 6x6 covariance a loop factor gets: the registration's, bounded, or the fixed one."""
+        if self.loop_noise == "hessian" and covariance is not None:
+            return bounded_covariance(covariance, _pair(self.loop_min_rotation, self.loop_min_translation),
+                                      _pair(self.loop_max_rotation, self.loop_max_translation))
+        return np.diag(_pair(self.loop_rotation, self.loop_translation) ** 2)
+
+    def odometry_covariance(self, motion: np.ndarray) -> np.ndarray:
+        """The 6x6 covariance of an odometry edge with relative motion `motion`."""
+        if self.odometry_noise == "fixed":
+            return np.diag(_pair(self.odometry_rotation, self.odometry_translation) ** 2)
+        floor = _pair(self.odometry_floor_rotation, self.odometry_floor_translation) ** 2
+        return self.drift.edge_covariance(motion) + np.diag(floor)
 
 
 def _sigmas(rotation: float, translation: float) -> gtsam.noiseModel.Base:
@@ -96,12 +129,15 @@ def _pair(rotation: float, translation: float) -> np.ndarray:
 
 class _KeyframeGraph:
     """Bookkeeping shared by both optimisers: keys, initial poses, factor construction, accounting.
-    `mode` (the run's verification mode) resolves the robust kernel "auto"."""
+    `mode` (the run's verification mode) resolves `loop_inliers` and the robust kernel "auto"."""
+
+    SELECTS_INLIERS: ClassVar[bool] = False  # whether this optimiser can leave loops out before optimising
 
     def __init__(self, config: GraphConfig | None = None, mode: str = "oracle") -> None:
         self.config = config or GraphConfig()
         cfg = self.config
-        self.kernel = cfg.loop_kernel(mode)
+        self.selects_inliers = self.SELECTS_INLIERS and cfg.selects_inliers(mode)
+        self.kernel = cfg.loop_kernel(mode, self.selects_inliers)
         self._prior = _sigmas(cfg.prior_rotation, cfg.prior_translation)
         self._odometry = _sigmas(cfg.odometry_rotation, cfg.odometry_translation)
         self._odometry_floor = np.diag(_pair(cfg.odometry_floor_rotation, cfg.odometry_floor_translation) ** 2)
@@ -109,10 +145,50 @@ class _KeyframeGraph:
         self._kernel = {"huber": gtsam.noiseModel.mEstimator.Huber, "cauchy": gtsam.noiseModel.mEstimator.Cauchy,
                         "none": None}[self.kernel]
         self._keys: list[int] = []
+        self._position: dict[int, int] = {}  # key -> position in the keyframe sequence (consistency checks)
         self._initial: dict[int, np.ndarray] = {}
         self.num_factors = 0
         self.num_loops = 0
-        self.factors = gtsam.NonlinearFactorGraph()  # every factor in the order added (exported as g2o)
+        self._all = gtsam.NonlinearFactorGraph()  # every factor in the order added
+        self._loop_slots: list[int] = []  # where each loop factor is in _all
+        self._path = PathCovariance()  # keyframes' accumulated odometry covariance (consistency checks)
+        self._loop_edges: list[LoopEdge] = []
+        self.inliers: InlierSelection | None = None  # the last selection (None: every loop used)
+
+    @property
+    def factors(self) -> gtsam.NonlinearFactorGraph:
+        """Every factor the optimiser used, in the order added (exported as g2o): loops left out by the
+        consistency check are not."""
+        dropped = {self._loop_slots[i] for i in self.dropped_loops}
+        if not dropped:
+            return self._all
+        graph = gtsam.NonlinearFactorGraph()
+        for slot in range(self._all.size()):
+            if slot not in dropped:
+                graph.push_back(self._all.at(slot))
+        return graph
+
+    @property
+    def dropped_loops(self) -> tuple[int, ...]:
+        """Indices (in the order added) of the loops the last optimisation left out as inconsistent."""
+        if self.inliers is None:
+            return ()
+        kept = set(self.inliers.kept)
+        return tuple(i for i in range(self.num_loops) if i not in kept)
+
+    def describe(self) -> dict[str, Any]:
+        """How loops entered the graph (metrics.json `loop_closing`): the kernel, whether inliers were
+        selected and, after a selection, what it kept."""
+        out: dict[str, Any] = {"loop_kernel": self.kernel,
+                               "loop_inliers": "consistent" if self.selects_inliers else "all"}
+        if self.inliers is not None:
+            sel = self.inliers
+            out["inlier_selection"] = {"loops": self.num_loops, "kept": len(sel.kept),
+                                       "dropped": self.num_loops - len(sel.kept), "method": sel.method,
+                                       "consistent_pairs": sel.consistent_pairs,
+                                       "chi2_threshold": round(sel.threshold, 4),
+                                       "confidence": self.config.inlier_confidence}
+        return out
 
     @property
     def keys(self) -> list[int]:
@@ -127,13 +203,21 @@ class _KeyframeGraph:
 
     @property
     def nbytes(self) -> int:
-        """Accounted heap of the graph: factors and values (see FACTOR_BYTES)."""
-        return self.num_factors * FACTOR_BYTES + len(self._keys) * VALUE_BYTES
+        """Accounted heap of the graph: factors and values (see FACTOR_BYTES), and the accumulated odometry
+        covariance the consistency check keeps per keyframe (when it runs)."""
+        return self.num_factors * FACTOR_BYTES + len(self._keys) * VALUE_BYTES + self._path.nbytes
 
     def _odometry_noise(self, motion: np.ndarray) -> gtsam.noiseModel.Base:
         if self.config.odometry_noise == "fixed":
             return self._odometry
         return gtsam.noiseModel.Gaussian.Covariance(self.config.drift.edge_covariance(motion) + self._odometry_floor)
+
+    def _track_path(self, key: int, pose: np.ndarray, motion: np.ndarray | None) -> None:
+        """Accumulate the odometry covariance and keyframe positions the consistency check needs (only when it
+        runs: other graphs keep nothing more than before)."""
+        if self.selects_inliers:
+            self._position[key] = len(self._keys)
+            self._path.append(pose, None if motion is None else self.config.odometry_covariance(motion))
 
     def _loop_noise(self, covariance: np.ndarray | None) -> gtsam.noiseModel.Base:
         cfg = self.config
@@ -154,6 +238,7 @@ class _KeyframeGraph:
             raise InputError(f"keyframe {key} was already added to the pose graph")
         pose = validate_pose(pose, where=f"keyframe {key} pose")
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        motion = None
         if self._keys:
             prev = self._keys[-1]
             motion = np.linalg.inv(self._initial[prev]) @ pose
@@ -161,10 +246,11 @@ class _KeyframeGraph:
         else:
             graph.add(gtsam.PriorFactorPose3(key, gtsam.Pose3(pose), self._prior))
         values.insert(key, gtsam.Pose3(pose))
+        self._track_path(key, pose, motion)
         self._keys.append(key)
         self._initial[key] = pose
         self.num_factors += 1
-        self.factors.push_back(graph)
+        self._all.push_back(graph)
         return graph, values
 
     def _loop_factor(self, target_key: int, source_key: int, T_target_source: np.ndarray,
@@ -183,9 +269,13 @@ class _KeyframeGraph:
         graph = gtsam.NonlinearFactorGraph()
         graph.add(gtsam.BetweenFactorPose3(int(target_key), int(source_key), gtsam.Pose3(measured),
                                            self._loop_noise(covariance)))
+        if self.selects_inliers:
+            self._loop_edges.append(LoopEdge(self._position[int(target_key)], self._position[int(source_key)],
+                                             measured, self.config.loop_covariance(covariance)))
+        self._loop_slots.append(self._all.size())
+        self._all.push_back(graph)
         self.num_factors += 1
         self.num_loops += 1
-        self.factors.push_back(graph)
         return graph
 
     def _poses(self, values: gtsam.Values) -> np.ndarray:
@@ -195,7 +285,10 @@ class _KeyframeGraph:
 
 
 class PoseGraph(_KeyframeGraph):
-    """Batch pose graph: collect keyframes and loops, then optimise with Levenberg-Marquardt."""
+    """Batch pose graph: collect keyframes and loops, then optimise with Levenberg-Marquardt (after keeping
+    the consistent loops when `loop_inliers` says so: all loops are known by then)."""
+
+    SELECTS_INLIERS = True
 
     def __init__(self, config: GraphConfig | None = None, mode: str = "oracle") -> None:
         super().__init__(config, mode)
@@ -223,14 +316,20 @@ class PoseGraph(_KeyframeGraph):
         """Optimised (N, 4, 4) keyframe poses in insertion order, starting from the odometry poses.
 
         Odometry factors come before loop factors whatever order they were added in, so streaming keyframes
-        and loops as they are found gives the same optimisation as adding all keyframes first."""
+        and loops as they are found gives the same optimisation as adding all keyframes first. With inlier
+        selection on, only the largest pairwise-consistent set of loops enters (`inliers`)."""
         if not self._keys:
             raise InputError("pose graph has no keyframes to optimise")
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(self.max_iterations)
+        kept = range(self._loops.size())
+        if self.selects_inliers and self.num_loops:
+            self.inliers = select_inliers(self._loop_edges, self._path, self.config.inlier_confidence)
+            kept = self.inliers.kept
         graph = gtsam.NonlinearFactorGraph()
         graph.push_back(self._graph)
-        graph.push_back(self._loops)
+        for i in kept:
+            graph.push_back(self._loops.at(i))
         result = gtsam.LevenbergMarquardtOptimizer(graph, self._values, params).optimize()
         return self._poses(result)
 

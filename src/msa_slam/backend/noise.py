@@ -46,10 +46,51 @@ class DriftModel:
             cov += w * ad @ q @ ad.T
         return length * cov
 
-    def allowance(self, distance: float) -> tuple[float, float]:
-        """Largest drift (metres, radians) the model expects over `distance` metres of path: relative
-        translation error, plus the lateral error of a heading error that grows along the path."""
-        return (self.translation * distance + self.rotation * distance**2 / 2, self.rotation * distance)
+
+class PathCovariance:
+    """Odometry covariance accumulated along a pose sequence, for any two of its poses.
+
+    Each edge's covariance (right perturbation, in its end frame) is carried to the world frame (left
+    perturbation: Ad(X_end) Sigma Ad(X_end)^T) and summed in a running prefix, so the drift accumulated
+    between poses a < b is the difference of two prefixes, expressed in b's frame: O(1) per pair, exact for
+    the linearised chain, and for a random walk (DriftModel) the same as integrating the noise along the
+    path. It follows the path's shape: a heading error picked up early moves the later positions sideways
+    or, over a hill, vertically, which a per-metre allowance on the straight-line distance does not see.
+    """
+
+    def __init__(self) -> None:
+        self._poses: list[np.ndarray] = []
+        self._world: list[np.ndarray] = []  # prefix sums of the world-frame edge covariances
+
+    def __len__(self) -> int:
+        return len(self._poses)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the prefix sums (the poses are the caller's arrays, not copied)."""
+        return sum(w.nbytes for w in self._world)
+
+    def append(self, pose: np.ndarray, edge_covariance: np.ndarray | None = None) -> None:
+        """The next pose of the sequence and the covariance of the edge that reached it (None: the first)."""
+        if not self._poses:
+            self._world.append(np.zeros((6, 6)))
+        else:
+            ad = gtsam.Pose3(pose).AdjointMap()
+            self._world.append(self._world[-1] + ad @ edge_covariance @ ad.T)
+        self._poses.append(np.asarray(pose, dtype=np.float64))  # no copy of a float64 pose
+
+    def between(self, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
+        """Odometry T_a_b (4x4) and its 6x6 covariance (rotation, translation; right perturbation of
+        T_a_b) from the edges between positions `a` and `b` of the sequence, in either order."""
+        lo, hi = min(a, b), max(a, b)
+        inv_hi = np.linalg.inv(self._poses[hi])
+        ad = gtsam.Pose3(inv_hi).AdjointMap()
+        cov = ad @ (self._world[hi] - self._world[lo]) @ ad.T
+        T = np.linalg.inv(self._poses[lo]) @ self._poses[hi]
+        if a > b:  # T_b_a = inv(T_a_b): the perturbation moves to the other end
+            ad_t = gtsam.Pose3(T).AdjointMap()
+            T, cov = np.linalg.inv(T), ad_t @ cov @ ad_t.T
+        return T, 0.5 * (cov + cov.T)
 
 
 def bounded_covariance(covariance: np.ndarray, min_sigmas: np.ndarray, max_sigmas: np.ndarray) -> np.ndarray:

@@ -52,10 +52,18 @@ app.command("experiment")(experiment.experiment_command)
 app.command("report")(report.report_command)
 
 
-def _stop_on_sigterm(signum: int, frame: FrameType | None) -> None:
-    """SIGTERM (kill, a job scheduler, docker stop) unwinds the stack as Ctrl-C does, so the same cleanup runs
-    (the result folder's `.NAME.lock` and staging files are removed); the exit status is the shell's 128 + 15."""
+def _stop_on_signal(signum: int, frame: FrameType | None) -> None:
+    """SIGTERM (kill, a job scheduler, docker stop) and SIGHUP (the terminal or ssh session closed) unwind the
+    stack as Ctrl-C does, so the same cleanup runs (the result folder's `.NAME.lock` and staging files are
+    removed); the exit status is the shell's 128 + the signal number."""
     raise SystemExit(128 + signum)
+
+
+def _handle_stop_signals() -> None:
+    """Install _stop_on_signal for SIGTERM and SIGHUP, but not over a SIGHUP ignored on purpose (nohup)."""
+    signal.signal(signal.SIGTERM, _stop_on_signal)
+    if signal.getsignal(signal.SIGHUP) == signal.SIG_DFL:
+        signal.signal(signal.SIGHUP, _stop_on_signal)
 
 
 @contextlib.contextmanager
@@ -79,8 +87,8 @@ def _warnings_as_lines() -> Iterator[None]:
 
 def main() -> None:
     """Entry point: usage errors as click prints them; InputError and PermissionError as one clear line with
-    exit code 2; warnings as one line each; SIGTERM cleans up as Ctrl-C does."""
-    signal.signal(signal.SIGTERM, _stop_on_sigterm)
+    exit code 2; warnings as one line each; SIGTERM and SIGHUP clean up as Ctrl-C does."""
+    _handle_stop_signals()
     try:
         with _warnings_as_lines():
             app()

@@ -28,7 +28,8 @@ def compare_command(
     config: Optional[Path] = typer.Option(None, help="YAML config (its sampler is replaced by the method set; its "
                                           "sampler parameters go to msa)"),
     out: Optional[Path] = typer.Option(None, help=out_help("compare") + "; with --seeds, a previous run of the "
-                                       "same settings is resumed (its finished seeds are reused)"),
+                                       "same settings is resumed (its finished seeds are reused; those whose data "
+                                       "or code changed since are rerun)"),
     overwrite: bool = typer.Option(False, "--overwrite", help=OVERWRITE_HELP),
     cache_dir: Optional[Path] = typer.Option(None, help=CACHE_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bars"),

@@ -28,7 +28,8 @@ def experiment_command(
 
     run = run_grid(load_grid(grid), out, scheduler=scheduler, workers=workers, quiet=quiet, overwrite=overwrite,
                    where=grid)
-    typer.echo(f"{len(run.ran)} cell(s) run, {len(run.skipped)} already finished, {len(run.failed)} failed",
+    rerun = f" ({len(run.rerun)} rerun: their data or code changed)" if run.rerun else ""
+    typer.echo(f"{len(run.ran)} cell(s) run{rerun}, {len(run.skipped)} already finished, {len(run.failed)} failed",
                err=True)
     echo_stale(run.stale)
     for cell, reason in run.failed.items():

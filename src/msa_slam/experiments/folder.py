@@ -3,8 +3,9 @@
     .msa-slam-result          marker (msa_slam.io.outputs): the folder was written by `msa-slam experiment`
     grid.yaml                 the grid as last run: the only cells reported are the ones it expands to
     cells/<cell id>/          one finished run per cell (cell.json, metrics.json, ...); ids hash the config,
-                              so a cell left by an earlier, different grid is recognised as stale; metrics.json
-                              records the msa-slam version, and a resume refuses cells of another version
+                              so a cell left by an earlier, different grid is recognised as stale; cell.json
+                              records the identity of the cell's data and code, and a resume reruns a cell
+                              whose data or code changed since (msa_slam.experiments.identity)
     errors/<cell id>.txt      the traceback of a cell that failed (removed when it later succeeds)
     results.csv, results.md, figures/, report.md    the aggregate (msa_slam.experiments.report)
 """
@@ -18,12 +19,10 @@ from typing import Any
 
 import yaml
 
-import msa_slam
 from msa_slam.errors import InputError
 from msa_slam.experiments.grid import Cell, GridSpec, expand, parse_grid
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.yaml_file import read_yaml
-from msa_slam.io.outputs import OutputError
 
 KIND = "experiment"  # the result-folder kind of msa_slam.io.outputs
 GRID_FILE = "grid.yaml"
@@ -52,21 +51,10 @@ FinishedCells = dict[str, tuple[dict[str, Any], dict[str, Any]]]  # cell id -> (
 
 
 def finished_cells(out: str | os.PathLike, cells: list[Cell]) -> FinishedCells:
-    """The finished cells of `cells` in `out`, each read once (read_cell): a resume checks their versions,
+    """The finished cells of `cells` in `out`, each read once (read_cell): a resume checks their identity,
     skips them and reports them from this one reading."""
     found = {cell.id: read_cell(cell_dir(out, cell.id)) for cell in cells}
     return {cell_id: read for cell_id, read in found.items() if read is not None}
-
-
-def check_versions(out: str | os.PathLike, finished: FinishedCells) -> None:
-    """The `finished` cells (finished_cells) must come from this msa-slam version: resuming would mix results
-    of old and new code in one table (the cell id hashes the config, not the code)."""
-    for cell_id, (_, metrics) in finished.items():
-        version = metrics.get("msa_slam_version")
-        if version != msa_slam.__version__:
-            raise OutputError(f"--out {out}: cell {cell_id} was run by msa-slam {version or '(unknown version)'}, "
-                              f"this is {msa_slam.__version__}; pass --overwrite to rerun every cell or choose "
-                              "another --out")
 
 
 def write_grid(out: Path, grid: GridSpec) -> None:

@@ -10,7 +10,7 @@ import json
 import os
 from collections import defaultdict
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -317,11 +317,12 @@ def _figures(cells: list[dict[str, Any]], rows: list[dict[str, Any]], reference:
 
 
 def write_report(results_dir: str | os.PathLike, reference: str | None = None,
-                 finished: FinishedCells | None = None) -> Path:
+                 finished: FinishedCells | None = None, rerun: Sequence[str] = ()) -> Path:
     """Write results.csv, results.md, figures/ and report.md into `results_dir` from the finished cells of its
     grid.yaml (results.md also shows the failed ones: n/a, with their error in its notes); return report.md.
     `reference` (default: the grid's) must be one of the grid's methods. `finished`: cells already read from
-    this folder (folder.finished_cells, by a resume), not read again."""
+    this folder (folder.finished_cells, by a resume), not read again; `rerun`: the lines of the cells this run
+    redid because their data or code had changed (identity.outdated_cells), listed in report.md."""
     out = Path(results_dir)
     grid, expected = _grid_of(out)
     methods = grid.labels()
@@ -358,6 +359,8 @@ def write_report(results_dir: str | os.PathLike, reference: str | None = None,
     if stale:
         lines += [f"Stale cells (from an earlier grid, not in {GRID_FILE}; left out of every aggregate): "
                   + ", ".join(stale), ""]
+    if rerun:
+        lines += ["Cells rerun by this run, their earlier results left out:", *(f"- {line}" for line in rerun), ""]
     lines.append(table)
     lines += [f"![{n}](figures/{n})" for n in figures]
     lines += ["", "Per-cell results: cells/<id>/report.md; all rows: results.csv.", ""]

@@ -2,9 +2,10 @@
 
 The output folder (layout: msa_slam.experiments.folder) is checked and locked before any work
 (msa_slam.io.outputs): a folder msa-slam did not write is refused, a previous experiment folder is resumed
-(its finished cells of the current grid are skipped), and a second run on the same folder refuses while the
-first holds the lock. Each cell folder is written under a temporary name and moved into place when complete,
-so a crash or kill never leaves a half cell that looks finished.
+(its finished cells of the current grid are skipped, unless their data or code changed since they ran:
+msa_slam.experiments.identity), and a second run on the same folder refuses while the first holds the lock.
+Each cell folder is written under a temporary name and moved into place when complete, so a crash or kill never
+leaves a half cell that looks finished.
 
 With `--scheduler tcp://host:port` the workers write into the same folder, so it must be on a file
 system they share (the usual NFS/cluster set-up).
@@ -12,6 +13,7 @@ system they share (the usual NFS/cluster set-up).
 
 from __future__ import annotations
 
+import logging
 import os
 import shutil
 import sys
@@ -21,14 +23,17 @@ from pathlib import Path
 from typing import Any
 
 from msa_slam.errors import InputError
-from msa_slam.experiments.folder import (CELL_FILE, KIND, cell_dir, check_versions, finished_cells, read_cell,
-                                        stale_cells, write_grid)
 from msa_slam.experiments.estimate import GridClock, GridEstimate, estimate_grid
+from msa_slam.experiments.folder import CELL_FILE, KIND, cell_dir, finished_cells, read_cell, stale_cells, write_grid
 from msa_slam.experiments.grid import Cell, GridSpec, check_datasets, expand
+from msa_slam.experiments.identity import CELL_IDENTITY, cell_identities, outdated_cells
 from msa_slam.io.atomic import write_text_atomic
-from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, staged_dir
+from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, some_names, staged_dir
+from msa_slam.io.staging import OutputError, foreign_in_units, remove_abandoned, unmark_finished
 
 DEFAULT_PARENT = DEFAULT_RESULTS / "experiments"
+log = logging.getLogger(__name__)
+STORES = "stores"  # out/stores/<cell>: the keyframe clouds of online cells with cloud_store=disk
 
 
 def is_finished(out: str | os.PathLike, cell: Cell) -> bool:
@@ -37,14 +42,46 @@ def is_finished(out: str | os.PathLike, cell: Cell) -> bool:
 
 
 def clean_partials(out: str | os.PathLike) -> list[Path]:
-    """Remove temporary folders of cells interrupted by a crash or kill (and their on-disk keyframe stores);
-    return what was removed."""
-    cells = Path(out) / "cells"
-    stale = sorted(list(cells.glob(".*.partial-*")) + list(cells.glob(".*.old-*"))) if cells.is_dir() else []
-    stale += [Path(out) / "stores"] if (Path(out) / "stores").is_dir() else []
-    for path in stale:
-        shutil.rmtree(path, ignore_errors=True)
-    return stale
+    """Remove what cells interrupted by a crash or kill left: their staging folders and on-disk keyframe
+    stores, only those proven msa-slam's whose writer is gone (io.staging.abandoned, disk_store's own rule),
+    and the store folders then left empty; anything else stays. Return what was removed."""
+    from msa_slam.registration.disk_store import remove_stale_stores  # loads small_gicp
+
+    cells, stores = Path(out) / "cells", Path(out) / STORES
+    removed = []
+    if cells.is_dir():
+        removed += remove_abandoned(sorted(list(cells.glob(".*.partial-*")) + list(cells.glob(".*.old-*"))))
+        for cell in cells.iterdir():
+            unmark_finished(cell)
+    if stores.is_dir() and not stores.is_symlink():
+        for folder in sorted(stores.iterdir()):
+            if folder.is_dir() and not folder.is_symlink():
+                removed += remove_stale_stores(folder)
+                removed += _remove_empty_folder(folder)
+        removed += _remove_empty_folder(stores)
+    return removed
+
+
+def check_replaceable(out: Path, cell_ids: list[str]) -> None:
+    """Before a cell folder that exists is rerun (its data or code changed, or its files are damaged) and so
+    replaced: refuse, in one line, when it holds files the result marker does not list as msa-slam's (a
+    person's notes in a cell are not msa-slam's to remove; staging.foreign_in_units). msa-slam's own files there,
+    damaged or changed, are what the rerun replaces."""
+    found = foreign_in_units(out, [f"cells/{cell_id}" for cell_id in cell_ids])
+    for cell_id in cell_ids:
+        if found[f"cells/{cell_id}"]:
+            raise OutputError(f"--out {out}: cell {cell_id} must be rerun, but its folder holds files msa-slam did not "
+                              f"write ({some_names(found[f'cells/{cell_id}'])}); move them elsewhere or choose "
+                              "another --out")
+
+
+def _remove_empty_folder(path: Path) -> list[Path]:
+    """[path] when it was an empty folder, now removed; [] when it holds anything."""
+    try:
+        path.rmdir()
+    except OSError:
+        return []
+    return [path]
 
 
 def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bool = False) -> dict[str, Any]:
@@ -59,14 +96,12 @@ def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bo
         from msa_slam.pipeline.online_config import make_online_config
 
         cfg = make_online_config(config)
-        if cfg.cloud_store == "disk" and cfg.store_dir is None:
-            cfg = make_online_config({**config, "store_dir": str(Path(out) / "stores" / info["id"])})
+        if cfg.cloud_store == "disk" and cfg.store_dir is None:  # the store removes it again when it closes
+            cfg = make_online_config({**config, "store_dir": str(Path(out) / STORES / info["id"])})
         result = run_online(cfg, quiet=True)
         with staged_dir(target) as tmp:
             write_run_files(result, tmp, figures)
             write_json(tmp / CELL_FILE, info)
-        if cfg.store_dir and Path(out) in Path(cfg.store_dir).parents:
-            shutil.rmtree(cfg.store_dir, ignore_errors=True)
     else:
         from msa_slam.pipeline.batch import run_batch
         from msa_slam.pipeline.config import make_config
@@ -80,12 +115,14 @@ def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bo
 
 @dataclass
 class GridRun:
-    """What a run of the grid did: cells finished now, skipped (finished earlier) and failed (id: reason),
-    and the cell folders of an earlier, different grid left out of the report."""
+    """What a run of the grid did: cells finished now, skipped (finished earlier), rerun (finished earlier on
+    other data or code: id: the line saying so) and failed (id: reason), and the cell folders of an earlier,
+    different grid left out of the report."""
 
     out: Path
     ran: list[str] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
+    rerun: dict[str, str] = field(default_factory=dict)
     failed: dict[str, str] = field(default_factory=dict)
     stale: list[str] = field(default_factory=list)
 
@@ -115,8 +152,10 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
     msa_slam_results/experiments; a previous experiment folder is resumed, or with `overwrite` replaced.
     In this process when `workers == 1` and no scheduler/client; otherwise through Dask: `client` (any
     distributed.Client, e.g. on a LocalCluster), else the cluster at `scheduler`, else a LocalCluster of
-    `workers` single-threaded processes. Bad input (datasets, the scheduler address, finished cells of another
-    msa-slam version) is refused before any cell runs; `where` (the grid file) starts those messages.
+    `workers` single-threaded processes. Bad input (datasets, the scheduler address) is refused before any cell
+    runs; `where` (the grid file) starts those messages. Every cell records the identity of its data and code
+    (msa_slam.experiments.identity); a finished cell whose data or code changed since is removed and rerun,
+    with a warning and a line in report.md.
     """
     from msa_slam.experiments.report import write_report
 
@@ -129,9 +168,14 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
     with open_result_folder(out, kind=KIND, default_parent=DEFAULT_PARENT, overwrite=overwrite,
                             resume=True) as folder:
         finished = {} if overwrite or not folder.path.is_dir() else finished_cells(folder.path, cells)
-        check_versions(folder.path, finished)
+        identities = cell_identities(cells)
         folder.prepare_in_place(fresh=overwrite, grows=("cells",), unit_record=CELL_FILE)
-        run = GridRun(folder.path)
+        run = GridRun(folder.path, rerun=outdated_cells(finished, identities))
+        check_replaceable(run.out, [*run.rerun, *(c.id for c in cells if c.id not in finished)])
+        for cell_id, line in run.rerun.items():  # never reported beside cells of the current data and code
+            log.warning("experiment: %s", line)
+            shutil.rmtree(cell_dir(run.out, cell_id), ignore_errors=True)
+            del finished[cell_id]
         (run.out / "cells").mkdir(exist_ok=True)
         write_grid(run.out, grid)
         clean_partials(run.out)
@@ -142,8 +186,8 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
         estimate = estimate_grid(grid.name, cells, finished, todo, workers if local else None)
         if not quiet:  # before the first cell, on a terminal or not
             print(estimate.line(), file=sys.stderr, flush=True)
-        _run_cells(grid, todo, run, scheduler, workers, client, quiet, estimate)
-        write_report(run.out, finished=finished)
+        _run_cells(grid, todo, run, scheduler, workers, client, quiet, estimate, identities)
+        write_report(run.out, finished=finished, rerun=list(run.rerun.values()))
         folder.record_files()
     return run
 
@@ -159,9 +203,11 @@ def _check_scheduler(scheduler: str) -> None:
 
 
 def _run_cells(grid: GridSpec, todo: list[Cell], run: GridRun, scheduler: str | None, workers: int, client,
-               quiet: bool, estimate: GridEstimate) -> None:
+               quiet: bool, estimate: GridEstimate, identities: dict[str, dict[str, str | None]]) -> None:
+    """Run the `todo` cells, each recording its identity (cell_identities) in its cell.json."""
     from msa_slam.progress import progress_bar
 
+    infos = {cell.id: {**cell.info(), CELL_IDENTITY: identities[cell.id]} for cell in todo}
     clock = GridClock(estimate)
     with progress_bar(quiet, transient=False, fields="{task.fields[left]}") as bar:
         task = bar.add_task(f"grid {grid.name} ({len(run.skipped)} done before)", total=len(todo), left=clock.left([]))
@@ -173,17 +219,17 @@ def _run_cells(grid: GridSpec, todo: list[Cell], run: GridRun, scheduler: str | 
             for cell in todo:
                 bar.update(task, description=f"{cell.method} on {cell.dataset}")
                 try:
-                    run_cell(cell.info(), cell.config, str(run.out), grid.figures)
+                    run_cell(infos[cell.id], cell.config, str(run.out), grid.figures)
                     _record(run, cell, None)
                 except Exception as exc:  # a failing cell must not stop the grid
                     _record(run, cell, exc)
                 advance()
         elif todo:
-            _run_dask(todo, run.out, grid.figures, scheduler, workers, client, run, advance)
+            _run_dask(todo, infos, run.out, grid.figures, scheduler, workers, client, run, advance)
 
 
-def _run_dask(todo: list[Cell], out: Path, figures: bool, scheduler: str | None, workers: int, client,
-              run: GridRun, advance) -> None:
+def _run_dask(todo: list[Cell], infos: dict[str, dict[str, Any]], out: Path, figures: bool, scheduler: str | None,
+              workers: int, client, run: GridRun, advance) -> None:
     from distributed import Client, LocalCluster, as_completed
 
     own_cluster = own_client = None
@@ -198,7 +244,7 @@ def _run_dask(todo: list[Cell], out: Path, figures: bool, scheduler: str | None,
                 own_cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                            dashboard_address=":0")
                 client = own_client = Client(own_cluster)
-        futures = {client.submit(run_cell, c.info(), c.config, str(out.resolve()), figures, key=f"cell-{c.id}",
+        futures = {client.submit(run_cell, infos[c.id], c.config, str(out.resolve()), figures, key=f"cell-{c.id}",
                                  pure=False): c for c in todo}
         for future in as_completed(futures):
             cell = futures[future]

@@ -1,22 +1,26 @@
-"""Cache keys from the identity of the inputs, and cache entries that are checked on read and never break a run.
+"""Cache keys from the identity of the inputs and of the code, and cache entries that are checked on read and
+never break a run.
 
-A key hashes what an entry was computed from: every input file (its path relative to the dataset folder,
-its size and modification time, so data replaced in place is a miss and a moved folder a hit), the
-effective configuration, and the versions of msa-slam and of the libraries that computed it.
-Entries are written under a locked temporary name and renamed; a writer killed before the rename leaves an
-unlocked temporary that a later run removes. A bad entry is recomputed and a cache that cannot be written
-is skipped, each with one warning naming the file: a cache only ever saves time.
+A key hashes what an entry was computed from: every input file (its path relative to the dataset folder and
+the SHA-256 of its bytes, so data replaced in place or a copy edited with its times restored is a miss and a
+moved folder a hit), the effective configuration, a fingerprint of msa-slam's code that computes the entry
+(msa_slam.io.fingerprint) and the versions of the libraries that computed it. File digests are memoised per
+absolute path, size, mtime, inode and ctime in the cache folder's DIGESTS_FILE, so a warm run only stats its
+inputs. Entries are written under a locked temporary name and renamed; a writer killed before the rename leaves
+an unlocked temporary that a later run removes (scratch folders likewise: staging.Writer). A bad entry (unreadable, or not finite float64 of the expected
+shape in this machine's byte order) is recomputed and a cache that cannot be written is skipped, each with one
+warning naming the file: a cache only ever saves time.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import hashlib
 import json
 import logging
 import os
-import shutil
 import tempfile
 import time
 from importlib import metadata
@@ -25,15 +29,15 @@ from typing import Any, BinaryIO, Callable, Iterable, Iterator
 
 import numpy as np
 
-import msa_slam
 from msa_slam.errors import InputError
-from msa_slam.io.staging import current_umask
+from msa_slam.io.staging import (current_umask, is_disk_full, leftovers, new_scratch, remove_abandoned,
+                                remove_scratch)
 
 log = logging.getLogger(__name__)
 
 RUN_START_NS = time.time_ns()  # a leftover older than this run and not locked has lost its writer
 TEMP_SUFFIX = ".tmp"
-LOCK_FILE = ".writer.lock"  # inside a partial folder: held by its writer while it is alive
+DIGESTS_FILE = "input-digests.json"  # in a CacheDir: the memo of its input files' digests (DigestIndex)
 
 
 def cache_root(cache_dir: str | os.PathLike | None = None) -> Path:
@@ -44,34 +48,135 @@ def cache_root(cache_dir: str | os.PathLike | None = None) -> Path:
     return Path(env) if env else Path.home() / ".cache" / "msa-slam"
 
 
-def input_identity(files: Iterable[str | os.PathLike], root: str | os.PathLike | None = None) -> list[list]:
-    """[name, size, mtime_ns] of every file; the name is relative to `root` when the file is under it, so the
-    identity follows the data, not where it is (a moved or copied folder keeps it, files rewritten in place do not)."""
+def file_sha256(path: str | os.PathLike) -> str:
+    """SHA-256 (hex) of a file's bytes (SHA-256 rather than BLAKE2: about 1.6 GB/s against 1 GB/s on CPUs with
+    SHA instructions, as this project's machines have)."""
+    with open(path, "rb") as handle:
+        return hashlib.file_digest(handle, "sha256").hexdigest()
+
+
+def _stamp(path: str) -> list[int]:
+    """What changes when a file's bytes may have: size, mtime, inode and ctime (a copy or an edit whose mtime was
+    restored still gets another ctime, and a copy another inode)."""
+    st = os.stat(path)
+    return [st.st_size, st.st_mtime_ns, st.st_ino, st.st_ctime_ns]
+
+
+def _memo_entry(entry: Any) -> bool:
+    """True for a [size, mtime_ns, inode, ctime_ns, sha256] entry of a DigestIndex."""
+    return (isinstance(entry, list) and len(entry) == 5 and all(type(v) is int for v in entry[:4])
+            and isinstance(entry[4], str) and len(entry[4]) == 64)
+
+
+class DigestIndex:
+    """SHA-256 digests of input files memoised per absolute path and stamp (_stamp) in a JSON file, so that a
+    warm run stats its inputs instead of reading them. The file is read on first use; one that is not such an
+    index is ignored with a warning and rebuilt."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.changed = False  # digests computed since the file was read or written
+        self._memo: dict[str, list] | None = None
+
+    def _read(self, warn: bool) -> dict[str, list]:
+        try:
+            memo = json.loads(self.path.read_bytes())
+            if not isinstance(memo, dict) or not all(map(_memo_entry, memo.values())):
+                raise ValueError("not an index of file digests")
+            return memo
+        except FileNotFoundError:
+            return {}
+        except (OSError, ValueError) as exc:
+            if warn:
+                log.warning("cache: ignoring %s (%s); rebuilding it", self.path, exc)
+            return {}
+
+    def _entries(self) -> dict[str, list]:
+        if self._memo is None:
+            self._memo = self._read(warn=True)
+        return self._memo
+
+    def digest(self, file: str) -> str:
+        """SHA-256 of `file`, read only when its stamp is not the memoised one (OSError when it cannot be)."""
+        memo, name, stamp = self._entries(), os.path.abspath(file), _stamp(file)
+        known = memo.get(name)
+        if known is not None and known[:4] == stamp:
+            return known[4]
+        digest = file_sha256(file)
+        if _stamp(file) == stamp:  # unchanged while it was read
+            memo[name], self.changed = [*stamp, digest], True
+        return digest
+
+    def save(self) -> None:
+        """Write the memo atomically, merged with the file as it is now (another process may have added to it)
+        and without the files since changed or removed; OSError when it cannot be written."""
+        merged = {**self._read(warn=False), **self._entries()}
+        current = {}
+        for name, entry in merged.items():
+            with contextlib.suppress(OSError):
+                if _stamp(name) == entry[:4]:
+                    current[name] = entry
+        with locked_temp(self.path) as handle:
+            handle.write(json.dumps(current, sort_keys=True).encode())
+        self._memo, self.changed = current, False
+
+
+def input_identity(files: Iterable[str | os.PathLike], root: str | os.PathLike | None = None,
+                   cache: "CacheDir | None" = None) -> list[list]:
+    """[name, SHA-256 of the bytes] of every file (a folder, e.g. a ROS2 bag: of every file below it, named
+    FOLDER/PATH); the name is relative to `root` when the file is under it, so the identity follows the data,
+    not where it is (a moved or copied folder keeps it, any change to a file's bytes does not). `cache`
+    memoises the digests (its DigestIndex, saved here when it grew)."""
     prefix = None if root is None else os.path.join(os.fspath(root), "")
     out = []
-    for file in map(os.fspath, files):
-        try:
-            st = os.stat(file)
-        except OSError as exc:
-            raise InputError(f"{file}: cannot read this input file ({exc.strerror})") from None
-        name = file[len(prefix):] if prefix and file.startswith(prefix) else os.path.basename(file)
-        out.append([name, st.st_size, st.st_mtime_ns])
+    for given in map(os.fspath, files):
+        name = given[len(prefix):] if prefix and given.startswith(prefix) else os.path.basename(given)
+        inside = sorted(p.relative_to(given).as_posix() for p in Path(given).rglob("*") if p.is_file()) \
+            if os.path.isdir(given) else [""]
+        for part in inside:
+            file = os.path.join(given, part) if part else given
+            try:
+                digest = file_sha256(file) if cache is None else cache.digests.digest(file)
+            except OSError as exc:
+                raise InputError(f"{file}: cannot read this input file ({exc.strerror})") from None
+            out.append([f"{name}/{part}" if part else name, digest])
+    if cache is not None:
+        cache.save_digests()
     return out
 
 
-def sequence_identity(sequence: Any) -> list[list]:
+def sequence_identity(sequence: Any, cache: "CacheDir | None" = None) -> list[list]:
     """Identity of a ScanSequence's scans (`path`, `scan_files`, and the `selection` within those files a bag
     sequence has: topic, messages), of the files holding their per-point times (`point_time_files`) and of
     their frame times (deskewing uses both; times edited beside the same scans must not reuse the old
-    odometry): what odometry and descriptors are computed from."""
+    odometry): what odometry and descriptors are computed from. `cache`: as for input_identity."""
     files = [*sequence.scan_files, *getattr(sequence, "point_time_files", ())]
-    identity = input_identity(files, sequence.path)
+    identity = input_identity(files, sequence.path, cache)
     times = getattr(sequence, "times", None)
     if times is not None:
-        digest = hashlib.sha256(np.ascontiguousarray(times, dtype="<f8").tobytes()).hexdigest()
-        identity = [*identity, ["times", digest]]
+        identity = [*identity, ["times", array_sha256(times)]]
     selection = getattr(sequence, "selection", None)
     return identity if selection is None else [*identity, ["selection", selection]]
+
+
+def array_sha256(array: np.ndarray) -> str:
+    """SHA-256 of an array's values as little-endian float64 (the same on every machine)."""
+    return hashlib.sha256(np.ascontiguousarray(array, dtype="<f8").tobytes()).hexdigest()
+
+
+def named_files(value: Any) -> list[str]:
+    """The existing files a configuration names: its string values (nested in mappings and lists too) that are
+    paths of files, e.g. network weights or a pose file, whose content is then part of a key."""
+    if isinstance(value, dict):
+        return [file for item in value.values() for file in named_files(item)]
+    if isinstance(value, (list, tuple)):
+        return [file for item in value for file in named_files(item)]
+    return [os.fspath(value)] if isinstance(value, (str, os.PathLike)) and os.path.isfile(value) else []
+
+
+def sequence_inputs(sequence: Any, files: Iterable[str | os.PathLike] = (), cache: "CacheDir | None" = None) -> dict:
+    """The inputs part of the key of an entry computed from `sequence` and `files` (e.g. weights, a pose file)."""
+    return {"scans": sequence_identity(sequence, cache), "files": input_identity(files, cache=cache)}
 
 
 def library_versions(names: Iterable[str]) -> dict[str, str | None]:
@@ -85,10 +190,10 @@ def library_versions(names: Iterable[str]) -> dict[str, str | None]:
     return versions
 
 
-def cache_key(kind: str, inputs: Any, config: Any, libraries: Iterable[str] = ()) -> str:
-    """24 hex digits hashing the kind of entry, its inputs' identity, its configuration, msa-slam's version
-    and the versions of `libraries`."""
-    blob = json.dumps({"kind": kind, "inputs": inputs, "config": config, "msa_slam": msa_slam.__version__,
+def cache_key(kind: str, inputs: Any, config: Any, code: str, libraries: Iterable[str] = ()) -> str:
+    """24 hex digits hashing the kind of entry, its inputs' identity, its configuration, the fingerprint `code` of
+    msa-slam's code that computes it (msa_slam.io.fingerprint.code_fingerprint) and the versions of `libraries`."""
+    blob = json.dumps({"kind": kind, "inputs": inputs, "config": config, "code": code,
                        "libraries": library_versions(libraries)}, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:24]
 
@@ -116,56 +221,64 @@ def locked_temp(target: Path) -> Iterator[BinaryIO]:
 
 @contextlib.contextmanager
 def partial_dir(parent: Path, name: str) -> Iterator[Path]:
-    """A locked scratch folder `.NAME.partial-*` in `parent` for building NAME; removed when the block ends."""
-    tmp = Path(tempfile.mkdtemp(prefix=f".{name}.partial-", dir=parent))
+    """A scratch folder `.NAME.partial-*` in `parent` for building NAME, marked as msa-slam's and locked while
+    this process lives (staging.Writer: a killed one's is removed by `remove_partials`); removed when the block
+    ends."""
+    tmp, writer = new_scratch(parent, name)
     try:
-        with open(tmp / LOCK_FILE, "wb") as lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)
-            yield tmp
+        yield tmp
     finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        remove_scratch(tmp, writer)
+
+
+def remove_partials(parent: Path, name: str) -> list[Path]:
+    """Remove the scratch folders of NAME in `parent` that killed writers left (only those proven msa-slam's,
+    their writer dead: staging.abandoned); return them."""
+    return remove_abandoned(leftovers(parent, name, ("partial",)))
 
 
 def _abandoned(path: Path) -> bool:
-    """True when `path` (a temp file, or a partial folder) predates this run and no live writer holds its lock."""
+    """True when the temp file `path` predates this run and no live writer holds its lock."""
     try:
         if path.lstat().st_mtime_ns >= RUN_START_NS:
             return False
-        fd = os.open(path / LOCK_FILE if path.is_dir() else path, os.O_RDWR)
+        fd = os.open(path, os.O_RDWR | os.O_NOFOLLOW)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         finally:
             os.close(fd)
-    except FileNotFoundError:
-        return path.is_dir()  # a partial folder whose writer died before making its lock
     except OSError:
-        return False  # locked (BlockingIOError) or unreadable: leave it
+        return False  # gone, locked (BlockingIOError) or unreadable: leave it
     return True
 
 
-def remove_orphans(folder: Path, pattern: str = f".*{TEMP_SUFFIX}") -> list[Path]:
-    """Delete the entries of `folder` matching `pattern` that killed writers left; return them."""
+def remove_orphans(folder: Path) -> list[Path]:
+    """Delete the temporary files (`.*.tmp`, locked_temp's) in the cache folder `folder` that killed writers
+    left; return them."""
     try:
-        candidates = [p for p in folder.glob(pattern) if not p.is_symlink()]
+        candidates = [p for p in folder.glob(f".*{TEMP_SUFFIX}") if p.is_file() and not p.is_symlink()]
     except OSError:
         return []
     removed = [p for p in candidates if _abandoned(p)]
     for path in removed:
-        if path.is_dir():
-            shutil.rmtree(path, ignore_errors=True)
-        else:
-            with contextlib.suppress(OSError):
-                path.unlink()
+        with contextlib.suppress(OSError):
+            path.unlink()
         log.debug("cache: removed %s (left by a writer that was killed)", path)
     return removed
 
 
-def check_entry(array: np.ndarray, length: int | None = None) -> np.ndarray:
-    """`array` if it is a finite float array of `length` rows, else ValueError saying what is wrong."""
-    if not np.issubdtype(array.dtype, np.floating) or array.ndim < 1:
-        raise ValueError(f"expected a float array, got {array.dtype} of shape {array.shape}")
-    if length is not None and len(array) != length:
-        raise ValueError(f"{len(array)} rows, expected {length}")
+def check_entry(array: np.ndarray, shape: tuple[int | None, ...]) -> np.ndarray:
+    """`array` if it holds finite float64 values in this machine's byte order, in C order, of `shape` (None: any
+    size along that axis), else ValueError saying what is wrong: an entry of another precision, byte order or
+    layout would change the results' bytes, and one of another shape would fail the run far from the cache."""
+    expected = np.dtype(np.float64)
+    if array.dtype != expected:
+        raise ValueError(f"dtype {array.dtype.str}, expected {expected.str} (float64 in this machine's byte order)")
+    if array.ndim != len(shape) or any(want is not None and got != want for got, want in zip(array.shape, shape)):
+        wanted = ", ".join("N" if n is None else str(n) for n in shape)
+        raise ValueError(f"shape {array.shape}, expected ({wanted}{',' if len(shape) == 1 else ''})")
+    if not array.flags.c_contiguous:
+        raise ValueError("stored in Fortran order, expected C order")
     if not np.isfinite(array).all():
         raise ValueError("NaN or infinite values")
     return array
@@ -181,12 +294,13 @@ class CacheDir:
     def __init__(self, folder: str | os.PathLike) -> None:
         self.folder = Path(folder)
         self.writable = True
+        self.digests = DigestIndex(self.folder / DIGESTS_FILE)
         remove_orphans(self.folder)
 
     def path(self, name: str) -> Path:
         return self.folder / f"{name}.npy"
 
-    def load(self, name: str, check: Callable[[np.ndarray], np.ndarray] = check_entry) -> np.ndarray | None:
+    def load(self, name: str, check: Callable[[np.ndarray], np.ndarray]) -> np.ndarray | None:
         """The entry passed through `check` (which raises ValueError on a bad one), or None when it is absent,
         unreadable, truncated or fails the check (with a warning naming the file: it will be recomputed)."""
         path = self.path(name)
@@ -207,9 +321,24 @@ class CacheDir:
             with locked_temp(path) as handle:
                 np.save(handle, array)
         except OSError as exc:
-            self.writable = False
-            culprit = exc.filename and Path(os.fsdecode(exc.filename)).parent != path.parent  # e.g. a parent folder
-            log.warning("cache: cannot write %s (%s%s; needs %.2f MiB); continuing without the cache", path,
-                        f"{os.fsdecode(exc.filename)}: " if culprit else "", exc.strerror or exc, array.nbytes / 2**20)
+            self._unwritable(path, exc, f"; needs {array.nbytes / 2**20:.2f} MiB")
             return None
         return path
+
+    def save_digests(self) -> None:
+        """Record the input digests computed since the last save (see DigestIndex); a failure costs the memo only
+        and, like a failed entry, stops the caching with one warning."""
+        if self.writable and self.digests.changed:
+            try:
+                self.digests.save()
+            except OSError as exc:
+                self._unwritable(self.digests.path, exc)
+
+    def _unwritable(self, path: Path, exc: OSError, needs: str = "") -> None:
+        """Stop writing after a failure to write `path`, with one warning naming it (or the parent folder that
+        failed) and the reason."""
+        self.writable = False
+        culprit = exc.filename and Path(os.fsdecode(exc.filename)).parent != path.parent  # e.g. a parent folder
+        reason = exc.strerror or (os.strerror(errno.ENOSPC) if is_disk_full(exc, path) else exc)
+        log.warning("cache: cannot write %s (%s%s%s); continuing without the cache", path,
+                    f"{os.fsdecode(exc.filename)}: " if culprit else "", reason, needs)

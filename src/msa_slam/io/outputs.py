@@ -9,13 +9,19 @@ A result folder is recognised by its marker file (`.msa-slam-result`, JSON: tool
   experiment grids, `compare --seeds`), and only when every file (and empty folder) in it is one its marker
   lists as msa-slam's, unchanged since it wrote them (a user's notes or folders, even empty, added to a
   result, or edits to its files, are never removed: the overwrite is refused);
-- a lock file beside the target (`.NAME.lock`, flock) makes a second run on the same `--out` refuse
-  instead of silently losing one result (checked before the files of a previous result are: those of a run
-  writing them now are not reported as a user's);
-- leftovers of a killed run on the same target (`.NAME.partial-*`, `.NAME.old-*`) are removed, and a
-  result displaced by a swap that was interrupted is put back.
+- `--out` expands `~`; the working directory or one of its parents is refused for an output that would take
+  its place (not for one that grows in place: an experiment resumed, `report`);
+- a lock file beside the target (`.NAME.lock`, flock, holding msa-slam's stamp) makes a second run on the
+  same `--out` refuse instead of silently losing one result (checked before the files of a previous result
+  are: those of a run writing them now are not reported as a user's);
+- leftovers of a killed run on the same target (`.NAME.partial-*`, `.NAME.old-*`, NAME taken literally) are
+  removed when their WRITER file proves them msa-slam's and its lock shows their writer dead (never
+  anything else), and a result displaced by a swap that was interrupted is put back.
 
-Without `--out`, results go to `<parent>/<timestamp>` with a `latest` link beside it (as kiss-icp does).
+Without `--out`, results go to `<parent>/<timestamp>` with a `latest` link beside it (as kiss-icp does); the
+name is claimed under its lock, so two runs started in the same second get `<timestamp>` and
+`<timestamp>-2`, and each such run first removes what killed default runs left in `<parent>` (their staging
+folders and stamped lock files, as above; anything else stays).
 The folder is built under `.NAME.partial-*` and moved into place by one rename, or, over an old result,
 by an atomic exchange (Linux renameat2), so a kill at any point leaves either the old or the new result.
 Folders get 0777 and files 0666 minus the umask, like any other tool's output.
@@ -25,47 +31,70 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import itertools
 import os
+import re
 import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
-from msa_slam.io.staging import (MARKER, OutputError, clean_stale, edited_files, foreign_files, is_result_folder,
-                                 listed_files, recorded_digests, staged_dir, write_marker)
+from msa_slam.io.staging import (MARKER, OutputError, clean_stale, discard, edited_files, foreign_files, is_disk_full,
+                                 disk_full_error, is_result_folder, is_stamp, listed_files, recorded_digests,
+                                 staged_dir, stamp, write_marker)
 
-__all__ = ["DEFAULT_RESULTS", "MARKER", "OutputError", "ResultFolder", "is_result_folder",
-           "open_result_folder", "staged_dir", "timestamped", "write_marker"]
+__all__ = ["DEFAULT_RESULTS", "MARKER", "OutputError", "ResultFolder", "claim_timestamped", "is_result_folder",
+           "open_result_folder", "out_path", "refuse_working_directory", "some_names", "staged_dir",
+           "write_marker"]
 
 DEFAULT_RESULTS = Path("msa_slam_results")  # parent of the default timestamped output folders
 LATEST = "latest"
 
 
 class _Lock:
-    """An exclusive, non-blocking flock on `.NAME.lock` beside a target; the file is removed on release."""
+    """An exclusive, non-blocking flock on `.NAME.lock` beside a target, holding msa-slam's stamp (proof for a
+    later run that the file is its own); the file is removed on release."""
 
     def __init__(self, target: Path) -> None:
         self.path = target.parent / f".{target.name}.lock"
         self.fd: int | None = None
 
-    def acquire(self) -> None:
+    def try_acquire(self) -> bool:
+        """Take the lock; False while another run holds it. A file in the way with content msa-slam did not
+        write is refused (an empty one is taken: a run killed before stamping it, or an older version's)."""
         while True:
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666)
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
                 os.close(fd)
-                raise OutputError(f"{self.path.parent / self.path.name[1:-5]}: another msa-slam run is writing "
-                                  "this output folder; wait for it or choose another --out") from None
+                return False
             try:
                 same = os.fstat(fd).st_ino == os.stat(self.path).st_ino
             except FileNotFoundError:
                 same = False
-            if same:  # not a lock file its previous holder unlinked while we waited to open it
-                self.fd = fd
-                return
-            os.close(fd)
+            if not same:  # a lock file its previous holder unlinked while we waited to open it
+                os.close(fd)
+                continue
+            content = os.pread(fd, 4096, 0)
+            if content and not is_stamp(content):
+                os.close(fd)
+                raise OutputError(f"{self.path}: a file msa-slam did not write is where it keeps its lock; "
+                                  "move it elsewhere or choose another --out")
+            self.fd = fd
+            try:
+                os.ftruncate(fd, 0)
+                os.pwrite(fd, stamp(), 0)
+            except OSError:
+                self.release()
+                raise
+            return True
+
+    def acquire(self) -> None:
+        if not self.try_acquire():
+            raise OutputError(f"{self.path.parent / self.path.name[1:-5]}: another msa-slam run is writing "
+                              "this output folder; wait for it or choose another --out")
 
     def release(self) -> None:
         if self.fd is not None:
@@ -104,19 +133,19 @@ def _refuse_foreign(target: Path) -> None:
     as msa-slam wrote them (staging.edited_files)."""
     foreign = foreign_files(target)
     if foreign:
-        raise OutputError(f"--out {target}: holds files msa-slam did not write ({_some(foreign)}); "
+        raise OutputError(f"--out {target}: holds files msa-slam did not write ({some_names(foreign)}); "
                           "--overwrite would remove them: move them elsewhere or choose another --out (files of a "
                           "killed experiment or `compare --seeds` run count too: rerun it without --overwrite to "
                           "finish it first)")
     edited = edited_files(target)
     if edited:
-        raise OutputError(f"--out {target}: holds files changed since msa-slam wrote them ({_some(edited)}); "
+        raise OutputError(f"--out {target}: holds files changed since msa-slam wrote them ({some_names(edited)}); "
                           "--overwrite would lose the changes: copy them elsewhere or choose another --out (a killed "
                           "experiment or `compare --seeds` run leaves its reports so too: rerun it without "
                           "--overwrite to finish it first)")
 
 
-def _some(names: list[str]) -> str:
+def some_names(names: list[str]) -> str:
     """The first three names, and how many more."""
     more = f" and {len(names) - 3} more" if len(names) > 3 else ""
     return ", ".join(names[:3]) + more
@@ -131,14 +160,54 @@ def _check_writable(folder: Path) -> None:
         raise OutputError(f"{folder}: cannot write there ({probe} is not a writable folder)")
 
 
-def timestamped(parent: Path) -> Path:
-    """A new `<parent>/<YYYY-mm-dd_HH-MM-SS>` path (suffixed -2, -3, ... when taken)."""
+def claim_timestamped(parent: Path) -> tuple[Path, _Lock]:
+    """A new `<parent>/<YYYY-mm-dd_HH-MM-SS>` path (suffixed -2, -3, ... when taken), claimed by taking its
+    lock before checking that it is free: two runs started in the same second get two folders, never a
+    refusal naming a folder the user did not name."""
     stem = time.strftime("%Y-%m-%d_%H-%M-%S")
-    candidate, n = parent / stem, 1
-    while candidate.exists() or candidate.is_symlink():
-        n += 1
-        candidate = parent / f"{stem}-{n}"
-    return candidate
+    for n in itertools.count(1):
+        candidate = parent / (stem if n == 1 else f"{stem}-{n}")
+        if candidate.exists() or candidate.is_symlink():
+            continue
+        lock = _Lock(candidate)
+        with contextlib.suppress(OutputError):  # someone else's file named like its lock: take the next name
+            if lock.try_acquire():
+                if not (candidate.exists() or candidate.is_symlink()):  # a run that held it may have finished
+                    return candidate, lock
+                lock.release()
+    raise AssertionError("unreachable")
+
+
+_LEFTOVER = re.compile(r"\.(.+)\.(?:(?:partial|old)-.+|lock)")
+
+
+def clean_default_parent(parent: Path) -> list[Path]:
+    """Remove what killed runs with the default output left in `parent` (each under that folder's lock, when
+    no live run holds it): staging folders whose WRITER proves them msa-slam's (staging.clean_stale) and lock
+    files holding its stamp. Anything else, a user's file named like them included, stays."""
+    names = {m.group(1) for p in parent.iterdir() if (m := _LEFTOVER.fullmatch(p.name))} if parent.is_dir() else set()
+    removed = []
+    for name in sorted(names):
+        lock, target = _Lock(parent / name), parent / name
+        stale_lock = lock.path.is_file() and not lock.path.is_symlink() and is_stamp(_head(lock.path))
+        if lock.path.exists() and not stale_lock:
+            continue  # not provably msa-slam's lock: leave it (and the folder it would guard) alone
+        with contextlib.suppress(OutputError, OSError):
+            if lock.try_acquire():
+                try:
+                    removed += clean_stale(target)
+                finally:
+                    lock.release()
+                removed += [lock.path] if stale_lock else []
+    return removed
+
+
+def _head(path: Path) -> bytes:
+    try:
+        with open(path, "rb") as stream:
+            return stream.read(4096)
+    except OSError:
+        return b""
 
 
 def point_latest(folder: Path) -> None:
@@ -186,16 +255,14 @@ class ResultFolder:
         (grid.yaml after a killed run) or they make a unit no listed file belongs to (one a killed run
         finished), never someone else's."""
         if fresh and is_result_folder(self.path):
-            old = self.path.parent / f".{self.path.name}.old-{os.getpid()}-{time.monotonic_ns()}"
-            os.replace(self.path, old)
-            shutil.rmtree(old, ignore_errors=True)
+            discard(self.path)
         self.path.mkdir(parents=True, exist_ok=True)
         if not is_result_folder(self.path, self.kind):
             write_marker(self.path, self.kind)
         edited = edited_files(self.path)
         rewritten = [name for name in edited if not any(name.startswith(f"{sub}/") for sub in grows)]
         if rewritten:
-            raise OutputError(f"--out {self.path}: holds files changed since msa-slam wrote them ({_some(rewritten)}); "
+            raise OutputError(f"--out {self.path}: holds files changed since msa-slam wrote them ({some_names(rewritten)}); "
                               "this run would replace them: copy them elsewhere first or choose another --out")
         recorded = recorded_digests(self.path)
         self._edited = {name: ((self.path / name).lstat().st_mtime_ns, recorded[name]) for name in edited}
@@ -233,21 +300,60 @@ class ResultFolder:
                 and (self.path / unit / self._unit_record).is_file())
 
 
+def out_path(out: str | os.PathLike) -> Path:
+    """The folder an explicit --out names, `~` expanded (a quoted "~" must not make a folder named ~), and
+    named by its own name (`.` or `..` resolved: the temporary folders beside it are named after it)."""
+    target = Path(out).expanduser()
+    return target.resolve() if target.name in ("", ".", "..") else target
+
+
+def refuse_working_directory(out: str | os.PathLike) -> None:
+    """Refuse an --out that is the working directory or one of its parents, for an output that takes the
+    folder's place: replacing it would pull the floor from under the user."""
+    try:
+        here, there = Path.cwd().resolve(), out_path(out).resolve()
+    except (OSError, RuntimeError):  # no working directory, or a loop of links: nothing to compare
+        return
+    if there == here or there in here.parents:
+        what = "the current working directory" if there == here else "a parent of the current working directory"
+        raise OutputError(f"--out {out}: is {what}; choose a new folder for the result")
+
+
 def _out_target(out: str | os.PathLike) -> Path:
-    """The folder an explicit --out names: the folder itself, not a link to it, is locked and checked."""
-    target = Path(out)
-    return target.resolve() if target.name in ("", ".", "..") or target.is_symlink() else target
+    """The folder an explicit --out names (out_path): the folder itself, not a link to it, is locked and checked."""
+    target = out_path(out)
+    return target.resolve() if target.is_symlink() else target
 
 
 def _check_output(out: str | os.PathLike | None, kind: str, default_parent: str | os.PathLike,
-                 overwrite: bool = False, resume: bool = False) -> None:
-    """open_result_folder's checks of `out`, made again under its lock."""
+                  overwrite: bool = False, resume: bool = False) -> None:
+    """open_result_folder's checks of `out`, made again under its lock (but the working directory's: an output
+    that grows in place (`resume`) may be the folder the user works in, one that replaces it may not)."""
     if out is None:
         _check_writable(Path(default_parent))
         return
+    if overwrite or not resume:
+        refuse_working_directory(out)
     target = _out_target(out)
     _check_target(target, kind, overwrite, resume, locked=False)
     _check_writable(target.parent)
+
+
+def _lock_output(out: str | os.PathLike | None, kind: str, parent: Path) -> ResultFolder:
+    """The locked folder the result goes to: a new timestamped one under `parent` (whose leftovers of killed
+    default runs are removed first), or `out`."""
+    try:
+        if out is None:
+            clean_default_parent(parent)
+            path, lock = claim_timestamped(parent)
+            return ResultFolder(path, kind, timestamped=True, _lock=lock)
+        folder = ResultFolder(_out_target(out), kind)
+        lock = _Lock(folder.path)
+        lock.acquire()
+        folder._lock = lock
+        return folder
+    except OSError as exc:
+        raise OutputError(f"{parent}: cannot create a lock file there ({exc.strerror or exc})") from None
 
 
 @contextlib.contextmanager
@@ -256,36 +362,32 @@ def open_result_folder(out: str | os.PathLike | None, kind: str, default_parent:
     """Check and lock the output of a command before its work starts; release the lock at the end.
 
     `out=None` picks a new timestamped folder under `default_parent` (and points `latest` at it).
-    Raises OutputError (one line) for a target that must not be written. The folders made to hold the result
-    (`default_parent`, the parents of `out`) are removed at the end when the run left them empty.
+    Raises OutputError (one line) for a target that must not be written, and for a full disk met while the
+    command writes. The folders made to hold the result (`default_parent`, the parents of `out`) are removed
+    at the end when the run left them empty.
     """
     _check_output(out, kind, default_parent, overwrite, resume)
     parent = Path(default_parent) if out is None else _out_target(out).parent
     created = _missing_folders(parent)
     parent.mkdir(parents=True, exist_ok=True)
-    folder = (ResultFolder(timestamped(parent), kind, timestamped=True) if out is None
-              else ResultFolder(_out_target(out), kind))
-    lock = _Lock(folder.path)
+    folder = None
     try:
-        try:
-            lock.acquire()
-        except OSError as exc:
-            if isinstance(exc, OutputError):
-                raise
-            raise OutputError(f"{folder.path}: cannot create the lock file beside it ({exc.strerror})") from None
-        folder._lock = lock
+        folder = _lock_output(out, kind, parent)
         clean_stale(folder.path)
         if out is not None:  # under the lock: a previous result's files, and a concurrent run may have finished
             _check_target(folder.path, kind, overwrite, resume)
         existed = folder.path.exists() or folder.path.is_symlink()
         try:
             yield folder
-        except BaseException:
+        except BaseException as exc:
             if not existed:
                 _remove_if_bare(folder)
+            if isinstance(exc, OSError) and is_disk_full(exc, folder.path):
+                raise disk_full_error(exc, folder.path) from None
             raise
     finally:
-        lock.release()
+        if folder is not None and folder._lock is not None:
+            folder._lock.release()
         _remove_empty(created)
 
 

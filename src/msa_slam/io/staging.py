@@ -6,6 +6,8 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import errno
+import fcntl
+import glob
 import hashlib
 import json
 import os
@@ -13,13 +15,16 @@ import shutil
 import tempfile
 import time
 from pathlib import Path
-from typing import Collection, Iterator, Mapping
+from typing import Collection, Iterable, Iterator, Mapping
 
 import msa_slam
 from msa_slam.errors import InputError
 
 MARKER = ".msa-slam-result"
+WRITER = ".msa-slam-writer"  # in a scratch folder: proof that msa-slam made it, flocked while its writer lives
 _NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
+_CANNOT_WRITE = (errno.EACCES, errno.EPERM, errno.EROFS, errno.EIO)
+NEARLY_FULL = 2**20  # bytes free after a write failed without an errno (numpy's tofile): the disk is full
 
 
 class OutputError(InputError):
@@ -101,6 +106,21 @@ def foreign_files(folder: Path) -> list[str]:
     return [name for name in _files(Path(folder)) if name not in ours]
 
 
+def foreign_in_units(folder: Path, units: Iterable[str], edited: bool = False) -> dict[str, list[str]]:
+    """Per unit folder (relative to the result `folder`, e.g. cells/<id>), its files the marker does not list as
+    msa-slam's (with `edited`, also those changed since msa-slam wrote them): what must stay when the unit is
+    rerun and replaced. A unit none of whose files is listed was finished by a killed run before it listed it
+    (a unit appears whole, by one rename): all of it is msa-slam's."""
+    listed = listed_files(folder)
+    others = [*foreign_files(folder), *(edited_files(folder) if edited else [])]
+    out = {}
+    for unit in units:
+        prefix = f"{unit}/"
+        ours = any(name.startswith(prefix) for name in listed)
+        out[unit] = sorted({name for name in others if name.startswith(prefix)}) if ours else []
+    return out
+
+
 def _files(folder: Path) -> list[str]:
     """Every file and link under `folder` but the marker, and every empty folder (ending in /: a user's, even
     empty, is no more msa-slam's to remove than a file), as sorted relative POSIX paths."""
@@ -131,18 +151,186 @@ def _exchange(a: Path, b: Path) -> bool:
 
 
 def _folder_bytes(path: Path) -> int:
+    """Bytes in the files under `path` (or in the file `path`)."""
+    if path.is_file():
+        return path.stat().st_size
     return sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file() and not p.is_symlink())
 
 
-def disk_full_error(exc: OSError, path: Path, written: Path | None = None) -> OutputError:
-    """One line for a full disk: the path, what was written so far (a lower bound of the need), what is free."""
+def _free_bytes(path: Path) -> int | None:
+    """Free space (for this user) on the file system holding `path` or its nearest existing parent."""
+    path = Path(path).absolute()
+    while not path.exists() and path != path.parent:
+        path = path.parent
     try:
-        free = shutil.disk_usage(path if path.exists() else path.parent).free
+        return shutil.disk_usage(path).free
     except OSError:
-        free = 0
+        return None
+
+
+def disk_full_error(exc: OSError, path: Path, written: Path | None = None,
+                    advice: str = "choose another --out") -> OutputError:
+    """One line for a full disk: the path, what was written so far (a lower bound of the need), what is free."""
+    free = _free_bytes(path) or 0
     need = f"; at least {_folder_bytes(written) / 2**20:.1f} MiB needed" if written and written.exists() else ""
     return OutputError(f"{path}: no space left on the device ({free / 2**20:.1f} MiB free{need}); "
-                       "free some space or choose another --out")
+                       f"free some space or {advice}")
+
+
+def is_disk_full(exc: OSError, path: Path) -> bool:
+    """ENOSPC or a quota; or an OSError without errno (numpy's tofile raises one when a write comes up short)
+    after which next to nothing is free where `path` lies."""
+    if exc.errno in _NO_SPACE:
+        return True
+    free = _free_bytes(path) if exc.errno is None else None
+    return free is not None and free < NEARLY_FULL
+
+
+def write_error(exc: OSError, path: Path, written: Path | None = None, writing: bool = False,
+                advice: str = "choose another --out") -> OutputError | None:
+    """The one line for `exc` raised while making `path` (staged in `written`), or None when it is not a
+    failed write: a full disk, or a folder that cannot be written (permissions, read-only, I/O error) when the
+    error names a file under `path` or `written`. `writing`: the caller only wrote (no input was read), so any
+    OSError is a failed write."""
+    if is_disk_full(exc, path):
+        return disk_full_error(exc, path, written, advice)
+    filename = Path(os.fsdecode(exc.filename)).absolute() if exc.filename else None
+    inside = filename is not None and any(filename == Path(p).absolute() or Path(p).absolute() in filename.parents
+                                          for p in (path, written) if p is not None)
+    if writing or (exc.errno in _CANNOT_WRITE and inside):
+        what = f"{filename}: " if filename is not None and filename != Path(path).absolute() else ""
+        reason = exc.strerror.lower() if exc.strerror else str(exc)
+        return OutputError(f"{path}: cannot write there ({what}{reason}); {advice}")
+    return None
+
+
+def stamp() -> bytes:
+    """What msa-slam writes into its lock and WRITER files: proof of authorship a cleaner checks (is_stamp)."""
+    return (json.dumps({"tool": "msa-slam", "pid": os.getpid()}) + "\n").encode()
+
+
+def is_stamp(data: bytes) -> bool:
+    try:
+        meta = json.loads(data)
+    except ValueError:
+        return False
+    return isinstance(meta, dict) and meta.get("tool") == "msa-slam"
+
+
+class Writer:
+    """The WRITER file of a scratch folder (staging, a displaced old result, a simulation being cast): it
+    names msa-slam and is flocked while its process lives, so a later run removes the folder only when it
+    can prove both that msa-slam made it and that its writer is gone (`abandoned`)."""
+
+    def __init__(self, folder: Path) -> None:
+        self.path = Path(folder) / WRITER
+        self.fd: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        try:
+            fcntl.flock(self.fd, fcntl.LOCK_EX)
+            os.write(self.fd, stamp())
+        except OSError:
+            self.release()
+            raise
+
+    def release(self) -> None:
+        """Remove the file, then drop its lock (in this order: a cleaner that waited for the lock finds no
+        file, so it never takes a folder about to move into place for a leftover). Safe to call twice."""
+        if self.fd is not None:
+            with contextlib.suppress(FileNotFoundError):
+                self.path.unlink()
+            os.close(self.fd)
+            self.fd = None
+
+
+def new_scratch(parent: Path, name: str, kind: str = "partial") -> tuple[Path, Writer]:
+    """A new folder `.NAME.<kind>-*` in `parent`, marked as msa-slam's by its Writer (held until released)."""
+    tmp = Path(tempfile.mkdtemp(prefix=f".{name}.{kind}-", dir=parent))
+    try:
+        return tmp, Writer(tmp)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def remove_scratch(folder: Path, writer: Writer | None = None) -> None:
+    """Remove a marked scratch folder, if it is still there: its content first and its WRITER last (released
+    through `writer` when this process holds it), so that a kill on the way leaves a folder a later run can
+    still prove is msa-slam's."""
+    if folder.is_dir() and not folder.is_symlink():
+        for entry in folder.iterdir():
+            if entry.name == WRITER:
+                continue
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry, ignore_errors=True)
+            else:
+                with contextlib.suppress(OSError):
+                    entry.unlink()
+    if writer is not None:
+        writer.release()
+    else:
+        with contextlib.suppress(OSError):
+            (folder / WRITER).unlink()
+    with contextlib.suppress(OSError):
+        folder.rmdir()
+
+
+def abandoned(path: Path) -> bool:
+    """True for a folder msa-slam made (its WRITER file says so) whose writer is gone (nobody holds its lock)."""
+    if path.is_symlink() or not path.is_dir():
+        return False
+    marker = path / WRITER
+    try:
+        fd = os.open(marker, os.O_RDONLY | os.O_NOFOLLOW)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return is_stamp(os.read(fd, 4096)) and os.fstat(fd).st_ino == os.stat(marker).st_ino
+    except OSError:  # locked (a live writer), or unlinked meanwhile (moved into place)
+        return False
+    finally:
+        os.close(fd)
+
+
+def leftovers(parent: Path, name: str, kinds: tuple[str, ...] = ("partial", "old")) -> list[Path]:
+    """The entries `.NAME.<kind>-*` of `parent`, NAME taken literally (its glob characters escaped: `--out
+    "c*"` must never match another run's `.cab.partial-*`)."""
+    if not Path(parent).is_dir():
+        return []
+    return sorted(p for kind in kinds for p in Path(parent).glob(f".{glob.escape(name)}.{kind}-*"))
+
+
+def remove_abandoned(paths: list[Path]) -> list[Path]:
+    """Remove those of `paths` that are `abandoned` (msa-slam's, their writer dead); return them."""
+    removed = [path for path in paths if abandoned(path)]
+    for path in removed:
+        remove_scratch(path)
+    return removed
+
+
+def _displace(target: Path) -> tuple[Path, Writer]:
+    """Move a result out of the way (`.NAME.old-*`) and mark it: if a kill comes before it is removed, the
+    next run puts it back (target missing) or removes it (`clean_stale`)."""
+    old = target.parent / f".{target.name}.old-{os.getpid()}-{time.monotonic_ns()}"
+    os.replace(target, old)
+    return old, Writer(old)
+
+
+def discard(target: Path) -> None:
+    """Remove a previous result of msa-slam's, moved aside first (_displace) so a kill never leaves half."""
+    remove_scratch(*_displace(target))
+
+
+def _move_into_place(tmp: Path, target: Path) -> None:
+    """Put the finished folder `tmp` at `target`, replacing a previous one in one atomic step where possible."""
+    if not target.exists() and not target.is_symlink():
+        os.replace(tmp, target)
+    elif target.is_dir() and not target.is_symlink() and _exchange(tmp, target):
+        remove_scratch(tmp, Writer(tmp))  # tmp now holds the old result
+    else:  # two renames; a kill in between is repaired by `_restore_displaced`
+        old, writer = _displace(target)
+        os.replace(tmp, target)
+        remove_scratch(old, writer)
 
 
 @contextlib.contextmanager
@@ -150,58 +338,53 @@ def staged_dir(target: Path, kind: str | None = None) -> Iterator[Path]:
     """Yield a temporary folder beside `target`; on success it takes `target`'s place in one atomic step.
 
     For folders msa-slam owns (a result folder already checked by `open_result_folder`, or a cell inside
-    an experiment): an existing `target` is replaced. With `kind`, the marker is written first.
+    an experiment): an existing `target` is replaced. With `kind`, the marker is written first. The
+    temporary folder carries a Writer until it has moved, so a killed run's is removed by the next.
+    A failed write (full disk, no permission) is one line (OutputError).
     """
     target = Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=target.parent))
+    tmp, writer = new_scratch(target.parent, target.name)
     try:
         if kind is not None:
-            write_marker(tmp, kind)
+            write_marker(tmp, kind, exclude=(WRITER,))
         yield tmp
         if kind is not None:
-            write_marker(tmp, kind)  # now listing what the block wrote
+            write_marker(tmp, kind, exclude=(WRITER,))  # now listing what the block wrote
         apply_umask(tmp)
-        if not target.exists() and not target.is_symlink():
-            os.replace(tmp, target)
-        elif target.is_dir() and not target.is_symlink() and _exchange(tmp, target):
-            pass  # tmp now holds the old result, removed below
-        else:  # two renames; a kill in between is repaired by `_restore_displaced`
-            old = target.parent / f".{target.name}.old-{os.getpid()}-{time.monotonic_ns()}"
-            os.replace(target, old)
-            os.replace(tmp, target)
-            shutil.rmtree(old, ignore_errors=True)
+        _move_into_place(tmp, target)
+        writer.path = target / WRITER  # moved with the folder: removed now, or by `clean_stale` after a kill
+        writer.release()
     except OSError as exc:
-        if exc.errno in _NO_SPACE:
-            raise disk_full_error(exc, target, tmp) from None
-        raise
+        error = write_error(exc, target, tmp)
+        if error is None:
+            raise
+        raise error from None
     finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-
-
-def _stale_siblings(target: Path) -> list[Path]:
-    parent = target.parent
-    if not parent.is_dir():
-        return []
-    return sorted(list(parent.glob(f".{target.name}.partial-*")) + list(parent.glob(f".{target.name}.old-*")))
+        remove_scratch(tmp, writer)
 
 
 def _restore_displaced(target: Path) -> None:
     """Put back a previous result moved aside by a swap that was killed before the new one arrived."""
     if target.exists() or target.is_symlink():
         return
-    displaced = [p for p in target.parent.glob(f".{target.name}.old-*") if is_result_folder(p)]
+    displaced = [p for p in leftovers(target.parent, target.name, ("old",))
+                 if is_result_folder(p) and (abandoned(p) or not (p / WRITER).exists())]
     if displaced:
-        os.replace(max(displaced, key=lambda p: p.stat().st_mtime_ns), target)
+        newest = max(displaced, key=lambda p: p.stat().st_mtime_ns)
+        (newest / WRITER).unlink(missing_ok=True)
+        os.replace(newest, target)
+
+
+def unmark_finished(folder: Path) -> None:
+    """Remove the WRITER a run killed just after moving `folder` into place left in it (nothing else)."""
+    if abandoned(folder):
+        (folder / WRITER).unlink(missing_ok=True)
 
 
 def clean_stale(target: Path) -> list[Path]:
-    """Remove leftovers of killed runs on `target` (call with its lock held); return what was removed."""
+    """Remove leftovers of killed runs on `target` (call with its lock held): the staging and displaced
+    folders that carry msa-slam's WRITER and whose writer is gone, never anything else; return them."""
     _restore_displaced(target)
-    stale = _stale_siblings(target)
-    for path in stale:
-        if path.is_dir() and not path.is_symlink():
-            shutil.rmtree(path, ignore_errors=True)
-        else:
-            path.unlink(missing_ok=True)
-    return stale
+    unmark_finished(target)
+    return remove_abandoned(leftovers(target.parent, target.name))

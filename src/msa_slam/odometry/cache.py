@@ -1,4 +1,5 @@
-"""Odometry of a whole sequence, computed once and cached on disk by its scans' identity and configuration."""
+"""Odometry of a whole sequence, computed once and cached on disk by its scans' identity, its configuration and
+the code that computes it."""
 
 from __future__ import annotations
 
@@ -9,11 +10,13 @@ from typing import Any, Iterable, Mapping, Protocol
 import numpy as np
 
 from msa_slam.datasets import ScanSequence
-from msa_slam.io.cache import CacheDir, cache_key, check_entry, input_identity, sequence_identity
+from msa_slam.io.cache import CacheDir, cache_key, check_entry, sequence_inputs
+from msa_slam.io.fingerprint import code_fingerprint
 from msa_slam.progress import progress_bar
 from msa_slam.types import validate_poses
 
 ODOMETRY_LIBRARIES = ("kiss-icp", "numpy", "scipy")  # scipy: the deskew's rotations (odometry.deskew)
+ODOMETRY_CODE = ("msa_slam.odometry", "msa_slam.datasets")  # the odometries and the scan readers: the cache key
 
 
 class Odometry(Protocol):
@@ -33,20 +36,23 @@ class OdometryCache:
         self.store = cache if isinstance(cache, CacheDir) else CacheDir(cache)
 
     @staticmethod
-    def key(sequence: ScanSequence, config: Mapping[str, Any], extra_inputs: Iterable[str | os.PathLike] = ()) -> str:
+    def key(sequence: ScanSequence, config: Mapping[str, Any], extra_inputs: Iterable[str | os.PathLike] = (),
+            store: CacheDir | None = None) -> str:
         """Key of the odometry of `sequence` (the identity of the scans it selects: another --first/--jump/-n
-        is another entry) with `config` and `extra_inputs` (e.g. the pose file the odometry reads)."""
-        inputs = {"scans": sequence_identity(sequence), "files": input_identity(extra_inputs)}
-        return cache_key("odometry", inputs, dict(config), ODOMETRY_LIBRARIES)
+        is another entry) with `config` and `extra_inputs` (e.g. the pose file the odometry reads), computed
+        by the code of ODOMETRY_CODE; `store` memoises the files' digests."""
+        inputs = sequence_inputs(sequence, extra_inputs, store)
+        return cache_key("odometry", inputs, dict(config), code_fingerprint(ODOMETRY_CODE), ODOMETRY_LIBRARIES)
 
     def path(self, key: str) -> Path:
         return self.store.path(f"odometry-{key}")
 
     def load(self, key: str, expected_length: int | None = None) -> np.ndarray | None:
-        """Cached poses, or None when absent or bad (truncated, NaN, not rigid, wrong length: then recomputed)."""
+        """Cached poses, or None when absent or bad (truncated, NaN, not rigid, not float64 (N, 4, 4) with N
+        `expected_length` when given: then recomputed)."""
 
         def check(poses: np.ndarray) -> np.ndarray:
-            return validate_poses(check_entry(poses, expected_length), "odometry poses")
+            return validate_poses(check_entry(poses, (expected_length, 4, 4)), "odometry poses")
 
         return self.store.load(f"odometry-{key}", check)
 
@@ -55,8 +61,8 @@ class OdometryCache:
         is absent or bad (an entry written before these were kept: the odometry is then recomputed)."""
 
         def check(listed: np.ndarray) -> np.ndarray:
-            listed = check_entry(listed)
-            if listed.ndim != 1 or not ((listed >= 0) & (listed < frames) & (listed == np.round(listed))).all():
+            listed = check_entry(listed, (None,))
+            if not ((listed >= 0) & (listed < frames) & (listed == np.round(listed))).all():
                 raise ValueError(f"expected frame indices below {frames}")
             return listed
 
@@ -89,7 +95,7 @@ def sequence_odometry(sequence: ScanSequence, odometry: Odometry, cache: Odometr
     """
     key = None
     if cache is not None:
-        key = OdometryCache.key(sequence, odometry.config, extra_inputs)
+        key = OdometryCache.key(sequence, odometry.config, extra_inputs, cache.store)
         entry = cache.load_entry(key, len(sequence))
         if entry is not None:
             if hasattr(odometry, "unregistered_frames"):

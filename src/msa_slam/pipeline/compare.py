@@ -6,6 +6,7 @@ and the comparison (Markdown + CSV + figures + report.md) sits at the top of the
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
 import traceback
@@ -24,7 +25,8 @@ from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, Frontend, prepare_fron
 from msa_slam.pipeline.report import rpe_segments, scans_read, sequence_title
 from msa_slam.pipeline.results import reference_xy, trajectory_panels, write_run_files
 from msa_slam.pipeline.seed_folder import (RECORD, check_seed_folder, clean_leftovers, finished_metrics, left_out_seeds,
-                                           reusable_seeds, seed_dir, seed_record, write_record)
+                                           remove_seeds, resume_seeds, seed_dir, seed_identities, seed_record,
+                                           write_record)
 from msa_slam.pipeline.seeds import SEED_COLUMNS, seed_markdown, seed_rows, seed_summary, seeded_datasets
 from msa_slam.place_recognition import PRCurve
 from msa_slam.place_recognition.figures import plot_pr_curves
@@ -35,6 +37,8 @@ from msa_slam.slam.backend import UNGATED_SAMPLERS
 from msa_slam.slam.loop_closing import REJECTION_REASONS
 from msa_slam.viz import plot_metric_bars, plot_trajectories
 from msa_slam.viz.labels import display_name
+
+log = logging.getLogger(__name__)
 
 # (label, sampler, parameters) as in the paper's section V.
 PAPER_METHODS: tuple[tuple[str, str, dict[str, Any]], ...] = (
@@ -277,7 +281,8 @@ def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = Tr
     `seeds` (simulated data only) repeats the comparison on each world seed under seeds/seed-<n>/ and
     writes the spread over seeds (seeds.md, seeds.csv, seeds.json) and its report.md at the top. That folder
     grows in place so an interrupted run resumes: each seed appears when complete, and a rerun reuses the
-    finished seeds run with the same settings (msa_slam.pipeline.seed_folder); `overwrite` starts afresh.
+    finished seeds run with the same settings on the same data and code, and reruns those whose data or code
+    changed since (msa_slam.pipeline.seed_folder); `overwrite` starts afresh.
 
     `sweep=False` leaves out each method's threshold sweep (pipeline/sweep.py), about half of a method's time.
     A method whose sampler window the frames read never fill is refused before the shared front end
@@ -323,23 +328,28 @@ def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: boo
 def _seed_comparisons(base: RunConfig, plans: dict[int, list[RunConfig]], out: Path, quiet: bool,
                       sweep: bool, window_fix: str) -> dict[str, str]:
     """Each seed's comparison (`plans`: seed -> method configs) under out/seeds/, reusing the ones finished
-    earlier with the same settings, then the spread over seeds at the top of `out`."""
+    earlier with the same settings, data and code (a seed whose data or code changed is removed and rerun, with
+    a warning and a line in report.md), then the spread over seeds at the top of `out`."""
     records = {seed: seed_record(base.dataset, configs, sweep) for seed, configs in plans.items()}
+    identities = seed_identities(plans)
     clean_leftovers(out)
-    reusable = reusable_seeds(out, records)  # refuses other settings before any work
+    resume = resume_seeds(out, records, identities)  # refuses other settings before any work
+    remove_seeds(out, resume.rerun)
+    for line in resume.rerun.values():
+        log.warning("compare: %s", line)
     rows, failed = {}, {}
     for seed, configs in plans.items():
         target = seed_dir(out, seed)
-        if seed in reusable:
-            _say(quiet, f"seed {seed}: reused (finished earlier with the same settings)")
+        if seed in resume.reusable:
+            _say(quiet, f"seed {seed}: reused (finished earlier with the same settings, data and code)")
         else:
             _say(quiet, f"seed {seed}: running")
             with staged_dir(target) as tmp:
                 _, seed_failed = _comparison(configs, tmp, quiet, sweep, window_fix)
-                write_record(tmp, records[seed], seed_failed)
+                write_record(tmp, records[seed], identities[seed], seed_failed)
             failed.update({f"seed {seed}: {name}": error for name, error in seed_failed.items()})
         rows[seed] = [table_row(m) for m in finished_metrics(target) or []]
-    _write_spread(out, base, rows, failed, left_out_seeds(out, list(plans)))
+    _write_spread(out, base, rows, failed, left_out_seeds(out, list(plans)), list(resume.rerun.values()))
     return failed
 
 
@@ -349,8 +359,9 @@ def _say(quiet: bool, line: str) -> None:
 
 
 def _write_spread(out: Path, base: RunConfig, rows: dict[int, list[dict[str, Any]]], failed: dict[str, str],
-                  left_out: list[int]) -> None:
-    """seeds.md, seeds.csv, seeds.json and report.md at the top of `out`, each replaced atomically."""
+                  left_out: list[int], rerun: Sequence[str] = ()) -> None:
+    """seeds.md, seeds.csv, seeds.json and report.md at the top of `out`, each replaced atomically; `rerun`: the
+    lines of the seeds this run reran because their data or code changed, listed in report.md."""
     summary = seed_summary(rows)
     table = seed_markdown(summary)
     write_text_atomic(out / "seeds.md", table)
@@ -366,6 +377,8 @@ def _write_spread(out: Path, base: RunConfig, rows: dict[int, list[dict[str, Any
     if left_out:
         lines += ["", "Also in seeds/, left out of the spread (not among --seeds): "
                   + ", ".join(f"[seed {s}](seeds/seed-{s}/report.md)" for s in left_out)]
+    if rerun:
+        lines += ["", "Seeds rerun by this run, their earlier results replaced:", "", *(f"- {line}" for line in rerun)]
     if failed:
         lines += ["", "## Failed methods", "", *(f"- {k}: {v}" for k, v in failed.items())]
     write_text_atomic(out / "report.md", "\n".join(lines) + "\n")

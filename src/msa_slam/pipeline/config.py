@@ -35,9 +35,12 @@ class RunConfig(StageConfig):
     loop candidates are older keyframes more than `min_frame_gap` frames and `min_travel_m` metres of
     odometry path back (a revisit, not a standstill) and not among the `exclude_recent` newest, with
     descriptor similarity >= `similarity_threshold` (best `top_k`). With `drift_check` on ("auto": in
-    realistic mode only, where no ground truth vets candidates) a registered loop is also rejected when it
-    corrects the odometry between its keyframes by more than `drift_gate` times the drift model's
-    allowance (graph.drift_*) plus `drift_slack_m` / `drift_slack_deg`.
+    realistic mode only, where no ground truth vets candidates) a registered loop is also rejected when its
+    correction of the odometry between its keyframes fails a chi-square test (quantile `drift_confidence`)
+    against the odometry covariance accumulated along the path (graph.drift_*, the covariance the pose graph
+    weights odometry with, grown as systematic drift beyond graph.drift_reference_m) widened `drift_gate` times
+    in sigma (1: as is), plus the loop's covariance and a slack of `drift_slack_m` / `drift_slack_deg`
+    (slam/loop_closing.py).
     `loop_radius` (3 m) defines a true loop: oracle verification, false loops and the PR curve.
     """
 
@@ -60,7 +63,8 @@ class RunConfig(StageConfig):
     loop_radius: float = Field(3.0, gt=0)
     min_travel_m: float = Field(30.0, ge=0)
     drift_check: Literal["auto", "on", "off"] = "auto"
-    drift_gate: float = Field(3.0, gt=0)
+    drift_gate: float = Field(1.0, gt=0)
+    drift_confidence: float = Field(0.999, gt=0, lt=1)
     drift_slack_m: float = Field(1.0, ge=0)
     drift_slack_deg: float = Field(2.0, ge=0)
     verifier: VerifierConfig = Field(default_factory=VerifierConfig)

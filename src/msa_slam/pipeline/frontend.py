@@ -1,14 +1,13 @@
 """The per-sequence front end: odometry and descriptors of every frame, computed once and cached on disk.
 
 These are the expensive stages that do not depend on the sampler, so `compare` runs them once and every
-sampler reuses them; a re-run finds them in the cache (keyed by the scans' identity, settings and library
-versions: see msa_slam.io.cache).
+sampler reuses them; a re-run finds them in the cache (keyed by the scans' content, settings, the code that
+computes them and library versions: see msa_slam.io.cache).
 """
 
 from __future__ import annotations
 
 import logging
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence, TypeVar
@@ -18,14 +17,14 @@ import numpy as np
 from msa_slam.datasets import ScanSequence
 from msa_slam.datasets.sequences import UNTIMED
 from msa_slam.descriptors import Descriptor, make_descriptor
+from msa_slam.descriptors.cache import compute_descriptors, descriptor_key
 from msa_slam.errors import InputError
 from msa_slam.evaluation import StageTimer
 from msa_slam.evaluation.sanity import frontend_warnings
-from msa_slam.io.cache import CacheDir, cache_key, cache_root, check_entry, input_identity, sequence_identity
+from msa_slam.io.cache import CacheDir, cache_root
 from msa_slam.odometry import KissOdometry, OdometryCache, PosesFromFile, sequence_odometry
 from msa_slam.odometry.kiss import NO_POINT_TIMES, PARAMETERS as KISS_PARAMETERS
 from msa_slam.pipeline.config import RunConfig
-from msa_slam.progress import progress_bar
 from msa_slam.pipeline.source import open_sequence
 from msa_slam.sampling import make_sampler
 from msa_slam.slam.backend import MIN_KEYFRAMES
@@ -73,10 +72,10 @@ def _odometry_config(config: RunConfig, n_frames: int) -> dict[str, Any]:
             "source": config.source.model_dump()}
 
 
-def pipeline_cache(config: RunConfig) -> Path:
-    """Folder of the pipeline's caches: <cache root>/pipeline (root: config.cache_dir, $MSA_SLAM_CACHE
+def pipeline_cache(cache_dir: str | None) -> Path:
+    """Folder of the pipeline's caches: <cache root>/pipeline (root: a config's `cache_dir`, $MSA_SLAM_CACHE
     or ~/.cache/msa-slam)."""
-    return cache_root(config.cache_dir) / "pipeline"
+    return cache_root(cache_dir) / "pipeline"
 
 
 def make_odometry(config: RunConfig, n_frames: int, point_times: bool = True):
@@ -135,39 +134,6 @@ def source_warnings(config: RunConfig, name: str, times_known: bool, point_times
         [NO_POINT_TIMES] if deskew_dropped(config, point_times) else [])
 
 
-DESCRIPTOR_LIBRARIES = ("numpy", "numba", "torch")
-
-
-def descriptor_key(sequence: ScanSequence, name: str, params: dict[str, Any]) -> str:
-    """Cache key of a sequence's descriptors: its scans' identity, files named in `params` (e.g. network
-    weights), the descriptor settings and library versions."""
-    files = [v for v in params.values() if isinstance(v, (str, os.PathLike)) and os.path.isfile(v)]
-    inputs = {"scans": sequence_identity(sequence), "files": input_identity(files)}
-    return cache_key("descriptors", inputs, {"descriptor": name, "params": params}, DESCRIPTOR_LIBRARIES)
-
-
-def compute_descriptors(sequence: ScanSequence, descriptor: Descriptor, cache: CacheDir | None, key: str,
-                        quiet: bool = True) -> tuple[np.ndarray, bool]:
-    """(N, *shape) descriptors of every frame and whether they came from `cache` (entry `descriptors-<key>`)."""
-    name = f"descriptors-{key}"
-    if cache is not None:
-        cached = cache.load(name, lambda a: check_entry(a, len(sequence)))
-        if cached is not None:
-            return cached, True
-    first = np.asarray(descriptor.compute(sequence[0].points, frame=0), dtype=np.float64)
-    out = np.empty((len(sequence), *first.shape))
-    out[0] = first
-    with progress_bar(quiet) as bar:
-        task = bar.add_task(f"descriptors ({descriptor.name})", total=len(sequence))
-        bar.advance(task)
-        for i in range(1, len(sequence)):
-            out[i] = descriptor.compute(sequence[i].points, frame=i)
-            bar.advance(task)
-    if cache is not None:
-        cache.save(name, out)
-    return out, False
-
-
 def check_window(config: RunConfig, n_frames: int, fix: str = CONFIG_WINDOW_FIX) -> None:
     """Before the front end: a sampler window longer than the `n_frames` read never fills, so the run could end,
     after odometry and descriptors, with too few keyframes for the evaluation. Without the end-of-stream flush
@@ -199,7 +165,7 @@ def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[R
     if sequence.gt_poses is None and config.sample_on == "gt":
         raise InputError(f"dataset {config.dataset!r}: sample_on=gt needs ground-truth poses; this recording has "
                          "none (use sample_on=odometry, or give them with --gt FILE)")
-    cache = CacheDir(pipeline_cache(config))
+    cache = CacheDir(pipeline_cache(config.cache_dir))
     odometry = make_odometry(config, n, sequence.point_times)
     params = dict(config.descriptor_params)
     if config.descriptor == "precomputed":
@@ -211,7 +177,7 @@ def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[R
         poses, cached["odometry"] = sequence_odometry(sequence, odometry, OdometryCache(cache), quiet, pose_file)
     with timer.stage("descriptors"):
         use_cache = config.descriptor != "precomputed"
-        key = descriptor_key(sequence, config.descriptor, config.descriptor_params)
+        key = descriptor_key(sequence, config.descriptor, config.descriptor_params, cache)
         descriptors, cached["descriptors"] = compute_descriptors(sequence, descriptor, cache if use_cache else None,
                                                                  key, quiet)
     sanity = frontend_warnings(sequence.gt_poses, poses, sequence.times)

@@ -125,8 +125,8 @@ def make_online_odometry(config: OnlineConfig, source: FrameSource, n: int):
                              "translation_noise, rotation_noise_deg") from None
     odometry = make_odometry(config, len(source), source.point_times is not False)
     if config.odometry == "kiss" and source.sequence is not None:
-        entry = OdometryCache(pipeline_cache(config)).load_entry(OdometryCache.key(source.sequence, odometry.config),
-                                                                 len(source))
+        cache = OdometryCache(pipeline_cache(config.cache_dir))
+        entry = cache.load_entry(OdometryCache.key(source.sequence, odometry.config, store=cache.store), len(source))
         if entry is not None:
             odometry.unregistered_frames = [frame for frame in entry[1] if frame < n]
             return ReplayedOdometry(entry[0], odometry.unregistered_warning(n)), True

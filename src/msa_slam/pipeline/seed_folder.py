@@ -2,31 +2,42 @@
 
     seeds/seed-<n>/           one seed's whole comparison, moved into place only once complete
     seeds/seed-<n>/seed.json  the settings it was run with (dataset without the seed, each method's resolved
-                              config, msa-slam's version) and the methods that failed
+                              config), msa-slam's version, the identity of its data and code
+                              (msa_slam.pipeline.identity) and the methods that failed
 
 A rerun of the same command reuses every finished seed whose record matches (hours of CPU on a whole KITTI
 sequence) and runs the others; a finished seed run with other settings is refused before any work, naming the
-setting, since mixing it into the spread would compare different experiments.
+setting, since mixing it into the spread would compare different experiments. A finished seed whose data or
+code changed since it ran (or that records no identity: an older msa-slam ran it) is removed and rerun: its
+results would no longer be those of this command. msa-slam's version is no setting: it is part of the code.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import re
+import shutil
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import msa_slam
 from msa_slam.io.outputs import MARKER, OutputError
-from msa_slam.io.staging import clean_stale
+from msa_slam.io.staging import clean_stale, foreign_in_units
 from msa_slam.io.tables import write_json
 from msa_slam.pipeline.config import RunConfig
+from msa_slam.pipeline.identity import changed_identity, run_identities
 
 SEEDS = "seeds"
 RECORD = "seed.json"
 COMPARISON = "comparison.json"  # a seed's per-method metrics (msa_slam.pipeline.compare)
 # Where the cache lives changes nothing that is computed, so it is not a setting a seed must match.
 NOT_SETTINGS = ("cache_dir",)
+IDENTITY = "identity"  # the key of seed.json that records the identity of the seed's data and code
+# Keys of seed.json that a rerun does not compare as settings: the version is part of the code identity.
+NOT_COMPARED = ("failed", IDENTITY, "version")
 _SEED_NAME = re.compile(r"seed-(\d+)")
 _LEFTOVER = re.compile(r"\.(seed-\d+)\.(partial|old)-")
 
@@ -43,8 +54,15 @@ def seed_record(dataset: str, configs: Sequence[RunConfig], sweep: bool = True) 
                                   "threshold_sweep": sweep}))
 
 
-def write_record(folder: Path, record: Mapping[str, Any], failed: Mapping[str, str]) -> None:
-    write_json(Path(folder) / RECORD, {**record, "failed": dict(failed)})
+def seed_identities(plans: Mapping[int, Sequence[RunConfig]]) -> dict[int, dict[str, str | None]]:
+    """{"data": ..., "code": ...} of each seed (`plans`: seed -> its methods' configs): a sim: seed's data is
+    its simulation key, which holds the world seed (msa_slam.pipeline.identity)."""
+    return run_identities({seed: [cfg.dump() for cfg in configs] for seed, configs in plans.items()})
+
+
+def write_record(folder: Path, record: Mapping[str, Any], identity: Mapping[str, str | None],
+                 failed: Mapping[str, str]) -> None:
+    write_json(Path(folder) / RECORD, {**record, IDENTITY: dict(identity), "failed": dict(failed)})
 
 
 def _read_json(path: Path) -> Any:
@@ -74,11 +92,22 @@ def clean_leftovers(out: Path) -> list[Path]:
     return [path for name in sorted(names) for path in clean_stale(seeds / name)]
 
 
-def reusable_seeds(out: Path, records: Mapping[int, Mapping[str, Any]]) -> list[int]:
-    """The seeds of `records` (seed -> expected record) finished earlier in `out` with the same settings and no
-    failed method. Raises OutputError, before any work, for a finished seed run with other settings or
+@dataclass
+class Resume:
+    """What a rerun does with the seeds finished earlier: reuse them, or run them again (seed -> the line saying
+    why: its data or code changed since)."""
+
+    reusable: list[int] = field(default_factory=list)
+    rerun: dict[int, str] = field(default_factory=dict)
+
+
+def resume_seeds(out: Path, records: Mapping[int, Mapping[str, Any]],
+                 identities: Mapping[int, Mapping[str, str | None]]) -> Resume:
+    """Which seeds of `records` (seed -> expected record) finished earlier in `out` are reused (same settings,
+    data and code, no failed method) and which are rerun (same settings, other data or code: `identities`, seed
+    -> current identity). Raises OutputError, before any work, for a finished seed run with other settings or
     without a record."""
-    reusable = []
+    resume = Resume()
     for seed, expected in records.items():
         folder = seed_dir(out, seed)
         if not folder.is_dir():
@@ -87,15 +116,46 @@ def reusable_seeds(out: Path, records: Mapping[int, Mapping[str, Any]]) -> list[
         if not isinstance(record, dict):
             raise OutputError(f"--out {out}: seed {seed} has no readable record of the settings it was run with "
                               f"({SEEDS}/seed-{seed}/{RECORD}); pass --overwrite to replace the folder")
-        difference = first_difference({k: v for k, v in record.items() if k != "failed"}, expected)
+        difference = first_difference(_settings(record), _settings(expected))
         if difference is not None:
             key, there, now = difference
             raise OutputError(f"--out {out}: seed {seed} was run with other settings ({key}: {there} there, {now} "
                               "now); rerun with the same settings to resume, or pass --overwrite to replace the "
                               "folder")
-        if not record.get("failed") and finished_metrics(folder) is not None:
-            reusable.append(seed)
-    return reusable
+        reason = changed_identity(record.get(IDENTITY), identities[seed])
+        if reason is not None:
+            resume.rerun[seed] = f"seed {seed}: {reason}; rerun"
+        elif not record.get("failed") and finished_metrics(folder) is not None:
+            resume.reusable.append(seed)
+    return resume
+
+
+def _settings(record: Mapping[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in record.items() if k not in NOT_COMPARED}
+
+
+def remove_seeds(out: Path, seeds: Mapping[int, str]) -> None:
+    """Remove the folders of `seeds` (seed -> why it is rerun) before they are rerun, so that none is reported
+    beside results of the current data and code. Each is moved aside first (clean_leftovers removes what a kill
+    leaves), so a kill never leaves half a seed. Only msa-slam's: a folder holding files it did not write, or
+    that were edited since, is refused (OutputError, before any of them is touched)."""
+    for seed, kept in not_msa_slams(out, seeds).items():
+        if kept:
+            raise OutputError(f"--out {out}: {seeds[seed].removesuffix('; rerun')}, but its folder holds files "
+                              f"msa-slam did not write or that were edited since ({', '.join(kept[:3])}"
+                              f"{', ...' if len(kept) > 3 else ''}); move them out to rerun it")
+    for seed in seeds:
+        folder = seed_dir(out, seed)
+        aside = folder.parent / f".{folder.name}.old-{os.getpid()}-{time.monotonic_ns()}"
+        os.replace(folder, aside)
+        shutil.rmtree(aside, ignore_errors=True)
+
+
+def not_msa_slams(out: Path, seeds: Iterable[int]) -> dict[int, list[str]]:
+    """Per seed, the files in its folder (paths relative to `out`) that the result marker does not list as
+    msa-slam's or that changed since it wrote them (staging.foreign_in_units)."""
+    found = foreign_in_units(out, [f"{SEEDS}/seed-{seed}" for seed in seeds], edited=True)
+    return {seed: found[f"{SEEDS}/seed-{seed}"] for seed in seeds}
 
 
 def left_out_seeds(out: Path, seeds: Sequence[int]) -> list[int]:

@@ -9,6 +9,8 @@ threshold, so each pair is registered once over the whole sweep (the run's own p
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from typing import Any
 
 import numpy as np
@@ -79,8 +81,8 @@ class _MemoVerify:
 def replay(config: RunConfig, frontend: Frontend, clouds: Any, keyframes: np.ndarray,
            memo: dict[tuple[int, int], LoopClosure]) -> RunResult:
     """The back-end of `config` on fixed `keyframes` whose clouds are in `clouds` (front end from `frontend`)."""
-    backend = build_backend(config, frontend.descriptor, _SharedClouds(clouds), PoseGraph(config.graph),
-                            len(frontend), frontend.name)
+    backend = build_backend(config, frontend.descriptor, _SharedClouds(clouds),
+                            PoseGraph(config.graph, mode=config.mode), len(frontend), frontend.name)
     backend.sampler = _ReplaySampler(keyframes)
     backend.loop_closer = _MemoVerify(backend.loop_closer, memo)
     times = frontend.sequence.times
@@ -103,7 +105,10 @@ def threshold_sweep(result: RunResult, frontend: Frontend, clouds: Any) -> list[
     """One row per threshold of the sweep (candidates, loops accepted, false loops, full-rate ATE after and
     % improvement); the run's own threshold is the run itself, the others are replays."""
     config = result.config
-    memo = {(c.query, c.match): c for c in result.loops}
+    # verification outcomes only: a loop the run's graph left out as inconsistent passed verification, and the
+    # replay's graph decides again on its own set of loops
+    memo = {(c.query, c.match): replace(c, accepted=True, rejected="") if c.rejected == "inconsistent" else c
+            for c in result.loops}
     rows = []
     for threshold in sweep_thresholds(config.similarity_threshold):
         if threshold == round(config.similarity_threshold, 6):

@@ -5,9 +5,10 @@ keep only the keyframe bookkeeping in RAM; `nbytes` is what sits in RAM (zero fo
 `disk_bytes` what the files hold.
 
 The files go to a private folder `msa-kf-clouds-<pid>-<random>` under `store_dir` (the system temporary
-folder by default), so two runs never share files. It is removed on close (and at interpreter exit if
-never closed); a folder left by a killed run is removed by the next store opened in the same place once
-its process is gone. Nothing else in `store_dir` is touched; `store_dir` itself is removed only if the
+folder by default), so two runs never share files; it carries msa-slam's WRITER file (io.staging), locked
+while its process lives. It is removed on close (and at interpreter exit if never closed); a folder left by a
+killed run is removed by the next store opened in the same place (or the next run of an experiment) once its
+process is gone. Nothing else in `store_dir` is touched; `store_dir` itself is removed only if the
 store created it and it is empty at close.
 """
 
@@ -25,6 +26,7 @@ import numpy as np
 
 from msa_slam.errors import InputError
 from msa_slam.io.atomic import atomic_path
+from msa_slam.io.staging import WRITER, Writer, abandoned, remove_scratch
 from msa_slam.registration.clouds import KeyframeCloudStore, downsample
 
 PREFIX = "msa-kf-clouds-"
@@ -46,18 +48,22 @@ def process_alive(pid: int) -> bool:
 def remove_stale_stores(parent: Path) -> list[Path]:
     """Remove the store folders in `parent` left by runs whose process is gone; return them.
 
-    Only folders named by this module, owned by this user and holding nothing but cloud files qualify.
-    POSIX only: elsewhere os.kill(pid, 0) does not test for existence.
+    Only folders named by this module, owned by this user and holding nothing but cloud files qualify, and
+    only once their WRITER's lock is free (folders of versions without one: once their process is gone).
     """
-    if os.name != "posix" or not parent.is_dir():
+    if not parent.is_dir():
         return []
     removed = []
     for path in parent.iterdir():
         match = _OWNED.fullmatch(path.name)
-        if match is None or path.is_symlink() or not path.is_dir() or process_alive(int(match.group(1))):
+        if match is None or path.is_symlink() or not path.is_dir():
             continue
         try:
-            if path.stat().st_uid != os.getuid() or not all(_STORE_FILE.fullmatch(f.name) for f in path.iterdir()):
+            if path.stat().st_uid != os.getuid() or not all(_STORE_FILE.fullmatch(f.name) or f.name == WRITER
+                                                            for f in path.iterdir()):
+                continue
+            marked = (path / WRITER).exists()
+            if (marked and not abandoned(path)) or (not marked and process_alive(int(match.group(1)))):
                 continue
             shutil.rmtree(path)
         except OSError:  # removed meanwhile by another run, or not ours to remove
@@ -66,12 +72,12 @@ def remove_stale_stores(parent: Path) -> list[Path]:
     return removed
 
 
-def _remove_store(folder: Path, created: list[Path], owner: int) -> None:
+def _remove_store(folder: Path, writer: Writer, created: list[Path], owner: int) -> None:
     """Remove the store's folder, then the folders made for it (deepest first) while they are empty;
     only in the process that made them (a forked child's copy of the store must not delete them)."""
     if os.getpid() != owner:
         return
-    shutil.rmtree(folder, ignore_errors=True)
+    remove_scratch(folder, writer)
     for path in created:
         try:
             path.rmdir()  # fails if not empty: never removes what someone else put there meanwhile
@@ -93,8 +99,9 @@ class DiskCloudStore:
         parent.mkdir(parents=True, exist_ok=True)
         remove_stale_stores(parent)
         self.folder = Path(tempfile.mkdtemp(prefix=f"{PREFIX}{os.getpid()}-", dir=parent))
+        writer = Writer(self.folder)
         self._sizes: dict[Hashable, int] = {}
-        self._cleanup = weakref.finalize(self, _remove_store, self.folder, created, os.getpid())
+        self._cleanup = weakref.finalize(self, _remove_store, self.folder, writer, created, os.getpid())
 
     def _path(self, key: Hashable) -> Path:
         return self.folder / f"kf_{key}.npy"

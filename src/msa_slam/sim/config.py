@@ -1,6 +1,7 @@
 """What determines a simulated sequence: `SimConfig` (trajectory, sensor, frames, world seed, realism preset),
 validated before any long work, and its cache key (the config, a trajectory file by content, the preset's
-parameters, the simulator version and the libraries that ray-cast the scans)."""
+parameters, the simulator version, the fingerprint of the simulator's code and shipped trajectories, and the
+libraries that ray-cast the scans)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from pydantic import (BaseModel, ConfigDict, Field, PrivateAttr, ValidationError
 
 from msa_slam.errors import InputError
 from msa_slam.io.cache import cache_key
+from msa_slam.io.fingerprint import code_fingerprint
 from msa_slam.io.poses import POSE_FORMATS
 from msa_slam.sim.layout import STYLES
 from msa_slam.sim.realism import DEFAULT_REALISM, REALISM
@@ -20,8 +22,10 @@ from msa_slam.sim.sensors import SENSORS
 from msa_slam.sim.trajectories import (TRAJECTORY_NAMES, Trajectory, frame_indices, load_trajectory,
                                        read_trajectory)
 
-SIM_VERSION = "9"  # bump when generated worlds or scans change, so stale caches are not reused
+SIM_VERSION = "9"  # the generation of worlds and scans that docs and sim.json name: bump it when they change
 SIM_LIBRARIES = ("trimesh", "embreex", "numpy", "scipy")  # ray casting, noise, poses (Rotation): the cache key
+SIM_CODE = ("msa_slam.sim",)  # the simulator, and what it imports: the cache key
+SIM_DATA = ("data/trajectories/*.npz",)  # the shipped trajectories it follows
 
 
 class SimConfig(BaseModel):
@@ -122,13 +126,14 @@ class SimConfig(BaseModel):
 
     def key(self) -> str:
         """The cache key: hash of the config (a trajectory file by its content), the realism preset's parameters,
-        the simulator version and the versions of msa-slam and of the libraries that ray-cast the scans."""
+        the simulator version, the fingerprint of the simulator's code and shipped trajectories (SIM_CODE,
+        SIM_DATA) and the versions of the libraries that ray-cast the scans."""
         config = self.model_dump()
         if self.is_file:  # the files' content, not where they are
             config.update(trajectory="file", times=None, calib=None, trajectory_files=self._files_sha256)
         preset = asdict(REALISM[self.realism])  # its parameters: retuning a preset is a new simulation
         return cache_key("simulation", [], {"config": config, "realism_preset": preset, "sim_version": SIM_VERSION},
-                         SIM_LIBRARIES)
+                         code_fingerprint(SIM_CODE, SIM_DATA), SIM_LIBRARIES)
 
 
 def make_config(**fields: object) -> SimConfig:

@@ -10,15 +10,18 @@ back over [t_k - 0.05 s, t_k + 0.05 s], each column cast from the pose interpola
 at its firing time, and each point is reported in the sensor frame of its own firing time (not deskewed).
 For kiss-icp's KITTI loader it also holds sequences/00/ and poses/00.txt as relative links:
 `KITTIOdometryDataset(DIR, "00")`.
-Directories are written under a locked temporary name (`.NAME.partial-*`, removed by the next run if
-its writer was killed) and renamed when complete, so a partial one is never mistaken for a cached sequence;
-sim.json records every scan's size, so a truncated scan makes the sequence incomplete (simulated again).
+Directories are written under a locked temporary name (`.NAME.partial-*`, marked as msa-slam's and removed
+by the next run if its writer was killed) and renamed when complete, so a partial one is never mistaken for a
+cached sequence; sim.json records every scan's size, so a truncated scan makes the sequence incomplete: the
+next use casts the missing or truncated scans again in place (the same bytes), never replacing the folder.
 Scans are independent (each frame's noise has its own seed), so a long sequence is cast by a pool of worker
 processes, each holding its own copy of the world: the files are the same bytes as one process writes.
 """
 
 from __future__ import annotations
 
+import contextlib
+import itertools
 import json
 import logging
 import multiprocessing
@@ -32,7 +35,10 @@ import numpy as np
 import msa_slam
 from msa_slam.datasets.point_times import TIMES_FOLDER
 from msa_slam.errors import InputError
-from msa_slam.io.cache import cache_root, partial_dir, remove_orphans
+from msa_slam.io.atomic import write_text_atomic
+from msa_slam.io.cache import cache_root, partial_dir, remove_partials
+from msa_slam.io.outputs import out_path, refuse_working_directory
+from msa_slam.io.staging import write_error
 from msa_slam.io.poses import format_kitti
 from msa_slam.progress import progress_bar
 from msa_slam.sim.config import SIM_VERSION, SimConfig
@@ -118,39 +124,62 @@ def default_workers(frames: int) -> int:
     return 0 if frames < PARALLEL_MIN_FRAMES or cpus < 2 else min(cpus, MAX_WORKERS)
 
 
-def _written_scans(sim: Simulation, target: Path, workers: int) -> Iterator[tuple[int, int | None]]:
-    """Every frame's (scan bytes, times bytes) in frame order, cast here (workers 0) or by a spawned pool."""
+def _written_scans(sim: Simulation, target: Path, workers: int, frames: list[int]
+                   ) -> Iterator[tuple[int, int | None]]:
+    """Each of `frames`' (scan bytes, times bytes) in order, cast here (workers 0) or by a spawned pool."""
     if workers <= 0:
-        yield from (_write_scan(sim, target, k) for k in range(len(sim)))
+        yield from (_write_scan(sim, target, k) for k in frames)
         return
     context = multiprocessing.get_context("spawn")  # not fork: the parent's ray-casting library may hold threads
     with context.Pool(workers, initializer=_start_worker, initargs=(sim.config,)) as pool:
-        yield from pool.imap(_worker_write, [(target, k) for k in range(len(sim))], chunksize=4)
+        yield from pool.imap(_worker_write, [(target, k) for k in frames], chunksize=4)
 
 
-def _write(sim: Simulation, target: Path, progress: bool, workers: int) -> None:
-    (target / "velodyne").mkdir(parents=True)
+def _cast(sim: Simulation, target: Path, progress: bool, workers: int, frames: list[int]
+          ) -> tuple[list[int], list[int]]:
+    """Write the scans (and per-point times) of `frames` into target/velodyne (/velodyne_times); their sizes."""
+    (target / "velodyne").mkdir(parents=True, exist_ok=True)
     if not sim.realism.is_clean:
-        (target / TIMES_FOLDER).mkdir()
+        (target / TIMES_FOLDER).mkdir(exist_ok=True)
     with progress_bar(quiet=not progress, transient=False) as bar:
-        task = bar.add_task(f"simulating {sim.config.label} / {sim.config.sensor}", total=len(sim))
+        task = bar.add_task(f"simulating {sim.config.label} / {sim.config.sensor}", total=len(frames))
         sizes, times_sizes = [], []
-        for k, (scan_bytes, times_bytes) in enumerate(_written_scans(sim, target, workers)):
+        for k, (scan_bytes, times_bytes) in zip(frames, _written_scans(sim, target, workers, frames)):
             if scan_bytes == 0:
                 raise empty_scan_error(sim.config, k, len(sim))
             sizes.append(scan_bytes)
             if times_bytes is not None:
                 times_sizes.append(times_bytes)
             bar.advance(task)
-    (target / "poses.txt").write_text(format_kitti(sim.poses))
-    (target / "times.txt").write_text("".join(f"{t:.6e}\n" for t in sim.times))
-    (target / "calib.txt").write_text(CALIB_TEXT)
-    kiss = target / "sequences" / "00"
-    kiss.mkdir(parents=True)
-    for name in ("velodyne", "calib.txt", "times.txt", "poses.txt", *([TIMES_FOLDER] if times_sizes else [])):
-        (kiss / name).symlink_to(Path("..", "..", name))
-    (target / "poses").mkdir()
-    (target / "poses" / "00.txt").symlink_to(Path("..", "poses.txt"))
+    return sizes, times_sizes
+
+
+def _write_layout(sim: Simulation, target: Path) -> None:
+    """poses.txt, times.txt, calib.txt and the links kiss-icp's loader reads, each only where it is missing
+    (a repair leaves what is there)."""
+    tables = {"poses.txt": format_kitti(sim.poses), "times.txt": "".join(f"{t:.6e}\n" for t in sim.times),
+              "calib.txt": CALIB_TEXT}
+    for name, text in tables.items():
+        if not (target / name).exists():
+            write_text_atomic(target / name, text)
+    links = {Path("sequences", "00", name): Path("..", "..", name)
+             for name in ("velodyne", *tables, *([] if sim.realism.is_clean else [TIMES_FOLDER]))}
+    links[Path("poses", "00.txt")] = Path("..", "poses.txt")
+    for link, points_to in links.items():
+        if not (target / link).is_symlink() and not (target / link).exists():
+            (target / link).parent.mkdir(parents=True, exist_ok=True)
+            (target / link).symlink_to(points_to)
+
+
+def _write(sim: Simulation, target: Path, progress: bool, workers: int) -> None:
+    sizes, times_sizes = _cast(sim, target, progress, workers, list(range(len(sim))))
+    _write_layout(sim, target)
+    _write_meta(sim, target, sizes, times_sizes)
+    warn_sparse_scans(sim.config, sizes)
+
+
+def _write_meta(sim: Simulation, target: Path, sizes: list[int], times_sizes: list[int]) -> None:
+    """sim.json, written last (atomically): it marks the sequence complete."""
     meta = {
         "key": sim.config.key(), "sim_version": SIM_VERSION, "msa_slam_version": msa_slam.__version__,
         "config": sim.config.model_dump(), "frames": len(sim), "scan_bytes": sizes,
@@ -163,8 +192,7 @@ def _write(sim: Simulation, target: Path, progress: bool, workers: int) -> None:
         "source": (f"trajectory file {sim.config.trajectory}" if sim.config.is_file
                    else KITTI_CITATION if sim.config.trajectory.startswith("kitti") else "procedural"),
     }
-    (target / META_FILE).write_text(json.dumps(meta, indent=1))  # written last: marks completeness
-    warn_sparse_scans(sim.config, sizes)
+    write_text_atomic(target / META_FILE, json.dumps(meta, indent=1))
 
 
 def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
@@ -174,43 +202,95 @@ def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
 
     Without `out` the directory is <cache>/<trajectory>_<sensor>_<key>. An existing complete
     simulation of the same config is returned as is; one of the same config with a missing or truncated
-    scan is simulated again (with a warning); any other existing non-empty `out` is an error. A scan without
-    points is an error as soon as it is cast (nothing is written); scans too sparse to register, or a max_range
-    too short for odometry, give one warning each, again whenever the sequence is reused (sim/coverage.py).
+    scan is repaired in place (with a warning): only those scans are cast again (the same bytes: every frame
+    has its own noise seed), and files msa-slam did not write there stay. Any other existing non-empty `out`
+    is an error. A scan without points is an error as soon as it is cast (nothing is written); scans too
+    sparse to register, or a max_range too short for odometry, give one warning each, again whenever the
+    sequence is reused (sim/coverage.py). A failed write (full disk, no permission) is one line.
     `workers`: processes casting scans (0: this one; None: `default_workers`); the bytes do not depend on it.
     """
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
         raise InputError(f"simulate: workers must be an integer >= 0, got {workers!r}")
     key = config.key()
-    target = Path(out) if out is not None else cache_root(cache_dir) / f"{config.label}_{config.sensor}_{key}"
-    remove_orphans(target.parent, f".{target.name}.partial-*")
+    target = out_path(out) if out is not None else cache_root(cache_dir) / f"{config.label}_{config.sensor}_{key}"
+    remove_partials(target.parent, target.name)
     if is_complete(target, key):
         warn_short_range(config)
         warn_sparse_scans(config, _read_meta(target)["scan_bytes"])  # as when it was written
         return target
-    damaged = _is_ours(target, key)
-    if damaged:
-        log.warning("%s: a scan is missing or truncated (sizes differ from %s); simulating it again",
-                    target, META_FILE)
-    elif target.exists() and (not target.is_dir() or any(target.iterdir())):
+    if _is_ours(target, key):
+        _repair(config, target, progress, workers)
+        return target
+    if target.exists() and (not target.is_dir() or any(target.iterdir())):
         raise InputError(f"{target}: exists and is not a complete simulation of this config (key {key}); "
                          "remove it or choose another output directory")
+    if out is not None:  # the new sequence takes the folder's place (reused or repaired, it stays)
+        refuse_working_directory(out)
     sim = prepare(config)
-    try:
+    with _writing(target):
         target.parent.mkdir(parents=True, exist_ok=True)
-        with partial_dir(target.parent, target.name) as tmp:
+        with partial_dir(target.parent, target.name) as tmp, _writing(target, tmp):  # mapped before tmp goes
             _write(sim, tmp / "seq", progress, default_workers(len(sim)) if workers is None else workers)
-            if damaged:
-                os.replace(target, tmp / "damaged")  # removed with the scratch folder
-            elif target.exists():
+            if target.exists():
                 target.rmdir()  # an empty directory (checked above) is replaced
-            os.replace(tmp / "seq", target)
-    except OSError as exc:
-        if is_complete(target, key):  # a concurrent writer finished first
-            return target
-        raise InputError(f"{target}: cannot write the simulated sequence ({exc.strerror or exc}); "
-                         "choose a writable --out or cache folder (MSA_SLAM_CACHE)") from None
+            try:
+                os.replace(tmp / "seq", target)
+            except OSError:
+                if not is_complete(target, key):  # else a concurrent writer finished first
+                    raise
     return target
+
+
+@contextlib.contextmanager
+def _writing(target: Path, written: Path | None = None) -> Iterator[None]:
+    """A failed write of the sequence (staged in `written`) as one line (a full disk, no permission:
+    staging.write_error), told while what was written is still there (its size, the space then free)."""
+    try:
+        yield
+    except OSError as exc:
+        raise write_error(exc, target, written, writing=True,
+                          advice="choose a writable --out or cache folder (MSA_SLAM_CACHE)") from None
+
+
+def _damaged_frames(seq_dir: Path, meta: dict) -> list[int]:
+    """The frames whose scan (or per-point times file) is missing or not of the size sim.json records."""
+    sizes, times_sizes = meta.get("scan_bytes", []), meta.get("point_times_bytes") or []
+    velodyne, point_times = seq_dir / "velodyne", seq_dir / TIMES_FOLDER
+    return [k for k, size in enumerate(sizes) if _scan_size(velodyne / f"{k:06d}.bin") != size
+            or (k < len(times_sizes) and _scan_size(point_times / f"{k:06d}.npy") != times_sizes[k])]
+
+
+def _repair(config: SimConfig, target: Path, progress: bool, workers: int | None) -> None:
+    """Cast again, in place, the missing or truncated scans of a simulation of `config` (each into a scratch
+    folder beside it, then renamed over the damaged file), write its missing tables and links, and sim.json
+    last. Files msa-slam did not write there stay; scans sim.json does not list are refused (a loader would
+    read them as frames)."""
+    meta = _read_meta(target)
+    listed = {f"{k:06d}.bin" for k in range(len(meta.get("scan_bytes", [])))}
+    extra = sorted(p.name for p in (target / "velodyne").glob("*.bin") if p.name not in listed)
+    if extra:
+        raise InputError(f"{target}: velodyne/ holds scans {META_FILE} does not list ({', '.join(extra[:3])}); "
+                         "move them elsewhere (msa-slam never removes files it did not write)")
+    frames = _damaged_frames(target, meta)
+    log.warning("%s: a scan is missing or truncated (sizes differ from %s); casting %d scan(s) again in place",
+                target, META_FILE, len(frames))
+    sim = prepare(config)
+    with _writing(target), partial_dir(target.parent, target.name) as tmp, _writing(target, tmp):
+        sizes, times_sizes = _cast(sim, tmp, progress, default_workers(len(frames)) if workers is None else workers,
+                                   frames)
+        for folder in ("velodyne", *([] if sim.realism.is_clean else [TIMES_FOLDER])):
+            (target / folder).mkdir(exist_ok=True)
+            for file in sorted((tmp / folder).iterdir()):
+                os.replace(file, target / folder / file.name)
+        _write_layout(sim, target)
+        recorded, recorded_times = list(meta["scan_bytes"]), list(meta.get("point_times_bytes") or [])
+        for k, size, times_size in itertools.zip_longest(frames, sizes, times_sizes):
+            recorded[k] = size
+            if times_size is not None:
+                recorded_times[k] = times_size
+        _write_meta(sim, target, recorded, recorded_times)
+    warn_short_range(config)
+    warn_sparse_scans(config, recorded)
 
 
 # The embedded defaults (see docs in `default_sequence`).

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import replace
 from typing import Any, Callable, Protocol, Union
 
 import numpy as np
@@ -48,7 +49,9 @@ class Graph(Protocol):
 
     keys: list[int]
     nbytes: int
-    factors: Any  # gtsam.NonlinearFactorGraph of every factor added
+    factors: Any  # gtsam.NonlinearFactorGraph of every factor the optimiser used
+
+    def describe(self) -> dict[str, Any]: ...
 
     def add_keyframe(self, key: int, pose: np.ndarray) -> None: ...
     def add_loop(self, target_key: int, source_key: int, T_target_source: np.ndarray) -> None: ...
@@ -219,6 +222,7 @@ class SlamBackend:
         memory = self.memory_bytes()
         t0 = time.perf_counter()
         optimised = self.graph.optimize()
+        self._mark_dropped(getattr(self.graph, "dropped_loops", ()))
         t1 = time.perf_counter()
         gt = self.gt if self.has_gt else None
         pr = self.loop_closer.pr_curve() if gt is not None else no_ground_truth_pr()
@@ -233,7 +237,18 @@ class SlamBackend:
         return RunResult(self.settings, self.name, self.times, self.odometry, gt, keys, optimised, self.loops,
                          pr, evaluation, self.steps_ms, memory, stats, len(self.loop_closer.best_similarity),
                          {"optimisation": t1 - t0, "evaluation": t2 - t1}, map_points=map_points,
-                         graph_factors=self.graph.factors, rss_growth_bytes=rss_growth)
+                         graph_factors=self.graph.factors, rss_growth_bytes=rss_growth,
+                         graph_info=self.graph.describe())
+
+    def _mark_dropped(self, dropped: tuple[int, ...]) -> None:
+        """Loops the graph left out as inconsistent (indices in the order they were added, which is the order of
+        the accepted records) are recorded as rejected for that reason."""
+        if not dropped:
+            return
+        accepted = [k for k, loop in enumerate(self.loops) if loop.accepted]
+        for i in dropped:
+            k = accepted[i]
+            self.loops[k] = replace(self.loops[k], accepted=False, rejected="inconsistent")
 
     def close(self) -> None:
         """Release the keyframe clouds (a disk store removes the files it wrote); safe to call twice."""

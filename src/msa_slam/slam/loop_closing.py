@@ -7,8 +7,12 @@ match is recorded for the PR curve, and matches at or above the similarity thres
 `realistic` mode verifies every candidate. Verification registers the two downsampled keyframe clouds;
 the loop is rejected when the clouds are too sparse, overlap too little, have too few inliers or too
 large a residual (registration.verify), or (drift check on: by default in realistic mode) when its
-correction of the odometry between the two keyframes exceeds `drift_gate` times what the drift model
-allows over the travelled distance plus a slack (`drift_slack_m`, `drift_slack_deg`). An accepted loop
+correction of the odometry between the two keyframes is not explained by the odometry covariance
+accumulated frame by frame along the path between them (the drift model's, backend/noise.py PathCovariance,
+scaled to systematic growth beyond the model's reference length and widened `drift_gate` times in sigma),
+the loop's own covariance and a slack (`drift_slack_m`,
+`drift_slack_deg`: the correction allowed in one direction with no path at all): a chi-square test at
+`drift_confidence`, 6 degrees of freedom. An accepted loop
 whose ground-truth distance exceeds `loop_radius` is a false loop; one over at least 2 x `loop_radius`
 of path (the robot left the place and came back) is a revisit.
 """
@@ -18,9 +22,12 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any, Protocol
 
+import gtsam
 import numpy as np
+from scipy.stats import chi2
 
 from msa_slam.backend.graph import GraphConfig
+from msa_slam.backend.noise import PathCovariance
 from msa_slam.descriptors import Descriptor
 from msa_slam.errors import InputError
 from msa_slam.place_recognition import PRCurve, precision_recall
@@ -42,12 +49,15 @@ class LoopSettings(Protocol):
     min_travel_m: float
     drift_check: str
     drift_gate: float
+    drift_confidence: float
     drift_slack_m: float
     drift_slack_deg: float
     graph: GraphConfig
 
 
-REJECTION_REASONS = ("sparse", *REJECTIONS, "drift")  # every reason a registered candidate can be rejected for
+# every reason a registered candidate can be rejected for; "inconsistent": accepted by loop closing, then left out
+# of the batch graph by the pairwise consistency check (backend/inliers.py)
+REJECTION_REASONS = ("sparse", *REJECTIONS, "drift", "inconsistent")
 
 
 def yaw_guess(descriptor: Descriptor, query_desc: np.ndarray, match_desc: np.ndarray) -> np.ndarray:
@@ -70,6 +80,7 @@ class LoopCloser:
         self.best_distance: list[float] = []
         self._path = np.zeros(1)  # odometry path length from frame 0 to each frame seen so far
         self._odometry = np.zeros((0, 4, 4))
+        self._drift = PathCovariance()  # odometry covariance accumulated frame by frame (the drift check)
 
     def candidates(self, frame: int, descriptor: np.ndarray, gt: np.ndarray,
                    odometry: np.ndarray) -> list[LoopClosure]:
@@ -103,6 +114,15 @@ class LoopCloser:
             self._path = np.concatenate([self._path, self._path[-1] + np.cumsum(steps)])
         return self._path
 
+    def _drift_to(self, frame: int) -> PathCovariance:
+        """The accumulated odometry covariance up to `frame`, extended incrementally like the path length."""
+        graph = self.settings.graph
+        for k in range(len(self._drift), frame + 1):
+            pose = self._odometry[k]
+            self._drift.append(pose, graph.odometry_covariance(np.linalg.inv(self._odometry[k - 1]) @ pose)
+                               if k else None)
+        return self._drift
+
     def verify(self, candidates: list[LoopClosure]) -> list[LoopClosure]:
         """Register candidate pairs (all in `realistic` mode, only GT-near ones in `oracle` mode)."""
         return [self._verify(c) for c in candidates]
@@ -117,22 +137,41 @@ class LoopCloser:
         except InputError:  # clouds too sparse to register: the candidate is rejected, not the run
             return replace(cand, verified=True, residual=float("inf"), rejected="sparse")
         rejected = result.rejected
-        if not rejected and drift_check_on(self.settings) and self.exceeds_drift(cand, result.T_target_source):
+        if not rejected and drift_check_on(self.settings) and self.exceeds_drift(cand, result.T_target_source,
+                                                                                  result.covariance):
             rejected = "drift"
         return replace(cand, verified=True, accepted=not rejected, residual=result.residual,
                        T_match_query=result.T_target_source, covariance=result.covariance, rejected=rejected)
 
-    def exceeds_drift(self, cand: LoopClosure, T_match_query: np.ndarray) -> bool:
-        """Whether the loop corrects the odometry between its keyframes by more than the drift model allows
-        over the travelled path (times `drift_gate`, plus the slack)."""
+    def exceeds_drift(self, cand: LoopClosure, T_match_query: np.ndarray,
+                      covariance: np.ndarray | None = None) -> bool:
+        """Whether the loop's correction of the odometry between its keyframes is beyond what the drift check
+        allows (drift_chi2 above the chi-square quantile `drift_confidence`, 6 dof)."""
+        return self.drift_chi2(cand, T_match_query, covariance) > float(chi2.ppf(self.settings.drift_confidence, 6))
+
+    def drift_chi2(self, cand: LoopClosure, T_match_query: np.ndarray, covariance: np.ndarray | None = None) -> float:
+        """Chi-square of the correction Log(T_odometry^-1 T_match_query) (query frame) against drift_gate^2 times
+        the odometry covariance accumulated along the frames between the keyframes, plus the loop factor's
+        covariance (`covariance`: the registration's, bounded as the graph bounds it) and the slack, whose
+        sigma is scaled so that a correction in one direction of exactly the slack sits on the bound.
+
+        Why a covariance, not a per-metre allowance on the travelled distance: it follows the path, so a
+        heading or pitch error picked up early moves the later positions sideways or vertically by the lever
+        arm the path actually has, and it is the same quantity the pose graph weights odometry with. The drift
+        model is a random walk calibrated over `graph.drift_reference_m`; odometry drift is mostly systematic
+        (KITTI's relative error is about the same fraction of 100 m and 800 m segments), so over a longer path
+        the covariance is scaled by path / reference: the sigma then grows with the path, not its square root
+        (x2.6 over 690 m). The pose graph keeps the random walk: there it only weights the chain."""
         s = self.settings
-        odometry = np.linalg.inv(self._odometry[cand.match]) @ self._odometry[cand.query]
-        correction = np.linalg.inv(odometry) @ T_match_query
-        shift = float(np.linalg.norm(correction[:3, 3]))
-        angle = float(np.arccos(np.clip((np.trace(correction[:3, :3]) - 1) / 2, -1.0, 1.0)))
-        max_shift, max_angle = s.graph.drift.allowance(cand.travelled_m)
-        return (shift > s.drift_gate * max_shift + s.drift_slack_m
-                or angle > s.drift_gate * max_angle + np.radians(s.drift_slack_deg))
+        odometry, path_cov = self._drift_to(cand.query).between(cand.match, cand.query)
+        correction = gtsam.Pose3.Logmap(gtsam.Pose3(np.linalg.inv(odometry) @ T_match_query))
+        bound = float(chi2.ppf(s.drift_confidence, 6))
+        slack = np.repeat([np.radians(s.drift_slack_deg), s.drift_slack_m], 3) ** 2 / bound
+        # Beyond the calibration length the random walk's variance (growing with the path) becomes systematic
+        # drift's (growing with its square), as KITTI's relative error, a constant fraction over 100-800 m, has it
+        systematic = max(1.0, cand.travelled_m / s.graph.drift_reference_m) if np.isfinite(cand.travelled_m) else 1.0
+        total = s.drift_gate**2 * systematic * path_cov + s.graph.loop_covariance(covariance) + np.diag(slack)
+        return float(correction @ np.linalg.solve(total, correction))
 
     def pr_curve(self) -> PRCurve | None:
         """Precision-recall of the best matches (None when no keyframe had an older one to query)."""
@@ -146,10 +185,12 @@ def drift_check_on(settings: LoopSettings) -> bool:
     return settings.drift_check == "on" or settings.drift_check == "auto" and settings.mode == "realistic"
 
 
-def loop_summary(loops: list[LoopClosure], settings: LoopSettings) -> dict[str, Any]:
+def loop_summary(loops: list[LoopClosure], settings: LoopSettings,
+                 graph_info: dict[str, Any] | None = None) -> dict[str, Any]:
     """What metrics.json reports about loop closing: rejections by reason, accepted loops that are revisits
     (at least 2 x loop_radius of odometry path between the keyframes) apart from the others, and the
-    noise models and robust kernel the loop factors had."""
+    noise models, inlier selection and robust kernel the loop factors had (`graph_info`, the graph's own
+    account; without it, what a batch graph in the run's mode does)."""
     accepted = [c for c in loops if c.accepted]
     revisits = sum(c.travelled_m >= 2 * settings.loop_radius for c in accepted)
     graph = settings.graph
@@ -158,5 +199,7 @@ def loop_summary(loops: list[LoopClosure], settings: LoopSettings) -> dict[str, 
         "revisit_loops": int(revisits), "other_loops": len(accepted) - int(revisits),
         "min_travel_m": settings.min_travel_m, "drift_check": drift_check_on(settings),
         "loop_kernel": graph.loop_kernel(settings.mode),
+        "loop_inliers": "consistent" if graph.selects_inliers(settings.mode) else "all",
+        **(graph_info or {}),
         "loop_noise": graph.loop_noise, "odometry_noise": graph.odometry_noise,
     }

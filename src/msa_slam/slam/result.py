@@ -71,6 +71,7 @@ class RunResult:
     descriptors: np.ndarray | None = None  # per-frame descriptors, when the pipeline kept them (batch)
     graph_factors: Any = None  # the pose graph's factors (gtsam.NonlinearFactorGraph), for pose_graph.g2o
     rss_growth_bytes: int = 0  # process RSS after the final optimisation minus at the back-end's start
+    graph_info: dict[str, Any] = field(default_factory=dict)  # how loops entered the graph (Graph.describe)
 
     @property
     def accepted_loops(self) -> list[LoopClosure]:
@@ -121,7 +122,7 @@ def core_metrics(result: RunResult) -> dict[str, Any]:
         "candidates": accounting.candidates, "true_candidates": accounting.true_candidates,
         "verified": accounting.accepted, "registrations": accounting.registered,
         "false_loops": int(sum(c.gt_distance > cfg.loop_radius for c in accepted)),
-        "loop_closing": loop_summary(loops, cfg),
+        "loop_closing": loop_summary(loops, cfg, result.graph_info),
         "loop_accounting": accounting.as_dict(),
         **ev.metrics,
         "full_rate": full_rate,
