@@ -3,24 +3,14 @@ the table over seeds, on hand-made run values (the runs themselves are the pipel
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
-
-PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_msa_windows.py"
+from helpers.benchmarks import loaded_benchmark
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_msa_windows", PATH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up
-    spec.loader.exec_module(module)
-    yield module
-    del sys.modules[spec.name]
+    yield from loaded_benchmark("bench_msa_windows")
 
 
 def test_rows_modes_and_refusals_come_from_the_sampler(bench):

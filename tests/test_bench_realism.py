@@ -3,25 +3,15 @@ because every recorded match is true, on constructed matches (the runs themselve
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
+from helpers.benchmarks import loaded_benchmark
 
 from msa_slam.place_recognition import precision_recall
-
-PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_realism.py"
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_realism", PATH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    yield module
-    del sys.modules[spec.name]
+    yield from loaded_benchmark("bench_realism")
 
 
 def test_all_true_matches_score_the_trapezoid_over_precision_one(bench):

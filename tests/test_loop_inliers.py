@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import drifted
 from scipy.spatial.transform import Rotation
 
 from msa_slam.backend import GraphConfig, PoseGraph
@@ -49,14 +50,8 @@ def _drive() -> np.ndarray:
 
 
 def _odometry(gt: np.ndarray) -> np.ndarray:
-    bias = np.eye(4)
-    bias[:3, :3] = Rotation.from_euler("z", 0.1, degrees=True).as_matrix()
-    odom = [gt[0]]
-    for a, b in zip(gt[:-1], gt[1:]):
-        step = np.linalg.inv(a) @ b
-        step[:3, 3] *= 1.01
-        odom.append(odom[-1] @ step @ bias)
-    return np.stack(odom)
+    """0.1 deg too far and 1 % too long every step (conftest.drifted)."""
+    return drifted(gt, math.radians(0.1), 1.01)
 
 
 @pytest.fixture(scope="module")

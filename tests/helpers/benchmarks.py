@@ -1,0 +1,22 @@
+"""Benchmarks are scripts, not package modules: their tests load them by path."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+from typing import Iterator
+
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
+
+
+def loaded_benchmark(name: str) -> Iterator[ModuleType]:
+    """benchmarks/NAME.py as a module, registered in sys.modules while in use (dataclasses look their module up);
+    for a module-scoped fixture: `yield from loaded_benchmark("bench_x")`."""
+    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    yield module
+    del sys.modules[spec.name]
