@@ -13,6 +13,7 @@ from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses
 from msa_slam.pipeline import load_config
+from msa_slam.pipeline.batch import RUN_SWEEP_NOT_RUN
 
 runner = CliRunner()
 
@@ -66,6 +67,35 @@ def test_run_writes_figures_and_report(run_folder):
     report = (run_folder / "report.md").read_text()
     assert "| ATE translation [m], full rate |" in report and "figures/trajectories.png" in report
     assert not [p for p in run_folder.parent.iterdir() if p.name.startswith(".")]  # no partial folders left
+
+
+def test_run_leaves_out_the_sweep_by_default(run_folder):
+    """The threshold sweep is an analysis, not part of a SLAM run: `run` without --sweep skips it and says how
+    to add it."""
+    metrics = json.loads((run_folder / "metrics.json").read_text())
+    assert metrics["threshold_sweep"] is None and metrics["time_s"]["threshold_sweep"] is None
+    assert metrics["unavailable"]["threshold_sweep"] == RUN_SWEEP_NOT_RUN
+    report = (run_folder / "report.md").read_text()
+    assert f"threshold sensitivity n/a: {RUN_SWEEP_NOT_RUN}" in report and "--sweep" in RUN_SWEEP_NOT_RUN
+    assert "Threshold sensitivity (only loop closing" not in report
+
+
+@pytest.fixture(scope="module")
+def swept_folder(sequence, odometry_file, cache_dir, tmp_path_factory):
+    """MSA (the default sampler: window optimisations to time) with --sweep."""
+    out = tmp_path_factory.mktemp("cli") / "swept"
+    result = runner.invoke(app, ["run", "--dataset", str(sequence), "--odometry", str(odometry_file), "--sweep",
+                                 "--cache-dir", str(cache_dir), "--out", str(out), "--quiet"])
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def test_run_with_sweep_writes_it(swept_folder):
+    metrics = json.loads((swept_folder / "metrics.json").read_text())
+    assert [row["threshold"] for row in metrics["threshold_sweep"]][0] == pytest.approx(0.70)
+    assert "threshold_sweep" not in metrics["unavailable"] and metrics["time_s"]["threshold_sweep"] > 0
+    report = (swept_folder / "report.md").read_text()
+    assert "Threshold sensitivity (only loop closing" in report and RUN_SWEEP_NOT_RUN not in report
 
 
 def test_run_reports_bad_input(tmp_path, cache_dir):

@@ -29,12 +29,14 @@ from msa_slam.slam import BACKEND_STEPS, RunResult, build_backend, core_metrics
 
 BACKEND_STAGES = (*BACKEND_STEPS, "optimisation")
 SWEEP_NOT_RUN = "not run: left out with `--no-sweep` (the demo leaves it out to stay short)"
+RUN_SWEEP_NOT_RUN = "not run (an analysis, not part of the run: pass `--sweep` to add it)"
 
 
 def run_batch(config: RunConfig, frontend: Frontend | None = None, quiet: bool = True,
-              sweep: bool = True, window_fix: str = CONFIG_WINDOW_FIX) -> RunResult:
+              sweep: bool = True, window_fix: str = CONFIG_WINDOW_FIX, sweep_off: str = SWEEP_NOT_RUN) -> RunResult:
     """Run one sampler through the batch protocol; pass `frontend` to reuse odometry and descriptors;
-    `sweep=False` leaves out the threshold sweep (metrics["threshold_sweep"] None). A front end built here
+    `sweep=False` leaves out the threshold sweep (metrics["threshold_sweep"] None; `sweep_off`: the reason
+    metrics["unavailable"] gives, which names the command's way to add it). A front end built here
     first refuses a sampler window the frames read never fill (prepare_frontend; `window_fix`: what the
     error says to change).
 
@@ -48,10 +50,10 @@ def run_batch(config: RunConfig, frontend: Frontend | None = None, quiet: bool =
     config = config_as_run(config, frontend.sequence.point_times)  # what result.config (config.yaml) records
     load_kernels(config.sampler, config.sampler_params, frontend.descriptors.shape[1:])  # not in the timings
     with threadpool_limits(limits=1, user_api="blas"):
-        return _run_backend(config, frontend, quiet, sweep)
+        return _run_backend(config, frontend, quiet, sweep, sweep_off)
 
 
-def _run_backend(config: RunConfig, frontend: Frontend, quiet: bool, sweep: bool) -> RunResult:
+def _run_backend(config: RunConfig, frontend: Frontend, quiet: bool, sweep: bool, sweep_off: str) -> RunResult:
     graph = PoseGraph(config.graph, mode=config.mode)
     clouds = KeyframeCloudStore(config.verifier.voxel_size)
     backend = build_backend(config, frontend.descriptor, clouds, graph, len(frontend), frontend.name)
@@ -74,7 +76,7 @@ def _run_backend(config: RunConfig, frontend: Frontend, quiet: bool, sweep: bool
         result.metrics["unavailable"]["threshold_sweep"] = "no ground truth: ATE improvement is undefined"
     result.metrics["threshold_sweep"] = result.metrics["time_s"]["threshold_sweep"] = None
     if not sweep:
-        result.metrics["unavailable"]["threshold_sweep"] = SWEEP_NOT_RUN
+        result.metrics["unavailable"]["threshold_sweep"] = sweep_off
     elif gt is not None:
         start = time.perf_counter()
         result.metrics["threshold_sweep"] = threshold_sweep(result, frontend, clouds)
