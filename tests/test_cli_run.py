@@ -6,6 +6,7 @@ import csv
 import inspect
 import json
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -13,7 +14,7 @@ from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses
 from msa_slam.pipeline import load_config
-from msa_slam.pipeline.batch import RUN_SWEEP_NOT_RUN
+from msa_slam.pipeline.batch import RUN_SWEEP_NOT_RUN, sampler_realtime_fraction
 
 runner = CliRunner()
 
@@ -96,6 +97,28 @@ def test_run_with_sweep_writes_it(swept_folder):
     assert "threshold_sweep" not in metrics["unavailable"] and metrics["time_s"]["threshold_sweep"] > 0
     report = (swept_folder / "report.md").read_text()
     assert "Threshold sensitivity (only loop closing" in report and RUN_SWEEP_NOT_RUN not in report
+
+
+def test_run_reports_the_samplers_time_over_the_datas_duration(swept_folder, sequence):
+    metrics = json.loads((swept_folder / "metrics.json").read_text())
+    times = np.loadtxt(sequence / "times.txt")
+    sampling_s = metrics["sampler_stats"]["optimisation_ms_total"] / 1e3
+    assert metrics["sampler_stats"]["window_optimisations"] > 0 and sampling_s > 0
+    assert metrics["sampler_realtime_fraction"] == pytest.approx(sampling_s / (times[-1] - times[0]))
+    assert "sampler_realtime_fraction" not in metrics["unavailable"]
+    report = (swept_folder / "report.md").read_text()
+    assert f"Sampler time over the data's duration: {metrics['sampler_realtime_fraction']:.4f}" in report
+
+
+def test_sampler_realtime_fraction_of_known_and_unknown_times():
+    """0.5 s of window optimisation over 10 s of data is 5 % of real time; frame numbers give no duration."""
+    stats = {"optimisation_ms_total": 500.0}
+    times = np.linspace(0.0, 10.0, 101)
+    assert sampler_realtime_fraction(stats, times, times_known=True) == (0.05, None)
+    fraction, why = sampler_realtime_fraction(stats, np.arange(101.0), times_known=False)
+    assert fraction is None and "no timestamps" in why
+    fraction, why = sampler_realtime_fraction(stats, np.zeros(5), times_known=True)
+    assert fraction is None and "span no time" in why
 
 
 def test_run_reports_bad_input(tmp_path, cache_dir):

@@ -13,6 +13,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
+import numpy as np
 from threadpoolctl import threadpool_limits
 
 from msa_slam.backend import PoseGraph
@@ -96,6 +97,20 @@ def _reference_pr(result: RunResult, matches: int, unavailable: dict[str, str]) 
             "matches": matches}
 
 
+def sampler_realtime_fraction(sampler_stats: dict[str, Any], times: np.ndarray,
+                              times_known: bool) -> tuple[float | None, str | None]:
+    """The sampler's window optimisations' total time over the duration of the data it sampled (the frames'
+    first to last timestamp): the share of a real-time budget sampling alone takes. None with the reason when
+    the frames have no timestamps (`times_known` False: their times are frame numbers, 1 frame/s) or span no
+    time."""
+    if not times_known:
+        return None, "the frames have no timestamps, so the data's duration is unknown"
+    span = float(times[-1] - times[0]) if len(times) > 1 else 0.0
+    if not span > 0:
+        return None, "the frames' timestamps span no time"
+    return sampler_stats["optimisation_ms_total"] / 1e3 / span, None
+
+
 def _metrics(result: RunResult, frontend: Frontend) -> dict[str, Any]:
     cfg = result.config
     times = {s: float(result.steps_ms[s].sum()) / 1e3 for s in BACKEND_STEPS}
@@ -103,6 +118,10 @@ def _metrics(result: RunResult, frontend: Frontend) -> dict[str, Any]:
     backend_time = sum(times.get(s, 0.0) for s in BACKEND_STAGES)
     metrics = core_metrics(result)
     metrics["warnings"] = [*frontend.warnings, *metrics["warnings"]]
+    fraction, why = sampler_realtime_fraction(result.sampler_stats, result.times, frontend.sequence.times_known)
+    metrics["sampler_realtime_fraction"] = fraction
+    if why is not None:
+        metrics["unavailable"]["sampler_realtime_fraction"] = why
     metrics.update({
         "time_s": {**{k: round(v, 4) for k, v in times.items()}, "backend_total": round(backend_time, 4)},
         "frontend_time_s": {k: round(v, 4) for k, v in frontend.timer.seconds.items()},
