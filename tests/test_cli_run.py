@@ -6,6 +6,7 @@ import csv
 import inspect
 import json
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -13,6 +14,7 @@ from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses
 from msa_slam.pipeline import load_config
+from msa_slam.pipeline.batch import RUN_SWEEP_NOT_RUN, sampler_realtime_fraction
 
 runner = CliRunner()
 
@@ -66,6 +68,57 @@ def test_run_writes_figures_and_report(run_folder):
     report = (run_folder / "report.md").read_text()
     assert "| ATE translation [m], full rate |" in report and "figures/trajectories.png" in report
     assert not [p for p in run_folder.parent.iterdir() if p.name.startswith(".")]  # no partial folders left
+
+
+def test_run_leaves_out_the_sweep_by_default(run_folder):
+    """The threshold sweep is an analysis, not part of a SLAM run: `run` without --sweep skips it and says how
+    to add it."""
+    metrics = json.loads((run_folder / "metrics.json").read_text())
+    assert metrics["threshold_sweep"] is None and metrics["time_s"]["threshold_sweep"] is None
+    assert metrics["unavailable"]["threshold_sweep"] == RUN_SWEEP_NOT_RUN
+    report = (run_folder / "report.md").read_text()
+    assert f"threshold sensitivity n/a: {RUN_SWEEP_NOT_RUN}" in report and "--sweep" in RUN_SWEEP_NOT_RUN
+    assert "Threshold sensitivity (only loop closing" not in report
+
+
+@pytest.fixture(scope="module")
+def swept_folder(sequence, odometry_file, cache_dir, tmp_path_factory):
+    """MSA (the default sampler: window optimisations to time) with --sweep."""
+    out = tmp_path_factory.mktemp("cli") / "swept"
+    result = runner.invoke(app, ["run", "--dataset", str(sequence), "--odometry", str(odometry_file), "--sweep",
+                                 "--cache-dir", str(cache_dir), "--out", str(out), "--quiet"])
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def test_run_with_sweep_writes_it(swept_folder):
+    metrics = json.loads((swept_folder / "metrics.json").read_text())
+    assert [row["threshold"] for row in metrics["threshold_sweep"]][0] == pytest.approx(0.70)
+    assert "threshold_sweep" not in metrics["unavailable"] and metrics["time_s"]["threshold_sweep"] > 0
+    report = (swept_folder / "report.md").read_text()
+    assert "Threshold sensitivity (only loop closing" in report and RUN_SWEEP_NOT_RUN not in report
+
+
+def test_run_reports_the_samplers_time_over_the_datas_duration(swept_folder, sequence):
+    metrics = json.loads((swept_folder / "metrics.json").read_text())
+    times = np.loadtxt(sequence / "times.txt")
+    sampling_s = metrics["sampler_stats"]["optimisation_ms_total"] / 1e3
+    assert metrics["sampler_stats"]["window_optimisations"] > 0 and sampling_s > 0
+    assert metrics["sampler_realtime_fraction"] == pytest.approx(sampling_s / (times[-1] - times[0]))
+    assert "sampler_realtime_fraction" not in metrics["unavailable"]
+    report = (swept_folder / "report.md").read_text()
+    assert f"Sampler time over the data's duration: {metrics['sampler_realtime_fraction']:.4f}" in report
+
+
+def test_sampler_realtime_fraction_of_known_and_unknown_times():
+    """0.5 s of window optimisation over 10 s of data is 5 % of real time; frame numbers give no duration."""
+    stats = {"optimisation_ms_total": 500.0}
+    times = np.linspace(0.0, 10.0, 101)
+    assert sampler_realtime_fraction(stats, times, times_known=True) == (0.05, None)
+    fraction, why = sampler_realtime_fraction(stats, np.arange(101.0), times_known=False)
+    assert fraction is None and "no timestamps" in why
+    fraction, why = sampler_realtime_fraction(stats, np.zeros(5), times_known=True)
+    assert fraction is None and "span no time" in why
 
 
 def test_run_reports_bad_input(tmp_path, cache_dir):

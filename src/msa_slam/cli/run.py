@@ -36,19 +36,22 @@ def run_command(
     overwrite: bool = typer.Option(False, "--overwrite", help=OVERWRITE_HELP),
     cache_dir: Optional[Path] = typer.Option(None, help=CACHE_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bars"),
+    sweep: bool = typer.Option(False, "--sweep/--no-sweep", help="also replay the back-end at similarity "
+                               "thresholds 0.70-0.85 (an analysis, not part of the run: about half its time)"),
     source: Optional[dict] = None,  # --loader, --gt, ... (added by with_source_options)
 ) -> None:
     """Run one sampler through the batch experiment and write its result folder; prints the path of its report.md."""
     from msa_slam.cli.config import cache_option
     from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
-    from msa_slam.pipeline.batch import run_batch
+    from msa_slam.pipeline.batch import RUN_SWEEP_NOT_RUN, run_batch
     from msa_slam.pipeline.results import write_run_files
 
     given = {"dataset": dataset, "sampler": sampler, "descriptor": descriptor, "odometry": odometry,
              "mode": mode, "cache_dir": cache_option(cache_dir)}
     cfg = batch_config(config, given, param, source)
     with open_result_folder(out, "run", DEFAULT_RESULTS / "run", overwrite=overwrite) as folder:
-        result = run_batch(cfg, quiet=quiet, window_fix=WINDOW_FIX)  # checks the window before any work
+        result = run_batch(cfg, quiet=quiet, sweep=sweep, window_fix=WINDOW_FIX,  # checks the window before any work
+                           sweep_off=RUN_SWEEP_NOT_RUN)
         with folder.staging() as tmp:
             write_run_files(result, tmp)
     typer.echo(str(folder.path / "report.md"))

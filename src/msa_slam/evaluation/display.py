@@ -45,7 +45,8 @@ NOTE_LABELS = {"ate": "ATE (and its % improvement)", "ate_odometry": "ATE of the
                "rpe_kitti": "RPE over KITTI's 100-800 m segments", "rpe_10m": "RPE over 10 m",
                "pr_reference": "PR-AUC / F1-max of the reference example's protocol",
                "loop_truth": "true candidates, false accepted loops and revisit recall",
-               "revisit_recall": "revisit recall"}
+               "revisit_recall": "revisit recall", "threshold_sweep": "threshold sensitivity",
+               "sampler_realtime_fraction": "sampler time over the data's duration"}
 
 
 def notes(metrics: Mapping[str, Any]) -> list[str]:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
+import numpy as np
 from threadpoolctl import threadpool_limits
 
 from msa_slam.backend import PoseGraph
@@ -29,12 +30,14 @@ from msa_slam.slam import BACKEND_STEPS, RunResult, build_backend, core_metrics
 
 BACKEND_STAGES = (*BACKEND_STEPS, "optimisation")
 SWEEP_NOT_RUN = "not run: left out with `--no-sweep` (the demo leaves it out to stay short)"
+RUN_SWEEP_NOT_RUN = "not run (an analysis, not part of the run: pass `--sweep` to add it)"
 
 
 def run_batch(config: RunConfig, frontend: Frontend | None = None, quiet: bool = True,
-              sweep: bool = True, window_fix: str = CONFIG_WINDOW_FIX) -> RunResult:
+              sweep: bool = True, window_fix: str = CONFIG_WINDOW_FIX, sweep_off: str = SWEEP_NOT_RUN) -> RunResult:
     """Run one sampler through the batch protocol; pass `frontend` to reuse odometry and descriptors;
-    `sweep=False` leaves out the threshold sweep (metrics["threshold_sweep"] None). A front end built here
+    `sweep=False` leaves out the threshold sweep (metrics["threshold_sweep"] None; `sweep_off`: the reason
+    metrics["unavailable"] gives, which names the command's way to add it). A front end built here
     first refuses a sampler window the frames read never fill (prepare_frontend; `window_fix`: what the
     error says to change).
 
@@ -48,10 +51,10 @@ def run_batch(config: RunConfig, frontend: Frontend | None = None, quiet: bool =
     config = config_as_run(config, frontend.sequence.point_times)  # what result.config (config.yaml) records
     load_kernels(config.sampler, config.sampler_params, frontend.descriptors.shape[1:])  # not in the timings
     with threadpool_limits(limits=1, user_api="blas"):
-        return _run_backend(config, frontend, quiet, sweep)
+        return _run_backend(config, frontend, quiet, sweep, sweep_off)
 
 
-def _run_backend(config: RunConfig, frontend: Frontend, quiet: bool, sweep: bool) -> RunResult:
+def _run_backend(config: RunConfig, frontend: Frontend, quiet: bool, sweep: bool, sweep_off: str) -> RunResult:
     graph = PoseGraph(config.graph, mode=config.mode)
     clouds = KeyframeCloudStore(config.verifier.voxel_size)
     backend = build_backend(config, frontend.descriptor, clouds, graph, len(frontend), frontend.name)
@@ -74,7 +77,7 @@ def _run_backend(config: RunConfig, frontend: Frontend, quiet: bool, sweep: bool
         result.metrics["unavailable"]["threshold_sweep"] = "no ground truth: ATE improvement is undefined"
     result.metrics["threshold_sweep"] = result.metrics["time_s"]["threshold_sweep"] = None
     if not sweep:
-        result.metrics["unavailable"]["threshold_sweep"] = SWEEP_NOT_RUN
+        result.metrics["unavailable"]["threshold_sweep"] = sweep_off
     elif gt is not None:
         start = time.perf_counter()
         result.metrics["threshold_sweep"] = threshold_sweep(result, frontend, clouds)
@@ -94,6 +97,20 @@ def _reference_pr(result: RunResult, matches: int, unavailable: dict[str, str]) 
             "matches": matches}
 
 
+def sampler_realtime_fraction(sampler_stats: dict[str, Any], times: np.ndarray,
+                              times_known: bool) -> tuple[float | None, str | None]:
+    """The sampler's window optimisations' total time over the duration of the data it sampled (the frames'
+    first to last timestamp): the share of a real-time budget sampling alone takes. None with the reason when
+    the frames have no timestamps (`times_known` False: their times are frame numbers, 1 frame/s) or span no
+    time."""
+    if not times_known:
+        return None, "the frames have no timestamps, so the data's duration is unknown"
+    span = float(times[-1] - times[0]) if len(times) > 1 else 0.0
+    if not span > 0:
+        return None, "the frames' timestamps span no time"
+    return sampler_stats["optimisation_ms_total"] / 1e3 / span, None
+
+
 def _metrics(result: RunResult, frontend: Frontend) -> dict[str, Any]:
     cfg = result.config
     times = {s: float(result.steps_ms[s].sum()) / 1e3 for s in BACKEND_STEPS}
@@ -101,6 +118,10 @@ def _metrics(result: RunResult, frontend: Frontend) -> dict[str, Any]:
     backend_time = sum(times.get(s, 0.0) for s in BACKEND_STAGES)
     metrics = core_metrics(result)
     metrics["warnings"] = [*frontend.warnings, *metrics["warnings"]]
+    fraction, why = sampler_realtime_fraction(result.sampler_stats, result.times, frontend.sequence.times_known)
+    metrics["sampler_realtime_fraction"] = fraction
+    if why is not None:
+        metrics["unavailable"]["sampler_realtime_fraction"] = why
     metrics.update({
         "time_s": {**{k: round(v, 4) for k, v in times.items()}, "backend_total": round(backend_time, 4)},
         "frontend_time_s": {k: round(v, 4) for k, v in frontend.timer.seconds.items()},

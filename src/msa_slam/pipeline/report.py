@@ -126,6 +126,8 @@ def _batch_lines(result: RunResult) -> list[str]:
         f"{mib(m['memory_bytes']['total'])} | {m['time_s']['backend_total']:.2f} s |", "",
         *sweep_lines(m.get("threshold_sweep")),
         f"{PROCESS_RSS_LABEL}: {mib(m['peak_rss_bytes'])}; {_rss_growth(m)}", "",
+        f"Sampler time over the data's duration: {fmt(m.get('sampler_realtime_fraction'), '.4f')} "
+        f"({m['sampler_stats']['optimisation_ms_total'] / 1e3:.2f} s of window optimisation).", "",
         "Stage times [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in {**m['frontend_time_s'], **m['time_s']}.items()
                                    if v is not None)  # threshold_sweep: None when not run
         + ("  (front end from cache)" if all(m["frontend_cached"].values()) else ""), "",
