@@ -25,7 +25,8 @@ WALL_CLOCK_KEYS = {"time_s", "frontend_time_s", "peak_rss_bytes", "frontend_cach
 
 def _wall_clock(key: str) -> bool:
     """Metrics that measure the machine or the cache rather than the result (times, RSS, cache hits)."""
-    return key in WALL_CLOCK_KEYS or "_ms" in key or "rss" in key or "cached" in key or key.endswith("_s")
+    return key in WALL_CLOCK_KEYS or "_ms" in key or "rss" in key or "cached" in key or "realtime" in key \
+        or key.endswith("_s")
 
 
 def _result_metrics(value):
