@@ -6,13 +6,14 @@ motion (backend/noise.py DriftModel, `odometry_noise="drift"`), so the chain has
 many keyframes a sampler keeps. Verified loops add between factors T_target_source weighted by the
 registration's covariance kept within bounds (`loop_noise="hessian"`).
 
-Which loops are used: with `loop_inliers="consistent"` ("auto": in realistic mode, batch graph) the batch
-graph keeps, when it optimises, the largest set of pairwise consistent loops (backend/inliers.py: each pair's
-cycle through odometry tested against the odometry covariance accumulated along its paths) and optimises
-them without a robust kernel: a kernel on whitened residuals discounts the true loops that correct the most
-drift, which the consistency test, unlike the kernel, tells from wrong ones. Otherwise every loop is used,
-optionally under a robust kernel (`robust`: Huber or Cauchy; "auto": none when inliers are selected or in
-oracle mode, Cauchy otherwise, e.g. in realistic mode on iSAM2, which adds loops as they come). Tangent-space
+Which loops are used: with `loop_inliers="consistent"` ("auto": in realistic mode) the graph keeps the largest
+set of pairwise consistent loops (backend/inliers.py: each pair's cycle through odometry tested against the
+odometry covariance accumulated along its paths; the batch graph decides once when it optimises, iSAM2 at
+every update, adding and removing loop factors as the set changes) and optimises them without a robust
+kernel: a kernel on whitened residuals discounts the true loops that correct the most drift, which the
+consistency test, unlike the kernel, tells from wrong ones. Otherwise every loop is used, optionally under a
+robust kernel (`robust`: Huber or Cauchy; "auto": none when inliers are selected or in oracle mode, Cauchy
+otherwise). Tangent-space
 order in GTSAM's Pose3 is (rotation, translation), so sigmas are given that way.
 
 Drift defaults: KISS-ICP (Vizzo et al., RA-L 2023) on the KITTI odometry training sequences, about 0.5 %
@@ -29,7 +30,7 @@ import gtsam
 import numpy as np
 from pydantic import Field
 
-from msa_slam.backend.inliers import InlierSelection, LoopEdge, select_inliers
+from msa_slam.backend.inliers import ConsistencyGraph, InlierSelection, LoopEdge
 from msa_slam.backend.noise import DriftModel, PathCovariance, bounded_covariance
 from msa_slam.config import StageConfig
 from msa_slam.errors import InputError
@@ -58,8 +59,8 @@ class GraphConfig(StageConfig):
     `odometry_noise="fixed"` every edge has `odometry_rotation`/`odometry_translation` instead. Loops: the
     registration's covariance with each direction's sigma within [loop_min_*, loop_max_*]; with
     `loop_noise="fixed"` (or no covariance) `loop_rotation`/`loop_translation`. `loop_inliers`: "consistent"
-    keeps the largest pairwise-consistent set of loops (chi-square quantile `inlier_confidence`, 6 dof) in the
-    batch graph, "all" uses every loop, "auto" is consistent in realistic mode and all in oracle mode.
+    keeps the largest pairwise-consistent set of loops (chi-square quantile `inlier_confidence`, 6 dof), "all"
+    uses every loop, "auto" is consistent in realistic mode and all in oracle mode.
     """
 
     SECTION: ClassVar[str] = "graph"
@@ -92,12 +93,12 @@ class GraphConfig(StageConfig):
         return DriftModel(self.drift_translation, self.drift_rotation, self.drift_reference_m)
 
     def selects_inliers(self, mode: str) -> bool:
-        """Whether a batch graph keeps only the pairwise-consistent loops in `mode` ("auto": realistic)."""
+        """Whether the graph keeps only the pairwise-consistent loops in `mode` ("auto": realistic)."""
         return self.loop_inliers == "consistent" or self.loop_inliers == "auto" and mode == "realistic"
 
     def loop_kernel(self, mode: str, selects_inliers: bool | None = None) -> str:
         """The robust kernel of loop factors in `mode` ("auto": none when the graph selects consistent loops
-        (`selects_inliers`, default: what a batch graph does in `mode`) or in oracle mode, else Cauchy)."""
+        (`selects_inliers`, default: what the graph does in `mode`) or in oracle mode, else Cauchy)."""
         if self.robust != "auto":
             return self.robust
         if selects_inliers is None:
@@ -152,7 +153,7 @@ class _KeyframeGraph:
         self._all = gtsam.NonlinearFactorGraph()  # every factor in the order added
         self._loop_slots: list[int] = []  # where each loop factor is in _all
         self._path = PathCovariance()  # keyframes' accumulated odometry covariance (consistency checks)
-        self._loop_edges: list[LoopEdge] = []
+        self._consistency = ConsistencyGraph(cfg.inlier_confidence)  # the loops' pairwise consistency
         self.inliers: InlierSelection | None = None  # the last selection (None: every loop used)
 
     @property
@@ -270,8 +271,8 @@ class _KeyframeGraph:
         graph.add(gtsam.BetweenFactorPose3(int(target_key), int(source_key), gtsam.Pose3(measured),
                                            self._loop_noise(covariance)))
         if self.selects_inliers:
-            self._loop_edges.append(LoopEdge(self._position[int(target_key)], self._position[int(source_key)],
-                                             measured, self.config.loop_covariance(covariance)))
+            self._consistency.add(LoopEdge(self._position[int(target_key)], self._position[int(source_key)],
+                                           measured, self.config.loop_covariance(covariance)), self._path)
         self._loop_slots.append(self._all.size())
         self._all.push_back(graph)
         self.num_factors += 1
@@ -324,7 +325,7 @@ class PoseGraph(_KeyframeGraph):
         params.setMaxIterations(self.max_iterations)
         kept = range(self._loops.size())
         if self.selects_inliers and self.num_loops:
-            self.inliers = select_inliers(self._loop_edges, self._path, self.config.inlier_confidence)
+            self.inliers = self._consistency.select()
             kept = self.inliers.kept
         graph = gtsam.NonlinearFactorGraph()
         graph.push_back(self._graph)
@@ -335,7 +336,14 @@ class PoseGraph(_KeyframeGraph):
 
 
 class IncrementalPoseGraph(_KeyframeGraph):
-    """Online pose graph on iSAM2 (Kaess et al., IJRR 2012): same interface, factors enter as they arrive."""
+    """Online pose graph on iSAM2 (Kaess et al., IJRR 2012): same interface, factors enter as they arrive.
+
+    With `loop_inliers` selecting consistent loops (realistic mode), each update re-decides the maximum
+    pairwise-consistent set of the loops so far (ConsistencyGraph: only the new loops' pairs are tested) and
+    hands iSAM2 the difference: loops that joined the set are added, loops that left it are removed from the
+    system, so the estimate at every step uses the loops a batch run would keep if the stream ended there."""
+
+    SELECTS_INLIERS = True
 
     def __init__(self, config: GraphConfig | None = None, relinearize_threshold: float = 0.01,
                  final_iterations: int = 10, mode: str = "oracle") -> None:
@@ -347,6 +355,9 @@ class IncrementalPoseGraph(_KeyframeGraph):
         self._pending_graph = gtsam.NonlinearFactorGraph()
         self._pending_values = gtsam.Values()
         self._num_updated = 0
+        self._loop_factors: list[gtsam.NonlinearFactorGraph] = []  # every loop's factor (inlier selection on)
+        self._in_isam: dict[int, int] = {}  # loop index -> its factor's index in iSAM2
+        self._selected_at = 0  # loops the current selection was made of
 
     def add_keyframe(self, key: int, pose: np.ndarray) -> None:
         graph, values = self._keyframe_factors(key, pose)
@@ -355,11 +366,33 @@ class IncrementalPoseGraph(_KeyframeGraph):
 
     def add_loop(self, target_key: int, source_key: int, T_target_source: np.ndarray,
                  covariance: np.ndarray | None = None) -> None:
-        self._pending_graph.push_back(self._loop_factor(target_key, source_key, T_target_source, covariance))
+        factor = self._loop_factor(target_key, source_key, T_target_source, covariance)
+        if self.selects_inliers:  # enters iSAM2 at the next update if the consistent set keeps it
+            self._loop_factors.append(factor)
+        else:
+            self._pending_graph.push_back(factor)
+
+    def _selection_changes(self) -> tuple[list[int], list[int]]:
+        """Loops to add to iSAM2 and iSAM2 factor indices to remove, after re-selecting when loops arrived."""
+        if not self.selects_inliers or self._selected_at == self.num_loops:
+            return [], []
+        self.inliers = self._consistency.select()
+        self._selected_at = self.num_loops
+        kept = set(self.inliers.kept)
+        remove = [self._in_isam.pop(i) for i in sorted(self._in_isam) if i not in kept]
+        return sorted(kept - set(self._in_isam)), remove
 
     def update(self, extra_iterations: int = 0) -> None:
-        """Hand pending factors to iSAM2; extra iterations relinearise further (useful after a loop)."""
-        self._isam.update(self._pending_graph, self._pending_values)
+        """Hand pending factors to iSAM2 (with the loops the consistency check now keeps or drops); extra
+        iterations relinearise further (useful after a loop)."""
+        add, remove = self._selection_changes()
+        first_loop = self._pending_graph.size()
+        for i in add:
+            self._pending_graph.push_back(self._loop_factors[i])
+        result = self._isam.update(self._pending_graph, self._pending_values, remove)
+        indices = result.getNewFactorsIndices()
+        for offset, i in enumerate(add):
+            self._in_isam[i] = int(indices[first_loop + offset])
         self._pending_graph = gtsam.NonlinearFactorGraph()
         self._pending_values = gtsam.Values()
         self._num_updated = len(self._keys)

@@ -89,22 +89,47 @@ class InlierSelection:
     consistent_pairs: int
 
 
+class ConsistencyGraph:
+    """Loops and their pairwise consistency, grown one loop at a time. A pair's chi-square never changes once
+    both loops exist (the keyframes' odometry is fixed when they are added), so each new loop is tested
+    against the ones before it only: the online graph can ask for the maximum consistent set after every
+    loop for the cost of the new pairs, and the batch graph builds the same graph at the end."""
+
+    def __init__(self, confidence: float) -> None:
+        self.threshold = float(chi2.ppf(confidence, 6))
+        self._loops: list[LoopEdge] = []
+        self._single: list[float] = []
+        self._neighbours: list[set[int]] = []
+
+    def __len__(self) -> int:
+        return len(self._loops)
+
+    def add(self, loop: LoopEdge, path: PathCovariance) -> None:
+        """Enter `loop`; `path` holds the odometry covariance up to (at least) its newer keyframe."""
+        new = len(self._loops)
+        partners = {i for i, other in enumerate(self._loops) if pair_chi2(other, loop, path) <= self.threshold}
+        for i in partners:
+            self._neighbours[i].add(new)
+        self._loops.append(loop)
+        self._single.append(single_chi2(loop, path))
+        self._neighbours.append(partners)
+
+    def select(self) -> InlierSelection:
+        """The maximum pairwise-consistent set of the loops entered so far."""
+        n = len(self._loops)
+        if n < 2:
+            return InlierSelection(tuple(range(n)), "single", self.threshold, 0)
+        clique, method = _maximum_clique(self._neighbours, np.array(self._single))
+        pairs = sum(len(s) for s in self._neighbours) // 2
+        return InlierSelection(tuple(sorted(clique)), method, self.threshold, pairs)
+
+
 def select_inliers(loops: list[LoopEdge], path: PathCovariance, confidence: float) -> InlierSelection:
     """The maximum pairwise-consistent set of `loops` (chi-square quantile `confidence`, 6 dof)."""
-    threshold = float(chi2.ppf(confidence, 6))
-    n = len(loops)
-    if n < 2:
-        return InlierSelection(tuple(range(n)), "single", threshold, 0)
-    single = np.array([single_chi2(loop, path) for loop in loops])
-    neighbours: list[set[int]] = [set() for _ in range(n)]
-    for i in range(n):
-        for j in range(i + 1, n):
-            if pair_chi2(loops[i], loops[j], path) <= threshold:
-                neighbours[i].add(j)
-                neighbours[j].add(i)
-    clique, method = _maximum_clique(neighbours, single)
-    pairs = sum(len(s) for s in neighbours) // 2
-    return InlierSelection(tuple(sorted(clique)), method, threshold, pairs)
+    graph = ConsistencyGraph(confidence)
+    for loop in loops:
+        graph.add(loop, path)
+    return graph.select()
 
 
 def _better(candidate: set[int], best: set[int], score: np.ndarray) -> bool:
