@@ -30,6 +30,7 @@ from msa_slam.backend.graph import GraphConfig
 from msa_slam.backend.noise import PathCovariance
 from msa_slam.descriptors import Descriptor
 from msa_slam.errors import InputError
+from msa_slam.evaluation.loops import rejection_counts
 from msa_slam.place_recognition import PRCurve, precision_recall
 from msa_slam.registration import Verifier
 from msa_slam.registration.verify import REJECTIONS
@@ -195,7 +196,7 @@ def loop_summary(loops: list[LoopClosure], settings: LoopSettings,
     revisits = sum(c.travelled_m >= 2 * settings.loop_radius for c in accepted)
     graph = settings.graph
     return {
-        "rejected": {reason: sum(c.rejected == reason for c in loops) for reason in REJECTION_REASONS},
+        "rejected": rejection_counts(loops, REJECTION_REASONS),
         "revisit_loops": int(revisits), "other_loops": len(accepted) - int(revisits),
         "min_travel_m": settings.min_travel_m, "drift_check": drift_check_on(settings),
         "loop_kernel": graph.loop_kernel(settings.mode),
