@@ -4,10 +4,13 @@ with the wall time of each.
 
     python benchmarks/bench_peer.py [--sequences 07,09] [--seeds 0] [--end N] [--methods msa,constant-2m]
                                     [--peer-python PATH] [--peer-threads 1] [--peer-methods icp,slam,slam-raw]
-                                    [--out DIR] [--cache-dir DIR]
+                                    [-p KEY=VALUE ...] [--label NAME] [--out DIR] [--cache-dir DIR]
 
-Each sequence is simulated once per seed as a KITTI-layout folder (`msa-slam simulate --trajectory kitti-NN
---seed S [--end N] --out DIR/data/...`, per-point times in velodyne_times/). msa-slam runs `compare --mode
+Each sequence is simulated once per seed as a KITTI-layout folder (`msa-slam simulate --trajectory NAME
+--seed S [--end N] --out DIR/data/...`, per-point times in velodyne_times/; a sequence given as a number is
+kitti-NN, any other name is a simulator trajectory). `-p` overrides msa-slam's run configuration as the
+commands' `-p` does (e.g. `-p loop_detector=local-map`); give such a run a `--label`, under which its
+comparisons are kept apart from the default's (the peer's runs and the scans are shared). msa-slam runs `compare --mode
 realistic --no-sweep` on that folder (the paper's method set, or --methods); the peer runs through
 benchmarks/peer_kiss_slam.py with the Python that has kiss-slam (--peer-python; kiss-slam pins numpy and
 pydantic older than msa-slam's, so it lives in its own venv), given the same scans and per-point times.
@@ -46,6 +49,7 @@ from msa_slam.evaluation.trajectory import ate
 from msa_slam.io.poses import read_poses
 from msa_slam.io.provenance import cpu_model
 from msa_slam.pipeline import make_config
+from msa_slam.pipeline.config import RunConfig, apply_overrides
 from msa_slam.pipeline.compare import PAPER_METHODS, run_compare
 from msa_slam.viz.labels import counted
 
@@ -59,8 +63,14 @@ INSTALL = ("KISS-SLAM (the peer) is not installed for {python}: {error}\n"
            "The peer's rows are n/a until then.")
 
 
+def trajectory_name(sequence: str) -> str:
+    """The simulator trajectory of a --sequences entry: a number is a KITTI sequence, a name is itself."""
+    sequence = sequence.strip()
+    return f"kitti-{sequence.zfill(2)}" if sequence.isdigit() else sequence
+
+
 def run_name(sequence: str, seed: int, end: int | None) -> str:
-    return f"kitti-{sequence}-seed{seed}" + ("" if end is None else f"-end{end}")
+    return f"{trajectory_name(sequence)}-seed{seed}" + ("" if end is None else f"-end{end}")
 
 
 def peer_missing(python: str) -> str | None:
@@ -78,7 +88,7 @@ def simulated(sequence: str, seed: int, end: int | None, root: Path) -> Path:
     folder = root / run_name(sequence, seed, end)
     if not (folder / "sim.json").is_file():
         shutil.rmtree(folder, ignore_errors=True)
-        command = [sys.executable, "-c", CLI, "simulate", "--trajectory", f"kitti-{sequence}", "--seed", str(seed),
+        command = [sys.executable, "-c", CLI, "simulate", "--trajectory", trajectory_name(sequence), "--seed", str(seed),
                    "--out", str(folder), "--quiet", *([] if end is None else ["--end", str(end)])]
         subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
     return folder
@@ -110,11 +120,13 @@ def peer_run(python: str, method: str, folder: Path, out: Path, threads: int, ex
         return {k: data[k] for k in data}
 
 
-def compared(folder: Path, out: Path, methods: list[tuple], cache_dir: Path) -> tuple[Path, float | None]:
-    """msa-slam's comparison folder (run once) and its wall seconds (None when reused)."""
+def compared(folder: Path, out: Path, methods: list[tuple], cache_dir: Path, params: list[str]
+             ) -> tuple[Path, float | None]:
+    """msa-slam's comparison folder (run once) and its wall seconds (None when reused); `params`: -p overrides."""
     if (out / "comparison.csv").is_file():
         return out, None
-    cfg = make_config(dataset=str(folder), mode="realistic", cache_dir=str(cache_dir))
+    data = make_config(dataset=str(folder), mode="realistic", cache_dir=str(cache_dir)).dump()
+    cfg = make_config(apply_overrides(data, params, RunConfig))
     start = time.perf_counter()
     run_compare(cfg, out, quiet=True, methods=methods, sweep=False, overwrite=out.exists())
     return out, time.perf_counter() - start
@@ -147,9 +159,10 @@ def rows_for(sequence: str, seed: int, args: argparse.Namespace, peer: str | Non
         t, r = ape(run["poses"], gt)
         loops = None if int(run["closures"]) < 0 else counted(int(run["closures"]), "closure")
         rows.append({"estimator": label, "ape": t, "rot": r, "loops": loops, "time": float(run["seconds"]),
-                     "note": f"{counted(int(run['threads']), 'thread')}; {deskew}"})
+                     "note": f"{counted(int(run['threads']), 'thread')}; {deskew}", "peer": key})
     methods = [m for m in PAPER_METHODS if args.methods is None or m[0] in args.methods]
-    comparison, wall = compared(folder, out.with_name(out.name + "-compare"), methods, args.cache_dir)
+    suffix = "-compare" + (f"-{args.label}" if args.label else "")
+    comparison, wall = compared(folder, out.with_name(out.name + suffix), methods, args.cache_dir, args.params)
     first = True
     for label, _, _ in methods:
         run = comparison / "runs" / label
@@ -164,21 +177,62 @@ def rows_for(sequence: str, seed: int, args: argparse.Namespace, peer: str | Non
             cached = " (cached: not timed)" if all(m["frontend_cached"].values()) else ""
             threads = counted(m["threads"]["odometry"], "thread")
             rows.append({"estimator": "msa-slam odometry (KISS-ICP)", "ape": t, "rot": r, "loops": None,
-                         "time": m["frontend_time_s"].get("odometry"),
+                         "time": m["frontend_time_s"].get("odometry"), "odometry": True,
                          "note": f"{threads}; {deskew_note(m['odometry_config'])}{cached}"})
             first = False
         t, r = ape(read_poses(run / "trajectories" / "optimised.kitti")[0], gt)
         acc = m["loop_accounting"]
         recall = fmt(acc["revisit_keyframe_recall"], ".2f")
-        rows.append({"estimator": f"msa-slam {label}", "ape": t, "rot": r,
+        rows.append({"estimator": f"msa-slam {label}", "ape": t, "rot": r, "method": label,
+                     "recall": acc["revisit_keyframe_recall"], "false": acc["false_accepted"],
                      "loops": f"{acc['accepted']} of {acc['candidates']} cand. ({acc['false_accepted']} false), "
                               f"revisit kf recall {recall}",
                      "time": front + m["time_s"]["backend_total"],
                      "note": f"{m['keyframes']} keyframes; front end {front:.1f} s + back end "
                              f"{m['time_s']['backend_total']:.1f} s"})
-    conditions = {"sequence": f"simulated KITTI-{sequence}", "seed": seed, "frames": len(gt),
+    conditions = {"sequence": f"simulated {trajectory_name(sequence)}", "seed": seed, "frames": len(gt),
                   "compare_wall_s": wall}
     return rows, conditions
+
+
+def verdicts(rows: list[dict], conditions: dict) -> dict:
+    """What the loop goals ask of one sequence and seed: MSA's APE at most KISS-SLAM's (with the per-point times),
+    MSA's revisit keyframe recall at least 80 % of all samples', no false loop in any method, no method worse
+    than the odometry (None where a row is missing or a recall undefined)."""
+    by_method = {r["method"]: r for r in rows if r.get("method")}
+    peer = next((r for r in rows if r.get("peer") == "slam"), None)
+    odometry = next((r for r in rows if r.get("odometry")), None)
+    msa, every = by_method.get("msa"), by_method.get("all")
+
+    def known(*values):
+        return all(v is not None for v in values)
+
+    return {
+        "sequence": conditions["sequence"], "seed": conditions["seed"],
+        "msa_ape": msa and msa["ape"], "peer_ape": peer and peer["ape"],
+        "msa_le_peer": msa["ape"] <= peer["ape"] if msa and peer and known(msa["ape"], peer["ape"]) else None,
+        "recall_ratio": (msa["recall"] / every["recall"] if msa and every and known(msa["recall"], every["recall"])
+                         and every["recall"] > 0 else None),
+        "false_loops": sum(r["false"] or 0 for r in by_method.values()) if by_method else None,
+        "worse_than_odometry": ([m for m, r in by_method.items() if known(r["ape"]) and r["ape"] > odometry["ape"]]
+                                if odometry else None),
+    }
+
+
+def verdict_table(results: list[dict]) -> str:
+    """One line per sequence and seed: the goals' figures and whether each holds."""
+    def yes(value) -> str:
+        return "n/a" if value is None else ("yes" if value else "no")
+
+    lines = ["| sequence | seed | MSA APE [m] | KISS-SLAM APE [m] | MSA <= KISS-SLAM | MSA / all revisit kf recall "
+             "| false loops (all methods) | worse than odometry |", "|---|---|---|---|---|---|---|---|"]
+    for v in results:
+        ratio, worse = v["recall_ratio"], v["worse_than_odometry"]
+        ratio_text = fmt(ratio, ".2f") + ("" if ratio is None else " (>= 0.8)" if ratio >= 0.8 else " (< 0.8)")
+        worse_text = "n/a" if worse is None else ", ".join(worse) or "none"
+        lines.append(f"| {v['sequence']} | {v['seed']} | {fmt(v['msa_ape'])} | {fmt(v['peer_ape'])} "
+                     f"| {yes(v['msa_le_peer'])} | {ratio_text} | {fmt(v['false_loops'], 'd')} | {worse_text} |")
+    return "\n".join(lines) + "\n"
 
 
 def table(rows: list[dict], conditions: dict) -> str:
@@ -205,10 +259,15 @@ def main() -> None:
     parser.add_argument("--peer-methods", default=",".join(PEER_RUNS),
                         help="the peer's runs: icp (KISS-ICP alone, KISS-SLAM's odometry settings), slam (KISS-SLAM "
                              "with the per-point times), slam-raw (KISS-SLAM without them, as its CLI reads .bin)")
+    parser.add_argument("-p", "--param", dest="params", action="append", default=[],
+                        help="msa-slam run configuration override KEY=VALUE, as the commands' -p (repeatable)")
+    parser.add_argument("--label", default=None, help="name of a run with -p overrides (kept apart from the default)")
     parser.add_argument("--out", type=Path, default=Path("msa_slam_results/bench_peer"))
     parser.add_argument("--cache-dir", type=Path, default=None, help="msa-slam's cache (default: --out/cache)")
     args = parser.parse_args()
     args.methods = None if args.methods is None else args.methods.split(",")
+    if args.params and not args.label:
+        parser.error("-p overrides need a --label (their comparisons are kept under it, apart from the default's)")
     known = [label for label, _, _ in PAPER_METHODS]
     if args.methods is not None and not set(args.methods) <= set(known):
         parser.error(f"--methods: choose from {', '.join(known)}")
@@ -227,12 +286,18 @@ def main() -> None:
             "realistic --no-sweep (full-rate trajectory; loops: accepted of candidates, false accepted = pose off "
             "ground truth by > 3 m or 5 deg, revisit keyframe recall); time = front end + back end.", ""]
     print(text[0] + "\n", flush=True)
+    if args.params:
+        text[0] += f" Overrides ({args.label}): " + " ".join(f"-p {p}" for p in args.params) + "."
+    goals = []
     for sequence in args.sequences.split(","):
         for seed in (int(s) for s in args.seeds.split(",")):
-            rows, conditions = rows_for(sequence.strip().zfill(2), seed, args, peer)
+            rows, conditions = rows_for(sequence.strip(), seed, args, peer)
+            goals.append(verdicts(rows, conditions))
             text.append(table(rows, conditions))
             print(text[-1], flush=True)
-    (args.out / "table.md").write_text("\n".join(text))
+    text.append("### Loop goals per sequence and seed\n\n" + verdict_table(goals))
+    print(text[-1], flush=True)
+    (args.out / ("table.md" if not args.label else f"table-{args.label}.md")).write_text("\n".join(text))
 
 
 if __name__ == "__main__":
