@@ -241,7 +241,7 @@ def test_output_not_written_by_an_experiment_is_refused_untouched(tmp_path):
         run_grid(parse_grid(TINY), other)
     assert sorted(p.name for p in other.iterdir()) == [".msa-slam-result", "metrics.json"]
     result = CliRunner().invoke(app, ["report", str(user)])
-    assert isinstance(result.exception, InputError) and "not a folder written by `msa-slam experiment`" in str(
+    assert isinstance(result.exception, InputError) and "not a msa-slam result folder" in str(
         result.exception)
     assert {p: p.read_bytes() for p in user.rglob("*") if p.is_file()} == before
 

@@ -14,7 +14,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from msa_slam.errors import InputError
+from msa_slam.errors import InputError, error_line
 from msa_slam.experiments.folder import GRID_FILE, FinishedCells, cell_dir, grid_cells, read_cell, stale_cells
 from msa_slam.experiments.grid import Cell, GridSpec, slug
 from msa_slam.evaluation import NA, fmt
@@ -120,22 +120,12 @@ def _parameters(parameters: dict[str, Any]) -> str:
 def _failed_row(cell: Cell, error_file: Path) -> dict[str, Any]:
     """results.md's row of a cell that failed (its traceback in `error_file`): every value n/a, the error as the
     reason, so that a method whose cells failed is shown, with why, not left out of the table."""
-    reason = f"the cell failed with {_error_line(error_file)} (traceback in errors/<cell id>.txt)"
+    reason = f"the cell failed with {error_line(error_file)} (traceback in errors/<cell id>.txt)"
     metrics = COLUMNS[COLUMNS.index("frames"):COLUMNS.index("unavailable")]
     return {**dict.fromkeys(COLUMNS), "cell": cell.id, "pipeline": cell.pipeline, "dataset": cell.dataset,
             "descriptor": cell.descriptor, "method": cell.method, "sampler": cell.sampler, "seed": cell.seed,
             "parameters": _parameters(cell.parameters),
             "unavailable": json.dumps(dict.fromkeys(metrics, reason), sort_keys=True)}
-
-
-def _error_line(path: Path) -> str:
-    """`Type: message` of the exception a traceback file ends with: its first line after the last traceback's
-    (indented) frames; a message's further lines are left out."""
-    lines = path.read_text(errors="replace").splitlines()
-    start = max((i for i, line in enumerate(lines) if line.startswith("Traceback (")), default=-1) + 1
-    line = next((line for line in lines[start:] if line.strip() and not line.startswith(" ")), "an error")
-    name, colon, message = line.partition(": ")
-    return name.rsplit(".", 1)[-1] + colon + message  # the type without its module, as the run's own lines
 
 
 def _na_reason(column: str, m: dict[str, Any], pipeline: str, reference: str, ref_memory: int | None) -> str:

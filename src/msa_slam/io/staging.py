@@ -48,13 +48,26 @@ def apply_umask(path: Path) -> None:
         os.chmod(p, (0o777 if p.is_dir() else 0o666) & ~mask)
 
 
-def is_result_folder(path: Path, kind: str | None = None) -> bool:
-    """True when `path` is a folder written by msa-slam (of `kind`, when given)."""
+def _marker(path: Path) -> dict | None:
+    """The marker of a folder msa-slam wrote; None for any other folder."""
     try:
         meta = json.loads((Path(path) / MARKER).read_text())
     except (OSError, ValueError):
-        return False
-    return isinstance(meta, dict) and meta.get("tool") == "msa-slam" and (kind is None or meta.get("kind") == kind)
+        return None
+    return meta if isinstance(meta, dict) and meta.get("tool") == "msa-slam" else None
+
+
+def is_result_folder(path: Path, kind: str | None = None) -> bool:
+    """True when `path` is a folder written by msa-slam (of `kind`, when given)."""
+    meta = _marker(path)
+    return meta is not None and (kind is None or meta.get("kind") == kind)
+
+
+def result_kind(path: Path) -> str | None:
+    """Which command's result `path` holds (its marker's kind: run, online, compare, experiment, sample); None
+    for a folder msa-slam did not write."""
+    meta = _marker(path)
+    return None if meta is None else meta.get("kind")
 
 
 def write_marker(folder: Path, kind: str, exclude: Collection[str] = (), digests: Mapping[str, str] | None = None

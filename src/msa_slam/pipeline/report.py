@@ -3,7 +3,7 @@ memory and time, the figures."""
 
 from __future__ import annotations
 
-from typing import Any, Collection
+from typing import Any, Collection, Protocol
 
 import numpy as np
 
@@ -14,9 +14,17 @@ from msa_slam.evaluation.full_rate import STEP_FRAMES, path_length
 from msa_slam.evaluation.loops import FALSE_LOOP_ANGLE_DEG
 from msa_slam.io.tables import mib
 from msa_slam.pipeline.online_config import NO_TIMESTAMPS
-from msa_slam.slam import RunResult
 from msa_slam.slam.backend import slam_sampler_params
 from msa_slam.viz.labels import counted, display_name, sampler_label
+
+
+class ReportedRun(Protocol):
+    """What report.md is made of: a fresh RunResult, or a finished run read back from its folder
+    (pipeline.stored), so `msa-slam report` rewrites the same text without running anything again."""
+
+    config: Any
+    metrics: dict[str, Any]
+    gt_poses: np.ndarray | None
 
 
 def notes_markdown(metrics: dict[str, Any]) -> list[str]:
@@ -116,7 +124,7 @@ def _rss_growth(m: dict) -> str:
             f"{mib(m['memory_bytes']['in_ram'])}, ratio {fmt(m['rss_growth_ratio'], '.2f')})")
 
 
-def _batch_lines(result: RunResult) -> list[str]:
+def _batch_lines(result: ReportedRun) -> list[str]:
     m = result.metrics
     ref = m.get("pr_reference") or {}
     return [
@@ -143,7 +151,7 @@ def _rate_source(frame_rate_from: str) -> str:
     return "the config's sensor_rate_hz: its timestamps span no time"
 
 
-def _online_lines(result: RunResult) -> list[str]:
+def _online_lines(result: ReportedRun) -> list[str]:
     m = result.metrics
     lat = m["latency_ms"]
     return [
@@ -161,14 +169,15 @@ def _online_lines(result: RunResult) -> list[str]:
     ]
 
 
-# What the files of a result folder hold, in the order report.md lists them ({command}: run or online)
+# What the files of a result folder hold, in the order report.md lists them ({command}: run or online;
+# {ground_truth}: "ground truth, " when trajectories/ holds it)
 RESULT_FILES = {
     "config.yaml": "config.yaml (re-run with `msa-slam {command} --config`)",
     "metrics.json": "metrics.json (every key explained in docs/metrics.md of msa-slam)",
     "frames.csv": "frames.csv", "loops.csv": "loops.csv", "pr.csv": "pr.csv",
     "steps.csv": "steps.csv (per-frame step times and memory)",
     "descriptors.npy": "descriptors.npy (every frame's)",
-    "trajectories": "trajectories/ (KITTI and TUM with the frames' times: full-rate ground truth, odometry and "
+    "trajectories": "trajectories/ (KITTI and TUM with the frames' times: full-rate {ground_truth}odometry and "
                     "optimised, keyframe trajectories)",
     "map.ply": "map.ply (keyframe clouds at the optimised poses)",
     "pose_graph.g2o": "pose_graph.g2o",
@@ -188,9 +197,25 @@ def standstill_note(cfg: Any, m: dict[str, Any]) -> str:
             f"keyframe candidate" + ("" if held is None else f" ({counted(held, 'frame')} held back)") + ".")
 
 
-def report_markdown(result: RunResult, figures: list[str], files: Collection[str]) -> str:
-    """The run's report.md text; `figures` are file names under figures/, `files` the names in the result
-    folder (only those are listed: which files a run writes depends on what it produced)."""
+GT_FILE = "trajectories/gt.tum"  # written only for a run with a ground-truth pose for every frame
+
+
+def alignment_text(m: dict[str, Any], files: Collection[str]) -> str:
+    """How the ATE rows were aligned, with the evo commands that reproduce them only when the run wrote the
+    ground-truth trajectories they read (`files`): a report must not send its reader to a missing file."""
+    full, keyframes = m["full_rate"].get("ate_alignment") or NA, m["ate_alignment"] or NA
+    if GT_FILE not in files:
+        return (f"ATE alignment of the full-rate rows: {full}; of the keyframe rows: {keyframes} (no ground-truth "
+                "trajectory was written: not every frame has a ground-truth pose).")
+    return (f"ATE alignment of the full-rate rows: {full} (`evo_ape tum {GT_FILE} trajectories/optimised.tum -a` "
+            f"reproduces them); of the keyframe rows: {keyframes} (`evo_ape tum trajectories/gt_keyframes.tum "
+            "trajectories/optimised_keyframes.tum -a`).")
+
+
+def report_markdown(result: ReportedRun, figures: list[str], files: Collection[str]) -> str:
+    """The run's report.md text; `figures` are file names under figures/, `files` the relative paths of the
+    files and folders in the result folder (only those are listed or named: which files a run writes depends
+    on what it produced)."""
     m, cfg = result.metrics, result.config
     online = m.get("pipeline") == "online"
     b, a, imp = m["before"], m["after"], m["improvement_pct"]
@@ -220,15 +245,13 @@ def report_markdown(result: RunResult, figures: list[str], files: Collection[str
         "Full rate: every frame, its pose from its preceding keyframe's optimised pose and the odometry since "
         "(trajectories/optimised.tum); the same odometry \"before\" for every sampler. "
         f"{rpe_text}; RPE also over 10 m of travelled ground-truth path.", "",
-        f"ATE alignment of the full-rate rows: {m['full_rate'].get('ate_alignment') or NA} (`evo_ape tum "
-        "trajectories/gt.tum trajectories/optimised.tum -a` reproduces them); of the keyframe rows: "
-        f"{m['ate_alignment']} (`evo_ape tum trajectories/gt_keyframes.tum trajectories/optimised_keyframes.tum "
-        "-a`).", "",
+        alignment_text(m, files), "",
         *notes_markdown(m),
         *(_online_lines(result) if online else _batch_lines(result)),
     ]
     lines += [f"![{name}](figures/{name})" for name in figures]
-    listed = [text.format(command="online" if online else "run") for name, text in RESULT_FILES.items()
-              if name in files]
+    ground_truth = "ground truth, " if GT_FILE in files else ""
+    listed = [text.format(command="online" if online else "run", ground_truth=ground_truth)
+              for name, text in RESULT_FILES.items() if name in files]
     lines += ["", f"Files: {', '.join(listed)}.", f"msa-slam {msa_slam.__version__}", ""]
     return "\n".join(lines)

@@ -164,6 +164,19 @@ def accounted_bytes(memory: dict[str, np.ndarray]) -> np.ndarray:
             + memory["graph_bytes"])
 
 
+RUN_FIGURES = ("trajectories.png", "memory.png", "step_times.png", "pr_curve.png")  # report.md's order
+
+
+def run_figures(folder: Path) -> list[str]:
+    """The figures of RUN_FIGURES in `folder`, in report.md's order (which ones depends on what the run made)."""
+    return [name for name in RUN_FIGURES if (folder / name).is_file()]
+
+
+def folder_files(folder: Path) -> set[str]:
+    """Relative POSIX paths of everything in a result folder: what its report.md may list and name."""
+    return {p.relative_to(folder).as_posix() for p in folder.rglob("*")}
+
+
 def _write_figures(result: RunResult, folder: Path) -> list[str]:
     folder.mkdir()
     m, cfg = result.metrics, result.config
@@ -175,7 +188,6 @@ def _write_figures(result: RunResult, folder: Path) -> list[str]:
                       title=f"{sequence}: {method}{online} ({counted(m['keyframes'], 'keyframe')}, "
                             f"{counted(m['verified'], 'loop')}, "
                             f"{m['mode']} mode)")
-    names = ["trajectories.png"]
     if result.memory:
         plot_memory(folder / "memory.png", {m["method"]: (np.arange(len(result)), accounted_bytes(result.memory),
                                                           result.memory["rss_bytes"])},
@@ -186,11 +198,9 @@ def _write_figures(result: RunResult, folder: Path) -> list[str]:
             "loop detection": {m["method"]: result.steps_ms["loop_detection"][new_kf]},
             "back-end per frame": {m["method"]: result.backend_ms},
         }, title=f"{sequence}: per-step time")
-        names += ["memory.png", "step_times.png"]
     if result.pr is not None and result.pr.auc is not None:
         plot_pr_curves({m["method"]: result.pr}, folder / "pr_curve.png", title=f"{sequence}: loop candidates")
-        names.append("pr_curve.png")
-    return names
+    return run_figures(folder)
 
 
 def write_run_files(result: RunResult, folder: Path, figures: bool = True) -> None:
@@ -212,7 +222,7 @@ def write_run_files(result: RunResult, folder: Path, figures: bool = True) -> No
     if result.descriptors is not None:
         np.save(folder / "descriptors.npy", result.descriptors)
     names = _write_figures(result, folder / "figures") if figures else []
-    (folder / "report.md").write_text(report_markdown(result, names, {p.name for p in folder.iterdir()}))
+    (folder / "report.md").write_text(report_markdown(result, names, folder_files(folder)))
 
 
 def write_run(result: RunResult, out: str | os.PathLike | None, overwrite: bool = False) -> Path:

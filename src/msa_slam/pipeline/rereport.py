@@ -1,0 +1,79 @@
+"""`msa-slam report DIR` on the folders of `run`, `online` and `compare` (`demo` writes a comparison, `compare
+--seeds` a spread over seeds): their report.md written again from the files in them, as the command wrote it,
+without running anything. Each file is replaced atomically, and only when it is msa-slam's as it wrote it (or
+missing): a file someone added or edited is never replaced. Figures are not redrawn: they need the runs'
+trajectories and loops as the pipeline held them, which the folder keeps only in part."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable, Sequence
+
+from msa_slam.io.atomic import write_text_atomic
+from msa_slam.io.outputs import OutputError, open_result_folder, some_names
+from msa_slam.io.staging import edited_files, foreign_files, recorded_digests, write_marker
+from msa_slam.pipeline.compare import _report, _write_spread, table_row  # compare.py has no public form of these
+from msa_slam.pipeline.config import make_config
+from msa_slam.pipeline.report import report_markdown
+from msa_slam.pipeline.results import folder_files, run_figures
+from msa_slam.pipeline.seed_folder import RECORD, SEEDS, finished_metrics, left_out_seeds, seed_dir
+from msa_slam.pipeline.stored import (comparison_figures, failed_methods, read_comparison, read_json, read_run,
+                                      read_text)
+
+KINDS = ("run", "online", "compare")  # the result kinds (io.staging.result_kind) whose report this module writes
+SPREAD_FILES = ("seeds.md", "seeds.csv", "seeds.json", "report.md")  # what compare --seeds writes at the top
+
+
+def rewrite_report(folder: Path, kind: str) -> Path:
+    """Write the report of the result `folder` of `kind` (one of KINDS) again, under the folder's lock (a run
+    writing it meanwhile is refused); return its report.md."""
+    with open_result_folder(folder, kind, Path(folder).parent, resume=True) as result:
+        path = result.path
+        if kind == "compare" and (path / SEEDS).is_dir():
+            _replace(path, kind, SPREAD_FILES, lambda: _write_seed_spread(path))
+        else:
+            text = run_report(path) if kind in ("run", "online") else comparison_report(path)
+            _replace(path, kind, ("report.md",), lambda: write_text_atomic(path / "report.md", text))
+    return path / "report.md"
+
+
+def run_report(folder: Path) -> str:
+    """report.md of a run folder (run, online, or a method of a comparison), from its files."""
+    files = folder_files(folder) - set(foreign_files(folder))  # only what msa-slam wrote may be listed
+    return report_markdown(read_run(folder), run_figures(folder / "figures"), files)
+
+
+def comparison_report(folder: Path) -> str:
+    """report.md of a comparison folder (compare, demo, or a seed of compare --seeds), from its files."""
+    frontend, runs = read_comparison(folder)
+    text = _report(frontend, runs, read_text(folder / "comparison.md"), comparison_figures(folder))
+    failed = failed_methods(folder)
+    if failed:
+        text += "\n## Failed methods\n\n" + "".join(f"- {name}: {error} (traceback: runs/{name}/error.txt)\n"
+                                                   for name, error in failed.items())
+    return text
+
+
+def _write_seed_spread(folder: Path) -> None:
+    """The spread over the seeds seeds.json names, from each seed's comparison.json and seed.json."""
+    seeds = read_json(folder / "seeds.json")["seeds"]
+    records = {seed: read_json(seed_dir(folder, seed) / RECORD) for seed in seeds}
+    rows = {seed: [table_row(m) for m in finished_metrics(seed_dir(folder, seed)) or []] for seed in seeds}
+    failed = {f"seed {seed}: {name}": error for seed, record in records.items()
+              for name, error in record.get("failed", {}).items()}
+    first = records[seeds[0]]
+    base = make_config({**next(iter(first["methods"].values())), "dataset": first["dataset"]})
+    _write_spread(folder, base, rows, failed, left_out_seeds(folder, seeds))
+
+
+def _replace(folder: Path, kind: str, names: Sequence[str], write: Callable[[], None]) -> None:
+    """Run `write`, which replaces the files `names` of `folder`, only when each is missing or msa-slam's as it
+    wrote it; then record them in the marker, every other file's standing (someone else's, edited) unchanged."""
+    foreign, edited = foreign_files(folder), edited_files(folder)
+    kept = [name for name in names if name in foreign or name in edited]
+    if kept:
+        raise OutputError(f"{folder}: {some_names(kept)}: added or edited since msa-slam wrote the folder; "
+                          "`msa-slam report` would replace them: move them elsewhere first")
+    recorded = recorded_digests(folder)
+    write()
+    write_marker(folder, kind, exclude=foreign, digests={name: recorded[name] for name in edited})
