@@ -17,6 +17,7 @@ import typer
 
 from msa_slam import __version__
 from msa_slam.cli import compare, demo, experiment, online, report, run, sample, simulate
+from msa_slam.cli.options import Command, Group
 from msa_slam.errors import InputError
 
 app = typer.Typer(
@@ -25,6 +26,7 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    cls=Group,
 )
 
 
@@ -42,14 +44,14 @@ def _main(
     """msa-slam command line."""
 
 
-app.command("simulate")(simulate.simulate_command)
-app.command("run")(run.run_command)
-app.command("compare")(compare.compare_command)
-app.command("demo")(demo.demo_command)
-app.command("sample")(sample.sample_command)
-app.command("online")(online.online_command)
-app.command("experiment")(experiment.experiment_command)
-app.command("report")(report.report_command)
+app.command("simulate", cls=Command)(simulate.simulate_command)
+app.command("run", cls=Command)(run.run_command)
+app.command("compare", cls=Command)(compare.compare_command)
+app.command("demo", cls=Command)(demo.demo_command)
+app.command("sample", cls=Command)(sample.sample_command)
+app.command("online", cls=Command)(online.online_command)
+app.command("experiment", cls=Command)(experiment.experiment_command)
+app.command("report", cls=Command)(report.report_command)
 
 
 def _stop_on_signal(signum: int, frame: FrameType | None) -> None:

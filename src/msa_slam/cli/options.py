@@ -10,14 +10,33 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Optional
 
 import typer
+from typer.core import TyperCommand, TyperGroup
+
+class _FlagsTakeNoValue:
+    """typer's rich help prints a value type (`<bool>`) beside flags, which take no value (plain click prints
+    none): an empty metavar for each flag, the help option's included, leaves that column blank."""
+
+    def get_params(self, ctx: typer.Context) -> list[Any]:
+        params = super().get_params(ctx)  # type: ignore[misc]
+        for param in params:
+            if getattr(param, "is_flag", False):
+                param.metavar = ""
+        return params
+
+
+class Command(_FlagsTakeNoValue, TyperCommand):
+    """A command whose --help shows no value type beside its flags."""
+
+
+class Group(_FlagsTakeNoValue, TyperGroup):
+    """The command group, whose --help shows no value type beside its flags (--version, --help)."""
+
 
 SAMPLER_NAMES = ("all", "constant", "entropy", "spaciousness", "msa")  # tests check: == the registry's names
 SAMPLER_HELP = f"{', '.join(SAMPLER_NAMES)} (default msa)"
 DESCRIPTOR_HELP = ("sc (Scan Context, default), ot (OverlapTransformer: needs torch and the authors' pretrained "
-                   "weights pretrained_overlap_transformer.pth.tar, published at "
-                   "https://drive.google.com/file/d/1FNrx9pcDa9NF7z8CFtuTWyauNkeSEFW4 via "
-                   "github.com/haomo-ai/OverlapTransformer; pass -p weights=FILE), precomputed "
-                   "(-p descriptor.path=FILE.npy)")
+                   "weights, -p weights=FILE; a run without them says where to download them), precomputed "
+                   "(-p descriptor.path=FILE.npy)")  # no URL here: rich cuts a word longer than the column
 MODE_HELP = "oracle (default, the paper; needs ground truth) or realistic"
 DATASET_HELP = ("sequence folder (KITTI, MulRan, HeLiPR, Apollo, Newer College layout, or a folder of .bin/.pcd/.ply "
                 "scans), a ROS1/ROS2 bag (.bag, bag folder, .db3, .mcap), or sim:NAME (sim:demo, sim:kitti-05,...)")

@@ -1,0 +1,40 @@
+"""Every command's --help as a terminal shows it, narrow or wide: flags without a value type (they take none)
+and every URL of the help text whole (rich cuts a word longer than its column with an ellipsis)."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+import typer
+from typer.testing import CliRunner
+
+from msa_slam.cli import app
+
+URL = re.compile(r"(?:https?://|www\.|github\.com/)[^\s)'\",;]+")
+GROUP = typer.main.get_command(app)
+COMMANDS = ["", *GROUP.commands]  # "": msa-slam --help itself
+
+
+def _help_source(name: str) -> str:
+    """The help texts --help renders for `name`: the command's and every option's."""
+    command = GROUP.commands[name] if name else GROUP
+    return "\n".join([command.help or "", *(getattr(p, "help", None) or "" for p in command.params)])
+
+
+@pytest.mark.parametrize("columns", ["80", "200"])
+@pytest.mark.parametrize("name", COMMANDS)
+def test_help_shows_flags_without_a_type_and_urls_whole(name, columns):
+    result = CliRunner().invoke(app, [*([name] if name else []), "--help"], env={"COLUMNS": columns})
+    assert result.exit_code == 0, result.output
+    assert max(len(line) for line in result.output.splitlines()) == int(columns)  # rendered at that width
+    assert "<bool>" not in result.output
+    assert re.search(r"--help\s+Show this message", result.output)  # the help flag too: no type between
+    for url in URL.findall(_help_source(name)):
+        assert url in result.output
+
+
+def test_no_help_text_holds_a_url_longer_than_a_narrow_column():
+    """At 80 columns the help column is about 25 characters wide: a longer URL would be cut, so the help texts
+    point to the docs (or to the error a run gives) instead."""
+    assert all(len(url) <= 25 for name in COMMANDS for url in URL.findall(_help_source(name)))
