@@ -1,31 +1,44 @@
-# Two set-up commands for a fresh machine: `make demo` (main job) and `make test` (test suite).
+# Two set-up commands for a fresh machine: `make demo` (main job) and `make test` (test suite). Each installs only
+# what it runs: the demo the package, the tests also pytest and pytest-xdist. `make extras` adds the optional
+# torch (OverlapTransformer, CPU build) and rerun-sdk (live viewer); without them their tests skip.
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
-STAMP := $(VENV)/.installed
+BASE := $(VENV)/.installed-base
+DEV := $(VENV)/.installed-dev
+EXTRAS := $(VENV)/.installed-extras
 
-.PHONY: demo test test-slow bench clean
+.PHONY: demo test test-slow bench extras clean
 
-$(STAMP): pyproject.toml
+$(BASE): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet torch==2.13.0 || echo "torch 2.13.0 not available: OverlapTransformer tests will skip"
-	$(PY) -m pip install --quiet -e ".[dev]"
-	$(PY) -m pip install --quiet "rerun-sdk>=0.23" || echo "rerun-sdk not available: the live-viewer tests will skip"
-	touch $(STAMP)
+	$(PY) -m pip install --quiet -e .
+	touch $(BASE)
 
-demo: $(STAMP)
+$(DEV): $(BASE)
+	$(PY) -m pip install --quiet -e ".[dev]"
+	touch $(DEV)
+
+$(EXTRAS): $(BASE)
+	$(PY) -m pip install --quiet torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu || echo "torch 2.13.0 not available: OverlapTransformer tests will skip"
+	$(PY) -m pip install --quiet "rerun-sdk>=0.23" || echo "rerun-sdk not available: the live-viewer tests will skip"
+	touch $(EXTRAS)
+
+demo: $(BASE)
 	$(VENV)/bin/msa-slam demo
 
 # -n auto: one pytest worker per core; --dist loadfile keeps each test file (and its module fixtures) on one worker
-test: $(STAMP)
+test: $(DEV)
 	$(PY) -m pytest -q -n auto --dist loadfile
 
-test-slow: $(STAMP)
+test-slow: $(DEV)
 	$(PY) -m pytest -q -n auto --dist loadfile -m slow
 
-bench: $(STAMP)
+bench: $(BASE)
 	for b in benchmarks/bench_*.py; do $(PY) $$b || exit 1; done
+
+extras: $(EXTRAS)
 
 clean:
 	rm -rf $(VENV) build *.egg-info

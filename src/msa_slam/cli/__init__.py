@@ -17,7 +17,7 @@ import typer
 
 from msa_slam import __version__
 from msa_slam.cli import compare, demo, experiment, online, report, run, sample, simulate
-from msa_slam.cli.options import Command, Group
+from msa_slam.cli.options import WEIGHTS_EPILOG, Command, Group
 from msa_slam.errors import InputError
 
 app = typer.Typer(
@@ -45,11 +45,11 @@ def _main(
 
 
 app.command("simulate", cls=Command)(simulate.simulate_command)
-app.command("run", cls=Command)(run.run_command)
-app.command("compare", cls=Command)(compare.compare_command)
+app.command("run", cls=Command, epilog=WEIGHTS_EPILOG)(run.run_command)
+app.command("compare", cls=Command, epilog=WEIGHTS_EPILOG)(compare.compare_command)
 app.command("demo", cls=Command)(demo.demo_command)
 app.command("sample", cls=Command)(sample.sample_command)
-app.command("online", cls=Command)(online.online_command)
+app.command("online", cls=Command, epilog=WEIGHTS_EPILOG)(online.online_command)
 app.command("experiment", cls=Command)(experiment.experiment_command)
 app.command("report", cls=Command)(report.report_command)
 

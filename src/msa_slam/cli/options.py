@@ -35,8 +35,14 @@ class Group(_FlagsTakeNoValue, TyperGroup):
 SAMPLER_NAMES = ("all", "constant", "entropy", "spaciousness", "msa")  # tests check: == the registry's names
 SAMPLER_HELP = f"{', '.join(SAMPLER_NAMES)} (default msa)"
 DESCRIPTOR_HELP = ("sc (Scan Context, default), ot (OverlapTransformer: needs torch and the authors' pretrained "
-                   "weights, -p weights=FILE; a run without them says where to download them), precomputed "
-                   "(-p descriptor.path=FILE.npy)")  # no URL here: rich cuts a word longer than the column
+                   "weights, -p weights=FILE; where to get them: the end of this help), precomputed "
+                   "(-p descriptor.path=FILE.npy)")
+# After the options, a paragraph per line as wide as the terminal: a URL in an option's narrow help column would
+# be cut (descriptors.overlap_transformer.WEIGHTS_URL, not imported: --help must not load numpy)
+WEIGHTS_EPILOG = ("OverlapTransformer weights (--descriptor ot -p weights=FILE): the authors' "
+                  "pretrained_overlap_transformer.pth.tar, published at\n\n"
+                  "https://drive.google.com/file/d/1FNrx9pcDa9NF7z8CFtuTWyauNkeSEFW4\n\n"
+                  "via github.com/haomo-ai/OverlapTransformer.")
 MODE_HELP = "oracle (default, the paper; needs ground truth) or realistic"
 DATASET_HELP = ("sequence folder (KITTI, MulRan, HeLiPR, Apollo, Newer College layout, or a folder of .bin/.pcd/.ply "
                 "scans), a ROS1/ROS2 bag (.bag, bag folder, .db3, .mcap), or sim:NAME (sim:demo, sim:kitti-05,...)")
