@@ -1,7 +1,8 @@
-"""Shared test helpers: locate ../shared (skip clearly when absent)."""
+"""Shared test helpers: locate ../shared (skip clearly when absent); the simulated sequences the tests run on."""
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -9,6 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from msa_slam.io.poses import read_poses, write_poses
+from msa_slam.pipeline.source import resolve_dataset
 from msa_slam.sim import DEFAULT_CONFIGS, simulate_sequence
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -62,3 +64,16 @@ def odometry_file(sequence, cache_dir) -> Path:
     if not path.exists():
         write_poses(path, drifted(gt))
     return path
+
+
+@pytest.fixture(scope="session")
+def scans_only(tmp_path_factory):
+    """The simulator's test sequence as a bare folder of .bin scans, and its poses as an odometry file."""
+    sim = resolve_dataset("sim:test")
+    folder = tmp_path_factory.mktemp("nogt") / "scans"
+    folder.mkdir()
+    for scan in sorted((sim / "velodyne").glob("*.bin"))[:90]:
+        shutil.copy(scan, folder / scan.name)
+    poses = folder.parent / "odometry.txt"
+    poses.write_text("".join((sim / "poses.txt").read_text().splitlines(keepends=True)[:90]))
+    return folder, poses

@@ -3,28 +3,13 @@ and PR reported n/a and why; the oracle mode and sampling on ground truth are re
 
 from __future__ import annotations
 
-import shutil
-
 import numpy as np
 import pytest
 
 from msa_slam.errors import InputError
 from msa_slam.pipeline.online import run_online
 from msa_slam.pipeline.online_config import make_online_config
-from msa_slam.pipeline.source import open_source, resolve_dataset
-
-
-@pytest.fixture(scope="module")
-def scans_only(tmp_path_factory):
-    """The simulator's test sequence as a bare folder of .bin scans, and its poses as an odometry file."""
-    sim = resolve_dataset("sim:test")
-    folder = tmp_path_factory.mktemp("nogt") / "scans"
-    folder.mkdir()
-    for scan in sorted((sim / "velodyne").glob("*.bin"))[:90]:
-        shutil.copy(scan, folder / scan.name)
-    poses = folder.parent / "odometry.txt"
-    poses.write_text("".join((sim / "poses.txt").read_text().splitlines(keepends=True)[:90]))
-    return folder, poses
+from msa_slam.pipeline.source import open_source
 
 
 def test_online_without_ground_truth_reports_na(scans_only):

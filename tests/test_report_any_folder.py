@@ -18,7 +18,6 @@ from msa_slam.io.outputs import MARKER, OutputError
 from msa_slam.io.staging import edited_files, foreign_files
 from msa_slam.pipeline import make_config
 from msa_slam.pipeline.compare import run_compare
-from msa_slam.pipeline.source import resolve_dataset
 
 METHODS = (("all", "all", {}), ("constant-3m", "constant", {"distance": 3.0}))
 
@@ -55,19 +54,6 @@ def run_folder(sequence, odometry_file, cache_dir, tmp_path_factory):
 def compare_folder(sequence, odometry_file, cache_dir, tmp_path_factory):
     base = make_config(dataset=str(sequence), odometry=str(odometry_file), cache_dir=str(cache_dir))
     return run_compare(base, tmp_path_factory.mktemp("report-compare") / "cmp", methods=METHODS, sweep=False).parent
-
-
-@pytest.fixture(scope="module")
-def scans_only(tmp_path_factory):
-    """The simulator's test sequence as a bare folder of .bin scans (no ground truth), its poses as odometry."""
-    sim = resolve_dataset("sim:test")
-    folder = tmp_path_factory.mktemp("report-nogt") / "scans"
-    folder.mkdir()
-    for scan in sorted((sim / "velodyne").glob("*.bin"))[:60]:
-        shutil.copy(scan, folder / scan.name)
-    poses = folder.parent / "odometry.txt"
-    poses.write_text("".join((sim / "poses.txt").read_text().splitlines(keepends=True)[:60]))
-    return folder, poses
 
 
 def test_report_of_a_run_folder_is_the_one_run_wrote(run_folder):
@@ -111,6 +97,12 @@ def test_report_refuses_a_folder_msa_slam_did_not_write(tmp_path):
                                      "expected a folder written by `msa-slam run`, `online`, `compare`, `demo` or "
                                      "`experiment`; nothing written")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+
+
+def test_report_names_the_result_folder_around_a_method_folder(compare_folder):
+    result = _cli("report", str(compare_folder / "runs" / "all"))
+    assert isinstance(result.exception, InputError)
+    assert f"(it lies inside the result folder {compare_folder}: report that one)" in str(result.exception)
 
 
 def test_report_never_replaces_an_edited_report_and_keeps_added_files_unlisted(run_folder, tmp_path):

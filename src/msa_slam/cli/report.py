@@ -25,8 +25,10 @@ def report_command(
 
     kind = result_kind(results_dir)
     if kind is None:
-        raise InputError(f"{results_dir}: not a msa-slam result folder (no {MARKER} written by msa-slam); expected "
-                         f"{EXPECTED}; nothing written")
+        outer = next((p for p in Path(results_dir).absolute().parents if result_kind(p) is not None), None)
+        inside = f" (it lies inside the result folder {outer}: report that one)" if outer is not None else ""
+        raise InputError(f"{results_dir}: not a msa-slam result folder (no {MARKER} written by msa-slam){inside}; "
+                         f"expected {EXPECTED}; nothing written")
     if kind == KIND:
         report = _experiment_report(results_dir, reference)
     else:

@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Callable, Sequence
 
+from msa_slam.errors import InputError
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.outputs import OutputError, open_result_folder, some_names
 from msa_slam.io.staging import edited_files, foreign_files, recorded_digests, write_marker
@@ -32,7 +33,11 @@ def rewrite_report(folder: Path, kind: str) -> Path:
         if kind == "compare" and (path / SEEDS).is_dir():
             _replace(path, kind, SPREAD_FILES, lambda: _write_seed_spread(path))
         else:
-            text = run_report(path) if kind in ("run", "online") else comparison_report(path)
+            try:
+                text = run_report(path) if kind in ("run", "online") else comparison_report(path)
+            except KeyError as exc:  # metrics.json of another msa-slam version, or edited
+                raise InputError(f"{path}: its metrics lack {exc} (written by another version of msa-slam?); "
+                                 "report.md left as it was") from None
             _replace(path, kind, ("report.md",), lambda: write_text_atomic(path / "report.md", text))
     return path / "report.md"
 
