@@ -15,9 +15,10 @@ def report_command(
     reference: Optional[str] = typer.Option(None, help="experiments: the method the memory and ATE differences "
                                                        "compare to (default: the grid's reference, usually all)"),
 ) -> None:
-    """(Re)write a result folder's report.md from its files, without running anything: an experiment's also its
-    results.csv, results.md and figures from the finished cells of its current grid.yaml (cells of an earlier
-    grid are listed and left out); a comparison over seeds also its seeds.md, seeds.csv and seeds.json."""
+    """(Re)write a result folder's report.md from its files, without running anything (a comparison's also each
+    method's): an experiment's also its results.csv, results.md and figures from the finished cells of its
+    current grid.yaml (cells of an earlier grid are listed and left out); a comparison over seeds also its
+    seeds.md, seeds.csv and seeds.json."""
     from msa_slam.errors import InputError
     from msa_slam.experiments.folder import KIND
     from msa_slam.io.outputs import MARKER

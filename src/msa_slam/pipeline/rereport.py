@@ -1,13 +1,13 @@
 """`msa-slam report DIR` on the folders of `run`, `online` and `compare` (`demo` writes a comparison, `compare
---seeds` a spread over seeds): their report.md written again from the files in them, as the command wrote it,
-without running anything. Each file is replaced atomically, and only when it is msa-slam's as it wrote it (or
-missing): a file someone added or edited is never replaced. Figures are not redrawn: they need the runs'
-trajectories and loops as the pipeline held them, which the folder keeps only in part."""
+--seeds` one per seed and the spread over them): every report.md the command wrote (a comparison's, each of its
+methods', the spread's) written again from the files in the folder, as the command wrote it, without running
+anything. Each file is replaced atomically, and only when it is msa-slam's as it wrote it (or missing): a file
+someone added or edited is never replaced. Figures are not redrawn: they need the runs' trajectories and loops as
+the pipeline held them, which the folder keeps only in part."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Callable, Sequence
 
 from msa_slam.errors import InputError
 from msa_slam.io.atomic import write_text_atomic
@@ -21,30 +21,61 @@ from msa_slam.pipeline.seed_folder import RECORD, SEEDS, finished_metrics, left_
 from msa_slam.pipeline.stored import (comparison_figures, failed_methods, read_comparison, read_json, read_run,
                                       read_text)
 
-KINDS = ("run", "online", "compare")  # the result kinds (io.staging.result_kind) whose report this module writes
+KINDS = ("run", "online", "compare")  # the result kinds (io.staging.result_kind) whose reports this module writes
 SPREAD_FILES = ("seeds.md", "seeds.csv", "seeds.json", "report.md")  # what compare --seeds writes at the top
 
 
 def rewrite_report(folder: Path, kind: str) -> Path:
-    """Write the report of the result `folder` of `kind` (one of KINDS) again, under the folder's lock (a run
+    """Write the reports of the result `folder` of `kind` (one of KINDS) again, under the folder's lock (a run
     writing it meanwhile is refused); return its report.md."""
     with open_result_folder(folder, kind, Path(folder).parent, resume=True) as result:
         path = result.path
-        if kind == "compare" and (path / SEEDS).is_dir():
-            _replace(path, kind, SPREAD_FILES, lambda: _write_seed_spread(path))
-        else:
-            try:
-                text = run_report(path) if kind in ("run", "online") else comparison_report(path)
-            except KeyError as exc:  # metrics.json of another msa-slam version, or edited
-                raise InputError(f"{path}: its metrics lack {exc} (written by another version of msa-slam?); "
-                                 "report.md left as it was") from None
-            _replace(path, kind, ("report.md",), lambda: write_text_atomic(path / "report.md", text))
+        foreign, edited = foreign_files(path), edited_files(path)
+        try:
+            texts = _reports(path, kind, set(foreign))
+        except KeyError as exc:  # metrics.json of another msa-slam version, or edited
+            raise InputError(f"{path}: its metrics lack {exc} (written by another version of msa-slam?); "
+                             "nothing written") from None
+        spread = kind == "compare" and (path / SEEDS).is_dir()
+        names = [*texts, *(SPREAD_FILES if spread else ())]
+        kept = sorted({name for name in names if name in foreign or name in edited})
+        if kept:
+            raise OutputError(f"{path}: {some_names(kept)}: added or edited since msa-slam wrote the folder; "
+                              "`msa-slam report` would replace them: move them elsewhere first")
+        recorded = recorded_digests(path)
+        for name, text in texts.items():
+            write_text_atomic(path / name, text)
+        if spread:
+            _write_seed_spread(path)
+        write_marker(path, kind, exclude=foreign, digests={name: recorded[name] for name in edited})
     return path / "report.md"
 
 
-def run_report(folder: Path) -> str:
-    """report.md of a run folder (run, online, or a method of a comparison), from its files."""
-    files = folder_files(folder) - set(foreign_files(folder))  # only what msa-slam wrote may be listed
+def _reports(root: Path, kind: str, foreign: set[str]) -> dict[str, str]:
+    """Every report.md of the result `root` but the spread's (relative path -> text); `foreign`: the files
+    msa-slam did not write, which no report lists."""
+    if kind != "compare":
+        return {"report.md": run_report(root, foreign)}
+    seeds = root / SEEDS
+    comparisons = sorted(p for p in seeds.iterdir() if (p / RECORD).is_file()) if seeds.is_dir() else [root]
+    texts = {}
+    for folder in comparisons:
+        texts[_relative(root, folder / "report.md")] = comparison_report(folder)
+        for metrics in read_json(folder / "comparison.json"):
+            run = folder / "runs" / metrics["method"]
+            texts[_relative(root, run / "report.md")] = run_report(run, foreign, root)
+    return texts
+
+
+def _relative(root: Path, path: Path) -> str:
+    return path.relative_to(root).as_posix()
+
+
+def run_report(folder: Path, foreign: set[str], root: Path | None = None) -> str:
+    """report.md of a run folder (run, online, or a method of a comparison under the result folder `root`),
+    from its files; `foreign`: the files msa-slam did not write (relative to `root`), which it does not list."""
+    prefix = "" if root is None else _relative(root, folder) + "/"
+    files = {name for name in folder_files(folder) if prefix + name not in foreign}
     return report_markdown(read_run(folder), run_figures(folder / "figures"), files)
 
 
@@ -69,16 +100,3 @@ def _write_seed_spread(folder: Path) -> None:
     first = records[seeds[0]]
     base = make_config({**next(iter(first["methods"].values())), "dataset": first["dataset"]})
     _write_spread(folder, base, rows, failed, left_out_seeds(folder, seeds))
-
-
-def _replace(folder: Path, kind: str, names: Sequence[str], write: Callable[[], None]) -> None:
-    """Run `write`, which replaces the files `names` of `folder`, only when each is missing or msa-slam's as it
-    wrote it; then record them in the marker, every other file's standing (someone else's, edited) unchanged."""
-    foreign, edited = foreign_files(folder), edited_files(folder)
-    kept = [name for name in names if name in foreign or name in edited]
-    if kept:
-        raise OutputError(f"{folder}: {some_names(kept)}: added or edited since msa-slam wrote the folder; "
-                          "`msa-slam report` would replace them: move them elsewhere first")
-    recorded = recorded_digests(folder)
-    write()
-    write_marker(folder, kind, exclude=foreign, digests={name: recorded[name] for name in edited})
