@@ -12,6 +12,7 @@ from typing import Any, Callable, Iterator, Optional
 import typer
 from typer.core import TyperCommand, TyperGroup
 
+
 class _FlagsTakeNoValue:
     """typer's rich help prints a value type (`<bool>`) beside flags, which take no value (plain click prints
     none): an empty metavar for each flag, the help option's included, leaves that column blank."""
