@@ -1,6 +1,7 @@
 # Two set-up commands for a fresh machine: `make demo` (main job) and `make test` (test suite). Each installs only
-# what it runs: the demo the package, the tests also pytest and pytest-xdist. `make extras` adds the optional
-# torch (OverlapTransformer, CPU build) and rerun-sdk (live viewer); without them their tests skip.
+# what it runs: the demo the package; the tests also pytest, pytest-xdist and the optional extras their tests
+# exercise (`make extras`: torch for the OverlapTransformer, CPU build, and rerun-sdk for the live viewer;
+# without them those tests skip).
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
@@ -21,7 +22,7 @@ $(DEV): $(BASE)
 	touch $(DEV)
 
 $(EXTRAS): $(BASE)
-	$(PY) -m pip install --quiet torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu || echo "torch 2.13.0 not available: OverlapTransformer tests will skip"
+	$(PY) -m pip install --quiet torch==2.13.0 || echo "torch 2.13.0 not available: OverlapTransformer tests will skip"
 	$(PY) -m pip install --quiet "rerun-sdk>=0.23" || echo "rerun-sdk not available: the live-viewer tests will skip"
 	touch $(EXTRAS)
 
@@ -29,10 +30,10 @@ demo: $(BASE)
 	$(VENV)/bin/msa-slam demo
 
 # -n auto: one pytest worker per core; --dist loadfile keeps each test file (and its module fixtures) on one worker
-test: $(DEV)
+test: $(DEV) $(EXTRAS)
 	$(PY) -m pytest -q -n auto --dist loadfile
 
-test-slow: $(DEV)
+test-slow: $(DEV) $(EXTRAS)
 	$(PY) -m pytest -q -n auto --dist loadfile -m slow
 
 bench: $(BASE)

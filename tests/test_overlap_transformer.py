@@ -215,9 +215,6 @@ def test_state_dict_mismatch_named(torch_mod, state, tmp_path):
         load_network(tmp_path / "nostate.pth")
 
 
-@pytest.mark.xfail(strict=True, raises=ImportError,
-                   reason="load_network imports the torch network (descriptors/_ot_network.py) before its clear "
-                          "error: descriptors/overlap_transformer.py's load_network must call _import_torch() first")
 def test_missing_torch_is_a_clear_error(monkeypatch, tmp_path):
     from msa_slam.descriptors.overlap_transformer import load_network
 

@@ -65,10 +65,10 @@ def read_checkpoint(weights: str | Path) -> dict:
 
 def load_network(weights: str | Path):
     """OverlapTransformer network in eval mode with the checkpoint's weights; InputError on any mismatch."""
+    path = Path(weights)
+    state = read_checkpoint(path)  # first: without torch, its clear error comes before the network's import
     from msa_slam.descriptors._ot_network import OverlapTransformerNet
 
-    path = Path(weights)
-    state = read_checkpoint(path)
     net = OverlapTransformerNet()
     wanted = net.state_dict()
     missing = [name for name in wanted if name not in state]
