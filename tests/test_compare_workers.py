@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-import msa_slam.pipeline.compare as compare
+from helpers.methods import before_method, degenerate
 from helpers.orphans import poll, proc_stat
 from helpers.results import differences, stable_content
 from msa_slam.cli import app
@@ -67,27 +67,15 @@ def test_seeds_with_two_workers_write_the_files_of_a_serial_run(tmp_path, cache_
     assert "seeds/seed-1/runs/msa/metrics.json" in stable_content(parallel)
 
 
-def _failing_constant(monkeypatch):
-    """compare's run_batch made to fail for constant-2m (the workers inherit the patch by fork)."""
-    real = compare.run_batch
-
-    def failing(cfg, *args, **kwargs):
-        if cfg.name == "constant-2m":
-            raise RuntimeError("degenerate scan statistics")
-        return real(cfg, *args, **kwargs)
-
-    monkeypatch.setattr(compare, "run_batch", failing)
-
-
 @pytest.mark.parametrize("workers", [1, 2])
 def test_a_method_failing_in_a_worker_is_reported_as_in_a_serial_run(base, tmp_path, monkeypatch, workers):
-    _failing_constant(monkeypatch)
+    before_method(monkeypatch, "constant-2m", degenerate)
     out = tmp_path / "cmp"
     with pytest.raises(MethodsFailed) as failed:
         run_compare(base, out, methods=METHODS, sweep=False, workers=workers)
     assert failed.value.failed == {"constant-2m": "RuntimeError: degenerate scan statistics"}
     error = (out / "runs" / "constant-2m" / "error.txt").read_text()
-    assert error.startswith("Traceback") and "in failing" in error and "degenerate scan statistics" in error
+    assert error.startswith("Traceback") and "in degenerate" in error and "degenerate scan statistics" in error
     assert sorted(p.name for p in (out / "runs" / "constant-2m").iterdir()) == ["error.txt"]
     for name in ("all", "msa"):
         assert (out / "runs" / name / "metrics.json").is_file()
@@ -99,14 +87,7 @@ def test_a_method_failing_in_a_worker_is_reported_as_in_a_serial_run(base, tmp_p
 def test_a_worker_that_dies_fails_its_method_instead_of_the_comparison(base, tmp_path, monkeypatch):
     """A worker killed mid-method (the OOM killer, a crash in a native library) fails the methods it breaks off,
     each with error.txt; the comparison is still written."""
-    real = compare.run_batch
-
-    def dying(cfg, *args, **kwargs):
-        if cfg.name == "msa":
-            os.kill(os.getpid(), signal.SIGKILL)
-        return real(cfg, *args, **kwargs)
-
-    monkeypatch.setattr(compare, "run_batch", dying)
+    before_method(monkeypatch, "msa", lambda: os.kill(os.getpid(), signal.SIGKILL))
     out = tmp_path / "cmp"
     with pytest.raises(MethodsFailed) as failed:
         run_compare(base, out, methods=METHODS, sweep=False, workers=2)
