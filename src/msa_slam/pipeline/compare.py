@@ -337,6 +337,7 @@ def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: boo
                 ) -> tuple[list[dict[str, Any]], dict[str, str]]:
     """One comparison folder's files in `tmp` (the methods in `workers` processes); its table rows and failed
     methods."""
+    workers = min(workers, len(configs))  # no idle workers
     frontend = prepare_frontend(configs[0], quiet, configs, window_fix)
     results, failed = _run_methods(configs, frontend, tmp / "runs", quiet, sweep, workers)
     rows = [table_row(r.metrics) for r in results]
@@ -345,7 +346,7 @@ def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: boo
     (tmp / "comparison.csv").write_text(rows_csv(rows, COLUMNS))
     write_json(tmp / "comparison.json", [r.metrics for r in results])
     figures = _figures(results, tmp / "figures") if results else []
-    report = (_report(frontend, results, table, figures, min(workers, len(configs))) if results
+    report = (_report(frontend, results, table, figures, workers) if results
               else f"# Sampler comparison on {display_name(frontend.name)}\n")
     if failed:
         report += "\n## Failed methods\n\n" + "".join(f"- {name}: {error} (traceback: runs/{name}/error.txt)\n"
@@ -424,7 +425,6 @@ def _run_methods(configs: Sequence[RunConfig], frontend: Frontend, runs: Path, q
     runs.mkdir()
     for cfg in configs:
         (runs / cfg.name).mkdir()
-    workers = min(workers, len(configs))
     outcomes = (_serial(configs, frontend, runs, quiet, sweep) if workers == 1
                 else _parallel(configs, frontend, runs, quiet, sweep, workers))
     results = [result for result, _ in outcomes if result is not None]
