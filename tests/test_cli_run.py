@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from helpers.methods import before_method, degenerate
 from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses
@@ -142,14 +143,7 @@ def test_compare_keeps_finished_methods_when_one_fails(sequence, odometry_file, 
     defaults = list(compare.run_compare.__defaults__)
     defaults[with_defaults.index("methods")] = methods
     monkeypatch.setattr(compare.run_compare, "__defaults__", tuple(defaults))
-    real = compare.run_batch
-
-    def failing(cfg, *args, **kwargs):
-        if cfg.name == "entropy":
-            raise RuntimeError("degenerate scan statistics")
-        return real(cfg, *args, **kwargs)
-
-    monkeypatch.setattr(compare, "run_batch", failing)
+    before_method(monkeypatch, "entropy", degenerate)
     out = tmp_path / "cmp"
     result = runner.invoke(app, ["compare", "--dataset", str(sequence), "--odometry", str(odometry_file),
                                  "--cache-dir", str(cache_dir), "--out", str(out), "--quiet"])

@@ -11,9 +11,7 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import pytest
@@ -25,6 +23,7 @@ from msa_slam.errors import InputError
 from msa_slam.experiments import expand, parse_grid
 from msa_slam.io.poses import format_kitti
 from msa_slam.odometry import KissOdometry
+from helpers.orphans import poll, proc_stat
 from test_cli_main import run_cli
 from test_experiments import TINY
 
@@ -125,26 +124,6 @@ sys.stdin.read()
 """
 
 
-def _proc_stat(pid: int) -> list[str] | None:
-    """Fields 3 onwards of /proc/PID/stat (state first, nice at index 16); None once the process is gone or is
-    a zombie (dead, not yet reaped by whoever adopted it)."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except (FileNotFoundError, ProcessLookupError):
-        return None
-    return None if fields[0] in ("Z", "X") else fields
-
-
-def _poll(condition: Callable[[], bool], timeout: float) -> bool:
-    """Whether `condition` holds within `timeout` s, checked every 50 ms."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.05)
-    return True
-
-
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states from /proc")
 @pytest.mark.parametrize("when", ["compiling", "starting", "fallback"])
 def test_a_killed_parent_takes_its_compile_child_with_it(tmp_path, when):
@@ -158,16 +137,16 @@ def test_a_killed_parent_takes_its_compile_child_with_it(tmp_path, when):
     child = int(parent.stdout.readline())
     try:
         if when == "compiling":
-            assert _poll(lambda: (_proc_stat(child) or [""] * 17)[16] == "19", timeout=60)
+            assert poll(lambda: (proc_stat(child) or [""] * 17)[16] == "19", timeout=60)
         elif when == "fallback":
-            assert _poll(ready.exists, timeout=60), "the child did not set up its end with the parent"
+            assert poll(ready.exists, timeout=60), "the child did not set up its end with the parent"
         parent.send_signal(signal.SIGKILL)
         parent.wait()
-        assert _poll(lambda: _proc_stat(child) is None, timeout=30), "the compile child outlived its killed parent"
+        assert poll(lambda: proc_stat(child) is None, timeout=30), "the compile child outlived its killed parent"
     finally:
         parent.kill()
         parent.wait()
         parent.stdout.close()
         parent.stdin.close()
-        if _proc_stat(child) is not None:
+        if proc_stat(child) is not None:
             os.kill(child, signal.SIGKILL)

@@ -30,6 +30,7 @@ from msa_slam.experiments.identity import CELL_IDENTITY, cell_identities, outdat
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, some_names, staged_dir
 from msa_slam.io.staging import OutputError, foreign_in_units, remove_abandoned, unmark_finished
+from msa_slam.workers import check_workers
 
 DEFAULT_PARENT = DEFAULT_RESULTS / "experiments"
 log = logging.getLogger(__name__)
@@ -159,8 +160,7 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
     """
     from msa_slam.experiments.report import write_report
 
-    if workers < 1:
-        raise InputError(f"--workers must be >= 1, got {workers}")
+    check_workers(workers)
     cells = expand(grid, where)
     check_datasets(grid, where, cells)
     if scheduler is not None:

@@ -10,11 +10,13 @@ import logging
 import os
 import sys
 import traceback
+from concurrent.futures import as_completed
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Sequence
 
 from msa_slam.errors import InputError
-from msa_slam.evaluation import ATE_ALIGNMENT, NA, fmt, notes
+from msa_slam.evaluation import ATE_ALIGNMENT, NA, fmt, notes, peak_rss_bytes
 from msa_slam.evaluation.display import spec_for
 from msa_slam.io.atomic import atomic_path, write_text_atomic
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, staged_dir
@@ -37,6 +39,7 @@ from msa_slam.slam.backend import UNGATED_SAMPLERS
 from msa_slam.slam.loop_closing import REJECTION_REASONS
 from msa_slam.viz import plot_metric_bars, plot_trajectories
 from msa_slam.viz.labels import display_name
+from msa_slam.workers import check_workers, forked_workers, shared
 
 log = logging.getLogger(__name__)
 
@@ -175,7 +178,8 @@ def sweep_markdown(results: Sequence[RunResult]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: list[str]) -> str:
+def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: list[str], workers: int) -> str:
+    """report.md; `workers`: the processes the methods ran in (1: this one), which the memory figures depend on."""
     cfg = results[0].config
     rpe_text = rpe_segments(results[0].gt_poses)[1]  # every method runs on the same sequence
     cached = " (from cache)" if all(fe.cached.values()) else ""
@@ -197,14 +201,13 @@ def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: lis
              "and the graph, per method; RSS growth: the process's resident set at the end of the method's back-end "
              "(after the final optimisation) minus at its start, both read after a full garbage collection and "
              "with free heap pages handed back (malloc_trim), so memory an earlier method freed counts neither for "
-             "nor against this one (methods run one after another in one process). It is what the back-end added "
+             f"nor against this one ({_processes(workers)}). It is what the back-end added "
              "and still holds at its end: the memory column plus what that leaves out (per-frame records, the map, "
              "the sampler's working buffers such as MSA's exact-search workspace, allocator overheads). MSA's numba "
              "kernels are loaded before its back-end starts (a one-time cost of the process, ~58 MiB). Time: "
              "sampling + keyframe store + loop search + verification + optimisation.", "", table, "",
              *_sweep_lines(results),
-             f"Process peak RSS: {mib(max(r.metrics['peak_rss_bytes'] for r in results))} (whole process: "
-             "every method and the shared front end; not a per-method figure).", ""]
+             _peak_rss(results, workers), ""]
     method_notes = [f"- {r.config.name}: {note}" for r in results for note in notes(r.metrics)]
     if method_notes:
         lines += ["Notes (n/a values and warnings):", "", *method_notes, ""]
@@ -212,6 +215,26 @@ def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: lis
     lines += ["", "Per-method results: " + ", ".join(f"[{r.config.name}](runs/{r.config.name}/report.md)"
                                                   for r in results), ""]
     return "\n".join(lines)
+
+
+def _processes(workers: int) -> str:
+    """Where the methods ran, for the RSS growth's definition in report.md."""
+    if workers == 1:
+        return "methods run one after another in one process"
+    return (f"methods run one after another in each of {workers} worker processes forked from the main one after "
+            "the front end, so a worker's first method, not only the comparison's first, carries the one-time "
+            "costs of a back-end in a process")
+
+
+def _peak_rss(results: Sequence[RunResult], workers: int) -> str:
+    """The peak-RSS line of report.md: of the one process, or of the busiest worker and of the main process."""
+    peak = mib(max(r.metrics["peak_rss_bytes"] for r in results))
+    if workers == 1:
+        return (f"Process peak RSS: {peak} (whole process: every method and the shared front end; not a per-method "
+                "figure).")
+    return (f"Peak RSS: {peak} in the busiest worker process (its methods and the front end, which it shares with "
+            f"the main process and so is counted in each: the figures do not add up), {mib(peak_rss_bytes())} in "
+            "the main process (the front end, tables and figures); not per-method figures.")
 
 
 def _sweep_lines(results: Sequence[RunResult]) -> list[str]:
@@ -270,7 +293,7 @@ class MethodsFailed(Exception):
 def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = True,
                 methods: Sequence[tuple[str, str, dict[str, Any]]] = PAPER_METHODS, overwrite: bool = False,
                 default_parent: Path = DEFAULT_RESULTS / "compare", seeds: Sequence[int] | None = None,
-                sweep: bool = True, window_fix: str = CONFIG_WINDOW_FIX) -> Path:
+                sweep: bool = True, window_fix: str = CONFIG_WINDOW_FIX, workers: int = 1) -> Path:
     """Run every method on the sequence of `base` and write the comparison folder; return its report.md.
 
     `out` is checked before any work (msa_slam.io.outputs; None: a new timestamped folder under
@@ -287,36 +310,43 @@ def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = Tr
     `sweep=False` leaves out each method's threshold sweep (pipeline/sweep.py), about half of a method's time.
     A method whose sampler window the frames read never fill is refused before the shared front end
     (prepare_frontend; `window_fix`: what the error says to change).
+
+    `workers` > 1 runs the methods (of each seed) in that many worker processes forked from this one after the
+    front end (_run_methods, msa_slam.workers); the files are byte for byte those of a serial run, but for the
+    measured times and memory.
     """
+    check_workers(workers)
     plans = None if seeds is None else {seed: method_configs(make_config({**base.dump(), "dataset": dataset}), methods)
                                         for seed, dataset in zip(seeds, seeded_datasets(base.dataset, seeds))}
     with open_result_folder(out, "compare", default_parent, overwrite=overwrite, resume=plans is not None) as folder:
         if plans is None:
             with folder.staging() as tmp:
-                _, failed = _comparison(method_configs(base, methods), tmp, quiet, sweep, window_fix)
+                _, failed = _comparison(method_configs(base, methods), tmp, quiet, sweep, window_fix, workers)
         else:
             if not overwrite:
                 check_seed_folder(folder.path)
             grown = folder.prepare_in_place(fresh=overwrite, grows=("seeds",), unit_record=RECORD)
-            failed = _seed_comparisons(base, plans, grown, quiet, sweep, window_fix)
+            failed = _seed_comparisons(base, plans, grown, quiet, sweep, window_fix, workers)
             folder.record_files()
     if failed:
         raise MethodsFailed(folder.path / "report.md", failed)
     return folder.path / "report.md"
 
 
-def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: bool, window_fix: str
+def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: bool, window_fix: str, workers: int
                 ) -> tuple[list[dict[str, Any]], dict[str, str]]:
-    """One comparison folder's files in `tmp`; its table rows and failed methods."""
+    """One comparison folder's files in `tmp` (the methods in `workers` processes); its table rows and failed
+    methods."""
+    workers = min(workers, len(configs))  # no idle workers
     frontend = prepare_frontend(configs[0], quiet, configs, window_fix)
-    results, failed = _run_methods(configs, frontend, tmp / "runs", quiet, sweep)
+    results, failed = _run_methods(configs, frontend, tmp / "runs", quiet, sweep, workers)
     rows = [table_row(r.metrics) for r in results]
     table = table_markdown(rows, rpe_segments(results[0].gt_poses)[0] if results else "KITTI segments")
     (tmp / "comparison.md").write_text(table)
     (tmp / "comparison.csv").write_text(rows_csv(rows, COLUMNS))
     write_json(tmp / "comparison.json", [r.metrics for r in results])
     figures = _figures(results, tmp / "figures") if results else []
-    report = (_report(frontend, results, table, figures) if results
+    report = (_report(frontend, results, table, figures, workers) if results
               else f"# Sampler comparison on {display_name(frontend.name)}\n")
     if failed:
         report += "\n## Failed methods\n\n" + "".join(f"- {name}: {error} (traceback: runs/{name}/error.txt)\n"
@@ -326,7 +356,7 @@ def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: boo
 
 
 def _seed_comparisons(base: RunConfig, plans: dict[int, list[RunConfig]], out: Path, quiet: bool,
-                      sweep: bool, window_fix: str) -> dict[str, str]:
+                      sweep: bool, window_fix: str, workers: int) -> dict[str, str]:
     """Each seed's comparison (`plans`: seed -> method configs) under out/seeds/, reusing the ones finished
     earlier with the same settings, data and code (a seed whose data or code changed is removed and rerun, with
     a warning and a line in report.md), then the spread over seeds at the top of `out`."""
@@ -345,7 +375,7 @@ def _seed_comparisons(base: RunConfig, plans: dict[int, list[RunConfig]], out: P
         else:
             _say(quiet, f"seed {seed}: running")
             with staged_dir(target) as tmp:
-                _, seed_failed = _comparison(configs, tmp, quiet, sweep, window_fix)
+                _, seed_failed = _comparison(configs, tmp, quiet, sweep, window_fix, workers)
                 write_record(tmp, records[seed], identities[seed], seed_failed)
             failed.update({f"seed {seed}: {name}": error for name, error in seed_failed.items()})
         rows[seed] = [table_row(m) for m in finished_metrics(target) or []]
@@ -384,23 +414,75 @@ def _write_spread(out: Path, base: RunConfig, rows: dict[int, list[dict[str, Any
     write_text_atomic(out / "report.md", "\n".join(lines) + "\n")
 
 
-def _run_methods(configs: Sequence[RunConfig], frontend, runs: Path, quiet: bool, sweep: bool
-                 ) -> tuple[list[RunResult], dict[str, str]]:
-    """Each method's run folder under `runs`, in order; a failing method leaves its error.txt instead."""
+Outcome = tuple[RunResult | None, str | None]  # a method's result, or None and the line saying why it failed
+
+
+def _run_methods(configs: Sequence[RunConfig], frontend: Frontend, runs: Path, quiet: bool, sweep: bool,
+                 workers: int = 1) -> tuple[list[RunResult], dict[str, str]]:
+    """Each method's run folder under `runs` (a failing method leaves its error.txt instead); the results and the
+    failures, both in method order. With `workers` > 1 the methods run in that many processes forked from this
+    one (msa_slam.workers: they share the front end), each running its methods one after another."""
     runs.mkdir()
-    results, failed = [], {}
+    for cfg in configs:
+        (runs / cfg.name).mkdir()
+    outcomes = (_serial(configs, frontend, runs, quiet, sweep) if workers == 1
+                else _parallel(configs, frontend, runs, quiet, sweep, workers))
+    results = [result for result, _ in outcomes if result is not None]
+    failed = {cfg.name: error for cfg, (_, error) in zip(configs, outcomes) if error is not None}
+    return results, failed
+
+
+def _serial(configs: Sequence[RunConfig], frontend: Frontend, runs: Path, quiet: bool, sweep: bool
+            ) -> list[Outcome]:
+    """The methods one after another in this process, each showing its back-end's progress."""
+    outcomes = []
     with progress_bar(quiet, transient=False) as bar:
         task = bar.add_task("methods", total=len(configs))
         for cfg in configs:
             bar.update(task, description=f"method {cfg.name}")
-            (runs / cfg.name).mkdir()
-            try:
-                result = run_batch(cfg, frontend, quiet, sweep=sweep)
-            except Exception as exc:  # one method's failure must not lose the others' results
-                (runs / cfg.name / "error.txt").write_text("".join(traceback.format_exception(exc)))
-                failed[cfg.name] = f"{type(exc).__name__}: {exc}"
-            else:
-                write_run_files(result, runs / cfg.name)
-                results.append(result)
+            outcomes.append(_run_method(cfg, frontend, runs / cfg.name, quiet, sweep))
             bar.advance(task)
-    return results, failed
+    return outcomes
+
+
+def _parallel(configs: Sequence[RunConfig], frontend: Frontend, runs: Path, quiet: bool, sweep: bool,
+              workers: int) -> list[Outcome]:
+    """The methods in `workers` forked processes; one bar, advancing as methods finish (in whatever order)."""
+    outcomes: list[Outcome] = [(None, None)] * len(configs)
+    with forked_workers(workers, frontend) as submit:
+        futures = {submit(_method_in_worker, cfg, runs / cfg.name, sweep): i for i, cfg in enumerate(configs)}
+        with progress_bar(quiet, transient=False) as bar:  # after the forks: the bar may run a thread
+            task = bar.add_task(f"methods ({workers} worker processes)", total=len(configs))
+            for future in as_completed(futures):
+                cfg = configs[futures[future]]
+                try:
+                    outcomes[futures[future]] = future.result()
+                except Exception as exc:  # its worker died (killed, out of memory, a crash in a native library)
+                    outcomes[futures[future]] = None, _failure(runs / cfg.name, exc)
+                bar.update(task, advance=1, description=f"method {cfg.name} finished")
+    return outcomes
+
+
+def _run_method(cfg: RunConfig, frontend: Frontend, folder: Path, quiet: bool, sweep: bool) -> Outcome:
+    """One method's run files in `folder`, or its error.txt when it fails."""
+    try:
+        result = run_batch(cfg, frontend, quiet, sweep=sweep)
+    except Exception as exc:  # one method's failure must not lose the others' results
+        return None, _failure(folder, exc)
+    write_run_files(result, folder)
+    return result, None
+
+
+def _failure(folder: Path, exc: BaseException) -> str:
+    """error.txt in `folder` with the traceback of `exc`; the line report.md gives the failure."""
+    (folder / "error.txt").write_text("".join(traceback.format_exception(exc)))
+    return f"{type(exc).__name__}: {exc}"
+
+
+def _method_in_worker(cfg: RunConfig, folder: Path, sweep: bool) -> Outcome:
+    """_run_method in a worker, on the front end its parent shares; the result goes back without what only the run
+    files needed (the pose graph, which does not pickle, the map and the descriptors: large)."""
+    result, error = _run_method(cfg, shared(), folder, True, sweep)
+    if result is not None:
+        result = replace(result, graph_factors=None, map_points=None, descriptors=None)
+    return result, error

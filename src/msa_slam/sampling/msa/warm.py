@@ -10,13 +10,8 @@ cannot start, or has not finished in time, MSA compiles the kernels itself as be
 
 from __future__ import annotations
 
-import ctypes
 import multiprocessing
 import os
-import signal
-import sys
-import threading
-import time
 import warnings
 from collections.abc import Mapping
 from multiprocessing.process import BaseProcess
@@ -24,10 +19,10 @@ from typing import Any
 
 import numpy as np
 
+from msa_slam.lifetime import end_with_parent
+
 _FRAMES = 40  # enough for several full windows at the default N = 10
 _LOADED: set[tuple[str, tuple[int, ...]]] = set()  # settings whose kernels this process has already loaded
-PR_SET_PDEATHSIG = 1  # prctl option (<linux/prctl.h>): the signal a process gets when its parent dies
-_PARENT_POLL_S = 1.0  # where prctl is absent: how often the background process checks its parent is alive
 
 
 def compile_kernels(params: dict[str, Any], shape: tuple[int, ...]) -> None:
@@ -63,44 +58,15 @@ def load_kernels(sampler: str, params: Mapping[str, Any], shape: tuple[int, ...]
 def _compile_at_low_priority(parent: int, params: dict[str, Any], shape: tuple[int, ...]) -> None:
     """compile_kernels at the lowest CPU priority, ending with `parent` (the process that started it): the
     simulator's workers come first, the compilation takes the core KISS-ICP leaves free."""
-    _end_with_parent(parent)
+    end_with_parent(parent)
     if hasattr(os, "nice"):
         os.nice(19)
     compile_kernels(params, shape)
 
 
-def _end_with_parent(parent: int) -> None:
-    """Make this background process end when `parent` does. `daemon` ends it only when the parent exits
-    normally; a parent killed (kill -9, the OOM killer) would leave it compiling for minutes as an orphan.
-    On Linux the kernel sends SIGKILL on the parent's death (prctl; it fires when the thread that started
-    this process ends, which the demo's main thread does only by exiting); elsewhere a thread watches
-    the parent. The parent may have died before either was set up: then this process ends at once."""
-    if not _kill_on_parent_death():
-        threading.Thread(target=_watch_parent, args=(parent,), daemon=True, name="msa-compile-parent").start()
-    if os.getppid() != parent:
-        os._exit(0)
-
-
-def _kill_on_parent_death() -> bool:
-    """Ask Linux to SIGKILL this process when its parent dies; False where prctl is not available."""
-    if not sys.platform.startswith("linux"):
-        return False
-    try:
-        return ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) == 0
-    except (OSError, AttributeError):  # no libc, or a libc without prctl
-        return False
-
-
-def _watch_parent(parent: int) -> None:
-    """End this process once it is no longer `parent`'s child (an orphan is adopted by another process)."""
-    while os.getppid() == parent:
-        time.sleep(_PARENT_POLL_S)
-    os._exit(0)
-
-
 def compile_in_background(params: dict[str, Any], shape: tuple[int, ...]) -> BaseProcess | None:
     """Start compile_kernels in a spawned daemon process at low priority, ended with the caller however the
-    caller ends (see _end_with_parent); None when it cannot start."""
+    caller ends (msa_slam.lifetime.end_with_parent); None when it cannot start."""
     try:
         process = multiprocessing.get_context("spawn").Process(
             target=_compile_at_low_priority, args=(os.getpid(), dict(params), tuple(shape)), daemon=True,

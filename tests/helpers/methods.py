@@ -1,0 +1,27 @@
+"""A comparison's method made to misbehave: compare's run_batch patched for one method (compare's worker
+processes inherit the patch by fork)."""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import pytest
+
+import msa_slam.pipeline.compare as compare
+
+
+def before_method(monkeypatch: pytest.MonkeyPatch, name: str, action: Callable[[], None]) -> None:
+    """Call `action` (raise, die) when the method `name` starts, then run it as usual."""
+    real = compare.run_batch
+
+    def patched(cfg, *args, **kwargs):
+        if cfg.name == name:
+            action()
+        return real(cfg, *args, **kwargs)
+
+    monkeypatch.setattr(compare, "run_batch", patched)
+
+
+def degenerate() -> None:
+    """A method's failure at run time."""
+    raise RuntimeError("degenerate scan statistics")
