@@ -32,7 +32,7 @@ def simulate_command(
     dropout: float = typer.Option(0.0, help="fraction of returns dropped at random"),
     style: Optional[str] = typer.Option(None, help="world style: city or campus (default from the platform)"),
     realism: str = typer.Option("kitti", help="realism preset: kitti (calibrated against KITTI: motion distortion, "
-                                "sensor imperfections, a changing world), kitti-hard (kitti with about twice its "
+                                "sensor imperfections, a changing world), kitti-hard (kitti with several times its "
                                 "odometry drift) or clean (static world, ideal sensor)"),
     cache_dir: Optional[Path] = typer.Option(None, help=CACHE_HELP),
     workers: Optional[int] = typer.Option(None, min=0, help="processes casting scans (0: this one; default: one "

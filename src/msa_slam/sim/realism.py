@@ -4,10 +4,10 @@
 SIM_VERSION 2, byte for byte). "kitti", the default, is calibrated so that KISS-ICP drift, Scan Context
 aliasing and the samplers' spread resemble real KITTI (issue 12; benchmarks/bench_realism.py measures it):
 motion distortion over the 10 Hz sweep, KITTI's HDL-64 elevation error (about -0.22 deg, which kiss-icp's
-KITTI loader corrects) with per-beam angle and range errors, range noise growing with range and incidence,
+KITTI loader and msa-slam's KITTI-layout reader correct) with per-beam angle and range errors, range noise growing with range and incidence,
 lost dark/grazing returns, mixed pixels, foliage, moving and coming-and-going objects, repeated block designs
 and stretches with little structure along the road. "kitti-hard" is "kitti" with a less sensitive receiver,
-larger per-beam errors and more structureless stretches: about twice its odometry drift, for tests.
+larger per-beam errors and more structureless stretches: several times its odometry drift, for tests.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ class Realism:
 # white surface at 10 m: scan.lost_returns), and bright targets then stay within the 120 m range. SIM_VERSION 9
 # took that figure at normal incidence (0.005): the road vanished beyond ~20 m, leaving 10-20x fewer returns
 # 20-40 m out than KITTI-00's real scans, and without the far road KISS-ICP's pitch drifted ~1 deg per 100 m,
-# the vertical drift of the simulated KITTI-09 (docs/simulator.md). At 0.02 far returns flickered from scan to
+# much of the simulated KITTI-09's vertical drift (docs/simulator.md). At 0.02 far returns flickered from scan to
 # scan, which alone took ~0.1 off Scan Context similarity between alike places.
 PAVEMENT_RETURN_FLOOR = 0.1 * (1.73 / 50.0) * (10.0 / 50.0) ** 2
 KITTI_SENSOR = SensorRealism(motion_distortion=True, elevation_bias_deg=-0.22, elevation_sigma_deg=0.03,
@@ -47,7 +47,7 @@ KITTI_SENSOR = SensorRealism(motion_distortion=True, elevation_bias_deg=-0.22, e
 KITTI_WORLD = WorldRealism(moving_cars=2.0, pedestrians=2.0, transient_parking=0.4, parked_occupancy=0.85,
                            catalogue_designs=2, km_per_design=1.0, design_variants=3,
                            catalogue_share=0.6, hard_share=0.25, foliage_gap=0.3)
-# "kitti-hard": odometry that drifts about twice as much, for tests of what loop closing must repair. A receiver
+# "kitti-hard": odometry that drifts several times as much, for tests of what loop closing must repair. A receiver
 # 36x less sensitive (min_return_power 0.005, SIM_VERSION 9's value: the road fades ~20 m out, so KISS-ICP's pitch
 # drifts), twice the per-beam calibration errors, and more of the path in stretches where ICP degenerates along
 # the street (hard_share 0.45, taken from the repeated designs). docs/simulator.md gives its measured drift.
