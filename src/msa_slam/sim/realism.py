@@ -5,9 +5,10 @@ SIM_VERSION 2, byte for byte). "kitti", the default, is calibrated so that KISS-
 aliasing and the samplers' spread resemble real KITTI (issue 12; benchmarks/bench_realism.py measures it):
 motion distortion over the 10 Hz sweep, KITTI's HDL-64 elevation error (about -0.22 deg, which kiss-icp's
 KITTI loader and msa-slam's KITTI-layout reader correct) with per-beam angle and range errors, range noise
-growing with range and incidence, lost dark/grazing returns, mixed pixels, foliage, moving and coming-and-going objects, repeated block designs
-and stretches with little structure along the road. "kitti-hard" is "kitti" with a less sensitive receiver,
-larger per-beam errors and more structureless stretches: several times its odometry drift, for tests.
+growing with range and incidence, lost dark/grazing returns, mixed pixels, foliage, moving and coming-and-going
+objects, repeated block designs and stretches with little structure along the road. "kitti-hard" is "kitti"
+with a less sensitive receiver, larger per-beam errors and more structureless stretches: several times its
+odometry drift, for tests.
 """
 
 from __future__ import annotations
