@@ -190,6 +190,16 @@ def _mean_std(values: list, minus: list | None = None) -> str:
     return f"{100 * arr.mean():.1f}" + (f" +- {100 * arr.std(ddof=1):.1f}" if len(arr) > 1 else "")
 
 
+def _rte_mean_std(rtes: list[tuple[float, float, float] | None]) -> list[str]:
+    """RTE, horizontal and vertical (%) as mean +- sample std over a sequence's seeds; n/a where a seed's path
+    is shorter than the shortest segment."""
+    if not rtes or any(r is None for r in rtes):
+        return ["n/a"] * 3
+    arr = np.array(rtes)
+    return [f"{m:.2f}" + (f" +- {sd:.2f}" if len(arr) > 1 else "")
+            for m, sd in zip(arr.mean(0), arr.std(0, ddof=1) if len(arr) > 1 else arr[0])]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sequences", default="00,05,06,07,09")
@@ -237,13 +247,14 @@ def main() -> None:
     for protocol, all_key, c2_key in (("reference protocol", "auc_all", "auc_c2"),
                                       ("batch search", "batch_all", "batch_c2")):
         print(f"{protocol}: {_auc_targets(per_seq, all_key, c2_key)}")
-    print("\nper sequence, mean +- sample std over its seeds (PR-AUC, points; all samples as the targets score "
-          "it): seq | AUC all | AUC c2m | gap | "
+    print("\nper sequence, mean +- sample std over its seeds (RTE and its horizontal and vertical parts, %; PR-AUC, "
+          "points; all samples as the targets score it): seq | RTE % | horiz % | vert % | AUC all | AUC c2m | gap | "
           "batch AUC all | batch AUC c2m | batch gap")
     for seq, rs in per_seq.items():
-        print(" | ".join([seq, *(_mean_std([_scored(r, a) for r in rs], [r[b] for r in rs] if b else None)
-                                 for a, b in (("auc_all", None), ("auc_c2", None), ("auc_all", "auc_c2"),
-                                              ("batch_all", None), ("batch_c2", None), ("batch_all", "batch_c2")))]))
+        print(" | ".join([seq, *_rte_mean_std([r["rte"] for r in rs]),
+                          *(_mean_std([_scored(r, a) for r in rs], [r[b] for r in rs] if b else None)
+                            for a, b in (("auc_all", None), ("auc_c2", None), ("auc_all", "auc_c2"),
+                                         ("batch_all", None), ("batch_c2", None), ("batch_all", "batch_c2")))]))
 
 
 if __name__ == "__main__":

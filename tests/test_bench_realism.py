@@ -34,3 +34,19 @@ def test_other_curves_keep_the_metric_or_stay_undefined(bench):
     assert bench._auc_all(row) == "100.0*"
     assert "constant 2 m >= 5 points below all samples on 1 of 1" in bench._auc_targets(
         {"05": [{**row, "auc_all_why": "precision is 1 by construction"}]}, "auc_all", "auc_c2")
+
+
+def test_drift_is_split_into_horizontal_and_vertical_parts(bench):
+    import numpy as np
+
+    gt = np.tile(np.eye(4), (301, 1, 1))
+    gt[:, 0, 3] = np.arange(301.0)  # 300 m straight ahead, 1 m a frame
+    climbing, veering = gt.copy(), gt.copy()
+    climbing[:, 2, 3] += 0.01 * gt[:, 0, 3]  # 1 % up
+    veering[:, 1, 3] += 0.02 * gt[:, 0, 3]  # 2 % sideways
+    total, horizontal, vertical = bench.relative_translation_error(gt, climbing)
+    assert total == pytest.approx(1.0, abs=0.01) and horizontal < 0.01 and vertical == pytest.approx(1.0, abs=0.01)
+    total, horizontal, vertical = bench.relative_translation_error(gt, veering)
+    assert horizontal == pytest.approx(2.0, abs=0.01) and vertical < 0.01
+    assert bench._rte_mean_std([(1.0, 0.5, 0.8), (2.0, 1.5, 1.2)]) == ["1.50 +- 0.71", "1.00 +- 0.71", "1.00 +- 0.28"]
+    assert bench._rte_mean_std([(1.0, 0.5, 0.8), None]) == ["n/a"] * 3

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import subprocess
 import sys
@@ -15,7 +16,7 @@ from scipy.spatial import cKDTree
 
 import msa_slam.io.cache
 from msa_slam.errors import InputError
-from msa_slam.io.cache import partial_dir
+from msa_slam.io.cache import partial_dir, sequence_identity
 from msa_slam.io.poses import read_poses
 from msa_slam.sim import (
     DEFAULT_CONFIGS, Lidar, World, build_world, default_sequence, get_sensor, iter_frames, load_trajectory,
@@ -65,13 +66,13 @@ def test_procedural_trajectories():
     walk = load_trajectory("campus-walk")
     steps = np.linalg.norm(np.diff(walk.poses[:, :3, 3], axis=0), axis=1)
     assert np.median(steps) == pytest.approx(0.1, abs=0.01) and walk.platform == "walk"
-    for name in ("figure-eight", "city-tour", "campus-walk"):
+    for name in ("figure-eight", "city-tour", "reverse-revisit", "campus-walk"):
         traj = load_trajectory(name)
         assert np.allclose(np.diff(traj.times), 0.1)
         assert _revisit_pairs(traj.poses[::5, :2, 3], 3.0, 100 // 5), f"{name} never revisits a place"
 
 
-@pytest.mark.parametrize("name", ["figure-eight", "city-tour"])
+@pytest.mark.parametrize("name", ["figure-eight", "city-tour", "reverse-revisit"])
 def test_procedural_vehicles_pull_away_from_rest(name):
     """A path at full speed from its first frame left KISS-ICP (zero velocity prior) stuck at the start of
     sim:test (2 m a frame) for some world seeds; vehicles now accelerate from rest at a car's rate."""
@@ -80,6 +81,29 @@ def test_procedural_vehicles_pull_away_from_rest(name):
     assert speed[0] < 1.0 and speed[60:].min() > 4.0  # m/s: standing start, then driving
     accel = np.diff(speed[:60]) / np.diff(traj.times)[1:60]
     assert accel.max() < 3.0  # m/s^2
+
+
+def test_reverse_revisit_sequence_comes_back_the_other_way(tmp_path):
+    """The simulated sequence's ground truth holds a revisit driven the other way: poses within 3 m, facing
+    ~180 deg apart, more than 30 m of path apart; and the scans there see the same street (their ground-truth
+    relative pose overlays them)."""
+    from msa_slam.datasets.sequences import kitti_sequence
+
+    cfg = make_config(trajectory="reverse-revisit", stride=3, azimuth_steps=180, realism="clean")
+    seq = kitti_sequence(simulate_sequence(cfg, cache_dir=tmp_path))
+    gt = seq.gt_poses
+    assert len(seq) == 144
+    xy = gt[:, :2, 3]
+    path = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    heading = np.arctan2(gt[:, 1, 0], gt[:, 0, 0])
+    pairs = [(i, j) for i, j in _revisit_pairs(xy, 3.0, 0) if path[j] - path[i] > 30.0]
+    opposite = [(i, j) for i, j in pairs if abs(np.angle(np.exp(1j * (heading[j] - heading[i])))) > np.radians(170)]
+    assert len(opposite) >= 10 and len(opposite) == len(pairs)  # ~50 m of street, and no same-way revisit
+    i, j = opposite[len(opposite) // 2]
+    a, b = seq[i].points, seq[j].points
+    b_in_a = (np.linalg.inv(gt[i]) @ gt[j])[:3, :3] @ b.T + (np.linalg.inv(gt[i]) @ gt[j])[:3, 3:4]
+    d_same, _ = cKDTree(a).query(b_in_a.T)
+    assert np.median(d_same) < 0.5
 
 
 def test_figure_eight_keeps_its_duration():
@@ -245,6 +269,7 @@ def test_sequence_layout_readers_and_cache(tmp_path):
     from kiss_icp.datasets.kitti import KITTIOdometryDataset
 
     from msa_slam.datasets.sequences import kitti_sequence
+    from msa_slam.datasets.vertical_angle import CORRECTION_NAME, raise_elevation
 
     cfg = make_config(**SMALL)
     path = simulate_sequence(cfg, cache_dir=tmp_path)
@@ -258,7 +283,10 @@ def test_sequence_layout_readers_and_cache(tmp_path):
     assert len(kiss) == 6 and np.allclose(kiss.gt_poses, poses, atol=1e-6)
     ours = kitti_sequence(path)
     assert len(ours) == 6 and np.allclose(ours.gt_poses, poses, atol=1e-8)
-    assert np.array_equal(ours[2].points[:, :3], next(f for f in iter_frames(cfg) if f.index == 2).points)
+    # the "kitti" preset's elevation error, recorded in sim.json, is corrected as kiss-icp's KITTI loader does
+    assert ours.correction == CORRECTION_NAME and ["correction", CORRECTION_NAME] in sequence_identity(ours)
+    raw = next(f for f in iter_frames(cfg) if f.index == 2).points
+    assert np.array_equal(ours[2].points[:, :3], raise_elevation(raw))
     # cached: same path, untouched files
     mtime = (path / "velodyne" / "000000.bin").stat().st_mtime_ns
     assert simulate_sequence(cfg, cache_dir=tmp_path) == path
@@ -364,6 +392,13 @@ def test_cli_simulate(tmp_path, monkeypatch, capsys):
     assert done.value.code == 0
     assert capsys.readouterr().out.strip() == str(out) and len(os.listdir(out / "velodyne")) == 3
     assert not (out / "velodyne_times").exists()
+    hard = tmp_path / "hard"
+    monkeypatch.setattr(sys, "argv", ["msa-slam", "simulate", "--trajectory", "kitti-07", "--end", "2",
+                                      "--azimuth-steps", "64", "--realism", "kitti-hard", "--out", str(hard), "-q"])
+    with pytest.raises(SystemExit) as done:
+        main()
+    assert done.value.code == 0 and json.loads((hard / "sim.json").read_text())["config"]["realism"] == "kitti-hard"
+    capsys.readouterr()
     monkeypatch.setattr(sys, "argv", ["msa-slam", "simulate", "--trajectory", "kitti-42", "-q"])
     with pytest.raises(SystemExit) as exc:
         main()
@@ -578,11 +613,16 @@ def test_realism_preset_is_in_the_cache_key_and_stores_point_times(tmp_path):
     with pytest.MonkeyPatch.context() as patch:
         patch.setitem(REALISM, "kitti", retuned)
         assert make_config(**SMALL).key() != keys["kitti"], "a retuned preset must not reuse the cache"
-    with pytest.raises(InputError, match="realism: unknown realism preset 'noisy'.*clean, kitti"):
+    with pytest.raises(InputError, match="realism: unknown realism preset 'noisy'.*clean, kitti, kitti-hard"):
         make_config(**SMALL, realism="noisy")
+    from msa_slam.pipeline.source import sim_config
+
+    assert sim_config("sim:kitti-07,end=6,realism=kitti-hard").realism == "kitti-hard"
     real = simulate_sequence(make_config(**SMALL), cache_dir=tmp_path)
     clean = simulate_sequence(make_config(**SMALL, realism="clean"), cache_dir=tmp_path)
     assert real != clean and not (clean / "velodyne_times").exists()
+    # only the scans with the "kitti" preset's elevation error are read corrected (datasets.vertical_angle)
+    assert kitti_sequence(real).correction is not None and kitti_sequence(clean).correction is None
     for k in range(6):
         points = np.fromfile(real / "velodyne" / f"{k:06d}.bin", dtype=np.float32).reshape(-1, 4)
         times = np.load(real / "velodyne_times" / f"{k:06d}.npy")

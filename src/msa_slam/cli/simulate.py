@@ -11,7 +11,8 @@ from msa_slam.cli.options import CACHE_HELP
 
 
 def simulate_command(
-    trajectory: str = typer.Option("kitti-05", help="kitti-00/05/06/07/09, figure-eight, city-tour, campus-walk, "
+    trajectory: str = typer.Option("kitti-05", help="kitti-00/05/06/07/09, figure-eight, city-tour, reverse-revisit, "
+                                   "campus-walk, "
                                    "or a pose file: KITTI (12 numbers a line) or TUM (t x y z qx qy qz qw), "
                                    "LiDAR frame (x forward, z up) unless --calib"),
     times: Optional[Path] = typer.Option(None, help="times of a KITTI-format file, one a line (default 10 Hz)"),
@@ -31,7 +32,8 @@ def simulate_command(
     dropout: float = typer.Option(0.0, help="fraction of returns dropped at random"),
     style: Optional[str] = typer.Option(None, help="world style: city or campus (default from the platform)"),
     realism: str = typer.Option("kitti", help="realism preset: kitti (calibrated against KITTI: motion distortion, "
-                                "sensor imperfections, a changing world) or clean (static world, ideal sensor)"),
+                                "sensor imperfections, a changing world), kitti-hard (kitti with several times its "
+                                "odometry drift) or clean (static world, ideal sensor)"),
     cache_dir: Optional[Path] = typer.Option(None, help=CACHE_HELP),
     workers: Optional[int] = typer.Option(None, min=0, help="processes casting scans (0: this one; default: one "
                                           "per CPU, at most 4, for 300 scans or more); the files do not depend on it"),

@@ -14,6 +14,7 @@ import numpy as np
 from msa_slam.datasets.clouds import CLOUD_SUFFIXES, check_bin_size, read_cloud, read_timed_cloud
 from msa_slam.datasets.frame import Frame
 from msa_slam.datasets.point_times import TIMES_FOLDER, read_timed_scan, stored_times_path
+from msa_slam.datasets.vertical_angle import CORRECTION_NAME, needs_correction, raise_elevation
 from msa_slam.errors import InputError
 from msa_slam.io.poses import check_times, read_poses
 from msa_slam.types import pose_fault, validate_poses
@@ -40,6 +41,7 @@ class ScanSequence:
     # Defaults for subclasses that set their own fields (BagSequence: real times, no .bin files).
     times_known = True  # False: `times` are frame numbers, not timestamps
     kitti_bins = True
+    correction: str | None = None  # what the reader corrects in every scan (see kitti_sequence); part of its identity
     _point_times: bool | None = None  # see point_times: None until a scan was read for it
 
     def __init__(self, path: Path, scan_files: Sequence[Path], gt_poses: np.ndarray | None = None,
@@ -182,7 +184,9 @@ def kitti_sequence(path: str | os.PathLike) -> ScanSequence:
     Poses come from `poses.txt` in the sequence folder or from the benchmark's `../../poses/NN.txt`; they
     are cam0 poses, converted to the LiDAR frame as inv(Tr) P Tr (identity Tr for simulator output).
     Frames carry per-point times: those stored in velodyne_times/ (then one file per scan), else derived
-    from azimuth (see `point_times`).
+    from azimuth (see `point_times`). A simulated sequence whose sim.json records a sensor elevation error
+    (KITTI's HDL-64, realism preset "kitti") is read with kiss-icp's KITTI vertical-angle correction, as kiss-icp
+    reads real KITTI (datasets.vertical_angle).
     """
     path = Path(path)
     velodyne = path / "velodyne"
@@ -215,8 +219,19 @@ def kitti_sequence(path: str | os.PathLike) -> ScanSequence:
         if missing is not None:
             raise InputError(f"{missing}: missing; {path / TIMES_FOLDER} must hold the per-point times of "
                              "every scan (or be removed to derive them from azimuth)")
-    return ScanSequence(path, scans, gt, times, timed_reader=partial(read_timed_scan, stored=stored),
-                        point_time_files=[stored_times_path(s) for s in scans] if stored else ())
+    correct = needs_correction(path)
+    reader = partial(_read_corrected, stored=stored) if correct else partial(read_timed_scan, stored=stored)
+    sequence = ScanSequence(path, scans, gt, times, timed_reader=reader,
+                            point_time_files=[stored_times_path(s) for s in scans] if stored else ())
+    sequence.correction = CORRECTION_NAME if correct else None
+    return sequence
+
+
+def _read_corrected(path: Path, stored: bool) -> tuple[np.ndarray, np.ndarray]:
+    """A KITTI-layout scan and its per-point times, its elevations corrected (the times, which depend on azimuth
+    only, are read first and stay right)."""
+    points, stamps = read_timed_scan(path, stored)
+    return raise_elevation(points), stamps
 
 
 def folder_sequence(path: str | os.PathLike, poses: str | os.PathLike | None = None,

@@ -149,12 +149,16 @@ def sequence_identity(sequence: Any, cache: "CacheDir | None" = None) -> list[li
     """Identity of a ScanSequence's scans (`path`, `scan_files`, and the `selection` within those files a bag
     sequence has: topic, messages), of the files holding their per-point times (`point_time_files`) and of
     their frame times (deskewing uses both; times edited beside the same scans must not reuse the old
-    odometry): what odometry and descriptors are computed from. `cache`: as for input_identity."""
+    odometry) and of any correction the reader applies to the points (`correction`): what odometry and
+    descriptors are computed from. `cache`: as for input_identity."""
     files = [*sequence.scan_files, *getattr(sequence, "point_time_files", ())]
     identity = input_identity(files, sequence.path, cache)
     times = getattr(sequence, "times", None)
     if times is not None:
         identity = [*identity, ["times", array_sha256(times)]]
+    correction = getattr(sequence, "correction", None)  # the reader changes the scans' points (vertical_angle)
+    if correction is not None:
+        identity = [*identity, ["correction", correction]]
     selection = getattr(sequence, "selection", None)
     return identity if selection is None else [*identity, ["selection", selection]]
 

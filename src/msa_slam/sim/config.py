@@ -22,7 +22,7 @@ from msa_slam.sim.sensors import SENSORS
 from msa_slam.sim.trajectories import (TRAJECTORY_NAMES, Trajectory, frame_indices, load_trajectory,
                                        read_trajectory)
 
-SIM_VERSION = "9"  # the generation of worlds and scans that docs and sim.json name: bump it when they change
+SIM_VERSION = "10"  # the generation of worlds and scans that docs and sim.json name: bump it when they change
 SIM_LIBRARIES = ("trimesh", "embreex", "numpy", "scipy")  # ray casting, noise, poses (Rotation): the cache key
 SIM_CODE = ("msa_slam.sim",)  # the simulator, and what it imports: the cache key
 SIM_DATA = ("data/trajectories/*.npz",)  # the shipped trajectories it follows
@@ -47,7 +47,7 @@ class SimConfig(BaseModel):
     range_noise: float = 0.02
     dropout: float = 0.0
     style: str | None = None  # None: "city" for vehicles, "campus" for walking platforms
-    realism: str = DEFAULT_REALISM  # a preset of sim.realism: "kitti" (calibrated) or "clean"
+    realism: str = DEFAULT_REALISM  # a preset of sim.realism: "kitti" (calibrated), "kitti-hard" or "clean"
     _files_sha256: str | None = PrivateAttr(default=None)  # content of the trajectory files: the cache key
 
     @field_validator("trajectory")

@@ -11,6 +11,7 @@ import numpy as np
 import yaml
 
 from msa_slam.datasets import Frame
+from msa_slam.datasets.vertical_angle import raise_elevation
 from msa_slam.errors import InputError
 from msa_slam.types import FrameSource
 
@@ -58,6 +59,8 @@ def live_source(spec: str) -> FrameSource:
         for i, (k, lap) in enumerate(zip(index, lap_of)):
             rng = np.random.default_rng([sim.config.seed, int(lap), int(sim.frames[k])])
             points = sim.lidar.scan(sim.poses[k], rng)[:, :3]
+            if sim.realism.sensor.elevation_bias_deg:  # corrected as the KITTI-layout reader corrects sim.json's
+                points = raise_elevation(points)
             yield Frame(i, i * dt, points, gt[i])
 
     label = f"live-{name}" + (f"-x{laps}" if laps > 1 else "")

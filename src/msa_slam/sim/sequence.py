@@ -2,8 +2,9 @@
 
 A sequence directory holds velodyne/NNNNNN.bin (float32 x, y, z, intensity), poses.txt (ground truth,
 LiDAR frame, KITTI 12-number lines), times.txt, calib.txt (Tr = identity, so readers that convert cam0
-poses get the same) and sim.json (the config, its hash and provenance). With motion distortion (realism
-presets other than "clean") it also holds velodyne_times/NNNNNN.npy: float32 seconds of each point from its
+poses get the same) and sim.json (the config, its hash and provenance, and the sensor's elevation error, which
+the KITTI-layout reader corrects: datasets.vertical_angle). With motion distortion (realism presets other than
+"clean") it also holds velodyne_times/NNNNNN.npy: float32 seconds of each point from its
 sweep's start (datasets.point_times). KITTI's convention: scan k's timestamp t_k (times.txt) and ground-truth
 pose are those of the forward-facing column, which fires at mid-sweep; the sweep turns clockwise from the
 back over [t_k - 0.05 s, t_k + 0.05 s], each column cast from the pose interpolated (trajectories.pose_at)
@@ -34,6 +35,7 @@ import numpy as np
 
 import msa_slam
 from msa_slam.datasets.point_times import TIMES_FOLDER
+from msa_slam.datasets.vertical_angle import SIM_META
 from msa_slam.errors import InputError
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.cache import cache_root, partial_dir, remove_partials
@@ -45,7 +47,7 @@ from msa_slam.sim.config import SIM_VERSION, SimConfig
 from msa_slam.sim.coverage import empty_scan_error, warn_short_range, warn_sparse_scans
 from msa_slam.sim.simulation import Simulation, prepare
 
-META_FILE = "sim.json"
+META_FILE = SIM_META  # where the KITTI-layout reader looks for the scans' elevation error
 PARALLEL_MIN_FRAMES = 300  # shorter sequences are cast in the calling process (a worker's start-up costs seconds)
 MAX_WORKERS = 4  # each worker builds and holds its own world
 log = logging.getLogger(__name__)
@@ -186,7 +188,8 @@ def _write_meta(sim: Simulation, target: Path, sizes: list[int], times_sizes: li
         "point_times_bytes": times_sizes or None,
         "source_frames": sim.frames.tolist(),
         "sensor": {"beams": sim.lidar.model.beams, "azimuth_steps": sim.lidar.model.azimuth_steps,
-                   "max_range": sim.lidar.model.max_range},
+                   "max_range": sim.lidar.model.max_range,
+                   "elevation_bias_deg": sim.realism.sensor.elevation_bias_deg},  # the reader corrects it
         "world_triangles": sim.world.triangles,
         "trajectory_files_sha256": sim.config._files_sha256,
         "source": (f"trajectory file {sim.config.trajectory}" if sim.config.is_file

@@ -2,7 +2,8 @@
 
 KITTI paths (Geiger et al., CVPR 2012; CC BY-NC-SA 3.0) come from the package's compact data files
 (see `kitti_data`). Procedural paths are generated at 10 Hz: a figure-eight, a city tour on a street grid
-with revisits, and a slow handheld-like campus walk (about 0.1 m per frame, like Newer College).
+with revisits, a short drive that comes back along its street in the other lane (reverse-revisit), and a slow
+handheld-like campus walk (about 0.1 m per frame, like Newer College).
 Any other path comes from a pose file (KITTI 12 numbers a line or TUM `t x y z qx qy qz qw`), see
 `read_trajectory`. `Trajectory.pose_at` interpolates the full-rate poses for motion distortion.
 """
@@ -149,12 +150,9 @@ def _rounded_polyline(corners: np.ndarray, radius: float) -> np.ndarray:
     return np.array(pts)
 
 
-def city_tour() -> Trajectory:
-    """A drive on a 90 m street grid that loops around blocks and comes back along earlier streets
-    (several revisits, some in the opposite direction), ~1.1 m per frame slowing to ~0.5 m in turns."""
-    grid = 90.0
-    route = np.array([(0, 0), (3, 0), (3, 2), (1, 2), (1, 0), (1, -1), (4, -1), (4, 1), (3, 1),
-                      (3, 0), (2, 0), (2, 2), (0, 2), (0, 0), (1, 0)], dtype=float) * grid
+def _street_drive(name: str, route: np.ndarray) -> Trajectory:
+    """A car driving the street corners `route` (m), turning on 12 m arcs, ~1.1 m per frame slowing to ~0.5 m
+    in turns (braking over ~20 m before them)."""
     dense = _resample(_rounded_polyline(route, 12.0), 0.2)
     turn = np.abs(np.gradient(np.unwrap(np.arctan2(*np.gradient(dense, axis=0).T[::-1]))))
     arc = np.arange(len(dense)) * 0.2
@@ -166,7 +164,29 @@ def city_tour() -> Trajectory:
 
     stations = _speed_profile(arc[-1], 1.1, factor)
     xy = np.column_stack([np.interp(stations, arc, dense[:, k]) for k in range(2)])
-    return _planar("city-tour", xy, np.zeros(len(xy)), "car")
+    return _planar(name, xy, np.zeros(len(xy)), "car")
+
+
+def city_tour() -> Trajectory:
+    """A drive on a 90 m street grid that loops around blocks and comes back along earlier streets
+    (several revisits, some in the opposite direction), ~1.1 m per frame slowing to ~0.5 m in turns."""
+    grid = 90.0
+    route = np.array([(0, 0), (3, 0), (3, 2), (1, 2), (1, 0), (1, -1), (4, -1), (4, 1), (3, 1),
+                      (3, 0), (2, 0), (2, 2), (0, 2), (0, 0), (1, 0)], dtype=float) * grid
+    return _street_drive("city-tour", route)
+
+
+REVERSE_LANE_OFFSET = 2.5  # m: the way back runs in the other lane, inside the 3 m radius that counts a revisit
+
+
+def reverse_revisit() -> Trajectory:
+    """Out along a street (100 m), round a 40 m block on its left, and back down the same street in the other
+    lane (REVERSE_LANE_OFFSET to the side, facing the other way) past the start: ~50 m revisited in the opposite
+    direction, 155-260 m of path after the first pass, in 432 frames (43 s, 269 m). The revisit a descriptor
+    must recognise from behind and registration must align across a half turn, short enough for the tests."""
+    lane = REVERSE_LANE_OFFSET
+    route = np.array([(0, 0), (100, 0), (100, 40), (60, 40), (60, lane), (-10, lane)], dtype=float)
+    return _street_drive("reverse-revisit", route)
 
 
 def campus_walk() -> Trajectory:
@@ -186,6 +206,7 @@ def campus_walk() -> Trajectory:
 _PROCEDURAL: dict[str, Callable[[], Trajectory]] = {
     "figure-eight": figure_eight,
     "city-tour": city_tour,
+    "reverse-revisit": reverse_revisit,
     "campus-walk": campus_walk,
 }
 TRAJECTORY_NAMES: tuple[str, ...] = tuple(f"kitti-{s}" for s in KITTI_SEQUENCES) + tuple(_PROCEDURAL)
