@@ -29,6 +29,7 @@ class RunSettings(Protocol):
     sampler_params: dict[str, Any]
     verifier: VerifierConfig
     descriptor: str
+    descriptor_params: dict[str, Any]
     mode: str
     sample_on: str
     flush: bool
@@ -38,6 +39,8 @@ class RunSettings(Protocol):
     top_k: int
     loop_radius: float
     min_travel_m: float
+    loop_detector: str
+    local_map_m: float
 
     @property
     def name(self) -> str: ...
