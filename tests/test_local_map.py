@@ -29,10 +29,10 @@ def _wall(x: float) -> np.ndarray:
 
 
 def test_the_map_is_in_the_keyframe_sensor_frame_and_causal():
-    lm = LocalMap(length_m=10.0, voxel_size=0.5)
+    lm = LocalMap(length_m=60.0, voxel_size=0.5)
     lm.add(0, _pose(0.0), _wall(5.0))  # a wall at world x = 5
     lm.add(1, _pose(2.0, 90.0), _wall(50.0))  # turned left; its wall is at world y = 50
-    lm.add(2, _pose(4.0), _wall(100.0))  # after frame 1: never in its map
+    lm.add(2, _pose(4.0), _wall(40.0))  # after frame 1: never in its map
     cloud = lm.around(1)
     # frame 0's wall seen from frame 1 (at x = 2, facing +y): 3 m ahead in x is 3 m to its right (-y)
     assert np.allclose(np.median(cloud[cloud[:, 0] < 10], axis=0), [0.0, -3.0, 0.0], atol=0.3)
@@ -44,10 +44,13 @@ def test_the_map_is_in_the_keyframe_sensor_frame_and_causal():
 def test_frames_beyond_the_length_are_left_out_and_forgotten():
     lm = LocalMap(length_m=10.0, voxel_size=0.5)
     for i in range(30):
-        lm.add(i, _pose(float(i)), _wall(float(100 + i)))
+        lm.add(i, _pose(float(i)), _wall(2.0))  # frame i's wall at world x = i + 2
     assert len(lm.around(29)) == len(lm.around(12))  # both hold 11 frames' walls (10 m of path)
-    frames = (np.unique(np.round(lm.around(29)[:, 0] + 29)) - 100) / 2  # frame i's wall is at world x = 100 + 2i
+    frames = np.unique(np.round(lm.around(29)[:, 0] + 29)) - 2
     assert frames.min() == 19 and frames.max() == 29
+    far = LocalMap(length_m=10.0, voxel_size=0.5)
+    far.add(0, _pose(0.0), np.vstack([_wall(9.0), _wall(11.0)]))
+    assert far.around(0)[:, 0].max() < 10  # cropped to length_m around the keyframe
     before = lm.nbytes
     lm.forget_before(25)  # the oldest frame that may still become a keyframe
     assert len(lm) == 30 - 15 and lm.nbytes < before

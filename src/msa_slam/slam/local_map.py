@@ -4,7 +4,10 @@ more than one scan (a sparse keyframe or a changed viewpoint sees too little of 
 Every frame's scan is kept voxel-downsampled in its own sensor frame with its odometry pose; frames more than
 `length_m` metres of odometry path behind the oldest frame that may still become a keyframe are forgotten, so
 memory stays bounded however long the run. The map of keyframe k merges the frames up to k (never later ones:
-online and batch runs see the same map) within `length_m` of path before it.
+online and batch runs see the same map) within `length_m` of path before it, cropped to `length_m` around the
+keyframe (horizontally): the place itself, which a revisit from the other direction also sees. Uncropped, each
+map reaches 80 m beyond its own trail on one side only; on a simulated KITTI street revisited the other way
+round 3.5 m to the side that cut the verifier's overlap of the true pair from 0.62 to 0.41, under its 0.5 gate.
 
 Why 40 m by default: KISS-SLAM and MapClosures (Gupta et al., "Effectively Detecting Loop Closures using Point
 Cloud Density Maps", ICRA 2024) build their local maps over tens of metres; 40 m is half Scan Context's 80 m
@@ -68,19 +71,21 @@ class LocalMap:
 
     def around(self, frame: int) -> np.ndarray:
         """The merged map of `frame` (float32, its sensor frame, voxel_size voxels): the frames up to it within
-        length_m of path before it."""
+        length_m of path before it, their points within length_m of it."""
         row = self._find(frame)
         if row is None:
             raise InputError(f"local map: frame {frame} is not held (forgotten, or not added yet)")
         _, path, pose, _ = self._frames[row]
         inverse = np.linalg.inv(pose)
+        near = self.length_m**2
         parts = []
         for k in range(row, -1, -1):
             _, p, pose_k, cloud = self._frames[k]
             if path - p > self.length_m:
                 break
             T = inverse @ pose_k
-            parts.append(cloud @ T[:3, :3].T.astype(np.float32) + T[:3, 3].astype(np.float32))
+            moved = cloud @ T[:3, :3].T.astype(np.float32) + T[:3, 3].astype(np.float32)
+            parts.append(moved[np.einsum("ij,ij->i", moved[:, :2], moved[:, :2]) <= near])
         merged = np.concatenate(parts)
         return downsample(merged, self.voxel_size, where=f"local map of frame {frame}") if len(merged) else merged
 

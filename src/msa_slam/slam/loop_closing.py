@@ -19,7 +19,8 @@ mode, verified in realistic mode): the paper takes matches at or above `similari
 registers from the descriptor's yaw; "verified" takes the best `verified_top_k` above the floor
 `verified_min_similarity` (0.3: below it Scan Context matches are noise even for local maps, and three
 registrations a keyframe stay affordable) and lets registration decide, from the yaw plus a coarse translation
-search (registration/coarse.py), or from MapClosures' own alignment, so no odometry prior is used. An accepted loop
+search (registration/coarse.py), or from MapClosures' own alignment, so no odometry prior is used, and verifies
+strictly (the structure gate of registration/verify.py). An accepted loop
 whose ground-truth distance exceeds `loop_radius` is a false loop; one over at least 2 x `loop_radius`
 of path (the robot left the place and came back) is a revisit.
 """
@@ -183,12 +184,13 @@ class LoopCloser:
             return cand
         store = self.store
         target, source = store.cloud(cand.match), store.cloud(cand.query)
+        strict = protocol(self.settings) == "verified"
         if guess is None:
             guess = yaw_guess(store.descriptor, store.descriptor_of(cand.query), store.descriptor_of(cand.match))
-            if protocol(self.settings) == "verified":
+            if strict:
                 guess = coarse_guess(target, source, guess, self.verifier.config)
         try:
-            result = self.verifier.verify(target, source, initial_guess=guess)
+            result = self.verifier.verify(target, source, initial_guess=guess, strict=strict)
         except InputError:  # clouds too sparse to register: the candidate is rejected, not the run
             return replace(cand, verified=True, residual=float("inf"), rejected="sparse")
         rejected = result.rejected
