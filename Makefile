@@ -12,6 +12,7 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet torch==2.13.0 || echo "torch 2.13.0 not available: OverlapTransformer tests will skip"
 	$(PY) -m pip install --quiet -e ".[dev]"
 	$(PY) -m pip install --quiet "rerun-sdk>=0.23" || echo "rerun-sdk not available: the live-viewer tests will skip"
+	$(PY) -m pip install --quiet --no-deps map_closures==2.2.0 || echo "map_closures not available: loop_detector=map-closures and its tests will skip"
 	touch $(STAMP)
 
 demo: $(STAMP)

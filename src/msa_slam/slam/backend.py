@@ -196,8 +196,8 @@ class SlamBackend:
             t = self._timed("keyframe_store", i, t)
             if self.loop_descriptor is not None:
                 descriptor = self.loop_descriptor.compute(self.store.cloud(k), k)
-            candidates = self.loop_closer.candidates(k, descriptor, self.gt, self.odometry, self.store.cloud(k)
-                                                     if self.loop_closer.map_closures is not None else None)
+            local = {"cloud": self.store.cloud(k)} if self.settings.loop_detector == "map-closures" else {}
+            candidates = self.loop_closer.candidates(k, descriptor, self.gt, self.odometry, **local)
             self.store.add(k, self.odometry[k], descriptor)
             t = self._timed("loop_detection", i, t)
             if candidates:
