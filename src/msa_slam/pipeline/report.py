@@ -16,6 +16,7 @@ from msa_slam.io.tables import mib
 from msa_slam.pipeline.online_config import NO_TIMESTAMPS
 from msa_slam.slam import RunResult
 from msa_slam.slam.backend import slam_sampler_params
+from msa_slam.slam.loop_closing import candidate_rule
 from msa_slam.viz.labels import counted, display_name, sampler_label
 
 
@@ -202,7 +203,7 @@ def report_markdown(result: RunResult, figures: list[str], files: Collection[str
         f"Sampler: {sampler_label(cfg.sampler, cfg.sampler_params)}.{standstill_note(cfg, m)}", "",
         f"Dataset `{cfg.dataset}` (sequence {m['sequence']}), {scans_read(cfg.source)}: "
         f"{m['frames']} frames -> {m['keyframes']} keyframes; {counted(m['candidates'], 'loop candidate')} "
-        f"(similarity >= {cfg.similarity_threshold}), {m['verified']} verified, "
+        f"({candidate_rule(cfg)}), {m['verified']} verified, "
         + (f"{m['false_loops']} false (ground-truth distance > {cfg.loop_radius} m)." if result.gt_poses is not None
            else f"false loops n/a (no ground truth to tell a loop within {cfg.loop_radius} m from a false one).")
         + (" iSAM2 updated at every frame that finalised keyframes." if online else ""), "",

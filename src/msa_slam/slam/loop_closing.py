@@ -251,6 +251,17 @@ def acceptance(settings: LoopSettings) -> tuple[float, int]:
     return settings.verified_min_similarity, settings.verified_top_k
 
 
+def candidate_rule(settings: LoopSettings) -> str:
+    """How candidates were chosen, for reports ("similarity >= 0.8" for the paper's protocol on scans)."""
+    detector = {"scan": "", "local-map": "local-map "}.get(settings.loop_detector)
+    if detector is None:
+        return f"MapClosures, best {settings.verified_top_k if protocol(settings) == 'verified' else settings.top_k}"
+    threshold, top_k = acceptance(settings)
+    if protocol(settings) == "paper":
+        return f"{detector}similarity >= {threshold}"
+    return f"{detector}similarity >= {threshold}, best {top_k}, verified without an odometry prior"
+
+
 def drift_check_on(settings: LoopSettings) -> bool:
     """Whether loops are checked against the odometry's drift ("auto": in realistic mode)."""
     return settings.drift_check == "on" or settings.drift_check == "auto" and settings.mode == "realistic"
