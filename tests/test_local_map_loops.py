@@ -94,7 +94,7 @@ def _verified_closer(keyframes, **settings):
     """Loop closing over local-map Scan Context, keyframes A, C, D stored, B queried (verified protocol,
     realistic mode, no drift check: nothing but the clouds decides)."""
     config = make_config(**{"dataset": "unused", "mode": "realistic", "loop_detector": "local-map",
-                            "drift_check": "off", "exclude_recent": 0, **settings})
+                            "loop_protocol": "verified", "drift_check": "off", "exclude_recent": 0, **settings})
     descriptor = ScanContext()
     store = KeyframeStore(descriptor, KeyframeCloudStore(config.verifier.voxel_size))
     closer = LoopCloser(store, Verifier(config.verifier), config)
@@ -163,7 +163,7 @@ def test_the_backend_closes_the_revisit_with_local_maps_and_accounts_their_memor
 
     scan_result, _ = run(loop_protocol="paper")
     assert scan_result.accepted_loops == [] and "local_map_bytes" not in scan_result.memory_bytes
-    result, peak = run(loop_detector="local-map")
+    result, peak = run(loop_detector="local-map", loop_protocol="verified")
     accepted = result.accepted_loops
     assert sum(c.gt_distance < 3.0 for c in accepted) >= 5 and all(c.gt_distance < 5.0 for c in accepted)
     assert all(c.query >= len(first) > c.match for c in accepted)
