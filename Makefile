@@ -1,6 +1,7 @@
 # Two set-up commands for a fresh machine: `make demo` (main job) and `make test` (test suite). Each installs only
 # what it runs: the demo the package; the tests also pytest, pytest-xdist and the optional extras their tests
-# exercise (`make extras`: torch for the OverlapTransformer, CPU build, and rerun-sdk for the live viewer;
+# exercise (`make extras`: torch for the OverlapTransformer, CPU build, rerun-sdk for the live viewer and map_closures
+# for loop_detector=map-closures, without its numpy pin, which it works without;
 # without them those tests skip).
 PYTHON ?= python3
 VENV := .venv
@@ -24,6 +25,7 @@ $(DEV): $(BASE)
 $(EXTRAS): $(BASE)
 	$(PY) -m pip install --quiet torch==2.13.0 || echo "torch 2.13.0 not available: OverlapTransformer tests will skip"
 	$(PY) -m pip install --quiet "rerun-sdk>=0.23" || echo "rerun-sdk not available: the live-viewer tests will skip"
+	$(PY) -m pip install --quiet --no-deps map_closures==2.2.0 || echo "map_closures not available: loop_detector=map-closures and its tests will skip"
 	touch $(EXTRAS)
 
 demo: $(BASE)

@@ -118,3 +118,20 @@ def _standstill(min_travel_m: float, frames: int = 90):
 def test_a_standstill_closes_no_loop():
     assert _standstill(30.0).loops == []
     assert _standstill(0.0).accepted_loops  # a frame gap alone lets the robot "revisit" where it stands
+
+
+def test_without_a_prior_a_true_loop_is_accepted_and_another_place_rejected(scans):
+    """The verified protocol (no yaw or offset from odometry: Scan Context's yaw, a coarse translation search
+    and the strict structure gate), drift check off so the clouds alone decide."""
+    settings = {"loop_protocol": "verified", "drift_check": "off"}
+    _, true = _close(scans["true"], scans["target"], **settings)
+    assert true[0].accepted
+    _, other = _close(scans["other_place"], scans["target"], **settings)
+    assert not other[0].accepted
+
+
+def test_strict_verification_accepts_two_real_scans_of_one_place_metres_apart():
+    """KITTI-00 scans 0 and 5 (about 4 m apart along the road), registered from identity."""
+    result = Verifier().verify(_scan(0), _scan(5), strict=True)
+    assert result.accepted and result.structure_residual < 0.1
+    assert 2.0 < np.linalg.norm(result.T_target_source[:3, 3]) < 6.0

@@ -21,6 +21,7 @@ from msa_slam.errors import InputError
 from msa_slam.pipeline.config import RunConfig
 from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, Frontend, config_as_run, prepare_frontend
 from msa_slam.pipeline.sweep import threshold_sweep
+from msa_slam.slam.loop_closing import protocol
 from msa_slam.place_recognition import precision_recall
 from msa_slam.place_recognition.metrics import reference_protocol_matches
 from msa_slam.progress import progress_bar
@@ -78,6 +79,9 @@ def _run_backend(config: RunConfig, frontend: Frontend, quiet: bool, sweep: bool
     result.metrics["threshold_sweep"] = result.metrics["time_s"]["threshold_sweep"] = None
     if not sweep:
         result.metrics["unavailable"]["threshold_sweep"] = sweep_off
+    elif protocol(config) != "paper":
+        result.metrics["unavailable"]["threshold_sweep"] = ("the verified loop protocol does not use "
+                                                            "similarity_threshold (its floor: verified_min_similarity)")
     elif gt is not None:
         start = time.perf_counter()
         result.metrics["threshold_sweep"] = threshold_sweep(result, frontend, clouds)

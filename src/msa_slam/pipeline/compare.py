@@ -36,7 +36,7 @@ from msa_slam.progress import progress_bar
 from msa_slam.sampling.base import GATE_PARAMETERS
 from msa_slam.slam import RunResult
 from msa_slam.slam.backend import UNGATED_SAMPLERS
-from msa_slam.slam.loop_closing import REJECTION_REASONS
+from msa_slam.slam.loop_closing import REJECTION_REASONS, candidate_rule
 from msa_slam.viz import plot_metric_bars, plot_trajectories
 from msa_slam.viz.labels import display_name
 from msa_slam.workers import check_workers, forked_workers, shared
@@ -187,7 +187,7 @@ def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: lis
     lines = [f"# Sampler comparison on {display_name(fe.name)}", "",
              f"Dataset `{cfg.dataset}` (sequence {fe.name}), {scans_read(cfg.source)}: {len(fe)} frames. "
              f"Odometry `{cfg.odometry}`, descriptor `{cfg.descriptor}`, "
-             f"loops: similarity >= {cfg.similarity_threshold}, {cfg.mode} verification (small_gicp residual < "
+             f"loops: {candidate_rule(cfg)}, {cfg.mode} verification (small_gicp residual < "
              f"{cfg.verifier.max_residual} m), GTSAM Levenberg-Marquardt. Shared front end: {front}{cached}.", "",
              f"ATE: the full-rate trajectory (every frame: its preceding keyframe's optimised pose and the "
              f"odometry since) vs ground truth after {ATE_ALIGNMENT} alignment (fitted on all frames of each "

@@ -49,8 +49,8 @@ class MemoryRecorder:
     def record(self, backend: SlamBackend, frame: int) -> None:
         mem, accounted = self.memory, backend.memory_bytes()
         mem["keyframes"][frame] = len(backend.store)
-        for key, value in accounted.items():
-            mem[key][frame] = value
+        for key, value in accounted.items():  # local_map_bytes only with a local-map loop detector
+            mem.setdefault(key, np.zeros(len(mem["keyframes"]), dtype=np.int64))[frame] = value
         mem["pending_bytes"][frame] = backend.pending_bytes
         mem["rss_bytes"][frame] = current_rss_bytes()
 

@@ -15,6 +15,7 @@ from msa_slam.evaluation.loops import FALSE_LOOP_ANGLE_DEG
 from msa_slam.io.tables import mib
 from msa_slam.pipeline.online_config import NO_TIMESTAMPS
 from msa_slam.slam.backend import slam_sampler_params
+from msa_slam.slam.loop_closing import candidate_rule
 from msa_slam.viz.labels import counted, display_name, sampler_label
 
 
@@ -227,7 +228,7 @@ def report_markdown(result: ReportedRun, figures: list[str], files: Collection[s
         f"Sampler: {sampler_label(cfg.sampler, cfg.sampler_params)}.{standstill_note(cfg, m)}", "",
         f"Dataset `{cfg.dataset}` (sequence {m['sequence']}), {scans_read(cfg.source)}: "
         f"{m['frames']} frames -> {m['keyframes']} keyframes; {counted(m['candidates'], 'loop candidate')} "
-        f"(similarity >= {cfg.similarity_threshold}), {m['verified']} verified, "
+        f"({candidate_rule(cfg)}), {m['verified']} verified, "
         + (f"{m['false_loops']} false (ground-truth distance > {cfg.loop_radius} m)." if result.gt_poses is not None
            else f"false loops n/a (no ground truth to tell a loop within {cfg.loop_radius} m from a false one).")
         + (" iSAM2 updated at every frame that finalised keyframes." if online else ""), "",

@@ -84,6 +84,7 @@ def replay(config: RunConfig, frontend: Frontend, clouds: Any, keyframes: np.nda
     backend = build_backend(config, frontend.descriptor, _SharedClouds(clouds),
                             PoseGraph(config.graph, mode=config.mode), len(frontend), frontend.name)
     backend.sampler = _ReplaySampler(keyframes)
+    backend.local_map = None  # the keyframes' local maps are among the shared clouds
     backend.loop_closer = _MemoVerify(backend.loop_closer, memo)
     times = frontend.sequence.times
     for i in range(len(frontend)):

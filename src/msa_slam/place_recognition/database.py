@@ -133,7 +133,9 @@ class KeyframeDatabase:
         if self._keys is not None:
             self._keys = grown(self._keys)
 
-    def _eligible(self, frame_id: int, exclude_frames: int, exclude_recent: int) -> np.ndarray:
+    def eligible(self, frame_id: int, exclude_frames: int, exclude_recent: int) -> np.ndarray:
+        """Mask of the stored keyframes more than `exclude_frames` frames before `frame_id` and not among the
+        `exclude_recent` newest."""
         mask = (int(frame_id) - self.ids) > int(exclude_frames)
         if exclude_recent > 0:
             mask[max(0, self._n - int(exclude_recent)) :] = False
@@ -167,7 +169,7 @@ class KeyframeDatabase:
         `search` and `n_candidates` (stage-1 neighbours of the two-stage search) override the defaults."""
         if self._n == 0:
             return []
-        eligible = self._eligible(frame_id, exclude_frames, exclude_recent)
+        eligible = self.eligible(frame_id, exclude_frames, exclude_recent)
         if not eligible.any():
             return []
         if self._uses_two_stage(search):

@@ -1,7 +1,8 @@
 """The per-frame SLAM core both protocols drive (batch: cached front end, LM at the end; online: live
 frames, iSAM2 at every keyframe step).
 
-For each frame: sampler.push -> for every keyframe it finalises: store its cloud, add it to the pose graph,
+For each frame: sampler.push (and, with a local-map loop detector, the frame's scan into the local map) -> for
+every keyframe it finalises: store its cloud (its local map with such a detector), add it to the pose graph,
 look for loop candidates among the older keyframes, store its pose and descriptor, verify the candidates
 and add the accepted loops -> update the graph (iSAM2 relinearises; batch LM waits for `finish`).
 Every RELEASE_EVERY frames free heap pages go back to the system (iSAM2's piecewise re-elimination leaves them
@@ -26,7 +27,9 @@ from msa_slam.registration import Verifier
 from msa_slam.sampling import make_sampler
 from msa_slam.sampling.base import Sampler
 from msa_slam.slam.keyframes import CloudStore, KeyframeStore
+from msa_slam.slam.local_map import LocalMap
 from msa_slam.slam.loop_closing import LoopCloser
+from msa_slam.slam.map_closures_detector import MapClosuresDetector
 from msa_slam.slam.map import keyframe_map
 from msa_slam.slam.result import RunResult, RunSettings
 from msa_slam.types import LoopClosure
@@ -70,12 +73,17 @@ def _scan(points: Points) -> np.ndarray:
 
 
 class SlamBackend:
-    """Frames in, keyframes, loops and a pose graph out: `add_frame` per frame, then `finish()` -> RunResult."""
+    """Frames in, keyframes, loops and a pose graph out: `add_frame` per frame, then `finish()` -> RunResult.
+    With a `local_map` every frame's scan is read into it and a keyframe's cloud is its local map; a
+    `loop_descriptor` (local-map detector) describes that cloud for loop detection instead of the frame's
+    descriptor, which the sampler always uses."""
 
     def __init__(self, settings: RunSettings, sampler: Sampler, store: KeyframeStore, loop_closer: LoopCloser,
                  graph: Graph, n_frames: int, name: str = "sequence", update_iterations: int = 0,
-                 recorder: Recorder | None = None) -> None:
+                 recorder: Recorder | None = None, local_map: LocalMap | None = None,
+                 loop_descriptor: Descriptor | None = None) -> None:
         self.settings, self.sampler, self.store = settings, sampler, store
+        self.local_map, self.loop_descriptor = local_map, loop_descriptor
         self.loop_closer, self.graph = loop_closer, graph
         self.name, self.update_iterations, self.recorder = name, int(update_iterations), recorder
         self.n = int(n_frames)
@@ -112,10 +120,14 @@ class SlamBackend:
         return self._frames * per_frame + self._loop_bytes
 
     def memory_bytes(self) -> dict[str, int]:
-        """Accounted bytes now: keyframe clouds (RAM, disk), descriptors, graph and the run's records."""
-        return {"cloud_bytes": self.store.cloud_bytes, "cloud_disk_bytes": self.store.disk_bytes,
-                "descriptor_bytes": self.store.descriptor_bytes, "graph_bytes": int(self.graph.nbytes),
-                "record_bytes": self.record_bytes}
+        """Accounted bytes now: keyframe clouds (RAM, disk), descriptors, graph, the run's records and (with a
+        local-map loop detector) the local map's recent scans."""
+        memory = {"cloud_bytes": self.store.cloud_bytes, "cloud_disk_bytes": self.store.disk_bytes,
+                  "descriptor_bytes": self.store.descriptor_bytes, "graph_bytes": int(self.graph.nbytes),
+                  "record_bytes": self.record_bytes}
+        if self.local_map is not None:
+            memory["local_map_bytes"] = self.local_map.nbytes
+        return memory
 
     def add_frame(self, odom_pose: np.ndarray, descriptor: np.ndarray, points: Points, gt_pose: np.ndarray | None,
                   time_s: float) -> list[int]:
@@ -133,10 +145,15 @@ class SlamBackend:
         self._pending[i] = (descriptor, points)
         sample_pose = self.gt[i] if self.settings.sample_on == "gt" else self.odometry[i]
         new = self.sampler.push(sample_pose, descriptor, points if self.sampler.needs_points else None)
-        self._timed("sampling", i, start)
+        t = self._timed("sampling", i, start)
+        if self.local_map is not None:  # its upkeep is part of keeping keyframes
+            self.local_map.add(i, self.odometry[i], _scan(points))
+            self._timed("keyframe_store", i, t)
         self._frames += 1
         self._add_keyframes(new, i)
         self._prune()
+        if self.local_map is not None:
+            self.local_map.forget_before(min(self._pending, default=i))
         if self._frames % RELEASE_EVERY == 0:
             release_free_heap()
         if self.recorder is not None:
@@ -174,10 +191,13 @@ class SlamBackend:
                                    "(keyframes must come in time order)")
             descriptor, points = self._pending.pop(k)
             t = time.perf_counter()
-            self.store.add_cloud(k, _scan(points))
+            self.store.add_cloud(k, _scan(points) if self.local_map is None else self.local_map.around(k))
             self.graph.add_keyframe(k, self.odometry[k])
             t = self._timed("keyframe_store", i, t)
-            candidates = self.loop_closer.candidates(k, descriptor, self.gt, self.odometry)
+            if self.loop_descriptor is not None:
+                descriptor = self.loop_descriptor.compute(self.store.cloud(k), k)
+            local = {"cloud": self.store.cloud(k)} if self.settings.loop_detector == "map-closures" else {}
+            candidates = self.loop_closer.candidates(k, descriptor, self.gt, self.odometry, **local)
             self.store.add(k, self.odometry[k], descriptor)
             t = self._timed("loop_detection", i, t)
             if candidates:
@@ -302,8 +322,23 @@ def slam_sampler_params(sampler: str, params: dict[str, Any]) -> dict[str, Any]:
 def build_backend(config: RunSettings, descriptor: Descriptor, clouds: CloudStore, graph: Graph, n_frames: int,
                   name: str, update_iterations: int = 0, recorder: Recorder | None = None) -> SlamBackend:
     """The SLAM core for a run configuration (msa_slam.pipeline.config.RunConfig): its sampler, a keyframe
-    store over `clouds`, loop closing with its verifier, and `graph` (batch LM or iSAM2)."""
-    store = KeyframeStore(descriptor, clouds)
-    loops = LoopCloser(store, Verifier(config.verifier), config)
+    store over `clouds`, loop closing with its verifier and detector (a local map for the local-map and
+    map-closures detectors), and `graph` (batch LM or iSAM2)."""
+    detector = config.loop_detector
+    local_map = None if detector == "scan" else LocalMap(config.local_map_m, config.verifier.voxel_size)
+    loop_descriptor = local_map_descriptor(config) if detector == "local-map" else None
+    store = KeyframeStore(loop_descriptor or descriptor, clouds)
+    map_closures = MapClosuresDetector() if detector == "map-closures" else None
+    loops = LoopCloser(store, Verifier(config.verifier), config, map_closures)
     sampler = make_sampler(config.sampler, **slam_sampler_params(config.sampler, config.sampler_params))
-    return SlamBackend(config, sampler, store, loops, graph, n_frames, name, update_iterations, recorder)
+    return SlamBackend(config, sampler, store, loops, graph, n_frames, name, update_iterations, recorder,
+                       local_map, loop_descriptor)
+
+
+def local_map_descriptor(config: RunSettings) -> Descriptor:
+    """Scan Context for local maps: the run's own Scan Context parameters when its descriptor is Scan Context,
+    else the authors' configuration."""
+    from msa_slam.descriptors.scan_context import ScanContext
+
+    params = config.descriptor_params if str(config.descriptor).lower() in ("sc", "scan_context") else {}
+    return ScanContext(**params)

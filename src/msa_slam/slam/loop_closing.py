@@ -12,7 +12,15 @@ accumulated frame by frame along the path between them (the drift model's, backe
 scaled to systematic growth beyond the model's reference length and widened `drift_gate` times in sigma),
 the loop's own covariance and a slack (`drift_slack_m`,
 `drift_slack_deg`: the correction allowed in one direction with no path at all): a chi-square test at
-`drift_confidence`, 6 degrees of freedom. An accepted loop
+`drift_confidence`, 6 degrees of freedom.
+
+What finds the candidates (`loop_detector`) and how they are accepted (`loop_protocol`: "paper" by default;
+"auto": paper in oracle mode, verified in realistic mode): the paper takes matches at or above `similarity_threshold` (best `top_k`) and
+registers from the descriptor's yaw; "verified" takes the best `verified_top_k` above the floor
+`verified_min_similarity` (0.3: below it Scan Context matches are noise even for local maps, and three
+registrations a keyframe stay affordable) and lets registration decide, from the yaw plus a coarse translation
+search (registration/coarse.py), or from MapClosures' own alignment, so no odometry prior is used, and verifies
+strictly (the structure gate of registration/verify.py). An accepted loop
 whose ground-truth distance exceeds `loop_radius` is a false loop; one over at least 2 x `loop_radius`
 of path (the robot left the place and came back) is a revisit.
 """
@@ -33,8 +41,10 @@ from msa_slam.errors import InputError
 from msa_slam.evaluation.loops import rejection_counts
 from msa_slam.place_recognition import PRCurve, precision_recall
 from msa_slam.registration import Verifier
+from msa_slam.registration.coarse import coarse_guess
 from msa_slam.registration.verify import REJECTIONS
 from msa_slam.slam.keyframes import KeyframeStore
+from msa_slam.slam.map_closures_detector import MapClosuresDetector
 from msa_slam.types import LoopClosure
 
 
@@ -53,6 +63,10 @@ class LoopSettings(Protocol):
     drift_confidence: float
     drift_slack_m: float
     drift_slack_deg: float
+    loop_detector: str
+    loop_protocol: str
+    verified_top_k: int
+    verified_min_similarity: float
     graph: GraphConfig
 
 
@@ -75,37 +89,74 @@ class LoopCloser:
     """Candidates of a new keyframe among the stored ones, and their verification; keeps every query's best
     match (similarity, ground-truth distance) for the PR curve."""
 
-    def __init__(self, store: KeyframeStore, verifier: Verifier, settings: LoopSettings) -> None:
+    def __init__(self, store: KeyframeStore, verifier: Verifier, settings: LoopSettings,
+                 map_closures: MapClosuresDetector | None = None) -> None:
         self.store, self.verifier, self.settings = store, verifier, settings
+        self.map_closures = map_closures  # the candidates' source when loop_detector is map-closures
         self.best_similarity: list[float] = []
         self.best_distance: list[float] = []
         self._path = np.zeros(1)  # odometry path length from frame 0 to each frame seen so far
         self._odometry = np.zeros((0, 4, 4))
         self._drift = PathCovariance()  # odometry covariance accumulated frame by frame (the drift check)
+        self._guesses: dict[tuple[int, int], np.ndarray] = {}  # MapClosures' T_match_query by (query, match)
 
     def candidates(self, frame: int, descriptor: np.ndarray, gt: np.ndarray,
-                   odometry: np.ndarray) -> list[LoopClosure]:
+                   odometry: np.ndarray, cloud: np.ndarray | None = None) -> list[LoopClosure]:
         """Older keyframes matching `frame` (call before adding it to the store); `gt` and `odometry` hold
-        every frame's ground-truth and odometry poses up to `frame` (true-loop distance, travelled path)."""
+        every frame's ground-truth and odometry poses up to `frame` (true-loop distance, travelled path);
+        `cloud` is the keyframe's local map, which the map-closures detector queries with."""
         s = self.settings
         self._odometry = odometry
         path = self._path_to(frame)
         reachable = int(np.searchsorted(path, path[frame] - s.min_travel_m, side="right")) - 1
-        if reachable < 0:  # nothing far enough back along the path yet
-            return []
         gap = max(s.min_frame_gap, frame - reachable - 1)
-        matches = self.store.database.query(frame, descriptor, exclude_frames=gap, exclude_recent=s.exclude_recent,
-                                            threshold=0.0, top_k=s.top_k)
+        threshold, top_k = acceptance(s)
+        if self.map_closures is not None:  # its own inlier threshold is the floor
+            threshold, matches = 0.0, self._map_closure_matches(frame, cloud, gap, top_k)
+            if reachable >= 0 and not matches:
+                self._record_miss(frame, gt, gap)
+        elif reachable < 0:  # nothing far enough back along the path yet
+            return []
+        else:
+            matches = self.store.database.query(frame, descriptor, exclude_frames=gap,
+                                                exclude_recent=s.exclude_recent, threshold=0.0, top_k=top_k)
+        if reachable < 0:
+            return []
         out = []
         for rank, match in enumerate(matches):
             dist = float(np.linalg.norm(gt[frame, :3, 3] - gt[match.keyframe_id, :3, 3]))
             if rank == 0:
                 self.best_similarity.append(match.similarity)
                 self.best_distance.append(dist)
-            if match.similarity >= s.similarity_threshold:
+            if match.similarity >= threshold:
                 out.append(LoopClosure(frame, match.keyframe_id, match.similarity, dist,
                                        travelled_m=float(path[frame] - path[match.keyframe_id])))
         return out
+
+    def _map_closure_matches(self, frame: int, cloud: np.ndarray | None, gap: int, top_k: int) -> list:
+        """MapClosures' best `top_k` eligible keyframes for `frame` (it also enters `frame` into its database).
+        The ineligible keyframes are the newest ones, so asking for top_k more than there are of them leaves
+        top_k eligible ones whenever MapClosures finds that many."""
+        if cloud is None:
+            raise InputError(f"loop detector map-closures: keyframe {frame} has no local map")
+        database = self.store.database
+        eligible = database.eligible(frame, gap, self.settings.exclude_recent) if len(database) else np.zeros(0, bool)
+        allowed = set(database.ids[eligible].tolist())
+        found = self.map_closures.query(frame, cloud, top_k + int((~eligible).sum()))
+        matches = [m for m in found if m.keyframe_id in allowed][:top_k]
+        for m in matches:
+            self._guesses[(frame, m.keyframe_id)] = m.T_match_query
+        return matches
+
+    def _record_miss(self, frame: int, gt: np.ndarray, gap: int) -> None:
+        """A query MapClosures found nothing for is a PR point of similarity 0 at the nearest eligible keyframe
+        (a missed revisit then counts against recall, as a low Scan Context score does)."""
+        database = self.store.database
+        eligible = database.eligible(frame, gap, self.settings.exclude_recent) if len(database) else np.zeros(0, bool)
+        if eligible.any():
+            ids = database.ids[eligible]
+            self.best_similarity.append(0.0)
+            self.best_distance.append(float(np.min(np.linalg.norm(gt[ids, :3, 3] - gt[frame, :3, 3], axis=1))))
 
     def _path_to(self, frame: int) -> np.ndarray:
         """Cumulative odometry path length up to `frame`, extended incrementally (frames never change)."""
@@ -129,12 +180,18 @@ class LoopCloser:
         return [self._verify(c) for c in candidates]
 
     def _verify(self, cand: LoopClosure) -> LoopClosure:
+        guess = self._guesses.pop((cand.query, cand.match), None)
         if self.settings.mode == "oracle" and cand.gt_distance > self.settings.loop_radius:
             return cand
         store = self.store
-        guess = yaw_guess(store.descriptor, store.descriptor_of(cand.query), store.descriptor_of(cand.match))
+        target, source = store.cloud(cand.match), store.cloud(cand.query)
+        strict = protocol(self.settings) == "verified"
+        if guess is None:
+            guess = yaw_guess(store.descriptor, store.descriptor_of(cand.query), store.descriptor_of(cand.match))
+            if strict:
+                guess = coarse_guess(target, source, guess, self.verifier.config)
         try:
-            result = self.verifier.verify(store.cloud(cand.match), store.cloud(cand.query), initial_guess=guess)
+            result = self.verifier.verify(target, source, initial_guess=guess, strict=strict)
         except InputError:  # clouds too sparse to register: the candidate is rejected, not the run
             return replace(cand, verified=True, residual=float("inf"), rejected="sparse")
         rejected = result.rejected
@@ -179,6 +236,31 @@ class LoopCloser:
         if not self.best_similarity:
             return None
         return precision_recall(self.best_similarity, self.best_distance, self.settings.loop_radius)
+
+
+def protocol(settings: LoopSettings) -> str:
+    """The loop protocol in force ("auto": paper in oracle mode, verified in realistic mode)."""
+    if settings.loop_protocol != "auto":
+        return settings.loop_protocol
+    return "paper" if settings.mode == "oracle" else "verified"
+
+
+def acceptance(settings: LoopSettings) -> tuple[float, int]:
+    """(similarity floor, candidates a keyframe) of the protocol in force."""
+    if protocol(settings) == "paper":
+        return settings.similarity_threshold, settings.top_k
+    return settings.verified_min_similarity, settings.verified_top_k
+
+
+def candidate_rule(settings: LoopSettings) -> str:
+    """How candidates were chosen, for reports ("similarity >= 0.8" for the paper's protocol on scans)."""
+    detector = {"scan": "", "local-map": "local-map "}.get(settings.loop_detector)
+    if detector is None:
+        return f"MapClosures, best {settings.verified_top_k if protocol(settings) == 'verified' else settings.top_k}"
+    threshold, top_k = acceptance(settings)
+    if protocol(settings) == "paper":
+        return f"{detector}similarity >= {threshold}"
+    return f"{detector}similarity >= {threshold}, best {top_k}, verified without an odometry prior"
 
 
 def drift_check_on(settings: LoopSettings) -> bool:

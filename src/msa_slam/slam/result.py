@@ -29,6 +29,7 @@ class RunSettings(Protocol):
     sampler_params: dict[str, Any]
     verifier: VerifierConfig
     descriptor: str
+    descriptor_params: dict[str, Any]
     mode: str
     sample_on: str
     flush: bool
@@ -38,6 +39,8 @@ class RunSettings(Protocol):
     top_k: int
     loop_radius: float
     min_travel_m: float
+    loop_detector: str
+    local_map_m: float
 
     @property
     def name(self) -> str: ...
@@ -115,7 +118,9 @@ def core_metrics(result: RunResult) -> dict[str, Any]:
     mem = result.memory_bytes
     clouds = mem["cloud_bytes"] + mem["cloud_disk_bytes"]
     # what the run keeps in RAM, for the RSS growth: SLAM memory without on-disk clouds, records and the map
-    in_ram = mem["descriptor_bytes"] + mem["cloud_bytes"] + mem["graph_bytes"] + mem["record_bytes"] + mem["map_bytes"]
+    local_map = mem.get("local_map_bytes", 0)  # the recent scans a local-map loop detector keeps (else absent)
+    in_ram = (mem["descriptor_bytes"] + mem["cloud_bytes"] + mem["graph_bytes"] + local_map + mem["record_bytes"]
+              + mem["map_bytes"])
     return {
         "sequence": result.name, "dataset": cfg.dataset, "method": cfg.name, "sampler": cfg.sampler,
         "descriptor": cfg.descriptor, "mode": cfg.mode, "frames": len(result), "keyframes": int(len(result.keyframes)),
@@ -132,7 +137,9 @@ def core_metrics(result: RunResult) -> dict[str, Any]:
         "f1_max": None if pr is None else pr.f1_max,
         "pr_queries": result.pr_queries,
         "memory_bytes": {"keyframe_descriptors": mem["descriptor_bytes"], "keyframe_clouds": clouds,
-                         "graph": mem["graph_bytes"], "total": mem["descriptor_bytes"] + clouds + mem["graph_bytes"],
+                         "graph": mem["graph_bytes"],
+                         **({"local_map": local_map} if "local_map_bytes" in mem else {}),
+                         "total": mem["descriptor_bytes"] + clouds + mem["graph_bytes"] + local_map,
                          "run_records": mem["record_bytes"], "map": mem["map_bytes"], "in_ram": in_ram},
         "peak_rss_bytes": peak_rss_bytes(),  # the whole process's high-water mark, not this run's
         "peak_rss_scope": "process",
