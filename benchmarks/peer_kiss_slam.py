@@ -6,8 +6,9 @@ It imports numpy and the peer only (no msa_slam). Scans are velodyne/NNNNNN.bin 
 when the folder has them, velodyne_times/NNNNNN.npy (per-point seconds from the sweep start), given to the peer
 as its per-point timestamps so that it deskews as it does with any loader that has them (--no-times: none, so
 no deskew, as the kiss_slam_pipeline CLI runs on .bin scans). The CLI cannot give them: its KITTI and generic
-loaders read .bin scans without per-point times (and the KITTI loader also applies the real HDL-64's intrinsic
-correction, which simulated scans do not need).
+loaders read .bin scans without per-point times. Scans of a simulated KITTI HDL-64 (sim.json records a sensor
+elevation error) get kiss-icp's own KITTI vertical-angle correction, as its KITTI loader applies it to real KITTI
+and as msa-slam's KITTI-layout reader does, so both systems see the same points.
 
 The sequence is processed as kiss_slam.pipeline.SlamPipeline does (process_scan per frame, then the last
 local map closed and the fine-grained optimisation over every frame); KISS-ICP alone registers every frame
@@ -21,18 +22,33 @@ closures found between local maps; -1 for KISS-ICP), `threads`.
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
 import numpy as np
 
 
+def needs_kitti_correction(folder: Path) -> bool:
+    """Whether the simulator recorded a sensor elevation error for this sequence (its HDL-64 as KITTI's)."""
+    try:
+        sensor = json.loads((folder / "sim.json").read_text()).get("sensor") or {}
+    except (OSError, ValueError):
+        return False
+    return bool(sensor.get("elevation_bias_deg"))
+
+
 def frames(folder: Path, end: int | None, times: bool = True):
     """(points (P, 3) float64, per-point times (P,) or an empty array: none stored, or `times` False) of each
-    scan, in order."""
+    scan, in order (vertical-angle corrected as kiss-icp's KITTI loader does, where needs_kitti_correction)."""
+    from kiss_icp.pybind import kiss_icp_pybind
+
+    correct = needs_kitti_correction(folder)
     scans = sorted((folder / "velodyne").glob("*.bin"))[:end]
     for scan in scans:
         points = np.fromfile(scan, dtype=np.float32).reshape(-1, 4)[:, :3].astype(np.float64)
+        if correct:
+            points = np.asarray(kiss_icp_pybind._correct_kitti_scan(kiss_icp_pybind._Vector3dVector(points)))
         stamps = folder / "velodyne_times" / f"{scan.stem}.npy"
         yield points, (np.load(stamps).astype(np.float64) if times and stamps.is_file() else np.zeros(0))
 
