@@ -185,8 +185,10 @@ def test_map_closures_finds_a_revisit_to_the_side_and_its_pose_maps_the_older_ma
     matches = detector.query(LAP, cloud, 3)
     assert [m.keyframe_id for m in matches] == [0]
     truth = np.linalg.inv(keyframes["A"][0]) @ pose  # T_match_query
-    assert np.linalg.norm(matches[0].T_match_query[:3, 3] - truth[:3, 3]) < 0.6
-    assert Verifier().verify(keyframes["A"][1], cloud, initial_guess=matches[0].T_match_query, strict=True).accepted
+    # a coarse guess (density images at 0.5 m cells), metres at most off, which registration then refines
+    assert np.linalg.norm(matches[0].T_match_query[:3, 3] - truth[:3, 3]) < 2.0
+    verified = Verifier().verify(keyframes["A"][1], cloud, initial_guess=matches[0].T_match_query, strict=True)
+    assert verified.accepted and np.linalg.norm(verified.T_target_source[:3, 3] - truth[:3, 3]) < 0.3
 
 
 def test_map_closures_skips_the_three_rows_before_the_query():

@@ -67,9 +67,11 @@ def forked_workers(workers: int, shared_object: Any) -> Iterator[Callable[..., F
         yield executor.submit
     except BaseException:
         _kill(executor)
+        executor.shutdown(wait=False, cancel_futures=True)  # the workers are gone: nothing to wait for
         raise
-    finally:
+    else:
         executor.shutdown(cancel_futures=True)
+    finally:
         gc.unfreeze()
         _shared = None
 

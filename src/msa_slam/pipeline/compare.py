@@ -74,7 +74,7 @@ HEADERS = ("method", "keyframes", "candidates", "true cand.", "verified", "rejec
 
 def table_row(metrics: dict[str, Any]) -> dict[str, Any]:
     """One Table-I row from a run's metrics: full-rate ATE/RPE first, keyframe-only ATE as kf_* columns
-    (memory: keyframes + graph; RSS growth: the process's settled RSS over the method's back-end, see _report;
+    (memory: keyframes + graph; RSS growth: the process's settled RSS over the method's back-end, see comparison_report;
     time: back-end stages)."""
     m, full = metrics, metrics["full_rate"]
     reference = m.get("pr_reference") or {}
@@ -178,8 +178,15 @@ def sweep_markdown(results: Sequence[RunResult]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: list[str], workers: int) -> str:
-    """report.md; `workers`: the processes the methods ran in (1: this one), which the memory figures depend on."""
+# Where a comparison's methods ran: `workers` and the main process's peak RSS as report.md gives it (with several
+# workers); how the run was executed, not a result, so kept apart from comparison.json for `msa-slam report`
+PROCESSES = "processes.json"
+
+
+def comparison_report(fe: Frontend, results: Sequence[RunResult], table: str, figures: list[str], workers: int,
+                      main_peak: str | None = None) -> str:
+    """report.md; `workers`: the processes the methods ran in (1: this one), which the memory figures depend on;
+    `main_peak`: the main process's peak RSS as report.md gives it (default: this process's peak now)."""
     cfg = results[0].config
     rpe_text = rpe_segments(results[0].gt_poses)[1]  # every method runs on the same sequence
     cached = " (from cache)" if all(fe.cached.values()) else ""
@@ -207,7 +214,7 @@ def _report(fe: Frontend, results: Sequence[RunResult], table: str, figures: lis
              "kernels are loaded before its back-end starts (a one-time cost of the process, ~58 MiB). Time: "
              "sampling + keyframe store + loop search + verification + optimisation.", "", table, "",
              *_sweep_lines(results),
-             _peak_rss(results, workers), ""]
+             _peak_rss(results, workers, main_peak), ""]
     method_notes = [f"- {r.config.name}: {note}" for r in results for note in notes(r.metrics)]
     if method_notes:
         lines += ["Notes (n/a values and warnings):", "", *method_notes, ""]
@@ -226,14 +233,15 @@ def _processes(workers: int) -> str:
             "costs of a back-end in a process")
 
 
-def _peak_rss(results: Sequence[RunResult], workers: int) -> str:
-    """The peak-RSS line of report.md: of the one process, or of the busiest worker and of the main process."""
+def _peak_rss(results: Sequence[RunResult], workers: int, main_peak: str | None = None) -> str:
+    """The peak-RSS line of report.md: of the one process, or of the busiest worker and of the main process
+    (`main_peak`, else this process's peak now)."""
     peak = mib(max(r.metrics["peak_rss_bytes"] for r in results))
     if workers == 1:
         return (f"Process peak RSS: {peak} (whole process: every method and the shared front end; not a per-method "
                 "figure).")
     return (f"Peak RSS: {peak} in the busiest worker process (its methods and the front end, which it shares with "
-            f"the main process and so is counted in each: the figures do not add up), {mib(peak_rss_bytes())} in "
+            f"the main process and so is counted in each: the figures do not add up), {main_peak or mib(peak_rss_bytes())} in "
             "the main process (the front end, tables and figures); not per-method figures.")
 
 
@@ -346,13 +354,20 @@ def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: boo
     (tmp / "comparison.csv").write_text(rows_csv(rows, COLUMNS))
     write_json(tmp / "comparison.json", [r.metrics for r in results])
     figures = _figures(results, tmp / "figures") if results else []
-    report = (_report(frontend, results, table, figures, workers) if results
+    main_peak = mib(peak_rss_bytes())
+    write_json(tmp / PROCESSES, {"workers": workers, "main_peak_rss": main_peak})
+    report = (comparison_report(frontend, results, table, figures, workers, main_peak) if results
               else f"# Sampler comparison on {display_name(frontend.name)}\n")
-    if failed:
-        report += "\n## Failed methods\n\n" + "".join(f"- {name}: {error} (traceback: runs/{name}/error.txt)\n"
-                                                     for name, error in failed.items())
-    (tmp / "report.md").write_text(report)
+    (tmp / "report.md").write_text(report + failed_section(failed))
     return rows, failed
+
+
+def failed_section(failed: dict[str, str]) -> str:
+    """The report's list of the methods that failed (empty when none did)."""
+    if not failed:
+        return ""
+    return "\n## Failed methods\n\n" + "".join(f"- {name}: {error} (traceback: runs/{name}/error.txt)\n"
+                                                for name, error in failed.items())
 
 
 def _seed_comparisons(base: RunConfig, plans: dict[int, list[RunConfig]], out: Path, quiet: bool,
@@ -379,7 +394,7 @@ def _seed_comparisons(base: RunConfig, plans: dict[int, list[RunConfig]], out: P
                 write_record(tmp, records[seed], identities[seed], seed_failed)
             failed.update({f"seed {seed}: {name}": error for name, error in seed_failed.items()})
         rows[seed] = [table_row(m) for m in finished_metrics(target) or []]
-    _write_spread(out, base, rows, failed, left_out_seeds(out, list(plans)), list(resume.rerun.values()))
+    write_spread(out, base, rows, failed, left_out_seeds(out, list(plans)), list(resume.rerun.values()))
     return failed
 
 
@@ -388,7 +403,7 @@ def _say(quiet: bool, line: str) -> None:
         print(line, file=sys.stderr, flush=True)
 
 
-def _write_spread(out: Path, base: RunConfig, rows: dict[int, list[dict[str, Any]]], failed: dict[str, str],
+def write_spread(out: Path, base: RunConfig, rows: dict[int, list[dict[str, Any]]], failed: dict[str, str],
                   left_out: list[int], rerun: Sequence[str] = ()) -> None:
     """seeds.md, seeds.csv, seeds.json and report.md at the top of `out`, each replaced atomically; `rerun`: the
     lines of the seeds this run reran because their data or code changed, listed in report.md."""

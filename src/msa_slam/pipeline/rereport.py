@@ -13,7 +13,8 @@ from msa_slam.errors import InputError
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.outputs import OutputError, open_result_folder, some_names
 from msa_slam.io.staging import edited_files, foreign_files, recorded_digests, write_marker
-from msa_slam.pipeline.compare import _report, _write_spread, table_row  # compare.py has no public form of these
+from msa_slam.pipeline.compare import PROCESSES, failed_section, table_row, write_spread
+from msa_slam.pipeline.compare import comparison_report as write_comparison_report
 from msa_slam.pipeline.config import make_config
 from msa_slam.pipeline.report import report_markdown
 from msa_slam.pipeline.results import folder_files, run_figures
@@ -82,11 +83,10 @@ def run_report(folder: Path, foreign: set[str], root: Path | None = None) -> str
 def comparison_report(folder: Path) -> str:
     """report.md of a comparison folder (compare, demo, or a seed of compare --seeds), from its files."""
     frontend, runs = read_comparison(folder)
-    text = _report(frontend, runs, read_text(folder / "comparison.md"), comparison_figures(folder))
-    failed = failed_methods(folder)
-    if failed:
-        text += "\n## Failed methods\n\n" + "".join(f"- {name}: {error} (traceback: runs/{name}/error.txt)\n"
-                                                   for name, error in failed.items())
+    processes = read_json(folder / PROCESSES) if (folder / PROCESSES).is_file() else {}
+    text = write_comparison_report(frontend, runs, read_text(folder / "comparison.md"), comparison_figures(folder),
+                                   processes.get("workers", 1), processes.get("main_peak_rss"))
+    text += failed_section(failed_methods(folder))
     return text
 
 
@@ -99,4 +99,5 @@ def _write_seed_spread(folder: Path) -> None:
               for name, error in record.get("failed", {}).items()}
     first = records[seeds[0]]
     base = make_config({**next(iter(first["methods"].values())), "dataset": first["dataset"]})
-    _write_spread(folder, base, rows, failed, left_out_seeds(folder, seeds))
+    write_spread(folder, base, rows, failed, left_out_seeds(folder, seeds))
+
