@@ -1,4 +1,4 @@
-"""The fair comparison of issue 14 on the shipped KITTI trajectories: for each sequence and loop mode,
+"""The fair comparison on the shipped KITTI trajectories: for each sequence and loop mode,
 `compare --seeds` (every sampler of the paper, full-rate ATE so "ATE before" is the same for all) and one
 table per sequence and mode: every sampler's full-rate translational ATE improvement (mean +- std over the
 world seeds), RPE over KITTI's 100-800 m segments, PR-AUC and F1-max (the paper's database protocol),

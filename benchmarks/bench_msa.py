@@ -228,7 +228,7 @@ def canonical_targets(shapes, repeats: int = 3) -> None:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="N = 8, 10, 12 only; skip parity")
-    parser.add_argument("--canonical-only", action="store_true", help="only the canonical-pi table (issue 16)")
+    parser.add_argument("--canonical-only", action="store_true", help="only the canonical-pi table")
     parser.add_argument("--repeats", type=int, default=3,
                         help="sampler runs per canonical-pi figure, reported as their median (default 3)")
     args = parser.parse_args()

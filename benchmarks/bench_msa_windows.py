@@ -1,4 +1,4 @@
-"""MSA past the paper's window (issue 16): the benchmark's metrics for MSA alone with window N = 10, 16, 20 and
+"""MSA past the paper's window: the benchmark's metrics for MSA alone with window N = 10, 16, 20 and
 pi "reference" vs "canonical" on one simulated KITTI sequence, over world seeds, so users can see whether a
 larger window or a machine-independent pi changes the answer.
 

@@ -30,7 +30,7 @@ first lap on. Measured with this command (3 laps: 7,833 frames, ~3,380 keyframes
 | 10 laps (6762909) | 105.6 MiB | 353.9 MiB | 21.5 MiB | 13.2 MiB | 494.1 MiB | 624.7 MiB | 1.26 | 600.4 / 458.3 MiB = 1.31 |
 
 Before, GTSAM's heap was estimated at about a fifth of what it holds and freed heap pages stayed resident (on
-10 laps, issue 14: RSS 436 -> 1064 MiB against 119 MiB accounted). The 3-lap "after" growth started from an
+10 laps: RSS 436 -> 1064 MiB against 119 MiB accounted). The 3-lap "after" growth started from an
 unsettled reading, which could still hold the warm-up's freed heap and so lowered the growth; since 6762909
 both ends are read after garbage collection and malloc_trim (evaluation.resources.settle_heap). Over 10 laps
 the graph is most of it: iSAM2's Bayes tree with ~10,000 loop factors.

@@ -1,4 +1,4 @@
-"""Simulator realism against its calibration targets (issue 12): per shipped KITTI trajectory and world seed,
+"""Simulator realism against its calibration targets: per shipped KITTI trajectory and world seed,
 KISS-ICP drift (KITTI's relative translational error over 100-800 m segments, with its horizontal and vertical
 parts), Scan Context aliasing (the highest similarity among frame pairs more than 20 m apart and the fraction
 above the paper's 0.8), PR-AUC of constant 2 m and of all samples, spaciousness against constant 3 m, plus

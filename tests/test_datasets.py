@@ -143,7 +143,7 @@ def test_a_scan_cut_short_outside_the_selection_does_not_stop_a_run(tmp_path):
 
 
 def _as_float64(path: Path, points: np.ndarray) -> None:
-    """The mistake of issue 11.4: x, y, z, r stored as float64 (32 bytes a point, still a multiple of 16)."""
+    """A common mistake: x, y, z, r stored as float64 (32 bytes a point, still a multiple of 16)."""
     np.hstack([points, np.ones((len(points), 1))]).astype(np.float64).tofile(path)
 
 
@@ -307,7 +307,7 @@ def test_apollo_layout_without_open3d(tmp_path):
     np.testing.assert_allclose(seq[2].gt_pose[:3, 3], [4.0, 0.0, 0.0])  # relative to the first pose
 
 
-# --- per-point times (issue 12) ---------------------------------------------------------------------
+# --- per-point times ---------------------------------------------------------------------
 
 def test_kitti_frames_derive_point_times_from_azimuth(tmp_path):
     seq = _kitti(tmp_path)

@@ -1,4 +1,4 @@
-"""Same input, same answer (issue 11.1, 11.2): two cold runs give bitwise-identical results, and KISS-ICP's
+"""Same input, same answer: two cold runs give bitwise-identical results, and KISS-ICP's
 settings come from msa-slam's configuration only, never from kiss_icp_* environment variables."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Figures a person can read (issue 15.6): axis labels with units, equal aspect, legends off the data, loop
+"""Figures a person can read: axis labels with units, equal aspect, legends off the data, loop
 edges drawn, PR curves zoomed on their knee, sequence names without cache hashes."""
 
 from __future__ import annotations

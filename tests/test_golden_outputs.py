@@ -1,4 +1,4 @@
-"""Golden outputs of `run`, `compare` and `online` (issue 13): the restructuring must not change results.
+"""Golden outputs of `run`, `compare` and `online`: the restructuring must not change results.
 
 The input is made here, independent of the simulator: a fixed world of random boxes and walls around a
 circular road driven twice (points sampled on their surfaces with a fixed seed, no ray casting), written as

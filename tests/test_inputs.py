@@ -1,4 +1,4 @@
-"""Each input of issue 15's table on a small recording written here in that dataset's exact layout (bags
+"""Each supported input on a small recording written here in that dataset's exact layout (bags
 written with rosbags): the loader is found from the layout, scans, times, ground truth and per-point times
 come through, and a wrong layout names what was expected where."""
 

@@ -1,4 +1,4 @@
-"""Loop closing that can say no (issue 14): wrong candidates built on purpose from real KITTI scans are
+"""Loop closing that can say no: wrong candidates built on purpose from real KITTI scans are
 rejected for the reason that applies, a true loop is accepted, and a standstill closes no loop.
 
 The query keyframe comes back to keyframe 0 after a 100 m lap of odometry. Its cloud is (a) the other half

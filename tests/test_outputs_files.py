@@ -1,4 +1,4 @@
-"""The result files a researcher uses outside msa-slam (issue 15.3): full-rate ground truth, the map as PLY,
+"""The result files a researcher uses outside msa-slam: full-rate ground truth, the map as PLY,
 the pose graph as g2o, the PR arrays, the run's descriptors (reusable by `msa-slam sample`), provenance, and
 a documented metrics.json."""
 

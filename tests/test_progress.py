@@ -1,4 +1,4 @@
-"""Progress for non-terminals (issue 15.7): a log gets a start line, a line every ~10 % and a finish line
+"""Progress for non-terminals: a log gets a start line, a line every ~10 % and a finish line
 with the stage's time; a terminal keeps the rich bar; quiet prints nothing."""
 
 from __future__ import annotations

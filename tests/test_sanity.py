@@ -1,4 +1,4 @@
-"""Plausibility warnings of the front end (issue 11.5): degenerate odometry and ground-truth jumps are named,
+"""Plausibility warnings of the front end: degenerate odometry and ground-truth jumps are named,
 while real trajectories (KITTI ground truth, KISS-ICP on a simulated street) pass without a warning."""
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ def test_real_trajectories_give_no_warning(kitti):
 def test_ground_truth_teleport_is_named(kitti):
     gt, times = kitti
     jumped = gt.copy()
-    jumped[150:, 0, 3] += 1000.0  # the 1 km teleport of issue 11.5
+    jumped[150:, 0, 3] += 1000.0  # a 1 km teleport
     warnings = frontend_warnings(jumped, _drifted(gt), times)
     assert len(warnings) == 1
     assert warnings[0].startswith("ground truth: 1 implausible step(s); the largest, frames 149 -> 150: 100")

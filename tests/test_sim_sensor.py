@@ -1,4 +1,4 @@
-"""The simulated sensor (issue 12): the clean path is today's scan, motion distortion follows each column's
+"""The simulated sensor: the clean path is today's scan, motion distortion follows each column's
 firing time, per-point times, and the imperfections are deterministic per seed and do what they model."""
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ def _room(reflectance: float = 0.5, material: int = Material.SOLID) -> World:
 
 
 def _reference_scan(model: LidarModel, world: World, pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """The scan as the simulator made it before issue 12 (a copy of the old `Lidar.scan`)."""
+    """The scan as the simulator made it before its realism options (a copy of the old `Lidar.scan`)."""
     dirs = model.directions()
     dirs_world = np.einsum("ij,kj->ki", pose[:3, :3], dirs)
     tri, ray_idx, ranges = world.cast(pose[:3, 3], dirs_world)

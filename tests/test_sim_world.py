@@ -1,4 +1,4 @@
-"""Simulated world realism (issue 12): the plain world unchanged, moving and transient objects, foliage,
+"""Simulated world realism: the plain world unchanged, moving and transient objects, foliage,
 reused street designs, hard stretches, determinism."""
 
 from __future__ import annotations

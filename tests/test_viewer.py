@@ -1,4 +1,4 @@
-"""Live view (issue 15.5): `msa-slam online --viewer-save run.rrd` records the scan, both trajectories,
+"""Live view: `msa-slam online --viewer-save run.rrd` records the scan, both trajectories,
 keyframes and loops per frame; read back headless. Without rerun-sdk the option fails in one clear line."""
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Repetitions over world seeds: mean, spread, per-seed ranks and whether a difference exceeds the spread.
 
-One simulated world decides nothing (issue 14: changing only KITTI-05's world seed moved every sampler's
+One simulated world decides nothing (changing only KITTI-05's world seed moved every sampler's
 improvement from ~37 % to ~72 % and MSA's rank from 3 to 7). So each metric is reported as mean and sample
 standard deviation (ddof 1) over seeds, with the rank of every method on each seed, and MSA is compared to
 each baseline with a paired test over seeds (PAIRED_TEST): the pairs share a world, so the world's effect

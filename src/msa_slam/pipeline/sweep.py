@@ -1,4 +1,4 @@
-"""Sensitivity to the similarity threshold (issue 14): loops accepted and full-rate ATE improvement of one
+"""Sensitivity to the similarity threshold: loops accepted and full-rate ATE improvement of one
 batch run at thresholds around its own (SWEEP_OFFSETS: 0.70, 0.75, 0.80, 0.85 around the paper's 0.8).
 
 Only the back-end is re-run: the same keyframes (a replay sampler emits the run's keyframes), the same

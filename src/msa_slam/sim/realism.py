@@ -2,7 +2,7 @@
 
 "clean" is the plain simulator (ideal sensor standing still for each scan, static world: the scans of
 SIM_VERSION 2, byte for byte). "kitti", the default, is calibrated so that KISS-ICP drift, Scan Context
-aliasing and the samplers' spread resemble real KITTI (issue 12; benchmarks/bench_realism.py measures it):
+aliasing and the samplers' spread resemble real KITTI (benchmarks/bench_realism.py measures it):
 motion distortion over the 10 Hz sweep, KITTI's HDL-64 elevation error (about -0.22 deg, which kiss-icp's
 KITTI loader and msa-slam's KITTI-layout reader correct) with per-beam angle and range errors, range noise
 growing with range and incidence, lost dark/grazing returns, mixed pixels, foliage, moving and coming-and-going

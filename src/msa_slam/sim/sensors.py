@@ -75,7 +75,7 @@ class LidarModel:
 
 @dataclass(frozen=True)
 class SensorRealism:
-    """Every sensor imperfection (issue 12); each default is "off", and all off give today's scans.
+    """Every sensor imperfection; each default is "off", and all off give today's scans.
 
     Calibration errors are drawn once per sequence (from the Lidar's seed); the rest per scan.
     """

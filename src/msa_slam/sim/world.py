@@ -30,7 +30,7 @@ DYNAMIC_RADIUS = 120.0  # dynamic objects farther than this from the rays' origi
 
 @dataclass(frozen=True)
 class WorldRealism:
-    """World knobs (issue 12); every default is "off". Densities per 100 m of path, shares of path length."""
+    """World knobs; every default is "off". Densities per 100 m of path, shares of path length."""
 
     moving_cars: float = 0.0        # cars driving along the path in both directions
     pedestrians: float = 0.0        # people walking back and forth beside the path
