@@ -38,3 +38,21 @@ def test_table_prints_missing_values_as_na(bench):
     assert lines[0] == "### simulated KITTI-07, world seed 0, 1101 frames"
     assert "| KISS-SLAM | n/a | n/a |  | n/a | peer not installed |" in lines
     assert "| msa-slam msa | 1.235 | 0.500 | 3 of 9 cand. | 61.0 | 40 keyframes |" in lines
+
+
+def test_the_peer_is_scored_against_the_truth_at_sweep_end(bench):
+    # mid-sweep truth accelerating on a weaving path (x = 2 t^2, y = sin t), frames 0.1 s apart: the sweep-end truth is the pose
+    # 0.05 s later (interpolated linearly between frames: within 6 mm), the last frame's extrapolated
+    import numpy as np
+    stamps = np.arange(50) * 0.1
+
+    def path(t):
+        poses = np.tile(np.eye(4), (len(t), 1, 1))
+        poses[:, 0, 3], poses[:, 1, 3] = 2.0 * t ** 2, np.sin(t)
+        return poses
+
+    end = bench.sweep_end_truth(path(stamps), stamps)
+    assert np.linalg.norm(end[:-1, :3, 3] - path(stamps + 0.05)[:-1, :3, 3], axis=1).max() < 0.006
+    assert end[-1, 0, 3] > path(stamps)[-1, 0, 3] + 0.45  # extrapolated half a frame at the last speed
+    peer = path(stamps + 0.05)  # a peer that deskews to the sweep's end and has no drift
+    assert bench.ape(peer, end)[0] < 0.006 < bench.ape(peer, path(stamps))[0]
