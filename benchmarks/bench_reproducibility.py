@@ -1,5 +1,5 @@
 """Where results part across CPUs: digests of each stage of the demo's data on this machine, to compare with
-another machine's (the README's "Same input, same answer" lists the digests seen so far).
+another machine's (docs/simulator.md, "Across CPUs", lists the digests seen so far).
 
 The demo's comparison differs between CPUs (one loop more or less, other keyframes) while two runs on one
 machine give identical bytes. This prints a digest of every stage that feeds the result, on the demo's sequence

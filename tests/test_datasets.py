@@ -292,6 +292,42 @@ def test_mulran_through_kiss_loader(tmp_path):
         open_dataset(tmp_path, kind="nuscenes-ish")
 
 
+def _mulran_pose_file(folder: Path, stamps: np.ndarray, poses: np.ndarray) -> None:
+    """MulRan's global_pose.csv: nanosecond time, then the row-major 3x4 pose."""
+    rows = np.column_stack([stamps, poses[:, :3, :4].reshape(len(poses), 12)])
+    np.savetxt(folder / "global_pose.csv", rows, delimiter=",", fmt="%.17g")
+
+
+def test_mulran_pose_file_in_the_ouster_frame_is_flagged(tmp_path):
+    """MulRan's global_pose.csv holds the vehicle base's poses; the loader turns them into the Ouster's
+    (mounted facing backwards). Ouster-frame poses given instead come out turned ~180 deg about z, which no
+    alignment removes: the front end says so, naming the likely cause."""
+    from msa_slam.evaluation import ate
+    from msa_slam.evaluation.sanity import frontend_warnings
+
+    n = 40
+    stamps = 1_600_000_000_000_000_000 + np.arange(n, dtype=np.int64) * 100_000_000
+    for k, stamp in enumerate(stamps):
+        _write_bin(tmp_path / "sensor_data" / "Ouster" / f"{stamp}.bin", _points(k, 5))
+    yaw = 0.3 + 0.02 * np.arange(n)  # a car driving forward (base x) on a left curve, 1 m a frame, in UTM
+    base = np.tile(np.eye(4), (n, 1, 1))
+    base[:, :3, :3] = Rotation.from_euler("z", yaw[:, None]).as_matrix()
+    base[:, 0, 3] = 350_000 + np.cumsum(np.cos(yaw))
+    base[:, 1, 3] = 4_000_000 + np.cumsum(np.sin(yaw))
+    _mulran_pose_file(tmp_path, stamps, base)
+    seq = open_dataset(tmp_path, kind="mulran")
+    ouster = seq.gt_poses  # what LiDAR odometry of these scans would find
+    times = seq.times
+    assert not [w for w in frontend_warnings(seq.gt_poses, ouster, times) if "180 deg" in w]
+
+    _mulran_pose_file(tmp_path, stamps, ouster)  # Ouster-frame poses where base-frame ones belong
+    turned = open_dataset(tmp_path, kind="mulran").gt_poses
+    assert ate(ouster, turned).rotation_rmse > 170  # the silent failure: a ~180 deg rotation "error"
+    (warning,) = [w for w in frontend_warnings(turned, ouster, times) if "180 deg" in w]
+    assert f"on {n - 1} of the {n - 1} steps where both move" in warning
+    assert "global_pose.csv must hold the vehicle base's poses" in warning and "Ouster frame" in warning
+
+
 def test_apollo_layout_without_open3d(tmp_path):
     (tmp_path / "pcds").mkdir()
     for k in range(3):

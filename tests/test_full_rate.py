@@ -54,17 +54,59 @@ def test_full_rate_refuses_mismatched_keyframes():
 
 def test_segment_rpe_measures_a_scale_error_per_travelled_distance():
     """On a straight road a 2 % scale error is 2 % of every segment however long: KITTI's percentage and
-    0.2 m per 10 m (segments end at the first frame at least that far: 1 m steps make them exact)."""
+    0.2 m per 10 m (1 m steps put a frame exactly 10 m further; evo also pairs frame 990 with the last, 9 m
+    further and within its 1 m tolerance: 0.18 m)."""
     reference = np.tile(np.eye(4), (1000, 1, 1))
     reference[:, 0, 3] = np.arange(1000.0)
     estimate = _scaled(reference, 1.02)
     metrics = evaluate_full_rate(estimate, estimate, reference)
     assert metrics["before"]["rpe_kitti_translation_pct"] == pytest.approx(2.0, rel=1e-9)
-    assert metrics["before"]["rpe_10m_translation_m"] == pytest.approx(0.2, rel=1e-9)
+    assert metrics["before"]["rpe_10m_translation_m"] == pytest.approx((990 * 0.2 + 0.18) / 991, rel=1e-9)
     assert metrics["before"]["ate_translation_m"] is None  # a line: the alignment is undetermined
     assert "alignment undetermined" in metrics["unavailable"]["full_rate_ate"]
     trans, _ = segment_errors(estimate, reference, 800.0, step=10)
     assert len(trans) == 20 and np.allclose(trans, 16.0)
+
+
+def _evo_rpe_mean(reference: np.ndarray, estimate: np.ndarray, relation: str) -> float:
+    """The mean evo_rpe prints for `RPE_10M_EVO` (evo's own command function; relation: trans_part or angle_deg)."""
+    from evo.core.metrics import PoseRelation, Unit
+    from evo.core.trajectory import PoseTrajectory3D
+    from evo.main_rpe import rpe
+
+    stamps = np.arange(len(reference)) * 0.1
+    ref, est = (PoseTrajectory3D(poses_se3=list(p), timestamps=stamps) for p in (reference, estimate))
+    pose_relation = {"trans_part": PoseRelation.translation_part, "angle_deg": PoseRelation.rotation_angle_deg}
+    return rpe(ref, est, pose_relation[relation], delta=10, delta_unit=Unit.meters, rel_delta_tol=0.1,
+               all_pairs=True, pairs_from_reference=True).stats["mean"]
+
+
+def test_10m_rpe_is_what_the_documented_evo_command_prints():
+    """The 10 m RPE equals the mean of `evo_rpe ... --delta 10 --delta_unit m --all_pairs --pairs_from_reference`
+    on a winding path with uneven steps (where the pair nearest 10 m is not the first frame past it) and a
+    drifting, noisy estimate whose own path would choose other pairs."""
+    from msa_slam.evaluation.full_rate import RPE_10M_EVO
+
+    rng = np.random.default_rng(3)
+    steps = rng.uniform(0.3, 1.7, 400)  # metres per frame
+    yaw = np.cumsum(rng.normal(0, 0.05, 400))
+    reference = np.tile(np.eye(4), (400, 1, 1))
+    reference[:, 0, 3] = np.cumsum(steps * np.cos(yaw))
+    reference[:, 1, 3] = np.cumsum(steps * np.sin(yaw))
+    reference[:, 2, 3] = np.sin(np.arange(400) / 30.0)
+    for pose, a in zip(reference, yaw):
+        pose[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    estimate = _scaled(reference, 1.03)
+    estimate[:, :3, 3] += rng.normal(0, 0.05, (400, 3))
+    for pose, turn in zip(estimate, rng.normal(0, 0.02, 400)):  # heading noise (rad): a rotation error too
+        pose[:3, :3] = pose[:3, :3] @ [[np.cos(turn), -np.sin(turn), 0], [np.sin(turn), np.cos(turn), 0], [0, 0, 1]]
+    metrics = evaluate_full_rate(estimate, estimate, reference)["before"]
+    assert "--all_pairs --pairs_from_reference" in RPE_10M_EVO and "--delta 10 --delta_unit m" in RPE_10M_EVO
+    assert metrics["rpe_10m_translation_m"] == pytest.approx(_evo_rpe_mean(reference, estimate, "trans_part"),
+                                                            rel=1e-9)
+    assert metrics["rpe_10m_rotation_deg"] == pytest.approx(_evo_rpe_mean(reference, estimate, "angle_deg"),
+                                                           rel=1e-7)
+    assert metrics["rpe_10m_translation_m"] > 0.1 and metrics["rpe_10m_rotation_deg"] > 1  # real errors, not zeros
 
 
 def test_short_run_has_no_kitti_segments_and_says_why():

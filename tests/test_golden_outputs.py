@@ -29,8 +29,8 @@ TOLERANCE = 1e-9
 FRAMES_PER_LAP, LAPS, RADIUS, SENSOR_RANGE, POINTS_PER_SCAN = 90, 2, 14.0, 30.0, 3000
 # Keys that name this machine's files or versions rather than the result, and the verdicts of MSA's rounding
 # screen: its probes can provoke an eigenvector sign flip on one CPU and not on another (sampling/msa/decision.py;
-# the machine that recorded the golden flagged the window at frame 174 of this input, an AMD EPYC flags none),
-# while the keyframes, loops and metrics, compared here, are the same on both.
+# some CPUs flag the window at frame 174 of this input, others none: the golden holds what its recorder flagged),
+# while the keyframes, loops and metrics, compared here, are the same on all.
 MACHINE_KEYS = {"dataset", "msa_slam_version", "odometry_config", "sequence", "ambiguous_frames", "ambiguous_windows"}
 COMPARE_METHODS = (("constant-2m", "constant", {"distance": 2.0}), ("msa", "msa", {}))
 

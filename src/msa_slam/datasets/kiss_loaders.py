@@ -1,8 +1,12 @@
 """The paper's other datasets with kiss_icp's conventions (ground-truth frames, file order, point times).
 
 MulRan (Kim et al., ICRA 2020): `Ouster/*.bin` scans named by nanosecond time, `global_pose.csv` (time and
-a 3x4 pose a row, more rows than scans: the nearest in time is taken, made relative to the first and moved
-to the LiDAR frame with kiss_icp's base-to-Ouster calibration). As it ships the scans are under
+a 3x4 pose a row, more rows than scans). Its poses are the vehicle base's (x forward, z up) in a global
+(UTM) frame, not the LiDAR's: the nearest in time to each scan is taken, made relative to the first and
+moved to the Ouster frame with kiss_icp's base-to-Ouster calibration (MulRan's calib_base2ouster.txt: a
+179.67 deg yaw, the Ouster faces backwards, 1.70 m ahead of the base and 1.80 m above it). Poses already in
+the Ouster frame would come out turned by that yaw (a rotation ATE near 180 deg);
+evaluation.sanity.reversed_ground_truth warns about them. As it ships the scans are under
 `sensor_data/Ouster/`; kiss-icp's layout has `Ouster/` beside the pose file: both are read. Apollo-SouthBay
 (Lu et al., CVPR 2019) and Newer College (Ramezani et al., IROS 2020) reuse kiss_icp's pose readers and file
 order and take scan times from the pose file (Apollo) or the file names (Newer College); .pcd scans are read
@@ -64,7 +68,8 @@ def mulran_folder(path: Path) -> Path | None:
 
 def mulran_poses(pose_file: Path, scan_times: np.ndarray) -> np.ndarray:
     """kiss_icp's MulRan ground truth: per scan (`scan_times` in s) the nearest pose in time, relative to the
-    first, LiDAR frame; a pose file that does not cover the scans is refused (see nearest_in_time)."""
+    first, moved from the vehicle base's frame, the one global_pose.csv holds, to the Ouster's; a pose file that
+    does not cover the scans is refused (see nearest_in_time)."""
     from kiss_icp.datasets.mulran import MulranDataset
 
     try:

@@ -42,7 +42,7 @@ NOTE_LABELS = {"ate": "ATE (and its % improvement)", "ate_odometry": "ATE of the
                "full_rate_ate_optimised": "full-rate ATE after optimisation",
                "full_rate_improvement_translation": "full-rate translation ATE improvement",
                "full_rate_improvement_rotation": "full-rate rotation ATE improvement",
-               "rpe_kitti": "RPE over KITTI's 100-800 m segments", "rpe_10m": "RPE over 10 m",
+               "rpe_kitti": "RPE over KITTI's 100-800 m segments", "rpe_10m": "RPE over 10 m (all pairs)",
                "pr_reference": "PR-AUC / F1-max of the reference example's protocol",
                "loop_truth": "true candidates, false accepted loops and revisit recall",
                "revisit_recall": "revisit recall", "threshold_sweep": "threshold sensitivity",

@@ -10,7 +10,7 @@ import numpy as np
 import msa_slam
 from msa_slam.datasets.options import SourceOptions
 from msa_slam.evaluation import KITTI_LENGTHS_M, NA, PROCESS_RSS_LABEL, fmt, notes, segment_errors
-from msa_slam.evaluation.full_rate import STEP_FRAMES, path_length
+from msa_slam.evaluation.full_rate import RPE_10M_EVO, STEP_FRAMES, path_length
 from msa_slam.evaluation.loops import FALSE_LOOP_ANGLE_DEG
 from msa_slam.io.tables import mib
 from msa_slam.pipeline.online_config import NO_TIMESTAMPS
@@ -102,8 +102,8 @@ def _full_rate_rows(full: dict[str, Any], span: str) -> list[str]:
             ("ATE rotation [deg], full rate", "ate_rotation_deg", "rotation"),
             (f"RPE translation [%], {span}", "rpe_kitti_translation_pct", None),
             (f"RPE rotation [deg/100 m], {span}", "rpe_kitti_rotation_deg_per_100m", None),
-            ("RPE translation [m] per 10 m", "rpe_10m_translation_m", None),
-            ("RPE rotation [deg] per 10 m", "rpe_10m_rotation_deg", None))
+            ("RPE translation [m], 10 m, all pairs, mean", "rpe_10m_translation_m", None),
+            ("RPE rotation [deg], 10 m, all pairs, mean", "rpe_10m_rotation_deg", None))
     return [f"| {label} | {fmt(b[key])} | {fmt(a[key])} | {fmt(imp[part], '.1f', ' %') if part else ''} |"
             for label, key, part in rows]
 
@@ -198,19 +198,25 @@ def standstill_note(cfg: Any, m: dict[str, Any]) -> str:
             f"keyframe candidate" + ("" if held is None else f" ({counted(held, 'frame')} held back)") + ".")
 
 
+RPE_STATISTICS = ("The KITTI RPE is the KITTI devkit's mean over the segments; the 10 m RPE is evo's all-pairs "
+                  "RPE, the mean over every frame paired with the frame nearest 10 m further along the ground-truth "
+                  "path (within 1 m).")
 GT_FILE = "trajectories/gt.tum"  # written only for a run with a ground-truth pose for every frame
 
 
 def alignment_text(m: dict[str, Any], files: Collection[str]) -> str:
-    """How the ATE rows were aligned, with the evo commands that reproduce them only when the run wrote the
-    ground-truth trajectories they read (`files`): a report must not send its reader to a missing file."""
+    """How the ATE rows were aligned, with the evo commands that reproduce them and the RPE rows only when the run
+    wrote the ground-truth trajectories they read (`files`): a report must not send its reader to a missing file."""
     full, keyframes = m["full_rate"].get("ate_alignment") or NA, m["ate_alignment"] or NA
     if GT_FILE not in files:
         return (f"ATE alignment of the full-rate rows: {full}; of the keyframe rows: {keyframes} (no ground-truth "
                 "trajectory was written: not every frame has a ground-truth pose).")
     return (f"ATE alignment of the full-rate rows: {full} (`evo_ape tum {GT_FILE} trajectories/optimised.tum -a` "
             f"reproduces them); of the keyframe rows: {keyframes} (`evo_ape tum trajectories/gt_keyframes.tum "
-            "trajectories/optimised_keyframes.tum -a`).")
+            "trajectories/optimised_keyframes.tum -a`). "
+            f"`{RPE_10M_EVO.format(reference=GT_FILE, estimate='trajectories/optimised.tum')}` prints the 10 m RPE "
+            "as its mean (`--pose_relation angle_deg`: the rotation; `odometry.tum`: the odometry column); `evo_rpe "
+            "tum trajectories/gt_keyframes.tum trajectories/optimised_keyframes.tum` the keyframe RPE as its rmse.")
 
 
 def report_markdown(result: ReportedRun, figures: list[str], files: Collection[str]) -> str:
@@ -239,13 +245,13 @@ def report_markdown(result: ReportedRun, figures: list[str], files: Collection[s
         f"{fmt(imp['translation'], '.1f', ' %')} |",
         f"| ATE rotation [deg]{rot}, keyframes only | {fmt(b['ate_rotation_deg'])} | {fmt(a['ate_rotation_deg'])} | "
         f"{fmt(imp['rotation'], '.1f', ' %')} |",
-        f"| RPE translation [m] (consecutive keyframes) | {fmt(b['rpe_translation_m'])} | "
+        f"| RPE translation [m], consecutive keyframes, RMSE | {fmt(b['rpe_translation_m'])} | "
         f"{fmt(a['rpe_translation_m'])} | |",
-        f"| RPE rotation [deg] (consecutive keyframes) | {fmt(b['rpe_rotation_deg'])} | "
+        f"| RPE rotation [deg], consecutive keyframes, RMSE | {fmt(b['rpe_rotation_deg'])} | "
         f"{fmt(a['rpe_rotation_deg'])} | |", "",
         "Full rate: every frame, its pose from its preceding keyframe's optimised pose and the odometry since "
         "(trajectories/optimised.tum); the same odometry \"before\" for every sampler. "
-        f"{rpe_text}; RPE also over 10 m of travelled ground-truth path.", "",
+        f"{rpe_text}. {RPE_STATISTICS}", "",
         alignment_text(m, files), "",
         *notes_markdown(m),
         *(_online_lines(result) if online else _batch_lines(result)),

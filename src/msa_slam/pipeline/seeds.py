@@ -18,7 +18,7 @@ SEED_METRICS: dict[str, tuple[str, bool | None]] = {
     "improvement_r_pct": ("R. ATE impr. [%]", True),
     "ate_after_m": ("ATE after [m]", False),
     "rpe_pct": ("RPE KITTI segments [%]", False),  # lengths: each seed's comparison.md
-    "rpe_10m_m": ("RPE 10 m [m]", False),
+    "rpe_10m_m": ("RPE 10 m all-pairs mean [m]", False),
     "pr_auc": ("PR-AUC", True),
     "f1_max": ("F1-max", True),
     "false_loops": ("false loops", False),
