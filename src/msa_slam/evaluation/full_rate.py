@@ -54,21 +54,32 @@ def path_length(poses: np.ndarray) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(steps)])
 
 
-def segment_errors(estimate: np.ndarray, reference: np.ndarray, length: float,
-                   step: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Translation (m) and rotation (deg) errors of the relative motion over every segment of `length`
-    metres travelled along `reference` (starts every `step` frames; end: the first frame at least `length`
-    further), as the KITTI devkit computes them; empty arrays when the path is shorter."""
+def segment_error_motions(estimate: np.ndarray, reference: np.ndarray, length: float, step: int = 1) -> np.ndarray:
+    """(K, 4, 4) error inv(estimated motion) @ reference motion over every segment of `length` metres travelled
+    along `reference`, starting every `step` frames and ending at the first frame at least `length` further
+    (K = 0 when the path is shorter).
+
+    The KITTI devkit (and kiss_icp.metrics.sequence_error, its port) ends a segment at the first frame *more*
+    than `length` further; the two differ only where a frame lies exactly at that distance, and there this
+    segment is the one of the nominal length its error is divided by (tests/test_full_rate.py compares them).
+    """
     dist = path_length(reference)
     starts = np.arange(0, len(reference), step)
     ends = np.searchsorted(dist, dist[starts] + length, side="left")
     keep = ends < len(reference)
     starts, ends = starts[keep], ends[keep]
-    if not len(starts):
-        return np.zeros(0), np.zeros(0)
     gt_motion = np.linalg.inv(reference[starts]) @ reference[ends]
     est_motion = np.linalg.inv(estimate[starts]) @ estimate[ends]
-    error = np.linalg.inv(est_motion) @ gt_motion
+    return np.linalg.inv(est_motion) @ gt_motion
+
+
+def segment_errors(estimate: np.ndarray, reference: np.ndarray, length: float,
+                   step: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Translation (m) and rotation (deg) errors of the relative motion over every segment of `length`
+    metres (segment_error_motions), as the KITTI devkit measures them; empty arrays when the path is shorter."""
+    error = segment_error_motions(estimate, reference, length, step)
+    if not len(error):
+        return np.zeros(0), np.zeros(0)
     return np.linalg.norm(error[:, :3, 3], axis=1), _rotation_deg(error)
 
 
