@@ -12,7 +12,7 @@ import pytest
 
 import msa_slam.datasets.pcd as pcd
 from msa_slam.datasets import SourceOptions
-from msa_slam.datasets.parsed import ParsedScans, is_text_scan
+from msa_slam.datasets.parsed import is_text_scan
 from msa_slam.io.staging import WRITER, stamp
 from msa_slam.pipeline.source import open_sequence
 
@@ -97,18 +97,15 @@ def test_binary_scans_are_read_directly(tmp_path, parses):
     assert _scratch(tmp_path / "cache") == []
 
 
-def test_a_killed_runs_copies_are_removed_and_nothing_else(tmp_path):
+def test_a_killed_runs_copies_are_removed_by_the_next_run_and_nothing_else(tmp_path):
     root = tmp_path / "cache"
     killed, foreign = root / ".parsed-scans.run-killed", root / ".parsed-scans.run-users"
     for folder in (killed, foreign):
         folder.mkdir(parents=True)
         (folder / "x-points.npy").write_bytes(b"")
     (killed / WRITER).write_bytes(stamp())  # msa-slam's mark, its lock gone with its process
-    store = ParsedScans(root)
-    scan = tmp_path / "a.pcd"
-    _write_pcd(scan, 0, "ascii")
-    store.read(scan, lambda path: (np.zeros((1, 3)), None))
-    assert not killed.exists() and foreign.exists() and len(_scratch(root)) == 2
+    open_sequence(str(_folder(tmp_path, "binary")), "folder", cache_dir=root, keep_parsed=True)  # reads no text
+    assert not killed.exists() and foreign.exists()
 
 
 def test_a_cache_root_that_cannot_be_written_costs_only_the_copies(tmp_path, parses, caplog):

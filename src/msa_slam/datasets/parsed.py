@@ -4,7 +4,7 @@ then each sampler reads its keyframes' scans once more; a text scan (PCD `DATA a
 
 The copies live in a scratch folder of the cache root (`.parsed-scans.run-*`, marked as msa-slam's while its
 process lives: io.staging.Writer), removed when the run lets go of its sequence or its process ends; a killed
-run's folder is removed by the next run that keeps parsed scans. Binary scans are read directly.
+run's folder is removed by the next batch run. Binary scans are read directly.
 """
 
 from __future__ import annotations
@@ -53,7 +53,10 @@ class ParsedScans:
     """The run's binary copies of the text scans it parsed, keyed by the scan's absolute path."""
 
     def __init__(self, root: str | os.PathLike) -> None:
+        """Copies go to a new scratch folder of `root` (made on the first text scan); the folders that killed runs
+        left there are removed now."""
         self.root = Path(root)
+        remove_abandoned(leftovers(self.root, SCRATCH_NAME, (SCRATCH_KIND,)))
         self._store: CacheDir | None = None
         self._failed = False
         self._text: dict[Path, bool] = {}
@@ -82,7 +85,6 @@ class ParsedScans:
         if self._store is None and not self._failed:
             try:
                 self.root.mkdir(parents=True, exist_ok=True)
-                remove_abandoned(leftovers(self.root, SCRATCH_NAME, (SCRATCH_KIND,)))
                 folder, writer = new_scratch(self.root, SCRATCH_NAME, SCRATCH_KIND)
             except OSError as exc:
                 self._failed = True
