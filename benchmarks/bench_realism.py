@@ -40,12 +40,11 @@ from pathlib import Path
 import numpy as np
 from numpy import trapezoid
 
+from msa_slam.evaluation.full_rate import KITTI_LENGTHS_M, STEP_FRAMES, segment_error_motions
 from msa_slam.pipeline import make_config, prepare_frontend, run_batch
 from msa_slam.pipeline.compare import method_configs
 from msa_slam.pipeline.source import resolve_dataset
 
-SEGMENTS_M = (100, 200, 300, 400, 500, 600, 700, 800)  # KITTI odometry devkit
-SEGMENT_STEP = 10  # first frames every 10 frames, as the devkit
 FAR_M = 20.0
 THRESHOLD = 0.8
 METHODS = (("all", "all", {}), ("constant-2m", "constant", {"distance": 2.0}),
@@ -56,21 +55,11 @@ def relative_translation_error(gt: np.ndarray, est: np.ndarray) -> tuple[float, 
     """KITTI's translational error (% of segment length) averaged over segments of 100..800 m, and its
     horizontal and vertical parts (error vector in the segment start's ground-truth frame, z up); None when
     the path is shorter than 100 m."""
-    dist = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1))])
-    total, horizontal, vertical = [], [], []
-    for first in range(0, len(gt), SEGMENT_STEP):
-        for length in SEGMENTS_M:
-            last = int(np.searchsorted(dist, dist[first] + length))
-            if last >= len(gt):
-                continue
-            gt_rel = np.linalg.inv(gt[first]) @ gt[last]
-            est_rel = np.linalg.inv(est[first]) @ est[last]
-            err = (np.linalg.inv(est_rel) @ gt_rel)[:3, 3]
-            total.append(np.linalg.norm(err) / length)
-            horizontal.append(np.linalg.norm(err[:2]) / length)
-            vertical.append(abs(err[2]) / length)
-    if not total:
+    parts = [segment_error_motions(est, gt, length, STEP_FRAMES)[:, :3, 3] / length for length in KITTI_LENGTHS_M]
+    err = np.concatenate(parts)
+    if not len(err):
         return None
+    total, horizontal, vertical = (np.linalg.norm(err, axis=1), np.linalg.norm(err[:, :2], axis=1), np.abs(err[:, 2]))
     return 100 * float(np.mean(total)), 100 * float(np.mean(horizontal)), 100 * float(np.mean(vertical))
 
 

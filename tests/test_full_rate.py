@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from msa_slam.errors import InputError
 from msa_slam.evaluation import evaluate_full_rate, full_rate_poses, segment_errors
@@ -124,3 +125,47 @@ def test_without_ground_truth_full_rate_metrics_are_na():
     metrics = evaluate_full_rate(odometry, odometry, nan)
     assert metrics["before"]["ate_translation_m"] is None and metrics["improvement_pct"]["translation"] is None
     assert metrics["unavailable"] == {"full_rate_ate": "no ground-truth pose for every frame"}
+
+
+def _drifting(reference: np.ndarray, seed: int) -> np.ndarray:
+    """`reference` driven with noisy relative motions: drift that grows along the path."""
+    rng = np.random.default_rng(seed)
+    out = [reference[0]]
+    for motion in np.linalg.inv(reference[:-1]) @ reference[1:]:
+        noise = np.eye(4)
+        noise[:3, :3] = Rotation.from_rotvec(rng.normal(0, 0.002, 3)).as_matrix()
+        noise[:3, 3] = rng.normal(0, 0.05, 3)
+        out.append(out[-1] @ motion @ noise)
+    return np.stack(out)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_kitti_segment_rpe_equals_kiss_icps_port_of_the_devkit(seed):
+    """kiss_icp.metrics.sequence_error (its C++ port of the KITTI devkit) gives the same numbers on a path with
+    no frame exactly at a segment's length: translation to its float32 result, and rotation once its degrees
+    (per metre, with pi taken as 3.14) are put in deg per 100 m. It is not used here because it returns float32,
+    uses 3.14 for pi and gives only these two means (no per-length segments, no 10 m RPE, no error vectors)."""
+    from kiss_icp.metrics import sequence_error
+
+    rng = np.random.default_rng(seed)
+    reference = _circle(1500, 250.0)
+    reference[:, :3, 3] += rng.normal(0, 0.05, (len(reference), 3))  # uneven steps: no exact segment lengths
+    estimate = _drifting(reference, seed)
+    ours = evaluate_full_rate(estimate, estimate, reference)["before"]
+    translation_pct, rotation_deg_per_m = sequence_error(reference, estimate)
+    assert ours["rpe_kitti_translation_pct"] == pytest.approx(translation_pct, rel=1e-6)
+    assert ours["rpe_kitti_rotation_deg_per_100m"] / 100 * np.pi / 3.14 == pytest.approx(rotation_deg_per_m, rel=1e-6)
+    assert ours["rpe_kitti_rotation_deg_per_100m"] / 100 != pytest.approx(rotation_deg_per_m, rel=1e-4)  # 3.14
+
+
+def test_a_segment_ends_at_the_first_frame_at_least_its_length_away():
+    """Where a frame lies exactly at the segment's length the devkit (and kiss-icp) take the next frame, one
+    step longer than the length the error is divided by; here the segment is the nominal one."""
+    from kiss_icp.metrics import sequence_error
+
+    reference = np.tile(np.eye(4), (400, 1, 1))
+    reference[:, 0, 3] = np.arange(400.0)  # 1 m steps: every segment end is exact
+    estimate = _scaled(reference, 1.01)
+    ours = evaluate_full_rate(estimate, estimate, reference)["before"]["rpe_kitti_translation_pct"]
+    assert ours == pytest.approx(1.0, rel=1e-9)
+    assert sequence_error(reference, estimate)[0] > 1.0 + 1e-3  # 101 m (201, 301 m) of 1 % error over 100 m

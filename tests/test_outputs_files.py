@@ -19,6 +19,7 @@ from typer.testing import CliRunner
 
 from helpers.results import stable_content
 from msa_slam.cli import app
+from msa_slam.io.ply import write_ply
 from msa_slam.io.poses import read_poses
 
 runner = CliRunner()
@@ -58,6 +59,21 @@ def test_full_rate_ground_truth_matches_the_sequence_with_the_frames_times(batch
     optimised, optimised_times = read_poses(batch / "trajectories" / "optimised.tum", "tum")
     np.testing.assert_array_equal(optimised_times, times)
     assert np.all(np.diff(times) > 0)
+
+
+@pytest.mark.parametrize("count", [0, 1, 500])
+def test_write_ply_gives_float32_vertices_other_readers_open(tmp_path, count):
+    points = np.random.default_rng(count).normal(size=(count, 4)) * 50  # a fourth column (intensity) is left out
+    write_ply(tmp_path / "map.ply", points)
+    raw = (tmp_path / "map.ply").read_bytes()
+    header = (b"ply\nformat binary_little_endian 1.0\ncomment written by msa-slam\nelement vertex %d\n"
+              b"property float x\nproperty float y\nproperty float z\nend_header\n" % count)
+    assert raw.startswith(header)
+    np.testing.assert_array_equal(np.frombuffer(raw[len(header):], "<f4").reshape(-1, 3),
+                                  points[:, :3].astype(np.float32))
+    if count:
+        np.testing.assert_array_equal(np.asarray(trimesh.load(tmp_path / "map.ply").vertices, np.float32),
+                                      points[:, :3].astype(np.float32))
 
 
 def test_map_ply_holds_the_keyframe_clouds_at_their_optimised_poses(batch):

@@ -48,9 +48,9 @@ def _counting_opens(monkeypatch) -> list[str]:
     opened: list[str] = []
     real = source_module.open_source_options
 
-    def counting(path, kind, options):
+    def counting(path, kind, options, parsed=None):
         opened.append(str(path))
-        return real(path, kind, options)
+        return real(path, kind, options, parsed)
 
     monkeypatch.setattr(source_module, "open_source_options", counting)
     return opened

@@ -16,6 +16,7 @@ from msa_slam.datasets.ground_truth import attach_ground_truth
 from msa_slam.datasets.helipr import HELIPR_SENSORS, helipr_sequence
 from msa_slam.datasets.kiss_loaders import KISS_DATASETS, kiss_sequence, mulran_folder
 from msa_slam.datasets.options import SourceOptions
+from msa_slam.datasets.parsed import ParsedScans
 from msa_slam.datasets.pcd import read_pcd
 from msa_slam.datasets.sequences import (ScanSequence, folder_sequence, kitti_sequence,
                                          read_kitti_calibration)
@@ -115,12 +116,15 @@ def open_dataset(path: str | os.PathLike, kind: str = "auto", poses: str | os.Pa
     return opened if poses is None else attach_ground_truth(opened, poses, pose_format)
 
 
-def open_source_options(path: str | os.PathLike, kind: str, options: SourceOptions) -> ScanSequence:
-    """open_dataset with a run's source options, then the part of the recording they select."""
+def open_source_options(path: str | os.PathLike, kind: str, options: SourceOptions,
+                        parsed: ParsedScans | None = None) -> ScanSequence:
+    """open_dataset with a run's source options, then the part of the recording they select; `parsed` keeps the
+    text scans the run parses (select reads the first)."""
     sequence = open_dataset(path, kind, options.gt, options.gt_format, options.topic, options.sequence)
+    sequence.parsed = parsed
     return sequence.select(options.first, options.jump, options.frames)
 
 
-__all__ = ["BagSequence", "Frame", "KISS_DATASETS", "LOADERS", "ScanSequence", "SourceOptions", "check_scan_folder",
-           "detect_loader", "folder_sequence", "kiss_sequence", "kitti_sequence", "open_dataset", "open_source_options",
-           "read_bin", "read_cloud", "read_kitti_calibration", "read_pcd", "read_ply"]
+__all__ = ["BagSequence", "Frame", "KISS_DATASETS", "LOADERS", "ParsedScans", "ScanSequence", "SourceOptions",
+           "check_scan_folder", "detect_loader", "folder_sequence", "kiss_sequence", "kitti_sequence", "open_dataset",
+           "open_source_options", "read_bin", "read_cloud", "read_kitti_calibration", "read_pcd", "read_ply"]

@@ -7,7 +7,7 @@ import logging
 import os
 from functools import cache, partial
 from pathlib import Path
-from typing import Callable, Iterator, Sequence
+from typing import TYPE_CHECKING, Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -18,6 +18,9 @@ from msa_slam.datasets.vertical_angle import CORRECTION_NAME, needs_correction, 
 from msa_slam.errors import InputError
 from msa_slam.io.poses import check_times, read_poses
 from msa_slam.types import pose_fault, validate_poses
+
+if TYPE_CHECKING:
+    from msa_slam.datasets.parsed import ParsedScans
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +46,7 @@ class ScanSequence:
     kitti_bins = True
     correction: str | None = None  # what the reader corrects in every scan (see kitti_sequence); part of its identity
     _point_times: bool | None = None  # see point_times: None until a scan was read for it
+    parsed: "ParsedScans | None" = None  # a run's copies of the text scans it parsed (datasets.parsed)
 
     def __init__(self, path: Path, scan_files: Sequence[Path], gt_poses: np.ndarray | None = None,
                  times: np.ndarray | None = None, reader: Callable[[Path], np.ndarray] = read_cloud,
@@ -112,6 +116,11 @@ class ScanSequence:
         return Frame(index, float(self.times[index]), points, gt, stamps)
 
     def _read(self, scan: Path) -> tuple[np.ndarray, np.ndarray | None]:
+        if self.parsed is not None:
+            return self.parsed.read(scan, self._read_file)
+        return self._read_file(scan)
+
+    def _read_file(self, scan: Path) -> tuple[np.ndarray, np.ndarray | None]:
         if self._timed_reader is not None:
             return self._timed_reader(scan)
         return self._reader(scan), None

@@ -4,8 +4,8 @@ from msa_slam._lazy import lazy_exports
 
 _EXPORTS = {
     **dict.fromkeys(["NA", "fmt", "notes"], "display"),
-    **dict.fromkeys(["KITTI_LENGTHS_M", "distance_rpe", "evaluate_full_rate", "full_rate_poses", "segment_errors"],
-                    "full_rate"),
+    **dict.fromkeys(["KITTI_LENGTHS_M", "distance_rpe", "evaluate_full_rate", "full_rate_poses",
+                     "segment_error_motions", "segment_errors"], "full_rate"),
     **dict.fromkeys(["PROCESS_RSS_LABEL", "StageTimer", "array_bytes", "peak_rss_bytes"], "resources"),
     **dict.fromkeys(["TrajectoryEvaluation", "evaluate_trajectories", "improvement_pct"], "summary"),
     **dict.fromkeys(["ATE_ALIGNMENT", "AlignmentError", "TrajectoryError", "align_se3", "alignment_warnings", "ate",

@@ -61,27 +61,41 @@ def path_length(poses: np.ndarray) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(steps)])
 
 
-def _pair_errors(estimate: np.ndarray, reference: np.ndarray, starts: np.ndarray,
-                 ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Translation (m) and rotation (deg) errors of the relative motion from each start to its end frame."""
-    if not len(starts):
-        return np.zeros(0), np.zeros(0)
+def _error_motions(estimate: np.ndarray, reference: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """(K, 4, 4) error inv(estimated motion) @ reference motion from each start to its end frame."""
     gt_motion = np.linalg.inv(reference[starts]) @ reference[ends]
     est_motion = np.linalg.inv(estimate[starts]) @ estimate[ends]
-    error = np.linalg.inv(est_motion) @ gt_motion
+    return np.linalg.inv(est_motion) @ gt_motion
+
+
+def _errors(error: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Translation (m) and rotation (deg) of each error motion (empty arrays for none)."""
+    if not len(error):
+        return np.zeros(0), np.zeros(0)
     return np.linalg.norm(error[:, :3, 3], axis=1), _rotation_deg(error)
+
+
+def segment_error_motions(estimate: np.ndarray, reference: np.ndarray, length: float, step: int = 1) -> np.ndarray:
+    """(K, 4, 4) error inv(estimated motion) @ reference motion over every segment of `length` metres travelled
+    along `reference`, starting every `step` frames and ending at the first frame at least `length` further
+    (K = 0 when the path is shorter).
+
+    The KITTI devkit (and kiss_icp.metrics.sequence_error, its port) ends a segment at the first frame *more*
+    than `length` further; the two differ only where a frame lies exactly at that distance, and there this
+    segment is the one of the nominal length its error is divided by (tests/test_full_rate.py compares them).
+    """
+    dist = path_length(reference)
+    starts = np.arange(0, len(reference), step)
+    ends = np.searchsorted(dist, dist[starts] + length, side="left")
+    keep = ends < len(reference)
+    return _error_motions(estimate, reference, starts[keep], ends[keep])
 
 
 def segment_errors(estimate: np.ndarray, reference: np.ndarray, length: float,
                    step: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Translation (m) and rotation (deg) errors of the relative motion over every segment of `length`
-    metres travelled along `reference` (starts every `step` frames; end: the first frame at least `length`
-    further), as the KITTI devkit computes them; empty arrays when the path is shorter."""
-    dist = path_length(reference)
-    starts = np.arange(0, len(reference), step)
-    ends = np.searchsorted(dist, dist[starts] + length, side="left")
-    keep = ends < len(reference)
-    return _pair_errors(estimate, reference, starts[keep], ends[keep])
+    metres (segment_error_motions), as the KITTI devkit measures them; empty arrays when the path is shorter."""
+    return _errors(segment_error_motions(estimate, reference, length, step))
 
 
 def all_pairs_errors(estimate: np.ndarray, reference: np.ndarray, length: float,
@@ -93,7 +107,7 @@ def all_pairs_errors(estimate: np.ndarray, reference: np.ndarray, length: float,
     rather than pair by pair (evo's loop takes about 50 times longer)."""
     pairs = np.array(filters.filter_pairs_by_path(list(reference), length, length * tolerance, all_pairs=True),
                      dtype=np.int64).reshape(-1, 2)
-    return _pair_errors(estimate, reference, pairs[:, 0], pairs[:, 1])
+    return _errors(_error_motions(estimate, reference, pairs[:, 0], pairs[:, 1]))
 
 
 def distance_rpe(estimate: np.ndarray, reference: np.ndarray) -> tuple[dict[str, float | None], dict[str, str]]:

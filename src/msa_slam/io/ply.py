@@ -1,4 +1,5 @@
-"""Binary PLY of a point cloud (the run's map): the format CloudCompare, MeshLab, Open3D and trimesh open."""
+"""Binary PLY of a point cloud (the run's map): the format CloudCompare, MeshLab, Open3D and trimesh open,
+written by plyfile."""
 
 from __future__ import annotations
 
@@ -8,13 +9,14 @@ import numpy as np
 
 from msa_slam.io.atomic import atomic_path
 
+VERTEX = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
+
 
 def write_ply(path: str | os.PathLike, points: np.ndarray) -> None:
     """Write (P, 3) points as little-endian binary PLY with float x, y, z vertices, atomically."""
-    xyz = np.ascontiguousarray(np.asarray(points)[:, :3], dtype="<f4")
-    header = ("ply\nformat binary_little_endian 1.0\ncomment written by msa-slam\n"
-              f"element vertex {len(xyz)}\nproperty float x\nproperty float y\nproperty float z\nend_header\n")
+    from plyfile import PlyData, PlyElement
+
+    vertices = np.ascontiguousarray(np.asarray(points)[:, :3], dtype="<f4").view(VERTEX).ravel()
+    ply = PlyData([PlyElement.describe(vertices, "vertex")], byte_order="<", comments=["written by msa-slam"])
     with atomic_path(path) as tmp:
-        with open(tmp, "wb") as handle:
-            handle.write(header.encode("ascii"))
-            handle.write(xyz.tobytes())
+        ply.write(os.fspath(tmp))

@@ -158,7 +158,7 @@ def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[R
     timer = StageTimer()
     with timer.stage("dataset"):
         sequence = open_sequence(config.dataset, config.dataset_kind, config.cache_dir, not quiet, config.source,
-                                 config.mode)
+                                 config.mode, keep_parsed=True)
     n = len(sequence)
     for checked in samplers or (config,):
         check_window(checked, n, window_fix)

@@ -9,9 +9,10 @@ from typing import TYPE_CHECKING
 
 import yaml
 
-from msa_slam.datasets import ScanSequence, SourceOptions, open_source_options
+from msa_slam.datasets import ParsedScans, ScanSequence, SourceOptions, open_source_options
 from msa_slam.datasets.sequences import selected_count
 from msa_slam.errors import InputError
+from msa_slam.io.cache import cache_root
 from msa_slam.types import FrameSource
 
 if TYPE_CHECKING:
@@ -97,12 +98,15 @@ def sim_config(spec: str) -> "SimConfig":
 
 def open_sequence(spec: str, kind: str = "auto", cache_dir: str | os.PathLike | None = None,
                   progress: bool = False, source: SourceOptions | None = None,
-                  mode: str = "realistic") -> ScanSequence:
+                  mode: str = "realistic", keep_parsed: bool = False) -> ScanSequence:
     """The scan sequence of `spec` (the part `source` selects); ground truth is optional, but the oracle
-    `mode` verifies loops by ground-truth distance and so refuses a sequence without it."""
+    `mode` verifies loops by ground-truth distance and so refuses a sequence without it. `keep_parsed`: for a
+    run that reads its scans more than once, text scans are parsed once and kept as binary in the cache root
+    (datasets.parsed)."""
     source = source or SourceOptions()
     check_simulated_source(spec, kind, source)
-    sequence = open_source_options(resolve_dataset(spec, cache_dir, progress), kind, source)
+    parsed = ParsedScans(cache_root(cache_dir)) if keep_parsed else None
+    sequence = open_source_options(resolve_dataset(spec, cache_dir, progress), kind, source, parsed)
     if sequence.gt_poses is None and mode == "oracle":
         raise InputError(f"dataset {spec!r}: no ground-truth poses, which the oracle mode needs (it verifies only "
                          "loops that ground truth confirms); use --mode realistic, or give ground truth with --gt "
