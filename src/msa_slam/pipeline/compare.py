@@ -126,7 +126,7 @@ def method_metrics(results: Sequence[RunResult]) -> list[MethodMetric]:
     """The metrics figure's panels: each method's difference to all samples (the paper's Fig. 5), then the
     absolute ATE with the odometry's (the same for every method) as one line, keyframes and memory."""
     full = [r.metrics["full_rate"] for r in results]
-    why = _unavailable(results, "full_rate_ate_optimised", "full_rate_ate")
+    why = _unavailable(results, "ate", "full_rate_ate_optimised", "full_rate_ate")  # "no ground truth" first
     ate = [f["after"]["ate_translation_m"] for f in full]
     memory = [r.metrics["memory_bytes"]["total"] / 2**20 for r in results]
     return [
@@ -224,6 +224,9 @@ def comparison_report(fe: Frontend, results: Sequence[RunResult], table: str, fi
              f"Odometry `{cfg.odometry}`, descriptor `{cfg.descriptor}`, "
              f"loops: {candidate_rule(cfg)}, {cfg.mode} verification (small_gicp residual < "
              f"{cfg.verifier.max_residual} m), GTSAM Levenberg-Marquardt. Shared front end: {front}{cached}.", "",
+             *([] if results[0].gt_poses is not None else [
+                 "No ground truth: ATE, RPE, PR-AUC / F1-max and false loops are n/a for every method (the "
+                 "definitions below apply to a sequence with ground truth).", ""]),
              f"ATE: the full-rate trajectory (every frame: its preceding keyframe's optimised pose and the "
              f"odometry since) vs ground truth after {ATE_ALIGNMENT} alignment (fitted on all frames of each "
              "estimate), before (odometry, the same for every method) and after pose-graph optimisation; "

@@ -5,6 +5,7 @@ keyframes, memory). A metric no method has is a panel saying why, not an empty a
 
 from __future__ import annotations
 
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -15,6 +16,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from msa_slam.evaluation.display import fmt  # noqa: E402
 from msa_slam.viz.save import save_figure  # noqa: E402
 
 REFERENCE_LINE = "0.35"  # the odometry line and the zero of the difference panels
@@ -35,7 +37,7 @@ class MethodMetric:
 
 
 def _na_panel(ax, metric: MethodMetric, text: str) -> None:
-    ax.text(0.5, 0.5, text, ha="center", va="center", wrap=True, fontsize=8, transform=ax.transAxes)
+    ax.text(0.5, 0.5, textwrap.fill(text, 34), ha="center", va="center", fontsize=8, transform=ax.transAxes)
     ax.set_xticks([])
     ax.set_yticks([])
     ax.set_title(metric.name, fontsize=9)
@@ -44,21 +46,23 @@ def _na_panel(ax, metric: MethodMetric, text: str) -> None:
 def _draw(ax, methods: Sequence[str], metric: MethodMetric, reference: str) -> None:
     values = np.array([np.nan if v is None else v for v in metric.values], dtype=float)
     title = f"{metric.name} - {reference}" if metric.difference else metric.name
+    if not np.isfinite(values).any():
+        return _na_panel(ax, metric, f"n/a: {metric.why or 'no method has a value'}")
     if metric.difference:
         if reference not in methods or not np.isfinite(values[list(methods).index(reference)]):
             return _na_panel(ax, metric, f"n/a: no `{reference}` value to compare with"
                                          + (f" ({metric.why})" if metric.why else ""))
         values = values - values[list(methods).index(reference)]
-    if not np.isfinite(values).any():
-        return _na_panel(ax, metric, f"n/a: {metric.why or 'no method has a value'}")
     x = np.arange(len(methods))
     bars = ax.bar(x, np.nan_to_num(values), color=np.where(values < 0, "tab:green", "tab:blue")
                   if metric.difference else "tab:blue", width=0.7)
-    sign = "+" if metric.difference else ""
-    labels = [f"{v:{sign}.{metric.decimals}f}" if np.isfinite(v) else "n/a" for v in values]
+    signed = metric.difference  # a difference is signed, unless it rounds to zero (never "-0.000")
+    labels = [fmt(v, f"+.{metric.decimals}f" if signed and round(v, metric.decimals) else f".{metric.decimals}f")
+              for v in values]
     ax.bar_label(bars, labels, fontsize=6, padding=1)
     if metric.difference:
         ax.axhline(0.0, color=REFERENCE_LINE, lw=0.8)
+        ax.use_sticky_edges = False  # room for the value labels on both sides of 0
     if metric.line is not None and metric.line[1] is not None:
         ax.axhline(metric.line[1], color=REFERENCE_LINE, ls="--", lw=1.0)
         ax.text(1.0, metric.line[1], f" {metric.line[0]} {metric.line[1]:.{metric.decimals}f}", fontsize=7,
@@ -81,7 +85,7 @@ def plot_method_metrics(path: str | Path, methods: Sequence[str], metrics: Seque
     rows = [[m for m in metrics if m.difference], [m for m in metrics if not m.difference]]
     rows = [row for row in rows if row]
     columns = max(len(row) for row in rows)
-    fig, axes = plt.subplots(len(rows), columns, figsize=(2.9 * columns + 0.4, 3.3 * len(rows) + 0.6), dpi=130,
+    fig, axes = plt.subplots(len(rows), columns, figsize=(3.4 * columns + 0.4, 3.3 * len(rows) + 0.6), dpi=130,
                              squeeze=False, layout="constrained")
     try:
         for ax_row, row in zip(axes, rows):

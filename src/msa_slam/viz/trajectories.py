@@ -6,7 +6,6 @@ Estimates are drawn after the same SE(3) alignment the ATE uses, so colour and p
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -23,7 +22,8 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
 from msa_slam.viz.labels import counted  # noqa: E402
-from msa_slam.viz.layout import FRAME_H_IN, FRAME_W_IN, data_limits, fit_to_data, panel_grid  # noqa: E402
+from msa_slam.viz.layout import (FRAME_H_IN, FRAME_W_IN, MAX_HEIGHT_IN, data_limits, fit_to_data,  # noqa: E402
+                                  panel_grid)
 from msa_slam.viz.save import save_figure  # noqa: E402
 
 
@@ -41,8 +41,8 @@ class TrajectoryPanel:
 
     @property
     def name(self) -> str:
-        """The title's first line, as the zoom panel's legend names the estimate."""
-        return self.title.split("\n")[0]
+        """The title up to its first comma (the estimate, without its ATE), as the zoom panel's legend names it."""
+        return self.title.split("\n")[0].split(",")[0]
 
 
 TRUE_LOOP, FALSE_LOOP = "tab:orange", "tab:red"  # loop colours kept off the error colour map (viridis)
@@ -51,8 +51,9 @@ GROUND_TRUTH = "0.8"
 DOT = 5.0  # keyframe dot area (points^2); a loop's ring is wider, so the dot's error colour shows inside it
 RING, RING_EDGE = 4.5, 0.7  # loop end markers: hollow, diameter and edge width in points
 ZOOM_LABEL = "zoom"  # the zoom panel's axes label (the route panels have none)
-ZOOM_ERRORS, ZOOM_MIN_M, ZOOM_MAX = 25.0, 10.0, 0.3  # zoom side: 25 x the largest error, >= 10 m, <= 30 % of route
+ZOOM_ERRORS, ZOOM_MIN_M, ZOOM_MAX = 25.0, 10.0, 0.3  # zoom side: 25 x the mean error, >= 10 m, <= 30 % of route
 ZOOM_CENTRES = 200  # ground-truth points tried as the zoom's centre
+TOP_PERCENTILE = 95  # of the compared panels' errors: the colour scale's top
 
 
 def _draw(ax, gt_xy: np.ndarray, panel: TrajectoryPanel, norm: Normalize, cmap: str):
@@ -90,16 +91,13 @@ def _draw(ax, gt_xy: np.ndarray, panel: TrajectoryPanel, norm: Normalize, cmap: 
 
 def zoom_window(gt_xy: np.ndarray, panels: Sequence[TrajectoryPanel]) -> tuple[np.ndarray, float] | None:
     """(centre, side in metres) of the square along the ground truth where the estimates' mean errors differ
-    most: the methods' panels (those loops belong to) or, with fewer than two, every panel. None without
-    ground truth or errors, or where nothing differs."""
-    compared = [p for p in panels if p.errors is not None and p.loops is not None]
-    if len(compared) < 2:
-        compared = [p for p in panels if p.errors is not None]
+    most (the panels of `_compared`); None without ground truth or errors, or where nothing differs."""
+    compared = _compared(panels)
     if len(compared) < 2 or not len(gt_xy):
         return None
-    top = max(float(np.max(p.errors)) for p in compared)
+    typical = float(np.mean([np.mean(p.errors) for p in compared]))
     extent = float(np.ptp(gt_xy, axis=0).max())
-    side = min(max(ZOOM_ERRORS * top, ZOOM_MIN_M), ZOOM_MAX * extent)  # errors show at this scale
+    side = min(max(ZOOM_ERRORS * typical, ZOOM_MIN_M), ZOOM_MAX * extent)  # typical errors show at this scale
     centres = gt_xy[:: max(1, len(gt_xy) // ZOOM_CENTRES)]
     spread = np.zeros(len(centres))
     for i, centre in enumerate(centres):
@@ -127,8 +125,7 @@ def _draw_zoom(ax, gt_xy: np.ndarray, panels: Sequence[TrajectoryPanel], centre:
     ax.set(xlim=(centre[0] - half, centre[0] + half), ylim=(centre[1] - half, centre[1] + half))
     ax.set_aspect("equal", adjustable="box")
     here = f"mean ATE here {min(means):.3f}-{max(means):.3f} m" if means else ""
-    ax.set_title(f"zoom ({side:.0f} m square, black box left):\nwhere the estimates' errors differ most; {here}",
-                 fontsize=8)
+    ax.set_title(f"zoom on the black square ({side:.0f} m):\nwhere the errors differ most\n{here}", fontsize=8)
     ax.set_xlabel("x [m]", fontsize=8)
     ax.set_ylabel("y [m]", fontsize=8)
     ax.tick_params(labelsize=7)
@@ -152,30 +149,48 @@ def _legend_handles(gt_xy: np.ndarray, panels: Sequence[TrajectoryPanel], cmap: 
     return handles
 
 
+def _compared(panels: Sequence[TrajectoryPanel]) -> list[TrajectoryPanel]:
+    """The panels with errors that the colour scale and the zoom are about: the methods' (those loops belong to),
+    or every panel with errors when fewer than two are methods' (a run: odometry and optimised)."""
+    methods = [p for p in panels if p.errors is not None and p.loops is not None]
+    return methods if len(methods) >= 2 else [p for p in panels if p.errors is not None]
+
+
+def _grid(panels: Sequence[TrajectoryPanel], extents: Sequence[np.ndarray]) -> tuple[int, float, list[float]]:
+    """(columns, axes width, axes height per row) in inches: the grid chosen by the panels' median aspect, each row
+    as tall as its tallest panel, shrunk as a whole when the rows would not fit MAX_HEIGHT_IN."""
+    aspects = []
+    for extent in extents:
+        (x0, x1), (y0, y1) = data_limits(extent)
+        aspects.append((x1 - x0) / (y1 - y0))
+    columns, width = panel_grid(len(panels), float(np.median(aspects)))
+    heights = [max(width / a for a in aspects[r:r + columns]) for r in range(0, len(panels), columns)]
+    room = MAX_HEIGHT_IN - len(heights) * FRAME_H_IN
+    scale = min(1.0, room / sum(heights)) if room > 0 else 1.0
+    return columns, width * scale, [h * scale for h in heights]
+
+
 def plot_trajectories(path: str | Path, gt_xy: np.ndarray, panels: Sequence[TrajectoryPanel],
                       title: str = "", cmap: str = "viridis") -> Path:
     """Write the panels, each fitted to its data at equal aspect and laid out by the route's aspect (one column
-    of strips for a long thin route), with one colour scale of the error in metres (none without errors), a zoom
-    panel on the right where the estimates differ most, and one legend below."""
+    of strips for a long thin route), with one colour scale of the error in metres set by the methods' panels
+    (an odometry beyond it saturates; no scale without errors), a zoom panel on the right where the estimates
+    differ most, and one legend below."""
     gt_xy = np.asarray(gt_xy, dtype=float).reshape(-1, 2)
     extents = [np.vstack([gt_xy, p.xy]) for p in panels]
-    (x0, x1), (y0, y1) = data_limits(np.vstack([gt_xy, *(p.xy for p in panels)]))
-    aspect = (x1 - x0) / (y1 - y0)
-    columns, width = panel_grid(len(panels), aspect)
-    rows = max(1, math.ceil(len(panels) / columns))
-    height = width / aspect
+    columns, width, heights = _grid(panels, extents)
     zoom = zoom_window(gt_xy, panels)
-    grid_w, grid_h = columns * (width + FRAME_W_IN) + 1.0, rows * (height + FRAME_H_IN)  # 1.0: the colour bar
-    zoom_w = min(4.5, max(grid_h, 3.2)) if zoom else 0.0
-    fig = plt.figure(figsize=(grid_w + zoom_w, max(grid_h, zoom_w + 0.6 if zoom else 0.0) + 1.1), dpi=130,
+    grid_w, grid_h = columns * (width + FRAME_W_IN) + 1.2, sum(heights) + len(heights) * FRAME_H_IN  # 1.2: colour bar
+    zoom_w = min(4.5, max(grid_h, 3.2)) + 0.8 if zoom else 0.0
+    fig = plt.figure(figsize=(grid_w + zoom_w, max(grid_h, zoom_w + 1.2 if zoom else 0.0) + 1.1), dpi=130,
                      layout="constrained")
     try:
-        if zoom:
-            left, right = fig.subfigures(1, 2, width_ratios=[grid_w, zoom_w])
-        else:
-            left, right = fig, None
-        axes = np.atleast_1d(left.subplots(rows, columns, squeeze=False).ravel())
-        top = max((float(np.max(p.errors)) for p in panels if p.errors is not None), default=1.0)
+        left, right = fig.subfigures(1, 2, width_ratios=[grid_w, zoom_w]) if zoom else (fig, None)
+        axes = left.subplots(len(heights), columns, squeeze=False, gridspec_kw={"height_ratios": heights}).ravel()
+        scaled = _compared(panels)
+        # the colour scale's top: most of the methods' errors, so one method's outliers (or the odometry's drift)
+        # do not leave every other keyframe the same dark colour; larger errors take the top colour
+        top = float(np.percentile(np.concatenate([p.errors for p in scaled]), TOP_PERCENTILE)) if scaled else 1.0
         norm = Normalize(0.0, max(top, 1e-6))
         mappable = None
         for ax, panel, extent in zip(axes, panels, extents):
@@ -188,10 +203,12 @@ def plot_trajectories(path: str | Path, gt_xy: np.ndarray, panels: Sequence[Traj
         for ax in axes[len(panels):]:
             ax.axis("off")
         if mappable is not None:
-            left.colorbar(mappable, ax=axes[:len(panels)].tolist(), shrink=0.8, label="ATE per keyframe [m]")
+            over = any(float(np.max(p.errors)) > top for p in panels if p.errors is not None)
+            left.colorbar(mappable, ax=axes[:len(panels)].tolist(), shrink=0.6, extend="max" if over else "neither",
+                          label="ATE per keyframe [m]" + (" (larger: top colour)" if over else ""))
         if zoom:
-            _draw_zoom(right.subplots(), gt_xy, panels, *zoom)
-            right.legend(loc="outside lower center", fontsize=7, frameon=False, ncols=2)
+            _draw_zoom(right.subplots(), gt_xy, scaled, *zoom)
+            right.legend(loc="outside lower center", fontsize=7, frameon=False, ncols=1)
         fig.legend(handles=_legend_handles(gt_xy, panels, cmap, zoom is not None), loc="outside lower center",
                    ncols=3, fontsize=8, frameon=False)
         if title:
