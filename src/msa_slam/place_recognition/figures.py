@@ -40,7 +40,7 @@ def markers_note(curves: Mapping[str, PRCurve]) -> str:
         return f"no markers (no threshold is a multiple of {MARK_EVERY:g})"
     listed = (", ".join(f"{t:.1f}" for t in shown) if len(shown) <= 4
               else f"{shown[0]:.1f}, {shown[1]:.1f}, ... {shown[-1]:.1f}")
-    return f"markers: similarity thresholds {listed} (a loop candidate counts when its similarity is at least one)"
+    return f"markers: similarity thresholds {listed} (precision and recall of the candidates at least that similar)"
 
 
 def zoom_limits(curves: Mapping[str, PRCurve]) -> tuple[tuple[float, float], tuple[float, float]] | None:
@@ -80,9 +80,10 @@ def plot_pr_curves(curves: Mapping[str, PRCurve], path: str | Path, title: str =
             ax.set(xlabel="recall", ylabel="precision", xlim=limits[0], ylim=limits[1])
             ax.set_title("all thresholds" if ax is axes[0][0] else "zoom on the knee", fontsize=9)
             ax.grid(alpha=0.3)
-        caption = markers_note(curves) + absent_note(absent or {}, "; ")
+        caption = "\n".join(textwrap.fill(line, 120) for line in (markers_note(curves), absent_note(absent or {}))
+                            if line)
         fig.legend(*axes[0][0].get_legend_handles_labels(), loc="outside lower center", ncols=2, fontsize=7,
-                   frameon=False, title=textwrap.fill(caption, 120), title_fontsize=7)
+                   frameon=False, title=caption, title_fontsize=7)
         fig.suptitle(title, fontsize=10)
         with atomic_path(path) as tmp:
             fig.savefig(tmp, format="png")

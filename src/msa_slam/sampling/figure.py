@@ -22,7 +22,7 @@ def plot_keyframes(poses: np.ndarray, keyframes: list[int], path: str | os.PathL
     (x0, x1), (y0, y1) = data_limits(xy)
     aspect = (x1 - x0) / (y1 - y0)
     width = min(panel_grid(1, aspect)[1], 8.0 * aspect, 9.0)
-    fig, ax = plt.subplots(figsize=(width + FRAME_W_IN, width / aspect + FRAME_H_IN + 0.8), dpi=120,
+    fig, ax = plt.subplots(figsize=(width + FRAME_W_IN, width / aspect + FRAME_H_IN + 0.45), dpi=120,
                            layout="constrained")
     ax.plot(xy[:, 0], xy[:, 1], "-", color="0.6", lw=1, label=f"trajectory ({len(poses)} frames)")
     online = [k for k in keyframes if not flushed or k not in flushed]

@@ -11,7 +11,7 @@ import numpy as np
 PAD = 0.04  # of each side's span on either side: markers on the edge stay whole
 MIN_SPAN = 0.05  # a side spans at least this fraction of the other: a straight route still gets a visible strip
 MAX_WIDTH_IN, MAX_HEIGHT_IN = 13.0, 15.0  # the grid of panels fits in this (inches)
-FRAME_W_IN, FRAME_H_IN = 0.9, 0.95  # what a panel needs beside its axes: y ticks and label; title, x ticks, label
+FRAME_W_IN, FRAME_H_IN = 0.9, 0.7  # what a panel needs beside its axes: y ticks and label; title, x ticks, label
 
 
 def data_limits(xy: np.ndarray) -> tuple[tuple[float, float], tuple[float, float]]:

@@ -184,6 +184,7 @@ def plot_trajectories(path: str | Path, gt_xy: np.ndarray, panels: Sequence[Traj
     zoom_w = min(4.5, max(grid_h, 3.2)) + 0.8 if zoom else 0.0
     fig = plt.figure(figsize=(grid_w + zoom_w, max(grid_h, zoom_w + 1.2 if zoom else 0.0) + 1.1), dpi=130,
                      layout="constrained")
+    fig.get_layout_engine().set(w_pad=0.1)  # inches: the zoom's right edge off the figure's
     try:
         left, right = fig.subfigures(1, 2, width_ratios=[grid_w, zoom_w]) if zoom else (fig, None)
         axes = left.subplots(len(heights), columns, squeeze=False, gridspec_kw={"height_ratios": heights}).ravel()
@@ -207,8 +208,9 @@ def plot_trajectories(path: str | Path, gt_xy: np.ndarray, panels: Sequence[Traj
             left.colorbar(mappable, ax=axes[:len(panels)].tolist(), shrink=0.6, extend="max" if over else "neither",
                           label="ATE per keyframe [m]" + (" (larger: top colour)" if over else ""))
         if zoom:
-            _draw_zoom(right.subplots(), gt_xy, scaled, *zoom)
-            right.legend(loc="outside lower center", fontsize=7, frameon=False, ncols=1)
+            zoom_ax = right.subplots()
+            _draw_zoom(zoom_ax, gt_xy, scaled, *zoom)
+            zoom_ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), fontsize=7, frameon=False, ncols=2)
         fig.legend(handles=_legend_handles(gt_xy, panels, cmap, zoom is not None), loc="outside lower center",
                    ncols=3, fontsize=8, frameon=False)
         if title:
