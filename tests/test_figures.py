@@ -67,8 +67,8 @@ def test_trajectory_figure_has_units_equal_aspect_visible_loops_and_a_legend_off
         assert ax.get_xlabel() == "x [m]" and ax.get_ylabel() == "y [m]"
         assert ax.get_aspect() == 1.0
         assert ax.get_legend() is None
-    rings = [[ln for ln in ax.get_lines() if ln.get_color() == colour and ln.get_marker() == "o"]
-             for ax in axes for colour in (TRUE_LOOP, FALSE_LOOP)]
+    rings = [[ln for ln in ax.get_lines() if ln.get_color() == colour and ln.get_marker() == marker]
+             for ax in axes for colour, marker in ((TRUE_LOOP, "o"), (FALSE_LOOP, "s"))]
     assert [len(ln.get_xdata()) for group in rings for ln in group] == [2, 2, 4, 2]  # both ends of every loop
     (legend,) = fig.legends
     box = legend.get_window_extent()
@@ -293,3 +293,27 @@ def test_panel_titles_count_in_the_right_number(figures, tmp_path):
     plot_trajectories(tmp_path / "t.png", panels[0].xy, panels)
     titles = [ax.get_title() for ax in _route_axes(figures[-1])]
     assert titles == ["msa optimised\n60 keyframes, 0 loops", "msa optimised\n60 keyframes, 2 loops"]
+
+
+def test_ate_difference_names_the_methods_it_leaves_out(figures, tmp_path):
+    from msa_slam.viz import plot_ate_difference
+
+    plot_ate_difference(tmp_path / "d.png", {"msa": [-0.1, 0.02]}, absent={"entropy": "ATE n/a on every cell"})
+    assert "not shown: entropy (ATE n/a on every cell)" in figures[-1].axes[0].get_xlabel()
+
+
+def test_figures_are_the_same_bytes_on_every_run(tmp_path):
+    """Two runs write the same PNG bytes (no dates, no unordered iteration): result folders compare byte for
+    byte and figures can be kept under version control."""
+    from msa_slam.viz import MethodMetric, TrajectoryPanel, plot_method_metrics, plot_trajectories
+
+    gt = np.c_[np.linspace(0, 400, 401), 5 * np.sin(np.linspace(0, 6, 401))]
+    apart = np.full(401, 0.2)
+    apart[300:320] = 1.0
+    for name in ("a", "b"):
+        plot_trajectories(tmp_path / f"t-{name}.png", gt, [TrajectoryPanel("x", gt, np.full(401, 0.2), [(0, 300)]),
+                                                           TrajectoryPanel("y", gt, apart, [])])
+        plot_method_metrics(tmp_path / f"m-{name}.png", ["all", "msa"], [MethodMetric("t. ATE", "m", [0.7, 0.72],
+                                                                                      difference=True)])
+    assert (tmp_path / "t-a.png").read_bytes() == (tmp_path / "t-b.png").read_bytes()
+    assert (tmp_path / "m-a.png").read_bytes() == (tmp_path / "m-b.png").read_bytes()

@@ -49,7 +49,7 @@ TRUE_LOOP, FALSE_LOOP = "tab:orange", "tab:red"  # loop colours kept off the err
 PLAIN = "tab:blue"  # an estimate without errors to colour it by
 GROUND_TRUTH = "0.8"
 DOT = 5.0  # keyframe dot area (points^2); a loop's ring is wider, so the dot's error colour shows inside it
-RING, RING_EDGE = 4.5, 0.7  # loop end markers: hollow, diameter and edge width in points
+RING, RING_EDGE = 4.5, 0.7  # loop end markers (true: circle, false: square): hollow, size and edge width in points
 ZOOM_LABEL = "zoom"  # the zoom panel's axes label (the route panels have none)
 ZOOM_ERRORS, ZOOM_MIN_M, ZOOM_MAX = 25.0, 10.0, 0.3  # zoom side: 25 x the mean error, >= 10 m, <= 30 % of route
 ZOOM_CENTRES = 200  # ground-truth points tried as the zoom's centre
@@ -71,13 +71,13 @@ def _draw(ax, gt_xy: np.ndarray, panel: TrajectoryPanel, norm: Normalize, cmap: 
         ax.scatter(panel.xy[:, 0], panel.xy[:, 1], c=panel.errors, cmap=cmap, norm=norm, s=DOT, zorder=3)
     ax.add_collection(lines)
     # A loop between nearby keyframes is a short edge that a line alone would hide: its ends get rings.
-    for pairs, colour in ((panel.loops or (), TRUE_LOOP), (panel.false_loops, FALSE_LOOP)):
+    for pairs, colour, marker in ((panel.loops or (), TRUE_LOOP, "o"), (panel.false_loops, FALSE_LOOP, "s")):
         if len(pairs):
             ends = panel.xy[np.asarray(pairs, dtype=int)]  # (loops, 2 ends, xy)
             edges = np.full((len(ends), 3, 2), np.nan)
             edges[:, :2] = ends
             ax.plot(*edges.reshape(-1, 2).T, color=colour, lw=0.8, alpha=0.7, zorder=2.5)
-            ax.plot(*ends.reshape(-1, 2).T, ls="none", color=colour, marker="o", ms=RING, mfc="none",
+            ax.plot(*ends.reshape(-1, 2).T, ls="none", color=colour, marker=marker, ms=RING, mfc="none",
                     mew=RING_EDGE, zorder=4)
     counts = "" if panel.loops is None else (f", {counted(len(panel.loops), 'loop')}" + (
         f", {len(panel.false_loops)} false" if len(panel.false_loops) else ""))
@@ -142,7 +142,7 @@ def _legend_handles(gt_xy: np.ndarray, panels: Sequence[TrajectoryPanel], cmap: 
         handles.append(Line2D([], [], color=TRUE_LOOP, marker="o", ms=RING, mfc="none", lw=0.8,
                               label="loop (true)" if len(gt_xy) else "loop (not judged: no ground truth)"))
     if any(len(p.false_loops) for p in panels):
-        handles.append(Line2D([], [], color=FALSE_LOOP, marker="o", ms=RING, mfc="none", lw=0.8, label="loop (false)"))
+        handles.append(Line2D([], [], color=FALSE_LOOP, marker="s", ms=RING, mfc="none", lw=0.8, label="loop (false)"))
     if zoom:
         handles.append(Line2D([], [], color="k", lw=0.8, marker="s", ms=6, mfc="none", ls="none",
                               label="zoomed square"))
