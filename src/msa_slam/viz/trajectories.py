@@ -54,6 +54,7 @@ ZOOM_LABEL = "zoom"  # the zoom panel's axes label (the route panels have none)
 ZOOM_ERRORS, ZOOM_MIN_M, ZOOM_MAX = 25.0, 10.0, 0.3  # zoom side: 25 x the mean error, >= 10 m, <= 30 % of route
 ZOOM_CENTRES = 200  # ground-truth points tried as the zoom's centre
 TOP_PERCENTILE = 95  # of the compared panels' errors: the colour scale's top
+ZOOM_FRAME_IN = 1.6  # the zoom panel's title (3 lines), x ticks and label, and legend (4 lines), in inches
 
 
 def _draw(ax, gt_xy: np.ndarray, panel: TrajectoryPanel, norm: Normalize, cmap: str):
@@ -150,10 +151,11 @@ def _legend_handles(gt_xy: np.ndarray, panels: Sequence[TrajectoryPanel], cmap: 
 
 
 def _compared(panels: Sequence[TrajectoryPanel]) -> list[TrajectoryPanel]:
-    """The panels with errors that the colour scale and the zoom are about: the methods' (those loops belong to),
-    or every panel with errors when fewer than two are methods' (a run: odometry and optimised)."""
-    methods = [p for p in panels if p.errors is not None and p.loops is not None]
-    return methods if len(methods) >= 2 else [p for p in panels if p.errors is not None]
+    """The panels with errors (all finite) that the colour scale and the zoom are about: the methods' (those loops
+    belong to), or every panel with errors when fewer than two are methods' (a run: odometry and optimised)."""
+    scored = [p for p in panels if p.errors is not None and len(p.errors) and np.isfinite(p.errors).all()]
+    methods = [p for p in scored if p.loops is not None]
+    return methods if len(methods) >= 2 else scored
 
 
 def _grid(panels: Sequence[TrajectoryPanel], extents: Sequence[np.ndarray]) -> tuple[int, float, list[float]]:
@@ -181,9 +183,11 @@ def plot_trajectories(path: str | Path, gt_xy: np.ndarray, panels: Sequence[Traj
     columns, width, heights = _grid(panels, extents)
     zoom = zoom_window(gt_xy, panels)
     grid_w, grid_h = columns * (width + FRAME_W_IN) + 1.2, sum(heights) + len(heights) * FRAME_H_IN  # 1.2: colour bar
-    zoom_w = min(4.5, max(grid_h, 3.2)) + 0.8 if zoom else 0.0
-    fig = plt.figure(figsize=(grid_w + zoom_w, max(grid_h, zoom_w + 1.2 if zoom else 0.0) + 1.1), dpi=130,
-                     layout="constrained")
+    # the zoom's axes: as tall as the panels leave room for beside its title and legend, within 2.5-4 inches
+    zoom_side = float(np.clip(grid_h - ZOOM_FRAME_IN, 2.5, 4.0)) if zoom else 0.0
+    zoom_w = zoom_side + FRAME_W_IN if zoom else 0.0
+    fig = plt.figure(figsize=(grid_w + zoom_w, max(grid_h, zoom_side + ZOOM_FRAME_IN if zoom else 0.0) + 1.1),
+                     dpi=130, layout="constrained")
     fig.get_layout_engine().set(w_pad=0.1)  # inches: the zoom's right edge off the figure's
     try:
         left, right = fig.subfigures(1, 2, width_ratios=[grid_w, zoom_w]) if zoom else (fig, None)
