@@ -43,6 +43,7 @@ def test_cli_commands_write_results_without_ground_truth(command, scans_only, tm
     ATE n/a with the reason, loops not judged true or false."""
     import csv
     import json
+    import re
 
     from typer.testing import CliRunner
 
@@ -58,7 +59,17 @@ def test_cli_commands_write_results_without_ground_truth(command, scans_only, tm
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["unavailable"]["ate"] == "no ground truth"
     assert not list((run / "trajectories").glob("gt*"))
-    assert "ATE (and its % improvement) n/a: no ground truth" in (run / "report.md").read_text()
+    report = (run / "report.md").read_text()
+    assert "ATE (and its % improvement) n/a: no ground truth" in report
+    assert "ATE alignment: n/a (no ground truth" in report and "evo_ape" not in report
+    tops = [run / "report.md"] + ([out / "report.md"] if command == "compare" else [])
+    for page in tops:
+        text = page.read_text()
+        assert "None" not in text, page
+        named = set(re.findall(r"\b((?:figures|trajectories|runs)/[\w./-]*\w)", text))
+        assert named and all((page.parent / name).exists() for name in named), (page, named)
+    if command == "compare":
+        assert "No ground truth: ATE, RPE, PR-AUC / F1-max and false loops are n/a" in tops[1].read_text()
     rows = list(csv.DictReader((run / "frames.csv").open()))
     assert len(rows) == 90 and all(r["gt_x"] == "" for r in rows)
     assert all(r["false_loop"] == "n/a" for r in csv.DictReader((run / "loops.csv").open()))

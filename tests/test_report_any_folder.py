@@ -84,7 +84,7 @@ def test_report_without_ground_truth_says_na_and_names_no_missing_file(command, 
     assert result.exit_code == 0, result.output
     report = (out / "report.md").read_text()
     assert "ATE (and its % improvement) n/a: no ground truth" in report
-    assert "ATE alignment of the full-rate rows: n/a; of the keyframe rows: n/a (no ground-truth trajectory" in report
+    assert "ATE alignment: n/a (no ground truth, so no ATE to align and no ground-truth trajectory" in report
     named = set(re.findall(r"trajectories/[\w.]+", report))
     assert named and all((out / name).is_file() for name in named)
     assert "ground truth, odometry" not in report and "None" not in report

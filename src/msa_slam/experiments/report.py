@@ -260,8 +260,10 @@ def _figures(cells: list[dict[str, Any]], rows: list[dict[str, Any]], reference:
         if ref is not None and r["ate_after_m"] is not None and r["method"] != reference:  # else n/a: see notes
             diffs[r["method"]].append(r["ate_after_m"] - ref)
     if diffs:
+        absent = {m: "ATE n/a on every cell: see the notes" for m in dict.fromkeys(r["method"] for r in rows)
+                  if m != reference and m not in diffs}
         plot_ate_difference(folder / "ate_difference.png", diffs, title=f"ATE after optimisation minus {reference}",
-                            reference=reference)
+                            reference=reference, absent=absent)
         names.append("ate_difference.png")
     by_dataset: dict[str, list[dict[str, Any]]] = defaultdict(list)
     for c in cells:

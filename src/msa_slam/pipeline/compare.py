@@ -13,7 +13,7 @@ import traceback
 from concurrent.futures import as_completed
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 from msa_slam.errors import InputError
 from msa_slam.evaluation import ATE_ALIGNMENT, NA, fmt, notes, peak_rss_bytes
@@ -38,8 +38,8 @@ from msa_slam.sampling.base import GATE_PARAMETERS
 from msa_slam.slam import RunResult
 from msa_slam.slam.backend import UNGATED_SAMPLERS
 from msa_slam.slam.loop_closing import REJECTION_REASONS, candidate_rule
-from msa_slam.viz import plot_metric_bars, plot_trajectories
-from msa_slam.viz.labels import display_name
+from msa_slam.viz import MethodMetric, plot_method_metrics, plot_trajectories
+from msa_slam.viz.labels import absent_note, display_name
 from msa_slam.workers import check_workers, forked_workers, shared
 
 log = logging.getLogger(__name__)
@@ -120,31 +120,59 @@ def table_markdown(rows: Sequence[dict[str, Any]], rpe_span: str = "KITTI segmen
     return "\n".join(lines) + "\n"
 
 
-def _figures(results: Sequence[RunResult], folder: Path) -> list[str]:
+def _unavailable(results: Sequence[RunResult], *keys: str) -> str:
+    """The first reason any method's metrics give under `keys` (metrics.json `unavailable`), else ""."""
+    return next((why for r in results for k in keys if (why := (r.metrics.get("unavailable") or {}).get(k))), "")
+
+
+def method_metrics(results: Sequence[RunResult]) -> list[MethodMetric]:
+    """The metrics figure's panels: each method's difference to all samples (the paper's Fig. 5), then the
+    absolute ATE with the odometry's (the same for every method) as one line, keyframes and memory."""
+    full = [r.metrics["full_rate"] for r in results]
+    why = _unavailable(results, "ate", "full_rate_ate_optimised", "full_rate_ate")  # "no ground truth" first
+    ate = [f["after"]["ate_translation_m"] for f in full]
+    memory = [r.metrics["memory_bytes"]["total"] / 2**20 for r in results]
+    return [
+        MethodMetric("t. ATE", "m", ate, 3, difference=True, why=why),
+        MethodMetric("R. ATE", "deg", [f["after"]["ate_rotation_deg"] for f in full], 3, difference=True, why=why),
+        MethodMetric("memory", "MiB", memory, 2, difference=True),
+        MethodMetric("back-end time", "s", [r.metrics["time_s"]["backend_total"] for r in results], 2,
+                     difference=True),
+        MethodMetric("t. ATE, every frame", "m", ate, 3, why=why,
+                     line=("odometry", full[0]["before"]["ate_translation_m"])),
+        MethodMetric("keyframes", "", [r.metrics["keyframes"] for r in results], 0),
+        MethodMetric("memory (keyframes + graph)", "MiB", memory, 2),
+    ]
+
+
+PR_FIGURES = (("paper", "pr_curves.png", "loop candidates per method (paper: keyframe search)", "pr"),
+              ("reference", "pr_curves_reference.png", "best match per frame (reference example's protocol)",
+               "pr_reference"))
+
+
+def _figures(results: Sequence[RunResult], folder: Path, failed: Mapping[str, str]) -> list[str]:
+    """metrics.png, trajectories.png and the PR curves of both protocols; each names the methods it leaves out
+    (`failed`: the methods that failed, with their error)."""
     folder.mkdir()
     labels = [r.config.name for r in results]
     sequence = sequence_title(results[0].metrics["sequence"], results[0].config.source, len(results[0]))
-    rows = [{k: float("nan") if v is None else v for k, v in table_row(r.metrics).items()} for r in results]
-    plot_metric_bars(folder / "metrics.png", labels, {
-        "ATE translation, every frame [m]": {"odometry": [r["ate_before_m"] for r in rows],
-                                             "optimised": [r["ate_after_m"] for r in rows]},
-        "ATE improvement, every frame [%]": {"translation": [r["improvement_t_pct"] for r in rows],
-                                             "rotation": [r["improvement_r_pct"] for r in rows]},
-        "memory [MiB]": {"keyframes + graph": [r["memory_mib"] for r in rows]},
-        "back-end time [s]": {"time": [r["time_s"] for r in rows]},
-    }, title=f"{sequence} ({results[0].config.mode} loops)")
-    gt_xy = reference_xy(results[0])
+    gone = {name: "failed" for name in failed}
+    plot_method_metrics(folder / "metrics.png", labels, method_metrics(results), reference="all",
+                        title=f"{sequence} ({results[0].config.mode} loops); top: difference to all samples, "
+                              f"below 0 (green) is lower" + absent_note(gone, "; "))
     panels = [trajectory_panels(r)[1] for r in results]
-    plot_trajectories(folder / "trajectories.png", gt_xy, [trajectory_panels(results[0])[0], *panels],
-                      title=f"{sequence}: keyframe trajectories of every sampler after optimisation, coloured by ATE",
-                      columns=4)
+    plot_trajectories(folder / "trajectories.png", reference_xy(results[0]),
+                      [trajectory_panels(results[0])[0], *panels],
+                      title=f"{sequence}: keyframe trajectories of every sampler after optimisation"
+                            + (", coloured by ATE" if results[0].gt_poses is not None else "")
+                            + absent_note(gone, "\n"))
     names = ["metrics.png", "trajectories.png"]
-    for protocol, file, what in (("paper", "pr_curves.png", "loop candidates per method (paper: keyframe search)"),
-                                 ("reference", "pr_curves_reference.png",
-                                  "best match per frame (reference example's protocol)")):
+    for protocol, file, what, key in PR_FIGURES:
         curves = {r.config.name: c for r in results if (c := _pr(r, protocol)) is not None and c.auc is not None}
+        absent = {**{r.config.name: (r.metrics.get("unavailable") or {}).get(key) or "no loop candidates"
+                     for r in results if r.config.name not in curves}, **gone}
         if curves:
-            plot_pr_curves(curves, folder / file, title=f"{sequence}: {what}")
+            plot_pr_curves(curves, folder / file, title=f"{sequence}: {what}", absent=absent)
             names.append(file)
     (folder / "pr.csv").write_text(pr_csv(results))
     return names
@@ -199,12 +227,16 @@ def comparison_report(fe: Frontend, results: Sequence[RunResult], table: str, fi
              f"Odometry `{cfg.odometry}`, descriptor `{cfg.descriptor}`, "
              f"loops: {candidate_rule(cfg)}, {cfg.mode} verification (small_gicp residual < "
              f"{cfg.verifier.max_residual} m), GTSAM Levenberg-Marquardt. Shared front end: {front}{cached}.", "",
+             *([] if results[0].gt_poses is not None else [
+                 "No ground truth: ATE, RPE, PR-AUC / F1-max and false loops are n/a for every method (the "
+                 "definitions below apply to a sequence with ground truth).", ""]),
              f"ATE: the full-rate trajectory (every frame: its preceding keyframe's optimised pose and the "
              f"odometry since) vs ground truth after {ATE_ALIGNMENT} alignment (fitted on all frames of each "
              "estimate), before (odometry, the same for every method) and after pose-graph optimisation; "
              f"improvement = 100 (before - after) / before. {rpe_text}. RPE is of the full-rate optimised "
              f"trajectory (translation in % of the segment length), also over 10 m (m). {RPE_STATISTICS} "
-             f"`{_RPE_10M_COMMAND}` prints a method's 10 m RPE as its mean. kf columns: the same ATE on "
+             + (f"`{_RPE_10M_COMMAND}` prints a method's 10 m RPE as its mean. " if results[0].gt_poses is not None
+                else "") + "kf columns: the same ATE on "
              "each method's own keyframes only. PR-AUC / F1-max: the paper's keyframe search (each keyframe's best "
              "older match) and, marked ref., the reference example's protocol (each frame against the 10 nearest "
              "keyframes); arrays in figures/pr.csv. False loops: verified loops whose ground-truth distance exceeds "
@@ -357,7 +389,7 @@ def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: boo
     (tmp / "comparison.md").write_text(table)
     (tmp / "comparison.csv").write_text(rows_csv(rows, COLUMNS))
     write_json(tmp / "comparison.json", [r.metrics for r in results])
-    figures = _figures(results, tmp / "figures") if results else []
+    figures = _figures(results, tmp / "figures", failed) if results else []
     main_peak = mib(peak_rss_bytes())
     write_json(tmp / PROCESSES, {"workers": workers, "main_peak_rss": main_peak})
     report = (comparison_report(frontend, results, table, figures, workers, main_peak) if results

@@ -204,9 +204,12 @@ RPE_STATISTICS = ("The KITTI RPE is the KITTI devkit's mean over the segments; t
 GT_FILE = "trajectories/gt.tum"  # written only for a run with a ground-truth pose for every frame
 
 
-def alignment_text(m: dict[str, Any], files: Collection[str]) -> str:
+def alignment_text(m: dict[str, Any], files: Collection[str], ground_truth: bool = True) -> str:
     """How the ATE rows were aligned, with the evo commands that reproduce them and the RPE rows only when the run
-    wrote the ground-truth trajectories they read (`files`): a report must not send its reader to a missing file."""
+    wrote the ground-truth trajectories they read (`files`): a report must not send its reader to a missing file.
+    `ground_truth`: whether the run had any (without, there is no ATE to align)."""
+    if not ground_truth:
+        return "ATE alignment: n/a (no ground truth, so no ATE to align and no ground-truth trajectory written)."
     full, keyframes = m["full_rate"].get("ate_alignment") or NA, m["ate_alignment"] or NA
     if GT_FILE not in files:
         return (f"ATE alignment of the full-rate rows: {full}; of the keyframe rows: {keyframes} (no ground-truth "
@@ -251,8 +254,9 @@ def report_markdown(result: ReportedRun, figures: list[str], files: Collection[s
         f"{fmt(a['rpe_rotation_deg'])} | |", "",
         "Full rate: every frame, its pose from its preceding keyframe's optimised pose and the odometry since "
         "(trajectories/optimised.tum); the same odometry \"before\" for every sampler. "
-        f"{rpe_text}. {RPE_STATISTICS}", "",
-        alignment_text(m, files), "",
+        f"{rpe_text}. " + (RPE_STATISTICS if result.gt_poses is not None
+                           else "RPE over 10 m of travelled path: n/a without ground truth."), "",
+        alignment_text(m, files, result.gt_poses is not None), "",
         *notes_markdown(m),
         *(_online_lines(result) if online else _batch_lines(result)),
     ]

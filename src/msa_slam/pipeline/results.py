@@ -127,18 +127,18 @@ def loop_edges(result: RunResult) -> tuple[list, list]:
 
 def trajectory_panel(name: str, ate_m: float | None, estimate: np.ndarray, gt: np.ndarray | None,
                      errors: np.ndarray | None, loops: tuple[list, list] | None = None) -> TrajectoryPanel:
-    """A keyframe trajectory SE(3)-aligned to `gt` and coloured by its ATE; drawn as estimated (error 0)
-    when the alignment is undetermined. `loops` (true, false) are drawn on it; None: none belong to it."""
+    """A keyframe trajectory SE(3)-aligned to `gt` and coloured by its ATE; drawn as estimated, in one colour,
+    without ground truth or when the alignment is undetermined. `loops` (true, false) are drawn on it; None:
+    none belong to it."""
     if gt is None:
-        xy, name = estimate[:, :2, 3], f"{name} (no ground truth)"
+        xy, title = estimate[:, :2, 3], f"{name} (no ground truth: no ATE)"
     else:
         try:
             xy = align_se3(estimate, gt)[:, :2, 3]
+            title = f"{name}, keyframe ATE {fmt(ate_m, '.3f', ' m')}"
         except AlignmentError:
-            xy, name = estimate[:, :2, 3], f"{name} (not aligned)"
-    shown = np.zeros(len(estimate)) if errors is None else errors
-    title = f"{name}, keyframe ATE {fmt(ate_m, '.3f', ' m')}"
-    return TrajectoryPanel(title, xy, shown) if loops is None else TrajectoryPanel(title, xy, shown, *loops)
+            xy, title, errors = estimate[:, :2, 3], f"{name} (not aligned), keyframe ATE n/a", None
+    return TrajectoryPanel(title, xy, errors) if loops is None else TrajectoryPanel(title, xy, errors, *loops)
 
 
 def trajectory_panels(result: RunResult) -> tuple[TrajectoryPanel, TrajectoryPanel]:

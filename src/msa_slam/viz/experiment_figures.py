@@ -13,6 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from msa_slam.viz.labels import absent_note  # noqa: E402
 from msa_slam.viz.save import save_figure  # noqa: E402
 
 
@@ -75,15 +76,18 @@ def plot_step_times(path: str | Path, steps: Mapping[str, Mapping[str, np.ndarra
 
 
 def plot_ate_difference(path: str | Path, differences: Mapping[str, Sequence[float]],
-                        title: str = "ATE difference to all samples", reference: str = "all") -> Path:
+                        title: str = "ATE difference to all samples", reference: str = "all",
+                        absent: Mapping[str, str] | None = None) -> Path:
     """Box plot per method of ATE(method) - ATE(`reference`) [m] over datasets/seeds (negative: better); the
-    y label names the reference, as `report --reference` changes it."""
+    y label names the reference, as `report --reference` changes it; the x label names the `absent` methods
+    (without a difference) and why."""
     labels = list(differences)
     fig, ax = plt.subplots(figsize=(max(5.0, 0.9 * len(labels) + 2), 4))
     ax.boxplot([np.asarray(differences[k], dtype=float) for k in labels])
     ax.set_xticks(range(1, len(labels) + 1), labels, rotation=30, ha="right", fontsize=8)
     ax.axhline(0.0, color="grey", lw=0.8)
     ax.set(ylabel=f"ATE - ATE({reference}) [m]", title=title)
+    ax.set_xlabel(textwrap.fill(absent_note(absent or {}), 70), fontsize=8)
     ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
     return _save(fig, path)

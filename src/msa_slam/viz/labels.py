@@ -31,3 +31,11 @@ def counted(n: int, noun: str) -> str:
     """`n` and `noun`, the noun in the plural unless `n` is 1 ("1 loop", "0 loops", "7 loops"): a title reading
     "1 loops" looks like a typo and makes a reader doubt the number."""
     return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
+def absent_note(absent: Mapping[str, str], lead: str = "") -> str:
+    """`lead` + "not shown: <name> (<why>), ..." for the methods a figure leaves out; "" when none is: a method
+    missing from a figure without a word reads as one never run."""
+    if not absent:
+        return ""
+    return lead + "not shown: " + ", ".join(f"{name} ({why})" for name, why in absent.items())
