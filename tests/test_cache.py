@@ -166,7 +166,7 @@ def test_truncated_or_nan_entries_are_recomputed_with_a_warning(data, tmp_path, 
 def test_rotated_poses_entry_is_not_trusted(tmp_path, caplog):
     cache = OdometryCache(tmp_path)
     poses = np.tile(np.eye(4), (3, 1, 1))
-    cache.save("k", poses)
+    cache.save("k", poses, [], np.zeros(3))
     skewed = poses.copy()
     skewed[1, :3, :3] *= 2.0
     np.save(cache.path("k"), skewed)
