@@ -138,8 +138,8 @@ def test_sequence_odometry_is_cached_by_scans_and_config(tmp_path, caplog):
     sequence_odometry(_scan_folder(tmp_path / "seq2", n=3), other_scans, cache, quiet=True)
     assert other_scans.calls == 3
     names = sorted(p.name.split("-")[0] for p in (tmp_path / "cache").iterdir())
-    # the scans' digests, poses and their compute times (odometry-KEY-ms), unregistered frames; no temp files left
-    assert names == ["input"] + ["odometry"] * 6 + ["unregistered"] * 3
+    # the scans' digests, the poses' compute times (ms-odometry-KEY), poses, unregistered frames; no temp files left
+    assert names == ["input"] + ["ms"] * 3 + ["odometry"] * 3 + ["unregistered"] * 3
     assert {p.suffix for p in (tmp_path / "cache").iterdir()} == {".json", ".npy"}
     # A corrupt cache entry is recomputed, not trusted, with a warning naming it.
     key = OdometryCache.key(seq, first.config)
@@ -176,6 +176,6 @@ def test_a_cached_run_knows_the_frames_kiss_icp_could_not_register(tmp_path):
     legacy = KissOdometry(max_range=50.0)
     _, cached, _ = sequence_odometry(folder_sequence(folder), legacy, cache, quiet=True)
     assert not cached and legacy.unregistered_frames == [1]
-    cache.store.path(f"odometry-{key}-ms").unlink()  # an entry without the time it took is recomputed too
+    cache.store.path(f"ms-odometry-{key}").unlink()  # an entry without the time it took is recomputed too
     _, cached, _ = sequence_odometry(folder_sequence(folder), KissOdometry(max_range=50.0), cache, quiet=True)
     assert not cached

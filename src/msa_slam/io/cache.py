@@ -38,7 +38,7 @@ log = logging.getLogger(__name__)
 RUN_START_NS = time.time_ns()  # a leftover older than this run and not locked has lost its writer
 TEMP_SUFFIX = ".tmp"
 DIGESTS_FILE = "input-digests.json"  # in a CacheDir: the memo of its input files' digests (DigestIndex)
-TIMES_SUFFIX = "-ms"  # entry NAME's per-frame compute times are entry NAME-ms (CacheDir.save_times)
+TIMES_PREFIX = "ms-"  # entry NAME's per-frame compute times are entry ms-NAME (CacheDir.save_times)
 
 
 class Computed(NamedTuple):
@@ -343,7 +343,7 @@ class CacheDir:
     def save_times(self, name: str, ms: np.ndarray) -> None:
         """Record beside entry `name` what computing each of its frames took (ms); call it before saving the entry,
         so that an entry is never found without its times."""
-        self.save(f"{name}{TIMES_SUFFIX}", np.asarray(ms, dtype=np.float64))
+        self.save(f"{TIMES_PREFIX}{name}", np.asarray(ms, dtype=np.float64))
 
     def load_times(self, name: str, frames: int) -> np.ndarray | None:
         """The per-frame compute times (ms) recorded with entry `name`, or None when absent or bad (an entry
@@ -354,7 +354,7 @@ class CacheDir:
                 raise ValueError("negative times")
             return ms
 
-        return self.load(f"{name}{TIMES_SUFFIX}", check)
+        return self.load(f"{TIMES_PREFIX}{name}", check)
 
     def save_digests(self) -> None:
         """Record the input digests computed since the last save (see DigestIndex); a failure costs the memo only
