@@ -8,6 +8,7 @@ computes them and library versions: see msa_slam.io.cache).
 from __future__ import annotations
 
 import logging
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence, TypeVar
@@ -212,6 +213,10 @@ def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[R
         descriptors = compute_descriptors(sequence, descriptor, cache if use_cache else None, key, quiet)
     stages = {"odometry": poses, "descriptors": descriptors}
     replayed = replayed_seconds(stages, timer)
+    if replayed and not quiet:  # where a computed stage shows its progress
+        print("front end replayed from the cache: " + ", ".join(f"{name} (computed in {seconds:.1f} s)"
+                                                                 for name, seconds in replayed.items()),
+              file=sys.stderr)
     sanity = frontend_warnings(sequence.gt_poses, poses.values, sequence.times)
     if isinstance(odometry, KissOdometry):
         sanity += odometry.unregistered_warning(n)
