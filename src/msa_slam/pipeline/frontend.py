@@ -82,8 +82,9 @@ def pipeline_cache(cache_dir: str | None) -> Path:
 
 
 def make_odometry(config: RunConfig, n_frames: int, point_times: bool | None = True):
-    """KISS-ICP configured by `config`, or a pose file's poses (checked against the `n_frames` scans read;
-    a file with a pose for every scan of the recording is narrowed to those read (--first/--jump/-n)).
+    """KISS-ICP with `odometry_params`, or the pose file named by `config.odometry`: one pose a scan of the
+    recording, cut by the same --first/--jump/-n as the scans (a file with one pose a selected scan is
+    taken as it is).
 
     KISS-ICP deskews when the scans carry per-point times (`point_times` True), as kiss-icp does, unless
     `odometry.deskew=false`; without them (False), or when the source does not say (None), it does not. A
