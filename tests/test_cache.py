@@ -146,8 +146,10 @@ def test_run_and_online_from_the_cache_name_the_frames_kiss_icp_could_not_regist
 def test_truncated_or_nan_entries_are_recomputed_with_a_warning(data, tmp_path, caplog):
     cfg = _config(data, tmp_path / "cache")
     first = prepare_frontend(cfg)
-    entries = {p.name.split("-")[0]: p for p in (tmp_path / "cache" / "pipeline").glob("*.npy")}
-    assert sorted(entries) == ["descriptors", "odometry", "unregistered"]  # the odometry's unregistered frames
+    files = sorted((tmp_path / "cache" / "pipeline").glob("*.npy"))
+    # each entry's per-frame compute times (ms-NAME) and the odometry's unregistered frames beside the entries
+    assert sorted(p.name.split("-")[0] for p in files) == ["descriptors", "ms", "ms", "odometry", "unregistered"]
+    entries = {p.name.split("-")[0]: p for p in files if not p.name.startswith("ms-")}
     odometry = entries["odometry"]
     odometry.write_bytes(odometry.read_bytes()[:300])
     poisoned = np.load(entries["descriptors"])
@@ -161,12 +163,17 @@ def test_truncated_or_nan_entries_are_recomputed_with_a_warning(data, tmp_path, 
     np.testing.assert_allclose(again.odometry, first.odometry, atol=1e-6)
     np.testing.assert_array_equal(again.descriptors, first.descriptors)
     assert prepare_frontend(cfg).cached == {"odometry": True, "descriptors": True}  # rewritten
+    times = tmp_path / "cache" / "pipeline" / f"ms-{entries['descriptors'].stem}.npy"
+    np.save(times, -np.load(times) - 1.0)  # negative: not what computing took, so the entry is not replayed
+    with caplog.at_level(logging.WARNING):
+        assert prepare_frontend(cfg).cached == {"odometry": True, "descriptors": False}
+    assert f"ignoring {times} (negative times)" in caplog.text
 
 
 def test_rotated_poses_entry_is_not_trusted(tmp_path, caplog):
     cache = OdometryCache(tmp_path)
     poses = np.tile(np.eye(4), (3, 1, 1))
-    cache.save("k", poses)
+    cache.save("k", poses, [], np.zeros(3))
     skewed = poses.copy()
     skewed[1, :3, :3] *= 2.0
     np.save(cache.path("k"), skewed)

@@ -124,12 +124,13 @@ def test_sequence_odometry_is_cached_by_scans_and_config(tmp_path, caplog):
     seq = _scan_folder(tmp_path / "seq")
     cache = OdometryCache(tmp_path / "cache")
     first = _CountingOdometry()
-    poses, cached = sequence_odometry(seq, first, cache, quiet=True)
-    assert first.calls == 4 and poses[3, 0, 3] == 3.0 and not cached
+    poses, cached, ms = sequence_odometry(seq, first, cache, quiet=True)
+    assert first.calls == 4 and poses[3, 0, 3] == 3.0 and not cached and ms.shape == (4,) and (ms >= 0).all()
     again = _CountingOdometry()
-    poses_again, cached = sequence_odometry(seq, again, cache, quiet=True)
+    poses_again, cached, ms_again = sequence_odometry(seq, again, cache, quiet=True)
     np.testing.assert_array_equal(poses_again, poses)
     assert again.calls == 0 and cached
+    np.testing.assert_array_equal(ms_again, ms)  # a replay counts the time computing took, recorded with the entry
     other_config = _CountingOdometry("b")
     sequence_odometry(seq, other_config, cache, quiet=True)
     assert other_config.calls == 4
@@ -137,13 +138,14 @@ def test_sequence_odometry_is_cached_by_scans_and_config(tmp_path, caplog):
     sequence_odometry(_scan_folder(tmp_path / "seq2", n=3), other_scans, cache, quiet=True)
     assert other_scans.calls == 3
     names = sorted(p.name.split("-")[0] for p in (tmp_path / "cache").iterdir())
-    assert names == ["input"] + ["odometry"] * 3 + ["unregistered"] * 3  # the scans' digests; no temp files left
+    # the scans' digests, the poses' compute times (ms-odometry-KEY), poses, unregistered frames; no temp files left
+    assert names == ["input"] + ["ms"] * 3 + ["odometry"] * 3 + ["unregistered"] * 3
     assert {p.suffix for p in (tmp_path / "cache").iterdir()} == {".json", ".npy"}
     # A corrupt cache entry is recomputed, not trusted, with a warning naming it.
     key = OdometryCache.key(seq, first.config)
     cache.path(key).write_bytes(b"garbage")
     recomputed = _CountingOdometry()
-    _, cached = sequence_odometry(seq, recomputed, cache, quiet=True)
+    _, cached, _ = sequence_odometry(seq, recomputed, cache, quiet=True)
     assert recomputed.calls == 4 and not cached
     assert str(cache.path(key)) in caplog.text
 
@@ -159,10 +161,10 @@ def test_a_cached_run_knows_the_frames_kiss_icp_could_not_register(tmp_path):
         scan.tofile(folder / f"{k:06d}.bin")
     cache = OdometryCache(tmp_path / "cache")
     fresh = KissOdometry(max_range=50.0)
-    poses, cached = sequence_odometry(folder_sequence(folder), fresh, cache, quiet=True)
+    poses, cached, _ = sequence_odometry(folder_sequence(folder), fresh, cache, quiet=True)
     assert not cached and fresh.unregistered_frames == [1]
     replayed = KissOdometry(max_range=50.0)
-    again, cached = sequence_odometry(folder_sequence(folder), replayed, cache, quiet=True)
+    again, cached, _ = sequence_odometry(folder_sequence(folder), replayed, cache, quiet=True)
     assert cached and replayed.unregistered_frames == [1]
     np.testing.assert_array_equal(again, poses)
     assert replayed.unregistered_warning(3) == [
@@ -172,5 +174,8 @@ def test_a_cached_run_knows_the_frames_kiss_icp_could_not_register(tmp_path):
     key = OdometryCache.key(folder_sequence(folder), fresh.config)
     cache.store.path(f"unregistered-{key}").unlink()
     legacy = KissOdometry(max_range=50.0)
-    _, cached = sequence_odometry(folder_sequence(folder), legacy, cache, quiet=True)
+    _, cached, _ = sequence_odometry(folder_sequence(folder), legacy, cache, quiet=True)
     assert not cached and legacy.unregistered_frames == [1]
+    cache.store.path(f"ms-odometry-{key}").unlink()  # an entry without the time it took is recomputed too
+    _, cached, _ = sequence_odometry(folder_sequence(folder), KissOdometry(max_range=50.0), cache, quiet=True)
+    assert not cached

@@ -117,12 +117,12 @@ def test_deskew_without_per_point_times_is_warned_and_recorded_off(tmp_path, cap
         caplog.clear()
         with caplog.at_level(logging.WARNING, logger="msa_slam.odometry"):
             odometry = make_odometry(config, len(sequence), sequence.point_times)
-            poses, from_cache = sequence_odometry(sequence, odometry, cache, quiet=True)
+            poses, from_cache, _ = sequence_odometry(sequence, odometry, cache, quiet=True)
         assert from_cache is not fresh and odometry.config["data"]["deskew"] is False
         assert [r.getMessage() for r in caplog.records] == [
             "odometry: no per-point times: deskewing has no effect (recorded as deskew false)"]
     assert sequence_odometry(open_dataset(folder), KissOdometry(max_range=30.0), cache, quiet=True)[1]  # same entry
-    fresh, _ = sequence_odometry(open_dataset(folder), KissOdometry(max_range=30.0), quiet=True)
+    fresh, _, _ = sequence_odometry(open_dataset(folder), KissOdometry(max_range=30.0), quiet=True)
     np.testing.assert_array_equal(poses, fresh)
     timed = KissOdometry(max_range=30.0, deskew=True)  # a KITTI layout: times derived from azimuth
     sequence_odometry(open_dataset(_kitti(tmp_path / "kitti")), timed, quiet=True)

@@ -109,8 +109,9 @@ class FrameSource:
     `sequence`: the scans the frames are read from, as selected (--first/--jump/-n): they key cached odometry
     as in the batch pipeline (None for scans made in memory); `length` is needed only without ground truth;
     `point_times`: whether the frames carry per-point times (`timestamps`, which
-    deskewing needs): False makes the odometry with deskew off; None (not known) keeps the configured deskew,
-    and KISS-ICP refuses a first frame without them when deskew is on."""
+    deskewing needs): True makes KISS-ICP deskew unless asked not to, False makes it not deskew (an asked deskew
+    is dropped with a warning); None (not known): deskew only when asked, and KISS-ICP then refuses a first frame
+    without them (pipeline.frontend.make_odometry)."""
 
     name: str
     gt_poses: np.ndarray | None

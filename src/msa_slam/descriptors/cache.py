@@ -3,13 +3,14 @@ settings and the code that computes them (this package and the scan readers: DES
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import numpy as np
 
 from msa_slam.datasets import ScanSequence
 from msa_slam.descriptors.base import Descriptor
-from msa_slam.io.cache import CacheDir, cache_key, check_entry, named_files, sequence_inputs
+from msa_slam.io.cache import CacheDir, Computed, cache_key, check_entry, named_files, sequence_inputs
 from msa_slam.io.fingerprint import code_fingerprint
 from msa_slam.progress import progress_bar
 
@@ -27,23 +28,27 @@ def descriptor_key(sequence: ScanSequence, name: str, params: dict[str, Any], ca
 
 
 def compute_descriptors(sequence: ScanSequence, descriptor: Descriptor, cache: CacheDir | None, key: str,
-                        quiet: bool = True) -> tuple[np.ndarray, bool]:
-    """(N, *descriptor.shape) descriptors of every frame and whether they came from `cache` (entry
-    `descriptors-<key>`, checked to have exactly that shape before it is used)."""
+                        quiet: bool = True) -> Computed:
+    """(N, *descriptor.shape) descriptors of every frame, whether they came from `cache` (entry
+    `descriptors-<key>`, checked to have exactly that shape before it is used, with the per-frame compute times
+    recorded beside it) and the time (ms) computing each took."""
     name = f"descriptors-{key}"
     if cache is not None:
         cached = cache.load(name, lambda a: check_entry(a, (len(sequence), *descriptor.shape)))
-        if cached is not None:
-            return cached, True
-    first = np.asarray(descriptor.compute(sequence[0].points, frame=0), dtype=np.float64)
-    out = np.empty((len(sequence), *first.shape))
-    out[0] = first
+        ms = None if cached is None else cache.load_times(name, len(sequence))
+        if ms is not None:
+            return Computed(cached, True, ms)
+    values, ms = [], np.empty(len(sequence))
     with progress_bar(quiet) as bar:
         task = bar.add_task(f"descriptors ({descriptor.name})", total=len(sequence))
-        bar.advance(task)
-        for i in range(1, len(sequence)):
-            out[i] = descriptor.compute(sequence[i].points, frame=i)
+        for i in range(len(sequence)):
+            points = sequence[i].points
+            start = time.perf_counter()
+            values.append(np.asarray(descriptor.compute(points, frame=i), dtype=np.float64))
+            ms[i] = (time.perf_counter() - start) * 1e3
             bar.advance(task)
+    out = np.stack(values)
     if cache is not None:
+        cache.save_times(name, ms)
         cache.save(name, out)
-    return out, False
+    return Computed(out, False, ms)

@@ -95,6 +95,13 @@ def settle_heap() -> None:
     release_free_heap()
 
 
+def throughput(frames: int, seconds: float, rate_hz: float) -> tuple[float, float]:
+    """(frames per second, real-time factor against data recorded at `rate_hz`) of `frames` processed in
+    `seconds`: one definition for the online progress line, metrics.json and report.md, so all three agree."""
+    fps = frames / seconds if seconds > 0 else float("inf")
+    return fps, fps / rate_hz
+
+
 class StageTimer:
     """Wall time per named stage; a stage entered several times accumulates."""
 

@@ -102,13 +102,16 @@ def _recorded_cost(finished: Mapping[str, tuple[dict, dict]]) -> tuple[float | N
 
 def recorded_seconds(metrics: Mapping[str, Any]) -> float | None:
     """The seconds a finished cell's stages took: the stages of `time_s` (not their `backend_total`) and the
-    batch front end's `frontend_time_s`; None when metrics.json has no such figures."""
+    batch front end's `frontend_time_s`, less the `replayed_time_s` they count for stages read from the cache
+    (what computing them took once, not what the cell spent); None when metrics.json has no such figures."""
     stages = metrics.get("time_s")
     if not isinstance(stages, dict):
         return None
     front = metrics.get("frontend_time_s") if isinstance(metrics.get("frontend_time_s"), dict) else {}
+    replayed = metrics.get("replayed_time_s") if isinstance(metrics.get("replayed_time_s"), dict) else {}
     values = [v for k, v in stages.items() if k != "backend_total"] + list(front.values())
-    return float(sum(v for v in values if isinstance(v, (int, float))))
+    spent = sum(v for v in values if isinstance(v, (int, float)))
+    return float(spent - sum(v for v in replayed.values() if isinstance(v, (int, float))))
 
 
 def _assumed_costs(todo: Sequence[Cell], sizes: Mapping[str, tuple[int | None, int | None]]) -> dict[str, float | None]:

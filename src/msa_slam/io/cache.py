@@ -25,7 +25,7 @@ import tempfile
 import time
 from importlib import metadata
 from pathlib import Path
-from typing import Any, BinaryIO, Callable, Iterable, Iterator
+from typing import Any, BinaryIO, Callable, Iterable, Iterator, NamedTuple
 
 import numpy as np
 
@@ -38,6 +38,17 @@ log = logging.getLogger(__name__)
 RUN_START_NS = time.time_ns()  # a leftover older than this run and not locked has lost its writer
 TEMP_SUFFIX = ".tmp"
 DIGESTS_FILE = "input-digests.json"  # in a CacheDir: the memo of its input files' digests (DigestIndex)
+TIMES_PREFIX = "ms-"  # entry NAME's per-frame compute times are entry ms-NAME (CacheDir.save_times)
+
+
+class Computed(NamedTuple):
+    """A per-frame stage's output for a whole sequence, whether it was replayed from a cache, and the time (ms)
+    computing each frame took: measured now, or recorded with the cache entry when it was computed, so that a
+    replayed stage still counts what it costs."""
+
+    values: np.ndarray
+    cached: bool
+    ms: np.ndarray
 
 
 def cache_root(cache_dir: str | os.PathLike | None = None) -> Path:
@@ -328,6 +339,22 @@ class CacheDir:
             self._unwritable(path, exc, f"; needs {array.nbytes / 2**20:.2f} MiB")
             return None
         return path
+
+    def save_times(self, name: str, ms: np.ndarray) -> None:
+        """Record beside entry `name` what computing each of its frames took (ms); call it before saving the entry,
+        so that an entry is never found without its times."""
+        self.save(f"{TIMES_PREFIX}{name}", np.asarray(ms, dtype=np.float64))
+
+    def load_times(self, name: str, frames: int) -> np.ndarray | None:
+        """The per-frame compute times (ms) recorded with entry `name`, or None when absent or bad (an entry
+        without them is recomputed: a replayed stage must count the time it took)."""
+
+        def check(ms: np.ndarray) -> np.ndarray:
+            if (check_entry(ms, (frames,)) < 0).any():
+                raise ValueError("negative times")
+            return ms
+
+        return self.load(f"{TIMES_PREFIX}{name}", check)
 
     def save_digests(self) -> None:
         """Record the input digests computed since the last save (see DigestIndex); a failure costs the memo only

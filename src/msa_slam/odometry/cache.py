@@ -4,18 +4,19 @@ the code that computes it."""
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Protocol
 
 import numpy as np
 
 from msa_slam.datasets import ScanSequence
-from msa_slam.io.cache import CacheDir, cache_key, check_entry, sequence_inputs
+from msa_slam.io.cache import CacheDir, Computed, cache_key, check_entry, sequence_inputs
 from msa_slam.io.fingerprint import code_fingerprint
 from msa_slam.progress import progress_bar
 from msa_slam.types import validate_poses
 
-ODOMETRY_LIBRARIES = ("kiss-icp", "numpy", "scipy")  # scipy: the deskew's rotations (odometry.deskew)
+ODOMETRY_LIBRARIES = ("kiss-icp", "numpy", "scipy", "gtsam")  # scipy, gtsam: the deskew's SE(3) (odometry.deskew)
 ODOMETRY_CODE = ("msa_slam.odometry", "msa_slam.datasets")  # the odometries and the scan readers: the cache key
 
 
@@ -69,24 +70,29 @@ class OdometryCache:
         listed = self.store.load(f"unregistered-{key}", check)
         return None if listed is None else [int(f) for f in listed]
 
-    def load_entry(self, key: str, frames: int) -> tuple[np.ndarray, list[int]] | None:
-        """The cached poses of `frames` frames and the frames among them that were not registered, or None when
-        either is absent or bad (the odometry is then recomputed)."""
+    def load_entry(self, key: str, frames: int) -> tuple[np.ndarray, list[int], np.ndarray] | None:
+        """The cached poses of `frames` frames, the frames among them that were not registered and the time (ms)
+        registering each took when computed, or None when any is absent or bad (the odometry is then
+        recomputed)."""
         poses = self.load(key, expected_length=frames)
         unregistered = None if poses is None else self.load_unregistered(key, frames)
-        return None if unregistered is None else (poses, unregistered)
+        ms = None if unregistered is None else self.store.load_times(f"odometry-{key}", frames)
+        return None if ms is None else (poses, unregistered, ms)
 
-    def save(self, key: str, poses: np.ndarray, unregistered: Iterable[int] = ()) -> Path | None:
-        """Store the poses and the frames among them that were not registered; None when the cache cannot be
-        written (warned once). The list goes first: poses without it are recomputed, never read alone."""
+    def save(self, key: str, poses: np.ndarray, unregistered: Iterable[int], ms: np.ndarray) -> Path | None:
+        """Store the poses, the frames among them that were not registered and the time (ms) registering each
+        took; None when the cache cannot be written (warned once). The list and times go first: poses without
+        them are recomputed, never read alone."""
         self.store.save(f"unregistered-{key}", np.asarray(list(unregistered), dtype=np.float64))
+        self.store.save_times(f"odometry-{key}", ms)
         return self.store.save(f"odometry-{key}", validate_poses(poses, "odometry poses"))
 
 
 def sequence_odometry(sequence: ScanSequence, odometry: Odometry, cache: OdometryCache | None = None,
-                      quiet: bool = False, extra_inputs: Iterable[str | os.PathLike] = ()) -> tuple[np.ndarray, bool]:
-    """(N, 4, 4) odometry poses of every frame of `sequence` and whether they came from `cache` (which then
-    also restores the odometry's `unregistered_frames`, so a cached run reports them as a fresh one does).
+                      quiet: bool = False, extra_inputs: Iterable[str | os.PathLike] = ()) -> Computed:
+    """(N, 4, 4) odometry poses of every frame of `sequence`, whether they came from `cache` (which then
+    also restores the odometry's `unregistered_frames`, so a cached run reports them as a fresh one does) and
+    the time (ms) registering each frame took (as recorded in the cache when replayed).
 
     `extra_inputs`: files the odometry reads besides the scans (they are part of the cache key). The key is
     made from `odometry.config`, so the odometry comes configured for these scans (KISS-ICP's deskewing off
@@ -100,14 +106,16 @@ def sequence_odometry(sequence: ScanSequence, odometry: Odometry, cache: Odometr
         if entry is not None:
             if hasattr(odometry, "unregistered_frames"):
                 odometry.unregistered_frames = entry[1]
-            return entry[0], True
-    poses = np.empty((len(sequence), 4, 4))
+            return Computed(entry[0], True, entry[2])
+    poses, ms = np.empty((len(sequence), 4, 4)), np.empty(len(sequence))
     with progress_bar(quiet) as progress:
         task = progress.add_task("odometry", total=len(sequence))
         for i in range(len(sequence)):
             frame = sequence[i]  # per-point and scan times: used by KISS-ICP only with deskew on
+            start = time.perf_counter()
             poses[i] = odometry.register(frame.points, frame.timestamps, frame.time if sequence.times_known else None)
+            ms[i] = (time.perf_counter() - start) * 1e3
             progress.advance(task)
     if cache is not None and key is not None:
-        cache.save(key, poses, getattr(odometry, "unregistered_frames", ()))
-    return poses, False
+        cache.save(key, poses, getattr(odometry, "unregistered_frames", ()), ms)
+    return Computed(poses, False, ms)

@@ -50,8 +50,9 @@ class KissOdometry:
 
     The configuration is built from these arguments only (KISS-ICP's own defaults written out), never from
     `load_config`, which reads `kiss_icp_*` environment variables that would change results unseen.
-    Deskewing is off by default (scans without per-point times); with it on, see `register` for the sweep
-    time convention. The voxel size follows KISS-ICP's rule
+    Deskewing is off unless asked for here, where the scans are not known yet; the pipelines ask for it when
+    the source's frames carry per-point times, as kiss-icp does (pipeline.frontend.make_odometry); see
+    `register` for the sweep time convention. The voxel size follows KISS-ICP's rule
     max_range / 100 unless given. `num_threads=1` (default) keeps the ICP reductions in a fixed order, so
     identical runs give identical poses; 0 (KISS-ICP's "all cores") is faster but differs between runs
     by rounding, which keyframe sampling can turn into different keyframes. KISS-ICP sets its (TBB) thread

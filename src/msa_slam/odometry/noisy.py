@@ -53,11 +53,12 @@ class NoisyOdometry:
 
 
 class ReplayedOdometry:
-    """Odometry poses computed earlier for this sequence, handed out frame by frame; `notes` are what that
-    odometry reported of them (frames it could not register), for the run's notes."""
+    """Odometry poses computed earlier for this sequence, handed out frame by frame; `ms` what computing each
+    took (a replayed run counts it), `notes` what that odometry reported of them (frames it could not register),
+    for the run's notes."""
 
-    def __init__(self, poses: np.ndarray, notes: Sequence[str] = ()) -> None:
-        self.poses, self._i = poses, 0
+    def __init__(self, poses: np.ndarray, ms: np.ndarray, notes: Sequence[str] = ()) -> None:
+        self.poses, self.ms, self._i = poses, ms, 0
         self.notes = list(notes)
 
     def register(self, points: np.ndarray | None = None, timestamps: np.ndarray | None = None,

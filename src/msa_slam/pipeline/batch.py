@@ -130,7 +130,8 @@ def _metrics(result: RunResult, frontend: Frontend) -> dict[str, Any]:
         "time_s": {**{k: round(v, 4) for k, v in times.items()}, "backend_total": round(backend_time, 4)},
         "frontend_time_s": {k: round(v, 4) for k, v in frontend.timer.seconds.items()},
         "frontend_cached": dict(frontend.cached),
-        "odometry_config": frontend.odometry_effective,
+        "replayed_time_s": {k: round(v, 4) for k, v in frontend.replayed_s.items()},
+        "odometry_config": frontend.odometry_effective, **frontend.deskew,
         "threads": {"odometry": frontend.odometry_effective.get("registration", {}).get("max_num_threads"),
                     "verification": cfg.verifier.num_threads, "blas_backend": 1},
     })

@@ -25,7 +25,8 @@ from msa_slam.io.tables import mib, rows_csv, write_json
 from msa_slam.pipeline.batch import SWEEP_NOT_RUN, run_batch
 from msa_slam.pipeline.config import RunConfig, make_config
 from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, Frontend, prepare_frontend
-from msa_slam.pipeline.report import GT_FILE, RPE_STATISTICS, rpe_segments, scans_read, sequence_title
+from msa_slam.pipeline.report import (GT_FILE, RPE_STATISTICS, deskew_text, replayed_note, rpe_segments, scans_read,
+                                     sequence_title)
 from msa_slam.pipeline.results import reference_xy, trajectory_panels, write_run_files
 from msa_slam.pipeline.seed_folder import (RECORD, check_seed_folder, clean_leftovers, finished_metrics, left_out_seeds,
                                            remove_seeds, resume_seeds, seed_dir, seed_identities, seed_record,
@@ -220,13 +221,13 @@ def comparison_report(fe: Frontend, results: Sequence[RunResult], table: str, fi
     `main_peak`: the main process's peak RSS as report.md gives it (default: this process's peak now)."""
     cfg = results[0].config
     rpe_text = rpe_segments(results[0].gt_poses)[1]  # every method runs on the same sequence
-    cached = " (from cache)" if all(fe.cached.values()) else ""
     front = ", ".join(f"{k} {v:.1f} s" for k, v in fe.timer.seconds.items())
     lines = [f"# Sampler comparison on {display_name(fe.name)}", "",
              f"Dataset `{cfg.dataset}` (sequence {fe.name}), {scans_read(cfg.source)}: {len(fe)} frames. "
              f"Odometry `{cfg.odometry}`, descriptor `{cfg.descriptor}`, "
              f"loops: {candidate_rule(cfg)}, {cfg.mode} verification (small_gicp residual < "
-             f"{cfg.verifier.max_residual} m), GTSAM Levenberg-Marquardt. Shared front end: {front}{cached}.", "",
+             f"{cfg.verifier.max_residual} m), GTSAM Levenberg-Marquardt. Shared front end: {front}"
+             f"{replayed_note(fe.cached)}. {deskew_text(results[0].metrics)}".rstrip(), "",
              *([] if results[0].gt_poses is not None else [
                  "No ground truth: ATE, RPE, PR-AUC / F1-max and false loops are n/a for every method (the "
                  "definitions below apply to a sequence with ground truth).", ""]),

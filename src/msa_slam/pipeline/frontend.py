@@ -8,6 +8,7 @@ computes them and library versions: see msa_slam.io.cache).
 from __future__ import annotations
 
 import logging
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence, TypeVar
@@ -21,7 +22,7 @@ from msa_slam.descriptors.cache import compute_descriptors, descriptor_key
 from msa_slam.errors import InputError
 from msa_slam.evaluation import StageTimer
 from msa_slam.evaluation.sanity import frontend_warnings
-from msa_slam.io.cache import CacheDir, cache_root
+from msa_slam.io.cache import CacheDir, Computed, cache_root
 from msa_slam.odometry import KissOdometry, OdometryCache, PosesFromFile, sequence_odometry
 from msa_slam.odometry.kiss import NO_POINT_TIMES, PARAMETERS as KISS_PARAMETERS
 from msa_slam.pipeline.config import RunConfig
@@ -53,6 +54,8 @@ class Frontend:
     descriptor_settings: tuple = (None, None)
     odometry_effective: dict[str, Any] = field(default_factory=dict)  # the odometry's full effective config
     warnings: list[str] = field(default_factory=list)  # source_warnings, degenerate odometry or ground truth
+    replayed_s: dict[str, float] = field(default_factory=dict)  # stages read from the cache: s they took computed
+    deskew: dict[str, Any] = field(default_factory=dict)  # the deskew done (deskew_metrics)
 
     def __len__(self) -> int:
         return len(self.sequence)
@@ -78,17 +81,19 @@ def pipeline_cache(cache_dir: str | None) -> Path:
     return cache_root(cache_dir) / "pipeline"
 
 
-def make_odometry(config: RunConfig, n_frames: int, point_times: bool = True):
+def make_odometry(config: RunConfig, n_frames: int, point_times: bool | None = True):
     """KISS-ICP with `odometry_params`, or the pose file named by `config.odometry`: one pose a scan of the
     recording, cut by the same --first/--jump/-n as the scans (a file with one pose a selected scan is
     taken as it is).
 
-    Without per-point times (`point_times` False: the source's frames carry none) KISS-ICP's deskewing is
-    switched off here (deskew_dropped), before any cache key is made, so that cached and fresh runs (batch
-    and online) record and key what is done."""
+    KISS-ICP deskews when the scans carry per-point times (`point_times` True), as kiss-icp does, unless
+    `odometry.deskew=false`; without them (False), or when the source does not say (None), it does not. A
+    deskew asked for scans without per-point times is switched off here with one warning (deskew_dropped).
+    Decided before any cache key is made, so that cached and fresh runs (batch and online) record and key what
+    is done."""
     if config.odometry == "kiss":
-        try:
-            odometry = KissOdometry(**config.odometry_params)
+        try:  # deskew_choice's default unless odometry_params say (an asked deskew dropped below)
+            odometry = KissOdometry(**{"deskew": deskew_choice(config, point_times)[0], **config.odometry_params})
         except TypeError as exc:
             raise InputError(f"odometry kiss: bad parameters {sorted(config.odometry_params)} ({exc}); "
                              f"it takes {', '.join(KISS_PARAMETERS)}") from None
@@ -113,13 +118,33 @@ def make_odometry(config: RunConfig, n_frames: int, point_times: bool = True):
     return odometry
 
 
-def deskew_dropped(config: RunConfig, point_times: bool) -> bool:
+def deskew_dropped(config: RunConfig, point_times: bool | None) -> bool:
     """Whether `config` asks KISS-ICP to deskew scans that have no per-point times (`point_times` False), which
     make_odometry then switches off."""
-    return config.odometry == "kiss" and not point_times and bool(config.odometry_params.get("deskew"))
+    return config.odometry == "kiss" and point_times is False and config.odometry_params.get("deskew") is True
 
 
-def config_as_run(config: Config, point_times: bool) -> Config:
+def deskew_choice(config: RunConfig, point_times: bool | None) -> tuple[bool | None, str]:
+    """(whether the odometry deskews, why) for scans with per-point times (`point_times` True), without (False)
+    or not known (None); None for an odometry other than KISS-ICP. Off by default without per-point times, as
+    there is nothing to deskew with; an explicit odometry.deskew wins where it can be done."""
+    if config.odometry != "kiss":
+        return None, "odometry is not KISS-ICP"
+    asked = config.odometry_params.get("deskew")
+    if deskew_dropped(config, point_times):
+        return False, "no per-point times (odometry.deskew=true dropped)"
+    if asked is not None:
+        return bool(asked), f"odometry.deskew={str(bool(asked)).lower()}"
+    return (True, "per-point times") if point_times else (False, "no per-point times")
+
+
+def deskew_metrics(config: RunConfig, point_times: bool | None) -> dict[str, Any]:
+    """metrics.json's `deskew` (true, false, or null for an odometry other than KISS-ICP) and `deskew_from`."""
+    on, why = deskew_choice(config, point_times)
+    return {"deskew": on, "deskew_from": why}
+
+
+def config_as_run(config: Config, point_times: bool | None) -> Config:
     """`config` as its odometry runs: deskew false when make_odometry switches it off (deskew_dropped), so that
     config.yaml agrees with metrics.json and re-runs what ran."""
     if not deskew_dropped(config, point_times):
@@ -127,7 +152,7 @@ def config_as_run(config: Config, point_times: bool) -> Config:
     return config.model_copy(update={"odometry_params": {**config.odometry_params, "deskew": False}})
 
 
-def source_warnings(config: RunConfig, name: str, times_known: bool, point_times: bool) -> list[str]:
+def source_warnings(config: RunConfig, name: str, times_known: bool, point_times: bool | None) -> list[str]:
     """The run's warnings about its scans (`name`) for report.md, each logged once where it is decided: no
     timestamps (frame k at k s, datasets.sequences), deskew switched off without per-point times (make_odometry)."""
     return ([f"{name}: {UNTIMED}"] if not times_known else []) + (
@@ -148,6 +173,15 @@ def check_window(config: RunConfig, n_frames: int, fix: str = CONFIG_WINDOW_FIX)
                          f"never fills and only frame 0 becomes a keyframe (flush is off); the evaluation needs at "
                          f"least {MIN_KEYFRAMES}: " + fix.format(frames=n_frames, window=window))
     sampler.expect_frames(n_frames, flush=True)
+
+
+def replayed_seconds(stages: dict[str, Computed], timer: StageTimer) -> dict[str, float]:
+    """Stage -> seconds computing it took, for the `stages` replayed from the cache; `timer` counts them too (a
+    replayed stage costs what it took when computed: speed figures are those of the whole pipeline)."""
+    replayed = {name: float(stage.ms.sum()) / 1e3 for name, stage in stages.items() if stage.cached}
+    for name, seconds in replayed.items():
+        timer.seconds[name] = timer.seconds.get(name, 0.0) + seconds
+    return replayed
 
 
 def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[RunConfig] = (),
@@ -171,23 +205,28 @@ def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[R
     if config.descriptor == "precomputed":
         params.setdefault("n_frames", n)
     descriptor = make_descriptor(config.descriptor, **params)
-    cached: dict[str, bool] = {}
     with timer.stage("odometry"):
         pose_file = [] if config.odometry == "kiss" else [odometry.path]
-        poses, cached["odometry"] = sequence_odometry(sequence, odometry, OdometryCache(cache), quiet, pose_file)
+        poses = sequence_odometry(sequence, odometry, OdometryCache(cache), quiet, pose_file)
     with timer.stage("descriptors"):
         use_cache = config.descriptor != "precomputed"
         key = descriptor_key(sequence, config.descriptor, config.descriptor_params, cache)
-        descriptors, cached["descriptors"] = compute_descriptors(sequence, descriptor, cache if use_cache else None,
-                                                                 key, quiet)
-    sanity = frontend_warnings(sequence.gt_poses, poses, sequence.times)
+        descriptors = compute_descriptors(sequence, descriptor, cache if use_cache else None, key, quiet)
+    stages = {"odometry": poses, "descriptors": descriptors}
+    replayed = replayed_seconds(stages, timer)
+    if replayed and not quiet:  # where a computed stage shows its progress
+        print("front end replayed from the cache: " + ", ".join(f"{name} (computed in {seconds:.1f} s)"
+                                                                 for name, seconds in replayed.items()),
+              file=sys.stderr)
+    sanity = frontend_warnings(sequence.gt_poses, poses.values, sequence.times)
     if isinstance(odometry, KissOdometry):
         sanity += odometry.unregistered_warning(n)
     for warning in sanity:
         logger.warning(warning)
     warnings = [*source_warnings(config, sequence.name, sequence.times_known, sequence.point_times), *sanity]
-    frontend = Frontend(sequence, sequence.gt_poses, poses, descriptors, descriptor,
-                        _odometry_config(config, n), timer, cached, odometry_effective=dict(odometry.config),
-                        warnings=warnings)
+    frontend = Frontend(sequence, sequence.gt_poses, poses.values, descriptors.values, descriptor,
+                        _odometry_config(config, n), timer, {k: v.cached for k, v in stages.items()},
+                        odometry_effective=dict(odometry.config), warnings=warnings, replayed_s=replayed,
+                        deskew=deskew_metrics(config, sequence.point_times))
     frontend.descriptor_settings = (config.descriptor, config.descriptor_params)
     return frontend

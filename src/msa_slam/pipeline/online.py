@@ -6,6 +6,11 @@ every frame that finalised keyframes). A recorder keeps, per frame, the time of 
 held (keyframe clouds, descriptors, graph, pending scans, process RSS); at the end F1-max, ATE before and
 after optimisation, and throughput (frames per second, real-time factor for the sensor rate). The odometry
 gets the batch pipeline's plausibility checks (stalled, implausible steps) once the run has ended.
+
+Throughput is that of the whole pipeline as it ran (reading the frames included); odometry replayed from the
+cache counts with the time it took when it was computed, and the run says it was replayed. The progress line,
+metrics.json and report.md compute frames per second and real-time factor with one function
+(evaluation.resources.throughput) from the same seconds.
 """
 
 from __future__ import annotations
@@ -21,10 +26,11 @@ from threadpoolctl import threadpool_limits
 from msa_slam.backend import IncrementalPoseGraph
 from msa_slam.descriptors import make_descriptor
 from msa_slam.errors import InputError
-from msa_slam.evaluation.resources import current_rss_bytes
+from msa_slam.evaluation.resources import current_rss_bytes, throughput
 from msa_slam.evaluation.sanity import frontend_warnings
 from msa_slam.odometry import KissOdometry, NoisyOdometry, OdometryCache, ReplayedOdometry
-from msa_slam.pipeline.frontend import config_as_run, make_odometry, pipeline_cache, source_warnings
+from msa_slam.pipeline.frontend import (config_as_run, deskew_metrics, make_odometry, pipeline_cache,
+                                        source_warnings)
 from msa_slam.pipeline.online_config import NO_TIMESTAMPS, OnlineConfig
 from msa_slam.pipeline.source import open_source
 from msa_slam.progress import LogProgress, Progress, progress_bar
@@ -64,28 +70,28 @@ def _percentiles(values: np.ndarray) -> dict[str, float]:
             "max": round(float(v.max()), 3)}
 
 
-def _metrics(result: RunResult, times_known: bool = True) -> dict[str, Any]:
-    """The shared metrics (msa_slam.slam.core_metrics) plus throughput, latency and the memory store
-    (`times_known` False: the frames' times are frame numbers, see frame_rate_hz)."""
+def _metrics(result: RunResult, seconds: float, times_known: bool = True) -> dict[str, Any]:
+    """The shared metrics (msa_slam.slam.core_metrics) plus throughput over the pipeline's `seconds` (see
+    run_online), latency and the memory store (`times_known` False: the frames' times are frame numbers, see
+    frame_rate_hz)."""
     cfg, mem, n = result.config, result.memory, len(result)
     totals = {s: float(result.steps_ms[s].sum()) / 1e3 for s in STEPS}
     final_s = result.final_s["optimisation"]
     backend = float(result.backend_ms.sum()) / 1e3 + final_s
-    wall = backend + totals["odometry"] + totals["descriptor"]  # a frame's whole processing
     metrics = {"pipeline": "online", **core_metrics(result)}
     memory = metrics["memory_bytes"]
     memory.update({"keyframe_clouds_on_disk": result.memory_bytes["cloud_disk_bytes"], "cloud_store": cfg.cloud_store})
     graph_steps = result.steps_ms["graph_update"][mem["keyframes"] > np.concatenate([[0], mem["keyframes"][:-1]])]
     rate, rate_from = frame_rate_hz(float(result.times[0]), float(result.times[-1]), n, cfg.sensor_rate_hz,
                                     times_known)
+    fps, realtime_factor = throughput(n, seconds, rate)
     metrics.update({
         "bytes_per_keyframe": memory["total"] / metrics["keyframes"],
         "time_s": {**{s: round(v, 4) for s, v in totals.items()}, "final_optimisation": round(final_s, 4),
                    "backend_total": round(backend, 4)},
-        "fps": n / wall if wall > 0 else float("inf"),
+        "pipeline_time_s": round(seconds, 4), "fps": fps,
         "backend_fps": n / backend if backend > 0 else float("inf"),
-        "frame_rate_hz": rate, "frame_rate_from": rate_from,
-        "realtime_factor": (n / wall) / rate if wall > 0 else float("inf"),
+        "frame_rate_hz": rate, "frame_rate_from": rate_from, "realtime_factor": realtime_factor,
         "latency_ms": {"backend": _percentiles(result.backend_ms),
                        **{s: _percentiles(result.steps_ms[s]) for s in STEPS},
                        "graph_update_per_keyframe_step": _percentiles(graph_steps)},
@@ -115,21 +121,21 @@ class LiveView(Protocol):
 def make_online_odometry(config: OnlineConfig, source: FrameSource, n: int):
     """(odometry object, cached) - gt-noise, a pose file, or KISS-ICP (replayed from the batch pipeline's
     cache when it has the scans this run reads, keyed as there by the selection (--first/--jump/-n), so grids
-    do not redo it; live otherwise; deskew off when the source's frames have no per-point times, as in the
-    batch pipeline's key)."""
+    do not redo it: a ReplayedOdometry with the time each frame took computed; live otherwise; deskew as in
+    the batch pipeline's key: on when the source's frames carry per-point times, see make_odometry)."""
     if config.odometry == "gt-noise":
         try:
             return NoisyOdometry(source.gt_poses[:n], seed=config.seed, **config.odometry_params), False
         except TypeError:
             raise InputError(f"odometry gt-noise: bad parameters {sorted(config.odometry_params)}; it takes "
                              "translation_noise, rotation_noise_deg") from None
-    odometry = make_odometry(config, len(source), source.point_times is not False)
+    odometry = make_odometry(config, len(source), source.point_times)
     if config.odometry == "kiss" and source.sequence is not None:
         cache = OdometryCache(pipeline_cache(config.cache_dir))
         entry = cache.load_entry(OdometryCache.key(source.sequence, odometry.config, store=cache.store), len(source))
         if entry is not None:
             odometry.unregistered_frames = [frame for frame in entry[1] if frame < n]
-            return ReplayedOdometry(entry[0], odometry.unregistered_warning(n)), True
+            return ReplayedOdometry(entry[0], entry[2], odometry.unregistered_warning(n)), True
     return odometry, False
 
 
@@ -147,9 +153,9 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     source = source or open_source(config.dataset, config.dataset_kind, config.cache_dir, progress=not quiet)
     n = len(source) if config.max_frames is None else min(len(source), config.max_frames)
     odometry, cached = make_online_odometry(config, source, n)
-    point_times = source.point_times is not False
-    notes = source_warnings(config, source.name, source.times_known, point_times)  # logged where decided
-    config = config_as_run(config, point_times)  # what result.config (config.yaml) records
+    notes = source_warnings(config, source.name, source.times_known, source.point_times)  # logged where decided
+    deskew = deskew_metrics(config, source.point_times)
+    config = config_as_run(config, source.point_times)  # what result.config (config.yaml) records
     descriptor = make_descriptor(config.descriptor, **config.descriptor_params)
     clouds = make_cloud_store(config.cloud_store, config.verifier.voxel_size, config.store_dir)
     load_kernels(config.sampler, config.sampler_params, descriptor.shape)  # before the back end: not in its timings
@@ -161,21 +167,24 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     if not times_known and source.sequence is None:  # a sequence opened from files has said so (UNTIMED)
         logger.warning("online: the frames have no timestamps; the real-time factor is taken against the config's "
                        "sensor_rate_hz (%g Hz)", config.sensor_rate_hz)
+    replayed = isinstance(odometry, ReplayedOdometry)
+    label = f"online {config.name}" + (" (odometry replayed from the cache, counted as computed)" if replayed else "")
     with threadpool_limits(limits=1, user_api="blas"), online_progress(quiet) as bar, closing(backend):
-        task = bar.add_task(f"online {config.name}", total=n, fps=0.0, rtf=0.0, kf=0, loops=0)
+        task = bar.add_task(label, total=n, fps=0.0, rtf=0.0, kf=0, loops=0)
         start, first_time = time.perf_counter(), None
+        credit = 0.0  # s: replayed odometry's time as computed, less the time its replay took
         counted = accepted = 0  # backend.loops only grows: the loops counted so far, and how many were accepted
 
-        def figures(frames: int, last_time: float, keyframes: int) -> dict[str, Any]:
-            """The progress line's fields after `frames` frames."""
+        def figures(frames: int, last_time: float, keyframes: int, seconds: float) -> dict[str, Any]:
+            """The progress line's fields after `frames` frames in the pipeline's `seconds`."""
             nonlocal counted, accepted
             if quiet:
                 return {}
             accepted += sum(c.accepted for c in backend.loops[counted:])
             counted = len(backend.loops)
-            fps = frames / max(time.perf_counter() - start, 1e-9)
             rate = frame_rate_hz(first_time, last_time, frames, config.sensor_rate_hz, times_known)[0]
-            return {"fps": fps, "rtf": fps / rate, "kf": keyframes, "loops": accepted}
+            fps, rtf = throughput(frames, seconds, rate)
+            return {"fps": fps, "rtf": rtf, "kf": keyframes, "loops": accepted}
 
         for i, frame in enumerate(source.frames()):
             if i >= n:
@@ -185,15 +194,21 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
             pose = odometry.register(frame.points, frame.timestamps,  # times: for deskew
                                      frame.time if times_known else None)
             t1 = time.perf_counter()
+            if replayed:
+                credit += odometry.ms[i] / 1e3 - (t1 - t0)
             desc = np.asarray(descriptor.compute(frame.points, frame=i), dtype=np.float64)
-            front_ms["odometry"][i], front_ms["descriptor"][i] = (t1 - t0) * 1e3, (time.perf_counter() - t1) * 1e3
+            front_ms["odometry"][i] = odometry.ms[i] if replayed else (t1 - t0) * 1e3
+            front_ms["descriptor"][i] = (time.perf_counter() - t1) * 1e3
             new = backend.add_frame(pose, desc, frame.points, frame.gt_pose, frame.time)
             if viewer is not None:
                 viewer.frame(backend, i, frame.points, new)
             if i < n - 1:  # every frame, so that a failure reports the frame it stopped at; the last: after finish()
-                bar.update(task, completed=i + 1, **figures(i + 1, frame.time, len(backend.store)))
+                bar.update(task, completed=i + 1, **figures(i + 1, frame.time, len(backend.store),
+                                                            time.perf_counter() - start + credit))
         result = backend.finish()  # flushes the sampler: the last line counts the keyframes the report does
-        bar.update(task, completed=len(result), **figures(len(result), float(result.times[-1]), len(result.keyframes)))
+        seconds = time.perf_counter() - start + credit  # the pipeline's, as metrics.json and report.md give it
+        bar.update(task, completed=len(result), **figures(len(result), float(result.times[-1]), len(result.keyframes),
+                                                          seconds))
     if viewer is not None:
         viewer.finish(result)
     m = len(result)
@@ -201,7 +216,9 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     result.memory = {k: v[:m] for k, v in recorder.memory.items()}
     front = [result.steps_ms[s] for s in front_ms]
     result.memory_bytes["record_bytes"] += sum(v.nbytes for v in (*result.memory.values(), *front))  # per-frame series
-    result.metrics = {**_metrics(result, times_known), "odometry_cached": cached}
+    result.metrics = {**_metrics(result, seconds, times_known), "odometry_cached": cached,
+                      "replayed_time_s": {"odometry": round(float(odometry.ms[:m].sum()) / 1e3, 4)} if replayed else {},
+                      **deskew}
     warnings = frontend_warnings(result.gt_poses, result.odometry, result.times)
     if isinstance(odometry, KissOdometry):
         warnings += odometry.unregistered_warning(m)
