@@ -7,9 +7,8 @@ moved folder a hit), the effective configuration, a fingerprint of msa-slam's co
 (msa_slam.io.fingerprint) and the versions of the libraries that computed it. File digests are memoised per
 absolute path, size, mtime, inode and ctime in the cache folder's DIGESTS_FILE, so a warm run only stats its
 inputs. Entries are written under a locked temporary name and renamed; a writer killed before the rename leaves
-an unlocked temporary that a later run removes (scratch folders likewise: staging.Writer). A bad entry
-(unreadable, or failing its check: e.g. not finite float64 of the expected shape in this machine's byte order) is
-recomputed and a cache that cannot be written is skipped, each with one
+an unlocked temporary that a later run removes (scratch folders likewise: staging.Writer). A bad entry (unreadable, or not finite float64 of the expected
+shape in this machine's byte order) is recomputed and a cache that cannot be written is skipped, each with one
 warning naming the file: a cache only ever saves time.
 """
 
@@ -305,15 +304,14 @@ class CacheDir:
     def path(self, name: str) -> Path:
         return self.folder / f"{name}.npy"
 
-    def load(self, name: str, check: Callable[[np.ndarray], np.ndarray], mmap: bool = False) -> np.ndarray | None:
+    def load(self, name: str, check: Callable[[np.ndarray], np.ndarray]) -> np.ndarray | None:
         """The entry passed through `check` (which raises ValueError on a bad one), or None when it is absent,
-        unreadable, truncated or fails the check (with a warning naming the file: it will be recomputed);
-        `mmap`: memory-mapped read-only, for a large entry of which a run reads parts."""
+        unreadable, truncated or fails the check (with a warning naming the file: it will be recomputed)."""
         path = self.path(name)
         if not path.is_file():
             return None
         try:
-            return check(np.load(path, allow_pickle=False, mmap_mode="r" if mmap else None))
+            return check(np.load(path, allow_pickle=False))
         except (OSError, ValueError, EOFError) as exc:
             log.warning("cache: ignoring %s (%s); recomputing it", path, exc)
             return None

@@ -10,6 +10,7 @@ the points are memory-mapped, so a run holds in RAM only the keyframes' clouds i
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from typing import Callable
 
@@ -20,6 +21,8 @@ from msa_slam.io.cache import CacheDir, cache_key, sequence_inputs
 from msa_slam.io.fingerprint import code_fingerprint
 from msa_slam.progress import progress_bar
 from msa_slam.registration.clouds import downsample
+
+log = logging.getLogger(__name__)
 
 CLOUD_LIBRARIES = ("numpy", "small_gicp")
 CLOUD_CODE = ("msa_slam.registration.clouds", "msa_slam.datasets")  # the voxel downsampling and the scan readers
@@ -37,8 +40,9 @@ class FrameClouds:
         return len(self.offsets) - 1
 
     def __getitem__(self, frame: int) -> np.ndarray:
-        """A copy of the frame's cloud: RAM of its own, as the keyframe store accounts it."""
-        return np.array(self.points[self.offsets[frame]:self.offsets[frame + 1]])
+        """A copy of the frame's cloud, RAM of its own as the keyframe store accounts it, in downsample's memory
+        layout (column-major), so that products with it round as they did on the cloud downsampled here."""
+        return np.asfortranarray(self.points[self.offsets[frame]:self.offsets[frame + 1]])
 
 
 def cloud_key(sequence: ScanSequence, voxel_size: float, cache: CacheDir | None = None) -> str:
@@ -55,7 +59,7 @@ def frame_clouds(sequence: ScanSequence, voxel_size: float, cache: CacheDir | No
     offsets_name, points_name = f"frame-cloud-offsets-{key}", f"frame-clouds-{key}"
     if cache is not None:
         offsets = cache.load(offsets_name, _offsets_check(len(sequence)))
-        points = None if offsets is None else cache.load(points_name, _points_check(int(offsets[-1])), mmap=True)
+        points = None if offsets is None else _load_mapped(cache, points_name, _points_check(int(offsets[-1])))
         if points is not None:
             return FrameClouds(points, offsets, float(voxel_size)), True
     clouds = []
@@ -65,10 +69,24 @@ def frame_clouds(sequence: ScanSequence, voxel_size: float, cache: CacheDir | No
             clouds.append(downsample(sequence[i].points, voxel_size, where=f"frame {i}"))
             bar.advance(task)
     offsets = np.concatenate([[0], np.cumsum([len(c) for c in clouds])]).astype(np.int64)
-    points = np.concatenate(clouds)
+    points = np.ascontiguousarray(np.concatenate(clouds))  # row-major: a frame's cloud is one block of the file
     if cache is not None and cache.save(points_name, points) is not None:
         cache.save(offsets_name, offsets)  # written last: an entry without it is recomputed
     return FrameClouds(points, offsets, float(voxel_size)), False
+
+
+def _load_mapped(cache: CacheDir, name: str, check: Callable[[np.ndarray], np.ndarray]) -> np.ndarray | None:
+    """CacheDir.load's entry, memory-mapped read-only: a run reads only its keyframes' clouds. (Not an option of
+    CacheDir.load: io.cache is part of the odometry and descriptor caches' code fingerprint, which an edit
+    there would change, making every cached odometry a miss.)"""
+    path = cache.path(name)
+    if not path.is_file():
+        return None
+    try:
+        return check(np.load(path, allow_pickle=False, mmap_mode="r"))
+    except (OSError, ValueError, EOFError) as exc:
+        log.warning("cache: ignoring %s (%s); recomputing it", path, exc)
+        return None
 
 
 def _offsets_check(frames: int) -> Callable[[np.ndarray], np.ndarray]:
