@@ -261,11 +261,12 @@ class SlamBackend:
                  "flushed_keyframes": len(self.sampler.flushed_keyframes)}
         map_points = keyframe_map(self.store.clouds, keys, optimised, self.settings.verifier.voxel_size)
         memory["map_bytes"] = int(map_points.nbytes)
+        t3 = time.perf_counter()
         settle_heap()
         rss_growth = current_rss_bytes() - self.rss_start
         return RunResult(self.settings, self.name, self.times, self.odometry, gt, keys, optimised, self.loops,
                          pr, evaluation, self.steps_ms, memory, stats, len(self.loop_closer.best_similarity),
-                         {"optimisation": t1 - t0, "evaluation": t2 - t1}, map_points=map_points,
+                         {"optimisation": t1 - t0, "evaluation": t2 - t1, "map": t3 - t2}, map_points=map_points,
                          graph_factors=self.graph.factors, rss_growth_bytes=rss_growth,
                          graph_info=self.graph.describe())
 
