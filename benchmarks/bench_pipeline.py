@@ -2,7 +2,9 @@
 
 Default data: `sim:demo`, the simulated KITTI-05 trajectory (the whole 2.2 km, every 3rd frame: 921 scans)
 with KISS-ICP odometry and Scan Context; the shared front end is computed once (or read from the cache)
-and reported apart. Times are medians over --repeats runs of each method's back-end.
+and reported apart (`clouds`: every frame's downsampled cloud, which each method's keyframe_store copies). Times
+are medians over --repeats runs of each method's back-end; "sampler/data" is the sampler's window-optimisation
+time over the data's duration (metrics.json `sampler_realtime_fraction`), also a median.
 
     python benchmarks/bench_pipeline.py [--dataset sim:demo] [--repeats 3] [--mode oracle]
 """
@@ -38,8 +40,8 @@ def main() -> None:
         print(f"  front end {stage:<12} {seconds:8.2f} s  ({state})")
     print(f"back-end medians over {args.repeats} runs, mode {args.mode}\n")
 
-    columns = ["method", "kf", "cand", "ver", *BACKEND_STAGES, "total s", "desc MiB", "clouds MiB", "graph KiB",
-               "peak RSS MiB"]
+    columns = ["method", "kf", "cand", "ver", *BACKEND_STAGES, "total s", "sampler/data", "desc MiB", "clouds MiB",
+               "graph KiB", "peak RSS MiB"]
     print(" | ".join(columns))
     print("|".join("---" for _ in columns))
     for cfg in method_configs(base):
@@ -47,8 +49,10 @@ def main() -> None:
         m = runs[-1]
         med = {s: statistics.median(r["time_s"].get(s, 0.0) for r in runs) for s in (*BACKEND_STAGES, "backend_total")}
         mem = m["memory_bytes"]
+        fractions = [r["sampler_realtime_fraction"] for r in runs]
+        fraction = "n/a" if None in fractions else f"{statistics.median(fractions):.4f}"
         row = [cfg.name, m["keyframes"], m["candidates"], m["verified"], *(f"{med[s]:.2f}" for s in BACKEND_STAGES),
-               f"{med['backend_total']:.2f}", f"{mem['keyframe_descriptors'] / 2**20:.2f}",
+               f"{med['backend_total']:.2f}", fraction, f"{mem['keyframe_descriptors'] / 2**20:.2f}",
                f"{mem['keyframe_clouds'] / 2**20:.1f}", f"{mem['graph'] / 2**10:.0f}",
                f"{m['peak_rss_bytes'] / 2**20:.0f}"]
         print(" | ".join(map(str, row)), flush=True)

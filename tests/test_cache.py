@@ -57,10 +57,10 @@ def _config(data: Path, cache: Path, **fields):
 def test_scans_replaced_in_place_are_recomputed(sequence, data, tmp_path):
     cfg = _config(data, tmp_path / "cache")
     first = prepare_frontend(cfg)
-    assert first.cached == {"odometry": False, "descriptors": False}
+    assert first.cached == {"odometry": False, "descriptors": False, "clouds": False}
     _fill(data, sequence, 100)  # same path, same number of scans, other data
     again = prepare_frontend(cfg)
-    assert again.cached == {"odometry": False, "descriptors": False}
+    assert again.cached == {"odometry": False, "descriptors": False, "clouds": False}
     assert np.abs(again.odometry[-1, :3, 3] - first.odometry[-1, :3, 3]).max() > 1.0
     fresh = prepare_frontend(_config(data, tmp_path / "fresh"))
     np.testing.assert_allclose(again.odometry, fresh.odometry, atol=1e-6)
@@ -72,13 +72,13 @@ def test_same_data_elsewhere_is_a_hit_and_settings_are_part_of_the_key(data, tmp
     first = prepare_frontend(_config(data, cache))
     copy = Path(shutil.copytree(data, tmp_path / "elsewhere" / "copy"))  # copy2 keeps sizes and mtimes
     moved = prepare_frontend(_config(copy, cache))
-    assert moved.cached == {"odometry": True, "descriptors": True}
+    assert moved.cached == {"odometry": True, "descriptors": True, "clouds": True}
     np.testing.assert_array_equal(moved.odometry, first.odometry)
     np.testing.assert_array_equal(moved.descriptors, first.descriptors)
     other = prepare_frontend(_config(copy, cache, descriptor_params={"n_sector": 30}))
-    assert other.cached == {"odometry": True, "descriptors": False}
+    assert other.cached == {"odometry": True, "descriptors": False, "clouds": True}
     other = prepare_frontend(_config(copy, cache, odometry_params={"max_range": 60.0}))
-    assert other.cached == {"odometry": False, "descriptors": True}
+    assert other.cached == {"odometry": False, "descriptors": True, "clouds": True}
 
 
 def test_odometry_key_covers_threads_versions_and_code(data, monkeypatch):
@@ -147,8 +147,10 @@ def test_truncated_or_nan_entries_are_recomputed_with_a_warning(data, tmp_path, 
     cfg = _config(data, tmp_path / "cache")
     first = prepare_frontend(cfg)
     files = sorted((tmp_path / "cache" / "pipeline").glob("*.npy"))
-    # each entry's per-frame compute times (ms-NAME) and the odometry's unregistered frames beside the entries
-    assert sorted(p.name.split("-")[0] for p in files) == ["descriptors", "ms", "ms", "odometry", "unregistered"]
+    # each entry's per-frame compute times (ms-NAME), the odometry's unregistered frames beside the entries, the
+    # frame clouds' points and offsets
+    assert sorted(p.name.split("-")[0] for p in files) == ["descriptors", "frame", "frame", "ms", "ms", "ms",
+                                                           "odometry", "unregistered"]
     entries = {p.name.split("-")[0]: p for p in files if not p.name.startswith("ms-")}
     odometry = entries["odometry"]
     odometry.write_bytes(odometry.read_bytes()[:300])
@@ -157,16 +159,16 @@ def test_truncated_or_nan_entries_are_recomputed_with_a_warning(data, tmp_path, 
     np.save(entries["descriptors"], poisoned)
     with caplog.at_level(logging.WARNING):
         again = prepare_frontend(cfg)
-    assert again.cached == {"odometry": False, "descriptors": False}
+    assert again.cached == {"odometry": False, "descriptors": False, "clouds": True}
     assert f"ignoring {odometry}" in caplog.text
     assert f"ignoring {entries['descriptors']} (NaN or infinite values)" in caplog.text
     np.testing.assert_allclose(again.odometry, first.odometry, atol=1e-6)
     np.testing.assert_array_equal(again.descriptors, first.descriptors)
-    assert prepare_frontend(cfg).cached == {"odometry": True, "descriptors": True}  # rewritten
+    assert prepare_frontend(cfg).cached == {"odometry": True, "descriptors": True, "clouds": True}  # rewritten
     times = tmp_path / "cache" / "pipeline" / f"ms-{entries['descriptors'].stem}.npy"
     np.save(times, -np.load(times) - 1.0)  # negative: not what computing took, so the entry is not replayed
     with caplog.at_level(logging.WARNING):
-        assert prepare_frontend(cfg).cached == {"odometry": True, "descriptors": False}
+        assert prepare_frontend(cfg).cached == {"odometry": True, "descriptors": False, "clouds": True}
     assert f"ignoring {times} (negative times)" in caplog.text
 
 
@@ -196,7 +198,7 @@ def test_unwritable_cache_only_costs_the_cache(data, tmp_path, caplog):
         root.chmod(0o700)
     warnings = [r.getMessage() for r in caplog.records if "cannot write" in r.getMessage()]
     assert len(warnings) == 1 and str(root / "pipeline") in warnings[0] and "without the cache" in warnings[0]
-    assert frontend.cached == {"odometry": False, "descriptors": False}
+    assert frontend.cached == {"odometry": False, "descriptors": False, "clouds": False}
     reference = prepare_frontend(_config(data, tmp_path / "ok"))
     np.testing.assert_allclose(frontend.odometry, reference.odometry, atol=1e-6)
 

@@ -74,15 +74,18 @@ def test_batch_stage_times_count_replayed_stages_as_computed(tmp_path):
     data = _kitti(tmp_path / "seq")
     _, fresh, _ = _command("run", data, tmp_path, "fresh")
     output, again, report = _command("run", data, tmp_path, "again")
-    assert fresh["replayed_time_s"] == {} and again["frontend_cached"] == {"odometry": True, "descriptors": True}
+    assert fresh["replayed_time_s"] == {} and again["frontend_cached"] == {"odometry": True, "descriptors": True,
+                                                                                    "clouds": True}
     replayed = again["replayed_time_s"]
-    assert set(replayed) == {"odometry", "descriptors"} and replayed["odometry"] > 0
+    assert set(replayed) == {"odometry", "descriptors", "clouds"} and replayed["odometry"] > 0
     for stage, seconds in replayed.items():  # read from the cache, plus the time it took when computed
         assert again["frontend_time_s"][stage] >= seconds
         assert seconds <= fresh["frontend_time_s"][stage]
-    assert "(odometry, descriptors replayed from the cache, counted with the time they took when computed)" in report
+    assert ("(odometry, descriptors, clouds replayed from the cache, counted with the time they took when computed)"
+            in report)
     assert (f"front end replayed from the cache: odometry (computed in {replayed['odometry']:.1f} s), descriptors "
-            f"(computed in {replayed['descriptors']:.1f} s)") in output
+            f"(computed in {replayed['descriptors']:.1f} s), clouds (computed in {replayed['clouds']:.1f} s)"
+            ) in output
 
 
 def test_a_grid_estimate_counts_what_a_cell_spent_not_replayed_time():

@@ -88,7 +88,7 @@ def test_realistic_mode_counts_its_false_loops(base, frontend):
 
 def test_frontend_is_cached_and_checked(base, frontend):
     again = prepare_frontend(base)
-    assert again.cached == {"odometry": True, "descriptors": True}
+    assert again.cached == {"odometry": True, "descriptors": True, "clouds": True}
     np.testing.assert_array_equal(again.descriptors, frontend.descriptors)
     np.testing.assert_array_equal(again.odometry, frontend.odometry)
     other = base.model_copy(update={"descriptor_params": {"n_sector": 30}})

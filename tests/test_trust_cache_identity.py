@@ -102,20 +102,20 @@ def test_edited_data_with_restored_times_is_recomputed_and_a_moved_folder_is_a_h
     for k in range(6, 12):
         _shift_keeping_times(copy / "velodyne" / f"{k:06d}.bin", 1.5)
     edited = _frontend(copy, cache)
-    assert edited.cached == {"odometry": False, "descriptors": False}
+    assert edited.cached == {"odometry": False, "descriptors": False, "clouds": False}
     fresh = _frontend(copy, tmp_path / "fresh")
     np.testing.assert_array_equal(edited.odometry, fresh.odometry)
     np.testing.assert_array_equal(edited.descriptors, fresh.descriptors)
     assert not np.array_equal(edited.descriptors, original.descriptors)
 
     _shift_keeping_times(data / "velodyne" / "000003.bin", 1.5)  # in place
-    assert _frontend(data, cache).cached == {"odometry": False, "descriptors": False}
+    assert _frontend(data, cache).cached == {"odometry": False, "descriptors": False, "clouds": False}
 
     moved = tmp_path / "elsewhere" / "data-m"
     moved.parent.mkdir()
     copy.rename(moved)
     again = _frontend(moved, cache)
-    assert again.cached == {"odometry": True, "descriptors": True}
+    assert again.cached == {"odometry": True, "descriptors": True, "clouds": True}
     np.testing.assert_array_equal(again.odometry, edited.odometry)
 
 
@@ -133,12 +133,12 @@ def test_a_warm_run_reads_no_input_again_and_a_damaged_memo_is_rebuilt(data, tmp
     scans = sorted(str(p) for p in (data / "velodyne").iterdir())
     assert sorted(reads) == scans  # each scan read once, for the odometry's and the descriptors' keys
     reads.clear()
-    assert _frontend(data, cache).cached == {"odometry": True, "descriptors": True}
+    assert _frontend(data, cache).cached == {"odometry": True, "descriptors": True, "clouds": True}
     assert reads == []  # the memo on disk, read by a new CacheDir, spares every scan
     index = cache / "pipeline" / DIGESTS_FILE
     index.write_text('{"/x": "not an entry"}')
     with caplog.at_level(logging.WARNING):
-        assert _frontend(data, cache).cached == {"odometry": True, "descriptors": True}
+        assert _frontend(data, cache).cached == {"odometry": True, "descriptors": True, "clouds": True}
     assert sorted(reads) == scans
     assert _cache_warnings(caplog) == [f"cache: ignoring {index} (not an index of file digests); rebuilding it"]
     assert sorted(json.loads(index.read_text())) == scans
@@ -206,7 +206,7 @@ def test_entries_of_another_shape_precision_or_byte_order_are_recomputed(data, t
     np.save(entry, damage(np.load(entry)))
     with caplog.at_level(logging.WARNING):
         again = _frontend(data, cache)
-    assert again.cached == {"odometry": kind != "odometry", "descriptors": kind != "descriptors"}
+    assert again.cached == {"odometry": kind != "odometry", "descriptors": kind != "descriptors", "clouds": True}
     warnings = _cache_warnings(caplog)
     assert len(warnings) == 1 and warnings[0].startswith(f"cache: ignoring {entry} ({reason}")
     np.testing.assert_array_equal(again.odometry, first.odometry)

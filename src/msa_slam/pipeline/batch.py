@@ -58,7 +58,8 @@ def run_batch(config: RunConfig, frontend: Frontend | None = None, quiet: bool =
 def _run_backend(config: RunConfig, frontend: Frontend, quiet: bool, sweep: bool, sweep_off: str) -> RunResult:
     graph = PoseGraph(config.graph, mode=config.mode)
     clouds = KeyframeCloudStore(config.verifier.voxel_size)
-    backend = build_backend(config, frontend.descriptor, clouds, graph, len(frontend), frontend.name)
+    backend = build_backend(config, frontend.descriptor, clouds, graph, len(frontend), frontend.name,
+                            frame_clouds=frontend.clouds_for(config))
     sequence, times, gt = frontend.sequence, frontend.sequence.times, frontend.gt_poses
     with progress_bar(quiet) as bar:
         task = bar.add_task(f"back-end ({config.name})", total=len(frontend))

@@ -1,4 +1,5 @@
-"""The per-sequence front end: odometry and descriptors of every frame, computed once and cached on disk.
+"""The per-sequence front end: odometry, descriptors and downsampled clouds of every frame, computed once and
+cached on disk.
 
 These are the expensive stages that do not depend on the sampler, so `compare` runs them once and every
 sampler reuses them; a re-run finds them in the cache (keyed by the scans' content, settings, the code that
@@ -27,6 +28,7 @@ from msa_slam.odometry import KissOdometry, OdometryCache, PosesFromFile, sequen
 from msa_slam.odometry.kiss import NO_POINT_TIMES, PARAMETERS as KISS_PARAMETERS
 from msa_slam.pipeline.config import RunConfig
 from msa_slam.pipeline.source import open_sequence
+from msa_slam.registration.cloud_cache import FrameClouds, cloud_key, frame_clouds
 from msa_slam.sampling import make_sampler
 from msa_slam.slam.backend import MIN_KEYFRAMES
 
@@ -40,8 +42,9 @@ CONFIG_WINDOW_FIX = "use a window of at most {frames} frames (sampler_params win
 
 @dataclass
 class Frontend:
-    """A sequence with its ground truth (None when the recording has none), odometry and per-frame
-    descriptors (plus how long they took)."""
+    """A sequence with its ground truth (None when the recording has none), odometry, per-frame descriptors and
+    downsampled clouds (None for the local-map loop detectors, whose keyframe clouds are local maps), plus how
+    long they took."""
 
     sequence: ScanSequence
     gt_poses: np.ndarray | None
@@ -56,6 +59,14 @@ class Frontend:
     warnings: list[str] = field(default_factory=list)  # source_warnings, degenerate odometry or ground truth
     replayed_s: dict[str, float] = field(default_factory=dict)  # stages read from the cache: s they took computed
     deskew: dict[str, Any] = field(default_factory=dict)  # the deskew done (deskew_metrics)
+    clouds: FrameClouds | None = None
+
+    def clouds_for(self, config: RunConfig) -> FrameClouds | None:
+        """The frame clouds when `config` stores scans downsampled as they were (its loop detector and voxel size),
+        else None: its back end downsamples what it stores itself."""
+        clouds = self.clouds
+        usable = clouds is not None and config.loop_detector == "scan" and clouds.voxel_size == config.verifier.voxel_size
+        return clouds if usable else None
 
     def __len__(self) -> int:
         return len(self.sequence)
@@ -188,7 +199,8 @@ def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[R
                      window_fix: str = CONFIG_WINDOW_FIX) -> Frontend:
     """Open the dataset (once: for a large bag that is a full indexing), check that the sampler windows of
     `samplers` (default: `config`'s; compare: every method's) fit the frames read (check_window, with
-    `window_fix`), then odometry and descriptors for all frames (cached per sequence)."""
+    `window_fix`), then odometry, descriptors and (scan loop detector) clouds downsampled at the verifier's voxel
+    size for all frames (cached per sequence)."""
     timer = StageTimer()
     with timer.stage("dataset"):
         sequence = open_sequence(config.dataset, config.dataset_kind, config.cache_dir, not quiet, config.source,
@@ -213,6 +225,10 @@ def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[R
         key = descriptor_key(sequence, config.descriptor, config.descriptor_params, cache)
         descriptors = compute_descriptors(sequence, descriptor, cache if use_cache else None, key, quiet)
     stages = {"odometry": poses, "descriptors": descriptors}
+    if config.loop_detector == "scan":  # the local-map detectors store local maps, built from the scans
+        with timer.stage("clouds"):
+            voxel = config.verifier.voxel_size
+            stages["clouds"] = frame_clouds(sequence, voxel, cache, cloud_key(sequence, voxel, cache), quiet)
     replayed = replayed_seconds(stages, timer)
     if replayed and not quiet:  # where a computed stage shows its progress
         print("front end replayed from the cache: " + ", ".join(f"{name} (computed in {seconds:.1f} s)"
@@ -227,6 +243,7 @@ def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[R
     frontend = Frontend(sequence, sequence.gt_poses, poses.values, descriptors.values, descriptor,
                         _odometry_config(config, n), timer, {k: v.cached for k, v in stages.items()},
                         odometry_effective=dict(odometry.config), warnings=warnings, replayed_s=replayed,
-                        deskew=deskew_metrics(config, sequence.point_times))
+                        deskew=deskew_metrics(config, sequence.point_times),
+                        clouds=stages["clouds"].values if "clouds" in stages else None)
     frontend.descriptor_settings = (config.descriptor, config.descriptor_params)
     return frontend

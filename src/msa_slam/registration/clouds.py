@@ -30,7 +30,10 @@ class KeyframeCloudStore:
 
     def add(self, key: Hashable, points: np.ndarray) -> np.ndarray:
         """Downsample and keep `points` under `key` (replacing any earlier cloud); return the stored array."""
-        cloud = downsample(points, self.voxel_size, where=f"keyframe {key}")
+        return self.keep(key, downsample(points, self.voxel_size, where=f"keyframe {key}"))
+
+    def keep(self, key: Hashable, cloud: np.ndarray) -> np.ndarray:
+        """Keep `cloud`, already downsampled at this store's voxel size (cloud_cache.FrameClouds), under `key`."""
         self._clouds[key] = cloud
         return cloud
 

@@ -108,7 +108,10 @@ class DiskCloudStore:
 
     def add(self, key: Hashable, points: np.ndarray) -> np.ndarray:
         """Downsample `points`, write them under `key`; return the cloud (not kept in RAM)."""
-        cloud = downsample(points, self.voxel_size, where=f"keyframe {key}")
+        return self.keep(key, downsample(points, self.voxel_size, where=f"keyframe {key}"))
+
+    def keep(self, key: Hashable, cloud: np.ndarray) -> np.ndarray:
+        """Write `cloud`, already downsampled at this store's voxel size (cloud_cache.FrameClouds), under `key`."""
         with atomic_path(self._path(key)) as tmp, open(tmp, "wb") as handle:
             np.save(handle, cloud)
         self._sizes[key] = int(cloud.nbytes)

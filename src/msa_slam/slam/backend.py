@@ -2,7 +2,8 @@
 frames, iSAM2 at every keyframe step).
 
 For each frame: sampler.push (and, with a local-map loop detector, the frame's scan into the local map) -> for
-every keyframe it finalises: store its cloud (its local map with such a detector), add it to the pose graph,
+every keyframe it finalises: store its cloud (its local map with such a detector; else the front end's
+downsampled cloud of the frame when given, FrameClouds, or its scan downsampled here), add it to the pose graph,
 look for loop candidates among the older keyframes, store its pose and descriptor, verify the candidates
 and add the accepted loops -> update the graph (iSAM2 relinearises; batch LM waits for `finish`).
 Every RELEASE_EVERY frames free heap pages go back to the system (iSAM2's piecewise re-elimination leaves them
@@ -24,6 +25,7 @@ from msa_slam.evaluation import evaluate_trajectories
 from msa_slam.evaluation.resources import current_rss_bytes, release_free_heap, settle_heap
 from msa_slam.place_recognition import PRCurve
 from msa_slam.registration import Verifier
+from msa_slam.registration.cloud_cache import FrameClouds
 from msa_slam.sampling import make_sampler
 from msa_slam.sampling.base import Sampler
 from msa_slam.slam.keyframes import CloudStore, KeyframeStore
@@ -76,13 +78,15 @@ class SlamBackend:
     """Frames in, keyframes, loops and a pose graph out: `add_frame` per frame, then `finish()` -> RunResult.
     With a `local_map` every frame's scan is read into it and a keyframe's cloud is its local map; a
     `loop_descriptor` (local-map detector) describes that cloud for loop detection instead of the frame's
-    descriptor, which the sampler always uses."""
+    descriptor, which the sampler always uses. Without a local map, `frame_clouds` (every frame's cloud
+    downsampled at the store's voxel size) gives a keyframe's cloud without reading its scan."""
 
     def __init__(self, settings: RunSettings, sampler: Sampler, store: KeyframeStore, loop_closer: LoopCloser,
                  graph: Graph, n_frames: int, name: str = "sequence", update_iterations: int = 0,
                  recorder: Recorder | None = None, local_map: LocalMap | None = None,
-                 loop_descriptor: Descriptor | None = None) -> None:
+                 loop_descriptor: Descriptor | None = None, frame_clouds: FrameClouds | None = None) -> None:
         self.settings, self.sampler, self.store = settings, sampler, store
+        self.frame_clouds = frame_clouds
         self.local_map, self.loop_descriptor = local_map, loop_descriptor
         self.loop_closer, self.graph = loop_closer, graph
         self.name, self.update_iterations, self.recorder = name, int(update_iterations), recorder
@@ -191,7 +195,12 @@ class SlamBackend:
                                    "(keyframes must come in time order)")
             descriptor, points = self._pending.pop(k)
             t = time.perf_counter()
-            self.store.add_cloud(k, _scan(points) if self.local_map is None else self.local_map.around(k))
+            if self.local_map is not None:
+                self.store.add_cloud(k, self.local_map.around(k))
+            elif self.frame_clouds is not None:
+                self.store.keep_cloud(k, self.frame_clouds[k])
+            else:
+                self.store.add_cloud(k, _scan(points))
             self.graph.add_keyframe(k, self.odometry[k])
             t = self._timed("keyframe_store", i, t)
             if self.loop_descriptor is not None:
@@ -252,11 +261,12 @@ class SlamBackend:
                  "flushed_keyframes": len(self.sampler.flushed_keyframes)}
         map_points = keyframe_map(self.store.clouds, keys, optimised, self.settings.verifier.voxel_size)
         memory["map_bytes"] = int(map_points.nbytes)
+        t3 = time.perf_counter()
         settle_heap()
         rss_growth = current_rss_bytes() - self.rss_start
         return RunResult(self.settings, self.name, self.times, self.odometry, gt, keys, optimised, self.loops,
                          pr, evaluation, self.steps_ms, memory, stats, len(self.loop_closer.best_similarity),
-                         {"optimisation": t1 - t0, "evaluation": t2 - t1}, map_points=map_points,
+                         {"optimisation": t1 - t0, "evaluation": t2 - t1, "map": t3 - t2}, map_points=map_points,
                          graph_factors=self.graph.factors, rss_growth_bytes=rss_growth,
                          graph_info=self.graph.describe())
 
@@ -320,10 +330,15 @@ def slam_sampler_params(sampler: str, params: dict[str, Any]) -> dict[str, Any]:
 
 
 def build_backend(config: RunSettings, descriptor: Descriptor, clouds: CloudStore, graph: Graph, n_frames: int,
-                  name: str, update_iterations: int = 0, recorder: Recorder | None = None) -> SlamBackend:
+                  name: str, update_iterations: int = 0, recorder: Recorder | None = None,
+                  frame_clouds: FrameClouds | None = None) -> SlamBackend:
     """The SLAM core for a run configuration (msa_slam.pipeline.config.RunConfig): its sampler, a keyframe
-    store over `clouds`, loop closing with its verifier and detector (a local map for the local-map and
-    map-closures detectors), and `graph` (batch LM or iSAM2)."""
+    store over `clouds` (filled from `frame_clouds` when given, which must be downsampled at the verifier's voxel
+    size), loop closing with its verifier and detector (a local map for the local-map and map-closures
+    detectors), and `graph` (batch LM or iSAM2)."""
+    if frame_clouds is not None and frame_clouds.voxel_size != config.verifier.voxel_size:
+        raise ValueError(f"frame clouds downsampled at {frame_clouds.voxel_size} m for a run whose verifier uses "
+                         f"{config.verifier.voxel_size} m voxels")
     detector = config.loop_detector
     local_map = None if detector == "scan" else LocalMap(config.local_map_m, config.verifier.voxel_size)
     loop_descriptor = local_map_descriptor(config) if detector == "local-map" else None
@@ -332,7 +347,7 @@ def build_backend(config: RunSettings, descriptor: Descriptor, clouds: CloudStor
     loops = LoopCloser(store, Verifier(config.verifier), config, map_closures)
     sampler = make_sampler(config.sampler, **slam_sampler_params(config.sampler, config.sampler_params))
     return SlamBackend(config, sampler, store, loops, graph, n_frames, name, update_iterations, recorder,
-                       local_map, loop_descriptor)
+                       local_map, loop_descriptor, frame_clouds)
 
 
 def local_map_descriptor(config: RunSettings) -> Descriptor:

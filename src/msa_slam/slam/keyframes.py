@@ -15,6 +15,7 @@ class CloudStore(Protocol):
     """Downsampled keyframe clouds by frame index (msa_slam.registration: in memory or on disk)."""
 
     def add(self, key: int, points: np.ndarray) -> np.ndarray: ...
+    def keep(self, key: int, cloud: np.ndarray) -> np.ndarray: ...
     def __getitem__(self, key: int) -> np.ndarray: ...
     @property
     def nbytes(self) -> int: ...
@@ -36,6 +37,10 @@ class KeyframeStore:
 
     def add_cloud(self, frame: int, points: np.ndarray) -> None:
         self.clouds.add(frame, points)
+
+    def keep_cloud(self, frame: int, cloud: np.ndarray) -> None:
+        """Store a cloud already downsampled at the clouds' voxel size (the front end's FrameClouds)."""
+        self.clouds.keep(frame, cloud)
 
     def add(self, frame: int, pose: np.ndarray, descriptor: np.ndarray) -> None:
         """Enter a keyframe (its cloud already stored) into the database that later keyframes query."""

@@ -66,7 +66,7 @@ class RunResult:
     memory_bytes: dict[str, int]
     sampler_stats: dict[str, Any]
     pr_queries: int  # keyframes that had an older keyframe to query (points of the PR curve)
-    final_s: dict[str, float] = field(default_factory=dict)  # optimisation and evaluation at the end
+    final_s: dict[str, float] = field(default_factory=dict)  # optimisation, evaluation and map at the end
     memory: dict[str, np.ndarray] = field(default_factory=dict)
     metrics: dict[str, Any] = field(default_factory=dict)
     pr_reference: PRCurve | None = None  # the reference example's protocol (batch runs; None: not computed)
