@@ -14,7 +14,7 @@ from msa_slam.odometry.kiss import NO_POINT_TIMES
 from msa_slam.pipeline.config import make_config
 from msa_slam.pipeline.frontend import make_odometry
 from msa_slam.pipeline.source import open_sequence
-from test_inputs import _pcd
+from test_inputs import _pcd, _write_bag
 from test_real_inputs_times import N, _points, _write_bin
 
 
@@ -32,9 +32,10 @@ def _bin_folder(root: Path) -> Path:
     return root
 
 
-def _metrics(command: str, dataset: Path, out: Path, *params: str) -> tuple[dict, str]:
+def _metrics(command: str, dataset: Path, out: Path, *params: str, options: tuple[str, ...] = ()
+             ) -> tuple[dict, str]:
     result = CliRunner().invoke(app, [command, "-d", str(dataset), "--sampler", "all", "--mode", "realistic", "-q",
-                                      "--cache-dir", str(out.parent / "cache"), "--out", str(out),
+                                      "--cache-dir", str(out.parent / "cache"), "--out", str(out), *options,
                                       *[arg for p in params for arg in ("-p", p)]])
     assert result.exit_code == 0, result.output
     return json.loads((out / "metrics.json").read_text()), (out / "report.md").read_text()
@@ -49,6 +50,14 @@ def test_scans_with_a_time_field_are_deskewed_by_default(tmp_path):
     assert m["warnings"] == [w for w in m["warnings"] if NO_POINT_TIMES not in w]
     batch = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert batch["odometry_config"]["data"]["deskew"] is True
+
+
+def test_a_bag_with_a_per_point_time_field_is_deskewed_by_default(tmp_path):
+    bag = tmp_path / "run.bag"
+    _write_bag(bag, "ros1")  # PointCloud2 with x, y, z and a per-point `t` (ns)
+    m, report = _metrics("run", bag, tmp_path / "bag", options=("--topic", "/points"))
+    assert (m["deskew"], m["deskew_from"], m["odometry_config"]["data"]["deskew"]) == (True, "per-point times", True)
+    assert "Odometry: deskew on (per-point times)." in report
 
 
 def test_deskew_false_turns_it_off(tmp_path):
