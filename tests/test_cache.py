@@ -23,31 +23,12 @@ import msa_slam.io.cache
 import msa_slam.odometry.cache
 from msa_slam.datasets import open_dataset
 from msa_slam.io.cache import CacheDir, locked_temp
-from msa_slam.io.poses import read_poses, write_poses
 from msa_slam.odometry import KissOdometry, OdometryCache
 from msa_slam.pipeline import make_config, prepare_frontend
 from msa_slam.pipeline.online import make_online_odometry
 from msa_slam.pipeline.online_config import make_online_config
 from msa_slam.pipeline.source import open_source
-from msa_slam.sim.sequence import CALIB_TEXT
-
-N_SCANS = 12
-
-
-def _fill(data: Path, source: Path, first: int) -> Path:
-    """Write scans first..first+11 of `source` (and their poses) into the KITTI-layout folder `data`, in place."""
-    (data / "velodyne").mkdir(parents=True, exist_ok=True)
-    gt, _ = read_poses(source / "poses.txt")
-    for i in range(N_SCANS):
-        (data / "velodyne" / f"{i:06d}.bin").write_bytes((source / "velodyne" / f"{first + i:06d}.bin").read_bytes())
-    write_poses(data / "poses.txt", gt[first:first + N_SCANS])
-    (data / "calib.txt").write_text(CALIB_TEXT)
-    return data
-
-
-@pytest.fixture
-def data(sequence, tmp_path) -> Path:
-    return _fill(tmp_path / "data", sequence, 0)
+from helpers.cache_data import data, fill_excerpt
 
 
 def _config(data: Path, cache: Path, **fields):
@@ -58,7 +39,7 @@ def test_scans_replaced_in_place_are_recomputed(sequence, data, tmp_path):
     cfg = _config(data, tmp_path / "cache")
     first = prepare_frontend(cfg)
     assert first.cached == {"odometry": False, "descriptors": False, "clouds": False}
-    _fill(data, sequence, 100)  # same path, same number of scans, other data
+    fill_excerpt(data, sequence, 100)  # same path, same number of scans, other data
     again = prepare_frontend(cfg)
     assert again.cached == {"odometry": False, "descriptors": False, "clouds": False}
     assert np.abs(again.odometry[-1, :3, 3] - first.odometry[-1, :3, 3]).max() > 1.0

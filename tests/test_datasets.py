@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 from msa_slam.datasets import Frame, open_dataset, read_cloud, read_pcd
 from msa_slam.errors import InputError
 from msa_slam.io.poses import format_kitti, write_poses
+from helpers.scans import write_bin
 
 TR = np.eye(4)
 TR[:3, :3] = Rotation.from_euler("zyx", [-90, 0, -90], degrees=True).as_matrix()  # LiDAR x-forward -> camera z
@@ -30,15 +31,10 @@ def _lidar_poses(n: int) -> np.ndarray:
     return poses
 
 
-def _write_bin(path: Path, points: np.ndarray) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.hstack([points, np.ones((len(points), 1), np.float32)]).astype(np.float32).tofile(path)
-
-
 def _kitti(root: Path, n: int = 3, poses_in_sequence: bool = True) -> Path:
     seq = root / "sequences" / "07"
     for k in range(n):
-        _write_bin(seq / "velodyne" / f"{k:06d}.bin", _points(k))
+        write_bin(seq / "velodyne" / f"{k:06d}.bin", _points(k))
     (seq / "calib.txt").write_text("P0: " + " ".join(["0"] * 12) + "\nTr: "
                                    + " ".join(f"{v:.12e}" for v in TR[:3].ravel()) + "\n")
     (seq / "times.txt").write_text("".join(f"{0.1 * k:.6f}\n" for k in range(n)))
@@ -95,7 +91,7 @@ def test_hidden_files_are_not_scans(tmp_path):
     folder = tmp_path / "folder"
     folder.mkdir()
     for k in range(3):
-        _write_bin(folder / f"{k}.bin", _points(k))
+        write_bin(folder / f"{k}.bin", _points(k))
     (folder / ".DS_Store.bin").write_bytes(b"\0" * 32)
     assert len(open_dataset(folder)) == 3
 
@@ -174,16 +170,16 @@ def test_implausible_scan_values(tmp_path):
         read_cloud(path)
     points = _points(0)
     points[3, 1] = np.inf
-    _write_bin(path, points)
+    write_bin(path, points)
     with pytest.raises(InputError, match="scan.bin: coordinate inf m is beyond"):
         read_cloud(path)
     points[:, 0] = np.nan
-    _write_bin(path, points)
+    write_bin(path, points)
     with pytest.raises(InputError, match="scan.bin: scan has no finite points"):
         read_cloud(path)
     points = _points(0)
     points[[4, 7]] = np.nan  # missing returns marked NaN are dropped, the rest is a valid scan
-    _write_bin(path, points)
+    write_bin(path, points)
     np.testing.assert_array_equal(read_cloud(path), np.delete(_points(0), [4, 7], axis=0))
 
 
@@ -209,7 +205,7 @@ def test_times_must_match_the_scans(tmp_path):
 
 def test_pose_file_times_must_increase(tmp_path):
     for k in range(3):
-        _write_bin(tmp_path / f"{k}.bin", _points(k))
+        write_bin(tmp_path / f"{k}.bin", _points(k))
     write_poses(tmp_path / "poses.tum", _lidar_poses(3), fmt="tum", times=np.array([1.0, 1.1, 1.1]))
     with pytest.raises(InputError, match=r"poses.tum: pose 3: time 1.1 repeats the previous one"):
         open_dataset(tmp_path / "", poses=tmp_path / "poses.tum")
@@ -235,7 +231,7 @@ def test_folder_of_ply_with_tum_poses(tmp_path):
 def test_folder_errors(tmp_path):
     with pytest.raises(InputError, match="no scan files"):
         open_dataset(tmp_path)
-    _write_bin(tmp_path / "a.bin", _points(0))
+    write_bin(tmp_path / "a.bin", _points(0))
     (tmp_path / "b.pcd").write_text("x")
     with pytest.raises(InputError, match="mixes scan formats"):
         open_dataset(tmp_path)
@@ -274,7 +270,7 @@ def test_pcd_ascii_and_binary(tmp_path):
 def test_mulran_through_kiss_loader(tmp_path):
     stamps = [1000, 2000, 3000]
     for k, stamp in enumerate(stamps):
-        _write_bin(tmp_path / "Ouster" / f"{stamp}.bin", _points(k))
+        write_bin(tmp_path / "Ouster" / f"{stamp}.bin", _points(k))
     rows = []
     for stamp in stamps:  # timestamp, then a row-major 3x4 pose moving 1 m along x per scan
         pose = np.eye(4)[:3]
@@ -308,7 +304,7 @@ def test_mulran_pose_file_in_the_ouster_frame_is_flagged(tmp_path):
     n = 40
     stamps = 1_600_000_000_000_000_000 + np.arange(n, dtype=np.int64) * 100_000_000
     for k, stamp in enumerate(stamps):
-        _write_bin(tmp_path / "sensor_data" / "Ouster" / f"{stamp}.bin", _points(k, 5))
+        write_bin(tmp_path / "sensor_data" / "Ouster" / f"{stamp}.bin", _points(k, 5))
     yaw = 0.3 + 0.02 * np.arange(n)  # a car driving forward (base x) on a left curve, 1 m a frame, in UTM
     base = np.tile(np.eye(4), (n, 1, 1))
     base[:, :3, :3] = Rotation.from_euler("z", yaw[:, None]).as_matrix()
@@ -349,7 +345,7 @@ def test_kitti_frames_derive_point_times_from_azimuth(tmp_path):
     seq = _kitti(tmp_path)
     ahead_left_right_behind = np.array([[10, 0, 0], [0, 10, 0], [0, -10, 0], [-10, 1e-3, 0], [-10, -1e-3, 0]],
                                        np.float32)
-    _write_bin(seq / "velodyne" / "000001.bin", ahead_left_right_behind)
+    write_bin(seq / "velodyne" / "000001.bin", ahead_left_right_behind)
     frame = open_dataset(seq)[1]
     # HDL-64 at 10 Hz, clockwise from the back: forward at mid-sweep (the scan's timestamp), as kiss-icp
     np.testing.assert_allclose(frame.timestamps, [0.05, 0.025, 0.075, 0.0, 0.1], atol=1e-5)
@@ -390,7 +386,7 @@ def test_stored_point_times_follow_the_points_a_reader_keeps(tmp_path):
     seq = _kitti(tmp_path)
     points = _points(0, n=4)
     points[2] = np.nan  # drivers mark missing returns so; the reader drops the row
-    _write_bin(seq / "velodyne" / "000000.bin", points)
+    write_bin(seq / "velodyne" / "000000.bin", points)
     (seq / "velodyne_times").mkdir()
     for k in range(3):
         np.save(seq / "velodyne_times" / f"{k:06d}.npy", np.arange(4 if k == 0 else 50, dtype=np.float32) * 1e-3)

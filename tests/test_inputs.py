@@ -18,6 +18,7 @@ from msa_slam.datasets.options import SourceOptions
 from msa_slam.errors import InputError
 from msa_slam.io.poses import format_kitti
 from msa_slam.pipeline.source import open_sequence
+from helpers.scans import write_bin
 
 N = 4
 
@@ -30,11 +31,6 @@ def _poses(n: int = N) -> np.ndarray:
     poses = np.tile(np.eye(4), (n, 1, 1))
     poses[:, 0, 3] = np.arange(n) * 2.0
     return poses
-
-
-def _write_bin(path: Path, points: np.ndarray) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.hstack([points, np.ones((len(points), 1), np.float32)]).tofile(path)
 
 
 def lzf_compress(data: bytes) -> bytes:
@@ -145,7 +141,7 @@ def test_ply_folder_with_kitti_ground_truth(tmp_path):
 def _mulran(seq: Path, n: int = N) -> None:
     stamps = 1_600_000_000_000_000_000 + np.arange(n) * 100_000_000
     for k, stamp in enumerate(stamps):
-        _write_bin(seq / "sensor_data" / "Ouster" / f"{stamp}.bin", _points(k))
+        write_bin(seq / "sensor_data" / "Ouster" / f"{stamp}.bin", _points(k))
     rows = [[s, *np.eye(4)[:3].ravel()] for s in stamps]
     for k, row in enumerate(rows):
         row[4] = 1.5 * k  # x translation of the 3x4 pose
@@ -164,8 +160,8 @@ def test_mulran_as_shipped_from_its_sequence_or_its_root(tmp_path):
 
 
 def test_ouster_scans_carry_column_times(tmp_path):
-    _write_bin(tmp_path / "Ouster" / "1000000000.bin", _points(0, OUSTER_ROWS * OUSTER_COLUMNS))
-    _write_bin(tmp_path / "Ouster" / "1100000000.bin", _points(1, 10))
+    write_bin(tmp_path / "Ouster" / "1000000000.bin", _points(0, OUSTER_ROWS * OUSTER_COLUMNS))
+    write_bin(tmp_path / "Ouster" / "1100000000.bin", _points(1, 10))
     seq = open_dataset(tmp_path, kind="mulran")
     stamps = seq[0].timestamps
     assert stamps[0] == 0 and stamps[OUSTER_ROWS] > 0 and stamps[-1] == pytest.approx(0.1 * 1023 / 1024)
@@ -197,7 +193,7 @@ def test_helipr_sensor_records_and_ground_truth(tmp_path):
 def test_kitti_root_sequence_and_part_of_a_recording(tmp_path):
     seq_dir = tmp_path / "sequences" / "05"
     for k in range(8):
-        _write_bin(seq_dir / "velodyne" / f"{k:06d}.bin", _points(k))
+        write_bin(seq_dir / "velodyne" / f"{k:06d}.bin", _points(k))
     (seq_dir / "calib.txt").write_text("Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n")
     (seq_dir / "poses.txt").write_text(format_kitti(_poses(8)))
     seq = open_dataset(tmp_path, sequence="05").select(first=1, jump=2, count=3)
@@ -344,7 +340,7 @@ def test_bags_by_topic(tmp_path, kind):
 def test_open_sequence_options_and_oracle_needs_ground_truth(tmp_path):
     folder = tmp_path / "scans"
     for k in range(N):
-        _write_bin(folder / f"{k}.bin", _points(k))
+        write_bin(folder / f"{k}.bin", _points(k))
     with pytest.raises(InputError, match="no ground-truth poses, which the oracle mode needs.*--mode realistic"):
         open_sequence(str(folder), mode="oracle")
     seq = open_sequence(str(folder), source=SourceOptions(first=1), mode="realistic")
@@ -371,7 +367,7 @@ def test_gt_format_option_reaches_the_pose_reader(tmp_path, command):
 
     folder = tmp_path / "scans"
     for k in range(N):
-        _write_bin(folder / f"{k}.bin", _points(k))
+        write_bin(folder / f"{k}.bin", _points(k))
     tum = tmp_path / "gt.txt"
     tum.write_text("".join(f"{k * 0.1:.1f} {2.0 * k} 0 0 0 0 0 1\n" for k in range(N)))
     args = [command, "--dataset", str(folder), "--gt", str(tum), "--mode", "realistic", "--out",
@@ -413,7 +409,7 @@ def test_tum_times_are_checked_by_the_reader_naming_the_line(tmp_path, time, pro
     with pytest.raises(InputError, match=re.escape(f"{path}: pose 3: {problem}")):
         read_poses(path, "tum")
     for k in range(N):  # the sequence loader gets the reader's message (it no longer checks the times itself)
-        _write_bin(tmp_path / "scans" / f"{k}.bin", _points(k))
+        write_bin(tmp_path / "scans" / f"{k}.bin", _points(k))
     with pytest.raises(InputError, match=re.escape(f"{path}: pose 3: {problem}")):
         open_dataset(tmp_path / "scans", poses=path)
 
@@ -522,7 +518,7 @@ def _tum(path: Path, times: np.ndarray, poses: np.ndarray) -> Path:
 def _timed_kitti(root: Path, n: int = N) -> Path:
     """A KITTI layout with times.txt (0.1 s apart) and no poses."""
     for k in range(n):
-        _write_bin(root / "velodyne" / f"{k:06d}.bin", _points(k))
+        write_bin(root / "velodyne" / f"{k:06d}.bin", _points(k))
     (root / "times.txt").write_text("".join(f"{0.1 * k:.6f}\n" for k in range(n)))
     return root
 
@@ -545,7 +541,7 @@ def test_tum_ground_truth_gives_untimed_scans_its_times(tmp_path):
     """Scans without timestamps take a TUM file's one pose a scan, in order, and its times (as a folder does)."""
     seq = tmp_path / "k"
     for k in range(N):
-        _write_bin(seq / "velodyne" / f"{k:06d}.bin", _points(k))
+        write_bin(seq / "velodyne" / f"{k:06d}.bin", _points(k))
     gt = _tum(tmp_path / "gt.tum", 50.0 + 0.1 * np.arange(N), _poses())
     opened = open_dataset(seq, poses=gt)
     np.testing.assert_allclose(opened.gt_poses, _poses())

@@ -15,20 +15,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from conftest import shared_path
 from msa_slam.backend import PoseGraph
 from msa_slam.descriptors import make_descriptor
 from msa_slam.pipeline.config import make_config
 from msa_slam.registration import KeyframeCloudStore, Verifier
 from msa_slam.slam import KeyframeStore, LoopCloser, build_backend
 from msa_slam.slam.loop_closing import loop_summary
+from helpers.scans import scan_points
 
 LAP = 300  # frames of the odometry lap between the two keyframes
-
-
-def _scan(index: int) -> np.ndarray:
-    path = shared_path("data", "kitti_scans_00", f"{index:06d}.bin")
-    return np.fromfile(path, dtype=np.float32).reshape(-1, 4)[:, :3].astype(np.float64)
 
 
 def _lap(length_m: float = 100.0) -> np.ndarray:
@@ -43,7 +38,7 @@ def _lap(length_m: float = 100.0) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def scans() -> dict[str, np.ndarray]:
-    s0, s15 = _scan(0), _scan(15)
+    s0, s15 = scan_points(0).astype(np.float64), scan_points(15).astype(np.float64)
     other = s15 * [1, -1, 1]  # another street: scan 15 mirrored
     yaw = Rotation.from_euler("z", 25, degrees=True).as_matrix()
     return {"target": s0[::2], "true": s0[1::2], "other_place": other[(other[:, 2] < -1.2)
@@ -106,7 +101,7 @@ def _standstill(min_travel_m: float, frames: int = 90):
     """Sampler `all` on a robot that never moves: every frame the same scan and the same pose."""
     config = make_config(dataset="unused", sampler="all", min_travel_m=min_travel_m, mode="realistic")
     descriptor = make_descriptor("sc")
-    cloud = _scan(0)[::8]
+    cloud = scan_points(0).astype(np.float64)[::8]
     desc = descriptor.compute(cloud)
     backend = build_backend(config, descriptor, KeyframeCloudStore(config.verifier.voxel_size),
                             PoseGraph(config.graph, mode=config.mode), frames, "standstill")
@@ -132,6 +127,6 @@ def test_without_a_prior_a_true_loop_is_accepted_and_another_place_rejected(scan
 
 def test_strict_verification_accepts_two_real_scans_of_one_place_metres_apart():
     """KITTI-00 scans 0 and 5 (about 4 m apart along the road), registered from identity."""
-    result = Verifier().verify(_scan(0), _scan(5), strict=True)
+    result = Verifier().verify(scan_points(0).astype(np.float64), scan_points(5).astype(np.float64), strict=True)
     assert result.accepted and result.structure_residual < 0.1
     assert 2.0 < np.linalg.norm(result.T_target_source[:3, 3]) < 6.0

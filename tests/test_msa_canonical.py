@@ -10,8 +10,8 @@ from conftest import shared_path
 from msa_slam.sampling.msa import exact, fast, terms
 from msa_slam.sampling.msa.canonical import SIGN_ATOL, canonicalise
 from msa_slam.sampling.msa.powerset import feasible_subsets, subsets_by_size
-from test_msa_parity import MSA_NAME, STREAMS, load_stream, sampler_for
 from helpers.msa_windows import planar_window
+from helpers.parity import MSA_NAME, STREAMS, load_stream, sampler_for, stream
 
 
 def spectrum_matrix(lam: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -94,13 +94,6 @@ def test_batched_canonical_pi_equals_the_one_subset_definition():
     value, low, high = fast.information_rows(masks, dist, fast.gram(desc), 0, True)
     np.testing.assert_allclose(value, one_by_one, atol=1e-9)
     assert (low <= value).all() and (value <= high).all() and (high - low < 1e-6).all()
-
-
-@pytest.fixture(scope="module", params=[p.name for p in STREAMS] or ["missing"])
-def stream(request):
-    if request.param == "missing":
-        pytest.skip("parity vectors not available (../shared/parity)")
-    return (request.param, *load_stream(shared_path("parity", request.param)))
 
 
 def test_canonical_pi_has_no_ambiguous_window_on_the_parity_streams(stream, record_property):
@@ -257,7 +250,7 @@ def test_lane_eigensolver_gives_each_matrix_its_own_values_whatever_the_other_la
     """symmetric_eigh_lanes decomposes up to LANES matrices together: each matrix must get the same
     bits whether alone or among others (other sweep counts, an early finish, repeated eigenvalues, a
     tridiagonal that splits), accurate ones; a matrix whose reduction meets an exactly zero column
-    (zeros, a diagonal) is flagged for the one-matrix solver."""
+    (zeros, a diagonal) is flagged (it takes EISPACK's zero-column step; tests/test_msa_eigen.py)."""
     from msa_slam.sampling.msa.eigen import LANES
 
     rng = np.random.default_rng(21)

@@ -11,44 +11,17 @@ limited to its baseline.
 
 from __future__ import annotations
 
-import json
-import re
 import warnings
 
 import numpy as np
 import pytest
 
-from conftest import SHARED_DIR, shared_path
-from msa_slam.sampling import make_sampler
+from conftest import shared_path
 from msa_slam.sampling.msa import exact, sampler as msa_module, window
+from helpers.parity import MSA_NAME, STREAMS, load_stream, sampler_for, stream
 
-MSA_NAME = re.compile(r"msa_N(\d+)_nn(\d+)_a([\d.]+)_b([\d.]+)_l([\d.]+)_u([\d.]+)$")
-STREAMS = sorted((SHARED_DIR / "parity").glob("stream_*.npz")) if SHARED_DIR.exists() else []
 MAX_AMBIGUOUS_CONFIGS = 4  # per stream and mode (of 24): the detector must stay a narrow screen
 CROSS_CPU_CASE = ("stream_s2_sc20x60.npz", "msa_N10_nn2_a10_b1_l0.1_u5")  # 73 here, 77 on an AVX2 EPYC
-
-
-def sampler_for(config: str, mode: str = "exact", pi: str = "reference"):
-    """Translate a parity configuration name into one of our samplers."""
-    match = MSA_NAME.match(config)
-    if match:
-        n, nb, a, b, lo, hi = match.groups()
-        return make_sampler("msa", window=int(n), neighbours=int(nb), alpha=float(a), beta=float(b),
-                            lambda_l=float(lo), lambda_u=float(hi), mode=mode, pi=pi)
-    if config == "fixed_0":
-        return make_sampler("all")
-    if config.startswith("fixed_"):
-        return make_sampler("constant", distance=float(config[len("fixed_"):]))
-    if config == "entropy_t0.05_d5":
-        return make_sampler("entropy", threshold=0.05, max_distance=5.0)
-    if config == "spaciousness_paper":
-        return make_sampler("spaciousness")
-    raise KeyError(config)
-
-
-def load_stream(path):
-    data = np.load(path)
-    return data["poses"], data["descriptors"], data["clouds"], json.loads(str(data["expected"]))
 
 
 def compare_with_reference(got: list[int], expected: list[int], sampler) -> str:
@@ -58,11 +31,6 @@ def compare_with_reference(got: list[int], expected: list[int], sampler) -> str:
         return "identical" if got == expected else "differing"
     first = ambiguous[0].keyframes_before
     return "ambiguous" if got[:first] == expected[:first] else "differing"
-
-
-@pytest.fixture(scope="module", params=[p.name for p in STREAMS] or ["missing"])
-def stream(request):
-    return (request.param, *load_stream(shared_path("parity", request.param)))
 
 
 def test_parity_vectors_present():

@@ -6,40 +6,30 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from conftest import shared_path
 from msa_slam.datasets import folder_sequence
 from msa_slam.errors import InputError
 from msa_slam.io.poses import write_poses
 from msa_slam.odometry import KissOdometry, OdometryCache, PosesFromFile, sequence_odometry
 from msa_slam.registration import Verifier
-
-
-def _scan(index: int) -> np.ndarray:
-    path = shared_path("data", "kitti_scans_00", f"{index:06d}.bin")
-    return np.fromfile(path, dtype=np.float32).reshape(-1, 4)[:, :3]
-
-
-def _pose_error(estimate: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
-    delta = np.linalg.inv(reference) @ estimate
-    angle = np.degrees(np.arccos(np.clip((np.trace(delta[:3, :3]) - 1) / 2, -1, 1)))
-    return float(np.linalg.norm(delta[:3, 3])), float(angle)
+from helpers.poses import pose_error
+from helpers.scans import scan_points
 
 
 def test_kiss_icp_agrees_with_gicp_on_real_scans():
     # GT lines 1 and 6 disagree with both registrations by ~0.7 m (see tests/test_registration.py), so the
     # reference here is small_gicp's estimate of the same pair: two independent registrations must agree.
     odometry = KissOdometry()
-    first = odometry.register(_scan(0))
-    second = odometry.register(_scan(5))
+    first = odometry.register(scan_points(0))
+    second = odometry.register(scan_points(5))
     np.testing.assert_allclose(first, np.eye(4), atol=1e-12)
-    gicp = Verifier().verify(_scan(0), _scan(5)).T_target_source
-    trans, rot = _pose_error(np.linalg.inv(first) @ second, gicp)
+    gicp = Verifier().verify(scan_points(0), scan_points(5)).T_target_source
+    trans, rot = pose_error(np.linalg.inv(first) @ second, gicp)
     assert np.linalg.norm(second[:3, 3]) > 3.0
     assert trans < 0.15 and rot < 0.1
 
 
 def test_kiss_icp_recovers_known_motion_of_a_real_scan():
-    cloud = _scan(0).astype(np.float64)
+    cloud = scan_points(0).astype(np.float64)
     step = np.eye(4)
     step[:3, :3] = Rotation.from_euler("z", 1.5, degrees=True).as_matrix()
     step[:3, 3] = [0.8, 0.05, 0.0]
@@ -48,7 +38,7 @@ def test_kiss_icp_recovers_known_motion_of_a_real_scan():
     for k in range(4):
         sensor_points = (cloud[k % 2::2] - truth[:3, 3]) @ truth[:3, :3]  # world points seen from `truth`
         pose = odometry.register(sensor_points)
-        trans, rot = _pose_error(pose, truth)
+        trans, rot = pose_error(pose, truth)
         assert trans < 0.05 and rot < 0.1, f"frame {k}: {trans:.3f} m, {rot:.3f} deg"
         truth = truth @ step
 

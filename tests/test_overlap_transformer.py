@@ -11,11 +11,7 @@ import pytest
 from conftest import shared_path
 from msa_slam.descriptors.range_image import projection_coordinates, range_projection
 from msa_slam.errors import InputError
-
-
-def load_scan(name: str) -> np.ndarray:
-    raw = np.fromfile(shared_path("data", "kitti_scans_00", f"{name}.bin"), dtype=np.float32)
-    return raw.reshape(-1, 4)
+from helpers.scans import load_scan
 
 
 @pytest.fixture(scope="module")

@@ -23,6 +23,7 @@ from msa_slam.pipeline.online_config import NO_TIMESTAMPS, make_online_config
 from msa_slam.pipeline.report import _online_lines as online_report_lines
 from msa_slam.pipeline.source import open_source
 from msa_slam.types import FrameSource
+from helpers.scans import write_bin
 
 N = 6
 COARSE = "live:figure-eight,stride=4,azimuth_steps=180,realism=clean"
@@ -38,14 +39,9 @@ def _points(k: int, n: int = 400) -> np.ndarray:
     return walls.astype(np.float32)
 
 
-def _write_bin(path: Path, points: np.ndarray) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.hstack([points, np.ones((len(points), 1), np.float32)]).tofile(path)
-
-
 def _kitti(root: Path, times: bool = True, point_times: bool = False) -> Path:
     for k in range(N):
-        _write_bin(root / "velodyne" / f"{k:06d}.bin", _points(k))
+        write_bin(root / "velodyne" / f"{k:06d}.bin", _points(k))
         if point_times:
             (root / "velodyne_times").mkdir(exist_ok=True)
             np.save(root / "velodyne_times" / f"{k:06d}.npy", np.linspace(0, 0.1, 400, dtype=np.float32))
@@ -109,7 +105,7 @@ def test_deskew_without_per_point_times_is_warned_and_recorded_off(tmp_path, cap
     """A folder of .bin scans has no per-point times: deskew=true did nothing while metrics.json said true."""
     folder = tmp_path / "scans"
     for k in range(N):
-        _write_bin(folder / f"{k}.bin", _points(k))
+        write_bin(folder / f"{k}.bin", _points(k))
     cache = OdometryCache(tmp_path / "cache")
     config = make_config(dataset=str(folder), odometry_params={"max_range": 30.0, "deskew": True})
     for fresh in (True, False):  # computed, then from the cache: both warn and record what was done

@@ -16,11 +16,8 @@ from scipy.spatial.transform import Rotation
 from conftest import shared_path
 from msa_slam.errors import InputError
 from msa_slam.registration import KeyframeCloudStore, Verifier, VerifierConfig, downsample
-
-
-def _scan(index: int) -> np.ndarray:
-    path = shared_path("data", "kitti_scans_00", f"{index:06d}.bin")
-    return np.fromfile(path, dtype=np.float32).reshape(-1, 4)[:, :3]
+from helpers.poses import pose_error
+from helpers.scans import scan_points
 
 
 def _gt_lidar_relative(a: int, b: int) -> np.ndarray:
@@ -39,15 +36,9 @@ def _gt_lidar_relative(a: int, b: int) -> np.ndarray:
     return np.linalg.inv(lidar(a)) @ lidar(b)
 
 
-def _pose_error(estimate: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
-    delta = np.linalg.inv(reference) @ estimate
-    angle = np.degrees(np.arccos(np.clip((np.trace(delta[:3, :3]) - 1) / 2, -1, 1)))
-    return float(np.linalg.norm(delta[:3, 3])), float(angle)
-
-
 @pytest.fixture(scope="module")
 def scans() -> dict[int, np.ndarray]:
-    return {i: _scan(i) for i in (0, 5, 15)}
+    return {i: scan_points(i) for i in (0, 5, 15)}
 
 
 def test_real_pair_is_accepted_near_ground_truth(scans):
@@ -57,7 +48,7 @@ def test_real_pair_is_accepted_near_ground_truth(scans):
     assert result.inlier_fraction > 0.9 and result.target_fraction > 0.85 and result.rejected == ""
     sigmas = np.sqrt(np.diag(result.covariance))  # from the GICP Hessian: a well-constrained street scene
     assert np.all(sigmas > 0) and sigmas[3:].max() < 0.05 and sigmas[:3].max() < 0.005
-    trans, rot = _pose_error(result.T_target_source, _gt_lidar_relative(0, 5))
+    trans, rot = pose_error(result.T_target_source, _gt_lidar_relative(0, 5))
     assert trans < 0.8 and rot < 0.7  # the measured scan/GT disagreement (see module docstring)
 
 
@@ -67,7 +58,7 @@ def test_real_registrations_are_mutually_consistent(scans):
     t015 = verifier.verify(scans[0], scans[15])
     t515 = verifier.verify(scans[5], scans[15], initial_guess=_gt_lidar_relative(5, 15))
     assert t05.accepted and t015.accepted and t515.accepted
-    trans, rot = _pose_error(t05.T_target_source @ t515.T_target_source, t015.T_target_source)
+    trans, rot = pose_error(t05.T_target_source @ t515.T_target_source, t015.T_target_source)
     assert trans < 0.05 and rot < 0.1
 
 
@@ -79,7 +70,7 @@ def test_known_transform_of_a_real_scan_is_recovered(scans):
     source = (cloud[1::2] - known[:3, 3]) @ known[:3, :3]  # disjoint points, seen from the moved sensor
     result = Verifier().verify(cloud[::2], source)
     assert result.accepted
-    trans, rot = _pose_error(result.T_target_source, known)
+    trans, rot = pose_error(result.T_target_source, known)
     assert trans < 0.02 and rot < 0.05
 
 

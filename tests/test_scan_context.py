@@ -9,6 +9,7 @@ from conftest import shared_path
 from msa_slam.descriptors.scan_context import ScanContext
 from msa_slam.descriptors.voxel import voxel_downsample
 from msa_slam.errors import InputError
+from helpers.scans import load_scan
 
 
 @pytest.fixture(scope="module")
@@ -17,11 +18,6 @@ def parity():
     offsets = data["offsets"]
     clouds = [data["points"][offsets[k] : offsets[k + 1]] for k in range(len(offsets) - 1)]
     return clouds, data["expected_sc"], data["expected_similarity"], list(data["names"])
-
-
-def load_scan(name: str) -> np.ndarray:
-    raw = np.fromfile(shared_path("data", "kitti_scans_00", f"{name}.bin"), dtype=np.float32)
-    return raw.reshape(-1, 4)
 
 
 def rotate_z(points: np.ndarray, degrees: float) -> np.ndarray:

@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_cache import _fill
 
 import msa_slam.io.cache
 import msa_slam.io.fingerprint
@@ -29,11 +28,7 @@ from msa_slam.io.outputs import OutputError
 from msa_slam.odometry import KissOdometry, OdometryCache
 from msa_slam.pipeline import make_config, prepare_frontend
 from msa_slam.sim import DEFAULT_CONFIGS
-
-
-@pytest.fixture
-def data(sequence, tmp_path) -> Path:
-    return _fill(tmp_path / "data", sequence, 0)
+from helpers.cache_data import data, fill_excerpt
 
 
 def _frontend(data: Path, cache: Path, **fields):
@@ -154,7 +149,7 @@ def _two_dataset_grid(first: Path, second: Path, cache: Path) -> dict:
 
 
 def test_a_resumed_grid_reruns_only_the_cells_whose_data_changed(sequence, tmp_path, caplog):
-    first, second = _fill(tmp_path / "a", sequence, 0), _fill(tmp_path / "b", sequence, 40)
+    first, second = fill_excerpt(tmp_path / "a", sequence, 0), fill_excerpt(tmp_path / "b", sequence, 40)
     grid = parse_grid(_two_dataset_grid(first, second, tmp_path / "cache"))
     on_first, on_second = expand(grid)
     out = tmp_path / "out"
@@ -173,7 +168,7 @@ def test_a_resumed_grid_reruns_only_the_cells_whose_data_changed(sequence, tmp_p
 
 
 def test_a_cell_to_rerun_holding_a_persons_file_is_refused_and_kept(sequence, tmp_path):
-    first, second = _fill(tmp_path / "a", sequence, 0), _fill(tmp_path / "b", sequence, 40)
+    first, second = fill_excerpt(tmp_path / "a", sequence, 0), fill_excerpt(tmp_path / "b", sequence, 40)
     grid = parse_grid(_two_dataset_grid(first, second, tmp_path / "cache"))
     on_first, _ = expand(grid)
     out = tmp_path / "out"
