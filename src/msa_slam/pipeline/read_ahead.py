@@ -42,6 +42,8 @@ class ReadAhead:
     def __iter__(self) -> Iterator[Frame]:
         frames: queue.Queue = queue.Queue(maxsize=self.depth)
         stop = threading.Event()
+        self._values.clear()
+        self.complete = False
         reader = threading.Thread(target=self._read, args=(frames, stop), name="msa-slam read-ahead", daemon=True)
         reader.start()
         try:
