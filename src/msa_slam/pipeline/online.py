@@ -12,10 +12,10 @@ cache counts with the time it took when it was computed, and the run says it was
 metrics.json and report.md compute frames per second and real-time factor with one function
 (evaluation.resources.throughput) from the same seconds.
 
-KISS-ICP runs on every core for a live source (frames streamed once, as from a sensor: single-threaded
-odometry was the whole cost, 4.5 fps against the back end's 66 on simulated KITTI-07) and on one thread for
-recorded data, whose replay stays bit-reproducible; odometry.num_threads, when given, wins
-(with_odometry_threads). The count is in the progress label, metrics.json (`threads`) and report.md.
+KISS-ICP runs on every core for a live source (frames streamed once, as from a sensor, where single-threaded
+odometry is most of a run's time: docs/performance.md) and on one thread for recorded data, whose replay stays
+bit-reproducible; odometry.num_threads, when given, wins (with_odometry_threads). The count is in the progress
+label, metrics.json (`threads`) and report.md.
 """
 
 from __future__ import annotations
