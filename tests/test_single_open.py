@@ -98,7 +98,7 @@ def test_the_library_checks_the_window_before_the_front_end(tmp_path, monkeypatc
     def no_odometry(*args, **kwargs):
         raise AssertionError("the odometry ran before the window check")
 
-    monkeypatch.setattr("msa_slam.pipeline.frontend.sequence_odometry", no_odometry)
+    monkeypatch.setattr("msa_slam.pipeline.read_ahead.sequence_odometry", no_odometry)
     config = _config(tmp_path, sampler="msa", flush=False)
     expected = (f"sampler 'msa': window=10 is longer than the {FRAMES} frames read, so it never fills and only frame "
                 "0 becomes a keyframe (flush is off); the evaluation needs at least 3: "

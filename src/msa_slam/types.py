@@ -111,7 +111,9 @@ class FrameSource:
     `point_times`: whether the frames carry per-point times (`timestamps`, which
     deskewing needs): True makes KISS-ICP deskew unless asked not to, False makes it not deskew (an asked deskew
     is dropped with a warning); None (not known): deskew only when asked, and KISS-ICP then refuses a first frame
-    without them (pipeline.frontend.make_odometry)."""
+    without them (pipeline.frontend.make_odometry). `live`: frames that come once, as from a sensor (nothing to
+    replay bit for bit), so the online pipeline runs KISS-ICP on every core by default
+    (pipeline.online.with_odometry_threads)."""
 
     name: str
     gt_poses: np.ndarray | None
@@ -120,6 +122,7 @@ class FrameSource:
     length: int | None = None
     times_known: bool = True  # False: the frames' times are frame numbers (a recording without timestamps)
     point_times: bool | None = None
+    live: bool = False
 
     def __len__(self) -> int:
         return len(self.gt_poses) if self.length is None else self.length

@@ -27,28 +27,50 @@ def descriptor_key(sequence: ScanSequence, name: str, params: dict[str, Any], ca
                      DESCRIPTOR_LIBRARIES)
 
 
+def load_descriptors(sequence: ScanSequence, descriptor: Descriptor, cache: CacheDir, key: str) -> Computed | None:
+    """The cached descriptors of every frame (entry `descriptors-<key>`, checked to have exactly that shape before
+    it is used) with the per-frame compute times recorded beside them, or None when either is absent or bad."""
+    name = f"descriptors-{key}"
+    cached = cache.load(name, lambda a: check_entry(a, (len(sequence), *descriptor.shape)))
+    ms = None if cached is None else cache.load_times(name, len(sequence))
+    return None if ms is None else Computed(cached, True, ms)
+
+
+def save_descriptors(cache: CacheDir | None, key: str, values: np.ndarray, ms: np.ndarray) -> Computed:
+    """Store freshly computed descriptors and their per-frame compute times (ms; the times first: descriptors
+    without them are recomputed, never read alone); `cache` None stores nothing."""
+    if cache is not None:
+        cache.save_times(f"descriptors-{key}", ms)
+        cache.save(f"descriptors-{key}", values)
+    return Computed(values, False, ms)
+
+
 def compute_descriptors(sequence: ScanSequence, descriptor: Descriptor, cache: CacheDir | None, key: str,
                         quiet: bool = True) -> Computed:
-    """(N, *descriptor.shape) descriptors of every frame, whether they came from `cache` (entry
-    `descriptors-<key>`, checked to have exactly that shape before it is used, with the per-frame compute times
-    recorded beside it) and the time (ms) computing each took."""
-    name = f"descriptors-{key}"
+    """(N, *descriptor.shape) descriptors of every frame, whether they came from `cache` (load_descriptors) and
+    the time (ms) computing each took."""
     if cache is not None:
-        cached = cache.load(name, lambda a: check_entry(a, (len(sequence), *descriptor.shape)))
-        ms = None if cached is None else cache.load_times(name, len(sequence))
-        if ms is not None:
-            return Computed(cached, True, ms)
+        cached = load_descriptors(sequence, descriptor, cache, key)
+        if cached is not None:
+            return cached
+    return save_descriptors(cache, key, *describe_sequence(sequence, descriptor, quiet))
+
+
+def describe_sequence(sequence: ScanSequence, descriptor: Descriptor,
+                      quiet: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """(descriptors, ms computing each took) of every frame, read and computed one after another."""
     values, ms = [], np.empty(len(sequence))
     with progress_bar(quiet) as bar:
         task = bar.add_task(f"descriptors ({descriptor.name})", total=len(sequence))
         for i in range(len(sequence)):
-            points = sequence[i].points
-            start = time.perf_counter()
-            values.append(np.asarray(descriptor.compute(points, frame=i), dtype=np.float64))
-            ms[i] = (time.perf_counter() - start) * 1e3
+            values.append(describe(descriptor, sequence[i].points, i, ms))
             bar.advance(task)
-    out = np.stack(values)
-    if cache is not None:
-        cache.save_times(name, ms)
-        cache.save(name, out)
-    return Computed(out, False, ms)
+    return np.stack(values), ms
+
+
+def describe(descriptor: Descriptor, points: np.ndarray, frame: int, ms: np.ndarray) -> np.ndarray:
+    """The float64 descriptor of frame `frame`'s `points`; the time computing it took goes to ms[frame]."""
+    start = time.perf_counter()
+    value = np.asarray(descriptor.compute(points, frame=frame), dtype=np.float64)
+    ms[frame] = (time.perf_counter() - start) * 1e3
+    return value

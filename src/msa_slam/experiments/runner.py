@@ -93,13 +93,14 @@ def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bo
 
     target = cell_dir(out, info["id"])
     if info["pipeline"] == "online":
-        from msa_slam.pipeline.online import run_online
+        from msa_slam.pipeline.online import run_online, with_odometry_threads
         from msa_slam.pipeline.online_config import make_online_config
 
         cfg = make_online_config(config)
         if cfg.cloud_store == "disk" and cfg.store_dir is None:  # the store removes it again when it closes
             cfg = make_online_config({**config, "store_dir": str(Path(out) / STORES / info["id"])})
-        result = run_online(cfg, quiet=True)
+        # every cell, a live: one too, on one thread: reproducible, and one core a worker
+        result = run_online(with_odometry_threads(cfg, 1), quiet=True)
         with staged_dir(target) as tmp:
             write_run_files(result, tmp, figures)
             write_json(tmp / CELL_FILE, info)

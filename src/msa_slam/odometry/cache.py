@@ -10,7 +10,7 @@ from typing import Any, Iterable, Mapping, Protocol
 
 import numpy as np
 
-from msa_slam.datasets import ScanSequence
+from msa_slam.datasets import Frame, ScanSequence
 from msa_slam.io.cache import CacheDir, Computed, cache_key, check_entry, sequence_inputs
 from msa_slam.io.fingerprint import code_fingerprint
 from msa_slam.progress import progress_bar
@@ -89,7 +89,8 @@ class OdometryCache:
 
 
 def sequence_odometry(sequence: ScanSequence, odometry: Odometry, cache: OdometryCache | None = None,
-                      quiet: bool = False, extra_inputs: Iterable[str | os.PathLike] = ()) -> Computed:
+                      quiet: bool = False, extra_inputs: Iterable[str | os.PathLike] = (),
+                      frames: Iterable[Frame] | None = None, label: str = "odometry") -> Computed:
     """(N, 4, 4) odometry poses of every frame of `sequence`, whether they came from `cache` (which then
     also restores the odometry's `unregistered_frames`, so a cached run reports them as a fresh one does) and
     the time (ms) registering each frame took (as recorded in the cache when replayed).
@@ -97,7 +98,9 @@ def sequence_odometry(sequence: ScanSequence, odometry: Odometry, cache: Odometr
     `extra_inputs`: files the odometry reads besides the scans (they are part of the cache key). The key is
     made from `odometry.config`, so the odometry comes configured for these scans (KISS-ICP's deskewing off
     when they have no per-point times: pipeline.frontend.make_odometry); scans without timestamps give the
-    odometry no scan times (see KissOdometry.register).
+    odometry no scan times (see KissOdometry.register). `frames`: the sequence's frames in order when another
+    thread reads them ahead (pipeline.read_ahead; iterated only when the poses are computed), else they are read
+    here one by one; `label`: the progress bar's.
     """
     key = None
     if cache is not None:
@@ -109,10 +112,9 @@ def sequence_odometry(sequence: ScanSequence, odometry: Odometry, cache: Odometr
             return Computed(entry[0], True, entry[2])
     poses, ms = np.empty((len(sequence), 4, 4)), np.empty(len(sequence))
     with progress_bar(quiet) as progress:
-        task = progress.add_task("odometry", total=len(sequence))
-        for i in range(len(sequence)):
-            frame = sequence[i]  # per-point and scan times: used by KISS-ICP only with deskew on
-            start = time.perf_counter()
+        task = progress.add_task(label, total=len(sequence))
+        for i, frame in enumerate(iter(sequence) if frames is None else frames):
+            start = time.perf_counter()  # per-point and scan times: used by KISS-ICP only with deskew on
             poses[i] = odometry.register(frame.points, frame.timestamps, frame.time if sequence.times_known else None)
             ms[i] = (time.perf_counter() - start) * 1e3
             progress.advance(task)

@@ -27,6 +27,7 @@ MAX_LOGGED_FRAMES = 5  # frames whose registration problems are logged one by on
 # The fewest points within range a scan is registered with: point-to-point ICP needs three (not on a line) to fix
 # a rigid transform; KISS-ICP registers any non-empty scan, and one or two points leave its pose unconstrained.
 MIN_REGISTRATION_POINTS = 3
+DEFAULT_THREADS = 1  # KISS-ICP's threads unless asked: reproducible poses (see KissOdometry)
 _process_threads: int | None = None  # KISS-ICP's thread count, fixed for the whole process at first use
 
 
@@ -60,7 +61,7 @@ class KissOdometry:
     """
 
     def __init__(self, max_range: float = 100.0, min_range: float = 0.0, voxel_size: float | None = None,
-                 deskew: bool = False, num_threads: int = 1, max_points_per_voxel: int = 20,
+                 deskew: bool = False, num_threads: int = DEFAULT_THREADS, max_points_per_voxel: int = 20,
                  max_num_iterations: int = 500, convergence_criterion: float = 1e-4,
                  initial_threshold: float = 2.0, min_motion_th: float = 0.1,
                  fixed_threshold: float | None = None) -> None:

@@ -19,14 +19,15 @@ import numpy as np
 from msa_slam.datasets import ScanSequence
 from msa_slam.datasets.sequences import UNTIMED
 from msa_slam.descriptors import Descriptor, make_descriptor
-from msa_slam.descriptors.cache import compute_descriptors, descriptor_key
+from msa_slam.descriptors.cache import descriptor_key
 from msa_slam.errors import InputError
 from msa_slam.evaluation import StageTimer
 from msa_slam.evaluation.sanity import frontend_warnings
 from msa_slam.io.cache import CacheDir, Computed, cache_root
-from msa_slam.odometry import KissOdometry, OdometryCache, PosesFromFile, sequence_odometry
+from msa_slam.odometry import KissOdometry, PosesFromFile
 from msa_slam.odometry.kiss import NO_POINT_TIMES, PARAMETERS as KISS_PARAMETERS
 from msa_slam.pipeline.config import RunConfig
+from msa_slam.pipeline.read_ahead import odometry_and_descriptors
 from msa_slam.pipeline.source import open_sequence
 from msa_slam.registration.cloud_cache import FrameClouds, cloud_key, frame_clouds
 from msa_slam.sampling import make_sampler
@@ -217,13 +218,11 @@ def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[R
     if config.descriptor == "precomputed":
         params.setdefault("n_frames", n)
     descriptor = make_descriptor(config.descriptor, **params)
-    with timer.stage("odometry"):
-        pose_file = [] if config.odometry == "kiss" else [odometry.path]
-        poses = sequence_odometry(sequence, odometry, OdometryCache(cache), quiet, pose_file)
     with timer.stage("descriptors"):
-        use_cache = config.descriptor != "precomputed"
         key = descriptor_key(sequence, config.descriptor, config.descriptor_params, cache)
-        descriptors = compute_descriptors(sequence, descriptor, cache if use_cache else None, key, quiet)
+    pose_file = [] if config.odometry == "kiss" else [odometry.path]
+    poses, descriptors = odometry_and_descriptors(sequence, odometry, descriptor, cache, key,  # in one pass
+                                                  config.descriptor != "precomputed", pose_file, quiet, timer)
     stages = {"odometry": poses, "descriptors": descriptors}
     if config.loop_detector == "scan":  # the local-map detectors store local maps, built from the scans
         with timer.stage("clouds"):

@@ -11,6 +11,11 @@ Throughput is that of the whole pipeline as it ran (reading the frames included)
 cache counts with the time it took when it was computed, and the run says it was replayed. The progress line,
 metrics.json and report.md compute frames per second and real-time factor with one function
 (evaluation.resources.throughput) from the same seconds.
+
+KISS-ICP runs on every core for a live source (frames streamed once, as from a sensor, where single-threaded
+odometry is most of a run's time: docs/performance.md) and on one thread for recorded data, whose replay stays
+bit-reproducible; odometry.num_threads, when given, wins (with_odometry_threads). The count is in the progress
+label, metrics.json (`threads`) and report.md.
 """
 
 from __future__ import annotations
@@ -29,15 +34,18 @@ from msa_slam.errors import InputError
 from msa_slam.evaluation.resources import current_rss_bytes, throughput
 from msa_slam.evaluation.sanity import frontend_warnings
 from msa_slam.odometry import KissOdometry, NoisyOdometry, OdometryCache, ReplayedOdometry
+from msa_slam.odometry.kiss import DEFAULT_THREADS
 from msa_slam.pipeline.frontend import (config_as_run, deskew_metrics, make_odometry, pipeline_cache,
                                         source_warnings)
-from msa_slam.pipeline.online_config import NO_TIMESTAMPS, OnlineConfig
+from msa_slam.pipeline.online_config import NO_TIMESTAMPS, NOT_REPRODUCIBLE, OnlineConfig
 from msa_slam.pipeline.source import open_source
 from msa_slam.progress import LogProgress, Progress, progress_bar
 from msa_slam.registration import make_cloud_store
 from msa_slam.sampling.msa.warm import load_kernels
 from msa_slam.slam import BACKEND_STEPS, RunResult, SlamBackend, build_backend, core_metrics
 from msa_slam.types import FrameSource
+from msa_slam.viz.labels import counted as noun_count  # `counted`: run_online's loop tally
+from msa_slam.workers import available_cpus
 
 logger = logging.getLogger(__name__)
 
@@ -139,6 +147,30 @@ def make_online_odometry(config: OnlineConfig, source: FrameSource, n: int):
     return odometry, False
 
 
+def with_odometry_threads(config: OnlineConfig, threads: int) -> OnlineConfig:
+    """`config` with KISS-ICP on `threads` threads unless its odometry_params name a count (an explicit setting
+    wins) or its odometry is not KISS-ICP; written into odometry_params so that config.yaml re-runs what ran."""
+    if config.odometry != "kiss" or "num_threads" in config.odometry_params:
+        return config
+    return config.model_copy(update={"odometry_params": {**config.odometry_params, "num_threads": threads}})
+
+
+def odometry_threads(config: OnlineConfig) -> int | None:
+    """Threads KISS-ICP registers with (its 0, "automatic", counted as the cores it may use); None for another
+    odometry."""
+    if config.odometry != "kiss":
+        return None
+    return config.odometry_params.get("num_threads", DEFAULT_THREADS) or available_cpus()
+
+
+def threads_note(threads: int | None) -> list[str]:
+    """The run's warning when its odometry is multi-threaded (none otherwise): for its notes and the log."""
+    if threads is None or threads <= 1:
+        return []
+    return [f"odometry: KISS-ICP on {threads} threads, {NOT_REPRODUCIBLE}: -p odometry.num_threads=1 makes the "
+            "run deterministic"]
+
+
 def online_progress(quiet: bool) -> Progress | LogProgress:
     """Progress with frames per second and real-time factor (a bar on a terminal, log lines elsewhere)."""
     return progress_bar(quiet, transient=False, fields="{task.fields[fps]:6.1f} fps  RTF {task.fields[rtf]:5.2f}x  "
@@ -151,9 +183,15 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     the batch pipeline (many small matrix products). `viewer` (msa_slam.viz.live.LiveViewer) is shown every
     frame and the final result."""
     source = source or open_source(config.dataset, config.dataset_kind, config.cache_dir, progress=not quiet)
+    if source.live:  # frames that come once: no replay to keep bit for bit, so every core
+        config = with_odometry_threads(config, available_cpus())
+    threads = odometry_threads(config)
     n = len(source) if config.max_frames is None else min(len(source), config.max_frames)
     odometry, cached = make_online_odometry(config, source, n)
     notes = source_warnings(config, source.name, source.times_known, source.point_times)  # logged where decided
+    for note in threads_note(threads):
+        logger.warning(note)
+        notes.append(note)
     deskew = deskew_metrics(config, source.point_times)
     config = config_as_run(config, source.point_times)  # what result.config (config.yaml) records
     descriptor = make_descriptor(config.descriptor, **config.descriptor_params)
@@ -168,7 +206,8 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
         logger.warning("online: the frames have no timestamps; the real-time factor is taken against the config's "
                        "sensor_rate_hz (%g Hz)", config.sensor_rate_hz)
     replayed = isinstance(odometry, ReplayedOdometry)
-    label = f"online {config.name}" + (" (odometry replayed from the cache, counted as computed)" if replayed else "")
+    label = f"online {config.name}" + (" (odometry replayed from the cache, counted as computed)" if replayed else
+                                       f" (odometry: {noun_count(threads, 'thread')})" if threads is not None else "")
     with threadpool_limits(limits=1, user_api="blas"), online_progress(quiet) as bar, closing(backend):
         task = bar.add_task(label, total=n, fps=0.0, rtf=0.0, kf=0, loops=0)
         start, first_time = time.perf_counter(), None
@@ -218,6 +257,7 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     result.memory_bytes["record_bytes"] += sum(v.nbytes for v in (*result.memory.values(), *front))  # per-frame series
     result.metrics = {**_metrics(result, seconds, times_known), "odometry_cached": cached,
                       "replayed_time_s": {"odometry": round(float(odometry.ms[:m].sum()) / 1e3, 4)} if replayed else {},
+                      "threads": {"odometry": threads, "verification": config.verifier.num_threads, "blas_backend": 1},
                       **deskew}
     warnings = frontend_warnings(result.gt_poses, result.odometry, result.times)
     if isinstance(odometry, KissOdometry):

@@ -26,6 +26,8 @@ class OnlineConfig(RunConfig):
     `sensor_rate_hz` is the data's frame rate for the real-time factor only while the frames' timestamps span
     no time (fewer than two frames) or the frames have none (a folder without times.txt or TUM poses);
     otherwise the timestamps give it.
+    KISS-ICP runs on every core for a `live:` source and on one thread for recorded data (bit-reproducible);
+    `odometry_params: {num_threads: N}` wins (pipeline.online.with_odometry_threads).
     """
 
     SECTION: ClassVar[str] = "online config"
@@ -39,6 +41,7 @@ class OnlineConfig(RunConfig):
 
 
 NO_TIMESTAMPS = "sensor_rate_hz (the frames have no timestamps)"  # frame_rate_from without them
+NOT_REPRODUCIBLE = "not bit-reproducible (multi-threaded odometry)"  # a run whose KISS-ICP used several threads
 
 
 def make_online_config(data: Mapping[str, Any] | None = None, **overrides: Any) -> OnlineConfig:

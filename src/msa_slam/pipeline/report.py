@@ -13,7 +13,7 @@ from msa_slam.evaluation import KITTI_LENGTHS_M, NA, PROCESS_RSS_LABEL, fmt, not
 from msa_slam.evaluation.full_rate import RPE_10M_EVO, STEP_FRAMES, path_length
 from msa_slam.evaluation.loops import FALSE_LOOP_ANGLE_DEG
 from msa_slam.io.tables import mib
-from msa_slam.pipeline.online_config import NO_TIMESTAMPS
+from msa_slam.pipeline.online_config import NO_TIMESTAMPS, NOT_REPRODUCIBLE
 from msa_slam.slam.backend import slam_sampler_params
 from msa_slam.slam.loop_closing import candidate_rule
 from msa_slam.viz.labels import counted, display_name, sampler_label
@@ -187,7 +187,18 @@ def _online_lines(result: ReportedRun) -> list[str]:
         f"{PROCESS_RSS_LABEL}: {mib(m['peak_rss_bytes'])}; {_rss_growth(m)}", "",
         "Step totals [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in m["time_s"].items())
         + replayed_note({"odometry": bool(m.get("odometry_cached"))}), "",
+        *([threads_text(m), ""] if threads_text(m) else []),
     ]
+
+
+def threads_text(m: dict[str, Any]) -> str:
+    """The threads KISS-ICP registered with (metrics.json `threads`), and whether the run is bit-reproducible;
+    empty for another odometry or a run recorded before online runs kept the count."""
+    threads = m.get("threads", {}).get("odometry")
+    if threads is None:
+        return ""
+    return f"Odometry: KISS-ICP on {counted(threads, 'thread')}" + (
+        f", {NOT_REPRODUCIBLE} (see the notes)." if threads > 1 else " (bit-reproducible).")
 
 
 # What the files of a result folder hold, in the order report.md lists them ({command}: run or online;

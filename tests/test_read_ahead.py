@@ -1,0 +1,101 @@
+"""The batch front end reads and describes the scans in a second thread while the odometry registers: same
+poses, descriptors and cache entries as the two stages run one after the other; the reader stays a bounded number
+of frames ahead, its errors are raised at their frame, and it stops when the consumer stops."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from msa_slam.datasets import Frame
+from msa_slam.descriptors import make_descriptor
+from msa_slam.descriptors.cache import compute_descriptors, descriptor_key
+from msa_slam.errors import InputError
+from msa_slam.io.cache import TIMES_PREFIX, CacheDir
+from msa_slam.odometry import OdometryCache, sequence_odometry
+from msa_slam.pipeline import make_config, prepare_frontend
+from msa_slam.pipeline.frontend import make_odometry
+from msa_slam.pipeline.read_ahead import DEPTH, ReadAhead
+from msa_slam.pipeline.source import open_sequence
+
+
+def _entries(folder: Path) -> dict[str, bytes]:
+    """The cache's entries by name, without the per-frame compute times (wall clock) and the digest memo."""
+    return {p.name: p.read_bytes() for p in sorted(folder.glob("*.npy")) if not p.name.startswith(TIMES_PREFIX)}
+
+
+def test_one_pass_gives_the_stages_results_and_cache_entries(sequence, tmp_path):
+    config = make_config(dataset=str(sequence), source={"frames": 40}, cache_dir=str(tmp_path / "pass"))
+    frontend = prepare_frontend(config)
+    assert frontend.cached == {"odometry": False, "descriptors": False}
+    assert set(frontend.timer.seconds) == {"dataset", "odometry", "descriptors"}
+
+    scans = open_sequence(str(sequence), source=config.source)  # the stages one after the other, as before
+    cache = CacheDir(tmp_path / "apart" / "pipeline")
+    odometry = make_odometry(config, len(scans), scans.point_times)
+    poses = sequence_odometry(scans, odometry, OdometryCache(cache), quiet=True)
+    key = descriptor_key(scans, config.descriptor, config.descriptor_params, cache)
+    descriptors = compute_descriptors(scans, make_descriptor(config.descriptor), cache, key)
+
+    assert np.array_equal(frontend.odometry, poses.values) and np.array_equal(frontend.descriptors, descriptors.values)
+    one_pass = _entries(tmp_path / "pass" / "pipeline")
+    assert len(one_pass) == 3 and one_pass == _entries(tmp_path / "apart" / "pipeline")  # poses, list, descriptors
+    again = prepare_frontend(config)  # the entries written in one pass are read back
+    assert again.cached == {"odometry": True, "descriptors": True}
+    assert np.array_equal(again.descriptors, frontend.descriptors)
+    for stage, seconds in again.replayed_s.items():  # computed alongside, the descriptors still count their time
+        assert 0 < seconds <= frontend.timer.seconds[stage]
+
+
+class _Scans:
+    """A sequence of `n` tiny scans that records how far ahead of the consumer it is read and can fail at a frame."""
+
+    def __init__(self, n: int, fail_at: int | None = None) -> None:
+        self.n, self.fail_at, self.consumed, self.ahead, self.last = n, fail_at, 0, 0, -1
+        self.reader: threading.Thread | None = None
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __getitem__(self, i: int) -> Frame:
+        self.reader = threading.current_thread()
+        self.ahead, self.last = max(self.ahead, i - self.consumed), i
+        if i == self.fail_at:
+            raise InputError(f"scan {i}: unreadable")
+        return Frame(i, 0.1 * i, np.full((5, 3), float(i)), None)
+
+
+def test_reader_stays_a_bounded_number_of_frames_ahead_and_describes_in_order():
+    scans = _Scans(30)
+    ahead = ReadAhead(scans, make_descriptor("sc"))
+    for i, frame in enumerate(ahead):
+        assert frame.index == i
+        scans.consumed = i + 1
+    # DEPTH frames in the queue and the one being read: never more
+    assert 0 < scans.ahead <= DEPTH + 1 and scans.reader is not threading.current_thread()
+    described = ahead.described()
+    expected = np.stack([make_descriptor("sc").compute(np.full((5, 3), float(i)), frame=i) for i in range(30)])
+    assert np.array_equal(described.values, expected) and described.ms.shape == (30,)
+
+
+def test_reader_error_is_raised_at_its_frame():
+    seen = []
+    with pytest.raises(InputError, match="^scan 7: unreadable$"):
+        for frame in ReadAhead(_Scans(30, fail_at=7)):
+            seen.append(frame.index)
+    assert seen == list(range(7))
+
+
+def test_reader_stops_when_the_consumer_stops():
+    scans = _Scans(1000)
+    ahead = ReadAhead(scans)
+    for frame in ahead:  # the loop's generator is closed when it ends: it joins its reader
+        if frame.index == 3:
+            break
+    assert scans.reader is not None and not scans.reader.is_alive()
+    assert scans.last <= 3 + DEPTH + 1 and not ahead.complete
+    with pytest.raises(RuntimeError, match="not all read"):
+        ahead.described()
