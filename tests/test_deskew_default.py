@@ -15,7 +15,8 @@ from msa_slam.pipeline.config import make_config
 from msa_slam.pipeline.frontend import make_odometry
 from msa_slam.pipeline.source import open_sequence
 from test_inputs import _pcd, _write_bag
-from test_real_inputs_times import N, _points, _write_bin
+from test_real_inputs_times import N, _points
+from helpers.scans import write_bin
 
 
 def _pcd_folder(root: Path) -> Path:
@@ -28,7 +29,7 @@ def _pcd_folder(root: Path) -> Path:
 def _bin_folder(root: Path) -> Path:
     """Bare .bin scans: no per-point times."""
     for k in range(N):
-        _write_bin(root / f"{k:06d}.bin", _points(k))
+        write_bin(root / f"{k:06d}.bin", _points(k))
     return root
 
 

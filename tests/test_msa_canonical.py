@@ -11,7 +11,7 @@ from msa_slam.sampling.msa import exact, fast, terms
 from msa_slam.sampling.msa.canonical import SIGN_ATOL, canonicalise
 from msa_slam.sampling.msa.powerset import feasible_subsets, subsets_by_size
 from helpers.msa_windows import planar_window
-from helpers.parity import MSA_NAME, STREAMS, load_stream, sampler_for, stream
+from helpers.parity import MSA_NAME, STREAMS, load_stream, sampler_for, stream  # noqa: F401 (stream: a fixture)
 
 
 def spectrum_matrix(lam: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:

@@ -18,7 +18,7 @@ import pytest
 
 from conftest import shared_path
 from msa_slam.sampling.msa import exact, sampler as msa_module, window
-from helpers.parity import MSA_NAME, STREAMS, load_stream, sampler_for, stream
+from helpers.parity import MSA_NAME, STREAMS, load_stream, sampler_for, stream  # noqa: F401 (stream: a fixture)
 
 MAX_AMBIGUOUS_CONFIGS = 4  # per stream and mode (of 24): the detector must stay a narrow screen
 CROSS_CPU_CASE = ("stream_s2_sc20x60.npz", "msa_N10_nn2_a10_b1_l0.1_u5")  # 73 here, 77 on an AVX2 EPYC

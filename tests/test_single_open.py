@@ -27,7 +27,8 @@ from msa_slam.pipeline.online import make_online_odometry, run_online
 from msa_slam.pipeline.online_config import make_online_config
 from msa_slam.pipeline.source import open_sequence
 from msa_slam.types import FrameSource
-from test_real_inputs_times import COARSE, _coarse, _kitti, _points, _write_bin
+from test_real_inputs_times import COARSE, _coarse, _kitti, _points
+from helpers.scans import write_bin
 
 FRAMES = 6
 NO_POINT_TIMES = "odometry: no per-point times: deskewing has no effect (recorded as deskew false)"
@@ -36,7 +37,7 @@ NO_POINT_TIMES = "odometry: no per-point times: deskewing has no effect (recorde
 def _untimed_folder(root: Path, frames: int = FRAMES) -> tuple[Path, Path]:
     """A folder of .bin scans without times, and a pose file moving 1.5 m a scan (its odometry)."""
     for k in range(frames):
-        _write_bin(root / "scans" / f"{k:06d}.bin", _points(k))
+        write_bin(root / "scans" / f"{k:06d}.bin", _points(k))
     poses = np.tile(np.eye(4), (frames, 1, 1))
     poses[:, 0, 3] = 1.5 * np.arange(frames)
     write_poses(root / "odometry.txt", poses)

@@ -28,7 +28,7 @@ from msa_slam.io.outputs import OutputError
 from msa_slam.odometry import KissOdometry, OdometryCache
 from msa_slam.pipeline import make_config, prepare_frontend
 from msa_slam.sim import DEFAULT_CONFIGS
-from helpers.cache_data import data, fill_excerpt
+from helpers.cache_data import data, fill_excerpt  # noqa: F401 (data: a fixture)
 
 
 def _frontend(data: Path, cache: Path, **fields):
