@@ -23,15 +23,17 @@ from msa_slam.pipeline.source import open_sequence
 
 
 def _entries(folder: Path) -> dict[str, bytes]:
-    """The cache's entries by name, without the per-frame compute times (wall clock) and the digest memo."""
-    return {p.name: p.read_bytes() for p in sorted(folder.glob("*.npy")) if not p.name.startswith(TIMES_PREFIX)}
+    """The cache's odometry and descriptor entries by name, without the per-frame compute times (wall clock), the
+    digest memo and the frame clouds (a stage of their own, after the pass)."""
+    return {p.name: p.read_bytes() for p in sorted(folder.glob("*.npy"))
+            if not p.name.startswith((TIMES_PREFIX, "frame-cloud"))}
 
 
 def test_one_pass_gives_the_stages_results_and_cache_entries(sequence, tmp_path):
     config = make_config(dataset=str(sequence), source={"frames": 40}, cache_dir=str(tmp_path / "pass"))
     frontend = prepare_frontend(config)
-    assert frontend.cached == {"odometry": False, "descriptors": False}
-    assert set(frontend.timer.seconds) == {"dataset", "odometry", "descriptors"}
+    assert frontend.cached == {"odometry": False, "descriptors": False, "clouds": False}
+    assert set(frontend.timer.seconds) == {"dataset", "odometry", "descriptors", "clouds"}
 
     scans = open_sequence(str(sequence), source=config.source)  # the stages one after the other, as before
     cache = CacheDir(tmp_path / "apart" / "pipeline")
@@ -44,7 +46,7 @@ def test_one_pass_gives_the_stages_results_and_cache_entries(sequence, tmp_path)
     one_pass = _entries(tmp_path / "pass" / "pipeline")
     assert len(one_pass) == 3 and one_pass == _entries(tmp_path / "apart" / "pipeline")  # poses, list, descriptors
     again = prepare_frontend(config)  # the entries written in one pass are read back
-    assert again.cached == {"odometry": True, "descriptors": True}
+    assert again.cached == {"odometry": True, "descriptors": True, "clouds": True}
     assert np.array_equal(again.descriptors, frontend.descriptors)
     for stage, seconds in again.replayed_s.items():  # computed alongside, the descriptors still count their time
         assert 0 < seconds <= frontend.timer.seconds[stage]
