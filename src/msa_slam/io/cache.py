@@ -315,14 +315,15 @@ class CacheDir:
     def path(self, name: str) -> Path:
         return self.folder / f"{name}.npy"
 
-    def load(self, name: str, check: Callable[[np.ndarray], np.ndarray]) -> np.ndarray | None:
+    def load(self, name: str, check: Callable[[np.ndarray], np.ndarray], mapped: bool = False) -> np.ndarray | None:
         """The entry passed through `check` (which raises ValueError on a bad one), or None when it is absent,
-        unreadable, truncated or fails the check (with a warning naming the file: it will be recomputed)."""
+        unreadable, truncated or fails the check (with a warning naming the file: it will be recomputed).
+        `mapped`: memory-mapped read-only (a large entry of which a run reads only parts)."""
         path = self.path(name)
         if not path.is_file():
             return None
         try:
-            return check(np.load(path, allow_pickle=False))
+            return check(np.load(path, allow_pickle=False, mmap_mode="r" if mapped else None))
         except (OSError, ValueError, EOFError) as exc:
             log.warning("cache: ignoring %s (%s); recomputing it", path, exc)
             return None

@@ -10,7 +10,6 @@ the points are memory-mapped, so a run holds in RAM only the keyframes' clouds i
 
 from __future__ import annotations
 
-import logging
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -22,8 +21,6 @@ from msa_slam.io.cache import CacheDir, Computed, cache_key, sequence_inputs
 from msa_slam.io.fingerprint import code_fingerprint
 from msa_slam.progress import progress_bar
 from msa_slam.registration.clouds import downsample
-
-log = logging.getLogger(__name__)
 
 CLOUD_LIBRARIES = ("numpy", "small_gicp")
 CLOUD_CODE = ("msa_slam.registration.clouds", "msa_slam.datasets")  # the voxel downsampling and the scan readers
@@ -62,7 +59,7 @@ def frame_clouds(sequence: ScanSequence, voxel_size: float, cache: CacheDir | No
     if cache is not None:
         offsets = cache.load(offsets_name, _offsets_check(len(sequence)))
         ms = None if offsets is None else cache.load_times(points_name, len(sequence))
-        points = None if ms is None else _load_mapped(cache, points_name, _points_check(int(offsets[-1])))
+        points = None if ms is None else cache.load(points_name, _points_check(int(offsets[-1])), mapped=True)
         if points is not None:
             return Computed(FrameClouds(points, offsets, float(voxel_size)), True, ms)
     clouds, ms = [], np.zeros(len(sequence))
@@ -80,20 +77,6 @@ def frame_clouds(sequence: ScanSequence, voxel_size: float, cache: CacheDir | No
         if cache.save(points_name, points) is not None:
             cache.save(offsets_name, offsets)  # written last: an entry without it is recomputed
     return Computed(FrameClouds(points, offsets, float(voxel_size)), False, ms)
-
-
-def _load_mapped(cache: CacheDir, name: str, check: Callable[[np.ndarray], np.ndarray]) -> np.ndarray | None:
-    """CacheDir.load's entry, memory-mapped read-only: a run reads only its keyframes' clouds. (Not an option of
-    CacheDir.load: io.cache is part of the odometry and descriptor caches' code fingerprint, which an edit
-    there would change, making every cached odometry a miss.)"""
-    path = cache.path(name)
-    if not path.is_file():
-        return None
-    try:
-        return check(np.load(path, allow_pickle=False, mmap_mode="r"))
-    except (OSError, ValueError, EOFError) as exc:
-        log.warning("cache: ignoring %s (%s); recomputing it", path, exc)
-        return None
 
 
 def _offsets_check(frames: int) -> Callable[[np.ndarray], np.ndarray]:
