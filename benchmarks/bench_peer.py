@@ -5,6 +5,7 @@ with the wall time of each.
     python benchmarks/bench_peer.py [--sequences 07,09] [--seeds 0] [--end N] [--methods msa,constant-2m]
                                     [--peer-python PATH] [--peer-threads 1] [--peer-methods icp,slam,slam-raw]
                                     [-p KEY=VALUE ...] [--label NAME] [--out DIR] [--cache-dir DIR]
+                                    [--speed [--speed-repeats 3]]
 
 Each sequence is simulated once per seed as a KITTI-layout folder (`msa-slam simulate --trajectory NAME
 --seed S [--end N] --out DIR/data/...`, per-point times in velodyne_times/; a sequence given as a number is
@@ -27,6 +28,10 @@ truth is of mid-sweep; the mid-sweep figure is printed beside it); "KISS-SLAM, n
 the peer as its CLI runs on .bin scans, without deskewing; msa-slam's odometry deskews to mid-sweep by default
 when the scans carry per-point times, as the simulator's do (`-p odometry.deskew=false` turns it off), which
 the table says from the run's metrics.json.
+
+--speed times the end-to-end jobs instead (benchmarks/peer_timing.py): KISS-SLAM, `msa-slam run --sampler msa`
+and `msa-slam compare`, each from a cold cache, wall and CPU time and peak RSS, medians of alternating repeats,
+with the APE of each job's trajectory and its wall time as a share of KISS-SLAM's (--out/table-speed.md).
 
 Results are kept under --out (default ./msa_slam_results/bench_peer/): a finished comparison or peer run is
 reused on a rerun (delete it to rerun); the table goes to stdout and --out/table.md.
@@ -55,6 +60,7 @@ from msa_slam.pipeline.config import RunConfig, apply_overrides
 from msa_slam.pipeline.compare import PAPER_METHODS, run_compare
 from msa_slam.sim.trajectories import interpolate_poses
 from msa_slam.viz.labels import counted
+from peer_timing import median_timing, timed_jobs
 
 DRIVER = Path(__file__).with_name("peer_kiss_slam.py")
 CLI = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
@@ -262,6 +268,39 @@ def table(rows: list[dict], conditions: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def speed_table(sequence: str, seed: int, args: argparse.Namespace, peer: str | None) -> str:
+    """--speed: wall time, CPU time and peak RSS of KISS-SLAM, `msa-slam run` and `msa-slam compare` on one
+    simulated sequence, cold, medians of --speed-repeats alternating runs, with each job's APE and the goals'
+    ratios (run <= KISS-SLAM, compare <= 1.5x KISS-SLAM in wall time)."""
+    folder = simulated(sequence, seed, args.end, args.out / "data")
+    gt, _ = read_poses(folder / "poses.txt")
+    root = args.out / (run_name(sequence, seed, args.end) + "-speed")
+    timings = timed_jobs(folder, root, CLI, peer, DRIVER, args.peer_threads, args.speed_repeats)
+    last = root / "last"
+    accuracy = {"msa-slam run --sampler msa": last / "run" / "trajectories" / "optimised.kitti",
+                "msa-slam compare (7 methods)": last / "compare" / "runs" / "msa" / "trajectories" / "optimised.kitti"}
+    lines = [f"### Speed: simulated {trajectory_name(sequence)}, world seed {seed}, {len(gt)} frames, cold cache, "
+             f"median of {args.speed_repeats} runs", "",
+             "| job | wall [s] | CPU [s] | peak RSS [MiB] | wall / KISS-SLAM's | APE t RMSE [m] | runs' wall [s] |",
+             "|---|---|---|---|---|---|---|"]
+    peer_wall = median_timing(timings["KISS-SLAM"]).wall_s if "KISS-SLAM" in timings else None
+    for name, runs in timings.items():
+        median = median_timing(runs)
+        if name == "KISS-SLAM":
+            with np.load(last / "peer.npz") as data:
+                error = ape(data["poses"], sweep_end_truth(gt, np.loadtxt(folder / "times.txt")))[0]
+        else:
+            error = ape(read_poses(accuracy[name])[0], gt)[0]
+        ratio = None if peer_wall is None else median.wall_s / peer_wall
+        lines.append(f"| {name} | {median.wall_s:.1f} | {median.cpu_s:.1f} | {median.peak_rss_mib:.0f} "
+                     f"| {fmt(ratio, '.2f')} | {error:.3f} | {', '.join(f'{t.wall_s:.1f}' for t in runs)} |")
+    threads = "all cores" if args.peer_threads == 0 else counted(args.peer_threads, "thread")
+    lines += ["", f"KISS-SLAM: KISS-ICP on {threads}, deskew to sweep end (APE against the truth at sweep end). "
+              "msa-slam: its defaults (odometry on one thread, deskew to mid-sweep; compare's methods in one worker "
+              "process per CPU); compare's APE is MSA's. Goals: run <= 1.00, compare <= 1.50 of KISS-SLAM's wall."]
+    return "\n".join(lines) + "\n"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sequences", default="07", help="KITTI trajectories to simulate, e.g. 07,09")
@@ -280,6 +319,10 @@ def main() -> None:
     parser.add_argument("--label", default=None, help="name of a run with -p overrides (kept apart from the default)")
     parser.add_argument("--out", type=Path, default=Path("msa_slam_results/bench_peer"))
     parser.add_argument("--cache-dir", type=Path, default=None, help="msa-slam's cache (default: --out/cache)")
+    parser.add_argument("--speed", action="store_true",
+                        help="instead of the accuracy tables: time KISS-SLAM, `msa-slam run` and `msa-slam compare` "
+                             "end to end from a cold cache (wall, CPU, peak RSS)")
+    parser.add_argument("--speed-repeats", type=int, default=3, help="--speed: runs of each job (medians)")
     args = parser.parse_args()
     args.methods = None if args.methods is None else args.methods.split(",")
     if args.params and not args.label:
@@ -304,6 +347,14 @@ def main() -> None:
     print(text[0] + "\n", flush=True)
     if args.params:
         text[0] += f" Overrides ({args.label}): " + " ".join(f"-p {p}" for p in args.params) + "."
+    if args.speed:
+        text = [text[0], ""]
+        for sequence in args.sequences.split(","):
+            for seed in (int(s) for s in args.seeds.split(",")):
+                text.append(speed_table(sequence.strip(), seed, args, peer))
+                print(text[-1], flush=True)
+        (args.out / "table-speed.md").write_text("\n".join(text))
+        return
     goals = []
     for sequence in args.sequences.split(","):
         for seed in (int(s) for s in args.seeds.split(",")):
