@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from msa_slam.datasets.clouds import checked_points
+from msa_slam.datasets.points import checked_points
 from msa_slam.datasets.frame import Frame
 from msa_slam.datasets.pcd import TIME_FIELDS
 from msa_slam.datasets.sequences import ScanSequence
