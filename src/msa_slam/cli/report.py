@@ -22,7 +22,7 @@ def report_command(
     from msa_slam.errors import InputError
     from msa_slam.experiments.folder import KIND
     from msa_slam.io.outputs import MARKER
-    from msa_slam.io.staging import result_kind
+    from msa_slam.io.marker import result_kind
 
     kind = result_kind(results_dir)
     if kind is None:
