@@ -24,8 +24,8 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 import msa_slam
-from msa_slam.io.outputs import MARKER, OutputError
 from msa_slam.io.marker import foreign_in_units
+from msa_slam.io.outputs import MARKER, OutputError
 from msa_slam.io.staging import clean_stale
 from msa_slam.io.tables import write_json
 from msa_slam.pipeline.config import RunConfig
