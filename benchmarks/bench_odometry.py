@@ -24,7 +24,7 @@ import numpy as np
 def one_run(dataset: str, num_threads: int, cache_dir: str | None, out: Path) -> None:
     """Register every scan of `dataset` with a fresh KISS-ICP; save the poses and the seconds to `out`."""
     from msa_slam.odometry import KissOdometry
-    from msa_slam.pipeline.source import open_sequence
+    from msa_slam.sources import open_sequence
 
     scans = [frame.points for frame in open_sequence(dataset, cache_dir=cache_dir)]
     odometry = KissOdometry(num_threads=num_threads)

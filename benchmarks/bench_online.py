@@ -48,7 +48,7 @@ from msa_slam.datasets import Frame
 from msa_slam.odometry import KissOdometry
 from msa_slam.pipeline.online import STEPS, run_online
 from msa_slam.pipeline.online_config import make_online_config
-from msa_slam.pipeline.source import open_source
+from msa_slam.sources import open_source
 from msa_slam.types import FrameSource
 
 SAMPLERS = {

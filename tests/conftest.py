@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from msa_slam.io.poses import read_poses, write_poses
-from msa_slam.pipeline.source import resolve_dataset
+from msa_slam.sources import resolve_dataset
 from msa_slam.sim import DEFAULT_CONFIGS, simulate_sequence
 
 REPO_ROOT = Path(__file__).resolve().parents[1]

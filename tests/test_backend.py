@@ -12,7 +12,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from msa_slam.backend import GraphConfig, IncrementalPoseGraph, PoseGraph
-from msa_slam.backend.graph import FACTOR_BYTES
+from msa_slam.backend.keyframe_graph import FACTOR_BYTES
 from msa_slam.backend.noise import bounded_covariance
 from msa_slam.errors import InputError
 from msa_slam.evaluation import ate

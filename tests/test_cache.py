@@ -27,7 +27,7 @@ from msa_slam.odometry import KissOdometry, OdometryCache
 from msa_slam.pipeline import make_config, prepare_frontend
 from msa_slam.pipeline.online import make_online_odometry
 from msa_slam.pipeline.online_config import make_online_config
-from msa_slam.pipeline.source import open_source
+from msa_slam.sources import open_source
 from helpers.cache_data import data, fill_excerpt  # noqa: F401 (data: a fixture)
 
 

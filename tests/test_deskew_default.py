@@ -13,7 +13,7 @@ from msa_slam.cli import app
 from msa_slam.odometry.kiss import NO_POINT_TIMES
 from msa_slam.pipeline.config import make_config
 from msa_slam.pipeline.frontend import make_odometry
-from msa_slam.pipeline.source import open_sequence
+from msa_slam.sources import open_sequence
 from test_inputs import _pcd, _write_bag
 from test_real_inputs_times import N, _points
 from helpers.scans import write_bin

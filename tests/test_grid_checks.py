@@ -70,8 +70,8 @@ def test_base_sampler_params_apply_below_the_methods_own_and_swept_values(tmp_pa
 @pytest.mark.parametrize("dataset, message", [
     ("sim:nosuch", "dataset 'sim:nosuch': unknown simulated sequence 'nosuch'; choose one of demo, test, kitti-00"),
     ("/nonexistent/folder", "dataset '/nonexistent/folder': not found (give a sequence folder, a bag or sim:NAME)"),
-    ("live:nosuch,stride=2", "dataset 'live:nosuch,stride=2': simulation config: trajectory: unknown trajectory "
-                             "'nosuch'"),
+    ("live:nosuch,stride=2", "dataset 'live:nosuch,stride=2': unknown simulated sequence 'nosuch'; choose one of "
+                             "demo, test, kitti-00"),
 ])
 def test_unknown_dataset_is_one_line_before_the_result_folder(tmp_path, dataset, message):
     grid_file = tmp_path / "g.yaml"

@@ -17,7 +17,7 @@ from msa_slam.datasets.pcd import read_timed_pcd
 from msa_slam.datasets.options import SourceOptions
 from msa_slam.errors import InputError
 from msa_slam.io.poses import format_kitti
-from msa_slam.pipeline.source import open_sequence
+from msa_slam.sources import open_sequence
 from helpers.scans import write_bin
 
 N = 4

@@ -9,7 +9,7 @@ import pytest
 from msa_slam.errors import InputError
 from msa_slam.pipeline.online import run_online
 from msa_slam.pipeline.online_config import make_online_config
-from msa_slam.pipeline.source import open_source
+from msa_slam.sources import open_source
 
 
 def test_online_without_ground_truth_reports_na(scans_only):

@@ -21,7 +21,7 @@ from msa_slam.io.staging import WRITER
 from msa_slam.pipeline.online import STEPS, run_online
 from msa_slam.pipeline.online_config import make_online_config
 from msa_slam.odometry import NoisyOdometry
-from msa_slam.pipeline.source import open_source
+from msa_slam.sources import open_source
 from msa_slam.registration import DiskCloudStore
 from msa_slam.types import FrameSource
 from msa_slam.registration import downsample
@@ -227,7 +227,7 @@ def test_online_config_errors(data, message):
 def test_bad_sources_and_odometry_parameters():
     with pytest.raises(InputError, match="laps must be an integer >= 1"):
         open_source("live:figure-eight,laps=0")
-    with pytest.raises(InputError, match="unknown trajectory"):
+    with pytest.raises(InputError, match="unknown simulated sequence 'moon-walk'"):
         open_source("live:moon-walk")
     with pytest.raises(InputError, match=r"^dataset 'live:figure-eight': --first applies to recordings, not to a live: "
                                          r"source .*start=, end=, stride=.*-p max_frames=N$"):

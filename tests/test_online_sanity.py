@@ -7,7 +7,7 @@ import numpy as np
 from msa_slam.datasets import Frame
 from msa_slam.pipeline.online import run_online
 from msa_slam.pipeline.online_config import make_online_config
-from msa_slam.pipeline.source import open_source
+from msa_slam.sources import open_source
 from msa_slam.types import FrameSource
 
 COARSE = "live:figure-eight,stride=4,azimuth_steps=180,realism=clean"

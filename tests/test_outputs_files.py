@@ -112,7 +112,7 @@ def test_pose_graph_g2o_reads_back_into_gtsam_at_its_optimum(batch):
 
 def test_g2o_names_a_robust_loop_kernel_and_keeps_each_factors_information():
     from msa_slam.backend import PoseGraph
-    from msa_slam.backend.graph import GraphConfig
+    from msa_slam.backend.graph_config import GraphConfig
     from msa_slam.io.g2o import format_g2o
 
     graph = PoseGraph(GraphConfig(robust="cauchy"), mode="realistic")

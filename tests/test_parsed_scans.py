@@ -14,7 +14,7 @@ import msa_slam.datasets.pcd as pcd
 from msa_slam.datasets import SourceOptions
 from msa_slam.datasets.parsed import is_text_scan
 from msa_slam.io.staging import WRITER, stamp
-from msa_slam.pipeline.source import open_sequence
+from msa_slam.sources import open_sequence
 
 N = 4
 

@@ -19,7 +19,7 @@ from msa_slam.odometry import OdometryCache, sequence_odometry
 from msa_slam.pipeline import make_config, prepare_frontend
 from msa_slam.pipeline.frontend import make_odometry
 from msa_slam.pipeline.read_ahead import DEPTH, ReadAhead
-from msa_slam.pipeline.source import open_sequence
+from msa_slam.sources import open_sequence
 
 
 def _entries(folder: Path) -> dict[str, bytes]:

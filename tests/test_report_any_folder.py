@@ -14,8 +14,8 @@ from typer.testing import CliRunner
 
 from msa_slam.cli import app
 from msa_slam.errors import InputError
+from msa_slam.io.marker import edited_files, foreign_files
 from msa_slam.io.outputs import MARKER, OutputError
-from msa_slam.io.staging import edited_files, foreign_files
 from msa_slam.pipeline import make_config
 from msa_slam.pipeline.compare import run_compare
 

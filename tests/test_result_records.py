@@ -23,7 +23,7 @@ from msa_slam.pipeline.online import run_online
 from msa_slam.pipeline.online_config import make_online_config
 from msa_slam.pipeline.report import report_markdown, sequence_title
 from msa_slam.pipeline.results import write_run_files
-from msa_slam.pipeline.source import open_source
+from msa_slam.sources import open_source
 from msa_slam.slam import RunResult
 from test_single_open import _untimed_folder
 

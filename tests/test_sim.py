@@ -503,7 +503,7 @@ def test_simulate_a_kitti_trajectory_file_through_the_cli(tmp_path, monkeypatch,
 
 
 def test_trajectory_file_is_keyed_by_content_and_usable_as_sim_spec(tmp_path):
-    from msa_slam.pipeline.source import resolve_dataset
+    from msa_slam.sources import resolve_dataset
 
     poses_file, times_file, _ = _write_camera_trajectory(tmp_path / "a", _arc_poses())
     lidar_file = tmp_path / "a" / "lidar.txt"
@@ -615,9 +615,9 @@ def test_realism_preset_is_in_the_cache_key_and_stores_point_times(tmp_path):
         assert make_config(**SMALL).key() != keys["kitti"], "a retuned preset must not reuse the cache"
     with pytest.raises(InputError, match="realism: unknown realism preset 'noisy'.*clean, kitti, kitti-hard"):
         make_config(**SMALL, realism="noisy")
-    from msa_slam.pipeline.source import sim_config
+    from msa_slam.sources import parse_spec
 
-    assert sim_config("sim:kitti-07,end=6,realism=kitti-hard").realism == "kitti-hard"
+    assert parse_spec("sim:kitti-07,end=6,realism=kitti-hard").config.realism == "kitti-hard"
     real = simulate_sequence(make_config(**SMALL), cache_dir=tmp_path)
     clean = simulate_sequence(make_config(**SMALL, realism="clean"), cache_dir=tmp_path)
     assert real != clean and not (clean / "velodyne_times").exists()

@@ -18,14 +18,14 @@ from msa_slam.datasets.sequences import _warn_untimed
 from msa_slam.errors import InputError
 from msa_slam.io.poses import write_poses
 from msa_slam.odometry import KissOdometry
-from msa_slam.pipeline import source as source_module
+from msa_slam.sources import sequence as source_module
 from msa_slam.pipeline.batch import run_batch
 from msa_slam.pipeline.compare import run_compare
 from msa_slam.pipeline.config import make_config
 from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, prepare_frontend
 from msa_slam.pipeline.online import make_online_odometry, run_online
 from msa_slam.pipeline.online_config import make_online_config
-from msa_slam.pipeline.source import open_sequence
+from msa_slam.sources import open_sequence
 from msa_slam.types import FrameSource
 from test_real_inputs_times import COARSE, _coarse, _kitti, _points
 from helpers.scans import write_bin
@@ -45,7 +45,7 @@ def _untimed_folder(root: Path, frames: int = FRAMES) -> tuple[Path, Path]:
 
 
 def _counting_opens(monkeypatch) -> list[str]:
-    """The paths pipeline.source opens (every run opens its dataset through open_sequence)."""
+    """The paths msa_slam.sources opens (every run opens its dataset through open_sequence)."""
     opened: list[str] = []
     real = source_module.open_source_options
 

@@ -9,7 +9,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from msa_slam.io.staging import MARKER
+from msa_slam.io.marker import MARKER
 
 # Keys of measured wall-clock time, memory high-water marks and cache hits: they differ between runs.
 VOLATILE_KEY = re.compile(r"time|(^|_)ms(_|$)|rss|fps|latency|cached|realtime|_s$")

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from msa_slam.datasets.clouds import checked_points
 from msa_slam.datasets.kiss_loaders import nanoseconds_to_seconds
+from msa_slam.datasets.points import checked_points
 from msa_slam.datasets.sequences import ScanSequence
 from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from msa_slam.datasets.clouds import checked_points
+from msa_slam.datasets.points import checked_points
 from msa_slam.errors import InputError
 
 PCD_TYPES = {("F", 4): "<f4", ("F", 8): "<f8", ("I", 1): "<i1", ("I", 2): "<i2", ("I", 4): "<i4",

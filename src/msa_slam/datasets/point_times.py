@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from msa_slam.datasets.clouds import checked_points, read_bin_records
+from msa_slam.datasets.clouds import read_bin_records
+from msa_slam.datasets.points import checked_points
 from msa_slam.errors import InputError
 
 SWEEP_PERIOD = 0.1  # s: KITTI's HDL-64 (and the simulator's sensors) turn at 10 Hz

@@ -20,6 +20,7 @@ from typing import Any, Collection, Mapping, Sequence
 
 from msa_slam.errors import InputError
 from msa_slam.experiments.grid import Cell
+from msa_slam.sources.spec import spec_kind
 
 # Seconds a frame of each stage on this project's machine (2-core AMD EPYC, one thread a stage) for a scan of
 # REFERENCE_POINTS points, from the demo (1101 HDL-64 scans of 64 x 720: simulation 30 s on both cores, KISS-ICP
@@ -128,9 +129,9 @@ def _assumed_costs(todo: Sequence[Cell], sizes: Mapping[str, tuple[int | None, i
         config, scale = cell.config, (points or REFERENCE_POINTS) / REFERENCE_POINTS
         dataset = (config["dataset"], config.get("dataset_kind"), repr(config.get("source")))
         seconds = frames * STAGE_S["back end"]
-        if config["dataset"].startswith("live:"):
+        if spec_kind(config["dataset"]) == "live":
             seconds += frames * STAGE_S["simulation"] * scale
-        elif config["dataset"].startswith("sim:") and config["dataset"] not in shared:
+        elif spec_kind(config["dataset"]) == "sim" and config["dataset"] not in shared:
             shared.add(config["dataset"])
             seconds += _simulated_frames(config["dataset"]) * STAGE_S["simulation"] * scale
         front = [("kiss-icp", (config.get("odometry"), repr(config.get("odometry_params"))), scale)] \
@@ -162,20 +163,19 @@ def _dataset_size(spec: str, kind: str, source: tuple) -> tuple[int | None, int 
     simulated), recordings by opening them and reading their first scan (as a run does first)."""
     from msa_slam.datasets import SourceOptions
     from msa_slam.datasets.sequences import selected_count
-    from msa_slam.pipeline.source import SIM_PREFIX, open_sequence, sim_config
     from msa_slam.sim import get_sensor
-    from msa_slam.sim.live import LIVE_PREFIX, live_settings
+    from msa_slam.sources import open_sequence, parse_spec
 
     options = SourceOptions(**dict(source))
     try:
-        if spec.startswith(LIVE_PREFIX):
-            config, laps = live_settings(spec)
-            frames = config.frame_count() * laps
-        elif spec.startswith(SIM_PREFIX):
-            config = sim_config(spec)
+        parsed = parse_spec(spec)
+        config = parsed.config
+        if parsed.kind == "live":
+            frames = config.frame_count() * parsed.laps
+        elif parsed.kind == "sim":
             frames = selected_count(config.frame_count(), options.first, options.jump, options.frames, spec)
         else:
-            sequence = open_sequence(spec, kind, source=options)
+            sequence = open_sequence(parsed, kind, source=options)
             return len(sequence), len(sequence[0].points)
     except (InputError, OSError):  # the cell will say what is wrong when it runs
         return None, None
@@ -185,9 +185,9 @@ def _dataset_size(spec: str, kind: str, source: tuple) -> tuple[int | None, int 
 
 def _simulated_frames(spec: str) -> int:
     """The scans a sim: dataset casts (all of them, whatever part a run selects)."""
-    from msa_slam.pipeline.source import sim_config
+    from msa_slam.sources import parse_spec
 
-    return sim_config(spec).frame_count()
+    return parse_spec(spec).config.frame_count()
 
 
 class GridClock:

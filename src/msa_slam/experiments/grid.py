@@ -38,6 +38,7 @@ from pydantic import (BaseModel, ConfigDict, Field, StrictInt, ValidationError, 
 from msa_slam.config import validation_message
 from msa_slam.errors import InputError
 from msa_slam.io.yaml_file import read_yaml
+from msa_slam.sources.spec import SEED, seeded
 
 GRID_DIR = Path(__file__).parent / "grids"
 
@@ -212,16 +213,16 @@ def check_datasets(grid: GridSpec, where: str = "grid", cells: Sequence[Cell] = 
     (and before the result folder is made), as `run` and `online` would in their first step; nothing is
     simulated here."""
     from msa_slam.datasets import SourceOptions
-    from msa_slam.pipeline.source import check_dataset, check_simulated_source
+    from msa_slam.sources import check_selection, parse_spec
 
-    specs = dict.fromkeys(d.replace("{seed}", str(seed)) for d in grid.datasets for seed in grid.seeds)
+    specs = dict.fromkeys(seeded(d, seed) for d in grid.datasets for seed in grid.seeds)
     selections = dict.fromkeys((c.config["dataset"], c.config.get("dataset_kind", "auto"),
                                 tuple(sorted(c.config["source"].items()))) for c in cells if "source" in c.config)
     try:
         for spec in specs:
-            check_dataset(spec)
+            parse_spec(spec)
         for spec, kind, source in selections:
-            check_simulated_source(spec, kind, SourceOptions(**dict(source)))
+            check_selection(spec, kind, SourceOptions(**dict(source)))
     except InputError as exc:
         message = str(exc) if str(exc).startswith("dataset ") else f"dataset {spec!r}: {exc}"
         raise InputError(f"{where}: {message}") from None
@@ -249,7 +250,7 @@ def _config_for(grid: GridSpec, dataset: str, descriptor: str, sampler: str, par
     from msa_slam.pipeline.online_config import apply_online_params
     from msa_slam.pipeline.config import apply_params
 
-    data = {**grid.base, "dataset": dataset.replace("{seed}", str(seed)), "descriptor": descriptor,
+    data = {**grid.base, "dataset": seeded(dataset, seed), "descriptor": descriptor,
             "sampler": sampler, "sampler_params": params, "label": label}
     overrides = [f"{k}={json.dumps(v)}" for k, v in parameters.items()]
     try:
@@ -266,7 +267,7 @@ def expand(grid: GridSpec, where: str = "grid") -> list[Cell]:
 
     methods = grid.methods(where)
     if grid.pipeline == "batch" and len(grid.seeds) > 1:
-        same = next((d for d in grid.datasets if "{seed}" not in d), None)
+        same = next((d for d in grid.datasets if SEED not in d), None)
         if same is not None:
             raise InputError(f"{where}: seeds {grid.seeds} but dataset {same!r} has no {{seed}}: every seed would "
                              "run the same cell (a batch run takes its seed from the dataset)")

@@ -29,7 +29,9 @@ from msa_slam.experiments.grid import Cell, GridSpec, check_datasets, expand
 from msa_slam.experiments.identity import CELL_IDENTITY, cell_identities, outdated_cells
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, some_names, staged_dir
-from msa_slam.io.staging import OutputError, foreign_in_units, remove_abandoned, unmark_finished
+from msa_slam.io.marker import foreign_in_units
+from msa_slam.io.staging import remove_abandoned, unmark_finished
+from msa_slam.io.write_errors import OutputError
 from msa_slam.workers import check_workers
 
 DEFAULT_PARENT = DEFAULT_RESULTS / "experiments"
@@ -66,7 +68,7 @@ def clean_partials(out: str | os.PathLike) -> list[Path]:
 def check_replaceable(out: Path, cell_ids: list[str]) -> None:
     """Before a cell folder that exists is rerun (its data or code changed, or its files are damaged) and so
     replaced: refuse, in one line, when it holds files the result marker does not list as msa-slam's (a
-    person's notes in a cell are not msa-slam's to remove; staging.foreign_in_units). msa-slam's own files there,
+    person's notes in a cell are not msa-slam's to remove; marker.foreign_in_units). msa-slam's own files there,
     damaged or changed, are what the rerun replaces."""
     found = foreign_in_units(out, [f"cells/{cell_id}" for cell_id in cell_ids])
     for cell_id in cell_ids:

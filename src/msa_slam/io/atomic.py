@@ -14,9 +14,10 @@ def atomic_path(target: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path next to `target`; rename it onto `target` only if the block succeeds.
 
     The file gets 0666 minus the umask (mkstemp's 0600 would hide results from the user's group). A failed
-    write (full disk, no permission) is one line naming `target` (staging.write_error).
+    write (full disk, no permission) is one line naming `target` (write_errors.write_error).
     """
-    from msa_slam.io.staging import current_umask, write_error
+    from msa_slam.io.staging import current_umask
+    from msa_slam.io.write_errors import write_error
 
     target = Path(target)
     tmp_path: Path | None = None

@@ -30,8 +30,8 @@ from typing import Any, BinaryIO, Callable, Iterable, Iterator, NamedTuple
 import numpy as np
 
 from msa_slam.errors import InputError
-from msa_slam.io.staging import (current_umask, is_disk_full, leftovers, new_scratch, remove_abandoned,
-                                remove_scratch)
+from msa_slam.io.staging import current_umask, leftovers, new_scratch, remove_abandoned, remove_scratch
+from msa_slam.io.write_errors import is_disk_full
 
 log = logging.getLogger(__name__)
 

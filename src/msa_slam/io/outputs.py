@@ -25,84 +25,32 @@ folders and stamped lock files, as above; anything else stays).
 The folder is built under `.NAME.partial-*` and moved into place by one rename, or, over an old result,
 by an atomic exchange (Linux renameat2), so a kill at any point leaves either the old or the new result.
 Folders get 0777 and files 0666 minus the umask, like any other tool's output.
+
+Here the checks and ResultFolder; the lock is output_lock.py's, the default timestamped folders
+default_folders.py's, the marker marker.py's, staging and swaps staging.py's, the one-line write errors
+write_errors.py's.
 """
 
 from __future__ import annotations
 
 import contextlib
-import fcntl
-import itertools
 import os
-import re
 import shutil
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
-from msa_slam.io.staging import (MARKER, OutputError, clean_stale, discard, edited_files, foreign_files, is_disk_full,
-                                 disk_full_error, is_result_folder, is_stamp, listed_files, recorded_digests,
-                                 staged_dir, stamp, write_marker)
+from msa_slam.io.default_folders import (DEFAULT_RESULTS, LATEST, claim_timestamped, clean_default_parent,
+                                         point_latest)
+from msa_slam.io.marker import (MARKER, edited_files, foreign_files, is_result_folder, listed_files, recorded_digests,
+                                write_marker)
+from msa_slam.io.output_lock import OutputLock
+from msa_slam.io.staging import clean_stale, discard, staged_dir
+from msa_slam.io.write_errors import OutputError, disk_full_error, is_disk_full
 
 __all__ = ["DEFAULT_RESULTS", "MARKER", "OutputError", "ResultFolder", "claim_timestamped", "is_result_folder",
            "open_result_folder", "out_path", "refuse_working_directory", "some_names", "staged_dir",
            "write_marker"]
-
-DEFAULT_RESULTS = Path("msa_slam_results")  # parent of the default timestamped output folders
-LATEST = "latest"
-
-
-class _Lock:
-    """An exclusive, non-blocking flock on `.NAME.lock` beside a target, holding msa-slam's stamp (proof for a
-    later run that the file is its own); the file is removed on release."""
-
-    def __init__(self, target: Path) -> None:
-        self.path = target.parent / f".{target.name}.lock"
-        self.fd: int | None = None
-
-    def try_acquire(self) -> bool:
-        """Take the lock; False while another run holds it. A file in the way with content msa-slam did not
-        write is refused (an empty one is taken: a run killed before stamping it, or an older version's)."""
-        while True:
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666)
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                os.close(fd)
-                return False
-            try:
-                same = os.fstat(fd).st_ino == os.stat(self.path).st_ino
-            except FileNotFoundError:
-                same = False
-            if not same:  # a lock file its previous holder unlinked while we waited to open it
-                os.close(fd)
-                continue
-            content = os.pread(fd, 4096, 0)
-            if content and not is_stamp(content):
-                os.close(fd)
-                raise OutputError(f"{self.path}: a file msa-slam did not write is where it keeps its lock; "
-                                  "move it elsewhere or choose another --out")
-            self.fd = fd
-            try:
-                os.ftruncate(fd, 0)
-                os.pwrite(fd, stamp(), 0)
-            except OSError:
-                self.release()
-                raise
-            return True
-
-    def acquire(self) -> None:
-        if not self.try_acquire():
-            raise OutputError(f"{self.path.parent / self.path.name[1:-5]}: another msa-slam run is writing "
-                              "this output folder; wait for it or choose another --out")
-
-    def release(self) -> None:
-        if self.fd is not None:
-            with contextlib.suppress(OSError):
-                self.path.unlink()
-            os.close(self.fd)
-            self.fd = None
-
 
 def _check_target(target: Path, kind: str, overwrite: bool, resume: bool, locked: bool = True) -> None:
     """Refuse a target that is not ours, or ours but not to be replaced; say what to do instead. A previous
@@ -129,8 +77,8 @@ def _check_target(target: Path, kind: str, overwrite: bool, resume: bool, locked
 
 
 def _refuse_foreign(target: Path) -> None:
-    """--overwrite replaces a previous result only when all its files are msa-slam's (staging.foreign_files),
-    as msa-slam wrote them (staging.edited_files)."""
+    """--overwrite replaces a previous result only when all its files are msa-slam's (marker.foreign_files),
+    as msa-slam wrote them (marker.edited_files)."""
     foreign = foreign_files(target)
     if foreign:
         raise OutputError(f"--out {target}: holds files msa-slam did not write ({some_names(foreign)}); "
@@ -160,68 +108,6 @@ def _check_writable(folder: Path) -> None:
         raise OutputError(f"{folder}: cannot write there ({probe} is not a writable folder)")
 
 
-def claim_timestamped(parent: Path) -> tuple[Path, _Lock]:
-    """A new `<parent>/<YYYY-mm-dd_HH-MM-SS>` path (suffixed -2, -3, ... when taken), claimed by taking its
-    lock before checking that it is free: two runs started in the same second get two folders, never a
-    refusal naming a folder the user did not name."""
-    stem = time.strftime("%Y-%m-%d_%H-%M-%S")
-    for n in itertools.count(1):
-        candidate = parent / (stem if n == 1 else f"{stem}-{n}")
-        if candidate.exists() or candidate.is_symlink():
-            continue
-        lock = _Lock(candidate)
-        with contextlib.suppress(OutputError):  # someone else's file named like its lock: take the next name
-            if lock.try_acquire():
-                if not (candidate.exists() or candidate.is_symlink()):  # a run that held it may have finished
-                    return candidate, lock
-                lock.release()
-    raise AssertionError("unreachable")
-
-
-_LEFTOVER = re.compile(r"\.(.+)\.(?:(?:partial|old)-.+|lock)")
-
-
-def clean_default_parent(parent: Path) -> list[Path]:
-    """Remove what killed runs with the default output left in `parent` (each under that folder's lock, when
-    no live run holds it): staging folders whose WRITER proves them msa-slam's (staging.clean_stale) and lock
-    files holding its stamp. Anything else, a user's file named like them included, stays."""
-    names = {m.group(1) for p in parent.iterdir() if (m := _LEFTOVER.fullmatch(p.name))} if parent.is_dir() else set()
-    removed = []
-    for name in sorted(names):
-        lock, target = _Lock(parent / name), parent / name
-        stale_lock = lock.path.is_file() and not lock.path.is_symlink() and is_stamp(_head(lock.path))
-        if lock.path.exists() and not stale_lock:
-            continue  # not provably msa-slam's lock: leave it (and the folder it would guard) alone
-        with contextlib.suppress(OutputError, OSError):
-            if lock.try_acquire():
-                try:
-                    removed += clean_stale(target)
-                finally:
-                    lock.release()
-                removed += [lock.path] if stale_lock else []
-    return removed
-
-
-def _head(path: Path) -> bytes:
-    try:
-        with open(path, "rb") as stream:
-            return stream.read(4096)
-    except OSError:
-        return b""
-
-
-def point_latest(folder: Path) -> None:
-    """Make `<parent>/latest` a relative link to `folder`, replacing only a link (never a real file)."""
-    link = folder.parent / LATEST
-    if link.exists() and not link.is_symlink():
-        return
-    tmp = folder.parent / f".{LATEST}.{os.getpid()}.tmp"
-    with contextlib.suppress(FileNotFoundError):
-        tmp.unlink()
-    os.symlink(folder.name, tmp)
-    os.replace(tmp, link)
-
-
 @dataclass
 class ResultFolder:
     """A checked, locked output target; `staging()` builds its content and moves it into place."""
@@ -229,7 +115,7 @@ class ResultFolder:
     path: Path
     kind: str
     timestamped: bool = False
-    _lock: _Lock | None = field(default=None, repr=False)
+    _lock: OutputLock | None = field(default=None, repr=False)
     _not_ours: dict[str, int] = field(default_factory=dict, repr=False)  # growing in place: foreign files, mtimes
     _grows: tuple[str, ...] = field(default=(), repr=False)
     _unit_record: str = field(default="", repr=False)
@@ -348,7 +234,7 @@ def _lock_output(out: str | os.PathLike | None, kind: str, parent: Path) -> Resu
             path, lock = claim_timestamped(parent)
             return ResultFolder(path, kind, timestamped=True, _lock=lock)
         folder = ResultFolder(_out_target(out), kind)
-        lock = _Lock(folder.path)
+        lock = OutputLock(folder.path)
         lock.acquire()
         folder._lock = lock
         return folder

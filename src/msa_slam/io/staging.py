@@ -1,5 +1,6 @@
-"""Folders built under a temporary name beside their target and moved into place in one atomic step, with
-the marker that identifies msa-slam's results and the clean-up of what a killed run left behind."""
+"""Folders built under a temporary name beside their target and moved into place in one atomic step, and the
+clean-up of what a killed run left behind (proven msa-slam's by its WRITER file). The result marker is
+marker.py's, the one-line write errors write_errors.py's."""
 
 from __future__ import annotations
 
@@ -8,27 +9,18 @@ import ctypes
 import errno
 import fcntl
 import glob
-import hashlib
 import json
 import os
 import shutil
 import tempfile
 import time
 from pathlib import Path
-from typing import Collection, Iterable, Iterator, Mapping
+from typing import Iterator
 
-import msa_slam
-from msa_slam.errors import InputError
+from msa_slam.io.marker import is_result_folder, write_marker
+from msa_slam.io.write_errors import write_error
 
-MARKER = ".msa-slam-result"
 WRITER = ".msa-slam-writer"  # in a scratch folder: proof that msa-slam made it, flocked while its writer lives
-_NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
-_CANNOT_WRITE = (errno.EACCES, errno.EPERM, errno.EROFS, errno.EIO)
-NEARLY_FULL = 2**20  # bytes free after a write failed without an errno (numpy's tofile): the disk is full
-
-
-class OutputError(InputError):
-    """An output folder that cannot or must not be written (reported as one line before any work)."""
 
 
 def current_umask() -> int:
@@ -48,105 +40,6 @@ def apply_umask(path: Path) -> None:
         os.chmod(p, (0o777 if p.is_dir() else 0o666) & ~mask)
 
 
-def _marker(path: Path) -> dict | None:
-    """The marker of a folder msa-slam wrote; None for any other folder."""
-    try:
-        meta = json.loads((Path(path) / MARKER).read_text())
-    except (OSError, ValueError):
-        return None
-    return meta if isinstance(meta, dict) and meta.get("tool") == "msa-slam" else None
-
-
-def is_result_folder(path: Path, kind: str | None = None) -> bool:
-    """True when `path` is a folder written by msa-slam (of `kind`, when given)."""
-    meta = _marker(path)
-    return meta is not None and (kind is None or meta.get("kind") == kind)
-
-
-def result_kind(path: Path) -> str | None:
-    """Which command's result `path` holds (its marker's kind: run, online, compare, experiment, sample); None
-    for a folder msa-slam did not write."""
-    meta = _marker(path)
-    return None if meta is None else meta.get("kind")
-
-
-def write_marker(folder: Path, kind: str, exclude: Collection[str] = (), digests: Mapping[str, str] | None = None
-                 ) -> None:
-    """Mark `folder` as msa-slam's result of `kind`, listing the files and empty folders in it now (but
-    `exclude`) as the ones msa-slam wrote, with a digest of each file: an --overwrite removes nothing else
-    (foreign_files) and nothing changed since (edited_files). `digests` keeps the recorded digest of files
-    changed since (a resume leaves a user's edit in place and must not take it for msa-slam's content)."""
-    folder, exclude, kept = Path(folder), set(exclude), dict(digests or {})
-    files = [name for name in _files(folder) if name not in exclude]
-    (folder / MARKER).write_text(json.dumps({"tool": "msa-slam", "kind": kind, "version": msa_slam.__version__,
-                                             "files": files,
-                                             "digests": {name: kept.get(name) or _digest(folder / name)
-                                                         for name in files if not name.endswith("/")}}) + "\n")
-
-
-def recorded_digests(folder: Path) -> dict[str, str]:
-    """The digests a result folder's marker records (none for markers of versions without them)."""
-    return json.loads((Path(folder) / MARKER).read_text()).get("digests", {})
-
-
-def listed_files(folder: Path) -> set[str]:
-    """The files (and empty folders, ending in /) a result folder's marker lists as msa-slam's."""
-    return set(json.loads((Path(folder) / MARKER).read_text()).get("files", []))
-
-
-def _digest(path: Path) -> str:
-    """SHA-256 of a file's bytes, or of a link's target (links are not followed)."""
-    if path.is_symlink():
-        return hashlib.sha256(os.fsencode(os.readlink(path))).hexdigest()
-    with open(path, "rb") as stream:
-        return hashlib.file_digest(stream, "sha256").hexdigest()
-
-
-def edited_files(folder: Path) -> list[str]:
-    """Files msa-slam wrote in a result folder (its marker lists them) whose content changed since: a user's
-    edits, which --overwrite must not remove. Markers of versions without digests list none."""
-    folder = Path(folder)
-    digests = recorded_digests(folder)
-    present = {name for name in digests if (folder / name).is_symlink() or (folder / name).is_file()}
-    return [name for name, digest in sorted(digests.items()) if name in present and _digest(folder / name) != digest]
-
-
-def foreign_files(folder: Path) -> list[str]:
-    """Files and empty folders (relative paths, a folder's ending in /) in a result folder that its marker does
-    not list as msa-slam's: someone else put them there, or a run that grows the folder in place was killed
-    before listing its own."""
-    ours = listed_files(folder)
-    return [name for name in _files(Path(folder)) if name not in ours]
-
-
-def foreign_in_units(folder: Path, units: Iterable[str], edited: bool = False) -> dict[str, list[str]]:
-    """Per unit folder (relative to the result `folder`, e.g. cells/<id>), its files the marker does not list as
-    msa-slam's (with `edited`, also those changed since msa-slam wrote them): what must stay when the unit is
-    rerun and replaced. A unit none of whose files is listed was finished by a killed run before it listed it
-    (a unit appears whole, by one rename): all of it is msa-slam's."""
-    listed = listed_files(folder)
-    others = [*foreign_files(folder), *(edited_files(folder) if edited else [])]
-    out = {}
-    for unit in units:
-        prefix = f"{unit}/"
-        ours = any(name.startswith(prefix) for name in listed)
-        out[unit] = sorted({name for name in others if name.startswith(prefix)}) if ours else []
-    return out
-
-
-def _files(folder: Path) -> list[str]:
-    """Every file and link under `folder` but the marker, and every empty folder (ending in /: a user's, even
-    empty, is no more msa-slam's to remove than a file), as sorted relative POSIX paths."""
-    names = []
-    for p in folder.rglob("*"):
-        if p.is_symlink() or not p.is_dir():
-            if p.name != MARKER:
-                names.append(p.relative_to(folder).as_posix())
-        elif not any(p.iterdir()):
-            names.append(p.relative_to(folder).as_posix() + "/")
-    return sorted(names)
-
-
 def _exchange(a: Path, b: Path) -> bool:
     """Atomically swap two existing paths (Linux renameat2 RENAME_EXCHANGE); False where unsupported."""
     try:
@@ -161,60 +54,6 @@ def _exchange(a: Path, b: Path) -> bool:
     if err in (errno.EINVAL, errno.ENOSYS, errno.EPERM, errno.EOPNOTSUPP):
         return False
     raise OSError(err, os.strerror(err), str(a))
-
-
-def _folder_bytes(path: Path) -> int:
-    """Bytes in the files under `path` (or in the file `path`)."""
-    if path.is_file():
-        return path.stat().st_size
-    return sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file() and not p.is_symlink())
-
-
-def _free_bytes(path: Path) -> int | None:
-    """Free space (for this user) on the file system holding `path` or its nearest existing parent."""
-    path = Path(path).absolute()
-    while not path.exists() and path != path.parent:
-        path = path.parent
-    try:
-        return shutil.disk_usage(path).free
-    except OSError:
-        return None
-
-
-def disk_full_error(exc: OSError, path: Path, written: Path | None = None,
-                    advice: str = "choose another --out") -> OutputError:
-    """One line for a full disk: the path, what was written so far (a lower bound of the need), what is free."""
-    free = _free_bytes(path) or 0
-    need = f"; at least {_folder_bytes(written) / 2**20:.1f} MiB needed" if written and written.exists() else ""
-    return OutputError(f"{path}: no space left on the device ({free / 2**20:.1f} MiB free{need}); "
-                       f"free some space or {advice}")
-
-
-def is_disk_full(exc: OSError, path: Path) -> bool:
-    """ENOSPC or a quota; or an OSError without errno (numpy's tofile raises one when a write comes up short)
-    after which next to nothing is free where `path` lies."""
-    if exc.errno in _NO_SPACE:
-        return True
-    free = _free_bytes(path) if exc.errno is None else None
-    return free is not None and free < NEARLY_FULL
-
-
-def write_error(exc: OSError, path: Path, written: Path | None = None, writing: bool = False,
-                advice: str = "choose another --out") -> OutputError | None:
-    """The one line for `exc` raised while making `path` (staged in `written`), or None when it is not a
-    failed write: a full disk, or a folder that cannot be written (permissions, read-only, I/O error) when the
-    error names a file under `path` or `written`. `writing`: the caller only wrote (no input was read), so any
-    OSError is a failed write."""
-    if is_disk_full(exc, path):
-        return disk_full_error(exc, path, written, advice)
-    filename = Path(os.fsdecode(exc.filename)).absolute() if exc.filename else None
-    inside = filename is not None and any(filename == Path(p).absolute() or Path(p).absolute() in filename.parents
-                                          for p in (path, written) if p is not None)
-    if writing or (exc.errno in _CANNOT_WRITE and inside):
-        what = f"{filename}: " if filename is not None and filename != Path(path).absolute() else ""
-        reason = exc.strerror.lower() if exc.strerror else str(exc)
-        return OutputError(f"{path}: cannot write there ({what}{reason}); {advice}")
-    return None
 
 
 def stamp() -> bytes:

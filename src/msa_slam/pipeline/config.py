@@ -14,7 +14,7 @@ from typing import Any, Literal, Mapping, get_args
 
 from pydantic import BaseModel, Field, TypeAdapter, ValidationError
 
-from msa_slam.backend.graph import GraphConfig
+from msa_slam.backend.graph_config import GraphConfig
 from msa_slam.config import StageConfig, check_partial
 from msa_slam.datasets.options import SourceOptions
 from msa_slam.errors import InputError

@@ -28,7 +28,7 @@ from msa_slam.odometry import KissOdometry, PosesFromFile
 from msa_slam.odometry.kiss import NO_POINT_TIMES, PARAMETERS as KISS_PARAMETERS
 from msa_slam.pipeline.config import RunConfig
 from msa_slam.pipeline.read_ahead import odometry_and_descriptors
-from msa_slam.pipeline.source import open_sequence
+from msa_slam.sources import open_sequence
 from msa_slam.registration.cloud_cache import FrameClouds, cloud_key, frame_clouds
 from msa_slam.sampling import make_sampler
 from msa_slam.slam.backend import MIN_KEYFRAMES

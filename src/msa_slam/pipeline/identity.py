@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-from pathlib import Path
 from typing import Any, Mapping, Sequence, TypeVar
 
 from msa_slam.errors import InputError
@@ -44,15 +43,12 @@ def dataset_identity(config: Mapping[str, Any], cache: CacheDir) -> Any:
     """Identity of the data a run `config` reads: the simulation key of a sim:/live: dataset, else the identity
     of the scans its source options select (msa_slam.io.cache.sequence_identity) and of their ground truth."""
     from msa_slam.datasets import SourceOptions, open_source_options
-    from msa_slam.pipeline.source import SIM_PREFIX, sim_config
-    from msa_slam.sim.live import LIVE_PREFIX, live_settings
+    from msa_slam.sources import parse_spec
 
-    spec = config["dataset"]
-    if spec.startswith(SIM_PREFIX):
-        return {"simulation": sim_config(spec).key()}
-    if spec.startswith(LIVE_PREFIX):
-        return {"simulation": live_settings(spec)[0].key()}
-    sequence = open_source_options(Path(spec).expanduser(), config["dataset_kind"], SourceOptions(**config["source"]))
+    spec = parse_spec(config["dataset"])
+    if spec.simulated:
+        return {"simulation": spec.config.key()}
+    sequence = open_source_options(spec.path, config["dataset_kind"], SourceOptions(**config["source"]))
     ground_truth = None if sequence.gt_poses is None else array_sha256(sequence.gt_poses)
     return {"scans": sequence_identity(sequence, cache), "ground_truth": ground_truth}
 

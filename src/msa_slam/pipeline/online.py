@@ -38,7 +38,7 @@ from msa_slam.odometry.kiss import DEFAULT_THREADS
 from msa_slam.pipeline.frontend import (config_as_run, deskew_metrics, make_odometry, pipeline_cache,
                                         source_warnings)
 from msa_slam.pipeline.online_config import NO_TIMESTAMPS, NOT_REPRODUCIBLE, OnlineConfig
-from msa_slam.pipeline.source import open_source
+from msa_slam.sources import open_source
 from msa_slam.progress import LogProgress, Progress, progress_bar
 from msa_slam.registration import make_cloud_store
 from msa_slam.sampling.msa.warm import load_kernels

@@ -12,7 +12,7 @@ from pathlib import Path
 from msa_slam.errors import InputError
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.outputs import OutputError, open_result_folder, some_names
-from msa_slam.io.staging import edited_files, foreign_files, recorded_digests, write_marker
+from msa_slam.io.marker import edited_files, foreign_files, recorded_digests, write_marker
 from msa_slam.pipeline.compare import PROCESSES, failed_section, table_row, write_spread
 from msa_slam.pipeline.compare import comparison_report as write_comparison_report
 from msa_slam.pipeline.config import make_config
@@ -22,7 +22,7 @@ from msa_slam.pipeline.seed_folder import RECORD, SEEDS, finished_metrics, left_
 from msa_slam.pipeline.stored import (comparison_figures, failed_methods, read_comparison, read_json, read_run,
                                       read_text)
 
-KINDS = ("run", "online", "compare")  # the result kinds (io.staging.result_kind) whose reports this module writes
+KINDS = ("run", "online", "compare")  # the result kinds (io.marker.result_kind) whose reports this module writes
 SPREAD_FILES = ("seeds.md", "seeds.csv", "seeds.json", "report.md")  # what compare --seeds writes at the top
 
 

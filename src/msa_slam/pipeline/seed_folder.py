@@ -24,8 +24,9 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 import msa_slam
+from msa_slam.io.marker import foreign_in_units
 from msa_slam.io.outputs import MARKER, OutputError
-from msa_slam.io.staging import clean_stale, foreign_in_units
+from msa_slam.io.staging import clean_stale
 from msa_slam.io.tables import write_json
 from msa_slam.pipeline.config import RunConfig
 from msa_slam.pipeline.identity import changed_identity, run_identities
@@ -153,7 +154,7 @@ def remove_seeds(out: Path, seeds: Mapping[int, str]) -> None:
 
 def not_msa_slams(out: Path, seeds: Iterable[int]) -> dict[int, list[str]]:
     """Per seed, the files in its folder (paths relative to `out`) that the result marker does not list as
-    msa-slam's or that changed since it wrote them (staging.foreign_in_units)."""
+    msa-slam's or that changed since it wrote them (marker.foreign_in_units)."""
     found = foreign_in_units(out, [f"{SEEDS}/seed-{seed}" for seed in seeds], edited=True)
     return {seed: found[f"{SEEDS}/seed-{seed}"] for seed in seeds}
 

@@ -10,8 +10,8 @@ from msa_slam.errors import InputError
 from msa_slam.evaluation import NA, fmt
 from msa_slam.evaluation.display import spec_for
 from msa_slam.evaluation.spread import MIN_SEEDS, PAIRED_TEST, PAIRED_TEST_WHY, REFERENCE, paired_verdict, spreads
+from msa_slam.sources.spec import spec_kind
 
-SIM_PREFIX = "sim:"
 # comparison column -> (label, higher is better; None: no direction, no rank and no test)
 SEED_METRICS: dict[str, tuple[str, bool | None]] = {
     "improvement_t_pct": ("t. ATE impr. [%]", True),
@@ -43,11 +43,12 @@ def parse_seeds(text: str) -> list[int]:
 
 def seeded_datasets(dataset: str, seeds: Sequence[int]) -> list[str]:
     """The `sim:` spec of each world seed; only simulated data has a world seed."""
-    if not dataset.startswith(SIM_PREFIX):
+    from msa_slam.sources import parse_spec
+
+    if spec_kind(dataset) != "sim":
         raise InputError(f"--seeds: dataset {dataset!r} is not simulated; world seeds exist only for sim: "
                          "datasets (e.g. --dataset sim:test --seeds 0,1,2)")
-    fields = [item.partition("=")[0].strip() for item in dataset[len(SIM_PREFIX):].split(",")]
-    if "seed" in fields:
+    if "seed" in parse_spec(dataset).keys:
         raise InputError(f"--seeds: dataset {dataset!r} already sets seed=; give the seeds with --seeds only")
     return [f"{dataset},seed={s}" for s in seeds]
 

@@ -136,12 +136,13 @@ class SimConfig(BaseModel):
                          code_fingerprint(SIM_CODE, SIM_DATA), SIM_LIBRARIES)
 
 
-def make_config(**fields: object) -> SimConfig:
-    """A SimConfig, with validation problems reported as one InputError naming the parameters."""
+def make_config(where: str = "simulation config", **fields: object) -> SimConfig:
+    """A SimConfig, with validation problems reported as one InputError starting with `where` (a dataset spec
+    names itself) and naming the parameters."""
     try:
         return SimConfig(**fields)
     except ValidationError as exc:
         problems = "; ".join(": ".join([*(['.'.join(map(str, e['loc']))] if e['loc'] else []),
                                          e['msg'].removeprefix('Value error, ')]) for e in exc.errors())
-        raise InputError(f"simulation config: {problems}") from None
+        raise InputError(f"{where}: {problems}") from None
 

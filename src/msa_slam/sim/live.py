@@ -1,54 +1,29 @@
-"""`live:NAME[,field=value...,laps=K]`: the simulator's scans made in memory when a run asks for them, so
+"""A `live:` source (`live:NAME[,key=value...,laps=K]`, parsed by msa_slam.sources): the simulator's scans made in memory when a run asks for them, so
 long runs need no disk. With K laps the trajectory is driven forth, back, forth... (each pass reversed, so
 the path stays continuous and every pass revisits the whole route; each pass has its own sensor noise).
 `live:city-tour,laps=10` is a 22 km tour."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Iterator
+from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
-import yaml
 
 from msa_slam.datasets import Frame
 from msa_slam.datasets.vertical_angle import raise_elevation
-from msa_slam.errors import InputError
 from msa_slam.types import FrameSource
 
 if TYPE_CHECKING:
     from msa_slam.sim.config import SimConfig
 
-LIVE_PREFIX = "live:"
 
-
-def live_settings(spec: str) -> tuple["SimConfig", int]:
-    """(validated SimConfig, laps) of a `live:` spec: a trajectory name or pose file, then field=value items."""
-    from msa_slam.sim import make_config
-
-    name, *fields = spec[len(LIVE_PREFIX):].split(",")
-    params: dict[str, Any] = {"trajectory": name}
-    laps = 1
-    for item in fields:
-        key, sep, raw = item.partition("=")
-        if not sep:
-            raise InputError(f"dataset {spec!r}: expected field=value after the name, got {item!r}")
-        value = yaml.safe_load(raw)
-        if key.strip() == "laps":
-            if not isinstance(value, int) or value < 1:
-                raise InputError(f"dataset {spec!r}: laps must be an integer >= 1, got {raw!r}")
-            laps = value
-        else:
-            params[key.strip()] = value
-    return make_config(**params), laps
-
-
-def live_source(spec: str) -> FrameSource:
-    """The frame source of a `live:` spec (its scans are simulated as the frames are read)."""
+def live_source(config: "SimConfig", laps: int = 1, name: str | None = None) -> FrameSource:
+    """The frame source of simulation `config` driven `laps` times (msa_slam.sources parses a `live:` spec into
+    them), named after `name` (default: its trajectory); its scans are simulated as the frames are read."""
     from msa_slam.sim import prepare
 
-    config, laps = live_settings(spec)
     sim = prepare(config)
-    name = spec[len(LIVE_PREFIX):].split(",")[0]
+    name = config.label if name is None else name
     order = [np.arange(len(sim)) if lap % 2 == 0 else np.arange(len(sim))[::-1] for lap in range(laps)]
     lap_of = np.repeat(np.arange(laps), len(sim))
     index = np.concatenate(order)

@@ -40,7 +40,7 @@ from msa_slam.errors import InputError
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.cache import cache_root, partial_dir, remove_partials
 from msa_slam.io.outputs import out_path, refuse_working_directory
-from msa_slam.io.staging import write_error
+from msa_slam.io.write_errors import write_error
 from msa_slam.io.poses import format_kitti
 from msa_slam.progress import progress_bar
 from msa_slam.sim.config import SIM_VERSION, SimConfig
@@ -247,7 +247,7 @@ def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
 @contextlib.contextmanager
 def _writing(target: Path, written: Path | None = None) -> Iterator[None]:
     """A failed write of the sequence (staged in `written`) as one line (a full disk, no permission:
-    staging.write_error), told while what was written is still there (its size, the space then free)."""
+    write_errors.write_error), told while what was written is still there (its size, the space then free)."""
     try:
         yield
     except OSError as exc:

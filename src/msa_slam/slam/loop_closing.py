@@ -34,7 +34,7 @@ import gtsam
 import numpy as np
 from scipy.stats import chi2
 
-from msa_slam.backend.graph import GraphConfig
+from msa_slam.backend.graph_config import GraphConfig
 from msa_slam.backend.noise import PathCovariance
 from msa_slam.descriptors import Descriptor
 from msa_slam.errors import InputError
