@@ -38,7 +38,7 @@ def test_bare_mode_valid_for_neither_gets_the_config_error(base):
     ("lambda_u=inf", "sampler 'msa': lambda_u='inf' is not allowed; expected a finite number > 0"),
     ("window=abc", "sampler 'msa': window='abc' is not allowed; expected an integer >= 3"),
     ("window=30", "window=30: up to 2^29 - 2 = 536870910 candidates"),
-    ("descriptor.max_radius=.nan", "descriptor_params.max_radius=nan is not allowed"),
+    ("descriptor.max_radius=.nan", "descriptor_params: max_radius=nan is not allowed; expected a finite number"),
     ("loop_radius=.inf", "loop_radius: Input should be a finite number"),
     ("verifier.max_residual=.nan", "verifier.max_residual: Input should be a finite number"),
 ])

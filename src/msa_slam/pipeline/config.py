@@ -10,9 +10,10 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
-from typing import Any, Literal, Mapping, get_args
+from typing import Any, Literal, Mapping, TypeVar, get_args
 
-from pydantic import BaseModel, Field, TypeAdapter, ValidationError, field_serializer, model_validator
+from pydantic import (BaseModel, Field, TypeAdapter, ValidationError, field_serializer, field_validator,
+                      model_validator)
 from pydantic_core import PydanticCustomError
 
 from msa_slam.backend.graph import GraphConfig
@@ -121,6 +122,15 @@ class RunConfig(StageConfig):
                                       "build a new config with both (make_config)")
         return self
 
+    @field_validator("descriptor_params", "odometry_params")
+    @classmethod
+    def _finite(cls, params: dict[str, Any]) -> dict[str, Any]:
+        """Free-form parameters (the stage checks their names): finite numbers only, as YAML would save NaN as null."""
+        found = non_finite(params, "")
+        if found is not None:
+            raise PydanticCustomError("finite_number", f"{found} is not allowed; expected a finite number")
+        return params
+
     @field_serializer("sampler_params")
     def _given_params(self, params: SamplerParams) -> dict[str, Any]:
         """The parameters as given (the config's echo: config.yaml, metrics.json), not their defaults."""
@@ -151,29 +161,21 @@ class RunConfig(StageConfig):
 
 def make_config(data: Mapping[str, Any] | None = None, **overrides: Any) -> RunConfig:
     """A validated RunConfig from a mapping plus keyword overrides; problems become one InputError."""
-    config = RunConfig(**{**(dict(data) if data else {}), **overrides})
-    _check_stages(dict(config), "config")
-    return config
+    return RunConfig(**{**(dict(data) if data else {}), **overrides})
 
 
-def check_finite(value: Any, where: str, origin: str = "config") -> None:
-    """NaN or infinity anywhere in a stage's parameters is an error: YAML would save it as null. `where` is
-    the key, `origin` what holds it (the config, or the config file) for the message."""
+def non_finite(value: Any, where: str) -> str | None:
+    """`where.key=value` (`key=value` for an empty `where`) of the first NaN or infinity in a stage's free-form parameters (YAML would save it as
+    null), or None."""
     if isinstance(value, float) and not math.isfinite(value):
-        raise InputError(f"{origin}: {where}={value!r} is not allowed; expected a finite number")
-    if isinstance(value, Mapping):
-        for key, item in value.items():
-            check_finite(item, f"{where}.{key}", origin)
-    elif isinstance(value, (list, tuple)):
-        for k, item in enumerate(value):
-            check_finite(item, f"{where}[{k}]", origin)
-
-
-def _check_stages(data: Mapping[str, Any], origin: str) -> None:
-    """The free-form parameters of the descriptor and the odometry (validated by no model field): finite numbers
-    only; problems start with `origin`. The sampler's are typed (sampling/params.py)."""
-    for section in ("descriptor_params", "odometry_params"):
-        check_finite(data.get(section), section, origin)
+        return f"{where}={value!r}"
+    items = value.items() if isinstance(value, Mapping) else enumerate(value) if isinstance(value, (list, tuple)) else ()
+    for key, item in items:
+        found = non_finite(item, (f"{where}.{key}" if where else str(key)) if isinstance(value, Mapping)
+                           else f"{where}[{key}]")
+        if found is not None:
+            return found
+    return None
 
 
 def check_descriptor(descriptor: str, params: Mapping[str, Any]) -> None:
@@ -222,25 +224,27 @@ def read_config_file(path: str | os.PathLike, model: type[RunConfig] = RunConfig
         raise InputError(f"{path}: expected a mapping of config keys, got {type(data).__name__}")
     check_partial(model, data if "sampler" in data else {k: v for k, v in data.items() if k != "sampler_params"},
                   str(path))
-    _check_stages(data, str(path))
-    if "sampler" not in data:  # whoever's parameters they are, a NaN is none's
-        check_finite(data.get("sampler_params"), "sampler_params", str(path))
+    found = None if "sampler" in data else non_finite(data.get("sampler_params"), "sampler_params")
+    if found is not None:  # whoever's parameters they are, a NaN is none's
+        raise InputError(f"{path}: {found} is not allowed; expected a finite number")
     return data
 
 
+C = TypeVar("C", bound=RunConfig)
 _SECTIONS = {"sampler": "sampler_params", "descriptor": "descriptor_params", "odometry": "odometry_params"}
 
 
-def apply_params(config: RunConfig, params: list[str]) -> RunConfig:
+def apply_params(config: C, params: list[str]) -> C:
     """Apply `key=value` overrides (values parsed as YAML).
 
     Keys: a config field (`similarity_threshold=0.7`), a section field (`verifier.max_residual=0.2`,
     `graph.robust=cauchy`), a stage parameter (`sampler.lambda_u=5`, `descriptor.n_sector=60`,
-    `odometry.max_range=80`), a bare sampler parameter (`lambda_u=5`), or the bare OverlapTransformer
+    `odometry.max_range=80`; also by the config key, `sampler_params.lambda_u=5`), a bare sampler parameter (`lambda_u=5`), or the bare OverlapTransformer
     weights file (`weights=FILE`, as `--descriptor ot -p weights=FILE` reads in the docs).
     The result is a command's final config, so the descriptor (name, weights or descriptor file) is checked here.
     """
-    config = make_config(apply_overrides(config.dump(), params, RunConfig))
+    model = type(config)  # RunConfig, or OnlineConfig
+    config = model(**apply_overrides(config.dump(), params, model))
     check_descriptor(config.descriptor, config.descriptor_params)
     return config
 
@@ -255,6 +259,7 @@ def apply_overrides(data: dict, params: list[str], model: type[BaseModel]) -> di
     for item in params:
         key, value = parse_key_value(item)
         head, dot, tail = key.partition(".")
+        head = next((stage for stage, section in _SECTIONS.items() if section == head), head)  # sampler_params.x
         if dot and head in _SECTIONS:
             data[_SECTIONS[head]] = {**data[_SECTIONS[head]], tail: value}
         elif dot and head in ("verifier", "graph"):

@@ -15,7 +15,6 @@ import numbers
 from collections.abc import Mapping
 from typing import Annotated, Any, ClassVar, Iterator
 
-import annotated_types
 import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
 from pydantic_core import PydanticCustomError
@@ -112,9 +111,8 @@ def expected(model: type[BaseModel], key: str) -> str:
         return f"one of {', '.join(choices)}"
     if field.annotation is bool:
         return "true or false"
-    bounds = [f"{sign} {getattr(m, attr):g}" for m in field.metadata
-              for attr, sign in (("ge", ">="), ("gt", ">"), ("lt", "<"), ("le", "<=")) if hasattr(m, attr)
-              and isinstance(m, (annotated_types.Ge, annotated_types.Gt, annotated_types.Lt, annotated_types.Le))]
+    bounds = [f"{sign} {getattr(m, attr):g}" for m in field.metadata  # pydantic's Ge(ge=3), Lt(lt=1), ...
+              for attr, sign in (("ge", ">="), ("gt", ">"), ("lt", "<"), ("le", "<=")) if hasattr(m, attr)]
     what = "an integer" if field.annotation is int else "a finite number"
     return " ".join([what, " and ".join(bounds)]).strip()
 
