@@ -84,7 +84,8 @@ def test_an_unknown_key_lists_the_samplers_keys_with_their_defaults(model):
     ({"bins": 0}, "sampler 'entropy': bins=0 is not allowed; expected an integer >= 1 and <= 100"),
     ({"bins": "10"}, "sampler 'entropy': bins='10' is not allowed; expected an integer >= 1 and <= 100"),
     ({"threshold": True}, "sampler 'entropy': threshold=True is not allowed; expected a finite number >= 0"),
-    ({"max_distance": float("inf")}, "sampler 'entropy': max_distance=inf is not allowed; expected a finite number > 0"),
+    ({"max_distance": float("inf")},
+     "sampler 'entropy': max_distance=inf is not allowed; expected a finite number > 0"),
 ])
 def test_bad_values_name_the_sampler_the_key_and_the_range(params, message):
     with pytest.raises(InputError, match=f"^config: {re.escape(message)}$"):
@@ -163,10 +164,10 @@ def test_the_parameters_are_a_read_only_mapping_of_what_was_given():
         params.window = 9
 
 
-def test_the_commands_page_lists_every_sampler_parameter_with_its_default():
+def test_the_msa_page_lists_every_sampler_parameter_with_its_default():
     from pathlib import Path
 
-    text = (Path(__file__).parents[1] / "docs" / "commands.md").read_text()
+    text = (Path(__file__).parents[1] / "docs" / "msa.md").read_text()
     documented = {(s, k): d for s, k, d in re.findall(r"^\| ([a-z ]+) \| `(\w+)` \| (\S+) \|", text, re.M)}
     shown = lambda value: str(value).lower() if isinstance(value, bool) else str(value)  # noqa: E731
     wanted = {("every one", k): shown(SamplerParams.model_fields[k].default) for k in ("min_motion", "min_rotation")}

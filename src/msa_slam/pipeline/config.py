@@ -125,7 +125,7 @@ class RunConfig(StageConfig):
     @field_validator("descriptor_params", "odometry_params")
     @classmethod
     def _finite(cls, params: dict[str, Any]) -> dict[str, Any]:
-        """Free-form parameters (the stage checks their names): finite numbers only, as YAML would save NaN as null."""
+        """Free-form parameters (their stage checks the names): finite numbers only (YAML would save NaN as null)."""
         found = non_finite(params, "")
         if found is not None:
             raise PydanticCustomError("finite_number", f"{found} is not allowed; expected a finite number")
@@ -165,11 +165,12 @@ def make_config(data: Mapping[str, Any] | None = None, **overrides: Any) -> RunC
 
 
 def non_finite(value: Any, where: str) -> str | None:
-    """`where.key=value` (`key=value` for an empty `where`) of the first NaN or infinity in a stage's free-form parameters (YAML would save it as
-    null), or None."""
+    """`where.key=value` (`key=value` for an empty `where`) of the first NaN or infinity in a stage's free-form
+    parameters (YAML would save it as null), or None."""
     if isinstance(value, float) and not math.isfinite(value):
         return f"{where}={value!r}"
-    items = value.items() if isinstance(value, Mapping) else enumerate(value) if isinstance(value, (list, tuple)) else ()
+    items = value.items() if isinstance(value, Mapping) else enumerate(value) if isinstance(value, (list, tuple)) \
+        else ()
     for key, item in items:
         found = non_finite(item, (f"{where}.{key}" if where else str(key)) if isinstance(value, Mapping)
                            else f"{where}[{key}]")
@@ -239,8 +240,9 @@ def apply_params(config: C, params: list[str]) -> C:
 
     Keys: a config field (`similarity_threshold=0.7`), a section field (`verifier.max_residual=0.2`,
     `graph.robust=cauchy`), a stage parameter (`sampler.lambda_u=5`, `descriptor.n_sector=60`,
-    `odometry.max_range=80`; also by the config key, `sampler_params.lambda_u=5`), a bare sampler parameter (`lambda_u=5`), or the bare OverlapTransformer
-    weights file (`weights=FILE`, as `--descriptor ot -p weights=FILE` reads in the docs).
+    `odometry.max_range=80`; also by the config key, `sampler_params.lambda_u=5`), a bare sampler parameter
+    (`lambda_u=5`), or the bare OverlapTransformer weights file (`weights=FILE`, as `--descriptor ot -p weights=FILE`
+    reads in the docs).
     The result is a command's final config, so the descriptor (name, weights or descriptor file) is checked here.
     """
     model = type(config)  # RunConfig, or OnlineConfig

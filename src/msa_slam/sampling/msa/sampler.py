@@ -48,9 +48,9 @@ def warn_short_stream(frames: int, window: int, members: int | None = None, flus
 class MSASampler(Sampler):
     """MSA keyframe sampler (paper section IV; reference semantics).
 
-    Parameters (MSAParams, msa/params.py): window size N, alpha and beta (eq. 8), lambda_l / lambda_u (distance bounds as multiples
-    of the running average step, eq. 7), neighbours (old keyframes near the window's end that join it;
-    the authors' example uses 2), use_rho / use_pi (the paper's ablations), mode "exact" (the reference's
+    Parameters (MSAParams, msa/params.py): window size N, alpha and beta (eq. 8), lambda_l / lambda_u (distance
+    bounds as multiples of the running average step, eq. 7), neighbours (old keyframes near the window's end that
+    join it; the authors' example uses 2), use_rho / use_pi (the paper's ablations), mode "exact" (the reference's
     floating-point path) or "fast" (Gram-matrix formulation), pi "reference" (LAPACK's eigenvectors, the
     authors' keyframes) or "canonical" (eigenvectors fixed from the data alone: the same keyframes on
     every machine, msa/canonical.py). Windows whose choice rounding could change are counted in
