@@ -22,7 +22,7 @@ class _Replaying:
     def __init__(self, script: dict[int, list[int]], window: tuple[int, ...] = ()) -> None:
         self.script, self.window, self.frame = script, window, 0
 
-    def expect_frames(self, n: int) -> None:
+    def expect_frames(self, n: int, flush: bool = False) -> None:
         pass
 
     def push(self, pose, descriptor, points=None) -> list[int]:
