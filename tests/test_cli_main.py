@@ -70,7 +70,7 @@ def test_no_library_module_imports_the_cli():
 
 
 def test_importing_one_module_does_not_import_its_package_siblings():
-    code = ("import sys, msa_slam.experiments.grid, msa_slam.evaluation.display, msa_slam.sampling.checks\n"
+    code = ("import sys, msa_slam.experiments.grid, msa_slam.evaluation.display, msa_slam.sampling.params\n"
             "print(sorted(m for m in ('matplotlib', 'evo', 'scipy', 'gtsam') if m in sys.modules))")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert result.stdout.strip() == "[]", result.stderr

@@ -31,14 +31,14 @@ def test_bare_mode_valid_for_neither_gets_the_config_error(base):
 
 
 @pytest.mark.parametrize("override, fragment", [
-    ("alpha=.nan", "sampler_params.alpha=nan is not allowed; expected a finite number"),
-    ("beta=.inf", "sampler_params.beta=inf is not allowed; expected a finite number"),
-    ("sampler.beta=-.inf", "sampler_params.beta=-inf is not allowed; expected a finite number"),
+    ("alpha=.nan", "sampler 'msa': alpha=nan is not allowed; expected a finite number > 0"),
+    ("beta=.inf", "sampler 'msa': beta=inf is not allowed; expected a finite number > 0"),
+    ("sampler.beta=-.inf", "sampler 'msa': beta=-inf is not allowed; expected a finite number > 0"),
     ("use_rho=maybe", "sampler 'msa': use_rho='maybe' is not allowed; expected true or false"),
     ("lambda_u=inf", "sampler 'msa': lambda_u='inf' is not allowed; expected a finite number > 0"),
     ("window=abc", "sampler 'msa': window='abc' is not allowed; expected an integer >= 3"),
     ("window=30", "window=30: up to 2^29 - 2 = 536870910 candidates"),
-    ("descriptor.max_radius=.nan", "descriptor_params.max_radius=nan is not allowed"),
+    ("descriptor.max_radius=.nan", "descriptor_params: max_radius=nan is not allowed; expected a finite number"),
     ("loop_radius=.inf", "loop_radius: Input should be a finite number"),
     ("verifier.max_residual=.nan", "verifier.max_residual: Input should be a finite number"),
 ])
@@ -58,7 +58,7 @@ def test_config_yaml_round_trips(base, tmp_path):
     config = apply_params(base, ["alpha=2.5", "sampler.mode=fast", "use_rho=false", "loop_radius=4"])
     path = tmp_path / "config.yaml"
     path.write_text(yaml.safe_dump(config.dump()))
-    assert "null" not in yaml.safe_dump(config.sampler_params)
+    assert "null" not in yaml.safe_dump(config.dump()["sampler_params"])
     assert load_config(path) == config
 
 

@@ -24,7 +24,8 @@ from msa_slam.registration import KeyframeCloudStore, Verifier
 from msa_slam.sim.config import make_config as sim_config
 from msa_slam.sim.simulation import prepare
 from msa_slam.sim.world import PATH_LEAD
-from msa_slam.slam import KeyframeStore, LoopCloser, build_backend
+from msa_slam.slam import KeyframeStore, LoopCloser
+from helpers.slam import config_backend
 from msa_slam.slam.local_map import LocalMap
 from msa_slam.slam.map_closures_detector import MapClosuresDetector
 
@@ -153,8 +154,8 @@ def test_the_backend_closes_the_revisit_with_local_maps_and_accounts_their_memor
     def run(**settings):
         config = make_config(**{"dataset": "unused", "sampler": "all", "mode": "realistic", "min_frame_gap": 3,
                                 "exclude_recent": 3, **settings})
-        backend = build_backend(config, descriptor, KeyframeCloudStore(0.5), PoseGraph(config.graph, mode="realistic"),
-                                len(poses), "two passes")
+        backend = config_backend(config, descriptor, KeyframeCloudStore(0.5), PoseGraph(config.graph, mode="realistic"),
+                                 len(poses), "two passes")
         peak = 0
         for i, pose in enumerate(poses):
             backend.add_frame(pose, descs[i], lambda i=i: scans[i], pose, 0.1 * i)

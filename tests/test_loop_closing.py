@@ -19,7 +19,8 @@ from msa_slam.backend import PoseGraph
 from msa_slam.descriptors import make_descriptor
 from msa_slam.pipeline.config import make_config
 from msa_slam.registration import KeyframeCloudStore, Verifier
-from msa_slam.slam import KeyframeStore, LoopCloser, build_backend
+from msa_slam.slam import KeyframeStore, LoopCloser
+from helpers.slam import config_backend
 from msa_slam.slam.loop_closing import loop_summary
 from helpers.scans import scan_points
 
@@ -103,8 +104,8 @@ def _standstill(min_travel_m: float, frames: int = 90):
     descriptor = make_descriptor("sc")
     cloud = scan_points(0).astype(np.float64)[::8]
     desc = descriptor.compute(cloud)
-    backend = build_backend(config, descriptor, KeyframeCloudStore(config.verifier.voxel_size),
-                            PoseGraph(config.graph, mode=config.mode), frames, "standstill")
+    backend = config_backend(config, descriptor, KeyframeCloudStore(config.verifier.voxel_size),
+                             PoseGraph(config.graph, mode=config.mode), frames, "standstill")
     for i in range(frames):
         backend.add_frame(np.eye(4), desc, cloud, np.eye(4), 0.1 * i)
     return backend.finish()

@@ -96,11 +96,12 @@ from msa_slam.backend import PoseGraph
 from msa_slam.descriptors import ScanContext
 from msa_slam.pipeline import make_config
 from msa_slam.registration import KeyframeCloudStore
-from msa_slam.slam import build_backend
+from msa_slam.slam import build_backend, build_loop_closer, slam_sampler
 
 def run(sampler, params):
     config = make_config(dataset="x", sampler=sampler, sampler_params=params)
-    backend = build_backend(config, ScanContext(), KeyframeCloudStore(0.1), PoseGraph(), 150, "drive")
+    closer = build_loop_closer(config, ScanContext(), KeyframeCloudStore(0.1))
+    backend = build_backend(config, slam_sampler(config), closer, PoseGraph(), 150, "drive")
     rng = np.random.default_rng(0)
     for i in range(150):  # 2 m per frame; random clouds barely thin out at 0.1 m voxels
         pose = np.eye(4)

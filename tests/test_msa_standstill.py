@@ -29,7 +29,7 @@ from msa_slam.pipeline.config import apply_params, make_config
 from msa_slam.registration import KeyframeCloudStore
 from msa_slam.sampling import make_sampler, sampler_parameters
 from msa_slam.sampling.registry import SAMPLERS
-from msa_slam.slam import build_backend
+from helpers.slam import config_backend
 from msa_slam.slam.backend import STANDSTILL_GATE, slam_sampler_params
 
 STANDSTILL = 1000
@@ -206,8 +206,8 @@ def test_bad_gate_values_are_refused_naming_them(name, params, message):
 def _backend(sampler: str, frames: int, **params):
     config = make_config(dataset="unused", sampler=sampler, sampler_params=params, mode="realistic")
     descriptor = make_descriptor("sc")
-    return build_backend(config, descriptor, KeyframeCloudStore(config.verifier.voxel_size),
-                         PoseGraph(config.graph, mode=config.mode), frames, "standstill")
+    return config_backend(config, descriptor, KeyframeCloudStore(config.verifier.voxel_size),
+                          PoseGraph(config.graph, mode=config.mode), frames, "standstill")
 
 
 def test_the_slam_cores_accounted_memory_does_not_grow_while_standing_still():

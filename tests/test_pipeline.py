@@ -183,7 +183,7 @@ def test_threshold_sweep_replays_the_backend(base, frontend):
 def test_reference_protocol_pr_is_na_without_enough_keyframes(base, frontend):
     """The reference protocol queries only once more than 10 keyframes precede a frame: with a sampler that
     keeps fewer, its PR is n/a with the reason."""
-    result = run_batch(base.model_copy(update={"sampler_params": {"distance": 40.0}}), frontend, sweep=False)
+    result = run_batch(make_config({**base.dump(), "sampler_params": {"distance": 40.0}}), frontend, sweep=False)
     assert result.metrics["keyframes"] <= 11
     ref = result.metrics["pr_reference"]
     assert ref == {"pr_auc": None, "f1_max": None, "matches": 0}
@@ -193,8 +193,8 @@ def test_reference_protocol_pr_is_na_without_enough_keyframes(base, frontend):
 def test_bad_inputs_fail_clearly(base, tmp_path):
     with pytest.raises(InputError, match="nowhere.*not found"):
         prepare_frontend(make_config(dataset=str(tmp_path / "nowhere")))
-    with pytest.raises(InputError, match="unknown sampler 'fancy'.*msa"):
-        run_batch(base.model_copy(update={"sampler": "fancy", "sampler_params": {}}))
+    with pytest.raises(InputError, match="unknown sampler 'fancy'.*msa"):  # when the config is built
+        make_config({**base.dump(), "sampler": "fancy", "sampler_params": {}})
     with pytest.raises(InputError, match="unknown name 'nope'"):
         prepare_frontend(base.model_copy(update={"descriptor": "nope"}))
     with pytest.raises(InputError, match="unknown key 'thresold'; valid keys: .*similarity_threshold"):

@@ -11,7 +11,7 @@ from msa_slam.errors import InputError
 from msa_slam.pipeline import make_config
 from msa_slam.registration import KeyframeCloudStore
 from msa_slam.sampling import make_sampler
-from msa_slam.slam import build_backend
+from helpers.slam import config_backend
 
 
 class _Replaying:
@@ -22,7 +22,7 @@ class _Replaying:
     def __init__(self, script: dict[int, list[int]], window: tuple[int, ...] = ()) -> None:
         self.script, self.window, self.frame = script, window, 0
 
-    def expect_frames(self, n: int) -> None:
+    def expect_frames(self, n: int, flush: bool = False) -> None:
         pass
 
     def push(self, pose, descriptor, points=None) -> list[int]:
@@ -40,10 +40,8 @@ def _frames(n: int):
 
 def _backend(n: int, sampler="all"):
     config = make_config(dataset="x", sampler=sampler if isinstance(sampler, str) else "all")
-    backend = build_backend(config, ScanContext(), KeyframeCloudStore(0.5), PoseGraph(), n, "stub")
-    if not isinstance(sampler, str):
-        backend.sampler = sampler
-    return backend
+    return config_backend(config, ScanContext(), KeyframeCloudStore(0.5), PoseGraph(), n, "stub",
+                          None if isinstance(sampler, str) else sampler)
 
 
 def test_core_streams_frames_into_keyframes_and_a_result():

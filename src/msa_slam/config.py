@@ -38,6 +38,9 @@ def section_model(model: type[BaseModel], path: tuple) -> type[BaseModel]:
 
 def problem(error: Mapping[str, Any], model: type[BaseModel], root: str = "config") -> str:
     """One pydantic error as text: where it is and what is wrong (for an unknown key: the valid keys)."""
+    explained = getattr(model, "explain_error", lambda e: None)(error)  # a model's own wording of its errors
+    if explained is not None:
+        return explained
     loc = tuple(error["loc"])
     where = ".".join(map(str, loc)) or root
     if error["type"] == "extra_forbidden":
@@ -63,12 +66,13 @@ def check_key_names(model: type[BaseModel], data: Mapping[Any, Any], where: str,
         if field is None or not isinstance(value, Mapping):
             continue
         path = f"{section}.{key}" if section else key
-        inner = _inner_model(field.annotation)
+        inner = None if field.discriminator else _inner_model(field.annotation)
         if inner is not None:
             check_key_names(inner, value, where, path)
             continue
         odd = next((k for k in value if not isinstance(k, str)), None)
-        if odd is not None and typing.get_origin(field.annotation) is dict:  # a stage's parameters (odometry_params)
+        # a stage's parameters (odometry_params), or a tagged union's (sampler_params: its model is chosen later)
+        if odd is not None and (typing.get_origin(field.annotation) is dict or field.discriminator):
             raise InputError(f"{where}: {path}: key {odd!r} is not a parameter name")
 
 

@@ -27,7 +27,7 @@ from msa_slam.place_recognition.metrics import reference_protocol_matches
 from msa_slam.progress import progress_bar
 from msa_slam.registration import KeyframeCloudStore
 from msa_slam.sampling.msa.warm import load_kernels
-from msa_slam.slam import BACKEND_STEPS, RunResult, build_backend, core_metrics
+from msa_slam.slam import BACKEND_STEPS, RunResult, build_backend, build_loop_closer, core_metrics, slam_sampler
 
 BACKEND_STAGES = (*BACKEND_STEPS, "optimisation")
 SWEEP_NOT_RUN = "not run: left out with `--no-sweep` (the demo leaves it out to stay short)"
@@ -58,8 +58,8 @@ def run_batch(config: RunConfig, frontend: Frontend | None = None, quiet: bool =
 def _run_backend(config: RunConfig, frontend: Frontend, quiet: bool, sweep: bool, sweep_off: str) -> RunResult:
     graph = PoseGraph(config.graph, mode=config.mode)
     clouds = KeyframeCloudStore(config.verifier.voxel_size)
-    backend = build_backend(config, frontend.descriptor, clouds, graph, len(frontend), frontend.name,
-                            frame_clouds=frontend.clouds_for(config))
+    backend = build_backend(config, slam_sampler(config), build_loop_closer(config, frontend.descriptor, clouds), graph,
+                            len(frontend), frontend.name, frame_clouds=frontend.clouds_for(config))
     sequence, times, gt = frontend.sequence, frontend.sequence.times, frontend.gt_poses
     with progress_bar(quiet) as bar:
         task = bar.add_task(f"back-end ({config.name})", total=len(frontend))

@@ -35,7 +35,7 @@ from msa_slam.pipeline.seeds import SEED_COLUMNS, seed_markdown, seed_rows, seed
 from msa_slam.place_recognition import PRCurve
 from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.progress import progress_bar
-from msa_slam.sampling.base import GATE_PARAMETERS
+from msa_slam.sampling.params import GATE_PARAMETERS
 from msa_slam.slam import RunResult
 from msa_slam.slam.backend import UNGATED_SAMPLERS
 from msa_slam.slam.loop_closing import REJECTION_REASONS, candidate_rule

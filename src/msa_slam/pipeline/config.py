@@ -10,9 +10,11 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
-from typing import Any, Literal, Mapping, get_args
+from typing import Any, Literal, Mapping, TypeVar, get_args
 
-from pydantic import BaseModel, Field, TypeAdapter, ValidationError
+from pydantic import (BaseModel, Field, TypeAdapter, ValidationError, field_serializer, field_validator,
+                      model_validator)
+from pydantic_core import PydanticCustomError
 
 from msa_slam.backend.graph_config import GraphConfig
 from msa_slam.config import StageConfig, check_partial
@@ -21,6 +23,8 @@ from msa_slam.errors import InputError
 from msa_slam.io.params import parse_key_value
 from msa_slam.io.yaml_file import read_yaml
 from msa_slam.registration.verify import VerifierConfig
+from msa_slam.sampling.params import TAG, SamplerParams, explain
+from msa_slam.sampling.registry import SAMPLERS, SamplerChoice, check_sampler_params, sampler_parameters
 
 
 class RunConfig(StageConfig):
@@ -30,6 +34,9 @@ class RunConfig(StageConfig):
     (auto: from the layout; msa_slam.datasets.LOADERS) with the `source` options (topic, ground truth, part
     of the recording), or `sim:NAME` (NAME = demo, test, or a simulator trajectory such as kitti-05,
     optionally with simulator fields: `sim:kitti-05,stride=3`).
+    `sampler_params` are the parameters of `sampler`, a tagged union of the samplers' typed models (the sampler's
+    name its tag; sampling/params.py, sampling/registry.py): they are checked against that sampler when the config
+    is built, and the config echoes them as given (config.yaml holds no defaults).
     `odometry` is "kiss" (KISS-ICP) or the path of a KITTI/TUM pose file (LiDAR frame, one pose per scan).
     Keyframes are sampled on `sample_on` poses (`flush` adds what MSA still holds at the end). A keyframe's
     loop candidates are older keyframes more than `min_frame_gap` frames and `min_travel_m` metres of
@@ -66,7 +73,7 @@ class RunConfig(StageConfig):
     descriptor: str = "sc"
     descriptor_params: dict[str, Any] = Field(default_factory=dict)
     sampler: str = "msa"
-    sampler_params: dict[str, Any] = Field(default_factory=dict)
+    sampler_params: SamplerChoice
     sample_on: Literal["odometry", "gt"] = "odometry"
     flush: bool = True
     mode: Literal["oracle", "realistic"] = "oracle"
@@ -91,6 +98,58 @@ class RunConfig(StageConfig):
     cache_dir: str | None = None
     label: str | None = None
 
+    @model_validator(mode="before")
+    @classmethod
+    def _tag_sampler_params(cls, data: Any) -> Any:
+        """`sampler` chooses the model of `sampler_params` (the tagged union's tag), so they are checked against
+        the sampler that will run, when the config is built."""
+        if isinstance(data, Mapping):
+            sampler = data.get("sampler", cls.model_fields["sampler"].default)
+            params = data.get("sampler_params", {})
+            if isinstance(params, SamplerParams) and params.NAME == sampler:
+                return data  # validated already (a copy, an assignment to another field)
+            if isinstance(params, Mapping) and TAG in params:
+                raise PydanticCustomError("sampler_choice", f"sampler_params: {TAG!r} is not a sampler parameter; "
+                                          "choose the sampler with the config's `sampler` (-p sampler=NAME)")
+            if isinstance(params, Mapping):
+                data = {**data, "sampler_params": {TAG: sampler, **params}}
+        return data
+
+    @model_validator(mode="after")
+    def _sampler_checked(self) -> "RunConfig":
+        if not isinstance(self.sampler_params, SamplerParams):  # `sampler` assigned alone: its parameters unchecked
+            raise PydanticCustomError("sampler_choice", f"sampler {self.sampler!r} assigned without its parameters; "
+                                      "build a new config with both (make_config)")
+        return self
+
+    @field_validator("descriptor_params", "odometry_params")
+    @classmethod
+    def _finite(cls, params: dict[str, Any]) -> dict[str, Any]:
+        """Free-form parameters (their stage checks the names): finite numbers only (YAML would save NaN as null)."""
+        found = non_finite(params, "")
+        if found is not None:
+            raise PydanticCustomError("finite_number", f"{found} is not allowed; expected a finite number")
+        return params
+
+    @field_serializer("sampler_params")
+    def _given_params(self, params: SamplerParams) -> dict[str, Any]:
+        """The parameters as given (the config's echo: config.yaml, metrics.json), not their defaults."""
+        return dict(params)
+
+    @classmethod
+    def explain_error(cls, error: Mapping[str, Any]) -> str | None:
+        """A sampler parameter's error in the sampler's words (config.problem); None for the other fields."""
+        loc = tuple(error["loc"])
+        if error["type"] == "sampler_choice":
+            return str(error["msg"])
+        if not loc or loc[0] != "sampler_params":
+            return None
+        if error["type"] == "union_tag_invalid":
+            return f"unknown sampler {error['ctx']['tag']!r}; available: {', '.join(SAMPLERS)}"
+        if len(loc) > 1 and loc[1] in SAMPLERS:
+            return explain(SAMPLERS[str(loc[1])].Params, {**error, "loc": loc[2:]})
+        return None
+
     @property
     def name(self) -> str:
         """Label of the run in tables (the sampler name unless given)."""
@@ -102,41 +161,22 @@ class RunConfig(StageConfig):
 
 def make_config(data: Mapping[str, Any] | None = None, **overrides: Any) -> RunConfig:
     """A validated RunConfig from a mapping plus keyword overrides; problems become one InputError."""
-    config = RunConfig(**{**(dict(data) if data else {}), **overrides})
-    _check_stages(dict(config), "config")
-    return config
+    return RunConfig(**{**(dict(data) if data else {}), **overrides})
 
 
-def check_finite(value: Any, where: str, origin: str = "config") -> None:
-    """NaN or infinity anywhere in a stage's parameters is an error: YAML would save it as null. `where` is
-    the key, `origin` what holds it (the config, or the config file) for the message."""
+def non_finite(value: Any, where: str) -> str | None:
+    """`where.key=value` (`key=value` for an empty `where`) of the first NaN or infinity in a stage's free-form
+    parameters (YAML would save it as null), or None."""
     if isinstance(value, float) and not math.isfinite(value):
-        raise InputError(f"{origin}: {where}={value!r} is not allowed; expected a finite number")
-    if isinstance(value, Mapping):
-        for key, item in value.items():
-            check_finite(item, f"{where}.{key}", origin)
-    elif isinstance(value, (list, tuple)):
-        for k, item in enumerate(value):
-            check_finite(item, f"{where}[{k}]", origin)
-
-
-def _check_stages(data: Mapping[str, Any], origin: str) -> None:
-    """The stages' free-form parameters (validated by no model field): finite numbers only, and the sampler's
-    accepted by the sampler named in `data` (if it names one); problems start with `origin`."""
-    for section in _SECTIONS.values():
-        check_finite(data.get(section), section, origin)
-    if "sampler" in data:
-        _check_sampler(data["sampler"], data.get("sampler_params") or {}, origin)
-
-
-def _check_sampler(sampler: str, params: Mapping[str, Any], origin: str) -> None:
-    """Build the sampler once: its constructor checks every parameter before any work starts."""
-    from msa_slam.sampling import make_sampler
-
-    try:
-        make_sampler(sampler, **params)
-    except InputError as exc:
-        raise InputError(f"{origin}: {exc}") from None
+        return f"{where}={value!r}"
+    items = value.items() if isinstance(value, Mapping) else enumerate(value) if isinstance(value, (list, tuple)) \
+        else ()
+    for key, item in items:
+        found = non_finite(item, (f"{where}.{key}" if where else str(key)) if isinstance(value, Mapping)
+                           else f"{where}[{key}]")
+        if found is not None:
+            return found
+    return None
 
 
 def check_descriptor(descriptor: str, params: Mapping[str, Any]) -> None:
@@ -183,24 +223,30 @@ def read_config_file(path: str | os.PathLike, model: type[RunConfig] = RunConfig
     data = read_yaml(path) or {}
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a mapping of config keys, got {type(data).__name__}")
-    check_partial(model, data, str(path))
-    _check_stages(data, str(path))
+    check_partial(model, data if "sampler" in data else {k: v for k, v in data.items() if k != "sampler_params"},
+                  str(path))
+    found = None if "sampler" in data else non_finite(data.get("sampler_params"), "sampler_params")
+    if found is not None:  # whoever's parameters they are, a NaN is none's
+        raise InputError(f"{path}: {found} is not allowed; expected a finite number")
     return data
 
 
+C = TypeVar("C", bound=RunConfig)
 _SECTIONS = {"sampler": "sampler_params", "descriptor": "descriptor_params", "odometry": "odometry_params"}
 
 
-def apply_params(config: RunConfig, params: list[str]) -> RunConfig:
+def apply_params(config: C, params: list[str]) -> C:
     """Apply `key=value` overrides (values parsed as YAML).
 
     Keys: a config field (`similarity_threshold=0.7`), a section field (`verifier.max_residual=0.2`,
     `graph.robust=cauchy`), a stage parameter (`sampler.lambda_u=5`, `descriptor.n_sector=60`,
-    `odometry.max_range=80`), a bare sampler parameter (`lambda_u=5`), or the bare OverlapTransformer
-    weights file (`weights=FILE`, as `--descriptor ot -p weights=FILE` reads in the docs).
+    `odometry.max_range=80`; also by the config key, `sampler_params.lambda_u=5`), a bare sampler parameter
+    (`lambda_u=5`), or the bare OverlapTransformer weights file (`weights=FILE`, as `--descriptor ot -p weights=FILE`
+    reads in the docs).
     The result is a command's final config, so the descriptor (name, weights or descriptor file) is checked here.
     """
-    config = make_config(apply_overrides(config.dump(), params, RunConfig))
+    model = type(config)  # RunConfig, or OnlineConfig
+    config = model(**apply_overrides(config.dump(), params, model))
     check_descriptor(config.descriptor, config.descriptor_params)
     return config
 
@@ -215,6 +261,7 @@ def apply_overrides(data: dict, params: list[str], model: type[BaseModel]) -> di
     for item in params:
         key, value = parse_key_value(item)
         head, dot, tail = key.partition(".")
+        head = next((stage for stage, section in _SECTIONS.items() if section == head), head)  # sampler_params.x
         if dot and head in _SECTIONS:
             data[_SECTIONS[head]] = {**data[_SECTIONS[head]], tail: value}
         elif dot and head in ("verifier", "graph"):
@@ -236,8 +283,6 @@ def apply_overrides(data: dict, params: list[str], model: type[BaseModel]) -> di
 def _check_not_a_sampler_param(sampler: str | None, key: str, value: Any, model: type[BaseModel]) -> None:
     """A bare key naming both a config field and a sampler parameter (`mode`) sets the config field;
     a value that only the sampler accepts (`mode=fast`) is refused with the spelling that reaches it."""
-    from msa_slam.sampling import make_sampler, sampler_parameters
-
     if sampler is None or key not in sampler_parameters(sampler):
         return
     try:
@@ -246,7 +291,7 @@ def _check_not_a_sampler_param(sampler: str | None, key: str, value: Any, model:
     except ValidationError:
         pass
     try:
-        make_sampler(sampler, **{key: value})
+        check_sampler_params(sampler, {key: value})
     except InputError:
         return  # valid for neither: the config field's own error follows
     raise InputError(f"--param {key}={value}: `{key}` is the config's {key} ({_allowed(model, key)}); "
@@ -261,8 +306,6 @@ def _allowed(model: type[BaseModel], key: str) -> str:
 def _bare_key_section(sampler: str, descriptor: str, key: str, value: Any, model: type[BaseModel]) -> str:
     """Where a bare key that is no config field goes: "sampler_params" for a parameter of `sampler`,
     "descriptor_params" for `weights` with the OverlapTransformer; else an InputError listing what exists."""
-    from msa_slam.sampling import sampler_parameters
-
     known = sampler_parameters(sampler)
     if key in known:
         return "sampler_params"

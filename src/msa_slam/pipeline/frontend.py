@@ -30,7 +30,7 @@ from msa_slam.pipeline.config import RunConfig
 from msa_slam.pipeline.read_ahead import odometry_and_descriptors
 from msa_slam.sources import open_sequence
 from msa_slam.registration.cloud_cache import FrameClouds, cloud_key, frame_clouds
-from msa_slam.sampling import make_sampler
+from msa_slam.sampling.msa.sampler import warn_short_stream
 from msa_slam.slam.backend import MIN_KEYFRAMES
 
 logger = logging.getLogger(__name__)
@@ -176,15 +176,14 @@ def check_window(config: RunConfig, n_frames: int, fix: str = CONFIG_WINDOW_FIX)
     after odometry and descriptors, with too few keyframes for the evaluation. Without the end-of-stream flush
     only frame 0 is ever a keyframe: an error with `fix` (formatted with `frames` and `window`); with it, the
     sampler's own warning now rather than after the front end (a warning, as the flush may still pick enough)."""
-    sampler = make_sampler(config.sampler, **config.sampler_params)
-    window = getattr(sampler, "window_size", None)
+    window = getattr(config.sampler_params, "window", None)
     if window is None or n_frames >= window:
         return
     if not config.flush:
         raise InputError(f"sampler {config.name!r}: window={window} is longer than the {n_frames} frames read, so it "
                          f"never fills and only frame 0 becomes a keyframe (flush is off); the evaluation needs at "
                          f"least {MIN_KEYFRAMES}: " + fix.format(frames=n_frames, window=window))
-    sampler.expect_frames(n_frames, flush=True)
+    warn_short_stream(n_frames, window, flush=True)
 
 
 def replayed_seconds(stages: dict[str, Computed], timer: StageTimer) -> dict[str, float]:

@@ -42,7 +42,8 @@ from msa_slam.sources import open_source
 from msa_slam.progress import LogProgress, Progress, progress_bar
 from msa_slam.registration import make_cloud_store
 from msa_slam.sampling.msa.warm import load_kernels
-from msa_slam.slam import BACKEND_STEPS, RunResult, SlamBackend, build_backend, core_metrics
+from msa_slam.slam import (BACKEND_STEPS, RunResult, SlamBackend, build_backend, build_loop_closer, core_metrics,
+                           slam_sampler)
 from msa_slam.types import FrameSource
 from msa_slam.viz.labels import counted as noun_count  # `counted`: run_online's loop tally
 from msa_slam.workers import available_cpus
@@ -199,7 +200,8 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     load_kernels(config.sampler, config.sampler_params, descriptor.shape)  # before the back end: not in its timings
     graph = IncrementalPoseGraph(config.graph, final_iterations=config.update_iterations, mode=config.mode)
     recorder = MemoryRecorder(n)
-    backend = build_backend(config, descriptor, clouds, graph, n, source.name, config.update_iterations, recorder)
+    backend = build_backend(config, slam_sampler(config), build_loop_closer(config, descriptor, clouds), graph, n,
+                            source.name, config.update_iterations, recorder)
     front_ms = {s: np.zeros(n, dtype=np.float32) for s in STEPS[:2]}
     times_known = source.times_known
     if not times_known and source.sequence is None:  # a sequence opened from files has said so (UNTIMED)

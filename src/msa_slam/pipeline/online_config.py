@@ -10,7 +10,7 @@ from typing import Any, ClassVar, Literal, Mapping
 
 from pydantic import Field
 
-from msa_slam.pipeline.config import RunConfig, apply_overrides, check_descriptor
+from msa_slam.pipeline.config import RunConfig, apply_params
 
 
 class OnlineConfig(RunConfig):
@@ -50,8 +50,5 @@ def make_online_config(data: Mapping[str, Any] | None = None, **overrides: Any) 
 
 
 def apply_online_params(data: Mapping[str, Any], params: list[str]) -> OnlineConfig:
-    """`key=value` overrides (YAML values) on an online config mapping; returns a validated OnlineConfig (the
-    command's final config, so the descriptor (name, weights or descriptor file) is checked here, before any scan)."""
-    config = make_online_config(apply_overrides(make_online_config(data).dump(), params, OnlineConfig))
-    check_descriptor(config.descriptor, config.descriptor_params)
-    return config
+    """`key=value` overrides (YAML values) on an online config mapping: apply_params on its OnlineConfig."""
+    return apply_params(make_online_config(data), params)

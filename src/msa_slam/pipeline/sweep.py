@@ -3,8 +3,8 @@ batch run at thresholds around its own (SWEEP_OFFSETS: 0.70, 0.75, 0.80, 0.85 ar
 
 Only the back-end is re-run: the same keyframes (a replay sampler emits the run's keyframes), the same
 downsampled keyframe clouds (shared, not re-read) and the cached front end, streamed through the same SLAM
-core (`build_backend`) with the threshold changed. A candidate pair's verification does not depend on the
-threshold, so each pair is registered once over the whole sweep (the run's own pairs are reused).
+core (`build_backend`, a new one per threshold) with the threshold changed. A candidate pair's verification does
+not depend on the threshold, so each pair is registered once over the whole sweep (the run's own pairs are reused).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from msa_slam.evaluation import evaluate_full_rate
 from msa_slam.pipeline.config import RunConfig, make_config
 from msa_slam.pipeline.frontend import Frontend
 from msa_slam.sampling.base import Sampler
-from msa_slam.slam import RunResult, build_backend
+from msa_slam.slam import RunResult, build_backend, build_loop_closer
 from msa_slam.types import LoopClosure
 
 SWEEP_OFFSETS = (-0.10, -0.05, 0.0, 0.05)
@@ -81,11 +81,9 @@ class _MemoVerify:
 def replay(config: RunConfig, frontend: Frontend, clouds: Any, keyframes: np.ndarray,
            memo: dict[tuple[int, int], LoopClosure]) -> RunResult:
     """The back-end of `config` on fixed `keyframes` whose clouds are in `clouds` (front end from `frontend`)."""
-    backend = build_backend(config, frontend.descriptor, _SharedClouds(clouds),
-                            PoseGraph(config.graph, mode=config.mode), len(frontend), frontend.name)
-    backend.sampler = _ReplaySampler(keyframes)
-    backend.local_map = None  # the keyframes' local maps are among the shared clouds
-    backend.loop_closer = _MemoVerify(backend.loop_closer, memo)
+    closer = _MemoVerify(build_loop_closer(config, frontend.descriptor, _SharedClouds(clouds)), memo)
+    backend = build_backend(config, _ReplaySampler(keyframes), closer, PoseGraph(config.graph, mode=config.mode),
+                            len(frontend), frontend.name, local_maps=False)  # local maps: among the shared clouds
     times = frontend.sequence.times
     for i in range(len(frontend)):
         backend.add_frame(frontend.odometry[i], frontend.descriptors[i], None, frontend.gt_poses[i], times[i])

@@ -16,15 +16,13 @@ from __future__ import annotations
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
+from typing import Any, ClassVar
 
 import numpy as np
 
 from msa_slam.errors import InputError
-from msa_slam.sampling import checks
+from msa_slam.sampling.params import SamplerParams, check_params
 from msa_slam.types import validate_pose
-
-GATE_PARAMETERS = ("min_motion", "min_rotation")  # the standstill gate's, taken by every sampler
-MAX_MIN_ROTATION = 180.0  # degrees: no rotation is larger, so a larger min_rotation would mean nothing else
 
 
 @dataclass(frozen=True)
@@ -102,17 +100,19 @@ class Sampler(ABC):
     """
 
     name: str = "sampler"
+    Params: ClassVar[type[SamplerParams]] = SamplerParams
     needs_points: bool = False
     needs_descriptors: bool = False
 
-    def __init__(self, min_motion: float = 0.0, min_rotation: float = 0.0) -> None:
-        self.min_motion = checks.finite_float(self.name, "min_motion", min_motion, 0.0)
-        self.min_rotation = checks.finite_float(self.name, "min_rotation", min_rotation, 0.0,
-                                                below=MAX_MIN_ROTATION)
-        if self.min_rotation > 0 and self.min_motion == 0:
-            raise InputError(f"sampler {self.name!r}: min_rotation={min_rotation!r} needs min_motion > 0 (the "
-                             f"standstill gate holds back frames that moved less than min_motion metres, unless they "
-                             f"turned at least min_rotation degrees); set min_motion, or min_rotation=0")
+    def __init__(self, params: SamplerParams | None = None, /, **given: Any) -> None:
+        """From parameters a configuration validated (`params`, of this sampler's `Params`), or from keyword
+        parameters, validated here (an InputError naming the sampler, the key and what it allows)."""
+        if params is None:
+            params = check_params(self.Params, given)
+        elif given or not isinstance(params, self.Params):
+            raise TypeError(f"{self.name}: pass a {self.Params.__name__} or keyword parameters, not both")
+        self.params = params
+        self.min_motion, self.min_rotation = self.params.min_motion, self.params.min_rotation
         self._anchor: np.ndarray | None = None  # pose of the last frame the standstill gate passed on
         self._online: list[int] = []
         self._flushed: list[int] = []

@@ -10,19 +10,55 @@ rule as MSA's, so that methods are compared on the same frames.
 
 from __future__ import annotations
 
-import numpy as np
+from typing import Any, Literal
 
-from msa_slam.sampling import checks
+import numpy as np
+from pydantic import Field
+
 from msa_slam.sampling.base import Sampler
+from msa_slam.sampling.params import Integer, Real, SamplerParams
 
 MAX_BINS = 100  # per axis: 10^6 histogram cells, 8 MB (1000 would ask numpy for 8 GB)
+
+
+class AllParams(SamplerParams):
+    """`all` takes the standstill gate only (the SLAM core leaves it ungated: every frame, by definition)."""
+
+    NAME = "all"
+    sampler: Literal["all"] = "all"
+
+
+class ConstantParams(SamplerParams):
+    """Constant distance's parameter and the standstill gate."""
+
+    NAME = "constant"
+    sampler: Literal["constant"] = "constant"
+    distance: Real = Field(1.0, ge=0, description="metres travelled from the last keyframe to the next (>=)")
+
+
+class EntropyParams(SamplerParams):
+    """The entropy sampler's parameters and the standstill gate."""
+
+    NAME = "entropy"
+    sampler: Literal["entropy"] = "entropy"
+    threshold: Real = Field(0.05, ge=0, description="relative change of the cloud's entropy that makes a keyframe")
+    max_distance: Real = Field(5.0, gt=0, description="metres after which a frame is a keyframe whatever its entropy")
+    bins: Integer = Field(10, ge=1, le=MAX_BINS, description="histogram cells per axis of the entropy")
+
+
+class SpaciousnessParams(SamplerParams):
+    """The spaciousness sampler's parameter and the standstill gate."""
+
+    NAME = "spaciousness"
+    sampler: Literal["spaciousness"] = "spaciousness"
+    smoothing: Real = Field(0.85, ge=0, lt=1, description="weight of the past in the smoothed mean point range")
 
 
 class _DistanceGated(Sampler):
     """Shared bookkeeping: the last keyframe's translation."""
 
-    def __init__(self, min_motion: float = 0.0, min_rotation: float = 0.0) -> None:
-        super().__init__(min_motion, min_rotation)
+    def __init__(self, params: SamplerParams | None = None, /, **given: Any) -> None:
+        super().__init__(params, **given)
         self._last_t: np.ndarray | None = None
 
     def _distance_to_last(self, pose: np.ndarray) -> float:
@@ -33,9 +69,7 @@ class AllSamples(Sampler):
     """Every frame is a keyframe (the paper's upper bound on memory and loop candidates)."""
 
     name = "all"
-
-    def __init__(self, min_motion: float = 0.0, min_rotation: float = 0.0) -> None:
-        super().__init__(min_motion, min_rotation)
+    Params = AllParams
 
     def _push(self, index, pose, descriptor, points):
         return [index]
@@ -45,10 +79,12 @@ class ConstantDistance(_DistanceGated):
     """A keyframe every `distance` metres travelled from the last keyframe (>=)."""
 
     name = "constant"
+    Params = ConstantParams
+    params: ConstantParams
 
-    def __init__(self, distance: float = 1.0, min_motion: float = 0.0, min_rotation: float = 0.0) -> None:
-        super().__init__(min_motion, min_rotation)
-        self.distance = checks.finite_float(self.name, "distance", distance, 0.0)
+    def __init__(self, params: ConstantParams | None = None, /, **given: Any) -> None:
+        super().__init__(params, **given)
+        self.distance = self.params.distance
 
     def _push(self, index, pose, descriptor, points):
         if self._last_t is None or self._distance_to_last(pose) >= self.distance:
@@ -68,14 +104,13 @@ class Entropy(_DistanceGated):
     """Keyframe when the cloud's entropy departs from the last keyframe's by > threshold (ratio)."""
 
     name = "entropy"
+    Params = EntropyParams
+    params: EntropyParams
     needs_points = True
 
-    def __init__(self, threshold: float = 0.05, max_distance: float = 5.0, bins: int = 10,
-                 min_motion: float = 0.0, min_rotation: float = 0.0) -> None:
-        super().__init__(min_motion, min_rotation)
-        self.threshold = checks.finite_float(self.name, "threshold", threshold, 0.0)
-        self.max_distance = checks.finite_float(self.name, "max_distance", max_distance, 0.0, exclusive=True)
-        self.bins = checks.integer(self.name, "bins", bins, 1, MAX_BINS)
+    def __init__(self, params: EntropyParams | None = None, /, **given: Any) -> None:
+        super().__init__(params, **given)
+        self.threshold, self.max_distance, self.bins = self.params.threshold, self.params.max_distance, self.params.bins
         self._last_entropy = 0.0
 
     def _push(self, index, pose, descriptor, points):
@@ -108,11 +143,13 @@ class Spaciousness(_DistanceGated):
     """Keyframe when the distance travelled exceeds a threshold adapted to the scene's openness."""
 
     name = "spaciousness"
+    Params = SpaciousnessParams
+    params: SpaciousnessParams
     needs_points = True
 
-    def __init__(self, smoothing: float = 0.85, min_motion: float = 0.0, min_rotation: float = 0.0) -> None:
-        super().__init__(min_motion, min_rotation)
-        self.smoothing = checks.finite_float(self.name, "smoothing", smoothing, 0.0, below=1.0)
+    def __init__(self, params: SpaciousnessParams | None = None, /, **given: Any) -> None:
+        super().__init__(params, **given)
+        self.smoothing = self.params.smoothing
         self.spaciousness: float | None = None
 
     def _push(self, index, pose, descriptor, points):

@@ -15,7 +15,7 @@ from __future__ import annotations
 import sys
 import time
 from dataclasses import replace
-from typing import Any, Callable, Protocol, Union
+from typing import Any, Callable, Mapping, Protocol, Union
 
 import numpy as np
 
@@ -26,8 +26,9 @@ from msa_slam.evaluation.resources import current_rss_bytes, release_free_heap, 
 from msa_slam.place_recognition import PRCurve
 from msa_slam.registration import Verifier
 from msa_slam.registration.cloud_cache import FrameClouds
-from msa_slam.sampling import make_sampler
 from msa_slam.sampling.base import Sampler
+from msa_slam.sampling.params import GATE_PARAMETERS
+from msa_slam.sampling.registry import build_sampler
 from msa_slam.slam.keyframes import CloudStore, KeyframeStore
 from msa_slam.slam.local_map import LocalMap
 from msa_slam.slam.loop_closing import LoopCloser
@@ -316,7 +317,7 @@ def no_ground_truth_pr() -> PRCurve:
     return PRCurve(empty, empty, empty, empty, None, None, None, NO_GROUND_TRUTH)
 
 
-def slam_sampler_params(sampler: str, params: dict[str, Any]) -> dict[str, Any]:
+def slam_sampler_params(sampler: str, params: Mapping[str, Any]) -> dict[str, Any]:
     """The parameters the SLAM core builds `sampler` with: STANDSTILL_GATE under the run's own `params`, except
     for UNGATED_SAMPLERS. The gate lives here rather than in the samplers' defaults because make_sampler's
     defaults are the reference's behaviour (the parity tests' API) and SLAM is where frames that do not move
@@ -329,25 +330,40 @@ def slam_sampler_params(sampler: str, params: dict[str, Any]) -> dict[str, Any]:
     return merged
 
 
-def build_backend(config: RunSettings, descriptor: Descriptor, clouds: CloudStore, graph: Graph, n_frames: int,
+def slam_sampler(config: RunSettings) -> Sampler:
+    """The run's sampler, from the parameters its config validated, with the SLAM core's standstill gate
+    (slam_sampler_params)."""
+    gated = slam_sampler_params(config.sampler, config.sampler_params)
+    return build_sampler(config.sampler_params.model_copy(
+        update={k: float(gated[k]) for k in GATE_PARAMETERS if k in gated}))
+
+
+def build_loop_closer(config: RunSettings, descriptor: Descriptor, clouds: CloudStore) -> LoopCloser:
+    """Loop closing for a run configuration: a keyframe store over `clouds` whose descriptor is the frames'
+    (`descriptor`) or, with the local-map detector, Scan Context of the local maps; the verifier; MapClosures for
+    the map-closures detector."""
+    loop_descriptor = local_map_descriptor(config) if config.loop_detector == "local-map" else None
+    store = KeyframeStore(loop_descriptor or descriptor, clouds)
+    map_closures = MapClosuresDetector() if config.loop_detector == "map-closures" else None
+    return LoopCloser(store, Verifier(config.verifier), config, map_closures)
+
+
+def build_backend(config: RunSettings, sampler: Sampler, loop_closer: LoopCloser, graph: Graph, n_frames: int,
                   name: str, update_iterations: int = 0, recorder: Recorder | None = None,
-                  frame_clouds: FrameClouds | None = None) -> SlamBackend:
-    """The SLAM core for a run configuration (msa_slam.pipeline.config.RunConfig): its sampler, a keyframe
-    store over `clouds` (filled from `frame_clouds` when given, which must be downsampled at the verifier's voxel
-    size), loop closing with its verifier and detector (a local map for the local-map and map-closures
-    detectors), and `graph` (batch LM or iSAM2)."""
+                  frame_clouds: FrameClouds | None = None, local_maps: bool = True) -> SlamBackend:
+    """The SLAM core for a run configuration (msa_slam.pipeline.config.RunConfig) around its `sampler`
+    (slam_sampler) and `loop_closer` (build_loop_closer, whose store is filled from `frame_clouds` when given,
+    which must be downsampled at the verifier's voxel size) and `graph` (batch LM or iSAM2). The local-map and
+    map-closures detectors keep a local map of the recent scans, unless `local_maps` is False (the store's clouds
+    are the keyframes' local maps already: a replay)."""
     if frame_clouds is not None and frame_clouds.voxel_size != config.verifier.voxel_size:
         raise ValueError(f"frame clouds downsampled at {frame_clouds.voxel_size} m for a run whose verifier uses "
                          f"{config.verifier.voxel_size} m voxels")
     detector = config.loop_detector
-    local_map = None if detector == "scan" else LocalMap(config.local_map_m, config.verifier.voxel_size)
-    loop_descriptor = local_map_descriptor(config) if detector == "local-map" else None
-    store = KeyframeStore(loop_descriptor or descriptor, clouds)
-    map_closures = MapClosuresDetector() if detector == "map-closures" else None
-    loops = LoopCloser(store, Verifier(config.verifier), config, map_closures)
-    sampler = make_sampler(config.sampler, **slam_sampler_params(config.sampler, config.sampler_params))
-    return SlamBackend(config, sampler, store, loops, graph, n_frames, name, update_iterations, recorder,
-                       local_map, loop_descriptor, frame_clouds)
+    local_map = LocalMap(config.local_map_m, config.verifier.voxel_size) if local_maps and detector != "scan" else None
+    loop_descriptor = loop_closer.store.descriptor if detector == "local-map" else None
+    return SlamBackend(config, sampler, loop_closer.store, loop_closer, graph, n_frames, name, update_iterations,
+                       recorder, local_map, loop_descriptor, frame_clouds)
 
 
 def local_map_descriptor(config: RunSettings) -> Descriptor:

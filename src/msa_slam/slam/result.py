@@ -17,6 +17,7 @@ from msa_slam.evaluation import TrajectoryEvaluation, evaluate_full_rate, full_r
 from msa_slam.evaluation.loops import account_loops
 from msa_slam.place_recognition import PRCurve
 from msa_slam.registration import VerifierConfig
+from msa_slam.sampling.params import SamplerParams
 from msa_slam.slam.loop_closing import REJECTION_REASONS, loop_summary
 from msa_slam.types import LoopClosure
 
@@ -26,7 +27,7 @@ class RunSettings(Protocol):
 
     dataset: str
     sampler: str
-    sampler_params: dict[str, Any]
+    sampler_params: SamplerParams
     verifier: VerifierConfig
     descriptor: str
     descriptor_params: dict[str, Any]

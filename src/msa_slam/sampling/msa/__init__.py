@@ -1,5 +1,6 @@
 """Minimal Subset Approach (MSA), paper section IV: the sliding-window sampler and its window optimisation.
 
+params.py          its parameters (pydantic), checked before a sampler is built
 sampler.py         the state machine of section IV-C (bounds, terms, score, emit, slide) with the reference's counters
 window.py          one window optimisation, by mode (exact or fast)
 terms.py           rho, pi, the constrained power set and the score, one subset at a time (the readable definition)
@@ -16,8 +17,9 @@ warm.py            compiles the numba kernels in a background process ahead of a
 See docs/msa.md.
 """
 
-from msa_slam.sampling.msa.sampler import MSASampler
-from msa_slam.sampling.msa.terms import ScoreWeights, WindowResult
-from msa_slam.sampling.msa.window import MODES, optimise_window
+from msa_slam._lazy import lazy_exports
 
-__all__ = ["MODES", "MSASampler", "ScoreWeights", "WindowResult", "optimise_window"]
+_EXPORTS = {"MODES": "params", "MSAParams": "params", "MSASampler": "sampler", "ScoreWeights": "terms",
+            "WindowResult": "terms", "optimise_window": "window"}
+__all__ = list(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

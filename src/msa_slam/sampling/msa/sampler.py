@@ -11,45 +11,21 @@ example does at revisits. The bookkeeping follows the authors' reference impleme
 from __future__ import annotations
 
 import warnings
+from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from msa_slam.errors import InputError
-from msa_slam.sampling import checks
 from msa_slam.sampling.base import AmbiguousWindow, Sampler, Timer
 from msa_slam.sampling.msa.exact import ExactWorkspace
+from msa_slam.sampling.msa.params import MSAParams
 from msa_slam.sampling.msa.terms import ScoreWeights
-from msa_slam.sampling.msa.window import MODES, PI_DEFINITIONS, fell_back, optimise_window
+from msa_slam.sampling.msa.window import fell_back, optimise_window
 
-MAX_CANDIDATES = 2 ** 15 - 2  # per window optimisation, i.e. N <= 16: measured 5 s a window in exact mode
-# (sc20x60, 17811 feasible candidates), 1 s in fast mode; N = 20 took 116 s for 150 frames, N = 30 runs out of memory
-MAX_CANDIDATES_CANONICAL = 2 ** 19 - 2  # N <= 20 with pi="canonical" in fast mode: compiled solver on 2 threads,
-# candidates streamed (benchmarks/bench_msa.py)
 MIN_WINDOW_STEP = 0.01  # a frame joins the window only if it moved this far from the last member
 INITIAL_DMIN, INITIAL_DMAX = 1.0, 5.0  # the bounds before the first window is optimised
 DMIN_FLOOR, DMAX_CAP = 0.01, 5.0  # the reference's limits on the bounds, in metres
 FALLBACK_WARN_MIN = 3  # a warning from this many fallback windows, when they are also most windows so far
-
-
-def check_candidate_count(window: int, neighbours: int, mode: str = "exact", pi: str = "reference") -> None:
-    """Refuse windows whose power set is too large to enumerate (time, then memory, explode).
-
-    A window optimisation scores every subset that starts with the window's first member: 2^(n-1) - 2
-    candidates for n members, and n reaches window + max(neighbours - 1, 0) (old keyframes join a full window,
-    the nearest one left out as the reference does).
-    Canonical pi on the fast path goes to n = 20; the other combinations stay at 16.
-    """
-    members = window + max(neighbours - 1, 0)
-    canonical_fast = mode == "fast" and pi == "canonical"
-    limit, largest = (MAX_CANDIDATES_CANONICAL, 20) if canonical_fast else (MAX_CANDIDATES, 16)
-    if 2 ** min(members - 1, 64) - 2 > limit:
-        count = f"{2 ** (members - 1) - 2}" if members <= 64 else f"about 10^{int((members - 1) * 0.30103)}"
-        joined = f" (+{neighbours - 1} neighbour{'s' * (neighbours > 2)})" if neighbours > 1 else ""
-        raise InputError(f"sampler 'msa': window={window}{joined}: up to 2^{members - 1} - 2 = {count} candidates "
-                         f"per window optimisation, more than the limit of {limit} "
-                         f"(window + max(neighbours - 1, 0) <= {largest}"
-                         + ("" if canonical_fast else "; up to 20 with mode='fast', pi='canonical'") + ")")
 
 
 def warn_short_stream(frames: int, window: int, members: int | None = None, flush: bool = False,
@@ -72,9 +48,9 @@ def warn_short_stream(frames: int, window: int, members: int | None = None, flus
 class MSASampler(Sampler):
     """MSA keyframe sampler (paper section IV; reference semantics).
 
-    Parameters: window size N, alpha and beta (eq. 8), lambda_l / lambda_u (distance bounds as multiples
-    of the running average step, eq. 7), neighbours (old keyframes near the window's end that join it;
-    the authors' example uses 2), use_rho / use_pi (the paper's ablations), mode "exact" (the reference's
+    Parameters (MSAParams, msa/params.py): window size N, alpha and beta (eq. 8), lambda_l / lambda_u (distance
+    bounds as multiples of the running average step, eq. 7), neighbours (old keyframes near the window's end that
+    join it; the authors' example uses 2), use_rho / use_pi (the paper's ablations), mode "exact" (the reference's
     floating-point path) or "fast" (Gram-matrix formulation), pi "reference" (LAPACK's eigenvectors, the
     authors' keyframes) or "canonical" (eigenvectors fixed from the data alone: the same keyframes on
     every machine, msa/canonical.py). Windows whose choice rounding could change are counted in
@@ -87,27 +63,16 @@ class MSASampler(Sampler):
     """
 
     name = "msa"
+    Params = MSAParams
+    params: MSAParams
     needs_descriptors = True
 
-    def __init__(self, window: int = 10, alpha: float = 1.0, beta: float = 1.0, lambda_l: float = 0.1,
-                 lambda_u: float = 3.0, neighbours: int = 0, use_rho: bool = True, use_pi: bool = True,
-                 mode: str = "exact", pi: str = "reference", min_motion: float = 0.0,
-                 min_rotation: float = 0.0) -> None:
-        super().__init__(min_motion, min_rotation)
-        self.window_size = checks.integer(self.name, "window", window, 3)
-        self.neighbours = checks.integer(self.name, "neighbours", neighbours, 0)
-        alpha = checks.finite_float(self.name, "alpha", alpha, 0.0, exclusive=True)
-        beta = checks.finite_float(self.name, "beta", beta, 0.0, exclusive=True)
-        self.lambda_l = checks.finite_float(self.name, "lambda_l", lambda_l, 0.0)
-        self.lambda_u = checks.finite_float(self.name, "lambda_u", lambda_u, 0.0, exclusive=True)
-        if self.lambda_l > self.lambda_u:
-            raise InputError(f"sampler 'msa': lambda_l={lambda_l!r} > lambda_u={lambda_u!r} is not allowed; "
-                             f"expected lambda_l <= lambda_u")
-        self.mode = checks.choice(self.name, "mode", mode, MODES)
-        self.pi = checks.choice(self.name, "pi", pi, PI_DEFINITIONS)
-        check_candidate_count(self.window_size, self.neighbours, self.mode, self.pi)
-        self.weights = ScoreWeights(alpha, beta, checks.boolean(self.name, "use_rho", use_rho),
-                                    checks.boolean(self.name, "use_pi", use_pi))
+    def __init__(self, params: MSAParams | None = None, /, **given: Any) -> None:
+        super().__init__(params, **given)
+        p = self.params
+        self.window_size, self.neighbours, self.mode, self.pi = p.window, p.neighbours, p.mode, p.pi
+        self.lambda_l, self.lambda_u = p.lambda_l, p.lambda_u
+        self.weights = ScoreWeights(p.alpha, p.beta, p.use_rho, p.use_pi)
         self._window: list[int] = []
         self._keyframe_set: set[int] = set()
         self._translation: dict[int, np.ndarray] = {}
