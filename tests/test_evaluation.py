@@ -236,11 +236,10 @@ def test_seed_summary_ranks_at_each_metrics_displayed_precision():
     rows = {0: [{"method": "msa", "pr_auc": 0.9999999999999999, "ate_after_m": 0.412000003},
                 {"method": "all", "pr_auc": 1.0, "ate_after_m": 0.412},
                 {"method": "entropy", "pr_auc": 0.5, "ate_after_m": 0.5}]}
-    metrics = seed_summary(rows)["metrics"]
-    assert {m: e["ranks"] for m, e in metrics["pr_auc"]["methods"].items()} == {"msa": [1], "all": [1], "entropy": [3]}
-    assert {m: e["ranks"] for m, e in metrics["ate_after_m"]["methods"].items()} == {
-        "msa": [1], "all": [1], "entropy": [3]}
-    assert metrics["pr_auc"]["methods"]["msa"]["values"] == [0.9999999999999999]  # the values stay as measured
+    metrics = seed_summary(rows).metrics
+    assert {m: e.ranks for m, e in metrics["pr_auc"].methods.items()} == {"msa": [1], "all": [1], "entropy": [3]}
+    assert {m: e.ranks for m, e in metrics["ate_after_m"].methods.items()} == {"msa": [1], "all": [1], "entropy": [3]}
+    assert metrics["pr_auc"].methods["msa"].values == [0.9999999999999999]  # the values stay as measured
 
 
 def test_ate_difference_figure_labels_its_reference(tmp_path, monkeypatch):

@@ -431,7 +431,7 @@ def write_spread(out: Path, base: RunConfig, rows: dict[int, list[TableRow]], fa
     write_text_atomic(out / "seeds.md", table)
     write_text_atomic(out / "seeds.csv", rows_csv(seed_rows(summary), SEED_COLUMNS))
     with atomic_path(out / "seeds.json") as path:
-        write_json(path, summary)
+        write_json(path, summary.to_json())
     lines = [f"# Sampler comparison over world seeds: `{base.dataset}`", "",
              "Each seed simulates a different world along the same trajectory; every seed's full comparison "
              "(table, figures, per-method runs) is under seeds/seed-<n>/. Metrics as in those reports (ATE and "
