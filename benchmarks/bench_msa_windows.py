@@ -37,6 +37,7 @@ from msa_slam.experiments.folder import cell_dir, read_cell
 from msa_slam.experiments.grid import GridSpec, SamplerSpec, expand
 from msa_slam.experiments.runner import run_grid
 from msa_slam.io.atomic import write_text_atomic
+from msa_slam.evaluation.run_metrics import RunMetrics
 from msa_slam.pipeline.compare import table_row
 from msa_slam.pipeline.seeds import parse_seeds
 from msa_slam.sampling import make_sampler
@@ -101,11 +102,12 @@ def chance_jaccard_pct(keyframes: float, frames: float) -> float:
     return 100.0 * keyframes / (2 * frames - keyframes)
 
 
-def row_values(metrics: Mapping[str, Any]) -> dict[str, Any]:
-    """A run's table values: compare's columns plus the MSA statistics and the keyframe frames."""
-    stats = metrics["sampler_stats"]
-    return {**table_row(metrics), "frames": metrics["frames"], "window_ms": stats["optimisation_ms_median"],
-            "ambiguous": stats["ambiguous_windows"], "keyframe_frames": list(metrics["keyframe_frames"])}
+def row_values(metrics: RunMetrics) -> dict[str, Any]:
+    """A run's table values: compare's columns plus the MSA statistics and the keyframe frames (of the cell's
+    metrics.json, which records them)."""
+    stats = metrics.sampler_stats
+    return {**table_row(metrics), "frames": metrics.run.frames, "window_ms": stats["optimisation_ms_median"],
+            "ambiguous": stats["ambiguous_windows"], "keyframe_frames": list(metrics.stamp.keyframe_frames)}
 
 
 def _cell(values: Sequence[float | None], spec: str) -> str:

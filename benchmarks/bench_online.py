@@ -45,6 +45,7 @@ import time
 import numpy as np
 
 from msa_slam.datasets import Frame
+from msa_slam.evaluation import fmt
 from msa_slam.odometry import KissOdometry
 from msa_slam.pipeline.online import STEPS, run_online
 from msa_slam.pipeline.online_config import make_online_config
@@ -105,16 +106,17 @@ def scale(quiet: bool) -> None:
             r = run_online(cfg, quiet=quiet)
             wall = time.perf_counter() - t0
         m, mem = r.metrics, r.memory
+        kt, th = m.keyframe_trajectory, m.throughput
         km = float(np.linalg.norm(np.diff(r.gt_poses[:, :3, 3], axis=0), axis=1).sum()) / 1e3
         ram = mem["descriptor_bytes"][-1] + mem["graph_bytes"][-1] + mem["cloud_bytes"][-1]
         mib = lambda b: f"{b / 2**20:.0f}"  # noqa: E731
-        rows.append([r.name, m["frames"], f"{km:.1f}", m["keyframes"], m["verified"], m["false_loops"],
-                     f"{m['before']['ate_translation_m']:.2f} -> {m['after']['ate_translation_m']:.2f}",
-                     f"{m['f1_max']:.3f}", f"{m['bytes_per_keyframe']:.0f}", mib(ram),
-                     mib(m["memory_bytes"]["keyframe_clouds_on_disk"]),
+        rows.append([r.name, m.run.frames, f"{km:.1f}", m.run.keyframes, m.loops.verified, m.loops.false_loops,
+                     f"{fmt(kt.before.ate_translation_m, '.2f')} -> {fmt(kt.after.ate_translation_m, '.2f')}",
+                     fmt(m.place_recognition.f1_max), f"{m.memory.bytes_per_keyframe(m.run.keyframes):.0f}",
+                     mib(ram), mib(m.memory.accounted.clouds_on_disk),
                      mib(mem["rss_bytes"][len(mem["rss_bytes"]) // 10]),
-                     mib(mem["rss_bytes"][-1]), mib(m["peak_rss_bytes"]), f"{m['backend_fps']:.1f}",
-                     f"{m['latency_ms']['backend']['p99']:.1f}", f"{wall:.0f}"])
+                     mib(mem["rss_bytes"][-1]), mib(m.memory.peak_rss_bytes), f"{th.backend_fps:.1f}",
+                     f"{th.latency_ms['backend'].p99:.1f}", f"{wall:.0f}"])
         print("| " + " | ".join(head) + " |\n|" + "---|" * len(head) + "\n| " + " | ".join(map(str, rows[-1])) + " |",
               flush=True)
     print("\n| " + " | ".join(head) + " |")
@@ -135,22 +137,22 @@ def memory(laps: int, quiet: bool) -> None:
         r = run_online(make_online_config(base), quiet=quiet)
         wall = time.perf_counter() - t0
     m, mem = r.metrics, r.memory
-    acc = m["memory_bytes"]
+    acc = m.memory.accounted
     series = sum(mem[k] for k in ("cloud_bytes", "descriptor_bytes", "graph_bytes", "record_bytes"))
     lap = len(series) // laps
     late_rss, late_acc = mem["rss_bytes"][-1] - mem["rss_bytes"][lap], series[-1] - series[lap]
     mib = lambda b: f"{b / 2**20:.1f}"  # noqa: E731
-    print(f"\n{r.name}: {m['frames']} frames, {m['keyframes']} keyframes, {m['verified']} loops, {wall:.0f} s\n")
+    print(f"\n{r.name}: {m.run.frames} frames, {m.run.keyframes} keyframes, {m.loops.verified} loops, {wall:.0f} s\n")
     print("| part | MiB |\n|---|---|")
-    for label, value in [("keyframe descriptors", acc["keyframe_descriptors"]),
-                         ("pose graph (GTSAM, iSAM2)", acc["graph"]),
-                         ("keyframe clouds in RAM", acc["keyframe_clouds"] - acc["keyframe_clouds_on_disk"]),
-                         ("run records (per frame, loops)", acc["run_records"]), ("map", acc["map"]),
-                         ("accounted in RAM", acc["in_ram"]),
-                         ("(keyframe clouds on disk)", acc["keyframe_clouds_on_disk"]),
-                         ("RSS growth over the run", m["rss_growth_bytes"])]:
+    for label, value in [("keyframe descriptors", acc.keyframe_descriptors),
+                         ("pose graph (GTSAM, iSAM2)", acc.graph),
+                         ("keyframe clouds in RAM", acc.keyframe_clouds - acc.clouds_on_disk),
+                         ("run records (per frame, loops)", acc.run_records), ("map", acc.map),
+                         ("accounted in RAM", acc.in_ram),
+                         ("(keyframe clouds on disk)", acc.clouds_on_disk),
+                         ("RSS growth over the run", m.memory.rss_growth_bytes)]:
         print(f"| {label} | {mib(value)} |")
-    print(f"| ratio RSS growth / accounted | {m['rss_growth_ratio']:.2f} |")
+    print(f"| ratio RSS growth / accounted | {fmt(m.memory.rss_growth_ratio, '.2f')} |")
     print(f"| after lap 1: RSS growth / accounted growth | {mib(late_rss)} / {mib(late_acc)} = "
           f"{late_rss / late_acc:.2f} |")
 
@@ -189,15 +191,15 @@ def main() -> None:
         cfg = make_online_config(dataset=spec, odometry="gt-noise", sampler=sampler, sampler_params=params,
                                  label=label)
         runs = [run_online(cfg, source) for _ in range(args.repeats)]
-        pick = sorted(runs, key=lambda r: r.metrics["backend_fps"])[len(runs) // 2]  # the median run
-        m = pick.metrics
+        pick = sorted(runs, key=lambda r: r.metrics.throughput.backend_fps)[len(runs) // 2]  # the median run
+        m, th = pick.metrics, pick.metrics.throughput
         per_step = [statistics.median(float(r.steps_ms[s].sum()) / n for r in runs) for s in STEPS[1:]]
-        lat = m["latency_ms"]["backend"]
-        rows.append([label, m["keyframes"], m["verified"], f"{m['backend_fps']:.1f}",
-                     f"{m['backend_fps'] / 10:.2f}", *[f"{v:.2f}" for v in per_step],
-                     f"{lat['p50']:.1f}", f"{lat['p99']:.1f}", f"{lat['max']:.0f}"])
-        print(f"  {label}: {m['backend_fps']:.1f} fps (runs: "
-              + ", ".join(f"{r.metrics['backend_fps']:.1f}" for r in runs) + ")", flush=True)
+        lat = th.latency_ms["backend"]
+        rows.append([label, m.run.keyframes, m.loops.verified, f"{th.backend_fps:.1f}",
+                     f"{th.backend_fps / 10:.2f}", *[f"{v:.2f}" for v in per_step],
+                     f"{lat.p50:.1f}", f"{lat.p99:.1f}", f"{lat.max:.0f}"])
+        print(f"  {label}: {th.backend_fps:.1f} fps (runs: "
+              + ", ".join(f"{r.metrics.throughput.backend_fps:.1f}" for r in runs) + ")", flush=True)
     print(f"\n{n} frames of {spec} (odometry: ground truth + noise; KISS-ICP: {1 / kiss:.1f} fps apart)\n")
     print("| " + " | ".join(head) + " |")
     print("|" + "---|" * len(head))

@@ -52,6 +52,8 @@ from pathlib import Path
 import numpy as np
 
 from msa_slam.evaluation import ATE_ALIGNMENT, fmt
+from msa_slam.evaluation.metrics import known as number_or_none
+from msa_slam.evaluation.metrics_json import from_json
 from msa_slam.evaluation.trajectory import ate
 from msa_slam.io.poses import read_poses
 from msa_slam.io.provenance import cpu_model
@@ -192,26 +194,27 @@ def rows_for(sequence: str, seed: int, args: argparse.Namespace, peer: str | Non
             rows.append({"estimator": f"msa-slam {label}", "ape": None, "rot": None, "loops": None, "time": None,
                          "note": "failed: see " + str(run / "error.txt")})
             continue
-        m = json.loads((run / "metrics.json").read_text())
-        front = sum(m["frontend_time_s"].values())
+        m = from_json(json.loads((run / "metrics.json").read_text()), str(run / "metrics.json"))
+        front = sum(m.timing.frontend_s.values())
         if first:  # the odometry every msa-slam method shares
             t, r = ape(read_poses(run / "trajectories" / "odometry.kitti")[0], gt)
-            cached = " (replayed from the cache: time when computed)" if m["frontend_cached"].get("odometry") else ""
-            threads = counted(m["threads"]["odometry"], "thread")
+            replayed = m.timing.frontend_cached.get("odometry")
+            cached = " (replayed from the cache: time when computed)" if replayed else ""
+            threads = counted(m.setup.odometry_threads, "thread")
             rows.append({"estimator": "msa-slam odometry (KISS-ICP)", "ape": t, "rot": r, "loops": None,
-                         "time": m["frontend_time_s"].get("odometry"), "odometry": True,
-                         "note": f"{threads}; {deskew_note(m['odometry_config'])}{cached}"})
+                         "time": m.timing.frontend_s.get("odometry"), "odometry": True,
+                         "note": f"{threads}; {deskew_note(m.setup.odometry_config)}{cached}"})
             first = False
         t, r = ape(read_poses(run / "trajectories" / "optimised.kitti")[0], gt)
-        acc = m["loop_accounting"]
-        recall = fmt(acc["revisit_keyframe_recall"], ".2f")
+        acc = m.loops.accounting
+        recall = fmt(acc.revisit_keyframe_recall, ".2f")
         rows.append({"estimator": f"msa-slam {label}", "ape": t, "rot": r, "method": label,
-                     "recall": acc["revisit_keyframe_recall"], "false": acc["false_accepted"],
-                     "loops": f"{acc['accepted']} of {acc['candidates']} cand. ({acc['false_accepted']} false), "
+                     "recall": number_or_none(acc.revisit_keyframe_recall), "false": number_or_none(acc.false_accepted),
+                     "loops": f"{acc.accepted} of {acc.candidates} cand. ({number_or_none(acc.false_accepted)} false), "
                               f"revisit kf recall {recall}",
-                     "time": front + m["time_s"]["backend_total"],
-                     "note": f"{m['keyframes']} keyframes; front end {front:.1f} s + back end "
-                             f"{m['time_s']['backend_total']:.1f} s"})
+                     "time": front + m.timing.backend_total,
+                     "note": f"{m.run.keyframes} keyframes; front end {front:.1f} s + back end "
+                             f"{m.timing.backend_total:.1f} s"})
     conditions = {"sequence": f"simulated {trajectory_name(sequence)}", "seed": seed, "frames": len(gt),
                   "compare_wall_s": wall}
     return rows, conditions

@@ -15,6 +15,7 @@ import argparse
 import statistics
 import time
 
+from msa_slam.evaluation.metrics import known
 from msa_slam.pipeline import make_config, prepare_frontend, run_batch
 from msa_slam.pipeline.batch import BACKEND_STAGES
 from msa_slam.pipeline.compare import method_configs
@@ -47,14 +48,15 @@ def main() -> None:
     for cfg in method_configs(base):
         runs = [run_batch(cfg, frontend).metrics for _ in range(args.repeats)]
         m = runs[-1]
-        med = {s: statistics.median(r["time_s"].get(s, 0.0) for r in runs) for s in (*BACKEND_STAGES, "backend_total")}
-        mem = m["memory_bytes"]
-        fractions = [r["sampler_realtime_fraction"] for r in runs]
+        med = {s: statistics.median(r.timing.stages.get(s, 0.0) for r in runs)  # the stages a batch run has
+               for s in (*BACKEND_STAGES, "backend_total")}
+        mem = m.memory.accounted
+        fractions = [known(r.timing.sampler_realtime_fraction) for r in runs]
         fraction = "n/a" if None in fractions else f"{statistics.median(fractions):.4f}"
-        row = [cfg.name, m["keyframes"], m["candidates"], m["verified"], *(f"{med[s]:.2f}" for s in BACKEND_STAGES),
-               f"{med['backend_total']:.2f}", fraction, f"{mem['keyframe_descriptors'] / 2**20:.2f}",
-               f"{mem['keyframe_clouds'] / 2**20:.1f}", f"{mem['graph'] / 2**10:.0f}",
-               f"{m['peak_rss_bytes'] / 2**20:.0f}"]
+        row = [cfg.name, m.run.keyframes, m.loops.candidates, m.loops.verified,
+               *(f"{med[s]:.2f}" for s in BACKEND_STAGES), f"{med['backend_total']:.2f}", fraction,
+               f"{mem.keyframe_descriptors / 2**20:.2f}", f"{mem.keyframe_clouds / 2**20:.1f}",
+               f"{mem.graph / 2**10:.0f}", f"{m.memory.peak_rss_bytes / 2**20:.0f}"]
         print(" | ".join(map(str, row)), flush=True)
 
 

@@ -41,6 +41,7 @@ import numpy as np
 from numpy import trapezoid
 
 from msa_slam.evaluation.full_rate import KITTI_LENGTHS_M, STEP_FRAMES, segment_error_motions
+from msa_slam.evaluation.metrics import known, reason_of
 from msa_slam.pipeline import make_config, prepare_frontend, run_batch
 from msa_slam.pipeline.compare import method_configs
 from msa_slam.sources import resolve_dataset
@@ -113,17 +114,18 @@ def evaluate(spec: str, cache_dir: str | None, pair_step: int) -> dict:
     runs = {cfg.name: run_batch(cfg, frontend, sweep=False)  # the threshold sweep is not in this table
             for cfg in method_configs(base, METHODS)}
     kf_const, kf_spac = set(runs["constant-3m"].keyframes.tolist()), set(runs["spaciousness"].keyframes.tolist())
+    reference = {name: run.metrics.place_recognition.reference for name, run in runs.items()}  # batch: ReferencePR
     return {
         "frames": len(frontend), "rte": rte, "best": best, "above": above,
-        "auc_all": runs["all"].metrics["pr_reference"]["pr_auc"],
+        "auc_all": known(reference["all"].pr_auc),
         "auc_all_perfect": perfect_precision_auc(runs["all"].pr_reference),
         "recall_all_08": recall_at(runs["all"].pr_reference, THRESHOLD),
-        "matches_all": runs["all"].metrics["pr_reference"]["matches"],
-        "auc_c2": runs["constant-2m"].metrics["pr_reference"]["pr_auc"],
-        "batch_all": runs["all"].metrics["pr_auc"], "batch_c2": runs["constant-2m"].metrics["pr_auc"],
+        "matches_all": reference["all"].matches, "auc_c2": known(reference["constant-2m"].pr_auc),
+        "batch_all": known(runs["all"].metrics.place_recognition.pr_auc),
+        "batch_c2": known(runs["constant-2m"].metrics.place_recognition.pr_auc),
         "batch_all_perfect": perfect_precision_auc(runs["all"].pr),
-        "auc_all_why": runs["all"].metrics["unavailable"].get("pr_reference"),
-        "batch_all_why": runs["all"].metrics["unavailable"].get("pr"),
+        "auc_all_why": reason_of(reference["all"].pr_auc),
+        "batch_all_why": reason_of(runs["all"].metrics.place_recognition.pr_auc),
         "spac_diff": len(kf_const ^ kf_spac) / max(1, len(kf_const | kf_spac)),
         "kf": (len(kf_spac), len(kf_const)),
         "scans_per_s": len(frontend) / sim_s if sim_s > 1.0 else None, "disk": disk_per_scan(folder),

@@ -10,6 +10,7 @@ import msa_slam.evaluation.resources as resources
 from msa_slam.errors import InputError
 from msa_slam.evaluation import (AlignmentError, StageTimer, align_se3, alignment_warnings, array_bytes, ate,
                                  evaluate_trajectories, fmt, improvement, improvement_pct, notes, peak_rss_bytes, rpe)
+from msa_slam.evaluation.metrics import Unavailable
 
 
 def _curve(n: int = 40) -> np.ndarray:
@@ -145,15 +146,16 @@ def test_undetermined_alignment_gives_ate_none_with_reason(reference):
         align_se3(estimate, reference)
     assert ate(estimate, reference, align=False).rotation_rmse == pytest.approx(1.0)  # unaligned ATE still works
     ev = evaluate_trajectories(estimate, reference, reference, np.arange(len(reference)))
-    m = ev.metrics
-    assert m["before"]["ate_translation_m"] is None and m["before"]["ate_rotation_deg"] is None
-    assert m["after"]["ate_translation_m"] == m["after"]["ate_rotation_deg"] is None
-    assert m["improvement_pct"] == {"translation": None, "rotation": None}
-    assert list(m["unavailable"]) == ["ate"] and "undetermined" in m["unavailable"]["ate"]
-    assert ev.errors == {"odometry": None, "optimised": None} and m["ate_rotation_reliable"] is None
+    m, why = ev.trajectory, ev.reasons
+    assert list(why) == ["ate"] and "undetermined" in why["ate"]
+    gone = Unavailable(why["ate"])
+    assert m.before.ate_translation_m == m.before.ate_rotation_deg == gone
+    assert m.after.ate_translation_m == m.after.ate_rotation_deg == gone
+    assert m.improvement.translation == m.improvement.rotation == gone
+    assert ev.errors == {"odometry": None, "optimised": None} and m.rotation_reliable == gone
     # RPE needs no alignment: a constant 1 degree offset leaves the relative motions exact
-    assert m["before"]["rpe_rotation_deg"] == pytest.approx(0.0, abs=1e-6)
-    assert notes(m)[0].startswith("ATE (and its % improvement) n/a: SE(3) alignment undetermined")
+    assert m.before.rpe_rotation_deg == pytest.approx(0.0, abs=1e-6)
+    assert notes(why, ev.warnings)[0].startswith("ATE (and its % improvement) n/a: SE(3) alignment undetermined")
 
 
 def test_short_straight_run_warns_that_rotation_ate_is_unreliable():
@@ -167,11 +169,11 @@ def test_short_straight_run_warns_that_rotation_ate_is_unreliable():
         f"nearly straight: ground-truth positions spread {0.05 * np.std(np.sin(np.arange(n))):.3f} m across the "
         "main direction (less than 2 m)"]
     ev = evaluate_trajectories(est, ref, ref, np.arange(n))
-    assert ev.metrics["before"]["ate_translation_m"] == pytest.approx(0.01, rel=0.05)
-    assert ev.metrics["ate_rotation_reliable"] is False
+    assert ev.trajectory.before.ate_translation_m == pytest.approx(0.01, rel=0.05)
+    assert ev.trajectory.rotation_reliable is False
     assert len(ev.warnings) == 1 and ev.warnings[0].startswith("rotation ATE unreliable") and "nearly straight" in \
         ev.warnings[0]
-    assert "all 30 keyframes (frames 0..29)" in ev.metrics["ate_alignment"]
+    assert "all 30 keyframes (frames 0..29)" in ev.trajectory.alignment
     small = _curve(8)
     small[:, :3, 3] *= 0.05  # a 5 m stretch of the helix
     short = alignment_warnings(small)
@@ -183,13 +185,14 @@ def test_well_spread_run_has_no_alignment_warning():
     odometry = ref.copy()
     odometry[:, 2, 3] += 0.2 * (-1.0) ** np.arange(41)
     ev = evaluate_trajectories(_rigid(10, [1, 2, 3]) @ odometry, ref, ref, np.arange(41))
-    m = ev.metrics
-    assert alignment_warnings(ref) == [] and ev.warnings == [] and m["unavailable"] == {}
-    assert m["ate_rotation_reliable"] is True and m["before"]["ate_translation_m"] == pytest.approx(0.2, abs=0.005)
-    assert m["improvement_pct"]["translation"] == pytest.approx(100.0)
-    perfect = evaluate_trajectories(ref, ref, ref, np.arange(41)).metrics
-    assert perfect["improvement_pct"] == {"translation": None, "rotation": None}
-    assert "odometry ATE translation is 0" in perfect["unavailable"]["improvement_translation"]
+    m = ev.trajectory
+    assert alignment_warnings(ref) == [] and ev.warnings == [] and ev.reasons == {}
+    assert m.rotation_reliable is True and m.before.ate_translation_m == pytest.approx(0.2, abs=0.005)
+    assert m.improvement.translation == pytest.approx(100.0)
+    perfect = evaluate_trajectories(ref, ref, ref, np.arange(41))
+    why = perfect.reasons["improvement_translation"]
+    assert "odometry ATE translation is 0" in why and perfect.trajectory.improvement.translation == Unavailable(why)
+    assert isinstance(perfect.trajectory.improvement.rotation, Unavailable)
 
 
 def test_improvement_pct_is_none_when_undefined():
@@ -233,11 +236,10 @@ def test_seed_summary_ranks_at_each_metrics_displayed_precision():
     rows = {0: [{"method": "msa", "pr_auc": 0.9999999999999999, "ate_after_m": 0.412000003},
                 {"method": "all", "pr_auc": 1.0, "ate_after_m": 0.412},
                 {"method": "entropy", "pr_auc": 0.5, "ate_after_m": 0.5}]}
-    metrics = seed_summary(rows)["metrics"]
-    assert {m: e["ranks"] for m, e in metrics["pr_auc"]["methods"].items()} == {"msa": [1], "all": [1], "entropy": [3]}
-    assert {m: e["ranks"] for m, e in metrics["ate_after_m"]["methods"].items()} == {
-        "msa": [1], "all": [1], "entropy": [3]}
-    assert metrics["pr_auc"]["methods"]["msa"]["values"] == [0.9999999999999999]  # the values stay as measured
+    metrics = seed_summary(rows).metrics
+    assert {m: e.ranks for m, e in metrics["pr_auc"].methods.items()} == {"msa": [1], "all": [1], "entropy": [3]}
+    assert {m: e.ranks for m, e in metrics["ate_after_m"].methods.items()} == {"msa": [1], "all": [1], "entropy": [3]}
+    assert metrics["pr_auc"].methods["msa"].values == [0.9999999999999999]  # the values stay as measured
 
 
 def test_ate_difference_figure_labels_its_reference(tmp_path, monkeypatch):

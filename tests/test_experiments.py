@@ -22,6 +22,7 @@ from msa_slam.experiments.identity import CELL_IDENTITY, cell_identities
 from msa_slam.io.outputs import OutputError, open_result_folder, write_marker
 from msa_slam.io import staging
 from test_cli_main import run_cli
+from helpers.metrics import stored_metrics
 
 TINY = {
     "name": "t",
@@ -144,12 +145,18 @@ def _fake_experiment(root: Path, grid_data: dict, memory: dict[str, int], ate_af
     """finished_experiment with made-up metrics per method (`memory` bytes, `ate_after` metres)."""
     def metrics(cell: Cell) -> dict:
         ate = ate_after[cell.method]
-        return {"frames": 100, "keyframes": 50, "candidates": 4, "verified": 3, "false_loops": 0,
-                "before": {"ate_translation_m": 2.0}, "after": {"ate_translation_m": ate},
-                "improvement_pct": {"translation": 100 * (2.0 - ate) / 2.0, "rotation": 10.0},
-                "pr_auc": 0.9, "f1_max": 0.8, "memory_bytes": {"total": memory[cell.method]},
-                "peak_rss_bytes": 2**20, "time_s": {"backend_total": 1.0}, "fps": 50.0, "backend_fps": 60.0,
-                "latency_ms": {"backend": {"p99": 12.0}}, "msa_slam_version": msa_slam.__version__}
+        m = stored_metrics(f"{cell.pipeline}.json")
+        improvement = {"translation": 100 * (2.0 - ate) / 2.0, "rotation": 10.0}
+        for block in (m, m["full_rate"]):
+            block["before"]["ate_translation_m"], block["after"]["ate_translation_m"] = 2.0, ate
+            block["improvement_pct"] = dict(improvement)
+        m.update(frames=100, keyframes=50, candidates=4, verified=3, false_loops=0, pr_auc=0.9, f1_max=0.8,
+                 peak_rss_bytes=2**20, msa_slam_version=msa_slam.__version__)
+        m["memory_bytes"]["total"], m["time_s"]["backend_total"] = memory[cell.method], 1.0
+        if cell.pipeline == "online":
+            m.update(fps=50.0, backend_fps=60.0)
+            m["latency_ms"]["backend"]["p99"] = 12.0
+        return m
 
     return finished_experiment(root, grid_data, metrics)
 
@@ -191,7 +198,7 @@ def test_changed_grid_into_same_out_reports_only_its_own_cells(tmp_path):
     (new,) = expand(parse_grid(changed))
     assert run.ran == [new.id] and not run.skipped and not run.failed
     assert run.stale == sorted(c.id for c in old)
-    assert [c["info"]["id"] for c in load_cells(tmp_path)] == [new.id]
+    assert [c.info["id"] for c in load_cells(tmp_path)] == [new.id]
     assert len((tmp_path / "results.csv").read_text().splitlines()) == 2
     assert ("1 seed(s)" in (tmp_path / "results.md").read_text()
             and "const-2m" not in (tmp_path / "results.md").read_text())

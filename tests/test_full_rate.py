@@ -8,6 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from msa_slam.errors import InputError
 from msa_slam.evaluation import evaluate_full_rate, full_rate_poses, segment_errors
+from msa_slam.evaluation.metrics import Unavailable
 
 
 def _circle(n: int, radius: float) -> np.ndarray:
@@ -60,11 +61,11 @@ def test_segment_rpe_measures_a_scale_error_per_travelled_distance():
     reference = np.tile(np.eye(4), (1000, 1, 1))
     reference[:, 0, 3] = np.arange(1000.0)
     estimate = _scaled(reference, 1.02)
-    metrics = evaluate_full_rate(estimate, estimate, reference)
-    assert metrics["before"]["rpe_kitti_translation_pct"] == pytest.approx(2.0, rel=1e-9)
-    assert metrics["before"]["rpe_10m_translation_m"] == pytest.approx((990 * 0.2 + 0.18) / 991, rel=1e-9)
-    assert metrics["before"]["ate_translation_m"] is None  # a line: the alignment is undetermined
-    assert "alignment undetermined" in metrics["unavailable"]["full_rate_ate"]
+    full = evaluate_full_rate(estimate, estimate, reference)
+    assert full.trajectory.before.rpe_kitti_translation_pct == pytest.approx(2.0, rel=1e-9)
+    assert full.trajectory.before.rpe_10m_translation_m == pytest.approx((990 * 0.2 + 0.18) / 991, rel=1e-9)
+    assert "alignment undetermined" in full.reasons["full_rate_ate"]  # a line: the alignment is undetermined
+    assert full.trajectory.before.ate_translation_m == Unavailable(full.reasons["full_rate_ate"])
     trans, _ = segment_errors(estimate, reference, 800.0, step=10)
     assert len(trans) == 20 and np.allclose(trans, 16.0)
 
@@ -101,30 +102,30 @@ def test_10m_rpe_is_what_the_documented_evo_command_prints():
     estimate[:, :3, 3] += rng.normal(0, 0.05, (400, 3))
     for pose, turn in zip(estimate, rng.normal(0, 0.02, 400)):  # heading noise (rad): a rotation error too
         pose[:3, :3] = pose[:3, :3] @ [[np.cos(turn), -np.sin(turn), 0], [np.sin(turn), np.cos(turn), 0], [0, 0, 1]]
-    metrics = evaluate_full_rate(estimate, estimate, reference)["before"]
+    metrics = evaluate_full_rate(estimate, estimate, reference).trajectory.before
     assert "--all_pairs --pairs_from_reference" in RPE_10M_EVO and "--delta 10 --delta_unit m" in RPE_10M_EVO
-    assert metrics["rpe_10m_translation_m"] == pytest.approx(_evo_rpe_mean(reference, estimate, "trans_part"),
-                                                            rel=1e-9)
-    assert metrics["rpe_10m_rotation_deg"] == pytest.approx(_evo_rpe_mean(reference, estimate, "angle_deg"),
-                                                           rel=1e-7)
-    assert metrics["rpe_10m_translation_m"] > 0.1 and metrics["rpe_10m_rotation_deg"] > 1  # real errors, not zeros
+    evo_mean = _evo_rpe_mean(reference, estimate, "trans_part")
+    assert metrics.rpe_10m_translation_m == pytest.approx(evo_mean, rel=1e-9)
+    assert metrics.rpe_10m_rotation_deg == pytest.approx(_evo_rpe_mean(reference, estimate, "angle_deg"), rel=1e-7)
+    assert metrics.rpe_10m_translation_m > 0.1 and metrics.rpe_10m_rotation_deg > 1  # real errors, not zeros
 
 
 def test_short_run_has_no_kitti_segments_and_says_why():
     reference = _circle(100, 10.0)  # 63 m of path
-    metrics = evaluate_full_rate(_scaled(reference, 1.01), reference, reference)
-    assert metrics["before"]["rpe_kitti_translation_pct"] is None
-    assert "62.2 m, shorter than KITTI's shortest segment (100 m)" in metrics["unavailable"]["rpe_kitti"]
-    assert metrics["before"]["rpe_10m_translation_m"] > 0 and metrics["after"]["ate_translation_m"] < 1e-9
-    assert metrics["improvement_pct"]["translation"] == pytest.approx(100.0)
+    full = evaluate_full_rate(_scaled(reference, 1.01), reference, reference)
+    assert "62.2 m, shorter than KITTI's shortest segment (100 m)" in full.reasons["rpe_kitti"]
+    assert full.trajectory.before.rpe_kitti_translation_pct == Unavailable(full.reasons["rpe_kitti"])
+    assert full.trajectory.before.rpe_10m_translation_m > 0 and full.trajectory.after.ate_translation_m < 1e-9
+    assert full.trajectory.improvement.translation == pytest.approx(100.0)
 
 
 def test_without_ground_truth_full_rate_metrics_are_na():
     odometry = _circle(20, 5.0)
     nan = np.full_like(odometry, np.nan)
-    metrics = evaluate_full_rate(odometry, odometry, nan)
-    assert metrics["before"]["ate_translation_m"] is None and metrics["improvement_pct"]["translation"] is None
-    assert metrics["unavailable"] == {"full_rate_ate": "no ground-truth pose for every frame"}
+    full = evaluate_full_rate(odometry, odometry, nan)
+    assert full.reasons == {"full_rate_ate": "no ground-truth pose for every frame"}
+    gone = Unavailable("no ground-truth pose for every frame")
+    assert full.trajectory.before.ate_translation_m == full.trajectory.improvement.translation == gone
 
 
 def _drifting(reference: np.ndarray, seed: int) -> np.ndarray:
@@ -151,11 +152,11 @@ def test_kitti_segment_rpe_equals_kiss_icps_port_of_the_devkit(seed):
     reference = _circle(1500, 250.0)
     reference[:, :3, 3] += rng.normal(0, 0.05, (len(reference), 3))  # uneven steps: no exact segment lengths
     estimate = _drifting(reference, seed)
-    ours = evaluate_full_rate(estimate, estimate, reference)["before"]
+    ours = evaluate_full_rate(estimate, estimate, reference).trajectory.before
     translation_pct, rotation_deg_per_m = sequence_error(reference, estimate)
-    assert ours["rpe_kitti_translation_pct"] == pytest.approx(translation_pct, rel=1e-6)
-    assert ours["rpe_kitti_rotation_deg_per_100m"] / 100 * np.pi / 3.14 == pytest.approx(rotation_deg_per_m, rel=1e-6)
-    assert ours["rpe_kitti_rotation_deg_per_100m"] / 100 != pytest.approx(rotation_deg_per_m, rel=1e-4)  # 3.14
+    assert ours.rpe_kitti_translation_pct == pytest.approx(translation_pct, rel=1e-6)
+    assert ours.rpe_kitti_rotation_deg_per_100m / 100 * np.pi / 3.14 == pytest.approx(rotation_deg_per_m, rel=1e-6)
+    assert ours.rpe_kitti_rotation_deg_per_100m / 100 != pytest.approx(rotation_deg_per_m, rel=1e-4)  # 3.14
 
 
 def test_a_segment_ends_at_the_first_frame_at_least_its_length_away():
@@ -166,6 +167,6 @@ def test_a_segment_ends_at_the_first_frame_at_least_its_length_away():
     reference = np.tile(np.eye(4), (400, 1, 1))
     reference[:, 0, 3] = np.arange(400.0)  # 1 m steps: every segment end is exact
     estimate = _scaled(reference, 1.01)
-    ours = evaluate_full_rate(estimate, estimate, reference)["before"]["rpe_kitti_translation_pct"]
+    ours = evaluate_full_rate(estimate, estimate, reference).trajectory.before.rpe_kitti_translation_pct
     assert ours == pytest.approx(1.0, rel=1e-9)
     assert sequence_error(reference, estimate)[0] > 1.0 + 1e-3  # 101 m (201, 301 m) of 1 % error over 100 m

@@ -167,8 +167,31 @@ def test_input_has_keyframes_and_loops(golden_run):
 
 
 @pytest.fixture(scope="module")
-def golden_run(tmp_path_factory) -> dict[str, Any]:
-    return json.loads(json.dumps(produce(tmp_path_factory.mktemp("golden"))))
+def golden_root(tmp_path_factory) -> tuple[Path, dict[str, Any]]:
+    """The folder the commands wrote into, and their summaries."""
+    root = tmp_path_factory.mktemp("golden")
+    return root, json.loads(json.dumps(produce(root)))
+
+
+@pytest.fixture(scope="module")
+def golden_run(golden_root) -> dict[str, Any]:
+    return golden_root[1]
+
+
+def test_metrics_files_read_back_to_the_same_bytes(golden_root):
+    """Every metrics.json (run, online, compare's methods) and comparison.json the commands wrote, read into the
+    typed report and written again: the same bytes."""
+    from msa_slam.evaluation.metrics_json import from_json, to_json
+    from msa_slam.io.tables import write_json
+
+    files = sorted([*golden_root[0].rglob("metrics.json"), *golden_root[0].rglob("comparison.json")])
+    assert len(files) == 5
+    for path in files:
+        data = json.loads(path.read_text())
+        again = [to_json(from_json(m, str(path))) for m in data] if isinstance(data, list) else to_json(
+            from_json(data, str(path)))
+        write_json(path.with_name("again.json"), again)
+        assert path.with_name("again.json").read_bytes() == path.read_bytes(), path
 
 
 def test_outputs_equal_the_golden(golden_run):

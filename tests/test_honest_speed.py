@@ -7,12 +7,14 @@ from __future__ import annotations
 
 import json
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
 
 from msa_slam.cli import app
+from msa_slam.evaluation.metrics import Timing
 from msa_slam.evaluation.resources import throughput
 from msa_slam.experiments.estimate import recorded_seconds
 from test_real_inputs_times import _kitti
@@ -90,8 +92,7 @@ def test_batch_stage_times_count_replayed_stages_as_computed(tmp_path):
 
 def test_a_grid_estimate_counts_what_a_cell_spent_not_replayed_time():
     """A cell that replayed its front end spent its time reading it, not the time it counts as computed."""
-    metrics = {"time_s": {"odometry": 2.5, "sampling": 1.0, "backend_total": 1.0},
-               "frontend_time_s": {"dataset": 0.5, "descriptors": 3.0},
-               "replayed_time_s": {"odometry": 2.0, "descriptors": 2.75}}
-    assert recorded_seconds(metrics) == pytest.approx(2.5 + 1.0 + 0.5 + 3.0 - 2.0 - 2.75)
-    assert recorded_seconds({k: v for k, v in metrics.items() if k != "replayed_time_s"}) == pytest.approx(7.0)
+    timing = Timing(stages={"odometry": 2.5, "sampling": 1.0, "backend_total": 1.0, "threshold_sweep": None},
+                    replayed_s={"odometry": 2.0, "descriptors": 2.75}, frontend_s={"dataset": 0.5, "descriptors": 3.0})
+    assert recorded_seconds(timing) == pytest.approx(2.5 + 1.0 + 0.5 + 3.0 - 2.0 - 2.75)
+    assert recorded_seconds(replace(timing, replayed_s={})) == pytest.approx(7.0)

@@ -85,7 +85,7 @@ def test_near_miss_with_a_wrong_yaw_is_rejected_on_drift(scans):
     assert len(loops) == 1 and not loops[0].accepted and loops[0].rejected == "drift"
     assert loops[0].T_match_query is not None  # the registration itself succeeded
     summary = loop_summary(loops, closer.settings)
-    assert summary["rejected"]["drift"] == 1 and sum(summary["rejected"].values()) == 1
+    assert summary.rejected["drift"] == 1 and sum(summary.rejected.values()) == 1
     for settings in ({"drift_check": "off"}, {"mode": "oracle"}):  # "auto" checks in realistic mode only
         _, unchecked = _close(scans["wrong_yaw"], scans["target"], **settings)
         assert unchecked[0].accepted  # the drift check, not the registration, said no

@@ -349,6 +349,6 @@ def test_the_slam_core_records_loops_left_out_as_inconsistent(drive):
     assert [(c.query, c.accepted, c.rejected) for c in result.loops] == [
         (LAP + 2, True, ""), (LAP + 5, False, "inconsistent"), (LAP + 12, True, "")]
     summary = loop_summary(result.loops, config, result.graph_info)
-    assert summary["rejected"]["inconsistent"] == 1 and summary["inlier_selection"]["kept"] == 2
-    assert summary["loop_kernel"] == "none" and summary["loop_inliers"] == "consistent"
+    assert summary.rejected["inconsistent"] == 1 and summary.details["inlier_selection"]["kept"] == 2
+    assert summary.details["loop_kernel"] == "none" and summary.details["loop_inliers"] == "consistent"
     assert result.graph_factors.size() == len(odom) + 2

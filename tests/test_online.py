@@ -26,6 +26,7 @@ from msa_slam.registration import DiskCloudStore
 from msa_slam.types import FrameSource
 from msa_slam.registration import downsample
 from msa_slam.sampling import make_sampler
+from helpers.metrics import metrics_json
 
 EIGHT = "live:figure-eight,stride=2,azimuth_steps=360,realism=clean"
 COARSE = "live:figure-eight,stride=4,azimuth_steps=180,realism=clean"
@@ -47,7 +48,7 @@ def coarse_runs(tmp_path_factory):
 
 
 def test_online_msa_finds_loops_and_reduces_ate(msa_run):
-    m = msa_run.metrics
+    m = metrics_json(msa_run)
     assert 0 < m["keyframes"] < m["frames"] == 214
     assert m["verified"] >= 3 and m["false_loops"] == 0  # oracle mode verifies only true revisits
     assert m["after"]["ate_translation_m"] < 0.8 * m["before"]["ate_translation_m"]
@@ -58,7 +59,7 @@ def test_online_msa_finds_loops_and_reduces_ate(msa_run):
 
 
 def test_online_memory_accounting_is_monotone_and_matches_totals(msa_run):
-    mem, m = msa_run.memory, msa_run.metrics
+    mem, m = msa_run.memory, metrics_json(msa_run)
     for key in ("keyframes", "cloud_bytes", "descriptor_bytes", "graph_bytes"):
         assert np.all(np.diff(mem[key]) >= 0), key
     assert mem["keyframes"][-1] == m["keyframes"]
@@ -71,7 +72,7 @@ def test_online_memory_accounting_is_monotone_and_matches_totals(msa_run):
 
 
 def test_online_step_times_and_latency(msa_run):
-    m = msa_run.metrics
+    m = metrics_json(msa_run)
     for step in STEPS:
         assert msa_run.steps_ms[step].shape == (214,) and (msa_run.steps_ms[step] >= 0).all()
     new_kf = np.diff(msa_run.memory["keyframes"], prepend=0) > 0
@@ -93,10 +94,11 @@ def test_disk_store_gives_the_same_run_without_clouds_in_ram(coarse_runs):
     assert memory.keyframes.tolist() == disk.keyframes.tolist()
     pairs = lambda run: [(c.query, c.match, c.accepted) for c in run.loops]  # noqa: E731
     assert pairs(memory) == pairs(disk)
-    assert memory.metrics["verified"] > 0
+    assert metrics_json(memory)["verified"] > 0
     np.testing.assert_allclose(memory.optimised, disk.optimised, atol=1e-6)
     assert disk.memory["cloud_bytes"].max() == 0
-    assert disk.metrics["memory_bytes"]["keyframe_clouds_on_disk"] == memory.metrics["memory_bytes"]["keyframe_clouds"]
+    on_disk = metrics_json(disk)["memory_bytes"]["keyframe_clouds_on_disk"]
+    assert on_disk == metrics_json(memory)["memory_bytes"]["keyframe_clouds"]
     assert list(store.iterdir()) == []  # the clouds' folder went at the end of the run; store_dir itself stays
 
 
@@ -262,7 +264,7 @@ def test_long_tour_keeps_memory_bounded(tmp_path):
     cfg = make_online_config(dataset="live:city-tour,stride=2,azimuth_steps=360,laps=3", odometry="gt-noise",
                              sampler="msa", cloud_store="disk", store_dir=str(tmp_path))
     r = run_online(cfg)
-    m, mem = r.metrics, r.memory
+    m, mem = metrics_json(r), r.memory
     assert m["verified"] > 50 and m["false_loops"] == 0
     assert m["after"]["ate_translation_m"] < m["before"]["ate_translation_m"]
     assert mem["cloud_bytes"].max() == 0 and m["memory_bytes"]["keyframe_clouds_on_disk"] > 0
@@ -312,6 +314,6 @@ def test_rss_growth_is_measured_from_backend_start_to_its_end(monkeypatch):
     monkeypatch.setattr(backend_module, "current_rss_bytes", lambda: next(readings))
     source, _, _ = _pausing_source(pause=0)
     cfg = make_online_config(dataset=COARSE, odometry="gt-noise", sampler="constant", sampler_params={"distance": 2.0})
-    metrics = run_online(cfg, source).metrics
+    metrics = metrics_json(run_online(cfg, source))
     assert metrics["rss_growth_bytes"] == 75 * 2**20
     assert metrics["memory_bytes"]["total"] > 0

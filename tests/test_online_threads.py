@@ -18,6 +18,7 @@ from msa_slam.pipeline.online_config import NOT_REPRODUCIBLE, make_online_config
 from msa_slam.pipeline.report import threads_text
 from msa_slam.workers import available_cpus
 from test_real_inputs_times import _kitti
+from helpers.metrics import metrics_json
 
 COARSE = "live:figure-eight,stride=4,azimuth_steps=180,realism=clean"
 CLI = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
@@ -43,18 +44,18 @@ def test_recorded_source_runs_on_one_thread(tmp_path):
     config = make_online_config(dataset=str(_kitti(tmp_path / "seq")), sampler="all", mode="realistic",
                                 cache_dir=str(tmp_path / "cache"))
     result = run_online(config)
-    assert result.metrics["threads"] == {"odometry": 1, "verification": 1, "blas_backend": 1}
+    assert metrics_json(result)["threads"] == {"odometry": 1, "verification": 1, "blas_backend": 1}
     assert "num_threads" not in result.config.odometry_params  # the default, as before
-    assert not [w for w in result.metrics["warnings"] if NOT_REPRODUCIBLE in w]
-    assert threads_text(result.metrics) == "Odometry: KISS-ICP on 1 thread (bit-reproducible)."
+    assert not [w for w in metrics_json(result)["warnings"] if NOT_REPRODUCIBLE in w]
+    assert threads_text(result.metrics.setup) == "Odometry: KISS-ICP on 1 thread (bit-reproducible)."
 
 
 def test_explicit_thread_count_wins_on_a_live_source():
     config = make_online_config(dataset=COARSE, sampler="all", max_frames=12,
                                 odometry_params={"num_threads": 1})
     result = run_online(config)
-    assert result.metrics["threads"]["odometry"] == 1 and result.config.odometry_params["num_threads"] == 1
-    assert not [w for w in result.metrics["warnings"] if NOT_REPRODUCIBLE in w]
+    assert metrics_json(result)["threads"]["odometry"] == 1 and result.config.odometry_params["num_threads"] == 1
+    assert not [w for w in metrics_json(result)["warnings"] if NOT_REPRODUCIBLE in w]
 
 
 def test_thread_default_leaves_other_odometries_and_given_counts_alone():

@@ -24,6 +24,7 @@ from msa_slam.io.poses import read_poses, write_poses
 from msa_slam.pipeline import apply_params, make_config, prepare_frontend, run_batch
 from msa_slam.pipeline.compare import COLUMNS, run_compare, table_markdown, table_row
 from msa_slam.pipeline.results import write_run
+from helpers.metrics import edited, metrics_json
 
 
 @pytest.fixture(scope="session")
@@ -44,7 +45,7 @@ PERMISSIVE = {"similarity_threshold": 0.4, "min_travel_m": 0.0, "drift_check": "
 
 def test_optimisation_reduces_ate_when_loops_exist(base, frontend):
     result = run_batch(base, frontend)
-    m = result.metrics
+    m = metrics_json(result)
     assert m["verified"] > 0 and m["false_loops"] == 0
     assert m["after"]["ate_translation_m"] < 0.3 * m["before"]["ate_translation_m"]
     assert m["improvement_pct"]["translation"] > 70 and m["improvement_pct"]["rotation"] > 50
@@ -59,7 +60,7 @@ def test_optimisation_reduces_ate_when_loops_exist(base, frontend):
 
 def test_no_loops_means_no_correction(base, frontend):
     cfg = base.model_copy(update={"similarity_threshold": 1.0})
-    m = run_batch(cfg, frontend).metrics
+    m = metrics_json(run_batch(cfg, frontend))
     assert m["verified"] == 0
     assert m["after"]["ate_translation_m"] == pytest.approx(m["before"]["ate_translation_m"], rel=1e-6)
     assert m["improvement_pct"]["translation"] == pytest.approx(0.0, abs=1e-4)
@@ -71,14 +72,14 @@ def test_oracle_mode_adds_no_false_loop(base, frontend):
     far = [c for c in result.loops if c.gt_distance > cfg.loop_radius]
     assert far, "the permissive threshold should yield candidates that are not true loops"
     assert not any(c.verified for c in far)
-    assert result.metrics["false_loops"] == 0
+    assert metrics_json(result)["false_loops"] == 0
     assert all(c.gt_distance <= cfg.loop_radius for c in result.accepted_loops)
 
 
 def test_realistic_mode_counts_its_false_loops(base, frontend):
     cfg = make_config({**base.dump(), **PERMISSIVE, "mode": "realistic"})
     result = run_batch(cfg, frontend)
-    m = result.metrics
+    m = metrics_json(result)
     assert all(c.verified for c in result.loops)  # realistic: every candidate is registered
     false = [c for c in result.accepted_loops if c.gt_distance > cfg.loop_radius]
     assert m["false_loops"] == len(false) > 0
@@ -143,9 +144,9 @@ def test_full_rate_trajectory_is_written_and_evaluated(base, frontend, tmp_path)
     full = result.optimised_full
     assert full.shape == result.odometry.shape
     np.testing.assert_allclose(full[result.keyframes], result.optimised, atol=1e-9)
-    m = result.metrics["full_rate"]
+    m = metrics_json(result)["full_rate"]
     assert m["frames"] == len(result) and m["after"]["ate_translation_m"] < m["before"]["ate_translation_m"]
-    assert result.metrics["threshold_sweep"] is None
+    assert metrics_json(result)["threshold_sweep"] is None
     folder = write_run(result, tmp_path / "out").parent
     # the ~400 m figure-eight has segments of 100-400 m only: the report must not claim KITTI's 100-800 m
     report = (folder / "report.md").read_text()
@@ -164,10 +165,10 @@ def test_threshold_sweep_replays_the_backend(base, frontend):
     from msa_slam.registration import KeyframeCloudStore
 
     result = run_batch(base, frontend)
-    sweep = result.metrics["threshold_sweep"]
+    sweep = metrics_json(result)["threshold_sweep"]
     assert [r["threshold"] for r in sweep] == [0.7, 0.75, 0.8, 0.85]
-    assert sweep[2]["loops_accepted"] == result.metrics["verified"]
-    assert sweep[2]["improvement_t_pct"] == result.metrics["full_rate"]["improvement_pct"]["translation"]
+    assert sweep[2]["loops_accepted"] == metrics_json(result)["verified"]
+    assert sweep[2]["improvement_t_pct"] == metrics_json(result)["full_rate"]["improvement_pct"]["translation"]
     accepted, candidates = [r["loops_accepted"] for r in sweep], [r["candidates"] for r in sweep]
     assert accepted == sorted(accepted, reverse=True)
     assert candidates == sorted(candidates, reverse=True) and candidates[0] > candidates[-1]
@@ -183,11 +184,11 @@ def test_threshold_sweep_replays_the_backend(base, frontend):
 def test_reference_protocol_pr_is_na_without_enough_keyframes(base, frontend):
     """The reference protocol queries only once more than 10 keyframes precede a frame: with a sampler that
     keeps fewer, its PR is n/a with the reason."""
-    result = run_batch(make_config({**base.dump(), "sampler_params": {"distance": 40.0}}), frontend, sweep=False)
-    assert result.metrics["keyframes"] <= 11
-    ref = result.metrics["pr_reference"]
+    result = run_batch(base.model_copy(update={"sampler_params": {"distance": 40.0}}), frontend, sweep=False)
+    assert metrics_json(result)["keyframes"] <= 11
+    ref = metrics_json(result)["pr_reference"]
     assert ref == {"pr_auc": None, "f1_max": None, "matches": 0}
-    assert "recorded no match" in result.metrics["unavailable"]["pr_reference"]
+    assert "recorded no match" in metrics_json(result)["unavailable"]["pr_reference"]
 
 
 def test_bad_inputs_fail_clearly(base, tmp_path):
@@ -289,7 +290,7 @@ def test_stationary_run_gives_ate_none(sequence, cache_dir, tmp_path):
     gt = np.tile(np.eye(4), (30, 1, 1))
     dataset, odometry = _posed_sequence(tmp_path / "still", sequence, gt, gt)
     cfg = make_config(dataset=str(dataset), odometry=str(odometry), cache_dir=str(cache_dir), sampler="all")
-    m = run_batch(cfg).metrics
+    m = metrics_json(run_batch(cfg))
     assert m["before"]["ate_translation_m"] is None and "point or a line" in m["unavailable"]["ate"]
 
 
@@ -302,7 +303,7 @@ def test_short_straight_run_warns_and_has_no_pr(sequence, cache_dir, tmp_path):
     cfg = make_config(dataset=str(dataset), odometry=str(odometry), cache_dir=str(cache_dir), sampler="all",
                       min_frame_gap=5, exclude_recent=2, min_travel_m=5.0)
     result = run_batch(cfg)
-    m = result.metrics
+    m = metrics_json(result)
     assert m["before"]["ate_rotation_deg"] is not None and m["ate_rotation_reliable"] is False
     assert len(m["warnings"]) == 1 and "rotation ATE unreliable" in m["warnings"][0]
     assert "nearly straight" in m["warnings"][0]
@@ -317,15 +318,21 @@ def test_short_straight_run_warns_and_has_no_pr(sequence, cache_dir, tmp_path):
             "trajectories/optimised.tum -a`") in report and "on all" in m["full_rate"]["ate_alignment"]
 
 
+def _improvement(translation: float, rotation: float):
+    """An edit of metrics.json setting both % improvements (keyframes and full rate)."""
+    def change(m: dict) -> None:
+        m["improvement_pct"] = {"translation": translation, "rotation": rotation}
+        m["full_rate"]["improvement_pct"] = {"translation": translation, "rotation": rotation}
+    return change
+
+
 def test_improvement_rounding_to_zero_prints_unsigned(base, frontend, tmp_path):
     result = run_batch(base, frontend)
-    result.metrics["improvement_pct"] = {"translation": -0.04, "rotation": -0.0004}
-    result.metrics["full_rate"]["improvement_pct"] = {"translation": -0.04, "rotation": -0.0004}
+    result = edited(result, _improvement(-0.04, -0.0004))
     report = write_run(result, tmp_path / "out").read_text()
     ate_rows = [line for line in report.splitlines() if line.startswith("| ATE ")]
     assert "-0.0" not in report and sum(line.endswith(" 0.0 % |") for line in ate_rows) == 4  # full rate, keyframes
-    result.metrics["full_rate"]["improvement_pct"] = {"translation": -0.0004, "rotation": -0.0001}
-    result.metrics["improvement_pct"] = {"translation": -0.0004, "rotation": -0.0001}
+    result = edited(result, _improvement(-0.0004, -0.0001))
     table = table_markdown([table_row(result.metrics)])
     assert "-0.0" not in table and "| 0.0 | 0.0 |" in table
 

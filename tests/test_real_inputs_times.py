@@ -24,6 +24,7 @@ from msa_slam.pipeline.report import _online_lines as online_report_lines
 from msa_slam.sources import open_source
 from msa_slam.types import FrameSource
 from helpers.scans import write_bin
+from helpers.metrics import metrics_json
 
 N = 6
 COARSE = "live:figure-eight,stride=4,azimuth_steps=180,realism=clean"
@@ -136,7 +137,7 @@ def test_real_time_factor_uses_the_sensor_rate_when_frames_have_no_timestamps(ca
                              sensor_rate_hz=20.0)
     with caplog.at_level(logging.WARNING, logger="msa_slam.pipeline.online"):
         result = run_online(cfg, source)
-    metrics = result.metrics
+    metrics = metrics_json(result)
     assert metrics["frame_rate_hz"] == 20.0 and metrics["frame_rate_from"] == NO_TIMESTAMPS
     assert "over the data's 20.0 frames/s (the config's sensor_rate_hz: the frames have no timestamps)" in \
         "\n".join(online_report_lines(result))
@@ -167,6 +168,6 @@ def test_online_progress_stops_at_the_failing_frame(capsys):
 def test_online_progress_counts_the_keyframes_the_flush_adds(capsys):
     cfg = make_online_config(dataset=COARSE, odometry="gt-noise", sampler="msa", sampler_params={"window": 10})
     result = run_online(cfg, _coarse(25), quiet=False)
-    assert result.metrics["sampler_stats"]["flushed_keyframes"] > 0
+    assert metrics_json(result)["sampler_stats"]["flushed_keyframes"] > 0
     done = [line for line in capsys.readouterr().err.splitlines() if line.startswith(f"online {cfg.name}: done")]
     assert len(done) == 1 and f"kf {len(result.keyframes)} " in done[0]

@@ -22,11 +22,12 @@ from msa_slam.experiments import folder as folder_module
 from msa_slam.experiments import report as report_module
 from msa_slam.experiments.folder import grid_cells, write_grid
 from msa_slam.experiments.identity import cell_identities, outdated_cells
-from msa_slam.experiments.report import BATCH_UNTIMED
+from msa_slam.evaluation.run_metrics import BATCH_UNTIMED
 from msa_slam.experiments.runner import GridRun, _record
 from msa_slam.io.outputs import write_marker
 from msa_slam.pipeline.report import scans_read
 from test_experiments import TINY, _fake_experiment, finished_experiment
+from helpers.metrics import stored_metrics
 
 PR_REASON = "no keyframe had an older keyframe to query"
 
@@ -35,20 +36,23 @@ def _metrics(method: str, seed: int, batch: bool) -> dict:
     """A finished cell's metrics.json as the pipelines write it (batch: no per-frame timing); `msa` has no
     PR curve on seed 1."""
     no_pr = method == "msa" and seed == 1
-    full = {"before": {"ate_translation_m": 2.0, "rpe_kitti_translation_pct": 1.0},
-            "after": {"ate_translation_m": 1.0 + seed / 10, "rpe_kitti_translation_pct": 0.5,
-                      "rpe_10m_translation_m": 0.1},
-            "improvement_pct": {"translation": 50.0 - 5 * seed, "rotation": 10.0 + seed}}
-    m = {"frames": 100, "keyframes": 50, "candidates": 4, "verified": 3, "false_loops": 0,
-         "before": {"ate_translation_m": 2.0}, "after": {"ate_translation_m": 1.0},
-         "improvement_pct": {"translation": 50.0, "rotation": 10.0}, "full_rate": full,
-         "pr_auc": None if no_pr else 0.9 - seed / 100, "f1_max": None if no_pr else 0.8 + seed / 100,
-         "unavailable": {"pr": PR_REASON} if no_pr else {},
-         "memory_bytes": {"total": 4000 if method == "all" else 1000}, "peak_rss_bytes": 2**20,
-         "rss_growth_bytes": 3 * 2**20, "loop_closing": {"rejected": {"sparse": 1, "drift": seed}},
-         "time_s": {"backend_total": 1.0}, "msa_slam_version": msa_slam.__version__}
+    m = stored_metrics("batch.json" if batch else "online.json")
+    full = m["full_rate"]
+    full["before"].update(ate_translation_m=2.0, rpe_kitti_translation_pct=1.0)
+    full["after"].update(ate_translation_m=1.0 + seed / 10, rpe_kitti_translation_pct=0.5, rpe_10m_translation_m=0.1)
+    full["improvement_pct"] = {"translation": 50.0 - 5 * seed, "rotation": 10.0 + seed}
+    m["before"]["ate_translation_m"], m["after"]["ate_translation_m"] = 2.0, 1.0
+    m.update(frames=100, keyframes=50, candidates=4, verified=3, false_loops=0,
+             improvement_pct={"translation": 50.0, "rotation": 10.0},
+             pr_auc=None if no_pr else 0.9 - seed / 100, f1_max=None if no_pr else 0.8 + seed / 100,
+             unavailable={"pr": PR_REASON} if no_pr else {}, peak_rss_bytes=2**20, rss_growth_bytes=3 * 2**20,
+             msa_slam_version=msa_slam.__version__)
+    m["memory_bytes"]["total"], m["time_s"]["backend_total"] = 4000 if method == "all" else 1000, 1.0
+    rejected = {**dict.fromkeys(m["loop_accounting"]["rejected"], 0), "sparse": 1, "drift": seed}
+    m["loop_accounting"]["rejected"] = m["loop_closing"]["rejected"] = rejected
     if not batch:
-        m.update({"fps": 50.0, "backend_fps": 60.0, "latency_ms": {"backend": {"p99": 12.0}}})
+        m.update(fps=50.0, backend_fps=60.0)
+        m["latency_ms"]["backend"]["p99"] = 12.0
     return m
 
 

@@ -4,7 +4,6 @@ the sequence read; an online run on scans without timestamps says so in one line
 
 from __future__ import annotations
 
-import copy
 import json
 import logging
 from pathlib import Path
@@ -26,6 +25,7 @@ from msa_slam.pipeline.results import write_run_files
 from msa_slam.sources import open_source
 from msa_slam.slam import RunResult
 from test_single_open import _untimed_folder
+from helpers.metrics import edited, metrics_json
 
 DESKEW = {"max_range": 30.0, "deskew": True}  # asked, but the .bin scans carry no per-point times
 
@@ -51,7 +51,7 @@ def test_config_yaml_records_the_deskew_done_and_re_runs_it(batch, caplog):
     with caplog.at_level(logging.WARNING, logger="msa_slam.odometry"):
         again = run_batch(load_config(out / "config.yaml"), sweep=False)
     assert [r.getMessage() for r in caplog.records] == []  # it asks for what ran: nothing to switch off
-    assert again.metrics["frontend_cached"]["odometry"]  # and finds the first run's odometry
+    assert metrics_json(again)["frontend_cached"]["odometry"]  # and finds the first run's odometry
     np.testing.assert_array_equal(again.odometry, result.odometry)
 
 
@@ -62,9 +62,8 @@ def test_report_lists_the_warnings_of_the_run(batch):
 
 
 def test_report_counts_loop_candidates_in_the_right_number(batch):
-    result = copy.copy(batch[0])
     for candidates, text in ((1, "; 1 loop candidate (similarity"), (2, "; 2 loop candidates (similarity")):
-        result.metrics = {**batch[0].metrics, "candidates": candidates}
+        result = edited(batch[0], lambda m: m.update(candidates=candidates))
         assert text in report_markdown(result, [], set())
 
 
@@ -100,4 +99,4 @@ def test_online_on_untimed_scans_warns_once_and_records_what_ran(tmp_path, caplo
     untimed = [r.getMessage() for r in caplog.records if "no timestamps" in r.getMessage()]
     assert untimed == [f"{scans}: {UNTIMED}"]
     assert result.config.odometry_params == {**DESKEW, "deskew": False}
-    assert result.metrics["warnings"][:2] == [f"scans: {UNTIMED}", NO_POINT_TIMES]
+    assert metrics_json(result)["warnings"][:2] == [f"scans: {UNTIMED}", NO_POINT_TIMES]

@@ -49,10 +49,10 @@ def test_seed_summary_reports_mean_std_ranks_and_verdicts():
     rows = {s: [{"method": "all", "improvement_t_pct": 10.0 + 20 * s, "keyframes": 100},
                 {"method": "msa", "improvement_t_pct": 12.0 + 20 * s + 0.1 * s, "keyframes": 40}] for s in range(3)}
     summary = seed_summary(rows)
-    entry = summary["metrics"]["improvement_t_pct"]
-    assert entry["methods"]["msa"]["ranks"] == [1, 1, 1] and entry["methods"]["all"]["mean"] == 30.0
-    assert entry["msa_vs"]["all"]["verdict"].startswith("better, beyond the seed spread")
-    assert summary["metrics"]["keyframes"]["msa_vs"] == {}  # no direction: no test
+    entry = summary.metrics["improvement_t_pct"]
+    assert entry.methods["msa"].ranks == [1, 1, 1] and entry.methods["all"].mean == 30.0
+    assert entry.msa_vs["all"]["verdict"].startswith("better, beyond the seed spread")
+    assert summary.metrics["keyframes"].msa_vs == {}  # no direction: no test
     text = seed_markdown(summary)
     assert "| msa | 32.100 ± 20.100 |" not in text and "| msa | 32.1 ± 20.1 |" in text
     assert "| all | better, beyond the seed spread" in text and "paired t-test" in text

@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping
+from typing import Mapping, Sequence
+
+from msa_slam.evaluation.metrics import Unavailable
 
 NA = "n/a"
 
 
-def fmt(value: float | None, spec: str = ".3f", unit: str = "") -> str:
-    """`value` formatted with `spec` plus `unit`; "n/a" for None or NaN; a result that rounds to zero unsigned."""
-    if value is None or (isinstance(value, float) and math.isnan(value)):
+def fmt(value: float | Unavailable | None, spec: str = ".3f", unit: str = "") -> str:
+    """`value` formatted with `spec` plus `unit`; "n/a" for an unavailable value, None or NaN (the reason goes to
+    the notes); a result that rounds to zero unsigned."""
+    if value is None or isinstance(value, Unavailable) or (isinstance(value, float) and math.isnan(value)):
         return NA
     text = format(value, spec)
     if text.startswith("-") and not any(c in "123456789" for c in text.split("e")[0]):
@@ -49,8 +52,7 @@ NOTE_LABELS = {"ate": "ATE (and its % improvement)", "ate_odometry": "ATE of the
                "sampler_realtime_fraction": "sampler time over the data's duration"}
 
 
-def notes(metrics: Mapping[str, Any]) -> list[str]:
-    """One sentence per n/a metric (why it is unavailable) and per warning of a run's metrics."""
-    unavailable = metrics.get("unavailable") or {}
-    return ([f"{NOTE_LABELS.get(key, key)} n/a: {reason}" for key, reason in unavailable.items()]
-            + [f"warning: {text}" for text in metrics.get("warnings") or []])
+def notes(reasons: Mapping[str, str], warnings: Sequence[str]) -> list[str]:
+    """One sentence per n/a metric (`reasons`: metric -> why it is unavailable) and per warning of a run."""
+    return ([f"{NOTE_LABELS.get(key, key)} n/a: {reason}" for key, reason in reasons.items()]
+            + [f"warning: {text}" for text in warnings])

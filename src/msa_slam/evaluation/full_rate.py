@@ -16,14 +16,17 @@ segment length gets None with the reason.
 
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
 from evo.core import filters
 
 from msa_slam.errors import InputError
-from msa_slam.evaluation.summary import ZERO_ERROR, ate_or_reason, improvement_pct
+from msa_slam.evaluation.metrics import FullRateTrajectory
+from msa_slam.evaluation.metrics_json import read_full_rate
+from msa_slam.evaluation.metrics_reader import MetricsDocument
+from msa_slam.evaluation.summary import ZERO_ERROR, Block, ate_or_reason, improvement_pct
 from msa_slam.evaluation.trajectory import ATE_ALIGNMENT
 from msa_slam.types import validate_poses
 
@@ -110,11 +113,11 @@ def all_pairs_errors(estimate: np.ndarray, reference: np.ndarray, length: float,
     return _errors(_error_motions(estimate, reference, pairs[:, 0], pairs[:, 1]))
 
 
-def distance_rpe(estimate: np.ndarray, reference: np.ndarray) -> tuple[dict[str, float | None], dict[str, str]]:
+def distance_rpe(estimate: np.ndarray, reference: np.ndarray) -> tuple[Block, dict[str, str]]:
     """KITTI segment RPE (translation %, rotation deg/100 m; the devkit's mean over all segments) and evo's
     all-pairs 10 m RPE (m, deg; the mean over its pairs); None with the reason when the reference path has no
     segment or pair of that length."""
-    out: dict[str, float | None] = {}
+    out: Block = {}
     unavailable: dict[str, str] = {}
     total = float(path_length(reference)[-1])
     pairs = [segment_errors(estimate, reference, length, STEP_FRAMES) for length in KITTI_LENGTHS_M]
@@ -137,22 +140,32 @@ def distance_rpe(estimate: np.ndarray, reference: np.ndarray) -> tuple[dict[str,
     return out, unavailable
 
 
-def _block(estimate: np.ndarray, reference: np.ndarray) -> tuple[dict[str, Any], str | None, dict[str, str]]:
+def _block(estimate: np.ndarray, reference: np.ndarray) -> tuple[Block, str | None, dict[str, str]]:
     block, _, reason = ate_or_reason(estimate, reference)
     rpe, unavailable = distance_rpe(estimate, reference)
     return {**block, **rpe}, reason, unavailable
 
 
-def evaluate_full_rate(odometry: np.ndarray, full_rate: np.ndarray, reference: np.ndarray | None) -> dict[str, Any]:
-    """JSON-ready full-rate metrics: `before` (odometry) and `after` (full-rate optimised) ATE and distance
-    RPE, the % ATE improvement, the alignment used and `unavailable` (metric -> why it is None)."""
+@dataclass(frozen=True)
+class FullRateEvaluation:
+    """Full-rate `trajectory` errors, and why those unavailable are (`reasons`: metrics.json `unavailable` keys)."""
+
+    trajectory: FullRateTrajectory
+    reasons: dict[str, str]
+
+
+def evaluate_full_rate(odometry: np.ndarray, full_rate: np.ndarray, reference: np.ndarray | None
+                       ) -> FullRateEvaluation:
+    """Full-rate metrics: `before` (odometry) and `after` (full-rate optimised) ATE and distance RPE, the % ATE
+    improvement and the alignment used, each undefined one unavailable with its reason."""
     if reference is None or not np.isfinite(reference).all():
         keys = ("ate_translation_m", "ate_rotation_deg", "rpe_kitti_translation_pct",
                 "rpe_kitti_rotation_deg_per_100m", "rpe_10m_translation_m", "rpe_10m_rotation_deg")
         empty = dict.fromkeys(keys)
-        return {"before": empty, "after": dict(empty), "improvement_pct": {"translation": None, "rotation": None},
-                "frames": len(odometry), "ate_alignment": None,
-                "unavailable": {"full_rate_ate": "no ground-truth pose for every frame"}}
+        return _evaluation({"before": empty, "after": dict(empty), "improvement_pct": {"translation": None,
+                                                                                      "rotation": None},
+                            "frames": len(odometry), "ate_alignment": None},
+                           {"full_rate_ate": "no ground-truth pose for every frame"})
     before, reason_b, unavailable = _block(validate_poses(odometry, "odometry"), reference)
     after, reason_a, _ = _block(validate_poses(full_rate, "full-rate trajectory"), reference)
     if reason_b:
@@ -165,6 +178,12 @@ def evaluate_full_rate(odometry: np.ndarray, full_rate: np.ndarray, reference: n
         if improvements[part] is None and before[key] is not None and not before[key] > ZERO_ERROR:
             unavailable[f"full_rate_improvement_{part}"] = (f"odometry ATE {part} is 0 ({before[key]:.1g}): "
                                                             "% improvement undefined")
-    return {"before": before, "after": after, "improvement_pct": improvements, "frames": len(reference),
-            "ate_alignment": f"{ATE_ALIGNMENT}, fitted separately for each estimate on all {len(reference)} frames",
-            "unavailable": unavailable}
+    return _evaluation({"before": before, "after": after, "improvement_pct": improvements, "frames": len(reference),
+                        "ate_alignment": f"{ATE_ALIGNMENT}, fitted separately for each estimate on all "
+                                         f"{len(reference)} frames"}, unavailable)
+
+
+def _evaluation(metrics: dict[str, object], reasons: dict[str, str]) -> FullRateEvaluation:
+    """The evaluation with its figures typed, each undefined one unavailable with its reason."""
+    return FullRateEvaluation(read_full_rate(MetricsDocument(metrics, "the full-rate evaluation", reasons=reasons)),
+                              reasons)

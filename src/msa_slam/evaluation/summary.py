@@ -1,17 +1,20 @@
-"""Trajectory metrics as the result folders store them: a number, or None with the reason it is unavailable.
+"""Keyframe trajectory metrics (evaluation.metrics.KeyframeTrajectory): a number, or Unavailable with the reason.
 
 Both pipelines report ATE/RPE of the keyframe trajectory before (odometry) and after optimisation and the
 paper's % improvement. A trajectory whose SE(3) alignment is undetermined (stationary, rotation-only) gets
-ATE None and a reason instead of an exception; a short or nearly straight one keeps its numbers with a
+ATE unavailable with a reason instead of an exception; a short or nearly straight one keeps its numbers with a
 warning that its rotation ATE mostly measures the alignment.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
+
+from msa_slam.evaluation.metrics import KeyframeTrajectory
+from msa_slam.evaluation.metrics_json import read_keyframe_trajectory
+from msa_slam.evaluation.metrics_reader import MetricsDocument
 
 from msa_slam.evaluation.trajectory import (ATE_ALIGNMENT, AlignmentError, alignment_warnings, ate, improvement,
                                             rpe)
@@ -20,13 +23,17 @@ ESTIMATES = {"before": "odometry", "after": "optimised"}
 ZERO_ERROR = 1e-9  # metres or degrees: an ATE this small is an exact fit
 
 
-@dataclass
-class TrajectoryEvaluation:
-    """JSON-ready metrics (`before`, `after`, `improvement_pct`, `ate_alignment`, `ate_rotation_reliable`
-    (None without ATE), `unavailable`: metric -> why it is None), `warnings` about numbers that are present,
-    and the per-keyframe ATE translation errors of each estimate (None where ATE is unavailable)."""
+Block = dict[str, float | None]  # one estimate's errors by metrics.json key, None where undefined
 
-    metrics: dict[str, Any]
+
+@dataclass(frozen=True)
+class TrajectoryEvaluation:
+    """The keyframe trajectories' errors (`trajectory`), why those unavailable are (`reasons`: metrics.json
+    `unavailable` keys), `warnings` about numbers that are present, and the per-keyframe ATE translation errors of
+    each estimate (None where ATE is unavailable)."""
+
+    trajectory: KeyframeTrajectory
+    reasons: dict[str, str]
     warnings: list[str] = field(default_factory=list)
     errors: dict[str, np.ndarray | None] = field(default_factory=dict)
 
@@ -39,11 +46,10 @@ def improvement_pct(before: float | None, after: float | None) -> float | None:
     return improvement(before, after)
 
 
-def ate_or_reason(estimate: np.ndarray, reference: np.ndarray
-                  ) -> tuple[dict[str, Any], np.ndarray | None, str | None]:
+def ate_or_reason(estimate: np.ndarray, reference: np.ndarray) -> tuple[Block, np.ndarray | None, str | None]:
     """ATE translation/rotation RMSE and per-pose errors, or None values and the reason the alignment is
     undetermined (stationary, rotation-only, straight line)."""
-    out: dict[str, Any] = {"ate_translation_m": None, "ate_rotation_deg": None}
+    out: Block = {"ate_translation_m": None, "ate_rotation_deg": None}
     try:
         a = ate(estimate, reference)
     except AlignmentError as exc:
@@ -52,7 +58,7 @@ def ate_or_reason(estimate: np.ndarray, reference: np.ndarray
     return out, a.translation_errors, None
 
 
-def _errors(estimate: np.ndarray, reference: np.ndarray) -> tuple[dict[str, Any], np.ndarray | None, str | None]:
+def _errors(estimate: np.ndarray, reference: np.ndarray) -> tuple[Block, np.ndarray | None, str | None]:
     out, errors, reason = ate_or_reason(estimate, reference)
     r = rpe(estimate, reference, delta=1, unit="frames")
     out.update(rpe_translation_m=r.translation_rmse, rpe_rotation_deg=r.rotation_rmse)
@@ -65,11 +71,10 @@ def evaluate_trajectories(odometry: np.ndarray, optimised: np.ndarray, reference
     (`reference` None: a recording without ground truth, every metric None with that reason)."""
     if reference is None:
         block = dict.fromkeys(("ate_translation_m", "ate_rotation_deg", "rpe_translation_m", "rpe_rotation_deg"))
-        return TrajectoryEvaluation({"before": block, "after": dict(block),
-                                     "improvement_pct": {"translation": None, "rotation": None},
-                                     "ate_alignment": None, "ate_rotation_reliable": None,
-                                     "unavailable": {"ate": "no ground truth", "rpe": "no ground truth"}},
-                                    [], {"odometry": None, "optimised": None})
+        metrics = {"before": block, "after": dict(block), "improvement_pct": {"translation": None, "rotation": None},
+                   "ate_alignment": None, "ate_rotation_reliable": None}
+        reasons = {"ate": "no ground truth", "rpe": "no ground truth"}
+        return _evaluation(metrics, reasons, [], {"odometry": None, "optimised": None})
     blocks, errors, unavailable = {}, {}, {}
     for (key, name), estimate in zip(ESTIMATES.items(), (odometry, optimised)):
         blocks[key], errors[name], reason = _errors(estimate, reference)
@@ -90,6 +95,12 @@ def evaluate_trajectories(odometry: np.ndarray, optimised: np.ndarray, reference
     warnings = (["rotation ATE unreliable: the SE(3) alignment's rotation is poorly determined ("
                  + "; ".join(unstable) + ")"] if unstable else [])
     metrics = {"before": blocks["before"], "after": blocks["after"], "improvement_pct": improvements,
-               "ate_alignment": alignment, "ate_rotation_reliable": None if "ate" in unavailable else not unstable,
-               "unavailable": unavailable}
-    return TrajectoryEvaluation(metrics, warnings, errors)
+               "ate_alignment": alignment, "ate_rotation_reliable": None if "ate" in unavailable else not unstable}
+    return _evaluation(metrics, unavailable, warnings, errors)
+
+
+def _evaluation(metrics: dict[str, object], reasons: dict[str, str], warnings: list[str],
+                errors: dict[str, np.ndarray | None]) -> TrajectoryEvaluation:
+    """The evaluation with its figures typed, each undefined one unavailable with its reason."""
+    doc = MetricsDocument(metrics, "the keyframe evaluation", reasons=reasons)
+    return TrajectoryEvaluation(read_keyframe_trajectory(doc), reasons, warnings, errors)

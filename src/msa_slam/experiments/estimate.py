@@ -16,9 +16,11 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Collection, Mapping, Sequence
+from typing import Collection, Mapping, Sequence
 
 from msa_slam.errors import InputError
+from msa_slam.evaluation.metrics import Timing
+from msa_slam.evaluation.run_metrics import RunMetrics
 from msa_slam.experiments.grid import Cell
 from msa_slam.sources.spec import spec_kind
 
@@ -51,8 +53,8 @@ class GridEstimate:
         return f"{counts}; estimated time {duration(self.seconds)} ({self.basis})"
 
 
-def estimate_grid(name: str, cells: Sequence[Cell], finished: Mapping[str, tuple[dict, dict]], todo: Sequence[Cell],
-                  workers: int | None) -> GridEstimate:
+def estimate_grid(name: str, cells: Sequence[Cell], finished: Mapping[str, tuple[dict, RunMetrics]],
+                  todo: Sequence[Cell], workers: int | None) -> GridEstimate:
     """The estimate of running `todo` (of the grid's `cells`; `finished`: read_cell's (info, metrics) by id) on
     `workers` local processes (None: a Dask cluster of unknown size, then stated for one worker)."""
     opened: dict[tuple, tuple[int | None, int | None]] = {}  # each dataset is looked at once
@@ -86,14 +88,14 @@ def _stage_costs() -> str:
             f"descriptor {1e3 * STAGE_S['descriptor']:g} ms, back end {1e3 * STAGE_S['back end']:g} ms")
 
 
-def _recorded_cost(finished: Mapping[str, tuple[dict, dict]]) -> tuple[float | None, str]:
+def _recorded_cost(finished: Mapping[str, tuple[dict, RunMetrics]]) -> tuple[float | None, str]:
     """(seconds a frame, basis) from the stage times finished cells recorded; (None, "") when none did."""
     seconds = frames = 0.0
     counted = 0
     for _, metrics in finished.values():
-        recorded = recorded_seconds(metrics)
-        if recorded is not None and isinstance(metrics.get("frames"), int) and metrics["frames"] > 0:
-            seconds, frames, counted = seconds + recorded, frames + metrics["frames"], counted + 1
+        if metrics.run.frames > 0:
+            seconds, frames = seconds + recorded_seconds(metrics.timing), frames + metrics.run.frames
+            counted += 1
     if not counted:
         return None, ""
     per_frame = seconds / frames
@@ -101,18 +103,13 @@ def _recorded_cost(finished: Mapping[str, tuple[dict, dict]]) -> tuple[float | N
                        f"{1e3 * per_frame:.3g} ms a frame, times each cell's frames")
 
 
-def recorded_seconds(metrics: Mapping[str, Any]) -> float | None:
-    """The seconds a finished cell's stages took: the stages of `time_s` (not their `backend_total`) and the
-    batch front end's `frontend_time_s`, less the `replayed_time_s` they count for stages read from the cache
-    (what computing them took once, not what the cell spent); None when metrics.json has no such figures."""
-    stages = metrics.get("time_s")
-    if not isinstance(stages, dict):
-        return None
-    front = metrics.get("frontend_time_s") if isinstance(metrics.get("frontend_time_s"), dict) else {}
-    replayed = metrics.get("replayed_time_s") if isinstance(metrics.get("replayed_time_s"), dict) else {}
-    values = [v for k, v in stages.items() if k != "backend_total"] + list(front.values())
-    spent = sum(v for v in values if isinstance(v, (int, float)))
-    return float(spent - sum(v for v in replayed.values() if isinstance(v, (int, float))))
+def recorded_seconds(timing: Timing) -> float:
+    """The seconds a finished cell's stages took: its back-end stages (not their `backend_total`; a stage that did
+    not run counts 0) and the batch front end's, less the replayed seconds they count for stages read from the
+    cache (what computing them took once, not what the cell spent)."""
+    values = [v for k, v in timing.stages.items() if k != "backend_total" and v is not None]
+    spent = sum(values) + sum((timing.frontend_s or {}).values())
+    return float(spent - sum(timing.replayed_s.values()))
 
 
 def _assumed_costs(todo: Sequence[Cell], sizes: Mapping[str, tuple[int | None, int | None]]) -> dict[str, float | None]:

@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import os
 from pathlib import Path
 from typing import Any
@@ -20,9 +21,13 @@ from typing import Any
 import yaml
 
 from msa_slam.errors import InputError
+from msa_slam.evaluation.metrics_json import from_json
+from msa_slam.evaluation.run_metrics import RunMetrics
 from msa_slam.experiments.grid import Cell, GridSpec, expand, parse_grid
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.yaml_file import read_yaml
+
+logger = logging.getLogger(__name__)
 
 KIND = "experiment"  # the result-folder kind of msa_slam.io.outputs
 GRID_FILE = "grid.yaml"
@@ -34,20 +39,25 @@ def cell_dir(out: str | os.PathLike, cell_id: str) -> Path:
     return Path(out) / "cells" / cell_id
 
 
-def read_cell(folder: Path) -> tuple[dict[str, Any], dict[str, Any]] | None:
-    """(cell info, metrics) of a finished cell folder; None when either file is missing or unreadable
-    (a corrupt cell counts as unfinished and is rerun, never silently dropped)."""
+def read_cell(folder: Path) -> tuple[dict[str, Any], RunMetrics] | None:
+    """(cell info, report) of a finished cell folder; None when either file is missing or unreadable, or its
+    metrics.json lacks a key or holds a wrong type (logged, naming the file and key): a corrupt cell counts as
+    unfinished and is rerun, never silently dropped."""
     try:
         info = json.loads((folder / CELL_FILE).read_text())
-        metrics = json.loads((folder / METRICS_FILE).read_text())
+        data = json.loads((folder / METRICS_FILE).read_text())
     except (OSError, ValueError):
         return None
-    if not isinstance(info, dict) or not isinstance(metrics, dict) or info.get("id") != folder.name:
+    if not isinstance(info, dict) or info.get("id") != folder.name:
         return None
-    return info, metrics
+    try:
+        return info, from_json(data, str(folder / METRICS_FILE))
+    except InputError as exc:
+        logger.warning("%s; the cell counts as unfinished", exc)
+        return None
 
 
-FinishedCells = dict[str, tuple[dict[str, Any], dict[str, Any]]]  # cell id -> (cell info, metrics)
+FinishedCells = dict[str, tuple[dict[str, Any], RunMetrics]]  # cell id -> (cell info, report)
 
 
 def finished_cells(out: str | os.PathLike, cells: list[Cell]) -> FinishedCells:

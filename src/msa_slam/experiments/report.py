@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 from collections import defaultdict
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -18,6 +19,8 @@ from msa_slam.errors import InputError, error_line
 from msa_slam.experiments.folder import GRID_FILE, FinishedCells, cell_dir, grid_cells, read_cell, stale_cells
 from msa_slam.experiments.grid import Cell, GridSpec, slug
 from msa_slam.evaluation import NA, fmt
+from msa_slam.evaluation.metrics import Unavailable, Value, known
+from msa_slam.evaluation.run_metrics import RunMetrics, TableRow
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.viz import plot_ate_difference, plot_memory, plot_step_times, plot_sweeps
 from msa_slam.io.tables import rows_csv
@@ -30,28 +33,21 @@ COLUMNS = ("cell", "pipeline", "dataset", "descriptor", "method", "sampler", "se
            "pr_auc", "f1_max", "memory_mib", "memory_vs_reference_pct", "bytes_per_keyframe",
            "time_s", "fps", "backend_fps", "backend_p99_ms", "process_peak_rss_mib", "rss_growth_mib", "rejected",
            "unavailable")
-# The metrics.json `unavailable` keys that say why a column is n/a, most specific first (a run without ground
-# truth for every frame has no full-rate block at all: only full_rate_ate then says why).
-_FULL_RATE = ("full_rate_ate_optimised", "full_rate_ate")
-UNAVAILABLE_KEYS = {
-    "ate_before_m": ("full_rate_ate",), "ate_after_m": _FULL_RATE,
-    "improvement_t_pct": ("full_rate_improvement_translation", *_FULL_RATE),
-    "improvement_r_pct": ("full_rate_improvement_rotation", *_FULL_RATE),
-    "rpe_pct": ("rpe_kitti", *_FULL_RATE), "rpe_10m_m": ("rpe_10m", *_FULL_RATE),
-    "kf_ate_before_m": ("ate_odometry", "ate"), "kf_ate_after_m": ("ate_optimised", "ate"),
-    "kf_improvement_t_pct": ("improvement_translation", "ate_optimised", "ate"),
-    "pr_auc": ("pr",), "f1_max": ("pr",),
-}
-PER_FRAME = ("fps", "backend_fps", "backend_p99_ms")
-BATCH_UNTIMED = ("the batch pipeline (Table I protocol) optimises the whole sequence at once, so it has no per-frame "
-                 "throughput or latency (an online grid measures them)")
-NO_REASON = ("this cell's metrics.json holds neither a value nor a reason (cells written by older msa-slam versions "
-             "lack some metrics)")
 SWEEP_METRICS = {"t. ATE impr. [%]": "improvement_t_pct", "R. ATE impr. [%]": "improvement_r_pct",
                  "F1-max": "f1_max", "memory vs reference [%]": "memory_vs_reference_pct"}
 
 
-def load_cells(results_dir: str | os.PathLike) -> list[dict[str, Any]]:
+@dataclass(frozen=True)
+class FinishedCell:
+    """A finished cell of the grid: what it ran (cell.json, with its place in the grid as `index`), its report and
+    its folder."""
+
+    info: dict[str, Any]
+    metrics: RunMetrics
+    folder: Path
+
+
+def load_cells(results_dir: str | os.PathLike) -> list[FinishedCell]:
     """(cell info + metrics) of every finished cell of the grid recorded in `results_dir` (grid.yaml), in the
     grid's order; cell folders of an earlier, different grid are left out (see `stale_cells`)."""
     return _finished(Path(results_dir), _grid_of(Path(results_dir))[1])
@@ -63,13 +59,13 @@ def _grid_of(out: Path) -> tuple[GridSpec, list[Cell]]:
     return grid_cells(out)
 
 
-def _finished(out: Path, cells: list[Cell], known: FinishedCells | None = None) -> list[dict[str, Any]]:
+def _finished(out: Path, cells: list[Cell], known: FinishedCells | None = None) -> list[FinishedCell]:
     found = []
     for cell in cells:
         folder = cell_dir(out, cell.id)
         read = (known or {}).get(cell.id) or read_cell(folder)
         if read is not None:
-            found.append({"info": {**read[0], "index": cell.index}, "metrics": read[1], "folder": folder})
+            found.append(FinishedCell({**read[0], "index": cell.index}, read[1], folder))
     return found
 
 
@@ -78,38 +74,31 @@ def _group(info: dict[str, Any]) -> tuple:
     return info["dataset"], info["descriptor"], json.dumps(info["parameters"], sort_keys=True), info["seed"]
 
 
-def make_rows(cells: list[dict[str, Any]], reference: str = "all") -> list[dict[str, Any]]:
-    """One flat row per cell (COLUMNS); memory relative to the reference method of the same group."""
-    ref_memory = {_group(c["info"]): c["metrics"]["memory_bytes"]["total"] for c in cells
-                  if c["info"]["method"] == reference}
+def make_rows(cells: list[FinishedCell], reference: str = "all") -> list[TableRow]:
+    """One flat row per cell (COLUMNS); memory relative to the reference method of the same group; `unavailable`:
+    why each n/a column is (the values' own reasons)."""
+    ref_memory = {_group(c.info): c.metrics.memory.accounted.total for c in cells if c.info["method"] == reference}
     rows = []
     for c in cells:
-        info, m = c["info"], c["metrics"]
-        ref = ref_memory.get(_group(info))
-        latency = m.get("latency_ms", {}).get("backend", {})
-        row = {
-            "cell": info["id"], "pipeline": info["pipeline"], "dataset": info["dataset"],
-            "descriptor": info["descriptor"], "method": info["method"], "sampler": info["sampler"],
-            "seed": info["seed"], "parameters": _parameters(info["parameters"]), "frames": m["frames"],
-            "keyframes": m["keyframes"], "candidates": m["candidates"],
-            "verified": m["verified"], "false_loops": m["false_loops"],
-            **_full_rate(m), "kf_ate_before_m": m["before"]["ate_translation_m"],
-            "kf_ate_after_m": m["after"]["ate_translation_m"],
-            "kf_improvement_t_pct": m["improvement_pct"]["translation"],
-            "pr_auc": m["pr_auc"], "f1_max": m["f1_max"],
-            "memory_mib": m["memory_bytes"]["total"] / 2**20,
-            "memory_vs_reference_pct": None if not ref else 100.0 * m["memory_bytes"]["total"] / ref,
-            "bytes_per_keyframe": m["memory_bytes"]["total"] / max(1, m["keyframes"]),
-            "time_s": m["time_s"]["backend_total"], "fps": m.get("fps"), "backend_fps": m.get("backend_fps"),
-            "backend_p99_ms": latency.get("p99"),
-            "process_peak_rss_mib": m["peak_rss_bytes"] / 2**20,  # the cell's whole process, not the method
-            "rss_growth_mib": m["rss_growth_bytes"] / 2**20 if "rss_growth_bytes" in m else None,
-            "rejected": sum(m["loop_closing"]["rejected"].values()) if "loop_closing" in m else None,
-        }
-        why = {column: _na_reason(column, m, info["pipeline"], reference, ref) for column, value in row.items()
-               if value is None}
+        info, m = c.info, c.metrics
+        values = {**m.cell_values(),
+                  "memory_vs_reference_pct": _relative_memory(m, ref_memory.get(_group(info)), reference)}
+        row = {"cell": info["id"], "pipeline": info["pipeline"], "dataset": info["dataset"],
+               "descriptor": info["descriptor"], "method": info["method"], "sampler": info["sampler"],
+               "seed": info["seed"], "parameters": _parameters(info["parameters"]),
+               **{column: known(values[column]) for column in COLUMNS[COLUMNS.index("frames"):-1]}}
+        why = {column: value.reason for column, value in values.items() if isinstance(value, Unavailable)}
         rows.append({**row, "unavailable": json.dumps(why, sort_keys=True) if why else ""})
     return rows
+
+
+def _relative_memory(m: RunMetrics, ref_memory: int | None, reference: str) -> Value:
+    """The cell's accounted memory in % of the reference method's in the same group, or why there is none."""
+    if ref_memory:
+        return 100.0 * m.memory.accounted.total / ref_memory
+    return Unavailable(f"the `{reference}` cell of this dataset, descriptor, parameters and seed has 0 bytes"
+                       if ref_memory == 0 else f"no finished `{reference}` cell of this dataset, descriptor, "
+                       "parameters and seed to compare with")
 
 
 def _parameters(parameters: dict[str, Any]) -> str:
@@ -117,7 +106,7 @@ def _parameters(parameters: dict[str, Any]) -> str:
     return json.dumps(parameters, sort_keys=True) if parameters else ""
 
 
-def _failed_row(cell: Cell, error_file: Path) -> dict[str, Any]:
+def _failed_row(cell: Cell, error_file: Path) -> TableRow:
     """results.md's row of a cell that failed (its traceback in `error_file`): every value n/a, the error as the
     reason, so that a method whose cells failed is shown, with why, not left out of the table."""
     reason = f"the cell failed with {error_line(error_file)} (traceback in errors/<cell id>.txt)"
@@ -128,35 +117,9 @@ def _failed_row(cell: Cell, error_file: Path) -> dict[str, Any]:
             "unavailable": json.dumps(dict.fromkeys(metrics, reason), sort_keys=True)}
 
 
-def _na_reason(column: str, m: dict[str, Any], pipeline: str, reference: str, ref_memory: int | None) -> str:
-    """Why a row's `column` is n/a: the cell's own reason (metrics.json `unavailable`), else what the pipeline
-    or the reference leave out."""
-    if column in PER_FRAME and pipeline == "batch":
-        return BATCH_UNTIMED
-    if column == "memory_vs_reference_pct":
-        return (f"the `{reference}` cell of this dataset, descriptor, parameters and seed has 0 bytes"
-                if ref_memory == 0 else f"no finished `{reference}` cell of this dataset, descriptor, parameters "
-                "and seed to compare with")
-    unavailable = m.get("unavailable") or {}
-    return next((unavailable[k] for k in UNAVAILABLE_KEYS.get(column, ()) if k in unavailable), NO_REASON)
-
-
-def _full_rate(m: dict[str, Any]) -> dict[str, Any]:
-    """The full-rate ATE/RPE columns; cells written before full-rate metrics existed have only the keyframe
-    figures (the kf_* columns), which stand in for them there, without RPE."""
-    full = m.get("full_rate") or {"before": {**m["before"], "rpe_kitti_translation_pct": None},
-                                  "after": {**m["after"], "rpe_kitti_translation_pct": None,
-                                            "rpe_10m_translation_m": None},
-                                  "improvement_pct": m["improvement_pct"]}
-    return {"ate_before_m": full["before"]["ate_translation_m"], "ate_after_m": full["after"]["ate_translation_m"],
-            "improvement_t_pct": full["improvement_pct"]["translation"],
-            "improvement_r_pct": full["improvement_pct"]["rotation"],
-            "rpe_pct": full["after"]["rpe_kitti_translation_pct"], "rpe_10m_m": full["after"]["rpe_10m_translation_m"]}
-
-
-def _seed_lines(methods: dict[str, list[dict[str, Any]]]) -> list[str]:
+def _seed_lines(methods: dict[str, list[TableRow]]) -> list[str]:
     """Per-seed ranks and MSA's paired-test verdicts of one section (nothing with a single seed)."""
-    by_seed: dict[int, list[dict[str, Any]]] = defaultdict(list)
+    by_seed: dict[int, list[TableRow]] = defaultdict(list)
     for rs in methods.values():
         for r in rs:
             by_seed[r["seed"]].append(r)
@@ -165,7 +128,7 @@ def _seed_lines(methods: dict[str, list[dict[str, Any]]]) -> list[str]:
     return ["Spread over seeds:", "", seed_markdown(seed_summary(dict(sorted(by_seed.items())))), ""]
 
 
-def _mean(rows: list[dict[str, Any]], key: str) -> tuple[float, float | None] | None:
+def _mean(rows: list[TableRow], key: str) -> tuple[float, float | None] | None:
     """Mean and sample std (None below 2 values) of the available values; None when there are none."""
     values = [r[key] for r in rows if r[key] is not None]
     if not values:
@@ -179,7 +142,7 @@ def _cell(stat: tuple[float, float | None] | None, spec: str, unit: str = "") ->
     return fmt(stat[0], spec) + (f" ± {fmt(stat[1], spec)}" if stat[1] is not None else "") + unit
 
 
-def _na_notes(methods: dict[str, list[dict[str, Any]]], labels: dict[str, str]) -> list[str]:
+def _na_notes(methods: dict[str, list[TableRow]], labels: dict[str, str]) -> list[str]:
     """One line per reason for the section's n/a values among the `labels` columns (column -> label shown),
     naming the columns and who lacks them (with several seeds, on which seeds when not on all of a method's:
     its mean is then over the others)."""
@@ -210,7 +173,7 @@ def _na_notes(methods: dict[str, list[dict[str, Any]]], labels: dict[str, str]) 
             *lines, ""]
 
 
-def table2_markdown(rows: list[dict[str, Any]]) -> str:
+def table2_markdown(rows: list[TableRow]) -> str:
     """The paper's Table II layout, one section per dataset/descriptor (and grid parameters); means over seeds."""
     sections: dict[tuple, dict[str, list]] = defaultdict(lambda: defaultdict(list))
     for r in rows:
@@ -249,7 +212,7 @@ def _read_steps(folder: Path) -> dict[str, np.ndarray] | None:
     return {name: np.atleast_1d(data[name]) for name in data.dtype.names}
 
 
-def _figures(cells: list[dict[str, Any]], rows: list[dict[str, Any]], reference: str, folder: Path) -> list[str]:
+def _figures(cells: list[FinishedCell], rows: list[TableRow], reference: str, folder: Path) -> list[str]:
     names = []
     folder.mkdir(parents=True, exist_ok=True)
     ref_ate = {(r["dataset"], r["descriptor"], r["parameters"], r["seed"]): r["ate_after_m"] for r in rows
@@ -265,22 +228,22 @@ def _figures(cells: list[dict[str, Any]], rows: list[dict[str, Any]], reference:
         plot_ate_difference(folder / "ate_difference.png", diffs, title=f"ATE after optimisation minus {reference}",
                             reference=reference, absent=absent)
         names.append("ate_difference.png")
-    by_dataset: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    by_dataset: dict[str, list[FinishedCell]] = defaultdict(list)
     for c in cells:
-        if c["info"]["pipeline"] == "online":
-            by_dataset[c["info"]["dataset"]].append(c)
+        if c.info["pipeline"] == "online":
+            by_dataset[c.info["dataset"]].append(c)
     for dataset, group in by_dataset.items():
-        first_seed = min(c["info"]["seed"] for c in group)
+        first_seed = min(c.info["seed"] for c in group)
         memory, graph, loops = {}, {}, {}
         for c in group:
-            steps = _read_steps(c["folder"])
+            steps = _read_steps(c.folder)
             if steps is None:
                 continue
-            label = c["info"]["method"] + (f" {c['info']['parameters']}" if c["info"]["parameters"] else "")
+            label = c.info["method"] + (f" {c.info['parameters']}" if c.info["parameters"] else "")
             new_kf = np.diff(steps["keyframes"], prepend=0) > 0
             graph.setdefault(label, []).append(steps["graph_update_ms"][new_kf])
             loops.setdefault(label, []).append(steps["loop_detection_ms"][new_kf])
-            if c["info"]["seed"] == first_seed:
+            if c.info["seed"] == first_seed:
                 memory[label] = (steps["frame"], accounted_bytes(steps), steps["rss_bytes"])
         if not memory:
             continue
@@ -292,7 +255,7 @@ def _figures(cells: list[dict[str, Any]], rows: list[dict[str, Any]], reference:
             title=f"{dataset}: per-step time")
         names += [f"memory_{tag}.png", f"step_times_{tag}.png"]
     sweeps: dict[str, dict[str, dict[str, tuple[list, list]]]] = {}
-    swept_rows = [(c["info"], r) for c, r in zip(cells, rows) if c["info"].get("swept")]
+    swept_rows = [(c.info, r) for c, r in zip(cells, rows) if c.info.get("swept")]
     for key in sorted({k for info, _ in swept_rows for k in info["swept"]}):
         sweeps[key] = {}
         for title, column in SWEEP_METRICS.items():
@@ -326,7 +289,7 @@ def write_report(results_dir: str | os.PathLike, reference: str | None = None,
     cells = _finished(out, expected, finished)
     rows = make_rows(cells, reference)
     write_text_atomic(out / "results.csv", rows_csv(rows, COLUMNS))
-    done = {c["info"]["id"] for c in cells}
+    done = {c.info["id"] for c in cells}
     failed_cells = [c for c in expected if c.id not in done and (out / "errors" / f"{c.id}.txt").is_file()]
     failed = [c.id for c in failed_cells]
     order = {c.id: i for i, c in enumerate(expected)}

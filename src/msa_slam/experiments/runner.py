@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from msa_slam.errors import InputError
+from msa_slam.evaluation.run_metrics import RunMetrics
 from msa_slam.experiments.estimate import GridClock, GridEstimate, estimate_grid
 from msa_slam.experiments.folder import CELL_FILE, KIND, cell_dir, finished_cells, read_cell, stale_cells, write_grid
 from msa_slam.experiments.grid import Cell, GridSpec, check_datasets, expand
@@ -87,7 +88,7 @@ def _remove_empty_folder(path: Path) -> list[Path]:
     return [path]
 
 
-def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bool = False) -> dict[str, Any]:
+def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bool = False) -> RunMetrics:
     """Run one cell and write its folder atomically; returns its metrics (a top-level function so Dask and
     process pools can ship it)."""
     from msa_slam.io.tables import write_json

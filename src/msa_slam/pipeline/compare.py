@@ -19,6 +19,9 @@ from msa_slam.errors import InputError
 from msa_slam.evaluation import ATE_ALIGNMENT, NA, fmt, notes, peak_rss_bytes
 from msa_slam.evaluation.display import spec_for
 from msa_slam.evaluation.full_rate import RPE_10M_EVO
+from msa_slam.evaluation.metrics import Unavailable, known
+from msa_slam.evaluation.metrics_json import to_json
+from msa_slam.evaluation.run_metrics import RunMetrics, TableRow
 from msa_slam.io.atomic import atomic_path, write_text_atomic
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, staged_dir
 from msa_slam.io.tables import mib, rows_csv, write_json
@@ -76,33 +79,11 @@ HEADERS = ("method", "keyframes", "candidates", "true cand.", "verified", "rejec
            "kf t. impr. [%]", "kf R. impr. [%]")
 
 
-def table_row(metrics: dict[str, Any]) -> dict[str, Any]:
-    """One Table-I row from a run's metrics: full-rate ATE/RPE first, keyframe-only ATE as kf_* columns
-    (memory: keyframes + graph; RSS growth: the process's settled RSS over the method's back-end, see comparison_report;
-    time: back-end stages)."""
-    m, full = metrics, metrics["full_rate"]
-    reference = m.get("pr_reference") or {}
-    loops = m.get("loop_accounting") or {}  # absent from metrics written before loops were accounted (n/a)
-    rejected = loops.get("rejected") or m["loop_closing"]["rejected"]
-    return {
-        "method": m["method"], "keyframes": m["keyframes"], "candidates": m["candidates"],
-        "true_candidates": loops.get("true_candidates"), "verified": m["verified"], "rejected": sum(rejected.values()),
-        **{f"rejected_{reason}": rejected.get(reason, 0) for reason in REJECTION_REASONS},
-        "false_loops": m["false_loops"], "false_accepted": loops.get("false_accepted"),
-        "revisits": loops.get("revisits"),
-        "revisit_recall": loops.get("revisit_recall"), "revisit_keyframe_recall": loops.get("revisit_keyframe_recall"),
-        "ate_before_m": full["before"]["ate_translation_m"],
-        "ate_after_m": full["after"]["ate_translation_m"], "improvement_t_pct": full["improvement_pct"]["translation"],
-        "improvement_r_pct": full["improvement_pct"]["rotation"],
-        "rpe_pct": full["after"]["rpe_kitti_translation_pct"], "rpe_10m_m": full["after"]["rpe_10m_translation_m"],
-        "pr_auc": m["pr_auc"], "f1_max": m["f1_max"], "pr_auc_reference": reference.get("pr_auc"),
-        "f1_max_reference": reference.get("f1_max"),
-        "memory_mib": m["memory_bytes"]["total"] / 2**20, "rss_growth_mib": m["rss_growth_bytes"] / 2**20,
-        "time_s": m["time_s"]["backend_total"],
-        "kf_ate_before_m": m["before"]["ate_translation_m"], "kf_ate_after_m": m["after"]["ate_translation_m"],
-        "kf_improvement_t_pct": m["improvement_pct"]["translation"],
-        "kf_improvement_r_pct": m["improvement_pct"]["rotation"],
-    }
+def table_row(metrics: RunMetrics) -> TableRow:
+    """One Table-I row (COLUMNS) of a run's report: full-rate ATE/RPE first, keyframe-only ATE as kf_* columns
+    (memory: keyframes + graph; RSS growth: the process's settled RSS over the method's back-end, see
+    comparison_report; time: back-end stages)."""
+    return metrics.comparison_row(REJECTION_REASONS)
 
 
 def _cell(column: str, value: Any) -> str:
@@ -112,7 +93,7 @@ def _cell(column: str, value: Any) -> str:
     return NA if value is None else str(value)
 
 
-def table_markdown(rows: Sequence[dict[str, Any]], rpe_span: str = "KITTI segments") -> str:
+def table_markdown(rows: Sequence[TableRow], rpe_span: str = "KITTI segments") -> str:
     """comparison.md: the rows of comparison.csv, each column with one number of decimals; `rpe_span`: the
     KITTI segment lengths the RPE covered (pipeline.report.rpe_segments), for its header."""
     headers = [h.format(rpe=rpe_span) for h in HEADERS]
@@ -122,26 +103,26 @@ def table_markdown(rows: Sequence[dict[str, Any]], rpe_span: str = "KITTI segmen
 
 
 def _unavailable(results: Sequence[RunResult], *keys: str) -> str:
-    """The first reason any method's metrics give under `keys` (metrics.json `unavailable`), else ""."""
-    return next((why for r in results for k in keys if (why := (r.metrics.get("unavailable") or {}).get(k))), "")
+    """The first reason any method's report gives under `keys` (metrics.json `unavailable`), else ""."""
+    return next((r.metrics.reasons[k] for r in results for k in keys if r.metrics.reasons.get(k)), "")
 
 
 def method_metrics(results: Sequence[RunResult]) -> list[MethodMetric]:
     """The metrics figure's panels: each method's difference to all samples (the paper's Fig. 5), then the
     absolute ATE with the odometry's (the same for every method) as one line, keyframes and memory."""
-    full = [r.metrics["full_rate"] for r in results]
+    full = [r.metrics.full_rate for r in results]
     why = _unavailable(results, "ate", "full_rate_ate_optimised", "full_rate_ate")  # "no ground truth" first
-    ate = [f["after"]["ate_translation_m"] for f in full]
-    memory = [r.metrics["memory_bytes"]["total"] / 2**20 for r in results]
+    ate = [known(f.after.ate_translation_m) for f in full]
+    memory = [r.metrics.memory.total_mib for r in results]
     return [
         MethodMetric("t. ATE", "m", ate, 3, difference=True, why=why),
-        MethodMetric("R. ATE", "deg", [f["after"]["ate_rotation_deg"] for f in full], 3, difference=True, why=why),
+        MethodMetric("R. ATE", "deg", [known(f.after.ate_rotation_deg) for f in full], 3, difference=True, why=why),
         MethodMetric("memory", "MiB", memory, 2, difference=True),
-        MethodMetric("back-end time", "s", [r.metrics["time_s"]["backend_total"] for r in results], 2,
+        MethodMetric("back-end time", "s", [r.metrics.timing.backend_total for r in results], 2,
                      difference=True),
         MethodMetric("t. ATE, every frame", "m", ate, 3, why=why,
-                     line=("odometry", full[0]["before"]["ate_translation_m"])),
-        MethodMetric("keyframes", "", [r.metrics["keyframes"] for r in results], 0),
+                     line=("odometry", known(full[0].before.ate_translation_m))),
+        MethodMetric("keyframes", "", [r.metrics.run.keyframes for r in results], 0),
         MethodMetric("memory (keyframes + graph)", "MiB", memory, 2),
     ]
 
@@ -156,7 +137,7 @@ def _figures(results: Sequence[RunResult], folder: Path, failed: Mapping[str, st
     (`failed`: the methods that failed, with their error)."""
     folder.mkdir()
     labels = [r.config.name for r in results]
-    sequence = sequence_title(results[0].metrics["sequence"], results[0].config.source, len(results[0]))
+    sequence = sequence_title(results[0].metrics.run.sequence, results[0].config.source, len(results[0]))
     gone = {name: "failed" for name in failed}
     plot_method_metrics(folder / "metrics.png", labels, method_metrics(results), reference="all",
                         title=f"{sequence} ({results[0].config.mode} loops); top: difference to all samples, "
@@ -170,7 +151,7 @@ def _figures(results: Sequence[RunResult], folder: Path, failed: Mapping[str, st
     names = ["metrics.png", "trajectories.png"]
     for protocol, file, what, key in PR_FIGURES:
         curves = {r.config.name: c for r in results if (c := _pr(r, protocol)) is not None and c.auc is not None}
-        absent = {**{r.config.name: (r.metrics.get("unavailable") or {}).get(key) or "no loop candidates"
+        absent = {**{r.config.name: r.metrics.reasons.get(key) or "no loop candidates"
                      for r in results if r.config.name not in curves}, **gone}
         if curves:
             plot_pr_curves(curves, folder / file, title=f"{sequence}: {what}", absent=absent)
@@ -198,14 +179,14 @@ def pr_csv(results: Sequence[RunResult]) -> str:
 
 def sweep_markdown(results: Sequence[RunResult]) -> str:
     """Loops accepted and full-rate t. ATE improvement per method at each threshold of the sweep."""
-    swept = [r for r in results if r.metrics.get("threshold_sweep")]
+    swept = [r for r in results if not isinstance(r.metrics.place_recognition.sweep, Unavailable)]
     if not swept:
         return ""
-    thresholds = [row["threshold"] for row in swept[0].metrics["threshold_sweep"]]
+    thresholds = [row.threshold for row in swept[0].metrics.place_recognition.sweep]
     lines = ["| method | " + " | ".join(f"{t:.2f}" for t in thresholds) + " |", "|" + "---|" * (len(thresholds) + 1)]
     for r in swept:
-        cells = {row["threshold"]: f"{row['loops_accepted']} / {fmt(row['improvement_t_pct'], '.1f', ' %')}"
-                 for row in r.metrics["threshold_sweep"]}
+        cells = {row.threshold: f"{row.loops_accepted} / {fmt(row.improvement_t_pct, '.1f', ' %')}"
+                 for row in r.metrics.place_recognition.sweep}
         lines.append(f"| {r.config.name} | " + " | ".join(cells.get(t, NA) for t in thresholds) + " |")
     return "\n".join(lines) + "\n"
 
@@ -227,7 +208,7 @@ def comparison_report(fe: Frontend, results: Sequence[RunResult], table: str, fi
              f"Odometry `{cfg.odometry}`, descriptor `{cfg.descriptor}`, "
              f"loops: {candidate_rule(cfg)}, {cfg.mode} verification (small_gicp residual < "
              f"{cfg.verifier.max_residual} m), GTSAM Levenberg-Marquardt. Shared front end: {front}"
-             f"{replayed_note(fe.cached)}. {deskew_text(results[0].metrics)}".rstrip(), "",
+             f"{replayed_note(fe.cached)}. {deskew_text(results[0].metrics.setup.deskew)}".rstrip(), "",
              *([] if results[0].gt_poses is not None else [
                  "No ground truth: ATE, RPE, PR-AUC / F1-max and false loops are n/a for every method (the "
                  "definitions below apply to a sequence with ground truth).", ""]),
@@ -252,7 +233,8 @@ def comparison_report(fe: Frontend, results: Sequence[RunResult], table: str, fi
              "sampling + keyframe store + loop search + verification + optimisation.", "", table, "",
              *_sweep_lines(results),
              _peak_rss(results, workers, main_peak), ""]
-    method_notes = [f"- {r.config.name}: {note}" for r in results for note in notes(r.metrics)]
+    method_notes = [f"- {r.config.name}: {note}" for r in results
+                    for note in notes(r.metrics.reasons, r.metrics.warnings)]
     if method_notes:
         lines += ["Notes (n/a values and warnings):", "", *method_notes, ""]
     lines += [f"![{n}](figures/{n})" for n in figures]
@@ -273,7 +255,7 @@ def _processes(workers: int) -> str:
 def _peak_rss(results: Sequence[RunResult], workers: int, main_peak: str | None = None) -> str:
     """The peak-RSS line of report.md: of the one process, or of the busiest worker and of the main process
     (`main_peak`, else this process's peak now)."""
-    peak = mib(max(r.metrics["peak_rss_bytes"] for r in results))
+    peak = mib(max(r.metrics.memory.peak_rss_bytes for r in results))
     if workers == 1:
         return (f"Process peak RSS: {peak} (whole process: every method and the shared front end; not a per-method "
                 "figure).")
@@ -285,7 +267,7 @@ def _peak_rss(results: Sequence[RunResult], workers: int, main_peak: str | None 
 def _sweep_lines(results: Sequence[RunResult]) -> list[str]:
     sweep = sweep_markdown(results)
     if not sweep:
-        reasons = {r.metrics["unavailable"].get("threshold_sweep") for r in results}
+        reasons = {r.metrics.reasons.get("threshold_sweep") for r in results}
         if reasons == {SWEEP_NOT_RUN}:
             return [f"Threshold sensitivity: {SWEEP_NOT_RUN}.", ""]
         return []  # why is in each method's notes
@@ -379,7 +361,7 @@ def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = Tr
 
 
 def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: bool, window_fix: str, workers: int
-                ) -> tuple[list[dict[str, Any]], dict[str, str]]:
+                ) -> tuple[list[TableRow], dict[str, str]]:
     """One comparison folder's files in `tmp` (the methods in `workers` processes); its table rows and failed
     methods."""
     workers = min(workers, len(configs))  # no idle workers
@@ -389,7 +371,7 @@ def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: boo
     table = table_markdown(rows, rpe_segments(results[0].gt_poses)[0] if results else "KITTI segments")
     (tmp / "comparison.md").write_text(table)
     (tmp / "comparison.csv").write_text(rows_csv(rows, COLUMNS))
-    write_json(tmp / "comparison.json", [r.metrics for r in results])
+    write_json(tmp / "comparison.json", [to_json(r.metrics) for r in results])
     figures = _figures(results, tmp / "figures", failed) if results else []
     main_peak = mib(peak_rss_bytes())
     write_json(tmp / PROCESSES, {"workers": workers, "main_peak_rss": main_peak})
@@ -440,7 +422,7 @@ def _say(quiet: bool, line: str) -> None:
         print(line, file=sys.stderr, flush=True)
 
 
-def write_spread(out: Path, base: RunConfig, rows: dict[int, list[dict[str, Any]]], failed: dict[str, str],
+def write_spread(out: Path, base: RunConfig, rows: dict[int, list[TableRow]], failed: dict[str, str],
                   left_out: list[int], rerun: Sequence[str] = ()) -> None:
     """seeds.md, seeds.csv, seeds.json and report.md at the top of `out`, each replaced atomically; `rerun`: the
     lines of the seeds this run reran because their data or code changed, listed in report.md."""
@@ -449,7 +431,7 @@ def write_spread(out: Path, base: RunConfig, rows: dict[int, list[dict[str, Any]
     write_text_atomic(out / "seeds.md", table)
     write_text_atomic(out / "seeds.csv", rows_csv(seed_rows(summary), SEED_COLUMNS))
     with atomic_path(out / "seeds.json") as path:
-        write_json(path, summary)
+        write_json(path, summary.to_json())
     lines = [f"# Sampler comparison over world seeds: `{base.dataset}`", "",
              "Each seed simulates a different world along the same trajectory; every seed's full comparison "
              "(table, figures, per-method runs) is under seeds/seed-<n>/. Metrics as in those reports (ATE and "

@@ -22,6 +22,7 @@ from msa_slam.descriptors import Descriptor, make_descriptor
 from msa_slam.descriptors.cache import descriptor_key
 from msa_slam.errors import InputError
 from msa_slam.evaluation import StageTimer
+from msa_slam.evaluation.metrics import Deskew
 from msa_slam.evaluation.sanity import frontend_warnings
 from msa_slam.io.cache import CacheDir, Computed, cache_root
 from msa_slam.odometry import KissOdometry, PosesFromFile
@@ -59,7 +60,7 @@ class Frontend:
     odometry_effective: dict[str, Any] = field(default_factory=dict)  # the odometry's full effective config
     warnings: list[str] = field(default_factory=list)  # source_warnings, degenerate odometry or ground truth
     replayed_s: dict[str, float] = field(default_factory=dict)  # stages read from the cache: s they took computed
-    deskew: dict[str, Any] = field(default_factory=dict)  # the deskew done (deskew_metrics)
+    deskew: Deskew = Deskew(None, "not recorded")  # the deskew done (deskew_record)
     clouds: FrameClouds | None = None
 
     def clouds_for(self, config: RunConfig) -> FrameClouds | None:
@@ -150,10 +151,9 @@ def deskew_choice(config: RunConfig, point_times: bool | None) -> tuple[bool | N
     return (True, "per-point times") if point_times else (False, "no per-point times")
 
 
-def deskew_metrics(config: RunConfig, point_times: bool | None) -> dict[str, Any]:
-    """metrics.json's `deskew` (true, false, or null for an odometry other than KISS-ICP) and `deskew_from`."""
-    on, why = deskew_choice(config, point_times)
-    return {"deskew": on, "deskew_from": why}
+def deskew_record(config: RunConfig, point_times: bool | None) -> Deskew:
+    """The deskew done (metrics.json `deskew`: true, false, or null for an odometry other than KISS-ICP) and why."""
+    return Deskew(*deskew_choice(config, point_times))
 
 
 def config_as_run(config: Config, point_times: bool | None) -> Config:
@@ -241,7 +241,7 @@ def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[R
     frontend = Frontend(sequence, sequence.gt_poses, poses.values, descriptors.values, descriptor,
                         _odometry_config(config, n), timer, {k: v.cached for k, v in stages.items()},
                         odometry_effective=dict(odometry.config), warnings=warnings, replayed_s=replayed,
-                        deskew=deskew_metrics(config, sequence.point_times),
+                        deskew=deskew_record(config, sequence.point_times),
                         clouds=stages["clouds"].values if "clouds" in stages else None)
     frontend.descriptor_settings = (config.descriptor, config.descriptor_params)
     return frontend

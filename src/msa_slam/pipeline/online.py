@@ -23,7 +23,8 @@ from __future__ import annotations
 import logging
 import time
 from contextlib import closing
-from typing import Any, Protocol
+from dataclasses import replace
+from typing import Protocol
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -31,19 +32,20 @@ from threadpoolctl import threadpool_limits
 from msa_slam.backend import IncrementalPoseGraph
 from msa_slam.descriptors import make_descriptor
 from msa_slam.errors import InputError
+from msa_slam.evaluation.metrics import ONLINE, Latency, RunSetup, Throughput, Timing
 from msa_slam.evaluation.resources import current_rss_bytes, throughput
 from msa_slam.evaluation.sanity import frontend_warnings
 from msa_slam.odometry import KissOdometry, NoisyOdometry, OdometryCache, ReplayedOdometry
 from msa_slam.odometry.kiss import DEFAULT_THREADS
-from msa_slam.pipeline.frontend import (config_as_run, deskew_metrics, make_odometry, pipeline_cache,
+from msa_slam.pipeline.frontend import (config_as_run, deskew_record, make_odometry, pipeline_cache,
                                         source_warnings)
 from msa_slam.pipeline.online_config import NO_TIMESTAMPS, NOT_REPRODUCIBLE, OnlineConfig
 from msa_slam.sources import open_source
 from msa_slam.progress import LogProgress, Progress, progress_bar
 from msa_slam.registration import make_cloud_store
 from msa_slam.sampling.msa.warm import load_kernels
-from msa_slam.slam import (BACKEND_STEPS, RunResult, SlamBackend, build_backend, build_loop_closer, core_metrics,
-                           slam_sampler)
+from msa_slam.slam import (BACKEND_STEPS, ProtocolRecord, RunResult, SlamBackend, build_backend, build_loop_closer,
+                           measure, slam_sampler)
 from msa_slam.types import FrameSource
 from msa_slam.viz.labels import counted as noun_count  # `counted`: run_online's loop tally
 from msa_slam.workers import available_cpus
@@ -70,42 +72,40 @@ class MemoryRecorder:
         mem["rss_bytes"][frame] = current_rss_bytes()
 
 
-def _percentiles(values: np.ndarray) -> dict[str, float]:
+def _percentiles(values: np.ndarray) -> Latency:
     v = np.asarray(values, dtype=np.float64)
     if not v.size:
-        return {"p50": 0.0, "p95": 0.0, "p99": 0.0, "max": 0.0}
+        return Latency(0.0, 0.0, 0.0, 0.0)
     p50, p95, p99 = np.percentile(v, [50, 95, 99])
-    return {"p50": round(float(p50), 3), "p95": round(float(p95), 3), "p99": round(float(p99), 3),
-            "max": round(float(v.max()), 3)}
+    return Latency(round(float(p50), 3), round(float(p95), 3), round(float(p99), 3), round(float(v.max()), 3))
 
 
-def _metrics(result: RunResult, seconds: float, times_known: bool = True) -> dict[str, Any]:
-    """The shared metrics (msa_slam.slam.core_metrics) plus throughput over the pipeline's `seconds` (see
-    run_online), latency and the memory store (`times_known` False: the frames' times are frame numbers, see
-    frame_rate_hz)."""
+def _throughput(result: RunResult, seconds: float, cached: bool, times_known: bool = True) -> Throughput:
+    """Throughput over the pipeline's `seconds` (see run_online) and per-step latency (`times_known` False: the
+    frames' times are frame numbers, see frame_rate_hz)."""
     cfg, mem, n = result.config, result.memory, len(result)
-    totals = {s: float(result.steps_ms[s].sum()) / 1e3 for s in STEPS}
-    final_s = result.final_s["optimisation"]
-    backend = float(result.backend_ms.sum()) / 1e3 + final_s
-    metrics = {"pipeline": "online", **core_metrics(result)}
-    memory = metrics["memory_bytes"]
-    memory.update({"keyframe_clouds_on_disk": result.memory_bytes["cloud_disk_bytes"], "cloud_store": cfg.cloud_store})
+    backend = _backend_seconds(result)
     graph_steps = result.steps_ms["graph_update"][mem["keyframes"] > np.concatenate([[0], mem["keyframes"][:-1]])]
     rate, rate_from = frame_rate_hz(float(result.times[0]), float(result.times[-1]), n, cfg.sensor_rate_hz,
                                     times_known)
     fps, realtime_factor = throughput(n, seconds, rate)
-    metrics.update({
-        "bytes_per_keyframe": memory["total"] / metrics["keyframes"],
-        "time_s": {**{s: round(v, 4) for s, v in totals.items()}, "final_optimisation": round(final_s, 4),
-                   "backend_total": round(backend, 4)},
-        "pipeline_time_s": round(seconds, 4), "fps": fps,
-        "backend_fps": n / backend if backend > 0 else float("inf"),
-        "frame_rate_hz": rate, "frame_rate_from": rate_from, "realtime_factor": realtime_factor,
-        "latency_ms": {"backend": _percentiles(result.backend_ms),
-                       **{s: _percentiles(result.steps_ms[s]) for s in STEPS},
-                       "graph_update_per_keyframe_step": _percentiles(graph_steps)},
-    })
-    return metrics
+    latency = {"backend": _percentiles(result.backend_ms), **{s: _percentiles(result.steps_ms[s]) for s in STEPS},
+               "graph_update_per_keyframe_step": _percentiles(graph_steps)}
+    return Throughput(round(seconds, 4), fps, n / backend if backend > 0 else float("inf"), rate, rate_from,
+                      realtime_factor, latency, cached)
+
+
+def _backend_seconds(result: RunResult) -> float:
+    return float(result.backend_ms.sum()) / 1e3 + result.final_s["optimisation"]
+
+
+def _timing(result: RunResult, replayed_s: dict[str, float]) -> Timing:
+    """Seconds per step, the final optimisation's and the back end's in all."""
+    totals = {s: float(result.steps_ms[s].sum()) / 1e3 for s in STEPS}
+    stages = {**{s: round(v, 4) for s, v in totals.items()},
+              "final_optimisation": round(result.final_s["optimisation"], 4),
+              "backend_total": round(_backend_seconds(result), 4)}
+    return Timing(stages, replayed_s)
 
 
 def frame_rate_hz(first: float, last: float, frames: int, fallback: float,
@@ -193,7 +193,7 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     for note in threads_note(threads):
         logger.warning(note)
         notes.append(note)
-    deskew = deskew_metrics(config, source.point_times)
+    deskew = deskew_record(config, source.point_times)
     config = config_as_run(config, source.point_times)  # what result.config (config.yaml) records
     descriptor = make_descriptor(config.descriptor, **config.descriptor_params)
     clouds = make_cloud_store(config.cloud_store, config.verifier.voxel_size, config.store_dir)
@@ -216,7 +216,7 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
         credit = 0.0  # s: replayed odometry's time as computed, less the time its replay took
         counted = accepted = 0  # backend.loops only grows: the loops counted so far, and how many were accepted
 
-        def figures(frames: int, last_time: float, keyframes: int, seconds: float) -> dict[str, Any]:
+        def figures(frames: int, last_time: float, keyframes: int, seconds: float) -> dict[str, float]:
             """The progress line's fields after `frames` frames in the pipeline's `seconds`."""
             nonlocal counted, accepted
             if quiet:
@@ -253,14 +253,12 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
     if viewer is not None:
         viewer.finish(result)
     m = len(result)
-    result.steps_ms = {**{s: v[:m] for s, v in front_ms.items()}, **result.steps_ms}
-    result.memory = {k: v[:m] for k, v in recorder.memory.items()}
-    front = [result.steps_ms[s] for s in front_ms]
-    result.memory_bytes["record_bytes"] += sum(v.nbytes for v in (*result.memory.values(), *front))  # per-frame series
-    result.metrics = {**_metrics(result, seconds, times_known), "odometry_cached": cached,
-                      "replayed_time_s": {"odometry": round(float(odometry.ms[:m].sum()) / 1e3, 4)} if replayed else {},
-                      "threads": {"odometry": threads, "verification": config.verifier.num_threads, "blas_backend": 1},
-                      **deskew}
+    steps_ms = {**{s: v[:m] for s, v in front_ms.items()}, **result.steps_ms}
+    memory = {k: v[:m] for k, v in recorder.memory.items()}
+    front = [steps_ms[s] for s in front_ms]
+    records = result.memory_bytes["record_bytes"] + sum(v.nbytes for v in (*memory.values(), *front))  # per-frame
+    result = replace(result, steps_ms=steps_ms, memory=memory,
+                     memory_bytes={**result.memory_bytes, "record_bytes": records})
     warnings = frontend_warnings(result.gt_poses, result.odometry, result.times)
     if isinstance(odometry, KissOdometry):
         warnings += odometry.unregistered_warning(m)
@@ -268,5 +266,9 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
         warnings += odometry.notes
     for warning in warnings:
         logger.warning(warning)
-    result.metrics["warnings"] = [*notes, *warnings, *result.metrics["warnings"]]
-    return result
+    replayed_s = {"odometry": round(float(odometry.ms[:m].sum()) / 1e3, 4)} if replayed else {}
+    threads_used = {"odometry": threads, "verification": config.verifier.num_threads, "blas_backend": 1}
+    record = ProtocolRecord(ONLINE, (*notes, *warnings), _timing(result, replayed_s), RunSetup(deskew, threads_used),
+                            throughput=_throughput(result, seconds, cached, times_known),
+                            cloud_store=config.cloud_store)
+    return replace(result, metrics=measure(result, record))

@@ -12,6 +12,9 @@ from msa_slam.datasets.options import SourceOptions
 from msa_slam.evaluation import KITTI_LENGTHS_M, NA, PROCESS_RSS_LABEL, fmt, notes, segment_errors
 from msa_slam.evaluation.full_rate import RPE_10M_EVO, STEP_FRAMES, path_length
 from msa_slam.evaluation.loops import FALSE_LOOP_ANGLE_DEG
+from msa_slam.evaluation.metrics import (Deskew, FullRateTrajectory, LoopCounts, Memory, ReferencePR, RunSetup,
+                                         SweepRow, Unavailable, known)
+from msa_slam.evaluation.run_metrics import RunMetrics
 from msa_slam.io.tables import mib
 from msa_slam.pipeline.online_config import NO_TIMESTAMPS, NOT_REPRODUCIBLE
 from msa_slam.slam.backend import slam_sampler_params
@@ -24,37 +27,34 @@ class ReportedRun(Protocol):
     (pipeline.stored), so `msa-slam report` rewrites the same text without running anything again."""
 
     config: Any
-    metrics: dict[str, Any]
+    metrics: RunMetrics
     gt_poses: np.ndarray | None
 
 
-def notes_markdown(metrics: dict[str, Any]) -> list[str]:
+def notes_markdown(metrics: RunMetrics) -> list[str]:
     """report.md lines: why each n/a metric is unavailable, then the warnings (nothing when all is well)."""
-    items = notes(metrics)
+    items = notes(metrics.reasons, metrics.warnings)
     return ["Notes:", "", *(f"- {item}" for item in items), ""] if items else []
 
 
-def loop_accounting_text(metrics: dict[str, Any], loop_radius: float, min_travel_m: float) -> str:
+def loop_accounting_text(acc: LoopCounts, loop_radius: float, min_travel_m: float) -> str:
     """One paragraph on what became of the loop candidates (metrics.json `loop_accounting`): rejections by
     reason, false accepted loops and the revisits closed (n/a without ground truth: the notes say why)."""
-    acc = metrics.get("loop_accounting")
-    if acc is None:
-        return ""
-    rejected = ", ".join(f"{reason} {n}" for reason, n in acc["rejected"].items() if n) or "none"
-    text = (f"Loop accounting: {acc['registered']} of {counted(acc['candidates'], 'candidate')} registered, "
-            f"{acc['accepted']} accepted, rejected: {rejected}.")
-    if acc["true_candidates"] is None:
+    rejected = ", ".join(f"{reason} {n}" for reason, n in acc.rejected.items() if n) or "none"
+    text = (f"Loop accounting: {acc.registered} of {counted(acc.candidates, 'candidate')} registered, "
+            f"{acc.accepted} accepted, rejected: {rejected}.")
+    if isinstance(acc.true_candidates, Unavailable):
         return text + " True candidates, false accepted loops and revisit recall n/a (no ground truth)."
-    text += (f" {acc['true_candidates']} true candidates (within {loop_radius:g} m in ground truth); "
-             f"{acc['false_accepted']} accepted loops false (measured pose off ground truth by > {loop_radius:g} m "
+    text += (f" {acc.true_candidates} true candidates (within {loop_radius:g} m in ground truth); "
+             f"{acc.false_accepted} accepted loops false (measured pose off ground truth by > {loop_radius:g} m "
              f"or > {FALSE_LOOP_ANGLE_DEG:g} deg).")
     apart = f"keyframe pairs within {loop_radius:g} m, >= {min_travel_m:g} m of path apart"
-    if not acc["revisits"]:
+    if not acc.revisits:
         return text + f" No ground-truth revisit ({apart})."
     return text + (f" Revisits ({apart}): "
-                   f"{acc['revisits_closed']} of {acc['revisits']} closed by an accepted loop (recall "
-                   f"{fmt(acc['revisit_recall'])}); keyframes with a revisit: {acc['revisit_keyframes_closed']} of "
-                   f"{acc['revisit_keyframes']} closed (recall {fmt(acc['revisit_keyframe_recall'])}).")
+                   f"{acc.revisits_closed} of {acc.revisits} closed by an accepted loop (recall "
+                   f"{fmt(acc.revisit_recall)}); keyframes with a revisit: {acc.revisit_keyframes_closed} of "
+                   f"{acc.revisit_keyframes} closed (recall {fmt(acc.revisit_keyframe_recall)}).")
 
 
 def scans_read(source: SourceOptions) -> str:
@@ -96,50 +96,52 @@ def rpe_segments(gt: np.ndarray | None) -> tuple[str, str]:
                   f"of {total:.1f} m is too short for the longer ones, up to {longest:g} m)")
 
 
-def _full_rate_rows(full: dict[str, Any], span: str) -> list[str]:
-    b, a, imp = full["before"], full["after"], full["improvement_pct"]
+def _full_rate_rows(full: FullRateTrajectory, span: str) -> list[str]:
+    b, a, imp = full.before, full.after, full.improvement
     rows = (("ATE translation [m], full rate", "ate_translation_m", "translation"),
             ("ATE rotation [deg], full rate", "ate_rotation_deg", "rotation"),
             (f"RPE translation [%], {span}", "rpe_kitti_translation_pct", None),
             (f"RPE rotation [deg/100 m], {span}", "rpe_kitti_rotation_deg_per_100m", None),
             ("RPE translation [m], 10 m, all pairs, mean", "rpe_10m_translation_m", None),
             ("RPE rotation [deg], 10 m, all pairs, mean", "rpe_10m_rotation_deg", None))
-    return [f"| {label} | {fmt(b[key])} | {fmt(a[key])} | {fmt(imp[part], '.1f', ' %') if part else ''} |"
-            for label, key, part in rows]
+    return [f"| {label} | {fmt(getattr(b, key))} | {fmt(getattr(a, key))} | "
+            f"{fmt(getattr(imp, part), '.1f', ' %') if part else ''} |" for label, key, part in rows]
 
 
-def sweep_lines(sweep: list[dict[str, Any]] | None) -> list[str]:
+def sweep_lines(sweep: tuple[SweepRow, ...] | Unavailable) -> list[str]:
     """The threshold sweep as a table (nothing when it was not run)."""
-    if not sweep:
+    if isinstance(sweep, Unavailable) or not sweep:
         return []
     return ["Threshold sensitivity (only loop closing and optimisation re-run on the same keyframes):", "",
             "| similarity threshold | candidates | loops accepted | false loops | full-rate t. ATE impr. |",
             "|---|---|---|---|---|",
-            *(f"| {r['threshold']:.2f} | {r['candidates']} | {r['loops_accepted']} | {r['false_loops']} | "
-              f"{fmt(r['improvement_t_pct'], '.1f', ' %')} |" for r in sweep), ""]
+            *(f"| {r.threshold:.2f} | {r.candidates} | {r.loops_accepted} | {r.false_loops} | "
+              f"{fmt(r.improvement_t_pct, '.1f', ' %')} |" for r in sweep), ""]
 
 
-def _rss_growth(m: dict) -> str:
+def _rss_growth(memory: Memory) -> str:
     """RSS growth over this run's back-end beside the accounted bytes it should be explained by."""
-    return (f"RSS growth over this run's back-end: {mib(m['rss_growth_bytes'])} (accounted in RAM: "
-            f"{mib(m['memory_bytes']['in_ram'])}, ratio {fmt(m['rss_growth_ratio'], '.2f')})")
+    return (f"RSS growth over this run's back-end: {mib(memory.rss_growth_bytes)} (accounted in RAM: "
+            f"{mib(memory.accounted.in_ram)}, ratio {fmt(memory.rss_growth_ratio, '.2f')})")
 
 
 def _batch_lines(result: ReportedRun) -> list[str]:
     m = result.metrics
-    ref = m.get("pr_reference") or {}
+    pr, timing = m.place_recognition, m.timing
+    ref = pr.reference
+    auc, f1 = (ref.pr_auc, ref.f1_max) if isinstance(ref, ReferencePR) else (ref, ref)
     return [
         "| PR-AUC / F1-max (paper) | PR-AUC / F1-max (reference protocol) | memory (keyframes + graph) | "
         "back-end time |", "|---|---|---|---|",
-        f"| {fmt(m['pr_auc'])} / {fmt(m['f1_max'])} | {fmt(ref.get('pr_auc'))} / {fmt(ref.get('f1_max'))} | "
-        f"{mib(m['memory_bytes']['total'])} | {m['time_s']['backend_total']:.2f} s |", "",
-        *sweep_lines(m.get("threshold_sweep")),
-        f"{PROCESS_RSS_LABEL}: {mib(m['peak_rss_bytes'])}; {_rss_growth(m)}", "",
-        f"Sampler time over the data's duration: {fmt(m.get('sampler_realtime_fraction'), '.4f')} "
-        f"({m['sampler_stats']['optimisation_ms_total'] / 1e3:.2f} s of window optimisation).", "",
-        "Stage times [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in {**m['frontend_time_s'], **m['time_s']}.items()
+        f"| {fmt(pr.pr_auc)} / {fmt(pr.f1_max)} | {fmt(auc)} / {fmt(f1)} | "
+        f"{mib(m.memory.accounted.total)} | {timing.backend_total:.2f} s |", "",
+        *sweep_lines(pr.sweep),
+        f"{PROCESS_RSS_LABEL}: {mib(m.memory.peak_rss_bytes)}; {_rss_growth(m.memory)}", "",
+        f"Sampler time over the data's duration: {fmt(timing.sampler_realtime_fraction, '.4f')} "
+        f"({m.sampler_stats['optimisation_ms_total'] / 1e3:.2f} s of window optimisation).", "",
+        "Stage times [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in {**timing.frontend_s, **timing.stages}.items()
                                    if v is not None)  # threshold_sweep: None when not run
-        + replayed_note(m["frontend_cached"]), "",
+        + replayed_note(timing.frontend_cached), "",
     ]
 
 
@@ -153,12 +155,12 @@ def replayed_note(cached: dict[str, bool]) -> str:
     return f"  ({', '.join(stages)} replayed from the cache, counted with the time {pronoun} took when computed)"
 
 
-def deskew_text(m: dict[str, Any]) -> str:
+def deskew_text(deskew: Deskew) -> str:
     """The deskew the odometry did and why (metrics.json `deskew`, `deskew_from`); empty for an odometry other
-    than KISS-ICP or a run recorded before these were."""
-    if m.get("deskew") is None:
+    than KISS-ICP."""
+    if deskew.on is None:
         return ""
-    return f"Odometry: deskew {'on' if m['deskew'] else 'off'} ({m['deskew_from']})."
+    return f"Odometry: deskew {'on' if deskew.on else 'off'} ({deskew.why})."
 
 
 def _rate_source(frame_rate_from: str) -> str:
@@ -172,29 +174,29 @@ def _rate_source(frame_rate_from: str) -> str:
 
 def _online_lines(result: ReportedRun) -> list[str]:
     m = result.metrics
-    lat = m["latency_ms"]
+    th, memory = m.throughput, m.memory
     return [
         "| PR-AUC / F1-max | memory (keyframes + graph) | bytes / keyframe | frames/s | back-end frames/s | "
         "real-time factor | back-end p99 [ms] |", "|---|---|---|---|---|---|---|",
-        f"| {fmt(m['pr_auc'])} / {fmt(m['f1_max'])} | {mib(m['memory_bytes']['total'])} "
-        f"({m['memory_bytes']['cloud_store']}) | "
-        f"{m['bytes_per_keyframe']:.0f} | {m['fps']:.1f} | {m['backend_fps']:.1f} | "
-        f"{m['realtime_factor']:.2f} | {lat['backend']['p99']:.1f} |", "",
+        f"| {fmt(m.place_recognition.pr_auc)} / {fmt(m.place_recognition.f1_max)} | "
+        f"{mib(memory.accounted.total)} ({memory.accounted.cloud_store}) | "
+        f"{memory.bytes_per_keyframe(m.run.keyframes):.0f} | {th.fps:.1f} | {th.backend_fps:.1f} | "
+        f"{th.realtime_factor:.2f} | {th.latency_ms['backend'].p99:.1f} |", "",
         "Frames/s: of the whole pipeline as it ran (reading the frames, odometry, descriptor, back end"
         + (", the odometry replayed from the cache counted with the time it took when computed" if
-           m.get("odometry_cached") else "") + f"); real-time factor: frames/s over the data's "
-        f"{m['frame_rate_hz']:.1f} frames/s (" + _rate_source(m["frame_rate_from"]) + ").", "",
-        f"{PROCESS_RSS_LABEL}: {mib(m['peak_rss_bytes'])}; {_rss_growth(m)}", "",
-        "Step totals [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in m["time_s"].items())
-        + replayed_note({"odometry": bool(m.get("odometry_cached"))}), "",
-        *([threads_text(m), ""] if threads_text(m) else []),
+           th.odometry_cached else "") + f"); real-time factor: frames/s over the data's "
+        f"{th.frame_rate_hz:.1f} frames/s (" + _rate_source(th.frame_rate_from) + ").", "",
+        f"{PROCESS_RSS_LABEL}: {mib(memory.peak_rss_bytes)}; {_rss_growth(memory)}", "",
+        "Step totals [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in m.timing.stages.items())
+        + replayed_note({"odometry": th.odometry_cached}), "",
+        *([threads_text(m.setup), ""] if threads_text(m.setup) else []),
     ]
 
 
-def threads_text(m: dict[str, Any]) -> str:
+def threads_text(setup: RunSetup) -> str:
     """The threads KISS-ICP registered with (metrics.json `threads`), and whether the run is bit-reproducible;
-    empty for another odometry or a run recorded before online runs kept the count."""
-    threads = m.get("threads", {}).get("odometry")
+    empty for another odometry."""
+    threads = setup.odometry_threads
     if threads is None:
         return ""
     return f"Odometry: KISS-ICP on {counted(threads, 'thread')}" + (
@@ -217,14 +219,14 @@ RESULT_FILES = {
 }
 
 
-def standstill_note(cfg: Any, m: dict[str, Any]) -> str:
+def standstill_note(cfg: Any, m: RunMetrics) -> str:
     """The standstill gate the SLAM core ran the sampler with, and the frames it held back (empty when off)."""
     gate = slam_sampler_params(cfg.sampler, cfg.sampler_params)
     motion, rotation = float(gate.get("min_motion", 0.0)), float(gate.get("min_rotation", 0.0))
     if motion <= 0:
         return ""
     turned = f" and turned < {rotation:g} deg" if rotation > 0 else ""
-    held = (m.get("sampler_stats") or {}).get("standstill_frames")
+    held = m.sampler_stats.get("standstill_frames")  # counted by samplers with the gate
     return (f" Standstill gate: a frame that moved < {motion:g} m{turned} since the last frame passed on is no "
             f"keyframe candidate" + ("" if held is None else f" ({counted(held, 'frame')} held back)") + ".")
 
@@ -235,13 +237,13 @@ RPE_STATISTICS = ("The KITTI RPE is the KITTI devkit's mean over the segments; t
 GT_FILE = "trajectories/gt.tum"  # written only for a run with a ground-truth pose for every frame
 
 
-def alignment_text(m: dict[str, Any], files: Collection[str], ground_truth: bool = True) -> str:
+def alignment_text(m: RunMetrics, files: Collection[str], ground_truth: bool = True) -> str:
     """How the ATE rows were aligned, with the evo commands that reproduce them and the RPE rows only when the run
     wrote the ground-truth trajectories they read (`files`): a report must not send its reader to a missing file.
     `ground_truth`: whether the run had any (without, there is no ATE to align)."""
     if not ground_truth:
         return "ATE alignment: n/a (no ground truth, so no ATE to align and no ground-truth trajectory written)."
-    full, keyframes = m["full_rate"].get("ate_alignment") or NA, m["ate_alignment"] or NA
+    full, keyframes = known(m.full_rate.alignment) or NA, known(m.keyframe_trajectory.alignment) or NA
     if GT_FILE not in files:
         return (f"ATE alignment of the full-rate rows: {full}; of the keyframe rows: {keyframes} (no ground-truth "
                 "trajectory was written: not every frame has a ground-truth pose).")
@@ -257,33 +259,35 @@ def report_markdown(result: ReportedRun, figures: list[str], files: Collection[s
     """The run's report.md text; `figures` are file names under figures/, `files` the relative paths of the
     files and folders in the result folder (only those are listed or named: which files a run writes depends
     on what it produced)."""
-    m, cfg = result.metrics, result.config
-    online = m.get("pipeline") == "online"
-    b, a, imp = m["before"], m["after"], m["improvement_pct"]
-    rot = " (unreliable: see notes)" if m.get("ate_rotation_reliable") is False else ""
+    m, cfg, run = result.metrics, result.config, result.metrics.run
+    online = m.online
+    kt = m.keyframe_trajectory
+    b, a, imp = kt.before, kt.after, kt.improvement
+    rot = " (unreliable: see notes)" if kt.rotation_reliable is False else ""
     after = "iSAM2" if online else "optimised"
     rpe_span, rpe_text = rpe_segments(result.gt_poses)
     lines = [
-        f"# {m['method']}{' online' if online else ''} on {display_name(m['sequence'])} ({m['mode']} loops)", "",
+        f"# {run.method}{' online' if online else ''} on {display_name(run.sequence)} ({run.mode} loops)", "",
         f"Sampler: {sampler_label(cfg.sampler, cfg.sampler_params)}.{standstill_note(cfg, m)}", "",
-        f"Dataset `{cfg.dataset}` (sequence {m['sequence']}), {scans_read(cfg.source)}: "
-        f"{m['frames']} frames -> {m['keyframes']} keyframes; {counted(m['candidates'], 'loop candidate')} "
-        f"({candidate_rule(cfg)}), {m['verified']} verified, "
-        + (f"{m['false_loops']} false (ground-truth distance > {cfg.loop_radius} m)." if result.gt_poses is not None
+        f"Dataset `{cfg.dataset}` (sequence {run.sequence}), {scans_read(cfg.source)}: "
+        f"{run.frames} frames -> {run.keyframes} keyframes; {counted(m.loops.candidates, 'loop candidate')} "
+        f"({candidate_rule(cfg)}), {m.loops.verified} verified, "
+        + (f"{m.loops.false_loops} false (ground-truth distance > {cfg.loop_radius} m)."
+           if result.gt_poses is not None
            else f"false loops n/a (no ground truth to tell a loop within {cfg.loop_radius} m from a false one).")
         + (" iSAM2 updated at every frame that finalised keyframes." if online else ""), "",
-        *([deskew_text(m), ""] if deskew_text(m) else []),
-        loop_accounting_text(m, cfg.loop_radius, cfg.min_travel_m), "",
+        *([deskew_text(m.setup.deskew), ""] if deskew_text(m.setup.deskew) else []),
+        loop_accounting_text(m.loops.accounting, cfg.loop_radius, cfg.min_travel_m), "",
         f"| metric | odometry | {after} | improvement |", "|---|---|---|---|",
-        *_full_rate_rows(m["full_rate"], rpe_span),
-        f"| ATE translation [m], keyframes only | {fmt(b['ate_translation_m'])} | {fmt(a['ate_translation_m'])} | "
-        f"{fmt(imp['translation'], '.1f', ' %')} |",
-        f"| ATE rotation [deg]{rot}, keyframes only | {fmt(b['ate_rotation_deg'])} | {fmt(a['ate_rotation_deg'])} | "
-        f"{fmt(imp['rotation'], '.1f', ' %')} |",
-        f"| RPE translation [m], consecutive keyframes, RMSE | {fmt(b['rpe_translation_m'])} | "
-        f"{fmt(a['rpe_translation_m'])} | |",
-        f"| RPE rotation [deg], consecutive keyframes, RMSE | {fmt(b['rpe_rotation_deg'])} | "
-        f"{fmt(a['rpe_rotation_deg'])} | |", "",
+        *_full_rate_rows(m.full_rate, rpe_span),
+        f"| ATE translation [m], keyframes only | {fmt(b.ate_translation_m)} | {fmt(a.ate_translation_m)} | "
+        f"{fmt(imp.translation, '.1f', ' %')} |",
+        f"| ATE rotation [deg]{rot}, keyframes only | {fmt(b.ate_rotation_deg)} | {fmt(a.ate_rotation_deg)} | "
+        f"{fmt(imp.rotation, '.1f', ' %')} |",
+        f"| RPE translation [m], consecutive keyframes, RMSE | {fmt(b.rpe_translation_m)} | "
+        f"{fmt(a.rpe_translation_m)} | |",
+        f"| RPE rotation [deg], consecutive keyframes, RMSE | {fmt(b.rpe_rotation_deg)} | "
+        f"{fmt(a.rpe_rotation_deg)} | |", "",
         "Full rate: every frame, its pose from its preceding keyframe's optimised pose and the odometry since "
         "(trajectories/optimised.tum); the same odometry \"before\" for every sampler. "
         f"{rpe_text}. " + (RPE_STATISTICS if result.gt_poses is not None

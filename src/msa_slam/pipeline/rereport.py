@@ -19,7 +19,8 @@ from msa_slam.pipeline.config import make_config
 from msa_slam.pipeline.report import report_markdown
 from msa_slam.pipeline.results import folder_files, run_figures
 from msa_slam.pipeline.seed_folder import RECORD, SEEDS, finished_metrics, left_out_seeds, seed_dir
-from msa_slam.pipeline.stored import (comparison_figures, failed_methods, read_comparison, read_json, read_run,
+from msa_slam.pipeline.stored import (comparison_figures, failed_methods, listed_methods, read_comparison, read_json,
+                                      read_run,
                                       read_text)
 
 KINDS = ("run", "online", "compare")  # the result kinds (io.marker.result_kind) whose reports this module writes
@@ -33,9 +34,9 @@ def rewrite_report(folder: Path, kind: str) -> Path:
         path = result.path
         foreign, edited = foreign_files(path), edited_files(path)
         try:
-            texts = _reports(path, kind, set(foreign))
-        except KeyError as exc:  # metrics.json of another msa-slam version, or edited
-            raise InputError(f"{path}: its metrics lack {exc} (written by another version of msa-slam?); "
+            texts = _reports(path, kind, set(foreign))  # a bad metrics.json: InputError naming file and key
+        except KeyError as exc:  # a seed record or seeds.json of another msa-slam version, or edited
+            raise InputError(f"{path}: its records lack {exc} (written by another version of msa-slam?); "
                              "nothing written") from None
         spread = kind == "compare" and (path / SEEDS).is_dir()
         names = [*texts, *(SPREAD_FILES if spread else ())]
@@ -62,8 +63,8 @@ def _reports(root: Path, kind: str, foreign: set[str]) -> dict[str, str]:
     texts = {}
     for folder in comparisons:
         texts[_relative(root, folder / "report.md")] = comparison_report(folder)
-        for metrics in read_json(folder / "comparison.json"):
-            run = folder / "runs" / metrics["method"]
+        for metrics in listed_methods(folder):
+            run = folder / "runs" / metrics.method
             texts[_relative(root, run / "report.md")] = run_report(run, foreign, root)
     return texts
 

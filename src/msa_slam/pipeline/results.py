@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import io
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +18,9 @@ import yaml
 
 import msa_slam
 from msa_slam.evaluation import NA, AlignmentError, align_se3, fmt
+from msa_slam.evaluation.metrics import known
+from msa_slam.evaluation.metrics_json import to_json
+from msa_slam.evaluation.run_metrics import Stamp
 from msa_slam.io.g2o import format_g2o
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
 from msa_slam.io.ply import write_ply
@@ -146,10 +150,11 @@ def trajectory_panels(result: RunResult) -> tuple[TrajectoryPanel, TrajectoryPan
     odometry knows none, and compare draws one odometry panel beside every method's)."""
     kf, m = result.keyframes, result.metrics
     gt, loops = None if result.gt_poses is None else result.gt_poses[kf], loop_edges(result)
-    optimiser = "iSAM2" if m.get("pipeline") == "online" else "optimised"
-    return (trajectory_panel("odometry", m["before"]["ate_translation_m"], result.odometry[kf], gt,
+    optimiser = "iSAM2" if m.online else "optimised"
+    ate = m.keyframe_trajectory
+    return (trajectory_panel("odometry", known(ate.before.ate_translation_m), result.odometry[kf], gt,
                              result.ate_errors["odometry"]),
-            trajectory_panel(f"{m['method']} {optimiser}", m["after"]["ate_translation_m"], result.optimised, gt,
+            trajectory_panel(f"{m.method} {optimiser}", known(ate.after.ate_translation_m), result.optimised, gt,
                              result.ate_errors["optimised"], loops))
 
 
@@ -180,34 +185,34 @@ def folder_files(folder: Path) -> set[str]:
 def _write_figures(result: RunResult, folder: Path) -> list[str]:
     folder.mkdir()
     m, cfg = result.metrics, result.config
-    online = " online" if m.get("pipeline") == "online" else ""
-    sequence = sequence_title(m["sequence"], cfg.source, len(result))
+    online = " online" if m.online else ""
+    sequence = sequence_title(m.run.sequence, cfg.source, len(result))
     # a labelled run (compare's "constant-2m") says its parameters in its label
-    method = m["method"] if cfg.label else sampler_label(cfg.sampler, cfg.sampler_params)
+    method = m.method if cfg.label else sampler_label(cfg.sampler, cfg.sampler_params)
     plot_trajectories(folder / "trajectories.png", reference_xy(result), trajectory_panels(result),
-                      title=f"{sequence}: {method}{online} ({counted(m['keyframes'], 'keyframe')}, "
-                            f"{counted(m['verified'], 'loop')}, "
-                            f"{m['mode']} mode)")
+                      title=f"{sequence}: {method}{online} ({counted(m.run.keyframes, 'keyframe')}, "
+                            f"{counted(m.loops.verified, 'loop')}, "
+                            f"{m.run.mode} mode)")
     if result.memory:
-        plot_memory(folder / "memory.png", {m["method"]: (np.arange(len(result)), accounted_bytes(result.memory),
+        plot_memory(folder / "memory.png", {m.method: (np.arange(len(result)), accounted_bytes(result.memory),
                                                           result.memory["rss_bytes"])},
                     title=f"{sequence}: memory over time")
         new_kf = np.diff(result.memory["keyframes"], prepend=0) > 0
         plot_step_times(folder / "step_times.png", {
-            "graph update (iSAM2)": {m["method"]: result.steps_ms["graph_update"][new_kf]},
-            "loop detection": {m["method"]: result.steps_ms["loop_detection"][new_kf]},
-            "back-end per frame": {m["method"]: result.backend_ms},
+            "graph update (iSAM2)": {m.method: result.steps_ms["graph_update"][new_kf]},
+            "loop detection": {m.method: result.steps_ms["loop_detection"][new_kf]},
+            "back-end per frame": {m.method: result.backend_ms},
         }, title=f"{sequence}: per-step time")
     if result.pr is not None and result.pr.auc is not None:
-        plot_pr_curves({m["method"]: result.pr}, folder / "pr_curve.png", title=f"{sequence}: loop candidates")
+        plot_pr_curves({m.method: result.pr}, folder / "pr_curve.png", title=f"{sequence}: loop candidates")
     return run_figures(folder)
 
 
 def write_run_files(result: RunResult, folder: Path, figures: bool = True) -> None:
     """Write all outputs of `result` into an existing (temporary) folder."""
     (folder / "config.yaml").write_text(yaml.safe_dump(result.config.dump(), sort_keys=False))
-    write_json(folder / "metrics.json", {**result.metrics, "msa_slam_version": msa_slam.__version__,
-                                         "keyframe_frames": result.keyframes.tolist()})
+    stamp = Stamp(msa_slam.__version__, tuple(int(k) for k in result.keyframes))
+    write_json(folder / "metrics.json", to_json(replace(result.metrics, stamp=stamp)))
     write_json(folder / "provenance.json", provenance())
     (folder / "frames.csv").write_text(frames_csv(result))
     (folder / "loops.csv").write_text(loops_csv(result))

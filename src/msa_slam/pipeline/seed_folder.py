@@ -25,6 +25,9 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import msa_slam
 from msa_slam.io.marker import foreign_in_units
+from msa_slam.errors import InputError
+from msa_slam.evaluation.metrics_json import from_json
+from msa_slam.evaluation.run_metrics import RunMetrics
 from msa_slam.io.outputs import MARKER, OutputError
 from msa_slam.io.staging import clean_stale
 from msa_slam.io.tables import write_json
@@ -73,10 +76,16 @@ def _read_json(path: Path) -> Any:
         return None
 
 
-def finished_metrics(folder: Path) -> list[dict[str, Any]] | None:
-    """The per-method metrics of a finished seed; None when missing or damaged (the seed is then run again)."""
-    metrics = _read_json(Path(folder) / COMPARISON)
-    return metrics if isinstance(metrics, list) and all(isinstance(m, dict) for m in metrics) else None
+def finished_metrics(folder: Path) -> list[RunMetrics] | None:
+    """The per-method reports of a finished seed; None when missing or damaged (the seed is then run again)."""
+    path = Path(folder) / COMPARISON
+    methods = _read_json(path)
+    if not isinstance(methods, list):
+        return None
+    try:
+        return [from_json(m, f"{path} (method {i + 1})") for i, m in enumerate(methods)]
+    except InputError:
+        return None
 
 
 def check_seed_folder(out: Path) -> None:

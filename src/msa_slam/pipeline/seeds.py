@@ -4,12 +4,15 @@ per-seed ranks and, for MSA against each baseline, whether the difference exceed
 
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Mapping, Sequence
 
 from msa_slam.errors import InputError
 from msa_slam.evaluation import NA, fmt
 from msa_slam.evaluation.display import spec_for
-from msa_slam.evaluation.spread import MIN_SEEDS, PAIRED_TEST, PAIRED_TEST_WHY, REFERENCE, paired_verdict, spreads
+from msa_slam.evaluation.run_metrics import TableRow
+from msa_slam.evaluation.spread import (MIN_SEEDS, PAIRED_TEST, PAIRED_TEST_WHY, REFERENCE, Spread, paired_verdict,
+                                        spreads)
 from msa_slam.sources.spec import spec_kind
 
 # comparison column -> (label, higher is better; None: no direction, no rank and no test)
@@ -53,13 +56,39 @@ def seeded_datasets(dataset: str, seeds: Sequence[int]) -> list[str]:
     return [f"{dataset},seed={s}" for s in seeds]
 
 
-def seed_summary(rows: Mapping[int, Sequence[Mapping[str, Any]]]) -> dict[str, Any]:
+@dataclass(frozen=True)
+class SeedMetric:
+    """One metric over the seeds: each method's spread and, for a metric with a direction, MSA's verdict against
+    each baseline (evaluation.spread.paired_verdict)."""
+
+    label: str
+    higher_is_better: bool | None
+    methods: dict[str, Spread]
+    msa_vs: dict[str, dict[str, object]]
+
+
+@dataclass(frozen=True)
+class SeedSummary:
+    """The spread over seeds (seeds.json): per comparison column (SEED_METRICS), and the paired test used."""
+
+    seeds: list[int]
+    metrics: dict[str, SeedMetric]
+
+    def to_json(self) -> dict[str, object]:
+        """seeds.json."""
+        return {"seeds": self.seeds, "test": PAIRED_TEST, "test_choice": PAIRED_TEST_WHY, "min_seeds": MIN_SEEDS,
+                "metrics": {column: {"label": e.label, "higher_is_better": e.higher_is_better,
+                                     "methods": {m: vars(sp) for m, sp in e.methods.items()}, "msa_vs": e.msa_vs}
+                            for column, e in self.metrics.items()}}
+
+
+def seed_summary(rows: Mapping[int, Sequence[TableRow]]) -> SeedSummary:
     """Per metric: each method's values, mean, std and ranks over the seeds (`rows`: seed -> comparison rows),
     and MSA's verdict against each baseline."""
     seeds = list(rows)
     methods = list(dict.fromkeys(r["method"] for seed_rows in rows.values() for r in seed_rows))
     per_seed = {s: {r["method"]: r for r in rows[s]} for s in seeds}
-    metrics: dict[str, Any] = {}
+    metrics: dict[str, SeedMetric] = {}
     for column, (label, higher) in SEED_METRICS.items():
         values = [{m: _value(per_seed[s].get(m), column) for m in methods} for s in seeds]
         spread = spreads(values, higher, spec_for(column))  # ranks as the tables show the values
@@ -68,26 +97,25 @@ def seed_summary(rows: Mapping[int, Sequence[Mapping[str, Any]]]) -> dict[str, A
             for m in methods:
                 if m != REFERENCE:
                     verdicts[m] = paired_verdict(spread[REFERENCE].values, spread[m].values, higher, seeds)
-        metrics[column] = {"label": label, "higher_is_better": higher,
-                           "methods": {m: vars(sp) for m, sp in spread.items()}, "msa_vs": verdicts}
-    return {"seeds": seeds, "test": PAIRED_TEST, "test_choice": PAIRED_TEST_WHY, "min_seeds": MIN_SEEDS,
-            "metrics": metrics}
+        metrics[column] = SeedMetric(label, higher, spread, verdicts)
+    return SeedSummary(seeds, metrics)
 
 
-def _value(row: Mapping[str, Any] | None, column: str) -> float | None:
+def _value(row: TableRow | None, column: str) -> float | None:
+    """A method's value in one seed's row; None where the method did not finish on that seed or the value is n/a."""
     value = None if row is None else row.get(column)
     return None if value is None else float(value)
 
 
-def _cell(column: str, entry: Mapping[str, Any]) -> str:
+def _cell(column: str, spread: Spread) -> str:
     """mean ± std with the column's decimals (evaluation.display.spec_for); a value known on one seed only is
     shown alone, marked (SEED_NOTES says why)."""
-    if entry["mean"] is None:
+    if spread.mean is None:
         return NA + "¹"
     digits = spec_for(column)
-    if entry["std"] is None:
-        return f"{fmt(entry['mean'], digits)}²"
-    return f"{fmt(entry['mean'], digits)} ± {fmt(entry['std'], digits)}"
+    if spread.std is None:
+        return f"{fmt(spread.mean, digits)}²"
+    return f"{fmt(spread.mean, digits)} ± {fmt(spread.std, digits)}"
 
 
 # Why a cell of the seed tables holds no (full) figure: the seeds' own reports give each value's reason.
@@ -96,49 +124,48 @@ SEED_NOTES = ["¹ n/a: the value is n/a on every seed (each seed's report under 
               "Ranks: n/a where that seed has no value for the method."]
 
 
-def seed_markdown(summary: Mapping[str, Any]) -> str:
+def seed_markdown(summary: SeedSummary) -> str:
     """Three tables: mean ± std per method and metric, the per-seed ranks, MSA's paired-test verdicts."""
-    metrics = summary["metrics"]
-    seeds = summary["seeds"]
-    methods = list(next(iter(metrics.values()))["methods"])
-    labels = [m["label"] for m in metrics.values()]
+    metrics, seeds = summary.metrics, summary.seeds
+    methods = list(next(iter(metrics.values())).methods)
+    labels = [e.label for e in metrics.values()]
     lines = [f"Seeds {', '.join(map(str, seeds))}: mean ± sample std (ddof 1) over the seeds.", "",
              "| method | " + " | ".join(labels) + " |", "|" + "---|" * (len(labels) + 1)]
-    cells = [[_cell(k, e["methods"][m]) for k, e in metrics.items()] for m in methods]
+    cells = [[_cell(k, e.methods[m]) for k, e in metrics.items()] for m in methods]
     lines += [f"| {m} | " + " | ".join(row) + " |" for m, row in zip(methods, cells)]
     marks = [note for mark, note in zip("¹²", SEED_NOTES) if any(c.endswith(mark) for row in cells for c in row)]
     lines += ["", *marks] if marks else []
-    ranked = {k: e for k, e in metrics.items() if e["higher_is_better"] is not None}
+    ranked = {k: e for k, e in metrics.items() if e.higher_is_better is not None}
     lines += ["", "Rank per seed (1 = best, among the methods with a value; seeds " + ", ".join(map(str, seeds))
               + "):", "",
-              "| method | " + " | ".join(e["label"] for e in ranked.values()) + " |",
+              "| method | " + " | ".join(e.label for e in ranked.values()) + " |",
               "|" + "---|" * (len(ranked) + 1)]
-    lines += [f"| {m} | " + " | ".join(", ".join(NA if r is None else str(r) for r in e["methods"][m]["ranks"])
+    lines += [f"| {m} | " + " | ".join(", ".join(NA if r is None else str(r) for r in e.methods[m].ranks)
                                         for e in ranked.values()) + " |" for m in methods]
-    if any(r is None for e in ranked.values() for m in methods for r in e["methods"][m]["ranks"]):
+    if any(r is None for e in ranked.values() for m in methods for r in e.methods[m].ranks):
         lines += ["", SEED_NOTES[2]]
     baselines = [m for m in methods if m != REFERENCE]
-    if any(e["msa_vs"] for e in ranked.values()):
-        lines += ["", f"MSA against each baseline, {summary['test']} over the seeds: does the difference exceed "
-                  f"the seed-to-seed spread? ({summary['test_choice']}.)", "",
-                  "| baseline | " + " | ".join(e["label"] for e in ranked.values()) + " |",
+    if any(e.msa_vs for e in ranked.values()):
+        lines += ["", f"MSA against each baseline, {PAIRED_TEST} over the seeds: does the difference exceed "
+                  f"the seed-to-seed spread? ({PAIRED_TEST_WHY}.)", "",
+                  "| baseline | " + " | ".join(e.label for e in ranked.values()) + " |",
                   "|" + "---|" * (len(ranked) + 1)]
-        lines += [f"| {b} | " + " | ".join(e["msa_vs"][b]["verdict"] if b in e["msa_vs"] else NA
+        lines += [f"| {b} | " + " | ".join(e.msa_vs[b]["verdict"] if b in e.msa_vs else NA
                                            for e in ranked.values()) + " |" for b in baselines]
     else:
         lines += ["", f"No paired test: no method labelled {REFERENCE!r} in the comparison."]
     return "\n".join(lines) + "\n"
 
 
-def seed_rows(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
+def seed_rows(summary: SeedSummary) -> list[TableRow]:
     """seeds.csv rows: one per method and metric (mean, std, per-seed values and ranks, MSA's verdict)."""
     out = []
-    for column, entry in summary["metrics"].items():
-        for method, sp in entry["methods"].items():
-            verdict = entry["msa_vs"].get(method, {})
-            out.append({"metric": column, "method": method, "mean": sp["mean"], "std": sp["std"],
-                        "values": " ".join(NA if v is None else f"{v:.6g}" for v in sp["values"]),
-                        "ranks": " ".join(NA if r is None else str(r) for r in sp["ranks"]),
+    for column, entry in summary.metrics.items():
+        for method, sp in entry.methods.items():
+            verdict = entry.msa_vs.get(method, {})  # none against itself, nor for a metric without a direction
+            out.append({"metric": column, "method": method, "mean": sp.mean, "std": sp.std,
+                        "values": " ".join(NA if v is None else f"{v:.6g}" for v in sp.values),
+                        "ranks": " ".join(NA if r is None else str(r) for r in sp.ranks),
                         "msa_vs_p": verdict.get("p"), "msa_vs_verdict": verdict.get("verdict", "")})
     return out
 

@@ -12,7 +12,9 @@ from typing import Any
 import numpy as np
 
 from msa_slam.errors import InputError, error_line
+from msa_slam.evaluation.metrics_json import from_json
 from msa_slam.evaluation.resources import StageTimer
+from msa_slam.evaluation.run_metrics import RunMetrics
 from msa_slam.io.poses import read_poses
 from msa_slam.pipeline.compare import PAPER_METHODS
 from msa_slam.pipeline.config import RunConfig, make_config, read_config_file
@@ -26,7 +28,7 @@ class StoredRun:
     """One run's config, metrics and ground truth as its folder holds them (pipeline.report.ReportedRun)."""
 
     config: Any
-    metrics: dict[str, Any]
+    metrics: RunMetrics
     gt_poses: np.ndarray | None
 
 
@@ -61,11 +63,11 @@ def read_json(path: Path) -> Any:
 
 def read_run(folder: Path) -> StoredRun:
     """The run in `folder` (of `run`, `online`, or a method of a comparison)."""
-    metrics = read_json(folder / "metrics.json")
-    online = metrics.get("pipeline") == "online"
-    data = read_config_file(folder / "config.yaml", OnlineConfig if online else RunConfig)
-    config = make_online_config(data) if online else make_config(data)
-    return StoredRun(config, metrics, _ground_truth(folder, metrics["frames"]))
+    path = folder / "metrics.json"
+    metrics = from_json(read_json(path), str(path))
+    data = read_config_file(folder / "config.yaml", OnlineConfig if metrics.online else RunConfig)
+    config = make_online_config(data) if metrics.online else make_config(data)
+    return StoredRun(config, metrics, _ground_truth(folder, metrics.run.frames))
 
 
 def _ground_truth(folder: Path, frames: int) -> np.ndarray | None:
@@ -78,17 +80,26 @@ def _ground_truth(folder: Path, frames: int) -> np.ndarray | None:
     return np.full((frames, 4, 4), np.nan) if some else None
 
 
+def listed_methods(folder: Path) -> list[RunMetrics]:
+    """The reports of the methods a comparison folder's comparison.json lists, in the comparison's order."""
+    path = folder / "comparison.json"
+    methods = read_json(path)
+    if not isinstance(methods, list):
+        raise InputError(f"{path}: not a list of the methods' metrics; the result folder is damaged")
+    return [from_json(m, f"{path} (method {i + 1})") for i, m in enumerate(methods)]
+
+
 def read_comparison(folder: Path) -> tuple[StoredFrontend, list[StoredRun]]:
     """The front end and the finished methods (in the comparison's order) of a comparison folder."""
-    methods = read_json(folder / "comparison.json")
-    if not methods:
+    listed = listed_methods(folder)
+    if not listed:
         raise InputError(f"{folder}: no method of this comparison finished (comparison.json lists none); "
                          "nothing to report")
-    runs = [read_run(folder / "runs" / m["method"]) for m in methods]
+    runs = [read_run(folder / "runs" / m.method) for m in listed]
     first = runs[0].metrics
     timer = StageTimer()
-    timer.seconds = dict(first["frontend_time_s"])
-    return StoredFrontend(first["sequence"], first["frames"], timer, dict(first["frontend_cached"])), runs
+    timer.seconds = dict(first.timing.frontend_s)
+    return StoredFrontend(first.run.sequence, first.run.frames, timer, dict(first.timing.frontend_cached)), runs
 
 
 def failed_methods(folder: Path) -> dict[str, str]:

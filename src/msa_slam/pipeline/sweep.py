@@ -10,13 +10,12 @@ not depend on the threshold, so each pair is registered once over the whole swee
 from __future__ import annotations
 
 from dataclasses import replace
-
 from typing import Any
 
 import numpy as np
 
 from msa_slam.backend import PoseGraph
-from msa_slam.evaluation import evaluate_full_rate
+from msa_slam.evaluation.metrics import SweepRow
 from msa_slam.pipeline.config import RunConfig, make_config
 from msa_slam.pipeline.frontend import Frontend
 from msa_slam.sampling.base import Sampler
@@ -90,17 +89,15 @@ def replay(config: RunConfig, frontend: Frontend, clouds: Any, keyframes: np.nda
     return backend.finish()
 
 
-def _row(threshold: float, result: RunResult) -> dict[str, Any]:
-    full = result.metrics.get("full_rate") or evaluate_full_rate(result.odometry, result.optimised_full,
-                                                                 result.gt_poses)
+def _row(threshold: float, result: RunResult) -> SweepRow:
+    trajectory = result.full_rate_evaluation.trajectory
     radius = result.config.loop_radius
-    return {"threshold": threshold, "candidates": len(result.loops), "loops_accepted": len(result.accepted_loops),
-            "false_loops": int(sum(c.gt_distance > radius for c in result.accepted_loops)),
-            "ate_after_m": full["after"]["ate_translation_m"],
-            "improvement_t_pct": full["improvement_pct"]["translation"]}
+    return SweepRow(threshold, len(result.loops), len(result.accepted_loops),
+                    int(sum(c.gt_distance > radius for c in result.accepted_loops)),
+                    trajectory.after.ate_translation_m, trajectory.improvement.translation)
 
 
-def threshold_sweep(result: RunResult, frontend: Frontend, clouds: Any) -> list[dict[str, Any]]:
+def threshold_sweep(result: RunResult, frontend: Frontend, clouds: Any) -> tuple[SweepRow, ...]:
     """One row per threshold of the sweep (candidates, loops accepted, false loops, full-rate ATE after and
     % improvement); the run's own threshold is the run itself, the others are replays."""
     config = result.config
@@ -115,4 +112,4 @@ def threshold_sweep(result: RunResult, frontend: Frontend, clouds: Any) -> list[
             continue
         swept = make_config({**config.dump(), "similarity_threshold": threshold})
         rows.append(_row(threshold, replay(swept, frontend, clouds, result.keyframes, memo)))
-    return rows
+    return tuple(rows)

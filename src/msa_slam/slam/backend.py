@@ -22,6 +22,7 @@ import numpy as np
 from msa_slam.descriptors import Descriptor
 from msa_slam.errors import InputError
 from msa_slam.evaluation import evaluate_trajectories
+from msa_slam.evaluation.metrics import JSONValue
 from msa_slam.evaluation.resources import current_rss_bytes, release_free_heap, settle_heap
 from msa_slam.place_recognition import PRCurve
 from msa_slam.registration import Verifier
@@ -57,7 +58,7 @@ class Graph(Protocol):
     nbytes: int
     factors: Any  # gtsam.NonlinearFactorGraph of every factor the optimiser used
 
-    def describe(self) -> dict[str, Any]: ...
+    def describe(self) -> Mapping[str, JSONValue]: ...
 
     def add_keyframe(self, key: int, pose: np.ndarray) -> None: ...
     def add_loop(self, target_key: int, source_key: int, T_target_source: np.ndarray) -> None: ...
@@ -265,10 +266,12 @@ class SlamBackend:
         t3 = time.perf_counter()
         settle_heap()
         rss_growth = current_rss_bytes() - self.rss_start
-        return RunResult(self.settings, self.name, self.times, self.odometry, gt, keys, optimised, self.loops,
-                         pr, evaluation, self.steps_ms, memory, stats, len(self.loop_closer.best_similarity),
-                         {"optimisation": t1 - t0, "evaluation": t2 - t1, "map": t3 - t2}, map_points=map_points,
-                         graph_factors=self.graph.factors, rss_growth_bytes=rss_growth,
+        return RunResult(config=self.settings, name=self.name, times=self.times, odometry=self.odometry, gt_poses=gt,
+                         keyframes=keys, optimised=optimised, loops=self.loops, pr=pr, evaluation=evaluation,
+                         steps_ms=self.steps_ms, memory_bytes=memory, sampler_stats=stats,
+                         pr_queries=len(self.loop_closer.best_similarity),
+                         final_s={"optimisation": t1 - t0, "evaluation": t2 - t1, "map": t3 - t2},
+                         map_points=map_points, graph_factors=self.graph.factors, rss_growth_bytes=rss_growth,
                          graph_info=self.graph.describe())
 
     def _mark_dropped(self, dropped: tuple[int, ...]) -> None:

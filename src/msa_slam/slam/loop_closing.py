@@ -28,7 +28,7 @@ of path (the robot left the place and came back) is a revisit.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any, Protocol
+from typing import Mapping, Protocol
 
 import gtsam
 import numpy as np
@@ -38,6 +38,7 @@ from msa_slam.backend.graph_config import GraphConfig
 from msa_slam.backend.noise import PathCovariance
 from msa_slam.descriptors import Descriptor
 from msa_slam.errors import InputError
+from msa_slam.evaluation.metrics import JSONValue, LoopClosing
 from msa_slam.evaluation.loops import rejection_counts
 from msa_slam.place_recognition import PRCurve, precision_recall
 from msa_slam.registration import Verifier
@@ -269,7 +270,7 @@ def drift_check_on(settings: LoopSettings) -> bool:
 
 
 def loop_summary(loops: list[LoopClosure], settings: LoopSettings,
-                 graph_info: dict[str, Any] | None = None) -> dict[str, Any]:
+                 graph_info: Mapping[str, JSONValue] | None = None) -> LoopClosing:
     """What metrics.json reports about loop closing: rejections by reason, accepted loops that are revisits
     (at least 2 x loop_radius of odometry path between the keyframes) apart from the others, and the
     noise models, inlier selection and robust kernel the loop factors had (`graph_info`, the graph's own
@@ -277,12 +278,11 @@ def loop_summary(loops: list[LoopClosure], settings: LoopSettings,
     accepted = [c for c in loops if c.accepted]
     revisits = sum(c.travelled_m >= 2 * settings.loop_radius for c in accepted)
     graph = settings.graph
-    return {
-        "rejected": rejection_counts(loops, REJECTION_REASONS),
+    return LoopClosing(rejection_counts(loops, REJECTION_REASONS), {
         "revisit_loops": int(revisits), "other_loops": len(accepted) - int(revisits),
         "min_travel_m": settings.min_travel_m, "drift_check": drift_check_on(settings),
         "loop_kernel": graph.loop_kernel(settings.mode),
         "loop_inliers": "consistent" if graph.selects_inliers(settings.mode) else "all",
         **(graph_info or {}),
         "loop_noise": graph.loop_noise, "odometry_noise": graph.odometry_noise,
-    }
+    })
