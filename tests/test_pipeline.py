@@ -184,7 +184,7 @@ def test_threshold_sweep_replays_the_backend(base, frontend):
 def test_reference_protocol_pr_is_na_without_enough_keyframes(base, frontend):
     """The reference protocol queries only once more than 10 keyframes precede a frame: with a sampler that
     keeps fewer, its PR is n/a with the reason."""
-    result = run_batch(base.model_copy(update={"sampler_params": {"distance": 40.0}}), frontend, sweep=False)
+    result = run_batch(make_config({**base.dump(), "sampler_params": {"distance": 40.0}}), frontend, sweep=False)
     assert metrics_json(result)["keyframes"] <= 11
     ref = metrics_json(result)["pr_reference"]
     assert ref == {"pr_auc": None, "f1_max": None, "matches": 0}
