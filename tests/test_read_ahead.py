@@ -1,11 +1,12 @@
 """The batch front end reads, describes and downsamples the scans in a second thread while the odometry registers:
 same poses, descriptors, frame clouds and cache entries as the stages run one after the other, each scan read once
 a run; the reader stays a bounded number of frames ahead, its errors are raised at their frame, and it stops when
-the consumer stops."""
+the consumer stops. The online pipeline has a live source's frames simulated ahead the same way."""
 
 from __future__ import annotations
 
 import threading
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -19,8 +20,10 @@ from msa_slam.io.cache import TIMES_PREFIX, CacheDir
 from msa_slam.odometry import OdometryCache, sequence_odometry
 from msa_slam.pipeline import make_config, prepare_frontend
 from msa_slam.pipeline.frontend import make_odometry
+from msa_slam.pipeline.online import run_online
+from msa_slam.pipeline.online_config import make_online_config
 from msa_slam.pipeline.read_ahead import DEPTH, ReadAhead
-from msa_slam.pipeline.source import open_sequence
+from msa_slam.pipeline.source import open_sequence, open_source
 from msa_slam.registration import downsample
 
 
@@ -138,3 +141,21 @@ def test_reader_stops_when_the_consumer_stops():
     assert scans.last <= 3 + DEPTH + 1 and not ahead.complete
     with pytest.raises(RuntimeError, match="not all read"):
         ahead.described()
+
+
+@pytest.mark.parametrize("live", [True, False])
+def test_a_live_sources_frames_are_simulated_ahead_by_a_thread_of_their_own(live):
+    """A sensor's frames come while the previous ones are processed: a live source's are made by another thread,
+    no further than the frames the run reads; recorded frames are read by the run's thread, as they were."""
+    source = open_source("live:figure-eight,stride=4,azimuth_steps=180,realism=clean")
+    makers: list[threading.Thread] = []
+
+    def frames():
+        for frame in source.frames():
+            makers.append(threading.current_thread())
+            yield frame
+
+    config = make_online_config(dataset=source.name, odometry="gt-noise", sampler="all", max_frames=12)
+    result = run_online(config, replace(source, frames=frames, live=live))
+    assert len(result) == 12 and len(makers) == 12
+    assert all((maker is threading.current_thread()) != live for maker in makers)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from typing import Iterator, Sequence
+from typing import Any, Iterable, Iterator, Sequence, TypeVar
 
 import numpy as np
 
@@ -32,6 +32,8 @@ from msa_slam.registration.clouds import downsample
 
 DEPTH = 4  # frames read ahead: enough to ride out a slow read, a few MB of scans (a 64-beam scan is ~2 MB)
 _POLL_S = 0.1  # how often a reader blocked on a full queue checks whether the consumer stopped
+_END = object()  # put by the reader after the last item
+T = TypeVar("T")
 
 
 class ReadAhead:
@@ -55,38 +57,23 @@ class ReadAhead:
         return self.descriptor is not None or self.voxel_size is not None
 
     def __iter__(self) -> Iterator[Frame]:
-        frames: queue.Queue = queue.Queue(maxsize=self.depth)
-        stop = threading.Event()
         self._values.clear()
         self._clouds.clear()
         self.complete = False
-        reader = threading.Thread(target=self._read, args=(frames, stop), name="msa-slam read-ahead", daemon=True)
-        reader.start()
-        try:
-            for _ in range(len(self.sequence)):
-                item = frames.get()
-                if isinstance(item, BaseException):
-                    raise item
-                yield item
-            self.complete = True
-        finally:
-            stop.set()
-            reader.join()
+        yield from ahead(self._computed(), self.depth)
+        self.complete = True
 
-    def _read(self, frames: queue.Queue, stop: threading.Event) -> None:
-        try:
-            for i in range(len(self.sequence)):
-                frame = self.sequence[i]
-                if self.descriptor is not None:
-                    self._values.append(describe(self.descriptor, frame.points, i, self._ms))
-                if self.voxel_size is not None:
-                    start = time.perf_counter()
-                    self._clouds.append(downsample(frame.points, self.voxel_size, where=f"frame {i}"))
-                    self._cloud_ms[i] = (time.perf_counter() - start) * 1e3
-                if not _put(frames, frame, stop):
-                    return
-        except BaseException as exc:  # handed to the consumer, which raises it
-            _put(frames, exc, stop)
+    def _computed(self) -> Iterator[Frame]:
+        """The frames read, each described and downsampled before it is handed on (run by the reader thread)."""
+        for i in range(len(self.sequence)):
+            frame = self.sequence[i]
+            if self.descriptor is not None:
+                self._values.append(describe(self.descriptor, frame.points, i, self._ms))
+            if self.voxel_size is not None:
+                start = time.perf_counter()
+                self._clouds.append(downsample(frame.points, self.voxel_size, where=f"frame {i}"))
+                self._cloud_ms[i] = (time.perf_counter() - start) * 1e3
+            yield frame
 
     def described(self) -> Computed:
         """The descriptors of every frame and the time (ms) computing each took (not from a cache)."""
@@ -146,11 +133,40 @@ def _read_through(ahead: ReadAhead, quiet: bool, label: str) -> None:
             bar.advance(task)
 
 
-def _put(frames: queue.Queue, item: object, stop: threading.Event) -> bool:
+def ahead(items: Iterable[T], depth: int = DEPTH) -> Iterator[T]:
+    """`items` in order, iterated by a thread of their own that starts when this iteration does, at most `depth`
+    items ahead (a live source's frames simulated while the previous ones are registered: pipeline.online); the
+    thread's errors are raised here, at the item they happened at, and it stops when this iteration ends, early
+    or not."""
+    queued: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    reader = threading.Thread(target=_read, args=(iter(items), queued, stop), name="msa-slam read-ahead", daemon=True)
+    reader.start()
+    try:
+        while (item := queued.get()) is not _END:
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        reader.join()
+
+
+def _read(items: Iterator[Any], queued: queue.Queue, stop: threading.Event) -> None:
+    try:
+        for item in items:
+            if not _put(queued, item, stop):
+                return
+        _put(queued, _END, stop)
+    except BaseException as exc:  # handed to the consumer, which raises it
+        _put(queued, exc, stop)
+
+
+def _put(queued: queue.Queue, item: object, stop: threading.Event) -> bool:
     """Put `item` once the queue has room; False when the consumer stopped first."""
     while not stop.is_set():
         try:
-            frames.put(item, timeout=_POLL_S)
+            queued.put(item, timeout=_POLL_S)
             return True
         except queue.Full:
             continue
