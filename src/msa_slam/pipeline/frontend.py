@@ -28,9 +28,9 @@ from msa_slam.io.cache import CacheDir, Computed, cache_root
 from msa_slam.odometry import KissOdometry, PosesFromFile
 from msa_slam.odometry.kiss import NO_POINT_TIMES, PARAMETERS as KISS_PARAMETERS
 from msa_slam.pipeline.config import RunConfig
-from msa_slam.pipeline.read_ahead import odometry_and_descriptors
+from msa_slam.pipeline.read_ahead import frontend_pass
 from msa_slam.sources import open_sequence
-from msa_slam.registration.cloud_cache import FrameClouds, cloud_key, frame_clouds
+from msa_slam.registration.cloud_cache import FrameClouds, cloud_key
 from msa_slam.sampling.msa.sampler import warn_short_stream
 from msa_slam.slam.backend import MIN_KEYFRAMES
 
@@ -200,7 +200,8 @@ def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[R
     """Open the dataset (once: for a large bag that is a full indexing), check that the sampler windows of
     `samplers` (default: `config`'s; compare: every method's) fit the frames read (check_window, with
     `window_fix`), then odometry, descriptors and (scan loop detector) clouds downsampled at the verifier's voxel
-    size for all frames (cached per sequence)."""
+    size for all frames (cached per sequence; those missing from the cache computed in one pass over the scans:
+    read_ahead.frontend_pass)."""
     timer = StageTimer()
     with timer.stage("dataset"):
         sequence = open_sequence(config.dataset, config.dataset_kind, config.cache_dir, not quiet, config.source,
@@ -220,13 +221,14 @@ def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[R
     with timer.stage("descriptors"):
         key = descriptor_key(sequence, config.descriptor, config.descriptor_params, cache)
     pose_file = [] if config.odometry == "kiss" else [odometry.path]
-    poses, descriptors = odometry_and_descriptors(sequence, odometry, descriptor, cache, key,  # in one pass
-                                                  config.descriptor != "precomputed", pose_file, quiet, timer)
-    stages = {"odometry": poses, "descriptors": descriptors}
+    clouds = None
     if config.loop_detector == "scan":  # the local-map detectors store local maps, built from the scans
         with timer.stage("clouds"):
             voxel = config.verifier.voxel_size
-            stages["clouds"] = frame_clouds(sequence, voxel, cache, cloud_key(sequence, voxel, cache), quiet)
+            clouds = (voxel, cloud_key(sequence, voxel, cache))
+    stages = frontend_pass(sequence, odometry, descriptor, cache, key, config.descriptor != "precomputed",  # one pass
+                           pose_file, quiet, timer, clouds)
+    poses, descriptors = stages["odometry"], stages["descriptors"]
     replayed = replayed_seconds(stages, timer)
     if replayed and not quiet:  # where a computed stage shows its progress
         print("front end replayed from the cache: " + ", ".join(f"{name} (computed in {seconds:.1f} s)"

@@ -7,8 +7,9 @@ held (keyframe clouds, descriptors, graph, pending scans, process RSS); at the e
 after optimisation, and throughput (frames per second, real-time factor for the sensor rate). The odometry
 gets the batch pipeline's plausibility checks (stalled, implausible steps) once the run has ended.
 
-Throughput is that of the whole pipeline as it ran (reading the frames included); odometry replayed from the
-cache counts with the time it took when it was computed, and the run says it was replayed. The progress line,
+Throughput is that of the whole pipeline as it ran (reading the frames included; a live source's frames are
+simulated by a thread of their own a few frames ahead, as a sensor's driver delivers them while the previous ones
+are processed: pipeline.read_ahead.ahead); odometry replayed from the cache counts with the time it took when it was computed, and the run says it was replayed. The progress line,
 metrics.json and report.md compute frames per second and real-time factor with one function
 (evaluation.resources.throughput) from the same seconds.
 
@@ -24,6 +25,7 @@ import logging
 import time
 from contextlib import closing
 from dataclasses import replace
+from itertools import islice
 from typing import Protocol
 
 import numpy as np
@@ -40,6 +42,7 @@ from msa_slam.odometry.kiss import DEFAULT_THREADS
 from msa_slam.pipeline.frontend import (config_as_run, deskew_record, make_odometry, pipeline_cache,
                                         source_warnings)
 from msa_slam.pipeline.online_config import NO_TIMESTAMPS, NOT_REPRODUCIBLE, OnlineConfig
+from msa_slam.pipeline.read_ahead import ahead
 from msa_slam.sources import open_source
 from msa_slam.progress import LogProgress, Progress, progress_bar
 from msa_slam.registration import make_cloud_store
@@ -227,9 +230,8 @@ def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: b
             fps, rtf = throughput(frames, seconds, rate)
             return {"fps": fps, "rtf": rtf, "kf": keyframes, "loops": accepted}
 
-        for i, frame in enumerate(source.frames()):
-            if i >= n:
-                break
+        frames = islice(source.frames(), n)  # a live source's simulated by a thread of their own, a few ahead
+        for i, frame in enumerate(ahead(frames) if source.live else frames):
             first_time = frame.time if first_time is None else first_time
             t0 = time.perf_counter()
             pose = odometry.register(frame.points, frame.timestamps,  # times: for deskew

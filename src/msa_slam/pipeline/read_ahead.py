@@ -1,72 +1,79 @@
-"""The batch front end's two per-frame stages in one pass: a reader thread reads each scan and computes its
-descriptor, a few frames ahead into a bounded queue, while the calling thread registers the previous scans.
+"""The batch front end's per-frame stages in one pass: a reader thread reads each scan, computes its descriptor and
+its downsampled cloud (the keyframe store's form, registration.cloud_cache), a few frames ahead into a bounded
+queue, while the calling thread registers the previous scans.
 
-KISS-ICP's registration (C++) and numpy release the GIL for most of their work, so on two cores reading and
-describing the scans hide behind the odometry instead of following it, and each scan is read once instead of
-once a stage. A scan's descriptor does not depend on the odometry, and each stage still takes the scans in
-order, so the poses, the descriptors and their cache entries are those of the stages run one after the other.
-Deskewing stays with the odometry: it needs the motion the previous registration estimated.
+KISS-ICP's registration (C++), small_gicp's voxel grid and numpy release the GIL for most of their work, so on two
+cores reading, describing and downsampling the scans hide behind the odometry instead of following it, and each
+scan is read and parsed once a run instead of once a stage. A scan's descriptor and cloud do not depend on the
+odometry, and each stage still takes the scans in order, so the poses, descriptors, clouds and their cache
+entries are those of the stages run one after the other. Deskewing stays with the odometry: it needs the motion
+the previous registration estimated.
 """
 
 from __future__ import annotations
 
 import queue
 import threading
-from typing import Iterator, Sequence
+import time
+from typing import Any, Iterable, Iterator, Sequence, TypeVar
 
 import numpy as np
 
 from msa_slam.datasets import Frame, ScanSequence
 from msa_slam.descriptors import Descriptor
-from msa_slam.descriptors.cache import describe, describe_sequence, load_descriptors, save_descriptors
+from msa_slam.descriptors.cache import describe, load_descriptors, save_descriptors
 from msa_slam.evaluation import StageTimer
 from msa_slam.io.cache import CacheDir, Computed
 from msa_slam.odometry import OdometryCache, sequence_odometry
 from msa_slam.odometry.cache import Odometry
+from msa_slam.progress import progress_bar
+from msa_slam.registration.cloud_cache import load_frame_clouds, save_frame_clouds
+from msa_slam.registration.clouds import downsample
 
 DEPTH = 4  # frames read ahead: enough to ride out a slow read, a few MB of scans (a 64-beam scan is ~2 MB)
 _POLL_S = 0.1  # how often a reader blocked on a full queue checks whether the consumer stopped
+_END = object()  # put by the reader after the last item
+T = TypeVar("T")
 
 
 class ReadAhead:
-    """The frames of `sequence` in order, read (and described by `descriptor`, unless None) by one thread that
-    starts when iteration does and stops when it ends, early or not; the reader's errors are raised here, at the
-    frame they happened at. After a full iteration `described` holds the descriptors."""
+    """The frames of `sequence` in order, read (described by `descriptor` and downsampled at `voxel_size`, unless
+    None) by one thread that starts when iteration does and stops when it ends, early or not; the reader's errors
+    are raised here, at the frame they happened at. After a full iteration `described` holds the descriptors and
+    `downsampled` the clouds."""
 
-    def __init__(self, sequence: ScanSequence, descriptor: Descriptor | None = None, depth: int = DEPTH) -> None:
-        self.sequence, self.descriptor, self.depth = sequence, descriptor, depth
+    def __init__(self, sequence: ScanSequence, descriptor: Descriptor | None = None, depth: int = DEPTH,
+                 voxel_size: float | None = None) -> None:
+        self.sequence, self.descriptor, self.depth, self.voxel_size = sequence, descriptor, depth, voxel_size
         self._values: list[np.ndarray] = []
         self._ms = np.empty(len(sequence))
-        self.complete = False  # every frame was read (and described)
+        self._clouds: list[np.ndarray] = []
+        self._cloud_ms = np.empty(len(sequence))
+        self.complete = False  # every frame was read (described and downsampled)
+
+    @property
+    def computes(self) -> bool:
+        """Whether the reader computes anything besides reading (a pass is worth making for it alone)."""
+        return self.descriptor is not None or self.voxel_size is not None
 
     def __iter__(self) -> Iterator[Frame]:
-        frames: queue.Queue = queue.Queue(maxsize=self.depth)
-        stop = threading.Event()
         self._values.clear()
+        self._clouds.clear()
         self.complete = False
-        reader = threading.Thread(target=self._read, args=(frames, stop), name="msa-slam read-ahead", daemon=True)
-        reader.start()
-        try:
-            for _ in range(len(self.sequence)):
-                item = frames.get()
-                if isinstance(item, BaseException):
-                    raise item
-                yield item
-            self.complete = True
-        finally:
-            stop.set()
-            reader.join()
+        yield from ahead(self._computed(), self.depth)
+        self.complete = True
 
-    def _read(self, frames: queue.Queue, stop: threading.Event) -> None:
-        try:
-            for i in range(len(self.sequence)):
-                frame = self.sequence[i]
-                if self.descriptor is not None:
-                    self._values.append(describe(self.descriptor, frame.points, i, self._ms))
-                if not _put(frames, frame, stop):
-                    return
-        except BaseException as exc:  # handed to the consumer, which raises it
-            _put(frames, exc, stop)
+    def _computed(self) -> Iterator[Frame]:
+        """The frames read, each described and downsampled before it is handed on (run by the reader thread)."""
+        for i in range(len(self.sequence)):
+            frame = self.sequence[i]
+            if self.descriptor is not None:
+                self._values.append(describe(self.descriptor, frame.points, i, self._ms))
+            if self.voxel_size is not None:
+                start = time.perf_counter()
+                self._clouds.append(downsample(frame.points, self.voxel_size, where=f"frame {i}"))
+                self._cloud_ms[i] = (time.perf_counter() - start) * 1e3
+            yield frame
 
     def described(self) -> Computed:
         """The descriptors of every frame and the time (ms) computing each took (not from a cache)."""
@@ -74,39 +81,92 @@ class ReadAhead:
             raise RuntimeError("ReadAhead.described: no descriptor, or the frames were not all read")
         return Computed(np.stack(self._values), False, self._ms)
 
+    def downsampled(self) -> tuple[list[np.ndarray], np.ndarray]:
+        """(every frame's downsampled cloud, the time (ms) downsampling each took)."""
+        if self.voxel_size is None or not self.complete:
+            raise RuntimeError("ReadAhead.downsampled: no voxel size, or the frames were not all read")
+        return self._clouds, self._cloud_ms
 
-def odometry_and_descriptors(sequence: ScanSequence, odometry: Odometry, descriptor: Descriptor, cache: CacheDir,
-                             key: str, cache_descriptors: bool = True, pose_file: Sequence[str] = (),
-                             quiet: bool = True, timer: StageTimer | None = None) -> tuple[Computed, Computed]:
-    """Odometry poses and descriptors (cache key `key`; not cached unless `cache_descriptors`) of every frame of
-    `sequence`, each from `cache` when it holds them; when the odometry is computed, the scans are read ahead
-    and the missing descriptors computed alongside it (ReadAhead). `pose_file`: the file a pose-file odometry
-    reads (part of its key). `timer`'s stages: odometry (that pass, the descriptors computed in it included) and
-    descriptors (the time computing them took, hidden in the odometry's when computed alongside)."""
+
+def frontend_pass(sequence: ScanSequence, odometry: Odometry, descriptor: Descriptor, cache: CacheDir, key: str,
+                  cache_descriptors: bool = True, pose_file: Sequence[str] = (), quiet: bool = True,
+                  timer: StageTimer | None = None, clouds: tuple[float, str] | None = None) -> dict[str, Computed]:
+    """The stages `odometry`, `descriptors` (cache key `key`; not cached unless `cache_descriptors`) and, when
+    `clouds` is (voxel size, cache key), `clouds` (every frame downsampled: registration.cloud_cache) of every
+    frame of `sequence`, each from `cache` when it holds it. The missing ones are computed in one pass over the
+    scans (ReadAhead): alongside the odometry when it is computed, else in a pass that only reads. `pose_file`:
+    the file a pose-file odometry reads (part of its key). `timer`'s stages: odometry (its pass, what was computed
+    alongside included), descriptors and clouds (the time computing them took, hidden in the odometry's when
+    computed alongside)."""
     timer = timer or StageTimer()
     store = cache if cache_descriptors else None
     descriptors = None if store is None else load_descriptors(sequence, descriptor, store, key)
-    ahead = ReadAhead(sequence, descriptor if descriptors is None else None)
-    label = "odometry" if descriptors is not None else f"odometry and descriptors ({descriptor.name})"
+    frame_clouds = None if clouds is None else load_frame_clouds(sequence, clouds[0], cache, clouds[1])
+    ahead = ReadAhead(sequence, descriptor if descriptors is None else None,
+                      voxel_size=clouds[0] if clouds is not None and frame_clouds is None else None)
+    label = "odometry" + "".join(f" and {what}" for what, todo in (
+        (f"descriptors ({descriptor.name})", descriptors is None), ("clouds", ahead.voxel_size is not None)) if todo)
     with timer.stage("odometry"):
         poses = sequence_odometry(sequence, odometry, OdometryCache(cache), quiet, pose_file, ahead, label)
-    alongside = descriptors is None and ahead.complete
-    with timer.stage("descriptors"):
-        if alongside:
-            computed = ahead.described()
-            descriptors = save_descriptors(store, key, computed.values, computed.ms)
-        elif descriptors is None:  # the odometry came from the cache: the scans were not read
-            descriptors = save_descriptors(store, key, *describe_sequence(sequence, descriptor, quiet))
-    if alongside:
-        timer.seconds["descriptors"] += float(descriptors.ms.sum()) / 1e3
-    return poses, descriptors
+    if ahead.computes and not ahead.complete:  # the odometry came from the cache: the scans were not read
+        _read_through(ahead, quiet, label.removeprefix("odometry and "))
+    stages = {"odometry": poses}
+    if descriptors is None:
+        computed = ahead.described()
+        descriptors = save_descriptors(store, key, computed.values, computed.ms)
+    stages["descriptors"] = descriptors
+    if clouds is not None and frame_clouds is None:
+        frame_clouds = save_frame_clouds(*ahead.downsampled(), clouds[0], cache, clouds[1])
+    if frame_clouds is not None:
+        stages["clouds"] = frame_clouds
+    for name, stage in stages.items():  # computed by the reader: the time it took
+        if name != "odometry" and not stage.cached:
+            timer.seconds[name] = timer.seconds.get(name, 0.0) + float(stage.ms.sum()) / 1e3
+    return stages
 
 
-def _put(frames: queue.Queue, item: object, stop: threading.Event) -> bool:
+def _read_through(ahead: ReadAhead, quiet: bool, label: str) -> None:
+    """Iterate `ahead` to its end for what its reader computes, with a progress bar named `label`."""
+    with progress_bar(quiet) as bar:
+        task = bar.add_task(label, total=len(ahead.sequence))
+        for _ in ahead:
+            bar.advance(task)
+
+
+def ahead(items: Iterable[T], depth: int = DEPTH) -> Iterator[T]:
+    """`items` in order, iterated by a thread of their own that starts when this iteration does, at most `depth`
+    items ahead (a live source's frames simulated while the previous ones are registered: pipeline.online); the
+    thread's errors are raised here, at the item they happened at, and it stops when this iteration ends, early
+    or not."""
+    queued: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    reader = threading.Thread(target=_read, args=(iter(items), queued, stop), name="msa-slam read-ahead", daemon=True)
+    reader.start()
+    try:
+        while (item := queued.get()) is not _END:
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        reader.join()
+
+
+def _read(items: Iterator[Any], queued: queue.Queue, stop: threading.Event) -> None:
+    try:
+        for item in items:
+            if not _put(queued, item, stop):
+                return
+        _put(queued, _END, stop)
+    except BaseException as exc:  # handed to the consumer, which raises it
+        _put(queued, exc, stop)
+
+
+def _put(queued: queue.Queue, item: object, stop: threading.Event) -> bool:
     """Put `item` once the queue has room; False when the consumer stopped first."""
     while not stop.is_set():
         try:
-            frames.put(item, timeout=_POLL_S)
+            queued.put(item, timeout=_POLL_S)
             return True
         except queue.Full:
             continue

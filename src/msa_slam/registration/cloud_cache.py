@@ -10,17 +10,14 @@ the points are memory-mapped, so a run holds in RAM only the keyframes' clouds i
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
 from msa_slam.datasets import ScanSequence
 from msa_slam.io.cache import CacheDir, Computed, cache_key, sequence_inputs
 from msa_slam.io.fingerprint import code_fingerprint
-from msa_slam.progress import progress_bar
-from msa_slam.registration.clouds import downsample
 
 CLOUD_LIBRARIES = ("numpy", "small_gicp")
 CLOUD_CODE = ("msa_slam.registration.clouds", "msa_slam.datasets")  # the voxel downsampling and the scan readers
@@ -50,32 +47,29 @@ def cloud_key(sequence: ScanSequence, voxel_size: float, cache: CacheDir | None 
                      code_fingerprint(CLOUD_CODE), CLOUD_LIBRARIES)
 
 
-def frame_clouds(sequence: ScanSequence, voxel_size: float, cache: CacheDir | None, key: str,
-                 quiet: bool = True) -> Computed:
-    """Every frame's cloud downsampled at `voxel_size` (a FrameClouds as `values`), whether it came from `cache`
-    (entries `frame-cloud-offsets-<key>` and `frame-clouds-<key>`, checked to fit each other and the sequence)
-    and what reading and downsampling each frame took (ms; recorded with the entry)."""
+def load_frame_clouds(sequence: ScanSequence, voxel_size: float, cache: CacheDir, key: str) -> Computed | None:
+    """The cached clouds of every frame downsampled at `voxel_size` (a FrameClouds as `values`; entries
+    `frame-cloud-offsets-<key>` and `frame-clouds-<key>`, checked to fit each other and the sequence) with the
+    time (ms) downsampling each took when computed, or None when any part is absent or bad."""
     offsets_name, points_name = f"frame-cloud-offsets-{key}", f"frame-clouds-{key}"
-    if cache is not None:
-        offsets = cache.load(offsets_name, _offsets_check(len(sequence)))
-        ms = None if offsets is None else cache.load_times(points_name, len(sequence))
-        points = None if ms is None else cache.load(points_name, _points_check(int(offsets[-1])), mapped=True)
-        if points is not None:
-            return Computed(FrameClouds(points, offsets, float(voxel_size)), True, ms)
-    clouds, ms = [], np.zeros(len(sequence))
-    with progress_bar(quiet) as bar:
-        task = bar.add_task("keyframe clouds", total=len(sequence))
-        for i in range(len(sequence)):
-            start = time.perf_counter()
-            clouds.append(downsample(sequence[i].points, voxel_size, where=f"frame {i}"))
-            ms[i] = (time.perf_counter() - start) * 1e3
-            bar.advance(task)
+    offsets = cache.load(offsets_name, _offsets_check(len(sequence)))
+    ms = None if offsets is None else cache.load_times(points_name, len(sequence))
+    points = None if ms is None else cache.load(points_name, _points_check(int(offsets[-1])), mapped=True)
+    return None if points is None else Computed(FrameClouds(points, offsets, float(voxel_size)), True, ms)
+
+
+def save_frame_clouds(clouds: Sequence[np.ndarray], ms: np.ndarray, voxel_size: float, cache: CacheDir | None,
+                      key: str) -> Computed:
+    """Every frame's freshly downsampled cloud (`clouds`, in frame order; computed while the front end reads the
+    scans: pipeline.read_ahead) as one FrameClouds, stored in `cache` (None: not stored) with the time (ms)
+    downsampling each took."""
     offsets = np.concatenate([[0], np.cumsum([len(c) for c in clouds])]).astype(np.int64)
     points = np.ascontiguousarray(np.concatenate(clouds))  # row-major: a frame's cloud is one block of the file
     if cache is not None:
+        points_name = f"frame-clouds-{key}"
         cache.save_times(points_name, ms)
         if cache.save(points_name, points) is not None:
-            cache.save(offsets_name, offsets)  # written last: an entry without it is recomputed
+            cache.save(f"frame-cloud-offsets-{key}", offsets)  # written last: an entry without it is recomputed
     return Computed(FrameClouds(points, offsets, float(voxel_size)), False, ms)
 
 

@@ -1,0 +1,43 @@
+"""The few plain lines the demo ends with: what its comparison found per method, read back from the folder it
+just wrote (comparison.json, through compare's table rows), and what one world seed cannot tell."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Mapping
+
+from msa_slam.evaluation import NA, fmt
+from msa_slam.evaluation.display import spec_for
+from msa_slam.pipeline.compare import table_row
+from msa_slam.pipeline.seeds import seed_summary
+from msa_slam.pipeline.stored import read_json
+
+BASELINE = "all"  # memory is given as a share of this method's (every frame a keyframe)
+REPRODUCE = "msa-slam reproduce"  # the command that repeats the comparison over world seeds
+
+
+def findings(folder: Path) -> list[str]:
+    """Per method of the comparison in `folder`: keyframes (% of frames), memory (% of all samples'), t. ATE
+    improvement, loops and PR-AUC, with the table's decimals; then whether the differences exceed the seed
+    spread, which a single world seed cannot say."""
+    metrics = read_json(folder / "comparison.json")
+    rows = [table_row(m) for m in metrics]
+    frames = metrics[0]["frames"]
+    baseline = next((r["memory_mib"] for r in rows if r["method"] == BASELINE), None)
+    width = max(len(r["method"]) for r in rows)
+    lines = [f"What the comparison found ({metrics[0]['dataset']}, {frames} frames):"]
+    lines += [f"  {r['method']:<{width}}  " + _method_line(r, frames, baseline) for r in rows]
+    summary = seed_summary({0: rows})  # the one world seed this run simulated
+    seeds = len(summary["seeds"])
+    lines.append(f"Whether these differences are beyond the seed-to-seed spread cannot be told from this run: it "
+                 f"simulated {seeds} world seed and the paired test needs at least {summary['min_seeds']}; "
+                 f"`{REPRODUCE}` repeats the comparison over several seeds and says.")
+    return lines
+
+
+def _method_line(row: Mapping[str, Any], frames: int, baseline: float | None) -> str:
+    memory = NA if not baseline else fmt(100.0 * row["memory_mib"] / baseline, ".1f", " %")
+    return (f"{row['keyframes']} keyframes ({fmt(100.0 * row['keyframes'] / frames, '.1f', ' %')} of frames), "
+            f"memory {memory} of {BASELINE} samples, t. ATE improvement "
+            f"{fmt(row['improvement_t_pct'], spec_for('improvement_t_pct'), ' %')}, {row['verified']} loops, "
+            f"PR-AUC {fmt(row['pr_auc'], spec_for('pr_auc'))}")
