@@ -8,8 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
 import msa_slam
+from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.experiments import verdicts as v
 from msa_slam.experiments.folder import write_grid
@@ -88,11 +90,13 @@ def test_quick_variant_cuts_datasets_seeds_and_sweeps_only():
     full = load_grid("paper-bounds")
     quick = variant(full, quick=True, seeds=None)
     assert quick.seeds == [0] and quick.name == "paper-bounds-quick"
-    assert quick.datasets == [f"{d},end={QUICK_FRAMES['online']}" for d in full.datasets[:2]]
+    assert quick.datasets == [f"{full.datasets[0]},end={QUICK_FRAMES['online']}"]
     assert [s.sweep for s in quick.samplers] == [{}, {"lambda_l": [0.0, 2.0]}, {"lambda_u": [1.0, 10.0]}]
     assert [(s.sampler, s.params) for s in quick.samplers] == [(s.sampler, s.params) for s in full.samplers]
     assert quick.base == full.base
     assert variant(full, quick=False, seeds=[4, 7]).seeds == [4, 7]
+    table1 = variant(load_grid("paper-table1"), quick=True, seeds=[3, 5])
+    assert table1.seeds == [3] and len(table1.datasets) == 2 and table1.parameters == {"mode": ["oracle"]}
 
 
 def test_presets_parse_and_ship():
@@ -137,6 +141,7 @@ def constructed_reproduction(out: Path, seeds: list[int]) -> dict:
     """A reproduce folder whose four grids (on `seeds`) have finished cells with _metrics; the Table II drive's
     all and msa cells also per-step records."""
     grids = {name: variant(load_grid(name), quick=False, seeds=seeds) for name in PRESETS}
+    grids["paper-table1"] = grids["paper-table1"].model_copy(update={"datasets": grids["paper-table1"].datasets[:2]})
     for name, grid in grids.items():
         root = out / GRIDS / name
         root.mkdir(parents=True)
@@ -187,15 +192,15 @@ def test_report_with_one_seed_says_not_separable(tmp_path):
     (["--seeds", "1,1"], "expected distinct non-negative integers"),
     (["--workers", "0"], "--workers must be >= 1"),
 ])
-def test_cli_bad_input_is_one_line(tmp_path, args, message):
-    result = run_cli("reproduce", "--out", str(tmp_path / "r"), *args)
-    assert result.returncode == 2 and message in result.stderr, result.stderr
+def test_cli_bad_input_is_refused_before_any_work(tmp_path, args, message):
+    result = CliRunner().invoke(app, ["reproduce", "--out", str(tmp_path / "r"), *args])
+    assert isinstance(result.exception, InputError) and message in str(result.exception)
     assert not (tmp_path / "r").exists()
 
 
-def test_cli_unknown_option_is_a_usage_error(tmp_path):
-    result = run_cli("reproduce", "--fast")
-    assert result.returncode == 2 and "No such option: --fast" in result.stderr
+def test_cli_unknown_option_is_a_usage_error():
+    result = CliRunner().invoke(app, ["reproduce", "--fast"])
+    assert result.exit_code == 2 and "No such option: --fast" in result.output
 
 
 def test_cli_refuses_a_users_folder_and_deletes_nothing(tmp_path):

@@ -11,8 +11,8 @@ import typer
 
 
 def reproduce_command(
-    quick: bool = typer.Option(False, "--quick", help="the same grids on short prefixes: two datasets a grid, "
-                                                      "one seed, each sweep at its ends (a smoke run, minutes)"),
+    quick: bool = typer.Option(False, "--quick", help="the same grids on short prefixes: fewer datasets, one "
+                                                      "seed, oracle mode, each sweep at its ends (a smoke run)"),
     out: Optional[Path] = typer.Option(None, help="results folder: new, empty, or an earlier reproduction's "
                                                   "(resumed) (default: ./msa_slam_results/reproduce)"),
     scheduler: Optional[str] = typer.Option(None, help="Dask scheduler address (tcp://host:port); the output "

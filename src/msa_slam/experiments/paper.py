@@ -14,8 +14,8 @@ from msa_slam.errors import InputError
 from msa_slam.experiments.grid import GridSpec, load_grid
 
 PRESETS = ("paper-table1", "paper-table2", "paper-ablation", "paper-bounds")
-QUICK_FRAMES = {"batch": 120, "online": 100}  # frames of each sequence's prefix under --quick
-QUICK_DATASETS = 2  # the first datasets of each grid (Table I: KITTI-05 and KITTI-06)
+QUICK_FRAMES = {"batch": 120, "online": 60}  # frames of each sequence's prefix under --quick
+QUICK_DATASETS = {"batch": 2, "online": 1}  # the first datasets of a grid (KITTI-05 and -06; the long drive)
 
 
 @dataclass(frozen=True)
@@ -82,14 +82,17 @@ def _prefix(spec: str, frames: int) -> str:
 
 def variant(grid: GridSpec, quick: bool, seeds: Sequence[int] | None) -> GridSpec:
     """`grid` with `seeds` (None: the grid's own) and, with `quick`, cut down: the first QUICK_DATASETS datasets
-    on prefixes of QUICK_FRAMES frames, one seed, each sweep at its two ends. The name says it is a variant."""
+    on prefixes of QUICK_FRAMES frames, one seed, each grid parameter at its first value (Table I: oracle), each
+    sweep at its two ends. The name says it is a variant."""
     data = grid.model_dump()
     if seeds is not None:
         data["seeds"] = list(seeds)
     if quick:
         data["name"] = f"{grid.name}-quick"
         data["seeds"] = data["seeds"][:1]
-        data["datasets"] = [_prefix(d, QUICK_FRAMES[grid.pipeline]) for d in grid.datasets[:QUICK_DATASETS]]
+        data["datasets"] = [_prefix(d, QUICK_FRAMES[grid.pipeline])
+                            for d in grid.datasets[:QUICK_DATASETS[grid.pipeline]]]
+        data["parameters"] = {k: values[:1] for k, values in grid.parameters.items()}
         for spec in data["samplers"]:
             spec["sweep"] = {k: sorted({v[0], v[-1]}) for k, v in spec["sweep"].items()}
     return GridSpec(**data)
