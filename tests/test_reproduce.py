@@ -18,7 +18,7 @@ from msa_slam.experiments.folder import write_grid
 from msa_slam.experiments.grid import expand, load_grid
 from msa_slam.experiments.paper import PRESETS, QUICK_FRAMES, parse_presets, variant
 from msa_slam.experiments.reproduce import GRIDS, write_reproduce_report
-from msa_slam.experiments.reproduce_report import SECTIONS
+from msa_slam.experiments.reproduce_report import SECTIONS, missing_parts
 from msa_slam.io.outputs import write_marker
 from test_cli_main import run_cli
 
@@ -164,7 +164,8 @@ def test_report_sections_and_claims_from_constructed_cells(tmp_path):
     assert headings == list(SECTIONS)
     claims = {line.split(" | ")[0][2:]: line.split(" | ")[1] for line in text.split("## Claims")[1].splitlines()
               if line.startswith("| ") and "**" in line}
-    assert len(claims) >= 6
+    assert len(claims) >= 6 and missing_parts(text) == []
+    assert missing_parts(text.replace("## Ablations", "## Ablation")) == ["section 'Ablations'"]
     assert claims["MSA keeps all samples' accuracy with 40-60 % of the memory"] == "**holds**"
     assert claims["No constant interval suits every scenario"] == "**holds**"
     assert claims["All samples exhausts memory on the long drive (> 128 GiB at 100 km)"] == "**holds**"  # 2 MiB/m

@@ -200,3 +200,15 @@ def fig6_panels(run: Run, dataset: str) -> tuple[np.ndarray, list] | None:
     panels += [TrajectoryPanel(f"{m} (optimised keyframes)", xy[m]["optimised"], xy[m]["optimised_error"])
                for m in ("entropy", "msa")]
     return xy["msa"]["gt"], panels
+
+
+def missing_parts(text: str, min_claims: int = 6) -> list[str]:
+    """What a report.md of reproduce lacks: any of SECTIONS as a "## " heading, or `min_claims` verdict rows in
+    its Claims table (the CI's and the slow test's check of a finished run)."""
+    headings = {line[3:].strip() for line in text.splitlines() if line.startswith("## ")}
+    missing = [f"section {name!r}" for name in SECTIONS if name not in headings]
+    claims = text.split("## Claims", 1)[1] if "## Claims" in text else ""
+    rows = [line for line in claims.splitlines() if line.startswith("| ") and " | **" in line]
+    if len(rows) < min_claims:
+        missing.append(f"{min_claims} claim rows (found {len(rows)})")
+    return missing
