@@ -12,6 +12,7 @@ import numpy as np
 
 from msa_slam.experiments import verdicts as v
 from msa_slam.experiments.paper import column_of
+from msa_slam.pipeline.seeds import SEED_METRICS
 
 Row = dict[str, Any]
 LIMIT_GIB = 128.0  # the paper's machine: all samples "exceeds system memory of 128GB"
@@ -113,7 +114,7 @@ def emphasis(rows: Sequence[Row], label: str, claim: str, expected: Mapping[str,
         a, b = paired(rows, method(label), method("msa"), column)
         found = v.difference(a, b)
         parts.append(v.expect(found, sign))
-        numbers.append(f"{column}: {label} {stat(a)} vs msa {stat(b)} ({found.text()})")
+        numbers.append(f"{SEED_METRICS[column][0]}: {label} {stat(a)} vs msa {stat(b)} ({found.text()})")
     return Claim(claim, v.combine(*parts), "; ".join(numbers), conditions)
 
 

@@ -166,12 +166,12 @@ def fig5_panels(rows: list[dict]) -> dict[str, dict[str, list[float]]]:
 
 
 def sweep_lines(rows: list[dict]) -> dict:
-    """plot_sweeps' input: bound -> metric -> dataset column -> (values, means over seeds)."""
+    """plot_sweeps' input: bound (with its unit) -> metric -> dataset column -> (values, means over seeds)."""
     columns = {"t. ATE impr. [%]": "improvement_t_pct", "F1-max": "f1_max",
                "memory vs all [%]": "memory_vs_reference_pct"}
     out: dict = {}
     for bound in sorted({k for r in rows for k in r["swept"]}):
-        out[bound] = {}
+        out[f"{bound} [m]"] = {}
         for title, column in columns.items():
             lines: dict = {}
             for dataset in dict.fromkeys(r["dataset"] for r in rows):
@@ -181,7 +181,7 @@ def sweep_lines(rows: list[dict]) -> dict:
                         points.setdefault(float(r["swept"][bound]), []).append(r[column])
                 xs = sorted(points)
                 lines[column_of(dataset)] = (xs, [sum(points[x]) / len(points[x]) for x in xs])
-            out[bound][title] = lines
+            out[f"{bound} [m]"][title] = lines
     return out
 
 
