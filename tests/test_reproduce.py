@@ -212,3 +212,15 @@ def test_cli_refuses_a_users_folder_and_deletes_nothing(tmp_path):
     assert result.returncode == 2
     assert f"--out {mine}: exists and is not a msa-slam result folder" in result.stderr
     assert [p.name for p in mine.iterdir()] == ["notes.txt"] and (mine / "notes.txt").read_text() == "keep"
+
+
+def test_report_command_rewrites_a_reproduction(tmp_path):
+    out = tmp_path / "r"
+    constructed_reproduction(out, [0])
+    (out / "report.md").write_text("# old\n\nCommand: `msa-slam reproduce --quick`; msa-slam 0.1.0; ...\n")
+    write_marker(out, "reproduce")
+    result = CliRunner().invoke(app, ["report", str(out)])
+    assert result.exit_code == 0, result.output
+    text = (out / "report.md").read_text()
+    assert missing_parts(text) == [] and "Command: `msa-slam reproduce --quick`" in text
+    assert "Report rewritten by `msa-slam report`" in text

@@ -21,7 +21,7 @@ from typing import Sequence
 from msa_slam.experiments import paper_claims as pc
 from msa_slam.experiments import reproduce_report as rr
 from msa_slam.experiments.grid import GridSpec, check_datasets, expand
-from msa_slam.experiments.paper import column_of, dataset_name, paper_grids
+from msa_slam.experiments.paper import PRESETS, column_of, dataset_name, paper_grids
 from msa_slam.experiments.paper_values import grid_values, window_solve_ms
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.outputs import DEFAULT_RESULTS, MARKER, open_result_folder
@@ -74,6 +74,26 @@ def run_reproduce(presets: Sequence[str], quick: bool = False, seeds: Sequence[i
         write_reproduce_report(folder.path, grids, stamp, result.failed)
         folder.record_files()
     return result
+
+
+def rewrite_reproduce_report(folder: str | os.PathLike) -> Path:
+    """`msa-slam report` of a reproduce folder: report.md and figures again from the finished cells of the grids
+    recorded under grids/ (each its grid.yaml as last run), the run's stamp kept and the rewrite noted."""
+    from msa_slam.experiments.folder import GRID_FILE, grid_cells
+
+    path = Path(folder)
+    with open_result_folder(path, kind=KIND, default_parent=path.parent, resume=True) as result:
+        result.prepare_in_place(grows=(GRIDS,), unit_record=MARKER)
+        grids = {name: grid_cells(path / GRIDS / name)[0] for name in PRESETS
+                 if (path / GRIDS / name / GRID_FILE).is_file()}
+        old = (path / "report.md").read_text() if (path / "report.md").is_file() else ""
+        run_stamp = next((line for line in old.splitlines() if line.startswith("Command: ")), "")
+        now = f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC"
+        stamp = (f"{run_stamp} " if run_stamp else "") + (
+            f"Report rewritten by `msa-slam report` (msa-slam {_version()}, {now}) from the finished cells.")
+        report = write_reproduce_report(path, grids, stamp, {})
+        result.record_files()
+    return report
 
 
 def prepare_batch_inputs(grid: GridSpec, quiet: bool) -> None:
