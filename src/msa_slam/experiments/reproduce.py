@@ -142,7 +142,7 @@ def write_reproduce_report(out: Path, grids: dict[str, GridSpec], stamp: str, fa
             if found is not None:
                 name = f"fig6_{dataset_name(dataset)}.png"
                 plot_trajectories(figures / name, found[0], found[1],
-                                  title=f"{column_of(dataset)} stand-in: MSA and entropy after optimisation")
+                                  title=f"{column_of(dataset)} (simulated): MSA and entropy after optimisation")
                 t1_figs.append(name)
     growth: dict = {}
     if t2 is not None and t2.values.rows:
@@ -151,7 +151,7 @@ def write_reproduce_report(out: Path, grids: dict[str, GridSpec], stamp: str, fa
             all_gib = list(growth.get("all", {}).values())
             plot_memory_distance(figures / "memory_distance.png", series,
                                  (pc.TARGET_M / 1000, sum(all_gib) / len(all_gib)) if all_gib else None,
-                                 pc.LIMIT_GIB, f"{column_of(drive)} stand-in: accounted memory over distance")
+                                 pc.LIMIT_GIB, f"{column_of(drive)} (simulated): accounted memory over distance")
             t2_figs.append("memory_distance.png")
     if bd is not None and bd.values.rows:
         plot_sweeps(figures / "distance_bounds.png", sweep_lines(bd.values.rows),
