@@ -10,6 +10,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from msa_slam.evaluation.display import fmt
 from msa_slam.experiments import verdicts as v
 from msa_slam.experiments.paper import column_of
 from msa_slam.pipeline.seeds import SEED_METRICS
@@ -36,7 +37,7 @@ def stat(values: Sequence[float], digits: int = 1, unit: str = "") -> str:
     if not len(values):
         return "n/a"
     mean, std = v.mean_std(values)
-    return f"{mean:.{digits}f} ± {std:.{digits}f}{unit} (n={len(values)})"
+    return f"{fmt(mean, f'.{digits}f')} ± {fmt(std, f'.{digits}f')}{unit} (n={len(values)})"
 
 
 def _key(row: Row) -> tuple:

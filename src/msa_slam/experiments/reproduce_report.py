@@ -10,6 +10,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from msa_slam.evaluation.display import fmt
 from msa_slam.evaluation.spread import MIN_SEEDS, PAIRED_TEST
 from msa_slam.experiments import paper_claims as pc
 from msa_slam.experiments.grid import GridSpec, slug
@@ -41,9 +42,10 @@ def mean_cell(values: Sequence[float | None], digits: int, unit: str = "") -> st
     known = [float(x) for x in values if x is not None]
     if not known:
         return "n/a"
+    spec = f".{digits}f"  # fmt: a value that rounds to zero shows unsigned
     if len(known) == 1:
-        return f"{known[0]:.{digits}f}{unit}"
-    return f"{np.mean(known):.{digits}f} ± {np.std(known, ddof=1):.{digits}f}{unit}"
+        return fmt(known[0], spec, unit)
+    return f"{fmt(float(np.mean(known)), spec)} ± {fmt(float(np.std(known, ddof=1)), spec)}{unit}"
 
 
 def method_table(rows: Sequence[Row], columns: Mapping[str, tuple[str, int, str]]) -> list[str]:
