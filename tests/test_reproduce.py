@@ -204,6 +204,7 @@ def test_report_with_one_seed_says_not_separable(tmp_path):
     (["--seeds", "0,x"], "--seeds '0,x': expected comma-separated non-negative integers"),
     (["--seeds", "1,1"], "expected distinct non-negative integers"),
     (["--workers", "0"], "--workers must be >= 1"),
+    (["--scheduler", "localhost"], "--scheduler 'localhost':"),
 ])
 def test_cli_bad_input_is_refused_before_any_work(tmp_path, args, message):
     result = CliRunner().invoke(app, ["reproduce", "--out", str(tmp_path / "r"), *args])
@@ -211,9 +212,11 @@ def test_cli_bad_input_is_refused_before_any_work(tmp_path, args, message):
     assert not (tmp_path / "r").exists()
 
 
-def test_cli_unknown_option_is_a_usage_error():
+def test_cli_unknown_option_and_both_schedulers_are_usage_errors():
     result = CliRunner().invoke(app, ["reproduce", "--fast"])
     assert result.exit_code == 2 and "No such option: --fast" in result.output
+    result = CliRunner().invoke(app, ["reproduce", "--scheduler", "tcp://127.0.0.1:8786", "--workers", "2"])
+    assert result.exit_code == 2 and "give either --scheduler or --workers, not both" in result.output
 
 
 def test_cli_refuses_a_users_folder_and_deletes_nothing(tmp_path):

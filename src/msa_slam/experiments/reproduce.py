@@ -49,9 +49,11 @@ def run_reproduce(presets: Sequence[str], quick: bool = False, seeds: Sequence[i
                   quiet: bool = True, command: str = "msa-slam reproduce") -> Reproduction:
     """Run the paper grids `presets` (--quick and --seeds variants: paper.variant) into `out` (default
     msa_slam_results/reproduce, resumed when it holds an earlier reproduction), then write report.md."""
-    from msa_slam.experiments.runner import run_grid
+    from msa_slam.experiments.runner import check_scheduler, run_grid
 
     check_workers(workers)
+    if scheduler is not None:
+        check_scheduler(scheduler)
     grids = paper_grids(presets, quick, seeds)
     for name, grid in grids.items():
         check_datasets(grid, f"preset {name}", expand(grid, f"preset {name}"))
