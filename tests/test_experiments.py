@@ -72,7 +72,8 @@ def test_grid_expansion_sweeps_parameters_and_stable_ids():
 def test_shipped_presets_validate():
     counts = {name: len(expand(load_grid(name))) for name in ("table2", "ablation", "distance_bounds", "tiny")}
     assert counts == {"table2": 24, "ablation": 30, "distance_bounds": 26, "tiny": 2}
-    with pytest.raises(InputError, match="grid file not found .*presets: ablation, distance_bounds, table2, tiny"):
+    with pytest.raises(InputError, match="grid file not found .*presets: ablation, distance_bounds, "
+                                         "paper-ablation, paper-bounds, paper-table1, paper-table2, table2, tiny"):
         load_grid("nope")
 
 

@@ -16,7 +16,7 @@ from typing import Iterator, Optional, TextIO
 import typer
 
 from msa_slam import __version__
-from msa_slam.cli import compare, demo, experiment, online, report, run, sample, simulate
+from msa_slam.cli import compare, demo, experiment, online, report, reproduce, run, sample, simulate
 from msa_slam.cli.options import WEIGHTS_EPILOG, Command, Group
 from msa_slam.errors import InputError
 
@@ -52,6 +52,7 @@ app.command("sample", cls=Command)(sample.sample_command)
 app.command("online", cls=Command, epilog=WEIGHTS_EPILOG)(online.online_command)
 app.command("experiment", cls=Command)(experiment.experiment_command)
 app.command("report", cls=Command)(report.report_command)
+app.command("reproduce", cls=Command)(reproduce.reproduce_command)
 
 
 def _stop_on_signal(signum: int, frame: FrameType | None) -> None:

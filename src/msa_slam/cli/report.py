@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-EXPECTED = "a folder written by `msa-slam run`, `online`, `compare`, `demo` or `experiment`"
+EXPECTED = "a folder written by `msa-slam run`, `online`, `compare`, `demo`, `experiment` or `reproduce`"
 
 
 def report_command(
@@ -32,6 +32,13 @@ def report_command(
                          f"expected {EXPECTED}; nothing written")
     if kind == KIND:
         report = _experiment_report(results_dir, reference)
+    elif kind == "reproduce":
+        from msa_slam.experiments.reproduce import rewrite_reproduce_report
+
+        if reference is not None:
+            raise InputError(f"--reference: only for an experiment's folder; {results_dir} is a result of "
+                             "`msa-slam reproduce` (its grids' reference is all samples)")
+        report = rewrite_reproduce_report(results_dir)
     else:
         from msa_slam.pipeline.rereport import KINDS, rewrite_report
 

@@ -204,7 +204,8 @@ def table2_markdown(rows: list[TableRow]) -> str:
     return "\n".join(lines)
 
 
-def _read_steps(folder: Path) -> dict[str, np.ndarray] | None:
+def read_steps(folder: Path) -> dict[str, np.ndarray] | None:
+    """The per-step record (steps.csv) of an online cell by column; None for a cell without one (batch)."""
     path = folder / "steps.csv"
     if not path.is_file():
         return None
@@ -236,7 +237,7 @@ def _figures(cells: list[FinishedCell], rows: list[TableRow], reference: str, fo
         first_seed = min(c.info["seed"] for c in group)
         memory, graph, loops = {}, {}, {}
         for c in group:
-            steps = _read_steps(c.folder)
+            steps = read_steps(c.folder)
             if steps is None:
                 continue
             label = c.info["method"] + (f" {c.info['parameters']}" if c.info["parameters"] else "")

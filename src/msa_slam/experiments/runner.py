@@ -168,7 +168,7 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
     cells = expand(grid, where)
     check_datasets(grid, where, cells)
     if scheduler is not None:
-        _check_scheduler(scheduler)
+        check_scheduler(scheduler)
     with open_result_folder(out, kind=KIND, default_parent=DEFAULT_PARENT, overwrite=overwrite,
                             resume=True) as folder:
         finished = {} if overwrite or not folder.path.is_dir() else finished_cells(folder.path, cells)
@@ -196,7 +196,7 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
     return run
 
 
-def _check_scheduler(scheduler: str) -> None:
+def check_scheduler(scheduler: str) -> None:
     """A malformed address is refused before the result folder is made (whether it answers is known later)."""
     from distributed.comm.addressing import get_address_host_port
 

@@ -100,16 +100,18 @@ def plot_sweeps(path: str | Path,
     one row per parameter, one column per metric (the paper's Fig. 9)."""
     params = list(sweeps)
     metrics = list(dict.fromkeys(m for p in params for m in sweeps[p]))
-    fig, axes = plt.subplots(len(params), len(metrics), figsize=(3.6 * len(metrics), 3.0 * len(params)),
-                             squeeze=False)
+    fig, axes = plt.subplots(len(params), len(metrics), figsize=(3.6 * len(metrics), 3.0 * len(params) + 0.5),
+                             squeeze=False, layout="constrained")
     for r, param in enumerate(params):
         for c, metric in enumerate(metrics):
             ax = axes[r][c]
             for label, (x, y) in sweeps[param].get(metric, {}).items():
                 ax.plot(x, y, "o-", label=label)
             ax.set(xlabel=param, title=metric if r == 0 else "")
+            ax.ticklabel_format(axis="y", useOffset=False)  # the metric's own values, not "+5.008e1" offsets
             ax.grid(alpha=0.3)
-    axes[0][0].legend(fontsize=7)
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    if handles:  # below the panels, off the data
+        fig.legend(handles, labels, loc="outside lower center", ncols=min(4, len(labels)), fontsize=8)
     fig.suptitle(title)
-    fig.tight_layout()
     return _save(fig, path)

@@ -1,0 +1,75 @@
+"""Every read of a finished grid's cells that `reproduce` needs, in one place: the flat rows of
+experiments.report.make_rows, the MSA window solve times and the memory-over-distance series. Only this module
+walks a cell's metrics or files, so that a change of their layout is met here alone."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from msa_slam.evaluation.run_metrics import TableRow
+from msa_slam.experiments.report import FinishedCell, load_cells, make_rows, read_steps
+from msa_slam.pipeline.results import accounted_bytes
+
+
+@dataclass(frozen=True)
+class GridValues:
+    """The finished cells of one grid: make_rows' rows (plus `mode` and `swept`) and the cells themselves."""
+
+    rows: list[TableRow]
+    cells: list[FinishedCell]
+
+
+def grid_values(folder: str | Path, reference: str = "all") -> GridValues:
+    """Rows of every finished cell of the experiment folder `folder`, each with its `mode` (oracle/realistic)
+    and its `swept` values (a sweep's parameter: value)."""
+    cells = load_cells(folder)
+    rows = make_rows(cells, reference)
+    for row, cell in zip(rows, cells):
+        params = json.loads(row["parameters"]) if row["parameters"] else {}
+        row["mode"] = params.get("mode", cell.metrics.run.mode)
+        row["swept"] = cell.info.get("swept") or {}
+    return GridValues(rows, cells)
+
+
+def window_solve_ms(cells: list[FinishedCell], method: str = "msa") -> list[float]:
+    """Median time of one window optimisation of each `method` cell (its sampler_stats), in ms."""
+    out = []
+    for cell in cells:
+        stats = cell.metrics.sampler_stats or {}
+        if cell.info["method"] == method and stats.get("optimisation_ms_median") is not None:
+            out.append(float(stats["optimisation_ms_median"]))
+    return out
+
+
+def memory_over_distance(cell: FinishedCell) -> tuple[np.ndarray, np.ndarray] | None:
+    """(ground-truth path length [m], accounted memory [bytes]) at every frame of an online cell; None when the
+    cell kept no per-step record."""
+    steps = read_steps(cell.folder)
+    frames_csv = cell.folder / "frames.csv"
+    if steps is None or not frames_csv.is_file():
+        return None
+    frames = np.genfromtxt(frames_csv, delimiter=",", names=True)
+    xyz = np.column_stack([np.atleast_1d(frames[k]) for k in ("gt_x", "gt_y", "gt_z")])
+    if not np.isfinite(xyz).all():
+        return None
+    distance = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xyz, axis=0), axis=1))])
+    step_frames = steps["frame"].astype(int)
+    return distance[step_frames], accounted_bytes(steps).astype(float)
+
+
+def trajectory_xy(cell: FinishedCell) -> dict[str, np.ndarray] | None:
+    """xy of ground truth, odometry (every frame) and the optimised keyframes, with the per-point ATE of the
+    latter two (frames.csv); None when the cell has no frames.csv."""
+    path = cell.folder / "frames.csv"
+    if not path.is_file():
+        return None
+    f = np.genfromtxt(path, delimiter=",", names=True)
+    kf = np.atleast_1d(f["is_keyframe"]).astype(bool)
+    return {"gt": np.column_stack([f["gt_x"], f["gt_y"]]), "odometry": np.column_stack([f["odom_x"], f["odom_y"]]),
+            "odometry_error": np.atleast_1d(f["ate_odom_m"]),
+            "optimised": np.column_stack([f["opt_x"], f["opt_y"]])[kf],
+            "optimised_error": np.atleast_1d(f["ate_opt_m"])[kf]}
