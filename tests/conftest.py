@@ -46,10 +46,17 @@ def drifted(gt: np.ndarray, yaw_per_frame: float = 0.002, scale: float = 1.01) -
 
 
 @pytest.fixture(scope="session")
-def cache_dir(tmp_path_factory) -> Path:
-    path = tmp_path_factory.getbasetemp() / "msa-pipeline-cache"
-    path.mkdir(exist_ok=True)
-    return path
+def cache_dir(request, tmp_path_factory) -> Path:
+    """msa-slam's cache for the session's simulated sequences and their front ends, in pytest's cache folder: the
+    xdist workers and later runs share it instead of each simulating and computing the same again. Safe to share
+    because every entry is keyed by its inputs' content and its code's fingerprint and written atomically
+    (io/cache.py, sim/sequence.py); `pytest --cache-clear` (or `-p no:cacheprovider`: a temporary folder) starts
+    cold."""
+    if getattr(request.config, "cache", None) is None:
+        path = tmp_path_factory.getbasetemp() / "msa-pipeline-cache"
+        path.mkdir(exist_ok=True)
+        return path
+    return request.config.cache.mkdir("msa-pipeline-cache")
 
 
 @pytest.fixture(scope="session")
@@ -60,9 +67,9 @@ def sequence(cache_dir) -> Path:
 @pytest.fixture(scope="session")
 def odometry_file(sequence, cache_dir) -> Path:
     gt, _ = read_poses(sequence / "poses.txt")
-    path = cache_dir / "drifted_odometry.txt"
+    path = cache_dir / f"{sequence.name}.drifted-odometry.txt"  # one per simulation: the cache outlives a sequence
     if not path.exists():
-        write_poses(path, drifted(gt))
+        write_poses(path, drifted(gt))  # atomic: the other worker reads it whole or not at all
     return path
 
 

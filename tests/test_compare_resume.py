@@ -35,9 +35,8 @@ def _no_rss_growth(patch: pytest.MonkeyPatch) -> None:
 
 
 @pytest.fixture(scope="module")
-def base(tmp_path_factory):
-    cache = tmp_path_factory.mktemp("compare-resume-cache")
-    return make_config(dataset="sim:test,end=60,azimuth_steps=360", cache_dir=str(cache))
+def base(cache_dir):
+    return make_config(dataset="sim:test,end=60,azimuth_steps=360", cache_dir=str(cache_dir))
 
 
 @pytest.fixture(scope="module")

@@ -39,6 +39,13 @@ def base(sequence, odometry_file, cache_dir):
                        **PERMISSIVE)
 
 
+@pytest.fixture(scope="module")
+def short(base):
+    """`base` on the sequence's first 40 scans, for the tests of how a method fails: which method fails and what is
+    written do not depend on the sequence's length."""
+    return make_config({**base.dump(), "source": {"frames": 40}})
+
+
 def _same_files(serial: Path, parallel: Path) -> None:
     assert differences(stable_content(serial), stable_content(parallel)) == []
 
@@ -68,11 +75,11 @@ def test_seeds_with_two_workers_write_the_files_of_a_serial_run(tmp_path, cache_
 
 
 @pytest.mark.parametrize("workers", [1, 2])
-def test_a_method_failing_in_a_worker_is_reported_as_in_a_serial_run(base, tmp_path, monkeypatch, workers):
+def test_a_method_failing_in_a_worker_is_reported_as_in_a_serial_run(short, tmp_path, monkeypatch, workers):
     before_method(monkeypatch, "constant-2m", degenerate)
     out = tmp_path / "cmp"
     with pytest.raises(MethodsFailed) as failed:
-        run_compare(base, out, methods=METHODS, sweep=False, workers=workers)
+        run_compare(short, out, methods=METHODS, sweep=False, workers=workers)
     assert failed.value.failed == {"constant-2m": "RuntimeError: degenerate scan statistics"}
     error = (out / "runs" / "constant-2m" / "error.txt").read_text()
     assert error.startswith("Traceback") and "in degenerate" in error and "degenerate scan statistics" in error
@@ -84,13 +91,13 @@ def test_a_method_failing_in_a_worker_is_reported_as_in_a_serial_run(base, tmp_p
     assert "- constant-2m: RuntimeError: degenerate scan statistics (traceback: runs/constant-2m/error.txt)" in report
 
 
-def test_a_worker_that_dies_fails_its_method_instead_of_the_comparison(base, tmp_path, monkeypatch):
+def test_a_worker_that_dies_fails_its_method_instead_of_the_comparison(short, tmp_path, monkeypatch):
     """A worker killed mid-method (the OOM killer, a crash in a native library) fails the methods it breaks off,
     each with error.txt; the comparison is still written."""
     before_method(monkeypatch, "msa", lambda: os.kill(os.getpid(), signal.SIGKILL))
     out = tmp_path / "cmp"
     with pytest.raises(MethodsFailed) as failed:
-        run_compare(base, out, methods=METHODS, sweep=False, workers=2)
+        run_compare(short, out, methods=METHODS, sweep=False, workers=2)
     assert failed.value.failed["msa"].startswith("BrokenProcessPool")
     assert "terminated abruptly" in (out / "runs" / "msa" / "error.txt").read_text()
     assert (out / "report.md").is_file()

@@ -30,9 +30,9 @@ SMALL = dict(trajectory="kitti-07", end=6, azimuth_steps=128)
 
 
 @pytest.fixture(scope="module")
-def test_sequence(tmp_path_factory):
-    """The embedded test default, simulated once for this module."""
-    return default_sequence("test", cache_dir=tmp_path_factory.mktemp("cache"))
+def test_sequence(cache_dir):
+    """The embedded test default, in the session's shared cache (conftest.py): the pipeline tests' sequence."""
+    return default_sequence("test", cache_dir=cache_dir)
 
 
 def _revisit_pairs(positions: np.ndarray, radius: float, min_gap: int) -> list[tuple[int, int]]:
