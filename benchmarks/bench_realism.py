@@ -226,8 +226,8 @@ def main() -> None:
     parser.add_argument("--cache-dir", default=None)
     args = parser.parse_args()
 
-    print(f"realism {args.realism}, frames {args.frames or 'all'} from {args.start}, azimuth steps {args.azimuth_steps or 'default'}, "
-          f"far pairs on every {args.pair_step}. frame\n")
+    print(f"realism {args.realism}, frames {args.frames or 'all'} from {args.start}, azimuth steps "
+          f"{args.azimuth_steps or 'default'}, far pairs on every {args.pair_step}. frame\n")
     header = ("seq", "seed", "frames", "RTE %", "horiz %", "vert %", "pitch deg/100 m", "max far SC", "far > 0.8 %",
               "AUC all", "all matches", "all rec@0.8", "AUC c2m", "batch AUC all", "batch AUC c2m",
               "spac vs c3m kf diff %", "kf spac/c3m", "scans/s", "KiB/scan")
