@@ -22,11 +22,14 @@ lines score such a run with the trapezoid over the package's own curve (precisio
 the recall lost at 0.99), marked "*", and the table adds the informative part: how many matches it recorded ("all
 matches") and the share of them that reach the paper's 0.8 ("all rec@0.8").
 
-    python benchmarks/bench_realism.py [--sequences 00,05,06,07,09] [--seeds 0,1,2] [--frames N]
+    python benchmarks/bench_realism.py [--sequences 00,05,06,07,09] [--seeds 0,1,2] [--start K] [--frames N]
                                        [--realism kitti] [--azimuth-steps N] [--cache-dir DIR]
 
-`--frames N` keeps a prefix of N frames of each sequence (stride 1, 10 Hz), for partial runs on a busy machine;
-segments longer than the prefix's path are skipped, so short prefixes report RTE on the shorter lengths only.
+`--frames N` keeps N frames of each sequence from frame `--start` (default 0; stride 1, 10 Hz), for partial runs
+on a busy machine or a stretch of interest (KITTI-09's climbs and descents); segments longer than the part's path
+are skipped, so short parts report RTE on the shorter lengths only. Beside the RTE the table gives the mean signed
+pitch error over the same segments (deg per 100 m, positive when the estimate's forward axis turns up against the
+truth's): a systematic pitch error is what makes the drift vertical.
 """
 
 from __future__ import annotations
@@ -62,6 +65,27 @@ def relative_translation_error(gt: np.ndarray, est: np.ndarray) -> tuple[float, 
         return None
     total, horizontal, vertical = (np.linalg.norm(err, axis=1), np.linalg.norm(err[:, :2], axis=1), np.abs(err[:, 2]))
     return 100 * float(np.mean(total)), 100 * float(np.mean(horizontal)), 100 * float(np.mean(vertical))
+
+
+def pitch_drift(gt: np.ndarray, est: np.ndarray) -> float | None:
+    """Mean signed pitch error (deg per 100 m) over KITTI's 100..800 m segments, positive when the estimate's
+    forward axis turns up against the truth's (about the segment end's lateral axis); None when the path is
+    shorter than 100 m."""
+    parts = [np.degrees(np.arcsin(np.clip(motions[:, 0, 2], -1.0, 1.0))) * 100.0 / length
+             for length in KITTI_LENGTHS_M
+             for motions in (segment_error_motions(est, gt, length, STEP_FRAMES),)]
+    pitch = np.concatenate(parts)
+    return float(np.mean(pitch)) if len(pitch) else None
+
+
+def dataset_spec(seq: str, seed: int, realism: str, start: int = 0, frames: int | None = None,
+                 azimuth_steps: int | None = None) -> str:
+    """The simulated dataset of one row: KITTI trajectory `seq`, world seed, preset, frames start..start+frames."""
+    fields = [f"seed={seed}", f"realism={realism}"]
+    fields += [f"start={start}"] if start else []
+    fields += [f"end={start + frames}"] if frames else []
+    fields += [f"azimuth_steps={azimuth_steps}"] if azimuth_steps else []
+    return f"sim:kitti-{seq}," + ",".join(fields)
 
 
 def far_pair_similarity(frontend, positions: np.ndarray, step: int) -> tuple[float, float]:
@@ -110,13 +134,14 @@ def evaluate(spec: str, cache_dir: str | None, pair_step: int) -> dict:
     frontend = prepare_frontend(base, quiet=True)
     gt = np.linalg.inv(frontend.gt_poses[0]) @ frontend.gt_poses
     rte = relative_translation_error(gt, frontend.odometry)
+    pitch = pitch_drift(gt, frontend.odometry)
     best, above = far_pair_similarity(frontend, gt[:, :3, 3], pair_step)
     runs = {cfg.name: run_batch(cfg, frontend, sweep=False)  # the threshold sweep is not in this table
             for cfg in method_configs(base, METHODS)}
     kf_const, kf_spac = set(runs["constant-3m"].keyframes.tolist()), set(runs["spaciousness"].keyframes.tolist())
     reference = {name: run.metrics.place_recognition.reference for name, run in runs.items()}  # batch: ReferencePR
     return {
-        "frames": len(frontend), "rte": rte, "best": best, "above": above,
+        "frames": len(frontend), "rte": rte, "pitch": pitch, "best": best, "above": above,
         "auc_all": known(reference["all"].pr_auc),
         "auc_all_perfect": perfect_precision_auc(runs["all"].pr_reference),
         "recall_all_08": recall_at(runs["all"].pr_reference, THRESHOLD),
@@ -195,16 +220,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sequences", default="00,05,06,07,09")
     parser.add_argument("--seeds", default="0,1,2")
-    parser.add_argument("--frames", type=int, default=None, help="a prefix of each sequence (default: whole)")
+    parser.add_argument("--start", type=int, default=0, help="first frame of each sequence (default 0)")
+    parser.add_argument("--frames", type=int, default=None, help="frames from --start (default: to the end)")
     parser.add_argument("--realism", default="kitti")
     parser.add_argument("--azimuth-steps", type=int, default=None, help="sensor default (HDL-64: 1800)")
     parser.add_argument("--pair-step", type=int, default=3, help="every n-th frame in the far-pair search")
     parser.add_argument("--cache-dir", default=None)
     args = parser.parse_args()
 
-    print(f"realism {args.realism}, frames {args.frames or 'all'}, azimuth steps {args.azimuth_steps or 'default'}, "
-          f"far pairs on every {args.pair_step}. frame\n")
-    header = ("seq", "seed", "frames", "RTE %", "horiz %", "vert %", "max far SC", "far > 0.8 %",
+    print(f"realism {args.realism}, frames {args.frames or 'all'} from {args.start}, azimuth steps "
+          f"{args.azimuth_steps or 'default'}, far pairs on every {args.pair_step}. frame\n")
+    header = ("seq", "seed", "frames", "RTE %", "horiz %", "vert %", "pitch deg/100 m", "max far SC", "far > 0.8 %",
               "AUC all", "all matches", "all rec@0.8", "AUC c2m", "batch AUC all", "batch AUC c2m",
               "spac vs c3m kf diff %", "kf spac/c3m", "scans/s", "KiB/scan")
     print(" | ".join(header))
@@ -212,13 +238,12 @@ def main() -> None:
     rows = []
     for seq in args.sequences.split(","):
         for seed in map(int, args.seeds.split(",")):
-            fields = [f"seed={seed}", f"realism={args.realism}"]
-            fields += [f"end={args.frames}"] if args.frames else []
-            fields += [f"azimuth_steps={args.azimuth_steps}"] if args.azimuth_steps else []
-            r = evaluate(f"sim:kitti-{seq}," + ",".join(fields), args.cache_dir, args.pair_step)
+            spec = dataset_spec(seq, seed, args.realism, args.start, args.frames, args.azimuth_steps)
+            r = evaluate(spec, args.cache_dir, args.pair_step)
             rows.append((seq, r))
             rte = r["rte"] or (float("nan"),) * 3
-            print(" | ".join([seq, str(seed), str(r["frames"]), *(f"{v:.2f}" for v in rte), f"{r['best']:.3f}",
+            pitch = "n/a" if r["pitch"] is None else f"{r['pitch']:+.3f}"
+            print(" | ".join([seq, str(seed), str(r["frames"]), *(f"{v:.2f}" for v in rte), pitch, f"{r['best']:.3f}",
                               f"{100 * r['above']:.3f}", _auc_all(r), str(r["matches_all"]), _pct(r["recall_all_08"]),
                               _pct(r["auc_c2"]), _pct(r["batch_all"]), _pct(r["batch_c2"]),
                               f"{100 * r['spac_diff']:.1f}", "/".join(map(str, r["kf"])),

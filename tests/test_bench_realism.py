@@ -50,3 +50,31 @@ def test_drift_is_split_into_horizontal_and_vertical_parts(bench):
     assert horizontal == pytest.approx(2.0, abs=0.01) and vertical < 0.01
     assert bench._rte_mean_std([(1.0, 0.5, 0.8), (2.0, 1.5, 1.2)]) == ["1.50 +- 0.71", "1.00 +- 0.71", "1.00 +- 0.28"]
     assert bench._rte_mean_std([(1.0, 0.5, 0.8), None]) == ["n/a"] * 3
+
+
+def test_pitch_drift_is_the_signed_pitch_error_per_100_m(bench):
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    gt = np.tile(np.eye(4), (301, 1, 1))
+    gt[:, 0, 3] = np.arange(301.0)  # 300 m straight ahead, 1 m a frame
+    nose_up = gt.copy()
+    # the estimate's forward axis turns up by 0.5 deg per 100 m (a rotation about y by minus the angle)
+    nose_up[:, :3, :3] = Rotation.from_euler("y", -np.radians(0.005) * gt[:, 0, 3, None]).as_matrix()
+    assert bench.pitch_drift(gt, nose_up) == pytest.approx(0.5, rel=1e-6)
+    nose_down = gt.copy()
+    nose_down[:, :3, :3] = np.linalg.inv(nose_up[:, :3, :3])
+    assert bench.pitch_drift(gt, nose_down) == pytest.approx(-0.5, rel=1e-6)
+    assert bench.pitch_drift(gt, gt) == 0.0
+    assert bench.pitch_drift(gt[:50], nose_up[:50]) is None  # 49 m: shorter than the shortest segment
+
+
+def test_a_row_simulates_the_frames_from_start(bench):
+    from msa_slam.pipeline.source import sim_config
+
+    spec = bench.dataset_spec("09", 1, "kitti", start=600, frames=300, azimuth_steps=720)
+    assert spec == "sim:kitti-09,seed=1,realism=kitti,start=600,end=900,azimuth_steps=720"
+    config = sim_config(spec)
+    assert (config.start, config.end, config.frame_count()) == (600, 900, 300)
+    assert bench.dataset_spec("07", 0, "kitti", frames=400) == "sim:kitti-07,seed=0,realism=kitti,end=400"
+    assert bench.dataset_spec("00", 2, "clean") == "sim:kitti-00,seed=2,realism=clean"
