@@ -190,7 +190,7 @@ def parity_counts():
 
 
 def canonical_targets(shapes, repeats: int = 3) -> None:
-    """Issue 16's targets: median ms per window at N = 10, 16, 20, canonical vs reference (fast mode),
+    """The window-time targets: median ms per window at N = 10, 16, 20, canonical vs reference (fast mode),
     canonical on 2 threads and on 1; at N = 10 also with every window handed to the threads (windows
     under fast.PARALLEL_FROM candidates run on the calling thread: this column is the data for that
     threshold). Each figure is the median over `repeats` sampler runs (2 and 1 threads alternating) of

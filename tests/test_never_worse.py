@@ -1,4 +1,4 @@
-"""Issue 14's safety criterion on a short sequence with revisits: pose-graph optimisation never makes the
+"""The fair evaluation's safety criterion on a short sequence with revisits: pose-graph optimisation never makes the
 full-rate ATE worse than odometry by more than 5 %, for any of the paper's samplers, in oracle and in
 realistic mode, and "ATE before" is the same number for every sampler."""
 

@@ -89,7 +89,7 @@ def _ground_plane_scan(pose: np.ndarray, rng: np.random.Generator) -> np.ndarray
 
 
 def test_kiss_icp_in_a_ground_plane_world_is_flagged():
-    # Issue 11.5: a flat world gives ICP nothing to fix the motion along the ground: the odometry stays at
+    # A flat world gives ICP nothing to fix the motion along the ground: the odometry stays at
     # the origin (ATE 48.7 m in the issue) and the warnings say so.
     rng = np.random.default_rng(0)
     n = 25
