@@ -105,12 +105,17 @@ def plot_sweeps(path: str | Path,
     for r, param in enumerate(params):
         for c, metric in enumerate(metrics):
             ax = axes[r][c]
-            for label, (x, y) in sweeps[param].get(metric, {}).items():
+            lines = {label: xy for label, xy in sweeps[param].get(metric, {}).items() if len(xy[0])}
+            for label, (x, y) in lines.items():
                 ax.plot(x, y, "o-", label=label)
+            if not lines:  # every cell's value n/a (the cells' results.md say why): say so, not an empty frame
+                ax.text(0.5, 0.5, "n/a in every cell\n(results.md gives the reason)", ha="center", va="center",
+                        transform=ax.transAxes, fontsize=9, color="0.4")
+                ax.set(xticks=[], yticks=[])
             ax.set(xlabel=param, title=metric if r == 0 else "")
             ax.ticklabel_format(axis="y", useOffset=False)  # the metric's own values, not "+5.008e1" offsets
             ax.grid(alpha=0.3)
-    handles, labels = axes[0][0].get_legend_handles_labels()
+    handles, labels = next((h for h in (ax.get_legend_handles_labels() for ax in axes.flat) if h[0]), ([], []))
     if handles:  # below the panels, off the data
         fig.legend(handles, labels, loc="outside lower center", ncols=min(4, len(labels)), fontsize=8)
     fig.suptitle(title)
