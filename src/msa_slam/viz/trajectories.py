@@ -214,7 +214,7 @@ def plot_trajectories(path: str | Path, gt_xy: np.ndarray, panels: Sequence[Traj
         if zoom:
             zoom_ax = right.subplots()
             _draw_zoom(zoom_ax, gt_xy, scaled, *zoom)
-            zoom_ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), fontsize=7, frameon=False, ncols=2)
+            zoom_ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), fontsize=7, frameon=False, ncols=1)
         fig.legend(handles=_legend_handles(gt_xy, panels, cmap, zoom is not None), loc="outside lower center",
                    ncols=3, fontsize=8, frameon=False)
         if title:
