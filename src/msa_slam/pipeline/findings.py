@@ -9,8 +9,8 @@ from typing import Any, Mapping
 from msa_slam.evaluation import NA, fmt
 from msa_slam.evaluation.display import spec_for
 from msa_slam.pipeline.compare import table_row
-from msa_slam.pipeline.seeds import seed_summary
-from msa_slam.pipeline.stored import read_json
+from msa_slam.evaluation.spread import MIN_SEEDS
+from msa_slam.pipeline.stored import listed_methods
 
 BASELINE = "all"  # memory is given as a share of this method's (every frame a keyframe)
 REPRODUCE = "msa-slam reproduce"  # the command that repeats the comparison over world seeds
@@ -20,17 +20,15 @@ def findings(folder: Path) -> list[str]:
     """Per method of the comparison in `folder`: keyframes (% of frames), memory (% of all samples'), t. ATE
     improvement, loops and PR-AUC, with the table's decimals; then whether the differences exceed the seed
     spread, which a single world seed cannot say."""
-    metrics = read_json(folder / "comparison.json")
+    metrics = listed_methods(folder)
     rows = [table_row(m) for m in metrics]
-    frames = metrics[0]["frames"]
+    frames = metrics[0].run.frames
     baseline = next((r["memory_mib"] for r in rows if r["method"] == BASELINE), None)
     width = max(len(r["method"]) for r in rows)
-    lines = [f"What the comparison found ({metrics[0]['dataset']}, {frames} frames):"]
+    lines = [f"What the comparison found ({metrics[0].run.dataset}, {frames} frames):"]
     lines += [f"  {r['method']:<{width}}  " + _method_line(r, frames, baseline) for r in rows]
-    summary = seed_summary({0: rows})  # the one world seed this run simulated
-    seeds = len(summary["seeds"])
     lines.append(f"Whether these differences are beyond the seed-to-seed spread cannot be told from this run: it "
-                 f"simulated {seeds} world seed and the paired test needs at least {summary['min_seeds']}; "
+                 f"simulated 1 world seed and the paired test needs at least {MIN_SEEDS}; "
                  f"`{REPRODUCE}` repeats the comparison over several seeds and says.")
     return lines
 
