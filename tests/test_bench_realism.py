@@ -70,11 +70,11 @@ def test_pitch_drift_is_the_signed_pitch_error_per_100_m(bench):
 
 
 def test_a_row_simulates_the_frames_from_start(bench):
-    from msa_slam.pipeline.source import sim_config
+    from msa_slam.sources import parse_spec
 
     spec = bench.dataset_spec("09", 1, "kitti", start=600, frames=300, azimuth_steps=720)
     assert spec == "sim:kitti-09,seed=1,realism=kitti,start=600,end=900,azimuth_steps=720"
-    config = sim_config(spec)
+    config = parse_spec(spec).config
     assert (config.start, config.end, config.frame_count()) == (600, 900, 300)
     assert bench.dataset_spec("07", 0, "kitti", frames=400) == "sim:kitti-07,seed=0,realism=kitti,end=400"
     assert bench.dataset_spec("00", 2, "clean") == "sim:kitti-00,seed=2,realism=clean"

@@ -13,6 +13,8 @@ import sys
 
 import yaml
 
+from msa_slam.evaluation.metrics import Deskew, RunSetup
+from msa_slam.evaluation.metrics_json import from_json
 from msa_slam.pipeline.online import run_online, threads_note, with_odometry_threads
 from msa_slam.pipeline.online_config import NOT_REPRODUCIBLE, make_online_config
 from msa_slam.pipeline.report import threads_text
@@ -37,7 +39,7 @@ def test_live_source_uses_every_core_and_says_it_is_not_reproducible(tmp_path):
     assert f"(odometry: {cores} thread" in done.stderr  # the progress label
     noted = [w for w in metrics["warnings"] if NOT_REPRODUCIBLE in w]
     assert noted == threads_note(cores) and (noted != []) == (cores > 1)
-    assert threads_text(metrics) in (out / "report.md").read_text()
+    assert threads_text(from_json(metrics, 'metrics.json').setup) in (out / "report.md").read_text()
 
 
 def test_recorded_source_runs_on_one_thread(tmp_path):
@@ -65,4 +67,5 @@ def test_thread_default_leaves_other_odometries_and_given_counts_alone():
     assert with_odometry_threads(noisy, 2) is noisy
     assert with_odometry_threads(make_online_config(dataset=COARSE), 2).odometry_params == {"num_threads": 2}
     assert threads_note(1) == [] and threads_note(None) == []
-    assert threads_text({"threads": {"odometry": None}}) == "" and threads_text({}) == ""
+    no_kiss = Deskew(None, "not KISS-ICP")
+    assert threads_text(RunSetup(no_kiss, {"odometry": None})) == "" and threads_text(RunSetup(no_kiss, {})) == ""

@@ -67,7 +67,7 @@ def test_progress_bar_picks_log_lines_off_a_terminal_and_nothing_when_quiet(monk
 
 
 def test_a_non_tty_run_logs_its_long_stages(tmp_path, sequence, odometry_file):
-    """`msa-slam run` with its output in a file (a cluster job's log): descriptors and back-end log lines."""
+    """`msa-slam run` with its output in a file (a cluster job's log): the front end's and back-end's log lines."""
     import os
     import subprocess
     import sys
@@ -80,7 +80,8 @@ def test_a_non_tty_run_logs_its_long_stages(tmp_path, sequence, odometry_file):
                               stderr=subprocess.STDOUT, timeout=600)
     text = (tmp_path / "log.txt").read_text()
     assert done.returncode == 0, text
-    for stage in ("descriptors (scan_context)", "back-end (msa)"):
+    # the front end's one pass over the scans (odometry from the pose file, descriptors and frame clouds computed)
+    for stage in ("odometry and descriptors (scan_context) and clouds", "back-end (msa)"):
         assert f"{stage}: start (" in text, text
         assert re.search(rf"{re.escape(stage)}: done (\d+)/\1 in [\d.]+ s", text), text
     assert "\x1b[" not in text  # no terminal control sequences in a log

@@ -96,8 +96,8 @@ def test_report_refuses_a_folder_msa_slam_did_not_write(tmp_path):
     result = _cli("report", str(tmp_path))
     assert isinstance(result.exception, InputError)
     assert str(result.exception) == (f"{tmp_path}: not a msa-slam result folder (no {MARKER} written by msa-slam); "
-                                     "expected a folder written by `msa-slam run`, `online`, `compare`, `demo` or "
-                                     "`experiment`; nothing written")
+                                     "expected a folder written by `msa-slam run`, `online`, `compare`, `demo`, "
+                                     "`experiment` or `reproduce`; nothing written")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
 
 
