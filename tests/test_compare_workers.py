@@ -22,6 +22,7 @@ from typer.testing import CliRunner
 from helpers.methods import before_method, degenerate
 from helpers.orphans import poll, proc_stat
 from helpers.results import differences, stable_content
+from helpers.signals import terminal_signals
 from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.pipeline import make_config
@@ -151,7 +152,7 @@ def test_workers_end_with_their_parent(stop):
     """kill -9 of the parent (the kernel's parent-death signal) or Ctrl-C (the parent kills them) ends the
     workers mid-job."""
     parent = subprocess.Popen([sys.executable, "-c", _PARENT], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                              stderr=subprocess.DEVNULL, text=True)
+                              stderr=subprocess.DEVNULL, text=True, preexec_fn=terminal_signals)
     workers = [int(parent.stdout.readline()) for _ in range(2)]
     try:
         parent.send_signal(stop)

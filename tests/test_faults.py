@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from helpers.results import differences, stable_content
+from helpers.signals import terminal_signals
 
 DRIVER = Path(__file__).parent / "helpers" / "fault_driver.py"
 DATASET = "sim:test,end=80"  # 40 frames of the figure-eight: seconds per run
@@ -23,7 +24,7 @@ def cli(tmp: Path, where: str, args: list[str], cache: Path, out: Path, occurren
         ) -> subprocess.CompletedProcess:
     env = {**os.environ, "MSA_FAULT_CACHE": str(cache), "MSA_FAULT_OUT": str(out)}
     return subprocess.run([sys.executable, str(DRIVER), where, str(occurrence), "--", *args], cwd=tmp, env=env,
-                          capture_output=True, text=True, timeout=600)
+                          capture_output=True, text=True, timeout=600, preexec_fn=terminal_signals)
 
 
 def leftovers(*folders: Path) -> list[str]:
