@@ -26,7 +26,7 @@ from pathlib import Path
 
 from msa_slam.evaluation import fmt
 from msa_slam.pipeline import make_config
-from msa_slam.pipeline.compare import run_compare
+from msa_slam.experiments.compare import run_compare
 
 NEVER_WORSE_PCT = -5.0
 COLUMNS = (("improvement_t_pct", "t. ATE impr. %"), ("rpe_pct", "RPE %"), ("pr_auc", "PR-AUC"),

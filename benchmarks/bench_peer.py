@@ -59,7 +59,7 @@ from msa_slam.io.poses import read_poses
 from msa_slam.io.provenance import cpu_model
 from msa_slam.pipeline import make_config
 from msa_slam.pipeline.config import RunConfig, apply_overrides
-from msa_slam.pipeline.compare import PAPER_METHODS, run_compare
+from msa_slam.experiments.compare import PAPER_METHODS, run_compare
 from msa_slam.sim.trajectories import interpolate_poses
 from msa_slam.viz.labels import counted
 from peer_timing import median_timing, timed_jobs

@@ -18,7 +18,7 @@ import time
 from msa_slam.evaluation.metrics import known
 from msa_slam.pipeline import make_config, prepare_frontend, run_batch
 from msa_slam.pipeline.batch import BACKEND_STAGES
-from msa_slam.pipeline.compare import method_configs
+from msa_slam.experiments.compare import method_configs
 
 
 def main() -> None:

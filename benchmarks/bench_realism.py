@@ -46,7 +46,7 @@ from numpy import trapezoid
 from msa_slam.evaluation.full_rate import KITTI_LENGTHS_M, STEP_FRAMES, segment_error_motions
 from msa_slam.evaluation.metrics import known, reason_of
 from msa_slam.pipeline import make_config, prepare_frontend, run_batch
-from msa_slam.pipeline.compare import method_configs
+from msa_slam.experiments.compare import method_configs
 from msa_slam.sources import resolve_dataset
 
 FAR_M = 20.0

@@ -134,7 +134,7 @@ def test_run_reports_bad_input(tmp_path, cache_dir):
 def test_compare_keeps_finished_methods_when_one_fails(sequence, odometry_file, cache_dir, tmp_path, monkeypatch):
     """One method failing at run time (here: made to fail) leaves the others' results, the failure marked in
     report.md with its traceback, and exit code 1 with one line naming the method."""
-    import msa_slam.pipeline.compare as compare
+    import msa_slam.experiments.compare as compare
 
     methods = (("constant-3m", "constant", {"distance": 3.0}), ("entropy", "entropy", {}))
     monkeypatch.setattr(compare, "PAPER_METHODS", methods)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from msa_slam.errors import InputError
-from msa_slam.pipeline.compare import PAPER_METHODS, check_compare_sampler, method_configs
+from msa_slam.experiments.compare import PAPER_METHODS, check_compare_sampler, method_configs
 from msa_slam.pipeline.config import apply_params, make_config
 from test_messages_real import run_cli, write_scans
 

@@ -1,6 +1,6 @@
 """`compare --seeds` resumes after an interruption: finished seeds are kept and reused, never recomputed, a
 folder whose finished seeds were run with other settings is refused, and a finished seed whose data or code
-changed since it ran is rerun (msa_slam.pipeline.seed_folder).
+changed since it ran is rerun (msa_slam.experiments.seed_folder).
 
 Two methods on a 30-scan prefix of the simulated figure-eight (coarse azimuth: at 180 steps the odometry of
 seed 1 stalls and MSA keeps too few keyframes): a seed costs a few seconds.
@@ -14,15 +14,15 @@ import shutil
 import pytest
 import yaml
 
-import msa_slam.pipeline.compare as compare
-import msa_slam.pipeline.identity as identity
+import msa_slam.experiments.compare as compare
+import msa_slam.experiments.identity as identity
 import msa_slam.slam.backend as backend
 from msa_slam.io import staging
 from msa_slam.io.outputs import MARKER, OutputError, write_marker
 from msa_slam.pipeline import make_config
-from msa_slam.pipeline.compare import method_configs, run_compare
-from msa_slam.pipeline.seed_folder import seed_identities
-from msa_slam.pipeline.seeds import seeded_datasets
+from msa_slam.experiments.compare import method_configs, run_compare
+from msa_slam.experiments.seed_folder import seed_identities
+from msa_slam.experiments.seeds import seeded_datasets
 
 METHODS = (("all", "all", {}), ("msa", "msa", {}))
 SEEDS = [0, 1]

@@ -26,7 +26,7 @@ from helpers.signals import terminal_signals
 from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.pipeline import make_config
-from msa_slam.pipeline.compare import MethodsFailed, run_compare
+from msa_slam.experiments.compare import MethodsFailed, run_compare
 from msa_slam.workers import forked_workers
 from test_compare_resume import _no_rss_growth
 from test_pipeline import PERMISSIVE

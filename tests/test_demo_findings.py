@@ -14,7 +14,7 @@ import msa_slam.demo
 from msa_slam.cli import app
 from msa_slam.evaluation import fmt
 from msa_slam.pipeline import make_config
-from msa_slam.pipeline.compare import run_compare
+from msa_slam.experiments.compare import run_compare
 from msa_slam.pipeline.findings import findings
 
 METHODS = (("all", "all", {}), ("constant-2m", "constant", {"distance": 2.0}), ("msa", "msa", {}))

@@ -231,7 +231,7 @@ def test_seed_ranks_tie_values_equal_at_their_displayed_precision():
 
 
 def test_seed_summary_ranks_at_each_metrics_displayed_precision():
-    from msa_slam.pipeline.seeds import seed_summary
+    from msa_slam.experiments.seeds import seed_summary
 
     rows = {0: [{"method": "msa", "pr_auc": 0.9999999999999999, "ate_after_m": 0.412000003},
                 {"method": "all", "pr_auc": 1.0, "ate_after_m": 0.412},

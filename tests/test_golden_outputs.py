@@ -115,7 +115,8 @@ def _summary(folder: Path, metrics: dict[str, Any]) -> dict[str, Any]:
 
 def produce(root: Path) -> dict[str, Any]:
     """Run `run`, `compare` (two methods) and `online` on the fixed input; their summaries."""
-    from msa_slam.pipeline import make_config, run_batch, run_compare
+    from msa_slam.experiments.compare import run_compare
+    from msa_slam.pipeline import make_config, run_batch
     from msa_slam.pipeline.online import run_online
     from msa_slam.pipeline.online_config import make_online_config
     from msa_slam.pipeline.results import write_run_files

@@ -24,7 +24,7 @@ from conftest import SHARED_DIR
 from msa_slam.backend import PoseGraph
 from msa_slam.descriptors import make_descriptor
 from msa_slam.errors import InputError
-from msa_slam.pipeline.compare import method_configs
+from msa_slam.experiments.compare import method_configs
 from msa_slam.pipeline.config import apply_params, make_config
 from msa_slam.registration import KeyframeCloudStore
 from msa_slam.sampling import make_sampler, sampler_parameters

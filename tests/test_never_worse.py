@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from msa_slam.pipeline import make_config, prepare_frontend, run_batch
-from msa_slam.pipeline.compare import method_configs
+from msa_slam.experiments.compare import method_configs
 from helpers.metrics import metrics_json
 
 MAX_WORSENING = 0.05  # the bound, relative to the odometry's full-rate ATE

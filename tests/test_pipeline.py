@@ -22,7 +22,7 @@ from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses, write_poses
 from msa_slam.pipeline import apply_params, make_config, prepare_frontend, run_batch
-from msa_slam.pipeline.compare import COLUMNS, run_compare, table_markdown, table_row
+from msa_slam.experiments.compare import COLUMNS, run_compare, table_markdown, table_row
 from msa_slam.pipeline.results import write_run
 from helpers.metrics import edited, metrics_json
 
@@ -161,7 +161,7 @@ def test_full_rate_trajectory_is_written_and_evaluated(base, frontend, tmp_path)
 def test_threshold_sweep_replays_the_backend(base, frontend):
     """The sweep's row at the run's own threshold is the run; lower thresholds accept at least as many loops
     (candidate sets are nested), and a replay at the run's threshold reproduces its loops and poses."""
-    from msa_slam.pipeline.sweep import replay
+    from msa_slam.experiments.sweep import replay
     from msa_slam.registration import KeyframeCloudStore
 
     result = run_batch(base, frontend)

@@ -17,7 +17,7 @@ from msa_slam.errors import InputError
 from msa_slam.io.marker import edited_files, foreign_files
 from msa_slam.io.outputs import MARKER, OutputError
 from msa_slam.pipeline import make_config
-from msa_slam.pipeline.compare import run_compare
+from msa_slam.experiments.compare import run_compare
 
 METHODS = (("all", "all", {}), ("constant-3m", "constant", {"distance": 3.0}))
 

@@ -8,7 +8,7 @@ from typer.testing import CliRunner
 from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.evaluation.spread import paired_verdict, seed_ranks, spreads
-from msa_slam.pipeline.seeds import SEED_METRICS, parse_seeds, seed_markdown, seed_summary, seeded_datasets
+from msa_slam.experiments.seeds import SEED_METRICS, parse_seeds, seed_markdown, seed_summary, seeded_datasets
 
 
 def test_ranks_follow_the_metric_direction_and_skip_missing_values():

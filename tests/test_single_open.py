@@ -20,7 +20,7 @@ from msa_slam.io.poses import write_poses
 from msa_slam.odometry import KissOdometry
 from msa_slam.sources import sequence as source_module
 from msa_slam.pipeline.batch import run_batch
-from msa_slam.pipeline.compare import run_compare
+from msa_slam.experiments.compare import run_compare
 from msa_slam.pipeline.config import make_config
 from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, prepare_frontend
 from msa_slam.pipeline.online import make_online_odometry, run_online

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from msa_slam.descriptors.registry import make_descriptor
 from msa_slam.io.outputs import DEFAULT_RESULTS
-from msa_slam.pipeline.compare import method_configs, run_compare
+from msa_slam.experiments.compare import method_configs, run_compare
 from msa_slam.pipeline.config import make_config
 from msa_slam.sampling.msa.warm import compile_in_background
 from msa_slam.workers import available_cpus

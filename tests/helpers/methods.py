@@ -7,7 +7,7 @@ from typing import Callable
 
 import pytest
 
-import msa_slam.pipeline.compare as compare
+import msa_slam.experiments.compare as compare
 
 
 def before_method(monkeypatch: pytest.MonkeyPatch, name: str, action: Callable[[], None]) -> None:

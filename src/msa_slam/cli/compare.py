@@ -11,7 +11,7 @@ from msa_slam.cli.options import (CACHE_HELP, DATASET_HELP, DESCRIPTOR_HELP, MOD
                                   out_help, reporting_failed_methods, with_source_options)
 
 # What to change when MSA's window is longer than the frames read (pipeline.frontend.check_window): as for run
-# (-p window reaches msa, pipeline.compare.method_configs), except --sampler, which compare does not have
+# (-p window reaches msa, experiments.compare.method_configs), except --sampler, which compare does not have
 COMPARE_WINDOW_FIX = "use a window of at most {frames} frames (-p window={frames}) or -p flush=true"
 COMPARE_PARAM_HELP = (PARAM_HELP + "; sampler parameters (window=8, sampler.lambda_u=5) go to msa, the baselines "
                       "keep the paper's settings, except the standstill gate's (min_motion=0.1, min_rotation=0.5 "
@@ -50,8 +50,8 @@ def compare_command(
     seeds)."""
     from msa_slam.cli.config import cache_option
     from msa_slam.cli.run import batch_config
-    from msa_slam.pipeline.compare import MethodsFailed, check_compare_sampler, run_compare
-    from msa_slam.pipeline.seeds import parse_seeds
+    from msa_slam.experiments.compare import MethodsFailed, check_compare_sampler, run_compare
+    from msa_slam.experiments.seeds import parse_seeds
     from msa_slam.workers import available_cpus
 
     given = {"dataset": dataset, "descriptor": descriptor, "odometry": odometry, "mode": mode,

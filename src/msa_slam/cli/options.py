@@ -116,7 +116,7 @@ def out_help(command: str) -> str:
 @contextlib.contextmanager
 def reporting_failed_methods() -> Iterator[None]:
     """A comparison with failed methods: print its report path and one line per failure, exit 1."""
-    from msa_slam.pipeline.compare import MethodsFailed
+    from msa_slam.experiments.compare import MethodsFailed
 
     try:
         yield

@@ -29,7 +29,7 @@ def reproduce_command(
     when a cell failed."""
     from msa_slam.experiments.paper import parse_presets
     from msa_slam.experiments.reproduce import run_reproduce
-    from msa_slam.pipeline.seeds import parse_seeds
+    from msa_slam.experiments.seeds import parse_seeds
 
     if scheduler is not None and workers != 1:
         raise typer.BadParameter("give either --scheduler or --workers, not both", param_hint="--workers")

@@ -13,7 +13,7 @@ import numpy as np
 from msa_slam.evaluation.display import fmt
 from msa_slam.experiments import verdicts as v
 from msa_slam.experiments.paper import column_of
-from msa_slam.pipeline.seeds import SEED_METRICS
+from msa_slam.experiments.seeds import SEED_METRICS
 
 Row = dict[str, Any]
 LIMIT_GIB = 128.0  # the paper's machine: all samples "exceeds system memory of 128GB"

@@ -1,11 +1,10 @@
 """Batch and online SLAM pipelines (the paper's Table I and Table II protocols) over the shared core
-(msa_slam.slam), the method comparison and the result folders."""
+(msa_slam.slam) and the result folders."""
 
 from msa_slam._lazy import lazy_exports
 
 _EXPORTS = {
     "run_batch": "batch",
-    **dict.fromkeys(["PAPER_METHODS", "run_compare"], "compare"),
     **dict.fromkeys(["RunConfig", "apply_params", "load_config", "make_config"], "config"),
     **dict.fromkeys(["Frontend", "prepare_frontend"], "frontend"),
     "run_online": "online",

@@ -5,7 +5,7 @@ odometry + descriptors (shared front end, cached) streamed frame by frame throug
 recent keyframes excluded, small_gicp verification (oracle or realistic)) -> GTSAM pose graph optimised
 once with Levenberg-Marquardt at the end -> ATE/RPE before and after (keyframes and full rate), %
 improvement, PR-AUC/F1-max of both place-recognition protocols, loop counts, memory and time, and the
-threshold sweep (the back-end re-run at similarity thresholds around the run's, pipeline/sweep.py).
+threshold sweep (the back-end re-run at similarity thresholds around the run's, experiments/sweep.py).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from msa_slam.evaluation.metrics_reader import NO_REASON
 from msa_slam.evaluation.resources import peak_rss_bytes
 from msa_slam.pipeline.config import RunConfig
 from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, Frontend, config_as_run, prepare_frontend
-from msa_slam.pipeline.sweep import threshold_sweep
+from msa_slam.experiments.sweep import threshold_sweep
 from msa_slam.slam.loop_closing import protocol
 from msa_slam.place_recognition import PRCurve, precision_recall
 from msa_slam.place_recognition.metrics import reference_protocol_matches

@@ -8,7 +8,7 @@ from typing import Any, Mapping
 
 from msa_slam.evaluation import NA, fmt
 from msa_slam.evaluation.display import spec_for
-from msa_slam.pipeline.compare import table_row
+from msa_slam.experiments.compare import table_row
 from msa_slam.evaluation.spread import MIN_SEEDS
 from msa_slam.pipeline.stored import listed_methods
 

@@ -13,12 +13,12 @@ from msa_slam.errors import InputError
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.outputs import OutputError, open_result_folder, some_names
 from msa_slam.io.marker import edited_files, foreign_files, recorded_digests, write_marker
-from msa_slam.pipeline.compare import PROCESSES, failed_section, table_row, write_spread
-from msa_slam.pipeline.compare import comparison_report as write_comparison_report
+from msa_slam.experiments.compare import PROCESSES, failed_section, table_row, write_spread
+from msa_slam.experiments.compare import comparison_report as write_comparison_report
 from msa_slam.pipeline.config import make_config
 from msa_slam.pipeline.report import report_markdown
 from msa_slam.pipeline.results import folder_files, run_figures
-from msa_slam.pipeline.seed_folder import RECORD, SEEDS, finished_metrics, left_out_seeds, seed_dir
+from msa_slam.experiments.seed_folder import RECORD, SEEDS, finished_metrics, left_out_seeds, seed_dir
 from msa_slam.pipeline.stored import (comparison_figures, failed_methods, listed_methods, read_comparison, read_json,
                                       read_run,
                                       read_text)

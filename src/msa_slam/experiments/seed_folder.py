@@ -3,7 +3,7 @@
     seeds/seed-<n>/           one seed's whole comparison, moved into place only once complete
     seeds/seed-<n>/seed.json  the settings it was run with (dataset without the seed, each method's resolved
                               config), msa-slam's version, the identity of its data and code
-                              (msa_slam.pipeline.identity) and the methods that failed
+                              (msa_slam.experiments.identity) and the methods that failed
 
 A rerun of the same command reuses every finished seed whose record matches (hours of CPU on a whole KITTI
 sequence) and runs the others; a finished seed run with other settings is refused before any work, naming the
@@ -32,11 +32,11 @@ from msa_slam.io.outputs import MARKER, OutputError
 from msa_slam.io.staging import clean_stale
 from msa_slam.io.tables import write_json
 from msa_slam.pipeline.config import RunConfig
-from msa_slam.pipeline.identity import changed_identity, run_identities
+from msa_slam.experiments.identity import changed_identity, run_identities
 
 SEEDS = "seeds"
 RECORD = "seed.json"
-COMPARISON = "comparison.json"  # a seed's per-method metrics (msa_slam.pipeline.compare)
+COMPARISON = "comparison.json"  # a seed's per-method metrics (msa_slam.experiments.compare)
 # Where the cache lives changes nothing that is computed, so it is not a setting a seed must match.
 NOT_SETTINGS = ("cache_dir",)
 IDENTITY = "identity"  # the key of seed.json that records the identity of the seed's data and code
@@ -60,7 +60,7 @@ def seed_record(dataset: str, configs: Sequence[RunConfig], sweep: bool = True) 
 
 def seed_identities(plans: Mapping[int, Sequence[RunConfig]]) -> dict[int, dict[str, str | None]]:
     """{"data": ..., "code": ...} of each seed (`plans`: seed -> its methods' configs): a sim: seed's data is
-    its simulation key, which holds the world seed (msa_slam.pipeline.identity)."""
+    its simulation key, which holds the world seed (msa_slam.experiments.identity)."""
     return run_identities({seed: [cfg.dump() for cfg in configs] for seed, configs in plans.items()})
 
 

@@ -31,10 +31,10 @@ from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, Frontend, prepare_fron
 from msa_slam.pipeline.report import (GT_FILE, RPE_STATISTICS, deskew_text, replayed_note, rpe_segments, scans_read,
                                      sequence_title)
 from msa_slam.pipeline.results import reference_xy, trajectory_panels, write_run_files
-from msa_slam.pipeline.seed_folder import (RECORD, check_seed_folder, clean_leftovers, finished_metrics, left_out_seeds,
-                                           remove_seeds, resume_seeds, seed_dir, seed_identities, seed_record,
-                                           write_record)
-from msa_slam.pipeline.seeds import SEED_COLUMNS, seed_markdown, seed_rows, seed_summary, seeded_datasets
+from msa_slam.experiments.seed_folder import (RECORD, check_seed_folder, clean_leftovers, finished_metrics,
+                                              left_out_seeds, remove_seeds, resume_seeds, seed_dir, seed_identities,
+                                              seed_record, write_record)
+from msa_slam.experiments.seeds import SEED_COLUMNS, seed_markdown, seed_rows, seed_summary, seeded_datasets
 from msa_slam.place_recognition import PRCurve
 from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.progress import progress_bar
@@ -332,9 +332,9 @@ def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = Tr
     writes the spread over seeds (seeds.md, seeds.csv, seeds.json) and its report.md at the top. That folder
     grows in place so an interrupted run resumes: each seed appears when complete, and a rerun reuses the
     finished seeds run with the same settings on the same data and code, and reruns those whose data or code
-    changed since (msa_slam.pipeline.seed_folder); `overwrite` starts afresh.
+    changed since (msa_slam.experiments.seed_folder); `overwrite` starts afresh.
 
-    `sweep=False` leaves out each method's threshold sweep (pipeline/sweep.py), about half of a method's time.
+    `sweep=False` leaves out each method's threshold sweep (experiments/sweep.py), about half of a method's time.
     A method whose sampler window the frames read never fill is refused before the shared front end
     (prepare_frontend; `window_fix`: what the error says to change).
 
