@@ -15,7 +15,7 @@ from msa_slam.cli import app
 from msa_slam.evaluation import fmt
 from msa_slam.pipeline import make_config
 from msa_slam.experiments.compare import run_compare
-from msa_slam.pipeline.findings import findings
+from msa_slam.reporting.findings import findings
 
 METHODS = (("all", "all", {}), ("constant-2m", "constant", {"distance": 2.0}), ("msa", "msa", {}))
 LINE = re.compile(r"^  (?P<method>\S+) +(?P<keyframes>\d+) keyframes \((?P<share>\S+) % of frames\), memory "

@@ -119,7 +119,7 @@ def produce(root: Path) -> dict[str, Any]:
     from msa_slam.pipeline import make_config, run_batch
     from msa_slam.pipeline.online import run_online
     from msa_slam.pipeline.online_config import make_online_config
-    from msa_slam.pipeline.results import write_run_files
+    from msa_slam.reporting.results import write_run_files
 
     seq, odometry = make_input(root)
     settings = {"dataset": str(seq), "odometry": str(odometry), "cache_dir": str(root / "cache"),

@@ -207,7 +207,7 @@ def short_batch(sequence, odometry_file, cache_dir):
 
 
 def test_report_lists_only_the_files_written(short_batch, tmp_path):
-    from msa_slam.pipeline.results import write_run_files
+    from msa_slam.reporting.results import write_run_files
 
     assert short_batch.pr is None
     write_run_files(short_batch, tmp_path, figures=False)
@@ -223,7 +223,7 @@ def test_report_lists_only_the_files_written(short_batch, tmp_path):
 
 def test_report_without_ground_truth_gives_no_false_loop_count(sequence, odometry_file, cache_dir, tmp_path):
     from msa_slam.pipeline.batch import run_batch
-    from msa_slam.pipeline.results import write_run_files
+    from msa_slam.reporting.results import write_run_files
 
     scans = tmp_path / "scans"
     scans.mkdir()

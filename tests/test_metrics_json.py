@@ -15,8 +15,8 @@ from msa_slam.evaluation.metrics import Unavailable
 from msa_slam.evaluation.metrics_json import from_json, to_json
 from msa_slam.io.tables import write_json
 from msa_slam.pipeline import make_config
-from msa_slam.pipeline.report import report_markdown
-from msa_slam.pipeline.stored import StoredRun, read_run
+from msa_slam.reporting.report import report_markdown
+from msa_slam.reporting.stored import StoredRun, read_run
 
 NO_REVISIT = "no keyframe pair within loop_radius of each other (made up for this test)"
 

@@ -276,7 +276,7 @@ def test_long_tour_keeps_memory_bounded(tmp_path):
 
 def test_online_trajectories_carry_the_frames_own_times(tmp_path):
     """Trajectory files of an online run use each frame's time (it was frame / sensor rate before)."""
-    from msa_slam.pipeline.results import write_run_files
+    from msa_slam.reporting.results import write_run_files
 
     scans = [f for _, f in zip(range(40), open_source(COARSE).frames())]
     times = 100.0 + 0.1 * np.arange(40) + 0.03 * (np.arange(40) % 2)  # irregular, not starting at 0

@@ -17,7 +17,7 @@ from msa_slam.evaluation.metrics import Deskew, RunSetup
 from msa_slam.evaluation.metrics_json import from_json
 from msa_slam.pipeline.online import run_online, threads_note, with_odometry_threads
 from msa_slam.pipeline.online_config import NOT_REPRODUCIBLE, make_online_config
-from msa_slam.pipeline.report import threads_text
+from msa_slam.reporting.report import threads_text
 from msa_slam.workers import available_cpus
 from test_real_inputs_times import _kitti
 from helpers.metrics import metrics_json

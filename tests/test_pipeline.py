@@ -23,7 +23,7 @@ from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses, write_poses
 from msa_slam.pipeline import apply_params, make_config, prepare_frontend, run_batch
 from msa_slam.experiments.compare import COLUMNS, run_compare, table_markdown, table_row
-from msa_slam.pipeline.results import write_run
+from msa_slam.reporting.results import write_run
 from helpers.metrics import edited, metrics_json
 
 
@@ -361,7 +361,7 @@ def test_comparison_table_columns_keep_one_number_of_decimals():
     (50.0, "KITTI segments", "n/a: the trajectory of 50.0 m is shorter than the segment lengths (100-800 m)"),
 ])
 def test_rpe_segments_name_the_lengths_evaluated(length, span, said):
-    from msa_slam.pipeline.report import rpe_segments
+    from msa_slam.reporting.report import rpe_segments
 
     gt = np.tile(np.eye(4), (201, 1, 1))
     gt[:, 0, 3] = np.linspace(0, length, 201)

@@ -20,7 +20,7 @@ from msa_slam.pipeline.config import make_config
 from msa_slam.pipeline.frontend import make_odometry
 from msa_slam.pipeline.online import frame_rate_hz, run_online
 from msa_slam.pipeline.online_config import NO_TIMESTAMPS, make_online_config
-from msa_slam.pipeline.report import _online_lines as online_report_lines
+from msa_slam.reporting.report import _online_lines as online_report_lines
 from msa_slam.sources import open_source
 from msa_slam.types import FrameSource
 from helpers.scans import write_bin

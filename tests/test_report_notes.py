@@ -17,15 +17,14 @@ import msa_slam
 from msa_slam.cli import app
 from msa_slam.datasets.options import SourceOptions
 from msa_slam.errors import InputError
-from msa_slam.experiments import expand, load_grid, parse_grid, run_grid, write_report
+from msa_slam.experiments import load_grid, parse_grid, run_grid, write_report
 from msa_slam.experiments import folder as folder_module
 from msa_slam.experiments import report as report_module
-from msa_slam.experiments.folder import grid_cells, write_grid
+from msa_slam.experiments.folder import grid_cells
 from msa_slam.experiments.identity import cell_identities, outdated_cells
 from msa_slam.evaluation.run_metrics import BATCH_UNTIMED
 from msa_slam.experiments.runner import GridRun, _record
-from msa_slam.io.outputs import write_marker
-from msa_slam.pipeline.report import scans_read
+from msa_slam.reporting.report import scans_read
 from test_experiments import TINY, _fake_experiment, finished_experiment
 from helpers.metrics import stored_metrics
 
@@ -219,7 +218,7 @@ def test_scans_read_names_the_options_that_chose_them(options, said):
 
 def test_run_report_names_the_sequence_readably_and_the_scans_read(sequence, odometry_file, cache_dir, tmp_path):
     from msa_slam.pipeline import make_config, run_batch
-    from msa_slam.pipeline.results import write_run
+    from msa_slam.reporting.results import write_run
     from msa_slam.viz.labels import display_name
 
     cfg = make_config(dataset=str(sequence), odometry=str(odometry_file), cache_dir=str(cache_dir),

@@ -20,8 +20,8 @@ from msa_slam.pipeline.batch import run_batch
 from msa_slam.pipeline.config import load_config, make_config
 from msa_slam.pipeline.online import run_online
 from msa_slam.pipeline.online_config import make_online_config
-from msa_slam.pipeline.report import report_markdown, sequence_title
-from msa_slam.pipeline.results import write_run_files
+from msa_slam.reporting.report import report_markdown, sequence_title
+from msa_slam.reporting.results import write_run_files
 from msa_slam.sources import open_source
 from msa_slam.slam import RunResult
 from test_single_open import _untimed_folder

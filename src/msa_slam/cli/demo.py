@@ -19,7 +19,7 @@ def demo_command(
     """The main job: compare all samplers on the embedded simulated KITTI-06 sequence at 10 Hz (simulated and
     processed with KISS-ICP on first use, then cached); prints the path of its report.md and what it found."""
     from msa_slam.demo import run_demo
-    from msa_slam.pipeline.findings import findings
+    from msa_slam.reporting.findings import findings
 
     with reporting_failed_methods():
         report = run_demo(out, cache_dir=cache_dir, quiet=quiet, overwrite=overwrite)

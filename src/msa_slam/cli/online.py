@@ -47,7 +47,7 @@ def online_command(
     from msa_slam.pipeline.online import run_online
     from msa_slam.pipeline.config import read_config_file
     from msa_slam.pipeline.online_config import OnlineConfig, apply_online_params
-    from msa_slam.pipeline.results import write_run_files
+    from msa_slam.reporting.results import write_run_files
     from msa_slam.sources import open_source
 
     live = viewer or viewer_save is not None

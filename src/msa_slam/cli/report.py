@@ -40,7 +40,7 @@ def report_command(
                              "`msa-slam reproduce` (its grids' reference is all samples)")
         report = rewrite_reproduce_report(results_dir)
     else:
-        from msa_slam.pipeline.rereport import KINDS, rewrite_report
+        from msa_slam.reporting.rereport import KINDS, rewrite_report
 
         if kind not in KINDS:
             raise InputError(f"{results_dir}: a result of `msa-slam {kind}`, which writes no report.md; expected "

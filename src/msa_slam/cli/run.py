@@ -44,7 +44,7 @@ def run_command(
     from msa_slam.cli.config import cache_option
     from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
     from msa_slam.pipeline.batch import RUN_SWEEP_NOT_RUN, run_batch
-    from msa_slam.pipeline.results import write_run_files
+    from msa_slam.reporting.results import write_run_files
 
     given = {"dataset": dataset, "sampler": sampler, "descriptor": descriptor, "odometry": odometry,
              "mode": mode, "cache_dir": cache_option(cache_dir)}

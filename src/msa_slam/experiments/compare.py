@@ -28,9 +28,9 @@ from msa_slam.io.tables import mib, rows_csv, write_json
 from msa_slam.pipeline.batch import SWEEP_NOT_RUN, run_batch
 from msa_slam.pipeline.config import RunConfig, make_config
 from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, Frontend, prepare_frontend
-from msa_slam.pipeline.report import (GT_FILE, RPE_STATISTICS, deskew_text, replayed_note, rpe_segments, scans_read,
-                                     sequence_title)
-from msa_slam.pipeline.results import reference_xy, trajectory_panels, write_run_files
+from msa_slam.reporting.report import (GT_FILE, RPE_STATISTICS, deskew_text, replayed_note, rpe_segments,
+                                      scans_read, sequence_title)
+from msa_slam.reporting.results import reference_xy, trajectory_panels, write_run_files
 from msa_slam.experiments.seed_folder import (RECORD, check_seed_folder, clean_leftovers, finished_metrics,
                                               left_out_seeds, remove_seeds, resume_seeds, seed_dir, seed_identities,
                                               seed_record, write_record)
@@ -95,7 +95,7 @@ def _cell(column: str, value: Any) -> str:
 
 def table_markdown(rows: Sequence[TableRow], rpe_span: str = "KITTI segments") -> str:
     """comparison.md: the rows of comparison.csv, each column with one number of decimals; `rpe_span`: the
-    KITTI segment lengths the RPE covered (pipeline.report.rpe_segments), for its header."""
+    KITTI segment lengths the RPE covered (reporting.report.rpe_segments), for its header."""
     headers = [h.format(rpe=rpe_span) for h in HEADERS]
     lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
     lines += ["| " + " | ".join(_cell(c, r[c]) for c in COLUMNS) + " |" for r in rows]

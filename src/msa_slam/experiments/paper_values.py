@@ -12,7 +12,7 @@ import numpy as np
 
 from msa_slam.evaluation.run_metrics import TableRow
 from msa_slam.experiments.report import FinishedCell, load_cells, make_rows, read_steps
-from msa_slam.pipeline.results import accounted_bytes
+from msa_slam.reporting.results import accounted_bytes
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ from msa_slam.evaluation.run_metrics import RunMetrics, TableRow
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.viz import plot_ate_difference, plot_memory, plot_step_times, plot_sweeps
 from msa_slam.io.tables import rows_csv
-from msa_slam.pipeline.results import accounted_bytes
+from msa_slam.reporting.results import accounted_bytes
 from msa_slam.experiments.seeds import SEED_METRICS, seed_markdown, seed_summary
 
 COLUMNS = ("cell", "pipeline", "dataset", "descriptor", "method", "sampler", "seed", "parameters", "frames",

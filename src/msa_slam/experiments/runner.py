@@ -92,7 +92,7 @@ def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bo
     """Run one cell and write its folder atomically; returns its metrics (a top-level function so Dask and
     process pools can ship it)."""
     from msa_slam.io.tables import write_json
-    from msa_slam.pipeline.results import write_run_files
+    from msa_slam.reporting.results import write_run_files
 
     target = cell_dir(out, info["id"])
     if info["pipeline"] == "online":

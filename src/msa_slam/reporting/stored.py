@@ -1,5 +1,5 @@
 """Finished results read back from their folders: what their report.md is made of, so `msa-slam report` can
-write it again from the files alone, without running anything (pipeline.rereport)."""
+write it again from the files alone, without running anything (reporting.rereport)."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ COMPARE_FIGURES = ("metrics.png", "trajectories.png", "pr_curves.png", "pr_curve
 
 @dataclass(frozen=True)
 class StoredRun:
-    """One run's config, metrics and ground truth as its folder holds them (pipeline.report.ReportedRun)."""
+    """One run's config, metrics and ground truth as its folder holds them (reporting.report.ReportedRun)."""
 
     config: Any
     metrics: RunMetrics

@@ -16,12 +16,11 @@ from msa_slam.io.marker import edited_files, foreign_files, recorded_digests, wr
 from msa_slam.experiments.compare import PROCESSES, failed_section, table_row, write_spread
 from msa_slam.experiments.compare import comparison_report as write_comparison_report
 from msa_slam.pipeline.config import make_config
-from msa_slam.pipeline.report import report_markdown
-from msa_slam.pipeline.results import folder_files, run_figures
+from msa_slam.reporting.report import report_markdown
+from msa_slam.reporting.results import folder_files, run_figures
 from msa_slam.experiments.seed_folder import RECORD, SEEDS, finished_metrics, left_out_seeds, seed_dir
-from msa_slam.pipeline.stored import (comparison_figures, failed_methods, listed_methods, read_comparison, read_json,
-                                      read_run,
-                                      read_text)
+from msa_slam.reporting.stored import (comparison_figures, failed_methods, listed_methods, read_comparison,
+                                       read_json, read_run, read_text)
 
 KINDS = ("run", "online", "compare")  # the result kinds (io.marker.result_kind) whose reports this module writes
 SPREAD_FILES = ("seeds.md", "seeds.csv", "seeds.json", "report.md")  # what compare --seeds writes at the top

@@ -10,7 +10,7 @@ from msa_slam.evaluation import NA, fmt
 from msa_slam.evaluation.display import spec_for
 from msa_slam.experiments.compare import table_row
 from msa_slam.evaluation.spread import MIN_SEEDS
-from msa_slam.pipeline.stored import listed_methods
+from msa_slam.reporting.stored import listed_methods
 
 BASELINE = "all"  # memory is given as a share of this method's (every frame a keyframe)
 REPRODUCE = "msa-slam reproduce"  # the command that repeats the comparison over world seeds

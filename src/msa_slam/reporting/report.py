@@ -24,7 +24,7 @@ from msa_slam.viz.labels import counted, display_name, sampler_label
 
 class ReportedRun(Protocol):
     """What report.md is made of: a fresh RunResult, or a finished run read back from its folder
-    (pipeline.stored), so `msa-slam report` rewrites the same text without running anything again."""
+    (reporting.stored), so `msa-slam report` rewrites the same text without running anything again."""
 
     config: Any
     metrics: RunMetrics
