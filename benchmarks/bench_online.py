@@ -47,8 +47,9 @@ import numpy as np
 from msa_slam.datasets import Frame
 from msa_slam.evaluation import fmt
 from msa_slam.odometry import KissOdometry
-from msa_slam.pipeline.online import STEPS, run_online
-from msa_slam.pipeline.online_config import make_online_config
+from msa_slam.pipeline.live import STEPS
+from msa_slam.pipeline import LiveFrontEnd, run
+from msa_slam.pipeline.config import make_online_config
 from msa_slam.sources import open_source
 from msa_slam.types import FrameSource
 
@@ -103,7 +104,7 @@ def scale(quiet: bool) -> None:
             cfg = make_online_config(dataset=spec, odometry="gt-noise", sampler="msa", cloud_store="disk",
                                      store_dir=store)
             t0 = time.perf_counter()
-            r = run_online(cfg, quiet=quiet)
+            r = run(cfg, quiet=quiet)
             wall = time.perf_counter() - t0
         m, mem = r.metrics, r.memory
         kt, th = m.keyframe_trajectory, m.throughput
@@ -132,9 +133,9 @@ def memory(laps: int, quiet: bool) -> None:
     spec = f"live:city-tour,sensor=hdl64,azimuth_steps=360,laps={laps}"
     with tempfile.TemporaryDirectory(prefix="msa-memory-") as store:
         base = dict(dataset=spec, odometry="gt-noise", sampler="msa", cloud_store="disk", store_dir=store)
-        run_online(make_online_config(base, max_frames=300), quiet=quiet)  # warm-up: one-time costs
+        run(make_online_config(base, max_frames=300), quiet=quiet)  # warm-up: one-time costs
         t0 = time.perf_counter()
-        r = run_online(make_online_config(base), quiet=quiet)
+        r = run(make_online_config(base), quiet=quiet)
         wall = time.perf_counter() - t0
     m, mem = r.metrics, r.memory
     acc = m.memory.accounted
@@ -182,7 +183,7 @@ def main() -> None:
     kiss = kiss_rate(source, args.kiss_frames)
     print(f"KISS-ICP alone: {kiss * 1e3:.0f} ms per scan = {1 / kiss:.1f} frames/s (median of {args.kiss_frames - 1})")
     warm = make_online_config(dataset=spec, odometry="gt-noise", sampler="msa", max_frames=30)
-    run_online(warm, source)  # compile the numba kernels outside the measured runs
+    run(warm, LiveFrontEnd(source))  # compile the numba kernels outside the measured runs
     head = ["sampler", "keyframes", "loops", "back-end fps", "RTF", *[f"{s} ms" for s in STEPS[1:]],
             "p50 ms", "p99 ms", "max ms"]
     rows = []
@@ -190,7 +191,7 @@ def main() -> None:
         sampler, params = SAMPLERS[label]
         cfg = make_online_config(dataset=spec, odometry="gt-noise", sampler=sampler, sampler_params=params,
                                  label=label)
-        runs = [run_online(cfg, source) for _ in range(args.repeats)]
+        runs = [run(cfg, LiveFrontEnd(source)) for _ in range(args.repeats)]
         pick = sorted(runs, key=lambda r: r.metrics.throughput.backend_fps)[len(runs) // 2]  # the median run
         m, th = pick.metrics, pick.metrics.throughput
         per_step = [statistics.median(float(r.steps_ms[s].sum()) / n for r in runs) for s in STEPS[1:]]

@@ -16,8 +16,9 @@ import statistics
 import time
 
 from msa_slam.evaluation.metrics import known
-from msa_slam.pipeline import make_config, prepare_frontend, run_batch
-from msa_slam.pipeline.batch import BACKEND_STAGES
+from msa_slam.experiments.sweep import threshold_sweep
+from msa_slam.pipeline import make_config, prepare_frontend, run
+from msa_slam.pipeline.frontend import BACKEND_STAGES
 from msa_slam.experiments.compare import method_configs
 
 
@@ -46,7 +47,7 @@ def main() -> None:
     print(" | ".join(columns))
     print("|".join("---" for _ in columns))
     for cfg in method_configs(base):
-        runs = [run_batch(cfg, frontend).metrics for _ in range(args.repeats)]
+        runs = [run(cfg, frontend, sweep=threshold_sweep).metrics for _ in range(args.repeats)]
         m = runs[-1]
         med = {s: statistics.median(r.timing.stages.get(s, 0.0) for r in runs)  # the stages a batch run has
                for s in (*BACKEND_STAGES, "backend_total")}

@@ -45,7 +45,7 @@ from numpy import trapezoid
 
 from msa_slam.evaluation.full_rate import KITTI_LENGTHS_M, STEP_FRAMES, segment_error_motions
 from msa_slam.evaluation.metrics import known, reason_of
-from msa_slam.pipeline import make_config, prepare_frontend, run_batch
+from msa_slam.pipeline import make_config, prepare_frontend, run
 from msa_slam.experiments.compare import method_configs
 from msa_slam.sources import resolve_dataset
 
@@ -136,7 +136,7 @@ def evaluate(spec: str, cache_dir: str | None, pair_step: int) -> dict:
     rte = relative_translation_error(gt, frontend.odometry)
     pitch = pitch_drift(gt, frontend.odometry)
     best, above = far_pair_similarity(frontend, gt[:, :3, 3], pair_step)
-    runs = {cfg.name: run_batch(cfg, frontend, sweep=False)  # the threshold sweep is not in this table
+    runs = {cfg.name: run(cfg, frontend)  # the threshold sweep is not in this table
             for cfg in method_configs(base, METHODS)}
     kf_const, kf_spac = set(runs["constant-3m"].keyframes.tolist()), set(runs["spaciousness"].keyframes.tolist())
     reference = {name: run.metrics.place_recognition.reference for name, run in runs.items()}  # batch: ReferencePR

@@ -17,7 +17,6 @@ from importlib import metadata
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 import msa_slam.io.cache
 import msa_slam.odometry.cache
@@ -25,8 +24,8 @@ from msa_slam.datasets import open_dataset
 from msa_slam.io.cache import CacheDir, locked_temp
 from msa_slam.odometry import KissOdometry, OdometryCache
 from msa_slam.pipeline import make_config, prepare_frontend
-from msa_slam.pipeline.online import make_online_odometry
-from msa_slam.pipeline.online_config import make_online_config
+from msa_slam.pipeline.live import make_online_odometry
+from msa_slam.pipeline.config import make_online_config
 from msa_slam.sources import open_source
 from helpers.cache_data import data, fill_excerpt  # noqa: F401 (data: a fixture)
 

@@ -15,7 +15,8 @@ from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses
 from msa_slam.pipeline import load_config
-from msa_slam.pipeline.batch import RUN_SWEEP_NOT_RUN, sampler_realtime_fraction
+from msa_slam.pipeline.driver import RUN_SWEEP_NOT_RUN
+from msa_slam.pipeline.frontend import sampler_realtime_fraction
 
 runner = CliRunner()
 

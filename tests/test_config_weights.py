@@ -72,7 +72,7 @@ def test_cli_refuses_a_missing_weights_file_before_reading_scans(tmp_path):
 
 
 def test_online_config_routes_and_checks_the_weights(weights, tmp_path):
-    from msa_slam.pipeline.online_config import apply_online_params
+    from msa_slam.pipeline.config import apply_online_params
 
     config = apply_online_params({"dataset": "x"}, ["descriptor=ot", f"weights={weights}"])
     assert config.descriptor_params == {"weights": str(weights)}

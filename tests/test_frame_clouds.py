@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from msa_slam.backend import PoseGraph
-from msa_slam.pipeline import make_config, prepare_frontend, run_batch
+from msa_slam.pipeline import make_config, prepare_frontend, run
 from msa_slam.pipeline.frontend import pipeline_cache
 from msa_slam.registration import KeyframeCloudStore, downsample
 from msa_slam.registration.cloud_cache import cloud_key
@@ -68,8 +68,8 @@ def test_a_damaged_entry_is_recomputed_with_a_warning(frontend, config, caplog):
 
 def test_a_back_end_filled_from_frame_clouds_stores_what_it_would_downsample(frontend, config):
     """Same keyframes, loops, clouds and map with the front end's clouds as with the scans read again."""
-    with_clouds = run_batch(config, frontend, sweep=False)
-    without = run_batch(config, replace(frontend, clouds=None), sweep=False)
+    with_clouds = run(config, frontend)
+    without = run(config, replace(frontend, clouds=None))
     assert np.array_equal(with_clouds.keyframes, without.keyframes)
     assert [(c.query, c.match, c.accepted) for c in with_clouds.loops] == \
         [(c.query, c.match, c.accepted) for c in without.loops]

@@ -116,9 +116,8 @@ def _summary(folder: Path, metrics: dict[str, Any]) -> dict[str, Any]:
 def produce(root: Path) -> dict[str, Any]:
     """Run `run`, `compare` (two methods) and `online` on the fixed input; their summaries."""
     from msa_slam.experiments.compare import run_compare
-    from msa_slam.pipeline import make_config, run_batch
-    from msa_slam.pipeline.online import run_online
-    from msa_slam.pipeline.online_config import make_online_config
+    from msa_slam.experiments.sweep import threshold_sweep
+    from msa_slam.pipeline import make_config, make_online_config, run
     from msa_slam.reporting.results import write_run_files
 
     seq, odometry = make_input(root)
@@ -128,7 +127,7 @@ def produce(root: Path) -> dict[str, Any]:
 
     run_dir = root / "run"
     run_dir.mkdir()
-    write_run_files(run_batch(make_config(settings)), run_dir)
+    write_run_files(run(make_config(settings), sweep=threshold_sweep), run_dir)
     out["run"] = _summary(run_dir, json.loads((run_dir / "metrics.json").read_text()))
 
     report = run_compare(make_config(settings), root / "compare", methods=COMPARE_METHODS)
@@ -139,7 +138,7 @@ def produce(root: Path) -> dict[str, Any]:
 
     online_dir = root / "online"
     online_dir.mkdir()
-    write_run_files(run_online(make_online_config(settings)), online_dir, figures=False)
+    write_run_files(run(make_online_config(settings)), online_dir, figures=False)
     out["online"] = _summary(online_dir, json.loads((online_dir / "metrics.json").read_text()))
     return out
 

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from msa_slam.backend import IncrementalPoseGraph, PoseGraph
-from msa_slam.evaluation.resources import current_rss_bytes, heap_in_use_bytes, release_free_heap
-from msa_slam.pipeline.online import run_online
-from msa_slam.pipeline.online_config import make_online_config
+from msa_slam.evaluation.resources import heap_in_use_bytes
+from msa_slam.pipeline import run
+from msa_slam.pipeline.config import make_online_config
 from helpers.metrics import metrics_json
 
 glibc = pytest.mark.skipif(heap_in_use_bytes() is None, reason="needs glibc's mallinfo2 / malloc_trim")
@@ -81,7 +81,7 @@ def test_online_in_ram_bytes_include_records_and_map():
     """RSS growth is compared with what the run keeps in RAM: SLAM memory, its records and its map."""
     cfg = make_online_config(dataset="live:figure-eight,stride=4,azimuth_steps=180,realism=clean", max_frames=80,
                              odometry="gt-noise", sampler="constant", sampler_params={"distance": 2.0})
-    result = run_online(cfg)
+    result = run(cfg)
     m = metrics_json(result)
     mem = m["memory_bytes"]
     per_frame = 2 * 16 * 8 + 8 + 5 * 4 + len(result.memory) * 8 + 2 * 4  # poses, time, step times, series

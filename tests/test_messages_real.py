@@ -199,11 +199,11 @@ def test_compare_warns_of_a_short_stream_without_advising_the_flush_it_does(tmp_
 @pytest.fixture(scope="module")
 def short_batch(sequence, odometry_file, cache_dir):
     """40 frames with ground truth: no keyframe has one 50 frames back to query, so no PR curve (no pr.csv)."""
-    from msa_slam.pipeline.batch import run_batch
+    from msa_slam.pipeline import run
 
     config = make_config(dataset=str(sequence), source={"frames": 40}, odometry=str(odometry_file),
                          sampler="constant", sampler_params={"distance": 1.0}, cache_dir=str(cache_dir))
-    return run_batch(config, sweep=False)
+    return run(config)
 
 
 def test_report_lists_only_the_files_written(short_batch, tmp_path):
@@ -222,7 +222,7 @@ def test_report_lists_only_the_files_written(short_batch, tmp_path):
 
 
 def test_report_without_ground_truth_gives_no_false_loop_count(sequence, odometry_file, cache_dir, tmp_path):
-    from msa_slam.pipeline.batch import run_batch
+    from msa_slam.pipeline import run
     from msa_slam.reporting.results import write_run_files
 
     scans = tmp_path / "scans"
@@ -231,7 +231,7 @@ def test_report_without_ground_truth_gives_no_false_loop_count(sequence, odometr
         shutil.copy(scan, scans / scan.name)
     config = make_config(dataset=str(scans), mode="realistic", odometry=str(odometry_file), sampler="constant",
                          sampler_params={"distance": 1.0}, cache_dir=str(cache_dir))
-    result = run_batch(config, sweep=False)
+    result = run(config)
     out = tmp_path / "out"
     out.mkdir()
     write_run_files(result, out, figures=False)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from msa_slam.pipeline import make_config, prepare_frontend, run_batch
+from msa_slam.pipeline import make_config, prepare_frontend, run
 from msa_slam.experiments.compare import method_configs
 from helpers.metrics import metrics_json
 
@@ -25,7 +25,7 @@ def test_optimisation_never_worse_than_odometry(frontend, cache_dir, mode):
     base = make_config(dataset="sim:test", cache_dir=str(cache_dir), mode=mode)
     before, failures = set(), []
     for cfg in method_configs(base):
-        m = metrics_json(run_batch(cfg, frontend, sweep=False))
+        m = metrics_json(run(cfg, frontend))
         full = m["full_rate"]
         assert m["verified"] > 0, f"{cfg.name}: no loop closed, the run does not exercise the optimisation"
         t0, t1 = full["before"]["ate_translation_m"], full["after"]["ate_translation_m"]

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from msa_slam.errors import InputError
-from msa_slam.pipeline.online import run_online
-from msa_slam.pipeline.online_config import make_online_config
+from msa_slam.pipeline import LiveFrontEnd, run
+from msa_slam.pipeline.config import make_online_config
 from msa_slam.sources import open_source
 from helpers.metrics import metrics_json
 
@@ -19,7 +19,7 @@ def test_online_without_ground_truth_reports_na(scans_only):
                                 sampler_params={"distance": 1.0})
     source = open_source(config.dataset, mode=config.mode)
     assert source.gt_poses is None and len(source) == 90
-    result = run_online(config, source)
+    result = run(config, LiveFrontEnd(source))
     m = metrics_json(result)
     assert result.gt_poses is None and m["keyframes"] >= 3
     assert m["before"]["ate_translation_m"] is None and m["after"]["ate_translation_m"] is None
@@ -35,7 +35,7 @@ def test_oracle_and_gt_sampling_refused_without_ground_truth(scans_only):
     config = make_online_config(dataset=str(folder), mode="realistic", odometry=str(poses), sample_on="gt")
     source = open_source(str(folder), mode="realistic")
     with pytest.raises(InputError, match="sample_on=gt but the frames have no ground-truth poses"):
-        run_online(config, source)
+        run(config, LiveFrontEnd(source))
 
 
 @pytest.mark.parametrize("command", ["run", "compare", "online"])

@@ -18,8 +18,9 @@ from msa_slam.datasets import Frame, SourceOptions
 from msa_slam.descriptors import make_descriptor
 from msa_slam.errors import InputError
 from msa_slam.io.staging import WRITER
-from msa_slam.pipeline.online import STEPS, run_online
-from msa_slam.pipeline.online_config import make_online_config
+from msa_slam.pipeline.live import STEPS
+from msa_slam.pipeline import LiveFrontEnd, run
+from msa_slam.pipeline.config import make_online_config
 from msa_slam.odometry import NoisyOdometry
 from msa_slam.sources import open_source
 from msa_slam.registration import DiskCloudStore
@@ -36,15 +37,15 @@ NOISE = {"translation_noise": 0.02, "rotation_noise_deg": 0.1}
 @pytest.fixture(scope="module")
 def msa_run():
     cfg = make_online_config(dataset=EIGHT, odometry="gt-noise", odometry_params=NOISE, sampler="msa")
-    return run_online(cfg)
+    return run(cfg)
 
 
 @pytest.fixture(scope="module")
 def coarse_runs(tmp_path_factory):
     store = tmp_path_factory.mktemp("store")
     base = dict(dataset=COARSE, odometry="gt-noise", odometry_params=NOISE, sampler="all", min_frame_gap=20)
-    return (run_online(make_online_config(base)),
-            run_online(make_online_config(base, cloud_store="disk", store_dir=str(store))), store)
+    return (run(make_online_config(base)),
+            run(make_online_config(base, cloud_store="disk", store_dir=str(store))), store)
 
 
 def test_online_msa_finds_loops_and_reduces_ate(msa_run):
@@ -131,7 +132,7 @@ def test_pending_scans_stay_bounded_while_standing_still():
     source, scans, order = _pausing_source(pause=300)
     cfg = make_online_config(dataset=COARSE, odometry="gt-noise", sampler="msa", sampler_params={"window": window},
                              odometry_params={"translation_noise": 0.0, "rotation_noise_deg": 0.0})
-    result = run_online(cfg, source)
+    result = run(cfg, LiveFrontEnd(source))
     descriptor = make_descriptor(cfg.descriptor, **cfg.descriptor_params)
     descriptors = [np.asarray(descriptor.compute(s.points, frame=k), dtype=np.float64) for k, s in enumerate(scans)]
     largest_scan = max(s.points.nbytes for s in scans) + descriptors[0].nbytes
@@ -164,10 +165,10 @@ def test_disk_store_folder_is_private_and_removed_on_close(tmp_path, monkeypatch
 def test_online_run_removes_its_cloud_folder_even_when_it_fails(tmp_path, monkeypatch):
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     base = dict(dataset=COARSE, odometry="gt-noise", cloud_store="disk", max_frames=40)
-    run_online(make_online_config(base, sampler="constant", sampler_params={"distance": 2.0}))
+    run(make_online_config(base, sampler="constant", sampler_params={"distance": 2.0}))
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(InputError, match="kept only 1 of") as failed:
-        run_online(make_online_config(base, sampler="constant", sampler_params={"distance": 1e6}))
+        run(make_online_config(base, sampler="constant", sampler_params={"distance": 1e6}))
     assert failed.traceback and list(tmp_path.iterdir()) == []  # closed by the run, not left to the collector
 
 
@@ -239,7 +240,7 @@ def test_bad_sources_and_odometry_parameters():
         open_source("live:figure-eight", "kitti", source=SourceOptions(gt="poses.txt", jump=2, frames=9))
     cfg = make_online_config(dataset=COARSE, odometry="gt-noise", odometry_params={"drift": 1})
     with pytest.raises(InputError, match="translation_noise, rotation_noise_deg"):
-        run_online(cfg)
+        run(cfg)
 
 
 def test_online_cli_writes_result_folder(tmp_path):
@@ -263,7 +264,7 @@ def test_long_tour_keeps_memory_bounded(tmp_path):
     per-keyframe bookkeeping (descriptor, pose, graph), not by the clouds."""
     cfg = make_online_config(dataset="live:city-tour,stride=2,azimuth_steps=360,laps=3", odometry="gt-noise",
                              sampler="msa", cloud_store="disk", store_dir=str(tmp_path))
-    r = run_online(cfg)
+    r = run(cfg)
     m, mem = metrics_json(r), r.memory
     assert m["verified"] > 50 and m["false_loops"] == 0
     assert m["after"]["ate_translation_m"] < m["before"]["ate_translation_m"]
@@ -284,7 +285,7 @@ def test_online_trajectories_carry_the_frames_own_times(tmp_path):
     source = FrameSource("timed", gt, lambda: (Frame(i, t, s.points, s.gt_pose) for i, (t, s) in
                                                 enumerate(zip(times, scans))))
     cfg = make_online_config(dataset=COARSE, odometry="gt-noise", sampler="constant", sampler_params={"distance": 1.0})
-    result = run_online(cfg, source)
+    result = run(cfg, LiveFrontEnd(source))
     write_run_files(result, tmp_path, figures=False)
     stamps = np.loadtxt(tmp_path / "trajectories" / "odometry.tum")[:, 0]
     np.testing.assert_allclose(stamps, times, atol=1e-6)
@@ -300,8 +301,8 @@ def test_online_samples_on_ground_truth_when_asked():
     cfg = make_online_config(dataset=COARSE, odometry="gt-noise", odometry_params=noisy, sampler="constant",
                              sampler_params={"distance": 2.0})
     expected = sorted(make_sampler("constant", distance=2.0).run(source.gt_poses, None, flush=True))
-    on_gt = run_online(cfg.model_copy(update={"sample_on": "gt"}), source)
-    on_odometry = run_online(cfg, source)
+    on_gt = run(cfg.model_copy(update={"sample_on": "gt"}), LiveFrontEnd(source))
+    on_odometry = run(cfg, LiveFrontEnd(source))
     assert on_gt.keyframes.tolist() == expected
     assert on_odometry.keyframes.tolist() != expected  # the noisy odometry moves differently
 
@@ -314,6 +315,6 @@ def test_rss_growth_is_measured_from_backend_start_to_its_end(monkeypatch):
     monkeypatch.setattr(backend_module, "current_rss_bytes", lambda: next(readings))
     source, _, _ = _pausing_source(pause=0)
     cfg = make_online_config(dataset=COARSE, odometry="gt-noise", sampler="constant", sampler_params={"distance": 2.0})
-    metrics = metrics_json(run_online(cfg, source))
+    metrics = metrics_json(run(cfg, LiveFrontEnd(source)))
     assert metrics["rss_growth_bytes"] == 75 * 2**20
     assert metrics["memory_bytes"]["total"] > 0

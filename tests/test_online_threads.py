@@ -15,8 +15,9 @@ import yaml
 
 from msa_slam.evaluation.metrics import Deskew, RunSetup
 from msa_slam.evaluation.metrics_json import from_json
-from msa_slam.pipeline.online import run_online, threads_note, with_odometry_threads
-from msa_slam.pipeline.online_config import NOT_REPRODUCIBLE, make_online_config
+from msa_slam.pipeline.live import threads_note, with_odometry_threads
+from msa_slam.pipeline import run
+from msa_slam.pipeline.config import NOT_REPRODUCIBLE, make_online_config
 from msa_slam.reporting.report import threads_text
 from msa_slam.workers import available_cpus
 from test_real_inputs_times import _kitti
@@ -45,7 +46,7 @@ def test_live_source_uses_every_core_and_says_it_is_not_reproducible(tmp_path):
 def test_recorded_source_runs_on_one_thread(tmp_path):
     config = make_online_config(dataset=str(_kitti(tmp_path / "seq")), sampler="all", mode="realistic",
                                 cache_dir=str(tmp_path / "cache"))
-    result = run_online(config)
+    result = run(config)
     assert metrics_json(result)["threads"] == {"odometry": 1, "verification": 1, "blas_backend": 1}
     assert "num_threads" not in result.config.odometry_params  # the default, as before
     assert not [w for w in metrics_json(result)["warnings"] if NOT_REPRODUCIBLE in w]
@@ -55,7 +56,7 @@ def test_recorded_source_runs_on_one_thread(tmp_path):
 def test_explicit_thread_count_wins_on_a_live_source():
     config = make_online_config(dataset=COARSE, sampler="all", max_frames=12,
                                 odometry_params={"num_threads": 1})
-    result = run_online(config)
+    result = run(config)
     assert metrics_json(result)["threads"]["odometry"] == 1 and result.config.odometry_params["num_threads"] == 1
     assert not [w for w in metrics_json(result)["warnings"] if NOT_REPRODUCIBLE in w]
 

@@ -21,7 +21,8 @@ from conftest import drifted
 from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses, write_poses
-from msa_slam.pipeline import apply_params, make_config, prepare_frontend, run_batch
+from msa_slam.experiments.sweep import threshold_sweep
+from msa_slam.pipeline import apply_params, make_config, prepare_frontend, run
 from msa_slam.experiments.compare import COLUMNS, run_compare, table_markdown, table_row
 from msa_slam.reporting.results import write_run
 from helpers.metrics import edited, metrics_json
@@ -44,7 +45,7 @@ PERMISSIVE = {"similarity_threshold": 0.4, "min_travel_m": 0.0, "drift_check": "
 
 
 def test_optimisation_reduces_ate_when_loops_exist(base, frontend):
-    result = run_batch(base, frontend)
+    result = run(base, frontend, sweep=threshold_sweep)
     m = metrics_json(result)
     assert m["verified"] > 0 and m["false_loops"] == 0
     assert m["after"]["ate_translation_m"] < 0.3 * m["before"]["ate_translation_m"]
@@ -60,7 +61,7 @@ def test_optimisation_reduces_ate_when_loops_exist(base, frontend):
 
 def test_no_loops_means_no_correction(base, frontend):
     cfg = base.model_copy(update={"similarity_threshold": 1.0})
-    m = metrics_json(run_batch(cfg, frontend))
+    m = metrics_json(run(cfg, frontend, sweep=threshold_sweep))
     assert m["verified"] == 0
     assert m["after"]["ate_translation_m"] == pytest.approx(m["before"]["ate_translation_m"], rel=1e-6)
     assert m["improvement_pct"]["translation"] == pytest.approx(0.0, abs=1e-4)
@@ -68,7 +69,7 @@ def test_no_loops_means_no_correction(base, frontend):
 
 def test_oracle_mode_adds_no_false_loop(base, frontend):
     cfg = make_config({**base.dump(), **PERMISSIVE, "mode": "oracle"})
-    result = run_batch(cfg, frontend)
+    result = run(cfg, frontend, sweep=threshold_sweep)
     far = [c for c in result.loops if c.gt_distance > cfg.loop_radius]
     assert far, "the permissive threshold should yield candidates that are not true loops"
     assert not any(c.verified for c in far)
@@ -78,7 +79,7 @@ def test_oracle_mode_adds_no_false_loop(base, frontend):
 
 def test_realistic_mode_counts_its_false_loops(base, frontend):
     cfg = make_config({**base.dump(), **PERMISSIVE, "mode": "realistic"})
-    result = run_batch(cfg, frontend)
+    result = run(cfg, frontend, sweep=threshold_sweep)
     m = metrics_json(result)
     assert all(c.verified for c in result.loops)  # realistic: every candidate is registered
     false = [c for c in result.accepted_loops if c.gt_distance > cfg.loop_radius]
@@ -94,7 +95,7 @@ def test_frontend_is_cached_and_checked(base, frontend):
     np.testing.assert_array_equal(again.odometry, frontend.odometry)
     other = base.model_copy(update={"descriptor_params": {"n_sector": 30}})
     with pytest.raises(InputError, match="front end"):
-        run_batch(other, frontend)
+        run(other, frontend, sweep=threshold_sweep)
 
 
 def test_compare_writes_table(base, frontend, tmp_path):
@@ -140,7 +141,7 @@ def test_compare_without_sweep_says_it_was_not_run(base, frontend, tmp_path):
 
 
 def test_full_rate_trajectory_is_written_and_evaluated(base, frontend, tmp_path):
-    result = run_batch(base, frontend, sweep=False)
+    result = run(base, frontend)
     full = result.optimised_full
     assert full.shape == result.odometry.shape
     np.testing.assert_allclose(full[result.keyframes], result.optimised, atol=1e-9)
@@ -164,7 +165,7 @@ def test_threshold_sweep_replays_the_backend(base, frontend):
     from msa_slam.experiments.sweep import replay
     from msa_slam.registration import KeyframeCloudStore
 
-    result = run_batch(base, frontend)
+    result = run(base, frontend, sweep=threshold_sweep)
     sweep = metrics_json(result)["threshold_sweep"]
     assert [r["threshold"] for r in sweep] == [0.7, 0.75, 0.8, 0.85]
     assert sweep[2]["loops_accepted"] == metrics_json(result)["verified"]
@@ -184,7 +185,7 @@ def test_threshold_sweep_replays_the_backend(base, frontend):
 def test_reference_protocol_pr_is_na_without_enough_keyframes(base, frontend):
     """The reference protocol queries only once more than 10 keyframes precede a frame: with a sampler that
     keeps fewer, its PR is n/a with the reason."""
-    result = run_batch(make_config({**base.dump(), "sampler_params": {"distance": 40.0}}), frontend, sweep=False)
+    result = run(make_config({**base.dump(), "sampler_params": {"distance": 40.0}}), frontend)
     assert metrics_json(result)["keyframes"] <= 11
     ref = metrics_json(result)["pr_reference"]
     assert ref == {"pr_auc": None, "f1_max": None, "matches": 0}
@@ -290,7 +291,7 @@ def test_stationary_run_gives_ate_none(sequence, cache_dir, tmp_path):
     gt = np.tile(np.eye(4), (30, 1, 1))
     dataset, odometry = _posed_sequence(tmp_path / "still", sequence, gt, gt)
     cfg = make_config(dataset=str(dataset), odometry=str(odometry), cache_dir=str(cache_dir), sampler="all")
-    m = metrics_json(run_batch(cfg))
+    m = metrics_json(run(cfg, sweep=threshold_sweep))
     assert m["before"]["ate_translation_m"] is None and "point or a line" in m["unavailable"]["ate"]
 
 
@@ -302,7 +303,7 @@ def test_short_straight_run_warns_and_has_no_pr(sequence, cache_dir, tmp_path):
     dataset, odometry = _posed_sequence(tmp_path / "straight", sequence, gt, drifted(gt))
     cfg = make_config(dataset=str(dataset), odometry=str(odometry), cache_dir=str(cache_dir), sampler="all",
                       min_frame_gap=5, exclude_recent=2, min_travel_m=5.0)
-    result = run_batch(cfg)
+    result = run(cfg, sweep=threshold_sweep)
     m = metrics_json(result)
     assert m["before"]["ate_rotation_deg"] is not None and m["ate_rotation_reliable"] is False
     assert len(m["warnings"]) == 1 and "rotation ATE unreliable" in m["warnings"][0]
@@ -327,7 +328,7 @@ def _improvement(translation: float, rotation: float):
 
 
 def test_improvement_rounding_to_zero_prints_unsigned(base, frontend, tmp_path):
-    result = run_batch(base, frontend)
+    result = run(base, frontend, sweep=threshold_sweep)
     result = edited(result, _improvement(-0.04, -0.0004))
     report = write_run(result, tmp_path / "out").read_text()
     ate_rows = [line for line in report.splitlines() if line.startswith("| ATE ")]

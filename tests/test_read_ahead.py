@@ -20,8 +20,8 @@ from msa_slam.io.cache import TIMES_PREFIX, CacheDir
 from msa_slam.odometry import OdometryCache, sequence_odometry
 from msa_slam.pipeline import make_config, prepare_frontend
 from msa_slam.pipeline.frontend import make_odometry
-from msa_slam.pipeline.online import run_online
-from msa_slam.pipeline.online_config import make_online_config
+from msa_slam.pipeline import LiveFrontEnd, run
+from msa_slam.pipeline.config import make_online_config
 from msa_slam.pipeline.read_ahead import DEPTH, ReadAhead
 from msa_slam.sources import open_sequence, open_source
 from msa_slam.registration import downsample
@@ -156,6 +156,6 @@ def test_a_live_sources_frames_are_simulated_ahead_by_a_thread_of_their_own(live
             yield frame
 
     config = make_online_config(dataset=source.name, odometry="gt-noise", sampler="all", max_frames=12)
-    result = run_online(config, replace(source, frames=frames, live=live))
+    result = run(config, LiveFrontEnd(replace(source, frames=frames, live=live)))
     assert len(result) == 12 and len(makers) == 12
     assert all((maker is threading.current_thread()) != live for maker in makers)

@@ -18,8 +18,9 @@ from msa_slam.io.cache import sequence_identity
 from msa_slam.odometry import KissOdometry, OdometryCache, sequence_odometry
 from msa_slam.pipeline.config import make_config
 from msa_slam.pipeline.frontend import make_odometry
-from msa_slam.pipeline.online import frame_rate_hz, run_online
-from msa_slam.pipeline.online_config import NO_TIMESTAMPS, make_online_config
+from msa_slam.pipeline.live import frame_rate_hz
+from msa_slam.pipeline import LiveFrontEnd, run
+from msa_slam.pipeline.config import NO_TIMESTAMPS, make_online_config
 from msa_slam.reporting.report import _online_lines as online_report_lines
 from msa_slam.sources import open_source
 from msa_slam.types import FrameSource
@@ -135,8 +136,8 @@ def test_real_time_factor_uses_the_sensor_rate_when_frames_have_no_timestamps(ca
                          times_known=False)
     cfg = make_online_config(dataset=COARSE, odometry="gt-noise", sampler="constant", sampler_params={"distance": 1.0},
                              sensor_rate_hz=20.0)
-    with caplog.at_level(logging.WARNING, logger="msa_slam.pipeline.online"):
-        result = run_online(cfg, source)
+    with caplog.at_level(logging.WARNING, logger="msa_slam.pipeline.live"):
+        result = run(cfg, LiveFrontEnd(source))
     metrics = metrics_json(result)
     assert metrics["frame_rate_hz"] == 20.0 and metrics["frame_rate_from"] == NO_TIMESTAMPS
     assert "over the data's 20.0 frames/s (the config's sensor_rate_hz: the frames have no timestamps)" in \
@@ -161,13 +162,13 @@ def _coarse(n: int, fail_at: int | None = None) -> FrameSource:
 def test_online_progress_stops_at_the_failing_frame(capsys):
     cfg = make_online_config(dataset=COARSE, odometry="gt-noise", sampler="constant", sampler_params={"distance": 1.0})
     with pytest.raises(InputError, match="frame 7: unreadable"):
-        run_online(cfg, _coarse(12, fail_at=7), quiet=False)
+        run(cfg, LiveFrontEnd(_coarse(12, fail_at=7)), quiet=False)
     assert f"online {cfg.name}: stopped at 7/12" in capsys.readouterr().err
 
 
 def test_online_progress_counts_the_keyframes_the_flush_adds(capsys):
     cfg = make_online_config(dataset=COARSE, odometry="gt-noise", sampler="msa", sampler_params={"window": 10})
-    result = run_online(cfg, _coarse(25), quiet=False)
+    result = run(cfg, LiveFrontEnd(_coarse(25)), quiet=False)
     assert metrics_json(result)["sampler_stats"]["flushed_keyframes"] > 0
     done = [line for line in capsys.readouterr().err.splitlines() if line.startswith(f"online {cfg.name}: done")]
     assert len(done) == 1 and f"kf {len(result.keyframes)} " in done[0]

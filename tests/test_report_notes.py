@@ -217,13 +217,13 @@ def test_scans_read_names_the_options_that_chose_them(options, said):
 
 
 def test_run_report_names_the_sequence_readably_and_the_scans_read(sequence, odometry_file, cache_dir, tmp_path):
-    from msa_slam.pipeline import make_config, run_batch
+    from msa_slam.pipeline import make_config, run
     from msa_slam.reporting.results import write_run
     from msa_slam.viz.labels import display_name
 
     cfg = make_config(dataset=str(sequence), odometry=str(odometry_file), cache_dir=str(cache_dir),
                       sampler="constant", sampler_params={"distance": 3.0}, source={"frames": 80})
-    result = run_batch(cfg, sweep=False)
+    result = run(cfg)
     report = write_run(result, tmp_path / "out").read_text()
     title = report.splitlines()[0]
     assert display_name(sequence.name) != sequence.name  # the simulated sequence's cache name has a hash

@@ -16,10 +16,8 @@ from matplotlib.figure import Figure
 from msa_slam.datasets.options import SourceOptions
 from msa_slam.datasets.sequences import UNTIMED, _warn_untimed
 from msa_slam.odometry.kiss import NO_POINT_TIMES
-from msa_slam.pipeline.batch import run_batch
-from msa_slam.pipeline.config import load_config, make_config
-from msa_slam.pipeline.online import run_online
-from msa_slam.pipeline.online_config import make_online_config
+from msa_slam.pipeline import LiveFrontEnd, run
+from msa_slam.pipeline.config import load_config, make_config, make_online_config
 from msa_slam.reporting.report import report_markdown, sequence_title
 from msa_slam.reporting.results import write_run_files
 from msa_slam.sources import open_source
@@ -37,7 +35,7 @@ def batch(tmp_path_factory) -> tuple[RunResult, Path]:
     scans, _ = _untimed_folder(root)
     config = make_config(dataset=str(scans), mode="realistic", sampler="all", odometry_params=DESKEW,
                          cache_dir=str(root / "cache"), source={"first": 1})
-    result = run_batch(config, sweep=False)
+    result = run(config)
     out = root / "out"
     out.mkdir()
     write_run_files(result, out)
@@ -49,7 +47,7 @@ def test_config_yaml_records_the_deskew_done_and_re_runs_it(batch, caplog):
     assert yaml.safe_load((out / "config.yaml").read_text())["odometry_params"] == {**DESKEW, "deskew": False}
     assert json.loads((out / "metrics.json").read_text())["odometry_config"]["data"]["deskew"] is False
     with caplog.at_level(logging.WARNING, logger="msa_slam.odometry"):
-        again = run_batch(load_config(out / "config.yaml"), sweep=False)
+        again = run(load_config(out / "config.yaml"))
     assert [r.getMessage() for r in caplog.records] == []  # it asks for what ran: nothing to switch off
     assert metrics_json(again)["frontend_cached"]["odometry"]  # and finds the first run's odometry
     np.testing.assert_array_equal(again.odometry, result.odometry)
@@ -95,7 +93,7 @@ def test_online_on_untimed_scans_warns_once_and_records_what_ran(tmp_path, caplo
     config = make_online_config(dataset=str(scans), mode="realistic", sampler="all", odometry_params=DESKEW)
     _warn_untimed.cache_clear()  # warned once a folder and process
     with caplog.at_level(logging.WARNING):
-        result = run_online(config, open_source(config.dataset))
+        result = run(config, LiveFrontEnd(open_source(config.dataset)))
     untimed = [r.getMessage() for r in caplog.records if "no timestamps" in r.getMessage()]
     assert untimed == [f"{scans}: {UNTIMED}"]
     assert result.config.odometry_params == {**DESKEW, "deskew": False}

@@ -16,7 +16,7 @@ from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.experiments.grid import parse_grid
 from msa_slam.pipeline.config import RunConfig, apply_params, make_config
-from msa_slam.pipeline.online_config import OnlineConfig, apply_online_params
+from msa_slam.pipeline.config import OnlineConfig, apply_online_params
 from msa_slam.sampling import SAMPLERS, SamplerChoice, SamplerParams, build_sampler, check_sampler_params
 from msa_slam.sampling.baselines import ConstantParams
 from msa_slam.sampling.msa.params import MSAParams

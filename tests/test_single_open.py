@@ -19,12 +19,11 @@ from msa_slam.errors import InputError
 from msa_slam.io.poses import write_poses
 from msa_slam.odometry import KissOdometry
 from msa_slam.sources import sequence as source_module
-from msa_slam.pipeline.batch import run_batch
+from msa_slam.pipeline import run
 from msa_slam.experiments.compare import run_compare
-from msa_slam.pipeline.config import make_config
+from msa_slam.pipeline.config import make_config, make_online_config
 from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, prepare_frontend
-from msa_slam.pipeline.online import make_online_odometry, run_online
-from msa_slam.pipeline.online_config import make_online_config
+from msa_slam.pipeline.live import make_online_odometry
 from msa_slam.sources import open_sequence
 from msa_slam.types import FrameSource
 from test_real_inputs_times import COARSE, _coarse, _kitti, _points
@@ -95,7 +94,7 @@ def test_compare_opens_its_dataset_once_for_all_its_methods(tmp_path, monkeypatc
 
 
 def test_the_library_checks_the_window_before_the_front_end(tmp_path, monkeypatch):
-    """run_batch and run_compare refuse a window that never fills before any odometry, as the commands do."""
+    """run and run_compare refuse a window that never fills before any odometry, as the commands do."""
     def no_odometry(*args, **kwargs):
         raise AssertionError("the odometry ran before the window check")
 
@@ -105,7 +104,7 @@ def test_the_library_checks_the_window_before_the_front_end(tmp_path, monkeypatc
                 "0 becomes a keyframe (flush is off); the evaluation needs at least 3: "
                 + CONFIG_WINDOW_FIX.format(frames=FRAMES, window=10))
     with pytest.raises(InputError) as err:
-        run_batch(config)
+        run(config)
     assert str(err.value) == expected
     with pytest.raises(InputError) as err:  # every method's window is checked, not only the first one's
         run_compare(config, tmp_path / "out", methods=(("all", "all", {}), ("msa", "msa", {})))
@@ -198,7 +197,7 @@ def test_kiss_odometry_refuses_deskew_on_a_scan_without_point_times():
 def test_online_progress_counts_the_accepted_loops(capsys):
     config = make_online_config(dataset=COARSE, odometry="gt-noise", sampler="all", min_frame_gap=20,
                                 odometry_params={"translation_noise": 0.02, "rotation_noise_deg": 0.1})
-    result = run_online(config, quiet=False)
+    result = run(config, quiet=False)
     accepted = sum(c.accepted for c in result.loops)
     done = [line for line in capsys.readouterr().err.splitlines() if line.startswith(f"online {config.name}: done")]
     assert accepted > 0 and len(done) == 1 and done[0].endswith(f"loops {accepted}")

@@ -113,7 +113,7 @@ class FrameSource:
     is dropped with a warning); None (not known): deskew only when asked, and KISS-ICP then refuses a first frame
     without them (pipeline.frontend.make_odometry). `live`: frames that come once, as from a sensor (nothing to
     replay bit for bit), so the online pipeline runs KISS-ICP on every core by default
-    (pipeline.online.with_odometry_threads)."""
+    (pipeline.live.with_odometry_threads)."""
 
     name: str
     gt_poses: np.ndarray | None

@@ -44,9 +44,9 @@ def online_command(
     from msa_slam.pipeline.frontend import check_window
     from msa_slam.errors import InputError
     from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
-    from msa_slam.pipeline.online import run_online
-    from msa_slam.pipeline.config import read_config_file
-    from msa_slam.pipeline.online_config import OnlineConfig, apply_online_params
+    from msa_slam.pipeline.driver import run
+    from msa_slam.pipeline.live import LiveFrontEnd
+    from msa_slam.pipeline.config import OnlineConfig, apply_online_params, read_config_file
     from msa_slam.reporting.results import write_run_files
     from msa_slam.sources import open_source
 
@@ -69,7 +69,7 @@ def online_command(
         check_window(cfg, frames, WINDOW_FIX)
         view = LiveViewer(save=viewer_save) if live else None
         try:
-            result = run_online(cfg, recording, quiet=quiet, viewer=view)
+            result = run(cfg, LiveFrontEnd(recording, view), quiet=quiet)
         finally:
             if view is not None:
                 view.close()

@@ -25,9 +25,10 @@ from msa_slam.evaluation.run_metrics import RunMetrics, TableRow
 from msa_slam.io.atomic import atomic_path, write_text_atomic
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, staged_dir
 from msa_slam.io.tables import mib, rows_csv, write_json
-from msa_slam.pipeline.batch import SWEEP_NOT_RUN, run_batch
+from msa_slam.experiments.sweep import threshold_sweep
 from msa_slam.pipeline.config import RunConfig, make_config
-from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, Frontend, prepare_frontend
+from msa_slam.pipeline.driver import SWEEP_NOT_RUN, run
+from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, CachedFrontEnd, prepare_frontend
 from msa_slam.reporting.report import (GT_FILE, RPE_STATISTICS, deskew_text, replayed_note, rpe_segments,
                                       scans_read, sequence_title)
 from msa_slam.reporting.results import reference_xy, trajectory_panels, write_run_files
@@ -196,7 +197,7 @@ def sweep_markdown(results: Sequence[RunResult]) -> str:
 PROCESSES = "processes.json"
 
 
-def comparison_report(fe: Frontend, results: Sequence[RunResult], table: str, figures: list[str], workers: int,
+def comparison_report(fe: CachedFrontEnd, results: Sequence[RunResult], table: str, figures: list[str], workers: int,
                       main_peak: str | None = None) -> str:
     """report.md; `workers`: the processes the methods ran in (1: this one), which the memory figures depend on;
     `main_peak`: the main process's peak RSS as report.md gives it (default: this process's peak now)."""
@@ -451,7 +452,7 @@ def write_spread(out: Path, base: RunConfig, rows: dict[int, list[TableRow]], fa
 Outcome = tuple[RunResult | None, str | None]  # a method's result, or None and the line saying why it failed
 
 
-def _run_methods(configs: Sequence[RunConfig], frontend: Frontend, runs: Path, quiet: bool, sweep: bool,
+def _run_methods(configs: Sequence[RunConfig], frontend: CachedFrontEnd, runs: Path, quiet: bool, sweep: bool,
                  workers: int = 1) -> tuple[list[RunResult], dict[str, str]]:
     """Each method's run folder under `runs` (a failing method leaves its error.txt instead); the results and the
     failures, both in method order. With `workers` > 1 the methods run in that many processes forked from this
@@ -466,7 +467,7 @@ def _run_methods(configs: Sequence[RunConfig], frontend: Frontend, runs: Path, q
     return results, failed
 
 
-def _serial(configs: Sequence[RunConfig], frontend: Frontend, runs: Path, quiet: bool, sweep: bool
+def _serial(configs: Sequence[RunConfig], frontend: CachedFrontEnd, runs: Path, quiet: bool, sweep: bool
             ) -> list[Outcome]:
     """The methods one after another in this process, each showing its back-end's progress."""
     outcomes = []
@@ -479,7 +480,7 @@ def _serial(configs: Sequence[RunConfig], frontend: Frontend, runs: Path, quiet:
     return outcomes
 
 
-def _parallel(configs: Sequence[RunConfig], frontend: Frontend, runs: Path, quiet: bool, sweep: bool,
+def _parallel(configs: Sequence[RunConfig], frontend: CachedFrontEnd, runs: Path, quiet: bool, sweep: bool,
               workers: int) -> list[Outcome]:
     """The methods in `workers` forked processes; one bar, advancing as methods finish (in whatever order)."""
     outcomes: list[Outcome] = [(None, None)] * len(configs)
@@ -497,10 +498,10 @@ def _parallel(configs: Sequence[RunConfig], frontend: Frontend, runs: Path, quie
     return outcomes
 
 
-def _run_method(cfg: RunConfig, frontend: Frontend, folder: Path, quiet: bool, sweep: bool) -> Outcome:
+def _run_method(cfg: RunConfig, frontend: CachedFrontEnd, folder: Path, quiet: bool, sweep: bool) -> Outcome:
     """One method's run files in `folder`, or its error.txt when it fails."""
     try:
-        result = run_batch(cfg, frontend, quiet, sweep=sweep)
+        result = run(cfg, frontend, quiet, sweep=threshold_sweep if sweep else None)
     except Exception as exc:  # one method's failure must not lose the others' results
         return None, _failure(folder, exc)
     write_run_files(result, folder)

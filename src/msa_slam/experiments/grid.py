@@ -246,9 +246,7 @@ def slug(text: str) -> str:
 
 def _config_for(grid: GridSpec, dataset: str, descriptor: str, sampler: str, params: dict[str, Any],
                 parameters: dict[str, Any], seed: int, label: str, where: str) -> dict[str, Any]:
-    from msa_slam.pipeline.config import make_config
-    from msa_slam.pipeline.online_config import apply_online_params
-    from msa_slam.pipeline.config import apply_params
+    from msa_slam.pipeline.config import apply_online_params, apply_params, make_config
 
     data = {**grid.base, "dataset": seeded(dataset, seed), "descriptor": descriptor,
             "sampler": sampler, "sampler_params": params, "label": label}

@@ -94,27 +94,23 @@ def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bo
     from msa_slam.io.tables import write_json
     from msa_slam.reporting.results import write_run_files
 
-    target = cell_dir(out, info["id"])
-    if info["pipeline"] == "online":
-        from msa_slam.pipeline.online import run_online, with_odometry_threads
-        from msa_slam.pipeline.online_config import make_online_config
+    from msa_slam.experiments.sweep import threshold_sweep
+    from msa_slam.pipeline.config import make_config, make_online_config
+    from msa_slam.pipeline.driver import run
+    from msa_slam.pipeline.live import with_odometry_threads
 
+    online = info["pipeline"] == "online"
+    if online:
         cfg = make_online_config(config)
         if cfg.cloud_store == "disk" and cfg.store_dir is None:  # the store removes it again when it closes
             cfg = make_online_config({**config, "store_dir": str(Path(out) / STORES / info["id"])})
-        # every cell, a live: one too, on one thread: reproducible, and one core a worker
-        result = run_online(with_odometry_threads(cfg, 1), quiet=True)
-        with staged_dir(target) as tmp:
-            write_run_files(result, tmp, figures)
-            write_json(tmp / CELL_FILE, info)
+        cfg = with_odometry_threads(cfg, 1)  # every cell, a live: one too, on one thread: reproducible, a core each
     else:
-        from msa_slam.pipeline.batch import run_batch
-        from msa_slam.pipeline.config import make_config
-
-        result = run_batch(make_config(config), quiet=True)
-        with staged_dir(target) as tmp:
-            write_run_files(result, tmp)
-            write_json(tmp / CELL_FILE, info)
+        cfg = make_config(config)
+    result = run(cfg, quiet=True, sweep=None if online else threshold_sweep)
+    with staged_dir(cell_dir(out, info["id"])) as tmp:
+        write_run_files(result, tmp, figures or not online)
+        write_json(tmp / CELL_FILE, info)
     return result.metrics
 
 

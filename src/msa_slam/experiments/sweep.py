@@ -17,7 +17,7 @@ import numpy as np
 from msa_slam.backend import PoseGraph
 from msa_slam.evaluation.metrics import SweepRow
 from msa_slam.pipeline.config import RunConfig, make_config
-from msa_slam.pipeline.frontend import Frontend
+from msa_slam.pipeline.frontend import CachedFrontEnd
 from msa_slam.sampling.base import Sampler
 from msa_slam.slam import RunResult, build_backend, build_loop_closer
 from msa_slam.types import LoopClosure
@@ -77,7 +77,7 @@ class _MemoVerify:
         return [self._memo[(c.query, c.match)] for c in candidates]
 
 
-def replay(config: RunConfig, frontend: Frontend, clouds: Any, keyframes: np.ndarray,
+def replay(config: RunConfig, frontend: CachedFrontEnd, clouds: Any, keyframes: np.ndarray,
            memo: dict[tuple[int, int], LoopClosure]) -> RunResult:
     """The back-end of `config` on fixed `keyframes` whose clouds are in `clouds` (front end from `frontend`)."""
     closer = _MemoVerify(build_loop_closer(config, frontend.descriptor, _SharedClouds(clouds)), memo)
@@ -97,7 +97,7 @@ def _row(threshold: float, result: RunResult) -> SweepRow:
                     trajectory.after.ate_translation_m, trajectory.improvement.translation)
 
 
-def threshold_sweep(result: RunResult, frontend: Frontend, clouds: Any) -> tuple[SweepRow, ...]:
+def threshold_sweep(result: RunResult, frontend: CachedFrontEnd, clouds: Any) -> tuple[SweepRow, ...]:
     """One row per threshold of the sweep (candidates, loops accepted, false loops, full-rate ATE after and
     % improvement); the run's own threshold is the run itself, the others are replays."""
     config = result.config

@@ -1,5 +1,7 @@
-"""The per-sequence front end: odometry, descriptors and downsampled clouds of every frame, computed once and
-cached on disk.
+"""The cached batch front end (the paper's Table I protocol): odometry, descriptors and downsampled clouds of every
+frame, computed once and cached on disk, streamed through the back end (pipeline.driver.run), which Levenberg-
+Marquardt optimises once at the end; the run then records ATE/RPE before and after, PR-AUC/F1-max of both
+place-recognition protocols, time and, when asked, the threshold sweep.
 
 These are the expensive stages that do not depend on the sampler, so `compare` runs them once and every
 sampler reuses them; a re-run finds them in the cache (keyed by the scans' content, settings, the code that
@@ -10,9 +12,10 @@ from __future__ import annotations
 
 import logging
 import sys
-from dataclasses import dataclass, field
+import time
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Sequence, TypeVar
+from typing import Any, Callable, Mapping, Sequence, TypeVar
 
 import numpy as np
 
@@ -22,17 +25,24 @@ from msa_slam.descriptors import Descriptor, make_descriptor
 from msa_slam.descriptors.cache import descriptor_key
 from msa_slam.errors import InputError
 from msa_slam.evaluation import StageTimer
-from msa_slam.evaluation.metrics import Deskew
+from msa_slam.evaluation.metrics import BATCH, Deskew, JSONValue, ReferencePR, RunSetup, SweepRow, Timing, Unavailable
+from msa_slam.evaluation.metrics_reader import NO_REASON
+from msa_slam.evaluation.resources import peak_rss_bytes
 from msa_slam.evaluation.sanity import frontend_warnings
 from msa_slam.io.cache import CacheDir, Computed, cache_root
 from msa_slam.odometry import KissOdometry, PosesFromFile
 from msa_slam.odometry.kiss import NO_POINT_TIMES, PARAMETERS as KISS_PARAMETERS
 from msa_slam.pipeline.config import RunConfig
 from msa_slam.pipeline.read_ahead import frontend_pass
-from msa_slam.sources import open_sequence
+from msa_slam.place_recognition import PRCurve, precision_recall
+from msa_slam.place_recognition.metrics import reference_protocol_matches
+from msa_slam.progress import progress_bar
 from msa_slam.registration.cloud_cache import FrameClouds, cloud_key
 from msa_slam.sampling.msa.sampler import warn_short_stream
+from msa_slam.slam import BACKEND_STEPS, ProtocolRecord, RunResult, SlamBackend
 from msa_slam.slam.backend import MIN_KEYFRAMES
+from msa_slam.slam.loop_closing import protocol
+from msa_slam.sources import open_sequence
 
 logger = logging.getLogger(__name__)
 Config = TypeVar("Config", bound=RunConfig)  # a batch or online (OnlineConfig) run's config
@@ -40,10 +50,11 @@ Config = TypeVar("Config", bound=RunConfig)  # a batch or online (OnlineConfig) 
 # What to change when a sampler's window is longer than the frames read (check_window: `frames`, `window`), in
 # the config's terms; the commands name their options instead (cli.options.WINDOW_FIX)
 CONFIG_WINDOW_FIX = "use a window of at most {frames} frames (sampler_params window={frames}) or flush=true"
+BACKEND_STAGES = (*BACKEND_STEPS, "optimisation")
 
 
 @dataclass
-class Frontend:
+class CachedFrontEnd:
     """A sequence with its ground truth (None when the recording has none), odometry, per-frame descriptors and
     downsampled clouds (None for the local-map loop detectors, whose keyframe clouds are local maps), plus how
     long they took."""
@@ -81,6 +92,52 @@ class Frontend:
         """True when `config` asks for this front end (same odometry and descriptor settings)."""
         return (self.odometry_config == _odometry_config(config, len(self))
                 and self.descriptor_settings == (config.descriptor, config.descriptor_params))
+
+    @property
+    def descriptor_shape(self) -> tuple[int, ...]:
+        return self.descriptors.shape[1:]
+
+    def start(self, config: Config) -> Config:
+        """`config` as it runs on this front end (config_as_run: what config.yaml records); one that asks for other
+        odometry or descriptor settings is refused."""
+        if not self.matches(config):
+            raise InputError("run: the given front end was built with other odometry/descriptor settings")
+        return config_as_run(config, self.sequence.point_times)
+
+    def stream(self, backend: SlamBackend, quiet: bool) -> RunResult:
+        """Every frame's cached odometry and descriptor (its scan read only when the back end stores it) through
+        `backend`, then its finish()."""
+        sequence, times, gt = self.sequence, self.sequence.times, self.gt_poses
+        with progress_bar(quiet) as bar:
+            task = bar.add_task(f"back-end ({backend.settings.name})", total=len(self))
+            for i in range(len(self)):
+                backend.add_frame(self.odometry[i], self.descriptors[i], lambda i=i: sequence[i].points,
+                                  None if gt is None else gt[i], times[i])
+                bar.advance(task)
+        return backend.finish()
+
+    def record(self, result: RunResult, clouds: Any, sweep: Callable | None,
+               sweep_off: str) -> tuple[RunResult, ProtocolRecord]:
+        """`result` with the reference protocol's precision-recall, and the batch protocol's record: timing (the
+        sampler's share of real time too), the reference protocol's PR-AUC / F1-max and the threshold sweep
+        (`sweep`, on the run's `clouds`; else why not: `sweep_off`)."""
+        gt = self.gt_poses
+        sims, dists = (reference_protocol_matches(self.descriptor, result.keyframes, self.descriptors, gt)
+                       if gt is not None else ([], []))
+        result = replace(result, descriptors=self.descriptors[:len(result)],
+                         pr_reference=precision_recall(sims, dists, result.config.loop_radius) if len(sims) else None)
+        reasons = {}
+        fraction, why = sampler_realtime_fraction(result.sampler_stats, result.times, self.sequence.times_known)
+        if why is not None:
+            reasons["sampler_realtime_fraction"] = why
+        reasons["pr_reference"] = _reference_reason(result.pr_reference, gt is not None)
+        peak = peak_rss_bytes()  # the run's, without the sweep's replays
+        rows, seconds = _sweep(result, self, clouds, sweep, sweep_off, reasons)
+        reference = _reference(result.pr_reference, reasons["pr_reference"], len(sims))
+        return result, ProtocolRecord(BATCH, tuple(self.warnings), _timing(result, self, fraction, why, seconds),
+                                      RunSetup(self.deskew, _threads(result.config, self), self.odometry_effective),
+                                      {k: v for k, v in reasons.items() if v is not None}, reference, rows,
+                                      peak_rss_bytes=peak)
 
 
 def _odometry_config(config: RunConfig, n_frames: int) -> dict[str, Any]:
@@ -196,7 +253,7 @@ def replayed_seconds(stages: dict[str, Computed], timer: StageTimer) -> dict[str
 
 
 def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[RunConfig] = (),
-                     window_fix: str = CONFIG_WINDOW_FIX) -> Frontend:
+                     window_fix: str = CONFIG_WINDOW_FIX) -> CachedFrontEnd:
     """Open the dataset (once: for a large bag that is a full indexing), check that the sampler windows of
     `samplers` (default: `config`'s; compare: every method's) fit the frames read (check_window, with
     `window_fix`), then odometry, descriptors and (scan loop detector) clouds downsampled at the verifier's voxel
@@ -240,10 +297,78 @@ def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[R
     for warning in sanity:
         logger.warning(warning)
     warnings = [*source_warnings(config, sequence.name, sequence.times_known, sequence.point_times), *sanity]
-    frontend = Frontend(sequence, sequence.gt_poses, poses.values, descriptors.values, descriptor,
+    frontend = CachedFrontEnd(sequence, sequence.gt_poses, poses.values, descriptors.values, descriptor,
                         _odometry_config(config, n), timer, {k: v.cached for k, v in stages.items()},
                         odometry_effective=dict(odometry.config), warnings=warnings, replayed_s=replayed,
                         deskew=deskew_record(config, sequence.point_times),
                         clouds=stages["clouds"].values if "clouds" in stages else None)
     frontend.descriptor_settings = (config.descriptor, config.descriptor_params)
     return frontend
+
+
+def _sweep(result: RunResult, frontend: CachedFrontEnd, clouds: Any, sweep: Callable | None, sweep_off: str,
+           reasons: dict[str, str | None]) -> tuple[tuple[SweepRow, ...] | Unavailable, float | None]:
+    """The threshold sweep's rows and seconds (`sweep`: msa_slam.experiments.sweep.threshold_sweep), or why it did
+    not run (also put into `reasons`)."""
+    if result.gt_poses is None:
+        reasons["threshold_sweep"] = "no ground truth: ATE improvement is undefined"
+    if sweep is None:
+        reasons["threshold_sweep"] = sweep_off
+    elif protocol(result.config) != "paper":
+        reasons["threshold_sweep"] = ("the verified loop protocol does not use similarity_threshold (its floor: "
+                                      "verified_min_similarity)")
+    elif result.gt_poses is not None:
+        start = time.perf_counter()
+        rows = sweep(result, frontend, clouds)
+        return rows, round(time.perf_counter() - start, 4)  # not in backend_total
+    return Unavailable(reasons["threshold_sweep"]), None
+
+
+def _reference(pr: PRCurve | None, reason: str | None, matches: int) -> ReferencePR:
+    """PR-AUC / F1-max of the reference example's protocol, each unavailable with `reason` when undefined."""
+    auc, f1 = (None, None) if pr is None else (pr.auc, pr.f1_max)
+    gone = Unavailable(reason or NO_REASON)
+    return ReferencePR(gone if auc is None else auc, gone if f1 is None else f1, matches)
+
+
+def _reference_reason(pr: PRCurve | None, ground_truth: bool) -> str | None:
+    """Why the reference protocol's PR-AUC / F1-max are unavailable (None when they are not)."""
+    if not ground_truth:
+        return "no ground truth: true loops cannot be told from false ones"
+    if pr is None:
+        return ("no frame had more than 10 keyframes before it and a best match more than 10 frames away (the "
+                "reference protocol recorded no match)")
+    return pr.unavailable or None
+
+
+def sampler_realtime_fraction(sampler_stats: Mapping[str, JSONValue], times: np.ndarray,
+                              times_known: bool) -> tuple[float | None, str | None]:
+    """The sampler's window optimisations' total time over the duration of the data it sampled (the frames'
+    first to last timestamp): the share of a real-time budget sampling alone takes. None with the reason when
+    the frames have no timestamps (`times_known` False: their times are frame numbers, 1 frame/s) or span no
+    time."""
+    if not times_known:
+        return None, "the frames have no timestamps, so the data's duration is unknown"
+    span = float(times[-1] - times[0]) if len(times) > 1 else 0.0
+    if not span > 0:
+        return None, "the frames' timestamps span no time"
+    return sampler_stats["optimisation_ms_total"] / 1e3 / span, None
+
+
+def _timing(result: RunResult, frontend: CachedFrontEnd, fraction: float | None, why: str | None,
+            sweep_s: float | None) -> Timing:
+    """Seconds per back-end stage (the sweep's last, not in backend_total), the front end's, and the sampler's share
+    of real time."""
+    times = {s: float(result.steps_ms[s].sum()) / 1e3 for s in BACKEND_STEPS}
+    times.update(result.final_s)
+    backend_time = sum(times.get(s, 0.0) for s in BACKEND_STAGES)
+    stages = {**{k: round(v, 4) for k, v in times.items()}, "backend_total": round(backend_time, 4),
+              "threshold_sweep": sweep_s}
+    return Timing(stages, {k: round(v, 4) for k, v in frontend.replayed_s.items()},
+                  {k: round(v, 4) for k, v in frontend.timer.seconds.items()}, dict(frontend.cached),
+                  Unavailable(why) if fraction is None else fraction)
+
+
+def _threads(config: RunConfig, frontend: CachedFrontEnd) -> dict[str, int | None]:
+    return {"odometry": frontend.odometry_effective.get("registration", {}).get("max_num_threads"),
+            "verification": config.verifier.num_threads, "blas_backend": 1}

@@ -16,7 +16,7 @@ from msa_slam.evaluation.metrics import (Deskew, FullRateTrajectory, LoopCounts,
                                          SweepRow, Unavailable, known)
 from msa_slam.evaluation.run_metrics import RunMetrics
 from msa_slam.io.tables import mib
-from msa_slam.pipeline.online_config import NO_TIMESTAMPS, NOT_REPRODUCIBLE
+from msa_slam.pipeline.config import NO_TIMESTAMPS, NOT_REPRODUCIBLE
 from msa_slam.slam.backend import slam_sampler_params
 from msa_slam.slam.loop_closing import candidate_rule
 from msa_slam.viz.labels import counted, display_name, sampler_label
@@ -164,7 +164,7 @@ def deskew_text(deskew: Deskew) -> str:
 
 
 def _rate_source(frame_rate_from: str) -> str:
-    """Where the real-time factor's data rate came from (pipeline.online.frame_rate_hz)."""
+    """Where the real-time factor's data rate came from (pipeline.live.frame_rate_hz)."""
     if frame_rate_from == "timestamps":
         return "from its timestamps"
     if frame_rate_from == NO_TIMESTAMPS:

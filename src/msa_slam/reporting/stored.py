@@ -17,8 +17,7 @@ from msa_slam.evaluation.resources import StageTimer
 from msa_slam.evaluation.run_metrics import RunMetrics
 from msa_slam.io.poses import read_poses
 from msa_slam.experiments.compare import PAPER_METHODS
-from msa_slam.pipeline.config import RunConfig, make_config, read_config_file
-from msa_slam.pipeline.online_config import OnlineConfig, make_online_config
+from msa_slam.pipeline.config import OnlineConfig, RunConfig, make_config, make_online_config, read_config_file
 
 COMPARE_FIGURES = ("metrics.png", "trajectories.png", "pr_curves.png", "pr_curves_reference.png")  # report order
 

@@ -1,4 +1,5 @@
-"""The paper's online experiment (section V-B, Table II): frames one by one, as on a robot.
+"""The live front end of the paper's online experiment (section V-B, Table II): frames one by one, as on a robot
+(LiveFrontEnd, which pipeline.driver.run drives).
 
 Each frame: odometry -> descriptor -> the SLAM core (msa_slam.slam: sampler, keyframe store with clouds in
 RAM or on disk, loop candidates, verification, and an iSAM2 graph (Kaess et al., IJRR 2012) updated at
@@ -29,9 +30,7 @@ from itertools import islice
 from typing import Protocol
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
-from msa_slam.backend import IncrementalPoseGraph
 from msa_slam.descriptors import make_descriptor
 from msa_slam.errors import InputError
 from msa_slam.evaluation.metrics import ONLINE, Latency, RunSetup, Throughput, Timing
@@ -39,18 +38,13 @@ from msa_slam.evaluation.resources import current_rss_bytes, throughput
 from msa_slam.evaluation.sanity import frontend_warnings
 from msa_slam.odometry import KissOdometry, NoisyOdometry, OdometryCache, ReplayedOdometry
 from msa_slam.odometry.kiss import DEFAULT_THREADS
-from msa_slam.pipeline.frontend import (config_as_run, deskew_record, make_odometry, pipeline_cache,
-                                        source_warnings)
-from msa_slam.pipeline.online_config import NO_TIMESTAMPS, NOT_REPRODUCIBLE, OnlineConfig
+from msa_slam.pipeline.config import NO_TIMESTAMPS, NOT_REPRODUCIBLE, OnlineConfig
+from msa_slam.pipeline.frontend import config_as_run, deskew_record, make_odometry, pipeline_cache, source_warnings
 from msa_slam.pipeline.read_ahead import ahead
-from msa_slam.sources import open_source
 from msa_slam.progress import LogProgress, Progress, progress_bar
-from msa_slam.registration import make_cloud_store
-from msa_slam.sampling.msa.warm import load_kernels
-from msa_slam.slam import (BACKEND_STEPS, ProtocolRecord, RunResult, SlamBackend, build_backend, build_loop_closer,
-                           measure, slam_sampler)
+from msa_slam.slam import BACKEND_STEPS, ProtocolRecord, RunResult, SlamBackend
 from msa_slam.types import FrameSource
-from msa_slam.viz.labels import counted as noun_count  # `counted`: run_online's loop tally
+from msa_slam.viz.labels import counted as noun_count  # `counted`: the stream's loop tally
 from msa_slam.workers import available_cpus
 
 logger = logging.getLogger(__name__)
@@ -84,8 +78,8 @@ def _percentiles(values: np.ndarray) -> Latency:
 
 
 def _throughput(result: RunResult, seconds: float, cached: bool, times_known: bool = True) -> Throughput:
-    """Throughput over the pipeline's `seconds` (see run_online) and per-step latency (`times_known` False: the
-    frames' times are frame numbers, see frame_rate_hz)."""
+    """Throughput over the pipeline's `seconds` (see LiveFrontEnd.stream) and per-step latency (`times_known`
+    False: the frames' times are frame numbers, see frame_rate_hz)."""
     cfg, mem, n = result.config, result.memory, len(result)
     backend = _backend_seconds(result)
     graph_steps = result.steps_ms["graph_update"][mem["keyframes"] > np.concatenate([[0], mem["keyframes"][:-1]])]
@@ -181,96 +175,130 @@ def online_progress(quiet: bool) -> Progress | LogProgress:
                                                       "kf {task.fields[kf]}  loops {task.fields[loops]}")
 
 
-def run_online(config: OnlineConfig, source: FrameSource | None = None, quiet: bool = True,
-               viewer: LiveView | None = None) -> RunResult:
-    """Run the online pipeline over a source (by default the config's dataset); BLAS single-threaded as in
-    the batch pipeline (many small matrix products). `viewer` (msa_slam.viz.live.LiveViewer) is shown every
-    frame and the final result."""
-    source = source or open_source(config.dataset, config.dataset_kind, config.cache_dir, progress=not quiet)
-    if source.live:  # frames that come once: no replay to keep bit for bit, so every core
-        config = with_odometry_threads(config, available_cpus())
-    threads = odometry_threads(config)
-    n = len(source) if config.max_frames is None else min(len(source), config.max_frames)
-    odometry, cached = make_online_odometry(config, source, n)
-    notes = source_warnings(config, source.name, source.times_known, source.point_times)  # logged where decided
-    for note in threads_note(threads):
-        logger.warning(note)
-        notes.append(note)
-    deskew = deskew_record(config, source.point_times)
-    config = config_as_run(config, source.point_times)  # what result.config (config.yaml) records
-    descriptor = make_descriptor(config.descriptor, **config.descriptor_params)
-    clouds = make_cloud_store(config.cloud_store, config.verifier.voxel_size, config.store_dir)
-    load_kernels(config.sampler, config.sampler_params, descriptor.shape)  # before the back end: not in its timings
-    graph = IncrementalPoseGraph(config.graph, final_iterations=config.update_iterations, mode=config.mode)
-    recorder = MemoryRecorder(n)
-    backend = build_backend(config, slam_sampler(config), build_loop_closer(config, descriptor, clouds), graph, n,
-                            source.name, config.update_iterations, recorder)
-    front_ms = {s: np.zeros(n, dtype=np.float32) for s in STEPS[:2]}
-    times_known = source.times_known
-    if not times_known and source.sequence is None:  # a sequence opened from files has said so (UNTIMED)
-        logger.warning("online: the frames have no timestamps; the real-time factor is taken against the config's "
-                       "sensor_rate_hz (%g Hz)", config.sensor_rate_hz)
-    replayed = isinstance(odometry, ReplayedOdometry)
-    label = f"online {config.name}" + (" (odometry replayed from the cache, counted as computed)" if replayed else
-                                       f" (odometry: {noun_count(threads, 'thread')})" if threads is not None else "")
-    with threadpool_limits(limits=1, user_api="blas"), online_progress(quiet) as bar, closing(backend):
-        task = bar.add_task(label, total=n, fps=0.0, rtf=0.0, kf=0, loops=0)
-        start, first_time = time.perf_counter(), None
-        credit = 0.0  # s: replayed odometry's time as computed, less the time its replay took
-        counted = accepted = 0  # backend.loops only grows: the loops counted so far, and how many were accepted
+class LiveFrontEnd:
+    """The frames of `source` one by one, odometry and descriptor computed as each arrives (pipeline.driver.run);
+    `viewer` (msa_slam.viz.live.LiveViewer) is shown every frame and the final result. One run's: start() sets it
+    up for that run."""
 
-        def figures(frames: int, last_time: float, keyframes: int, seconds: float) -> dict[str, float]:
-            """The progress line's fields after `frames` frames in the pipeline's `seconds`."""
-            nonlocal counted, accepted
-            if quiet:
-                return {}
-            accepted += sum(c.accepted for c in backend.loops[counted:])
-            counted = len(backend.loops)
-            rate = frame_rate_hz(first_time, last_time, frames, config.sensor_rate_hz, times_known)[0]
-            fps, rtf = throughput(frames, seconds, rate)
-            return {"fps": fps, "rtf": rtf, "kf": keyframes, "loops": accepted}
+    def __init__(self, source: FrameSource, viewer: LiveView | None = None) -> None:
+        self.source, self.viewer = source, viewer
+        self.frames = len(source)
 
-        frames = islice(source.frames(), n)  # a live source's simulated by a thread of their own, a few ahead
-        for i, frame in enumerate(ahead(frames) if source.live else frames):
-            first_time = frame.time if first_time is None else first_time
-            t0 = time.perf_counter()
-            pose = odometry.register(frame.points, frame.timestamps,  # times: for deskew
-                                     frame.time if times_known else None)
-            t1 = time.perf_counter()
-            if replayed:
-                credit += odometry.ms[i] / 1e3 - (t1 - t0)
-            desc = np.asarray(descriptor.compute(frame.points, frame=i), dtype=np.float64)
-            front_ms["odometry"][i] = odometry.ms[i] if replayed else (t1 - t0) * 1e3
-            front_ms["descriptor"][i] = (time.perf_counter() - t1) * 1e3
-            new = backend.add_frame(pose, desc, frame.points, frame.gt_pose, frame.time)
-            if viewer is not None:
-                viewer.frame(backend, i, frame.points, new)
-            if i < n - 1:  # every frame, so that a failure reports the frame it stopped at; the last: after finish()
-                bar.update(task, completed=i + 1, **figures(i + 1, frame.time, len(backend.store),
-                                                            time.perf_counter() - start + credit))
-        result = backend.finish()  # flushes the sampler: the last line counts the keyframes the report does
-        seconds = time.perf_counter() - start + credit  # the pipeline's, as metrics.json and report.md give it
-        bar.update(task, completed=len(result), **figures(len(result), float(result.times[-1]), len(result.keyframes),
-                                                          seconds))
-    if viewer is not None:
-        viewer.finish(result)
-    m = len(result)
-    steps_ms = {**{s: v[:m] for s, v in front_ms.items()}, **result.steps_ms}
-    memory = {k: v[:m] for k, v in recorder.memory.items()}
-    front = [steps_ms[s] for s in front_ms]
-    records = result.memory_bytes["record_bytes"] + sum(v.nbytes for v in (*memory.values(), *front))  # per-frame
-    result = replace(result, steps_ms=steps_ms, memory=memory,
-                     memory_bytes={**result.memory_bytes, "record_bytes": records})
-    warnings = frontend_warnings(result.gt_poses, result.odometry, result.times)
-    if isinstance(odometry, KissOdometry):
-        warnings += odometry.unregistered_warning(m)
-    elif isinstance(odometry, ReplayedOdometry):
-        warnings += odometry.notes
-    for warning in warnings:
-        logger.warning(warning)
-    replayed_s = {"odometry": round(float(odometry.ms[:m].sum()) / 1e3, 4)} if replayed else {}
-    threads_used = {"odometry": threads, "verification": config.verifier.num_threads, "blas_backend": 1}
-    record = ProtocolRecord(ONLINE, (*notes, *warnings), _timing(result, replayed_s), RunSetup(deskew, threads_used),
-                            throughput=_throughput(result, seconds, cached, times_known),
-                            cloud_store=config.cloud_store)
-    return replace(result, metrics=measure(result, record))
+    @property
+    def name(self) -> str:
+        return self.source.name
+
+    def __len__(self) -> int:
+        return self.frames
+
+    @property
+    def descriptor_shape(self) -> tuple[int, ...]:
+        return self.descriptor.shape
+
+    def clouds_for(self, config: OnlineConfig) -> None:
+        """None: each keyframe's cloud is downsampled as its frame arrives."""
+        return None
+
+    def start(self, config: OnlineConfig) -> OnlineConfig:
+        """The run's odometry (KISS-ICP on every core for a live source, replayed from the cache when it has the
+        scans), descriptor and notes; `config` as it runs."""
+        source = self.source
+        if source.live:  # frames that come once: no replay to keep bit for bit, so every core
+            config = with_odometry_threads(config, available_cpus())
+        self.threads = odometry_threads(config)
+        self.frames = len(source) if config.max_frames is None else min(len(source), config.max_frames)
+        self.odometry, self.cached = make_online_odometry(config, source, self.frames)
+        self.notes = source_warnings(config, source.name, source.times_known, source.point_times)  # logged already
+        for note in threads_note(self.threads):
+            logger.warning(note)
+            self.notes.append(note)
+        self.deskew = deskew_record(config, source.point_times)
+        config = config_as_run(config, source.point_times)  # what result.config (config.yaml) records
+        self.descriptor = make_descriptor(config.descriptor, **config.descriptor_params)
+        return config
+
+    def stream(self, backend: SlamBackend, quiet: bool) -> RunResult:
+        """Each frame: odometry, descriptor, the back end (and the viewer), with a progress line of frames per
+        second and real-time factor; then finish(). The pipeline's seconds (replayed odometry counted with the time
+        it took computed) and the front end's per-frame times are kept for record()."""
+        config, source, odometry, descriptor = backend.settings, self.source, self.odometry, self.descriptor
+        n = self.frames
+        self.front_ms = front_ms = {s: np.zeros(n, dtype=np.float32) for s in STEPS[:2]}
+        times_known = source.times_known
+        if not times_known and source.sequence is None:  # a sequence opened from files has said so (UNTIMED)
+            logger.warning("online: the frames have no timestamps; the real-time factor is taken against the "
+                           "config's sensor_rate_hz (%g Hz)", config.sensor_rate_hz)
+        replayed = isinstance(odometry, ReplayedOdometry)
+        label = f"online {config.name}" + (
+            " (odometry replayed from the cache, counted as computed)" if replayed else
+            f" (odometry: {noun_count(self.threads, 'thread')})" if self.threads is not None else "")
+        with online_progress(quiet) as bar, closing(backend):
+            task = bar.add_task(label, total=n, fps=0.0, rtf=0.0, kf=0, loops=0)
+            start, first_time = time.perf_counter(), None
+            credit = 0.0  # s: replayed odometry's time as computed, less the time its replay took
+            counted = accepted = 0  # backend.loops only grows: the loops counted so far, and how many were accepted
+
+            def figures(frames: int, last_time: float, keyframes: int, seconds: float) -> dict[str, float]:
+                """The progress line's fields after `frames` frames in the pipeline's `seconds`."""
+                nonlocal counted, accepted
+                if quiet:
+                    return {}
+                accepted += sum(c.accepted for c in backend.loops[counted:])
+                counted = len(backend.loops)
+                rate = frame_rate_hz(first_time, last_time, frames, config.sensor_rate_hz, times_known)[0]
+                fps, rtf = throughput(frames, seconds, rate)
+                return {"fps": fps, "rtf": rtf, "kf": keyframes, "loops": accepted}
+
+            frames = islice(source.frames(), n)  # a live source's simulated by a thread of their own, a few ahead
+            for i, frame in enumerate(ahead(frames) if source.live else frames):
+                first_time = frame.time if first_time is None else first_time
+                t0 = time.perf_counter()
+                pose = odometry.register(frame.points, frame.timestamps,  # times: for deskew
+                                         frame.time if times_known else None)
+                t1 = time.perf_counter()
+                if replayed:
+                    credit += odometry.ms[i] / 1e3 - (t1 - t0)
+                desc = np.asarray(descriptor.compute(frame.points, frame=i), dtype=np.float64)
+                front_ms["odometry"][i] = odometry.ms[i] if replayed else (t1 - t0) * 1e3
+                front_ms["descriptor"][i] = (time.perf_counter() - t1) * 1e3
+                new = backend.add_frame(pose, desc, frame.points, frame.gt_pose, frame.time)
+                if self.viewer is not None:
+                    self.viewer.frame(backend, i, frame.points, new)
+                if i < n - 1:  # every frame, so a failure reports the frame it stopped at; the last: after finish()
+                    bar.update(task, completed=i + 1, **figures(i + 1, frame.time, len(backend.store),
+                                                                time.perf_counter() - start + credit))
+            result = backend.finish()  # flushes the sampler: the last line counts the keyframes the report does
+            self.seconds = time.perf_counter() - start + credit  # the pipeline's, as metrics.json and report.md give it
+            bar.update(task, completed=len(result), **figures(len(result), float(result.times[-1]),
+                                                              len(result.keyframes), self.seconds))
+        self.recorder = backend.recorder
+        if self.viewer is not None:
+            self.viewer.finish(result)
+        return result
+
+    def record(self, result: RunResult, clouds: object, sweep: object, sweep_off: str
+               ) -> tuple[RunResult, ProtocolRecord]:
+        """`result` with the front end's per-frame times and the memory series, and the online protocol's record:
+        notes and the odometry's warnings, timing, threads and throughput (no threshold sweep: a batch analysis)."""
+        config, odometry, m = result.config, self.odometry, len(result)
+        steps_ms = {**{s: v[:m] for s, v in self.front_ms.items()}, **result.steps_ms}
+        memory = {k: v[:m] for k, v in self.recorder.memory.items()}
+        front = [steps_ms[s] for s in self.front_ms]
+        records = result.memory_bytes["record_bytes"] + sum(v.nbytes for v in (*memory.values(), *front))  # per-frame
+        result = replace(result, steps_ms=steps_ms, memory=memory,
+                         memory_bytes={**result.memory_bytes, "record_bytes": records})
+        warnings = frontend_warnings(result.gt_poses, result.odometry, result.times)
+        if isinstance(odometry, KissOdometry):
+            warnings += odometry.unregistered_warning(m)
+        elif isinstance(odometry, ReplayedOdometry):
+            warnings += odometry.notes
+        for warning in warnings:
+            logger.warning(warning)
+        replayed = isinstance(odometry, ReplayedOdometry)
+        replayed_s = {"odometry": round(float(odometry.ms[:m].sum()) / 1e3, 4)} if replayed else {}
+        threads_used = {"odometry": self.threads, "verification": config.verifier.num_threads, "blas_backend": 1}
+        return result, ProtocolRecord(ONLINE, (*self.notes, *warnings), _timing(result, replayed_s),
+                                      RunSetup(self.deskew, threads_used),
+                                      throughput=_throughput(result, self.seconds, self.cached,
+                                                             self.source.times_known),
+                                      cloud_store=config.cloud_store)
