@@ -148,7 +148,7 @@ def test_full_rate_trajectory_is_written_and_evaluated(base, frontend, tmp_path)
     m = metrics_json(result)["full_rate"]
     assert m["frames"] == len(result) and m["after"]["ate_translation_m"] < m["before"]["ate_translation_m"]
     assert metrics_json(result)["threshold_sweep"] is None
-    folder = write_run(result, tmp_path / "out").parent
+    folder = write_run(lambda: result, tmp_path / "out").parent
     # the ~400 m figure-eight has segments of 100-400 m only: the report must not claim KITTI's 100-800 m
     report = (folder / "report.md").read_text()
     assert "100-800" not in report and "| RPE translation [%], 100-400 m |" in report
@@ -311,7 +311,7 @@ def test_short_straight_run_warns_and_has_no_pr(sequence, cache_dir, tmp_path):
     assert m["ate_alignment"].startswith("SE(3) Umeyama (rotation + translation, no scale)")
     assert m["pr_queries"] > 0 and m["pr_auc"] is None and m["f1_max"] is None
     assert "no revisit" in m["unavailable"]["pr"]
-    report = write_run(result, tmp_path / "out").read_text()
+    report = write_run(lambda: result, tmp_path / "out").read_text()
     assert "| ATE rotation [deg] (unreliable: see notes), keyframes only |" in report and "| n/a / n/a |" in report
     assert f"- warning: {m['warnings'][0]}" in report and f"- PR-AUC / F1-max n/a: {m['unavailable']['pr']}" in report
     assert f"of the keyframe rows: {m['ate_alignment']} (`evo_ape tum" in report
@@ -330,7 +330,7 @@ def _improvement(translation: float, rotation: float):
 def test_improvement_rounding_to_zero_prints_unsigned(base, frontend, tmp_path):
     result = run(base, frontend, sweep=threshold_sweep)
     result = edited(result, _improvement(-0.04, -0.0004))
-    report = write_run(result, tmp_path / "out").read_text()
+    report = write_run(lambda: result, tmp_path / "out").read_text()
     ate_rows = [line for line in report.splitlines() if line.startswith("| ATE ")]
     assert "-0.0" not in report and sum(line.endswith(" 0.0 % |") for line in ate_rows) == 4  # full rate, keyframes
     result = edited(result, _improvement(-0.0004, -0.0001))

@@ -224,7 +224,7 @@ def test_run_report_names_the_sequence_readably_and_the_scans_read(sequence, odo
     cfg = make_config(dataset=str(sequence), odometry=str(odometry_file), cache_dir=str(cache_dir),
                       sampler="constant", sampler_params={"distance": 3.0}, source={"frames": 80})
     result = run(cfg)
-    report = write_run(result, tmp_path / "out").read_text()
+    report = write_run(lambda: result, tmp_path / "out").read_text()
     title = report.splitlines()[0]
     assert display_name(sequence.name) != sequence.name  # the simulated sequence's cache name has a hash
     assert title == f"# {cfg.name} on {display_name(sequence.name)} ({cfg.mode} loops)"

@@ -41,14 +41,10 @@ def online_command(
     """Run the online pipeline frame by frame (odometry, descriptor, sampler, loop detection, verification,
     iSAM2) and write its result folder; prints the path of its report.md."""
     from msa_slam.cli.config import cache_option, merge_options, source_options
-    from msa_slam.pipeline.frontend import check_window
-    from msa_slam.errors import InputError
-    from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
-    from msa_slam.pipeline.driver import run
-    from msa_slam.pipeline.live import LiveFrontEnd
     from msa_slam.pipeline.config import OnlineConfig, apply_online_params, read_config_file
-    from msa_slam.reporting.results import write_run_files
-    from msa_slam.sources import open_source
+    from msa_slam.pipeline.driver import run
+    from msa_slam.pipeline.live import LiveFrontEnd, open_recording
+    from msa_slam.reporting.results import write_run
 
     live = viewer or viewer_save is not None
     if live:  # before any work: a missing rerun-sdk is one clear line
@@ -60,19 +56,14 @@ def online_command(
              "cloud_store": cloud_store, "cache_dir": cache_option(cache_dir),
              **source_options(base, **source)}
     cfg = apply_online_params(merge_options(base, given, "a sequence folder, a bag, sim:NAME or live:NAME"), param)
-    with open_result_folder(out, "online", DEFAULT_RESULTS / "online", overwrite=overwrite) as folder:
-        recording = open_source(cfg.dataset, cfg.dataset_kind, cfg.cache_dir, not quiet, cfg.source, cfg.mode)
-        if recording.gt_poses is None and cfg.odometry == "gt-noise":
-            raise InputError(f"dataset {cfg.dataset!r}: odometry gt-noise perturbs ground truth, which this "
-                             "recording lacks; use --odometry kiss or a pose file")
-        frames = len(recording) if cfg.max_frames is None else min(len(recording), cfg.max_frames)
-        check_window(cfg, frames, WINDOW_FIX)
+
+    def online_run():
+        recording = open_recording(cfg, quiet, WINDOW_FIX)  # its checks before any work
         view = LiveViewer(save=viewer_save) if live else None
         try:
-            result = run(cfg, LiveFrontEnd(recording, view), quiet=quiet)
+            return run(cfg, LiveFrontEnd(recording, view), quiet=quiet)
         finally:
             if view is not None:
                 view.close()
-        with folder.staging() as tmp:
-            write_run_files(result, tmp)
-    typer.echo(str(folder.path / "report.md"))
+
+    typer.echo(str(write_run(online_run, out, "online", overwrite)))

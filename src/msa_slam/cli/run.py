@@ -42,17 +42,14 @@ def run_command(
 ) -> None:
     """Run one sampler through the batch experiment and write its result folder; prints the path of its report.md."""
     from msa_slam.cli.config import cache_option
-    from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
     from msa_slam.experiments.sweep import threshold_sweep
     from msa_slam.pipeline.driver import RUN_SWEEP_NOT_RUN, run
-    from msa_slam.reporting.results import write_run_files
+    from msa_slam.reporting.results import write_run
 
     given = {"dataset": dataset, "sampler": sampler, "descriptor": descriptor, "odometry": odometry,
              "mode": mode, "cache_dir": cache_option(cache_dir)}
     cfg = batch_config(config, given, param, source)
-    with open_result_folder(out, "run", DEFAULT_RESULTS / "run", overwrite=overwrite) as folder:
-        result = run(cfg, quiet=quiet, sweep=threshold_sweep if sweep else None, sweep_off=RUN_SWEEP_NOT_RUN,
-                     window_fix=WINDOW_FIX)  # checks the window before any work
-        with folder.staging() as tmp:
-            write_run_files(result, tmp)
-    typer.echo(str(folder.path / "report.md"))
+    sweeps = threshold_sweep if sweep else None
+    report = write_run(lambda: run(cfg, quiet=quiet, sweep=sweeps, sweep_off=RUN_SWEEP_NOT_RUN,  # --out checked first,
+                                   window_fix=WINDOW_FIX), out, "run", overwrite)  # the window before any work
+    typer.echo(str(report))

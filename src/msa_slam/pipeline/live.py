@@ -39,10 +39,12 @@ from msa_slam.evaluation.sanity import frontend_warnings
 from msa_slam.odometry import KissOdometry, NoisyOdometry, OdometryCache, ReplayedOdometry
 from msa_slam.odometry.kiss import DEFAULT_THREADS
 from msa_slam.pipeline.config import NO_TIMESTAMPS, NOT_REPRODUCIBLE, OnlineConfig
-from msa_slam.pipeline.frontend import config_as_run, deskew_record, make_odometry, pipeline_cache, source_warnings
+from msa_slam.pipeline.frontend import (CONFIG_WINDOW_FIX, check_window, config_as_run, deskew_record, make_odometry,
+                                        pipeline_cache, source_warnings)
 from msa_slam.pipeline.read_ahead import ahead
 from msa_slam.progress import LogProgress, Progress, progress_bar
 from msa_slam.slam import BACKEND_STEPS, ProtocolRecord, RunResult, SlamBackend
+from msa_slam.sources import open_source
 from msa_slam.types import FrameSource
 from msa_slam.viz.labels import counted as noun_count  # `counted`: the stream's loop tally
 from msa_slam.workers import available_cpus
@@ -122,6 +124,20 @@ class LiveView(Protocol):
 
     def frame(self, backend: SlamBackend, index: int, points: np.ndarray, new_keyframes: list[int]) -> None: ...
     def finish(self, result: RunResult) -> None: ...
+
+
+def open_recording(config: OnlineConfig, quiet: bool = True, window_fix: str = CONFIG_WINDOW_FIX) -> FrameSource:
+    """The frames of `config`'s dataset (with its source options), refused before any work when they cannot serve
+    the run: gt-noise odometry without ground truth, a sampler window the frames read never fill (check_window;
+    `window_fix`: what the error says to change)."""
+    recording = open_source(config.dataset, config.dataset_kind, config.cache_dir, not quiet, config.source,
+                            config.mode)
+    if recording.gt_poses is None and config.odometry == "gt-noise":
+        raise InputError(f"dataset {config.dataset!r}: odometry gt-noise perturbs ground truth, which this "
+                         "recording lacks; use --odometry kiss or a pose file")
+    frames = len(recording) if config.max_frames is None else min(len(recording), config.max_frames)
+    check_window(config, frames, window_fix)
+    return recording
 
 
 def make_online_odometry(config: OnlineConfig, source: FrameSource, n: int):

@@ -11,8 +11,8 @@ from pathlib import Path
 
 from msa_slam.errors import InputError
 from msa_slam.io.atomic import write_text_atomic
-from msa_slam.io.outputs import OutputError, open_result_folder, some_names
-from msa_slam.io.marker import edited_files, foreign_files, recorded_digests, write_marker
+from msa_slam.io.outputs import MARKER, OutputError, open_result_folder, some_names
+from msa_slam.io.marker import edited_files, foreign_files, recorded_digests, result_kind, write_marker
 from msa_slam.experiments.compare import PROCESSES, failed_section, table_row, write_spread
 from msa_slam.experiments.compare import comparison_report as write_comparison_report
 from msa_slam.pipeline.config import make_config
@@ -24,6 +24,53 @@ from msa_slam.reporting.stored import (comparison_figures, failed_methods, liste
 
 KINDS = ("run", "online", "compare")  # the result kinds (io.marker.result_kind) whose reports this module writes
 SPREAD_FILES = ("seeds.md", "seeds.csv", "seeds.json", "report.md")  # what compare --seeds writes at the top
+
+
+def rewrite_folder(folder: Path, reference: str | None = None,
+                   expected: str = "a result folder of msa-slam") -> tuple[Path, list[str]]:
+    """`msa-slam report FOLDER`: the reports of any result folder written again from its files; its report.md
+    and, for an experiment, the cells of an earlier grid its aggregates leave out. `reference`: an experiment's
+    method the differences compare to; `expected`: what the error names as a result folder.
+
+    The studies' folders (experiment, reproduce) are rewritten by their own modules, imported here when asked
+    for: they sit above reporting/, whose run and comparison reports they use."""
+    kind = result_kind(folder)
+    if kind is None:
+        outer = next((p for p in Path(folder).absolute().parents if result_kind(p) is not None), None)
+        inside = f" (it lies inside the result folder {outer}: report that one)" if outer is not None else ""
+        raise InputError(f"{folder}: not a msa-slam result folder (no {MARKER} written by msa-slam){inside}; "
+                         f"expected {expected}; nothing written")
+    from msa_slam.experiments.folder import KIND as EXPERIMENT
+
+    if kind == EXPERIMENT:
+        return _experiment_report(folder, reference)
+    if kind == "reproduce":
+        from msa_slam.experiments.reproduce import rewrite_reproduce_report
+
+        if reference is not None:
+            raise InputError(f"--reference: only for an experiment's folder; {folder} is a result of "
+                             "`msa-slam reproduce` (its grids' reference is all samples)")
+        return rewrite_reproduce_report(folder), []
+    if kind not in KINDS:
+        raise InputError(f"{folder}: a result of `msa-slam {kind}`, which writes no report.md; expected "
+                         f"{expected}; nothing written")
+    if reference is not None:
+        raise InputError(f"--reference: only for an experiment's folder; {folder} is a result of `msa-slam {kind}`")
+    return rewrite_report(folder, kind), []
+
+
+def _experiment_report(folder: Path, reference: str | None) -> tuple[Path, list[str]]:
+    """results.csv, results.md, figures and report.md of an experiment folder, and its stale cells."""
+    from msa_slam.experiments.folder import CELL_FILE, KIND, grid_cells, stale_cells
+    from msa_slam.experiments.report import write_report
+    from msa_slam.experiments.runner import DEFAULT_PARENT
+
+    with open_result_folder(folder, kind=KIND, default_parent=DEFAULT_PARENT, resume=True) as result:
+        result.prepare_in_place(grows=("cells",), unit_record=CELL_FILE)
+        report = write_report(folder, reference)
+        result.record_files()
+        stale = stale_cells(folder, grid_cells(folder)[1])
+    return report, stale
 
 
 def rewrite_report(folder: Path, kind: str) -> Path:

@@ -12,6 +12,7 @@ import io
 import os
 from dataclasses import replace
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import yaml
@@ -230,11 +231,13 @@ def write_run_files(result: RunResult, folder: Path, figures: bool = True) -> No
     (folder / "report.md").write_text(report_markdown(result, names, folder_files(folder)))
 
 
-def write_run(result: RunResult, out: str | os.PathLike | None, overwrite: bool = False) -> Path:
-    """Write the result folder `out` atomically (checked as `open_result_folder` does; None: a new timestamped
-    folder under msa_slam_results/run, or /online for an online run); return the path of its report.md."""
-    command = "online" if result.memory else "run"
+def write_run(make: Callable[[], RunResult], out: str | os.PathLike | None, command: str = "run",
+              overwrite: bool = False) -> Path:
+    """The result folder `out` of the run `make` returns, written atomically; `out` is checked before `make` does
+    any work (as `open_result_folder` does; None: a new timestamped folder under msa_slam_results/<command>, run
+    or online); return the path of its report.md."""
     with open_result_folder(out, command, DEFAULT_RESULTS / command, overwrite=overwrite) as folder:
+        result = make()
         with folder.staging() as tmp:
             write_run_files(result, tmp)
     return folder.path / "report.md"
