@@ -23,48 +23,23 @@ verification (true candidates rejected, by reason) or not at all, which ATE alon
   `revisit_keyframe_recall`, compares methods of different keyframe densities.
 
 Without ground truth only the counts that need none are given (candidates, registered, accepted, rejected);
-the others are None, with the reason under `unavailable["loop_truth"]`; without any revisit both recalls are
-None, with the reason under `unavailable["revisit_recall"]`.
+the others are unavailable, for the reason under "loop_truth"; without any revisit both recalls are unavailable,
+for the reason under "revisit_recall" (the keys of metrics.json `unavailable`).
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from msa_slam.evaluation.full_rate import path_length
+from msa_slam.evaluation.metrics import LoopCounts, Unavailable, Value
 from msa_slam.types import LoopClosure
 
 FALSE_LOOP_ANGLE_DEG = 5.0  # rotation error beyond which an accepted loop's measured pose is false
 NO_GROUND_TRUTH = "no ground truth: true candidates, false loops and revisits cannot be told"
-
-
-@dataclass(frozen=True)
-class LoopAccounting:
-    """What happened to a run's loops, against ground truth where it exists (module docstring: definitions)."""
-
-    candidates: int
-    registered: int
-    accepted: int
-    rejected: dict[str, int]
-    true_candidates: int | None = None
-    false_accepted: int | None = None
-    revisits: int | None = None
-    revisits_closed: int | None = None
-    revisit_recall: float | None = None
-    revisit_keyframes: int | None = None
-    revisit_keyframes_closed: int | None = None
-    revisit_keyframe_recall: float | None = None
-    unavailable: dict[str, str] = field(default_factory=dict)  # "loop_truth" or "revisit_recall" -> why None
-
-    def as_dict(self) -> dict[str, Any]:
-        """The counts for metrics.json (the reasons go to its `unavailable`)."""
-        out = asdict(self)
-        del out["unavailable"]
-        return out
 
 
 def rejection_counts(loops: Sequence[LoopClosure], reasons: Sequence[str]) -> dict[str, int]:
@@ -107,32 +82,32 @@ def revisit_pairs(keyframes: np.ndarray, gt: np.ndarray, radius: float, min_trav
     return {(int(keyframes[i]), int(keyframes[j])) for i, j in pairs[far]}
 
 
-def _recall(found: int, total: int) -> float | None:
-    return found / total if total else None
-
-
 def account_loops(loops: Sequence[LoopClosure], keyframes: np.ndarray, gt: np.ndarray | None, radius: float,
-                  min_travel_m: float, reasons: Sequence[str]) -> LoopAccounting:
-    """The loop accounting of a run: its loop records, keyframe frame indices, every frame's ground-truth pose
-    (None without), the true-loop radius (m), the candidates' minimum path apart (m) and the rejection
-    reasons to list."""
+                  min_travel_m: float, reasons: Sequence[str]) -> tuple[LoopCounts, dict[str, str]]:
+    """The loop accounting of a run (module docstring: definitions), each count that cannot be given unavailable
+    with why, and those reasons by key (loop_truth, revisit_recall): from its loop records, keyframe frame
+    indices, every frame's ground-truth pose (None without), the true-loop radius (m), the candidates' minimum
+    path apart (m) and the rejection reasons to list."""
     accepted = [c for c in loops if c.accepted]
-    counts = dict(candidates=len(loops), registered=sum(c.verified for c in loops), accepted=len(accepted),
-                  rejected=rejection_counts(loops, reasons))
+    counts = (len(loops), int(sum(c.verified for c in loops)), len(accepted), rejection_counts(loops, reasons))
     if gt is None or not np.isfinite(gt).all():
-        return LoopAccounting(**counts, unavailable={"loop_truth": NO_GROUND_TRUTH})
+        gone = Unavailable(NO_GROUND_TRUTH)
+        return LoopCounts(*counts, *(gone,) * 8), {"loop_truth": NO_GROUND_TRUTH}
     revisits = revisit_pairs(keyframes, gt, radius, min_travel_m)
     closed = {(c.match, c.query) for c in accepted} & revisits
-    partnered = {newer for _, newer in revisits}
+    partnered, partnered_closed = {newer for _, newer in revisits}, {newer for _, newer in closed}
     unavailable = {}
     if not revisits:
         unavailable["revisit_recall"] = (f"no keyframe pair within {radius:g} m in ground truth is {min_travel_m:g} m "
                                          "or more apart along the path (no revisit)")
-    return LoopAccounting(
-        **counts,
-        true_candidates=sum(c.gt_distance <= radius for c in loops),
-        false_accepted=sum(is_false_loop(c, gt, radius) for c in accepted),
-        revisits=len(revisits), revisits_closed=len(closed), revisit_recall=_recall(len(closed), len(revisits)),
-        revisit_keyframes=len(partnered), revisit_keyframes_closed=len({newer for _, newer in closed}),
-        revisit_keyframe_recall=_recall(len({newer for _, newer in closed}), len(partnered)),
-        unavailable=unavailable)
+
+    def recall(found: int, total: int) -> Value:
+        return found / total if total else Unavailable(unavailable["revisit_recall"])
+
+    return LoopCounts(
+        *counts,
+        true_candidates=int(sum(c.gt_distance <= radius for c in loops)),
+        false_accepted=int(sum(is_false_loop(c, gt, radius) for c in accepted)),
+        revisits=len(revisits), revisits_closed=len(closed), revisit_recall=recall(len(closed), len(revisits)),
+        revisit_keyframes=len(partnered), revisit_keyframes_closed=len(partnered_closed),
+        revisit_keyframe_recall=recall(len(partnered_closed), len(partnered))), unavailable

@@ -114,7 +114,7 @@ class LoopClosing:
 
 @dataclass(frozen=True)
 class LoopCounts:
-    """Where the revisits were lost (evaluation.loops.LoopAccounting, each value or why it is undefined)."""
+    """Where the revisits were lost (evaluation.loops.account_loops, each value or why it is undefined)."""
 
     candidates: int
     registered: int

@@ -81,7 +81,7 @@ def _loops(doc: MetricsDocument) -> Loops:
 
 
 def read_loop_counts(acc: MetricsDocument) -> LoopCounts:
-    """metrics.json `loop_accounting` (evaluation.loops.LoopAccounting.as_dict)."""
+    """metrics.json `loop_accounting` (evaluation.loops.account_loops)."""
     return LoopCounts(acc.typed("candidates", int), acc.typed("registered", int), acc.typed("accepted", int),
                       acc.mapping("rejected", int),
                       *(acc.value(k, "loop_truth", kind=int) for k in LOOP_TRUTH),

@@ -13,7 +13,7 @@ from msa_slam.evaluation.loops import account_loops
 from msa_slam.evaluation.metrics import (AccountedMemory, Loops, Memory, PlaceRecognition,
                                          ReferencePR, RunIdentity, RunSetup, SweepRow, Throughput, Timing,
                                          Unavailable)
-from msa_slam.evaluation.metrics_json import NOT_BATCH, NOTHING_IN_RAM, read_loop_counts
+from msa_slam.evaluation.metrics_json import NOT_BATCH, NOTHING_IN_RAM
 from msa_slam.evaluation.metrics_reader import MetricsDocument
 from msa_slam.evaluation.run_metrics import RunMetrics
 from msa_slam.slam.loop_closing import REJECTION_REASONS, loop_summary
@@ -68,22 +68,21 @@ def measure(result: RunResult, protocol: ProtocolRecord) -> RunMetrics:
     cfg, ev, pr = result.config, result.evaluation, result.pr
     # peak RSS: the whole process's high-water mark, not this run's
     peak = peak_rss_bytes() if protocol.peak_rss_bytes is None else protocol.peak_rss_bytes
-    accounting = account_loops(result.loops, result.keyframes, result.gt_poses, cfg.loop_radius, cfg.min_travel_m,
-                               REJECTION_REASONS)
+    accounting, loop_reasons = account_loops(result.loops, result.keyframes, result.gt_poses, cfg.loop_radius,
+                                             cfg.min_travel_m, REJECTION_REASONS)
     reasons = dict(ev.reasons)
-    reasons.update(accounting.unavailable)
+    reasons.update(loop_reasons)
     if pr is None or pr.unavailable:
         reasons["pr"] = pr.unavailable if pr is not None else _no_queries(cfg.min_frame_gap, cfg.exclude_recent)
     full_rate = result.full_rate_evaluation
     reasons.update(full_rate.reasons)
     reasons.update(protocol.reasons)
-    values = MetricsDocument({"pr_auc": None if pr is None else pr.auc, "f1_max": None if pr is None else pr.f1_max,
-                              "true_candidates": accounting.true_candidates}, "the run", reasons=reasons)
+    values = MetricsDocument({"pr_auc": None if pr is None else pr.auc, "f1_max": None if pr is None else pr.f1_max},
+                             "the run", reasons=reasons)
     accepted = result.accepted_loops
-    loops = Loops(accounting.candidates, values.value("true_candidates", "loop_truth", kind=int), accounting.accepted,
-                  accounting.registered, int(sum(c.gt_distance > cfg.loop_radius for c in accepted)),
-                  loop_summary(result.loops, cfg, result.graph_info),
-                  read_loop_counts(MetricsDocument(accounting.as_dict(), "the run", reasons=reasons)))
+    loops = Loops(accounting.candidates, accounting.true_candidates, accounting.accepted, accounting.registered,
+                  int(sum(c.gt_distance > cfg.loop_radius for c in accepted)),
+                  loop_summary(result.loops, cfg, result.graph_info), accounting)
     place = PlaceRecognition(values.value("pr_auc", "pr"), values.value("f1_max", "pr"), result.pr_queries,
                              protocol.reference, protocol.sweep)
     run = RunIdentity(result.name, cfg.dataset, cfg.name, cfg.sampler, cfg.descriptor, cfg.mode, len(result),
