@@ -38,7 +38,7 @@ from msa_slam.experiments.grid import GridSpec, SamplerSpec, expand
 from msa_slam.experiments.runner import run_grid
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.evaluation.run_metrics import RunMetrics
-from msa_slam.experiments.compare import table_row
+from msa_slam.reporting.comparison import table_row
 from msa_slam.experiments.seeds import parse_seeds
 from msa_slam.sampling import make_sampler
 

@@ -14,7 +14,8 @@ from msa_slam.evaluation.metrics import Unavailable
 from msa_slam.evaluation.loops import (FALSE_LOOP_ANGLE_DEG, NO_GROUND_TRUTH, account_loops, is_false_loop,
                                        relative_pose_error, revisit_pairs)
 from msa_slam.pipeline import make_config
-from msa_slam.experiments.compare import COLUMNS, REJECTED_COLUMNS, run_compare
+from msa_slam.experiments.compare import run_compare
+from msa_slam.reporting.comparison import COLUMNS, REJECTED_COLUMNS
 from msa_slam.slam.loop_closing import REJECTION_REASONS
 from msa_slam.types import LoopClosure
 from msa_slam.viz.labels import counted

@@ -23,7 +23,8 @@ from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses, write_poses
 from msa_slam.experiments.sweep import threshold_sweep
 from msa_slam.pipeline import apply_params, make_config, prepare_frontend, run
-from msa_slam.experiments.compare import COLUMNS, run_compare, table_markdown, table_row
+from msa_slam.experiments.compare import run_compare
+from msa_slam.reporting.comparison import COLUMNS, table_markdown, table_row
 from msa_slam.reporting.results import write_run
 from helpers.metrics import edited, metrics_json
 

@@ -74,7 +74,7 @@ class RunMetrics:
                 "kf_improvement_t_pct": kf.improvement.translation, "kf_improvement_r_pct": kf.improvement.rotation}
 
     def comparison_row(self, rejection_reasons: Sequence[str]) -> TableRow:
-        """compare's Table-I row (experiments.compare.COLUMNS): full-rate ATE/RPE first, keyframe-only ATE as kf_*
+        """compare's Table-I row (reporting.comparison.COLUMNS): full-rate ATE/RPE first, keyframe-only ATE as kf_*
         columns; n/a values as None (their reasons are in the report's notes)."""
         loops, acc, pr = self.loops, self.loops.accounting, self.place_recognition
         reference = pr.reference if isinstance(pr.reference, ReferencePR) else None

@@ -1,5 +1,5 @@
 """The few plain lines the demo ends with: what its comparison found per method, read back from the folder it
-just wrote (comparison.json, through compare's table rows), and what one world seed cannot tell."""
+just wrote (comparison.json, through the comparison's table rows), and what one world seed cannot tell."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from typing import Any, Mapping
 
 from msa_slam.evaluation import NA, fmt
 from msa_slam.evaluation.display import spec_for
-from msa_slam.experiments.compare import table_row
 from msa_slam.evaluation.spread import MIN_SEEDS
+from msa_slam.reporting.comparison import table_row
 from msa_slam.reporting.stored import listed_methods
 
 BASELINE = "all"  # memory is given as a share of this method's (every frame a keyframe)

@@ -3,7 +3,11 @@
 methods', the spread's) written again from the files in the folder, as the command wrote it, without running
 anything. Each file is replaced atomically, and only when it is msa-slam's as it wrote it (or missing): a file
 someone added or edited is never replaced. Figures are not redrawn: they need the runs' trajectories and loops as
-the pipeline held them, which the folder keeps only in part."""
+the pipeline held them, which the folder keeps only in part.
+
+A comparison over seeds and the studies' folders (experiment, reproduce) are laid out by experiments/, which sits
+above reporting/ (it writes its runs through reporting/): their modules are imported inside the functions that
+read such a folder, the only imports of reporting/ from above."""
 
 from __future__ import annotations
 
@@ -13,12 +17,11 @@ from msa_slam.errors import InputError
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.outputs import MARKER, OutputError, open_result_folder, some_names
 from msa_slam.io.marker import edited_files, foreign_files, recorded_digests, result_kind, write_marker
-from msa_slam.experiments.compare import PROCESSES, failed_section, table_row, write_spread
-from msa_slam.experiments.compare import comparison_report as write_comparison_report
+from msa_slam.reporting.comparison import PROCESSES, failed_section, table_row
+from msa_slam.reporting.comparison import comparison_report as write_comparison_report
 from msa_slam.pipeline.config import make_config
 from msa_slam.reporting.report import report_markdown
 from msa_slam.reporting.results import folder_files, run_figures
-from msa_slam.experiments.seed_folder import RECORD, SEEDS, finished_metrics, left_out_seeds, seed_dir
 from msa_slam.reporting.stored import (comparison_figures, failed_methods, listed_methods, read_comparison,
                                        read_json, read_run, read_text)
 
@@ -76,6 +79,8 @@ def _experiment_report(folder: Path, reference: str | None) -> tuple[Path, list[
 def rewrite_report(folder: Path, kind: str) -> Path:
     """Write the reports of the result `folder` of `kind` (one of KINDS) again, under the folder's lock (a run
     writing it meanwhile is refused); return its report.md."""
+    from msa_slam.experiments.seed_folder import SEEDS
+
     with open_result_folder(folder, kind, Path(folder).parent, resume=True) as result:
         path = result.path
         foreign, edited = foreign_files(path), edited_files(path)
@@ -102,6 +107,8 @@ def rewrite_report(folder: Path, kind: str) -> Path:
 def _reports(root: Path, kind: str, foreign: set[str]) -> dict[str, str]:
     """Every report.md of the result `root` but the spread's (relative path -> text); `foreign`: the files
     msa-slam did not write, which no report lists."""
+    from msa_slam.experiments.seed_folder import RECORD, SEEDS
+
     if kind != "compare":
         return {"report.md": run_report(root, foreign)}
     seeds = root / SEEDS
@@ -133,12 +140,17 @@ def comparison_report(folder: Path) -> str:
     processes = read_json(folder / PROCESSES) if (folder / PROCESSES).is_file() else {}
     text = write_comparison_report(frontend, runs, read_text(folder / "comparison.md"), comparison_figures(folder),
                                    processes.get("workers", 1), processes.get("main_peak_rss"))
-    text += failed_section(failed_methods(folder))
+    from msa_slam.experiments.compare import PAPER_METHODS
+
+    text += failed_section(failed_methods(folder, [label for label, _, _ in PAPER_METHODS]))
     return text
 
 
 def _write_seed_spread(folder: Path) -> None:
     """The spread over the seeds seeds.json names, from each seed's comparison.json and seed.json."""
+    from msa_slam.experiments.compare import write_spread
+    from msa_slam.experiments.seed_folder import RECORD, finished_metrics, left_out_seeds, seed_dir
+
     seeds = read_json(folder / "seeds.json")["seeds"]
     records = {seed: read_json(seed_dir(folder, seed) / RECORD) for seed in seeds}
     rows = {seed: [table_row(m) for m in finished_metrics(seed_dir(folder, seed)) or []] for seed in seeds}

@@ -7,7 +7,7 @@ import csv
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -16,7 +16,6 @@ from msa_slam.evaluation.metrics_json import from_json
 from msa_slam.evaluation.resources import StageTimer
 from msa_slam.evaluation.run_metrics import RunMetrics
 from msa_slam.io.poses import read_poses
-from msa_slam.experiments.compare import PAPER_METHODS
 from msa_slam.pipeline.config import OnlineConfig, RunConfig, make_config, make_online_config, read_config_file
 
 COMPARE_FIGURES = ("metrics.png", "trajectories.png", "pr_curves.png", "pr_curves_reference.png")  # report order
@@ -101,10 +100,11 @@ def read_comparison(folder: Path) -> tuple[StoredFrontend, list[StoredRun]]:
     return StoredFrontend(first.run.sequence, first.run.frames, timer, dict(first.timing.frontend_cached)), runs
 
 
-def failed_methods(folder: Path) -> dict[str, str]:
-    """Method -> `Type: message` of the comparison's methods that failed (their runs/<method>/error.txt), in
-    the paper's order of methods, others after by name."""
-    order = [label for label, _, _ in PAPER_METHODS]
+def failed_methods(folder: Path, order: Sequence[str] = ()) -> dict[str, str]:
+    """Method -> `Type: message` of the comparison's methods that failed (their runs/<method>/error.txt), the
+    methods of `order` first in that order (the paper's: experiments.compare.PAPER_METHODS), others after by
+    name."""
+    order = list(order)
     names = sorted((p.parent.name for p in (folder / "runs").glob("*/error.txt")),
                    key=lambda name: (order.index(name) if name in order else len(order), name))
     return {name: error_line(folder / "runs" / name / "error.txt") for name in names}
