@@ -37,7 +37,7 @@ from msa_slam.slam import ProtocolRecord, RunResult, SlamBackend, build_backend,
 from msa_slam.sources import open_source
 
 C = TypeVar("C", bound=RunConfig)
-Sweep = Callable[[RunResult, CachedFrontEnd, Any], "tuple[SweepRow, ...]"]  # (run, its front end, its clouds)
+Sweep = Callable[[RunResult, CachedFrontEnd, Any], tuple[SweepRow, ...]]  # (run, its front end, its clouds)
 SWEEP_NOT_RUN = "not run: left out with `--no-sweep` (the demo leaves it out to stay short)"
 RUN_SWEEP_NOT_RUN = "not run (an analysis, not part of the run: pass `--sweep` to add it)"
 
