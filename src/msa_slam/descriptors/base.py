@@ -18,7 +18,11 @@ class Descriptor(Protocol):
     """Global place descriptor: extraction plus a similarity (higher = more similar)."""
 
     name: str
-    shape: tuple[int, ...]  # of one descriptor
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        """The shape of one descriptor."""
+        ...
 
     def compute(self, points: np.ndarray | None, frame: int | None = None) -> np.ndarray:
         """Descriptor of one scan ((P, 3+) points in the sensor frame); `frame` is used by precomputed ones."""
