@@ -37,6 +37,22 @@ class Descriptor(Protocol):
         ...
 
 
+@runtime_checkable
+class SearchKeyed(Protocol):
+    """A descriptor with a cheap search key for the two-stage search (Scan Context's ring key)."""
+
+    def search_key(self, descriptor: np.ndarray) -> np.ndarray:
+        """The key of one descriptor that the first stage's nearest-neighbour search compares."""
+        ...
+
+
+def scan_points(points: np.ndarray | None, where: str) -> np.ndarray:
+    """The scan a descriptor computed from points needs (`compute` allows None only for precomputed ones)."""
+    if points is None:
+        raise InputError(f"{where}: no points given (this descriptor is computed from the scan)")
+    return points
+
+
 def validate_points(points: np.ndarray, where: str = "points") -> np.ndarray:
     """Return the (P, 3) xyz part of a point array as float64, or raise InputError naming `where`."""
     arr = np.asarray(points)

@@ -117,10 +117,10 @@ def account_loops(loops: Sequence[LoopClosure], keyframes: np.ndarray, gt: np.nd
     (None without), the true-loop radius (m), the candidates' minimum path apart (m) and the rejection
     reasons to list."""
     accepted = [c for c in loops if c.accepted]
-    counts = dict(candidates=len(loops), registered=sum(c.verified for c in loops), accepted=len(accepted),
-                  rejected=rejection_counts(loops, reasons))
+    registered, rejected = sum(c.verified for c in loops), rejection_counts(loops, reasons)
     if gt is None or not np.isfinite(gt).all():
-        return LoopAccounting(**counts, unavailable={"loop_truth": NO_GROUND_TRUTH})
+        return LoopAccounting(len(loops), registered, len(accepted), rejected,
+                              unavailable={"loop_truth": NO_GROUND_TRUTH})
     revisits = revisit_pairs(keyframes, gt, radius, min_travel_m)
     closed = {(c.match, c.query) for c in accepted} & revisits
     partnered = {newer for _, newer in revisits}
@@ -129,7 +129,7 @@ def account_loops(loops: Sequence[LoopClosure], keyframes: np.ndarray, gt: np.nd
         unavailable["revisit_recall"] = (f"no keyframe pair within {radius:g} m in ground truth is {min_travel_m:g} m "
                                          "or more apart along the path (no revisit)")
     return LoopAccounting(
-        **counts,
+        len(loops), registered, len(accepted), rejected,
         true_candidates=sum(c.gt_distance <= radius for c in loops),
         false_accepted=sum(is_false_loop(c, gt, radius) for c in accepted),
         revisits=len(revisits), revisits_closed=len(closed), revisit_recall=_recall(len(closed), len(revisits)),

@@ -136,7 +136,7 @@ class LoopCloser:
 
     def _map_closure_matches(self, detector: MapClosuresDetector, frame: int, cloud: np.ndarray | None, gap: int,
                              top_k: int) -> list:
-        """The `detector`'s (MapClosures') best `top_k` eligible keyframes for `frame` (it also enters `frame` into its database).
+        """MapClosures' best `top_k` eligible keyframes for `frame` (it also enters `frame` into its database).
         The ineligible keyframes are the newest ones, so asking for top_k more than there are of them leaves
         top_k eligible ones whenever MapClosures finds that many."""
         if cloud is None:
