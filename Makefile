@@ -10,7 +10,7 @@ BASE := $(VENV)/.installed-base
 DEV := $(VENV)/.installed-dev
 EXTRAS := $(VENV)/.installed-extras
 
-.PHONY: demo test test-slow bench extras clean
+.PHONY: demo test test-slow lint bench extras clean
 
 $(BASE): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -37,6 +37,11 @@ test: $(DEV) $(EXTRAS)
 
 test-slow: $(DEV) $(EXTRAS)
 	$(PY) -m pytest -q -n auto --dist loadfile -m slow
+
+# Type-checks the packages [tool.mypy] lists in pyproject.toml; no prerequisite: run it after `make test` (whose
+# dev install brings mypy), so it never installs anything itself
+lint:
+	$(PY) -m mypy
 
 bench: $(BASE)
 	for b in benchmarks/bench_*.py; do $(PY) $$b || exit 1; done

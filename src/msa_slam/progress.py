@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from typing import Any, TextIO
 
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 
 STEP = 0.1  # a log line every 10 % of a stage...
 MIN_INTERVAL_S = 1.0  # ...but not within a second of the previous one (a short stage logs start and finish)
@@ -56,15 +56,15 @@ class LogProgress:
             if not task.finished:
                 self._finish(task, "stopped at")
 
-    def add_task(self, description: str, total: float | None = None, **fields: Any) -> int:
+    def add_task(self, description: str, total: float | None = None, **fields: Any) -> TaskID:
         self._tasks.append(_Task(description, total, dict(fields)))
         self._log(f"{description}: start" + (f" ({total:g})" if total is not None else ""))
-        return len(self._tasks) - 1
+        return TaskID(len(self._tasks) - 1)
 
-    def advance(self, task_id: int, advance: float = 1) -> None:
+    def advance(self, task_id: TaskID, advance: float = 1) -> None:
         self.update(task_id, advance=advance)
 
-    def update(self, task_id: int, *, completed: float | None = None, advance: float | None = None,
+    def update(self, task_id: TaskID, *, completed: float | None = None, advance: float | None = None,
                description: str | None = None, total: float | None = None, **fields: Any) -> None:
         task = self._tasks[task_id]
         if description is not None:

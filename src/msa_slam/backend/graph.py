@@ -26,6 +26,8 @@ consistency bookkeeping, accounting) keyframe_graph.py's.
 
 from __future__ import annotations
 
+from typing import Sequence
+
 import gtsam
 import numpy as np
 
@@ -72,7 +74,7 @@ class PoseGraph(KeyframeGraph):
             raise InputError("pose graph has no keyframes to optimise")
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(self.max_iterations)
-        kept = range(self._loops.size())
+        kept: Sequence[int] = range(self._loops.size())
         if self.selects_inliers and self.num_loops:
             self.inliers = self._consistency.select()
             kept = self.inliers.kept

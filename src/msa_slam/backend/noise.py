@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+from msa_slam.errors import InputError
+
 _NODES, _WEIGHTS = np.polynomial.legendre.leggauss(4)
 _NODES, _WEIGHTS = (_NODES + 1) / 2, _WEIGHTS / 2  # on [0, 1]
 
@@ -75,6 +77,8 @@ class PathCovariance:
         if not self._poses:
             self._world.append(np.zeros((6, 6)))
         else:
+            if edge_covariance is None:
+                raise InputError(f"path covariance: pose {len(self._poses)} lacks the covariance of its edge")
             ad = gtsam.Pose3(pose).AdjointMap()
             self._world.append(self._world[-1] + ad @ edge_covariance @ ad.T)
         self._poses.append(np.asarray(pose, dtype=np.float64))  # no copy of a float64 pose

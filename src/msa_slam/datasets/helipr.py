@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from msa_slam.datasets.kiss_loaders import nanoseconds_to_seconds
-from msa_slam.datasets.points import checked_points
+from msa_slam.datasets.points import checked_points, field_names
 from msa_slam.datasets.sequences import ScanSequence
 from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses
@@ -35,7 +35,7 @@ AEVA_WITHOUT_INTENSITY = 1691936557946849179  # Aeva scans up to this time lack 
 def _record(sensor: str, scan: Path) -> np.dtype:
     dtype = _RECORDS[sensor][0]
     if sensor == "Aeva" and scan.stem.isdigit() and int(scan.stem) <= AEVA_WITHOUT_INTENSITY:
-        return np.dtype([(n, dtype.fields[n][0]) for n in dtype.names[:-1]])
+        return np.dtype([(n, dtype[n]) for n in field_names(dtype)[:-1]])
     return dtype
 
 

@@ -132,8 +132,8 @@ def kiss_sequence(name: str, path: str | os.PathLike) -> ScanSequence:
         folder = _require(path / "raw_format" / "ouster_scan", "Newer College scan folder")
         pose_file = _require(path / "ground_truth" / "registered_poses.csv", "Newer College ground truth")
         names = NewerCollegeDataset.get_pcd_filenames(str(folder))
-        stamps = [_NCD_NAME.match(n) for n in names]
-        times = None if not all(stamps) else np.array([int(m[1]) + 1e-9 * int(m[2]) for m in stamps])
+        stamps = [m for n in names if (m := _NCD_NAME.match(n))]
+        named_times = np.array([int(m[1]) + 1e-9 * int(m[2]) for m in stamps]) if len(stamps) == len(names) else None
         return ScanSequence(path, [folder / f for f in names], NewerCollegeDataset.load_gt_poses(str(pose_file)),
-                            times, timed_reader=partial(_with_ouster_times, read_pcd))
+                            named_times, timed_reader=partial(_with_ouster_times, read_pcd))
     raise InputError(f"unknown dataset loader {name!r}; choose one of {', '.join(KISS_DATASETS)}")

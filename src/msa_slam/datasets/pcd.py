@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from msa_slam.datasets.points import checked_points
+from msa_slam.datasets.points import checked_points, field_names
 from msa_slam.errors import InputError
 
 PCD_TYPES = {("F", 4): "<f4", ("F", 8): "<f8", ("I", 1): "<i1", ("I", 2): "<i2", ("I", 4): "<i4",
@@ -59,8 +59,8 @@ def _compressed(raw: bytes, offset: int, dtype: np.dtype, n: int, path: Path) ->
     plain = lzf_decompress(data, size, f"{path}") if n else b""
     table = np.empty(n, dtype=dtype)
     start = 0
-    for name in dtype.names:
-        field = dtype.fields[name][0]
+    for name in field_names(dtype):
+        field = dtype[name]
         table[name] = np.frombuffer(plain, dtype=field.base, count=n * max(1, int(np.prod(field.shape))),
                                     offset=start).reshape((n, *field.shape))
         start += n * field.itemsize
@@ -132,7 +132,7 @@ def read_pcd_table(path: str | os.PathLike) -> np.ndarray:
 
 
 def _time_field(table: np.ndarray) -> str | None:
-    return next((f for f in TIME_FIELDS if f in table.dtype.names), None)
+    return next((f for f in TIME_FIELDS if f in field_names(table.dtype)), None)
 
 
 def read_timed_pcd(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:

@@ -40,3 +40,10 @@ def checked_points(points: np.ndarray, path: Path) -> np.ndarray:
         raise InputError(f"{path}: {100 * tiny:.0f} % of the points have coordinates below {TINY:g} m in "
                          f"magnitude, which no LiDAR measures{hint}")
     return points
+
+
+def field_names(dtype: np.dtype) -> tuple[str, ...]:
+    """The fields of a point record (a structured dtype: PCD's, a raw format's), in their order."""
+    if dtype.names is None:
+        raise ValueError(f"{dtype} is not a record of named fields")
+    return dtype.names

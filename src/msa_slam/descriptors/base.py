@@ -18,7 +18,11 @@ class Descriptor(Protocol):
     """Global place descriptor: extraction plus a similarity (higher = more similar)."""
 
     name: str
-    shape: tuple[int, ...]  # of one descriptor
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        """The shape of one descriptor."""
+        ...
 
     def compute(self, points: np.ndarray | None, frame: int | None = None) -> np.ndarray:
         """Descriptor of one scan ((P, 3+) points in the sensor frame); `frame` is used by precomputed ones."""
@@ -31,6 +35,22 @@ class Descriptor(Protocol):
     def similarity_many(self, query: np.ndarray, bank: np.ndarray) -> np.ndarray:
         """Similarities (N,) of one descriptor against a stack (N, *shape) of stored descriptors."""
         ...
+
+
+@runtime_checkable
+class SearchKeyed(Protocol):
+    """A descriptor with a cheap search key for the two-stage search (Scan Context's ring key)."""
+
+    def search_key(self, descriptor: np.ndarray) -> np.ndarray:
+        """The key of one descriptor that the first stage's nearest-neighbour search compares."""
+        ...
+
+
+def scan_points(points: np.ndarray | None, where: str) -> np.ndarray:
+    """The scan a descriptor computed from points needs (`compute` allows None only for precomputed ones)."""
+    if points is None:
+        raise InputError(f"{where}: no points given (this descriptor is computed from the scan)")
+    return points
 
 
 def validate_points(points: np.ndarray, where: str = "points") -> np.ndarray:

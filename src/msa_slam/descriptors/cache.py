@@ -32,7 +32,9 @@ def load_descriptors(sequence: ScanSequence, descriptor: Descriptor, cache: Cach
     it is used) with the per-frame compute times recorded beside them, or None when either is absent or bad."""
     name = f"descriptors-{key}"
     cached = cache.load(name, lambda a: check_entry(a, (len(sequence), *descriptor.shape)))
-    ms = None if cached is None else cache.load_times(name, len(sequence))
+    if cached is None:
+        return None
+    ms = cache.load_times(name, len(sequence))
     return None if ms is None else Computed(cached, True, ms)
 
 

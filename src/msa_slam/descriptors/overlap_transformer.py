@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from msa_slam.descriptors.base import validate_bank
+from msa_slam.descriptors.base import scan_points, validate_bank
 from msa_slam.descriptors.range_image import range_projection
 from msa_slam.errors import InputError
 
@@ -120,7 +120,7 @@ class OverlapTransformer:
 
     def compute(self, points: np.ndarray | None, frame: int | None = None) -> np.ndarray:
         """(256,) descriptor of a raw scan (authors' range projection, then the network)."""
-        image = range_projection(points, max_range=self.max_range)
+        image = range_projection(scan_points(points, "overlap_transformer"), max_range=self.max_range)
         return self.descriptors_from_range_images(image[None])[0]
 
     def similarity_many(self, query: np.ndarray, bank: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ import math
 import numba
 import numpy as np
 
-from msa_slam.descriptors.base import validate_bank, validate_points
+from msa_slam.descriptors.base import scan_points, validate_bank, validate_points
 from msa_slam.descriptors.voxel import voxel_downsample
 from msa_slam.errors import InputError
 
@@ -94,9 +94,10 @@ class ScanContext:
     def compute(self, points: np.ndarray | None, frame: int | None = None) -> np.ndarray:
         """Descriptor (n_ring, n_sector) of a raw scan: voxel downsampling, then binning."""
         try:
+            scan = scan_points(points, "points")
             if self.voxel_size is not None:
-                points = voxel_downsample(points, self.voxel_size)
-            return self.bin(points)
+                scan = voxel_downsample(scan, self.voxel_size)
+            return self.bin(scan)
         except InputError as exc:
             raise InputError(f"scan_context: frame {frame}: {exc}" if frame is not None else str(exc)) from exc
 

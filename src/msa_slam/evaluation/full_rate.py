@@ -174,9 +174,10 @@ def evaluate_full_rate(odometry: np.ndarray, full_rate: np.ndarray, reference: n
         unavailable["full_rate_ate_optimised"] = reason_a
     improvements = {}
     for part, key in (("translation", "ate_translation_m"), ("rotation", "ate_rotation_deg")):
-        improvements[part] = improvement_pct(before[key], after[key])
-        if improvements[part] is None and before[key] is not None and not before[key] > ZERO_ERROR:
-            unavailable[f"full_rate_improvement_{part}"] = (f"odometry ATE {part} is 0 ({before[key]:.1g}): "
+        odometry_ate = before[key]
+        improvements[part] = improvement_pct(odometry_ate, after[key])
+        if improvements[part] is None and odometry_ate is not None and not odometry_ate > ZERO_ERROR:
+            unavailable[f"full_rate_improvement_{part}"] = (f"odometry ATE {part} is 0 ({odometry_ate:.1g}): "
                                                             "% improvement undefined")
     return _evaluation({"before": before, "after": after, "improvement_pct": improvements, "frames": len(reference),
                         "ate_alignment": f"{ATE_ALIGNMENT}, fitted separately for each estimate on all "

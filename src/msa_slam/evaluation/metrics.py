@@ -233,7 +233,10 @@ class Timing:
 
     @property
     def backend_total(self) -> float:
-        return self.stages["backend_total"]
+        total = self.stages["backend_total"]
+        if total is None:  # only a stage that did not run is None, and the back end always runs
+            raise ValueError("time_s.backend_total is null: every run records its back end's time")
+        return total
 
 
 @dataclass(frozen=True)

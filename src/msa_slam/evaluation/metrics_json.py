@@ -52,7 +52,7 @@ def _improvement(doc: MetricsDocument, prefix: str, ate_keys: tuple[str, ...]) -
 
 def _text(doc: MetricsDocument, key: str, *reason_keys: str) -> str | Unavailable:
     text = doc.typed(key, str, nullable=True)
-    return text if text is not None else doc.value(key, *reason_keys)
+    return text if text is not None else doc.unavailable(*reason_keys)
 
 
 def read_keyframe_trajectory(doc: MetricsDocument) -> KeyframeTrajectory:
@@ -61,7 +61,7 @@ def read_keyframe_trajectory(doc: MetricsDocument) -> KeyframeTrajectory:
                               _keyframe_errors(doc.sub("after"), ("ate_optimised", "ate")),
                               _improvement(doc.sub("improvement_pct"), "", ("ate_optimised", "ate", "ate_odometry")),
                               _text(doc, "ate_alignment", "ate"),
-                              doc.value("ate_rotation_reliable", "ate") if reliable is None else reliable)
+                              doc.unavailable("ate") if reliable is None else reliable)
 
 
 def read_full_rate(doc: MetricsDocument) -> FullRateTrajectory:
@@ -82,11 +82,11 @@ def _loops(doc: MetricsDocument) -> Loops:
 
 def read_loop_counts(acc: MetricsDocument) -> LoopCounts:
     """metrics.json `loop_accounting` (evaluation.loops.account_loops)."""
+    true_candidates, false_accepted, revisits, closed = (acc.value(k, "loop_truth", kind=int) for k in LOOP_TRUTH)
+    keyframes, keyframes_closed = (acc.value(k, "loop_truth", kind=int) for k in REVISIT_KEYFRAMES)
     return LoopCounts(acc.typed("candidates", int), acc.typed("registered", int), acc.typed("accepted", int),
-                      acc.mapping("rejected", int),
-                      *(acc.value(k, "loop_truth", kind=int) for k in LOOP_TRUTH),
-                      acc.value("revisit_recall", "revisit_recall", "loop_truth"),
-                      *(acc.value(k, "loop_truth", kind=int) for k in REVISIT_KEYFRAMES),
+                      acc.mapping("rejected", int), true_candidates, false_accepted, revisits, closed,
+                      acc.value("revisit_recall", "revisit_recall", "loop_truth"), keyframes, keyframes_closed,
                       acc.value("revisit_keyframe_recall", "revisit_recall", "loop_truth"))
 
 
@@ -99,7 +99,7 @@ def _place_recognition(doc: MetricsDocument) -> PlaceRecognition:
         reference = ReferencePR(ref.value("pr_auc", "pr_reference"), ref.value("f1_max", "pr_reference"),
                                 ref.typed("matches", int))
         rows = doc.typed("threshold_sweep", list, nullable=True)
-        sweep = doc.value("threshold_sweep", "threshold_sweep") if rows is None else tuple(
+        sweep = doc.unavailable("threshold_sweep") if rows is None else tuple(
             _sweep_row(MetricsDocument(row, doc.source, f"threshold_sweep[{i}]", doc.reasons))
             for i, row in enumerate(rows))
     return PlaceRecognition(doc.value("pr_auc", "pr"), doc.value("f1_max", "pr"), doc.typed("pr_queries", int),
@@ -158,8 +158,10 @@ def from_json(data: Any, source: str) -> RunMetrics:
     pipeline = doc.typed("pipeline", str) if online else "batch"
     if online and pipeline != ONLINE:
         raise doc.error("pipeline", f"must be {ONLINE!r} when present, not {pipeline!r}")
-    run = RunIdentity(*(doc.typed(k, str) for k in ("sequence", "dataset", "method", "sampler", "descriptor", "mode")),
-                      doc.typed("frames", int), doc.typed("keyframes", int))
+    sequence, dataset, method, sampler, descriptor, mode = (
+        doc.typed(k, str) for k in ("sequence", "dataset", "method", "sampler", "descriptor", "mode"))
+    run = RunIdentity(sequence, dataset, method, sampler, descriptor, mode, doc.typed("frames", int),
+                      doc.typed("keyframes", int))
     stamp = None
     if doc.has("msa_slam_version"):
         frames = doc.typed("keyframe_frames", list)
@@ -189,9 +191,10 @@ ACCOUNTING = ("candidates", "registered", "accepted", "rejected", "true_candidat
 
 def _memory_json(memory: Memory) -> dict[str, Any]:
     a = memory.accounted
-    out = {"keyframe_descriptors": a.keyframe_descriptors, "keyframe_clouds": a.keyframe_clouds, "graph": a.graph,
-           **({} if a.local_map is None else {"local_map": a.local_map}),
-           "total": a.total, "run_records": a.run_records, "map": a.map, "in_ram": a.in_ram}
+    out: dict[str, Any] = {
+        "keyframe_descriptors": a.keyframe_descriptors, "keyframe_clouds": a.keyframe_clouds, "graph": a.graph,
+        **({} if a.local_map is None else {"local_map": a.local_map}),
+        "total": a.total, "run_records": a.run_records, "map": a.map, "in_ram": a.in_ram}
     if a.cloud_store is not None:
         out.update(keyframe_clouds_on_disk=a.clouds_on_disk, cloud_store=a.cloud_store)
     return out
@@ -200,6 +203,8 @@ def _memory_json(memory: Memory) -> dict[str, Any]:
 def _batch_tail(m: RunMetrics) -> dict[str, Any]:
     t, s, pr = m.timing, m.setup, m.place_recognition
     ref = pr.reference
+    if t.frontend_s is None or t.frontend_cached is None:
+        raise ValueError(f"{m.run.sequence}: a batch run's report lacks its front end's timing")
     return {"sampler_realtime_fraction": _none(t.sampler_realtime_fraction), "time_s": dict(t.stages),
             "frontend_time_s": dict(t.frontend_s), "frontend_cached": dict(t.frontend_cached),
             "replayed_time_s": dict(t.replayed_s), "odometry_config": s.odometry_config,
@@ -211,6 +216,8 @@ def _batch_tail(m: RunMetrics) -> dict[str, Any]:
 
 def _online_tail(m: RunMetrics) -> dict[str, Any]:
     th, s = m.throughput, m.setup
+    if th is None:
+        raise ValueError(f"{m.run.sequence}: an online run's report lacks its throughput")
     return {"bytes_per_keyframe": m.memory.bytes_per_keyframe(m.run.keyframes), "time_s": dict(m.timing.stages),
             "pipeline_time_s": th.pipeline_time_s, "fps": th.fps, "backend_fps": th.backend_fps,
             "frame_rate_hz": th.frame_rate_hz, "frame_rate_from": th.frame_rate_from,

@@ -63,6 +63,10 @@ class MetricsDocument:
         number = self.typed(key, kind, nullable=True)
         if number is not None:
             return number
+        return self.unavailable(*reason_keys, default=default)
+
+    def unavailable(self, *reason_keys: str, default: str = NO_REASON) -> Unavailable:
+        """Why a null value is missing: the first reason recorded under `reason_keys` (a text's or a flag's too)."""
         return Unavailable(next((self.reasons[k] for k in reason_keys if k in self.reasons), default))
 
     def sub(self, key: str) -> MetricsDocument:

@@ -9,6 +9,7 @@ warning that its rotation ATE mostly measures the alignment.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Mapping
 
 import numpy as np
 
@@ -71,8 +72,9 @@ def evaluate_trajectories(odometry: np.ndarray, optimised: np.ndarray, reference
     (`reference` None: a recording without ground truth, every metric None with that reason)."""
     if reference is None:
         block = dict.fromkeys(("ate_translation_m", "ate_rotation_deg", "rpe_translation_m", "rpe_rotation_deg"))
-        metrics = {"before": block, "after": dict(block), "improvement_pct": {"translation": None, "rotation": None},
-                   "ate_alignment": None, "ate_rotation_reliable": None}
+        metrics: dict[str, object] = {"before": block, "after": dict(block),
+                                      "improvement_pct": {"translation": None, "rotation": None},
+                                      "ate_alignment": None, "ate_rotation_reliable": None}
         reasons = {"ate": "no ground truth", "rpe": "no ground truth"}
         return _evaluation(metrics, reasons, [], {"odometry": None, "optimised": None})
     blocks, errors, unavailable = {}, {}, {}
@@ -99,7 +101,7 @@ def evaluate_trajectories(odometry: np.ndarray, optimised: np.ndarray, reference
     return _evaluation(metrics, unavailable, warnings, errors)
 
 
-def _evaluation(metrics: dict[str, object], reasons: dict[str, str], warnings: list[str],
+def _evaluation(metrics: Mapping[str, object], reasons: dict[str, str], warnings: list[str],
                 errors: dict[str, np.ndarray | None]) -> TrajectoryEvaluation:
     """The evaluation with its figures typed, each undefined one unavailable with its reason."""
     doc = MetricsDocument(metrics, "the keyframe evaluation", reasons=reasons)

@@ -33,7 +33,7 @@ def code_fingerprint(modules: Iterable[str], data: Iterable[str] = (), package_d
 
 @functools.lru_cache(maxsize=None)
 def _fingerprint(modules: tuple[str, ...], data: tuple[str, ...], package_dir: Path) -> str:
-    files = {_source(name, package_dir) for name in import_closure(modules, package_dir)}
+    files = {_module_file(name, package_dir) for name in import_closure(modules, package_dir)}
     files |= {path for pattern in data for path in package_dir.glob(pattern) if path.is_file()}
     digest = hashlib.sha256()
     for path in sorted(files, key=lambda p: p.relative_to(package_dir).as_posix()):
@@ -69,11 +69,17 @@ def _source(name: str, package_dir: Path) -> Path | None:
     return None
 
 
-def _package_modules(name: str, package_dir: Path) -> list[str]:
-    """`name` and, for a package, every module below it."""
+def _module_file(name: str, package_dir: Path) -> Path:
+    """The file of `name`, which must be one of msa_slam's modules or packages."""
     source = _source(name, package_dir)
     if source is None:
         raise ValueError(f"{name}: not a module of {PACKAGE} in {package_dir}")
+    return source
+
+
+def _package_modules(name: str, package_dir: Path) -> list[str]:
+    """`name` and, for a package, every module below it."""
+    source = _module_file(name, package_dir)
     if source.name != "__init__.py":
         return [name]
     found = [path.relative_to(package_dir).with_suffix("").parts for path in source.parent.rglob("*.py")]
@@ -84,7 +90,7 @@ def _package_modules(name: str, package_dir: Path) -> list[str]:
 def _imports(name: str, package_dir: Path) -> list[str]:
     """The msa_slam modules and packages that module `name` imports anywhere in its code (`from P import N`
     counts P, and P.N when N is a module)."""
-    source = _source(name, package_dir)
+    source = _module_file(name, package_dir)
     package = name if source.name == "__init__.py" else name.rpartition(".")[0]
     named: list[str] = []
     for node in _statements(ast.parse(source.read_bytes(), str(source)).body):

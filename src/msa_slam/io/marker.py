@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Collection, Iterable, Mapping
 
 import msa_slam
+from msa_slam.io.digest import file_sha256
 
 MARKER = ".msa-slam-result"
 
@@ -65,8 +66,7 @@ def _digest(path: Path) -> str:
     """SHA-256 of a file's bytes, or of a link's target (links are not followed)."""
     if path.is_symlink():
         return hashlib.sha256(os.fsencode(os.readlink(path))).hexdigest()
-    with open(path, "rb") as stream:
-        return hashlib.file_digest(stream, "sha256").hexdigest()
+    return file_sha256(path)
 
 
 def edited_files(folder: Path) -> list[str]:

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 
 from msa_slam.errors import InputError
@@ -84,7 +85,7 @@ def read_poses(path: str | os.PathLike, fmt: str = "auto",
     return poses, times
 
 
-def check_times(times: Sequence[float], where: Callable[[int], str],
+def check_times(times: ArrayLike, where: Callable[[int], str],
                 lines: Sequence[int] | None = None) -> np.ndarray:
     """`times` as a float64 array if finite and strictly increasing, else an InputError naming `where(i)`
     (and, given the file `lines` the times were read from, the lines of the bad time and the one before).
@@ -92,22 +93,22 @@ def check_times(times: Sequence[float], where: Callable[[int], str],
     Frames are matched to evaluation tools by time, so a NaN, repeated or backward time would silently
     break the TUM outputs rather than fail here.
     """
-    times = np.asarray(times, dtype=np.float64).ravel()
+    values = np.asarray(times, dtype=np.float64).ravel()
 
     def on_line(i: int) -> str:
         return "" if lines is None else f" on line {lines[i]}"
 
-    bad = np.flatnonzero(~np.isfinite(times))
+    bad = np.flatnonzero(~np.isfinite(values))
     if len(bad):
         i = int(bad[0])
-        raise InputError(f"{where(i)}: time {times[i]} is not a finite number{on_line(i)}")
-    steps = np.flatnonzero(np.diff(times) <= 0)
+        raise InputError(f"{where(i)}: time {values[i]} is not a finite number{on_line(i)}")
+    steps = np.flatnonzero(np.diff(values) <= 0)
     if len(steps):
         i = int(steps[0]) + 1
-        what = "repeats" if times[i] == times[i - 1] else "is before"
-        raise InputError(f"{where(i)}: time {float(times[i])!r} {what} the previous one ({float(times[i - 1])!r}"
+        what = "repeats" if values[i] == values[i - 1] else "is before"
+        raise InputError(f"{where(i)}: time {float(values[i])!r} {what} the previous one ({float(values[i - 1])!r}"
                          f"{on_line(i - 1)}){on_line(i)}; times must increase strictly")
-    return times
+    return values
 
 
 def _unit_quaternions(path: Path, quats: np.ndarray, lines: Sequence[int]) -> np.ndarray:

@@ -75,8 +75,12 @@ class OdometryCache:
         registering each took when computed, or None when any is absent or bad (the odometry is then
         recomputed)."""
         poses = self.load(key, expected_length=frames)
-        unregistered = None if poses is None else self.load_unregistered(key, frames)
-        ms = None if unregistered is None else self.store.load_times(f"odometry-{key}", frames)
+        if poses is None:
+            return None
+        unregistered = self.load_unregistered(key, frames)
+        if unregistered is None:
+            return None
+        ms = self.store.load_times(f"odometry-{key}", frames)
         return None if ms is None else (poses, unregistered, ms)
 
     def save(self, key: str, poses: np.ndarray, unregistered: Iterable[int], ms: np.ndarray) -> Path | None:

@@ -151,8 +151,9 @@ class KissOdometry:
             self._not_registered(in_range, len(cloud))
         if self._frames < 2:
             self._first.append((cloud, stamps, time))
-            if self._frames == 1 and all(first[1] is not None for first in self._first):
-                self._restart_deskewed()
+            timed = [(c, s, t) for c, s, t in self._first if s is not None]
+            if self._frames == 1 and len(timed) == len(self._first):
+                self._restart_deskewed(timed)
         self._frames += 1
         self._last_time = None if time is None else float(time)
         return np.array(self._icp.last_pose, dtype=np.float64)
@@ -166,12 +167,12 @@ class KissOdometry:
             log.warning(NO_POINT_TIMES)
             self._icp.config.data.deskew = False
 
-    def _restart_deskewed(self) -> None:
+    def _restart_deskewed(self, first: list[tuple[np.ndarray, np.ndarray, float | None]]) -> None:
         """Frames 0 and 1 come before any motion is known, so they are registered raw; a map built from
         them would hold their distortion for as long as it keeps their points, and later (deskewed) scans
         would be registered against a distorted map. Once frame 1 gives the motion, KISS-ICP starts over
-        with both deskewed by it."""
-        (cloud0, stamps0, time0), (cloud1, stamps1, time1) = self._first
+        with both deskewed by it (`first`: frames 0 and 1, both with per-point times)."""
+        (cloud0, stamps0, time0), (cloud1, stamps1, time1) = first
         motion = self._icp.last_delta.copy()
         self._icp = KissICP(self._icp.config)
         self._last_time = None if time0 is None else float(time0)

@@ -14,7 +14,7 @@ from typing import Iterable
 
 import numpy as np
 
-from msa_slam.descriptors.base import Descriptor
+from msa_slam.descriptors.base import Descriptor, SearchKeyed
 from msa_slam.errors import InputError
 from msa_slam.place_recognition.search import RingKeyIndex
 from msa_slam.types import validate_pose
@@ -60,12 +60,14 @@ class KeyframeDatabase:
     ) -> None:
         if search not in SEARCH_MODES:
             raise InputError(f"keyframe database: search must be one of {SEARCH_MODES}, got {search!r}")
-        if search == "two_stage" and not hasattr(descriptor, "search_key"):
+        keyed = descriptor if isinstance(descriptor, SearchKeyed) else None
+        if search == "two_stage" and keyed is None:
             raise InputError(f"keyframe database: descriptor {descriptor.name!r} has no search key for two_stage")
         self.descriptor = descriptor
         self.search = search
         self.two_stage_min_size = int(two_stage_min_size)
-        self._index = RingKeyIndex(n_candidates, rebuild_every) if hasattr(descriptor, "search_key") else None
+        self._keyed = keyed
+        self._index = RingKeyIndex(n_candidates, rebuild_every) if keyed is not None else None
         self._n = 0
         self._ids = np.zeros(0, dtype=np.int64)
         self._poses = np.zeros((0, 4, 4))
@@ -93,7 +95,7 @@ class KeyframeDatabase:
         if self._n == 0:
             return 0
         per = self._ids.itemsize + self._poses[0].nbytes
-        per += self._desc[0].nbytes + (self._keys[0].nbytes if self._keys is not None else 0)
+        per += self.descriptors[0].nbytes + (self._keys[0].nbytes if self._keys is not None else 0)
         return per * self._n
 
     @property
@@ -108,8 +110,8 @@ class KeyframeDatabase:
             raise InputError(f"keyframe {frame_id}: descriptor has NaN or infinite values")
         if self._desc is None:
             self._desc = np.zeros((0, *desc.shape))
-            if self._index is not None:
-                self._keys = np.zeros((0, *np.shape(self.descriptor.search_key(desc))))
+            if self._keyed is not None:
+                self._keys = np.zeros((0, *np.shape(self._keyed.search_key(desc))))
         if desc.shape != self._desc.shape[1:]:
             raise InputError(
                 f"keyframe {frame_id}: descriptor shape {desc.shape}, database holds {self._desc.shape[1:]}"
@@ -119,8 +121,8 @@ class KeyframeDatabase:
         self._ids[self._n] = int(frame_id)
         self._poses[self._n] = pose
         self._desc[self._n] = desc
-        if self._keys is not None:
-            self._keys[self._n] = self.descriptor.search_key(desc)
+        if self._keys is not None and self._keyed is not None:
+            self._keys[self._n] = self._keyed.search_key(desc)
         self._n += 1
 
     def _grow(self, capacity: int) -> None:
@@ -129,7 +131,9 @@ class KeyframeDatabase:
             out[: self._n] = arr[: self._n]
             return out
 
-        self._ids, self._poses, self._desc = grown(self._ids), grown(self._poses), grown(self._desc)
+        self._ids, self._poses = grown(self._ids), grown(self._poses)
+        if self._desc is not None:
+            self._desc = grown(self._desc)
         if self._keys is not None:
             self._keys = grown(self._keys)
 
@@ -172,8 +176,10 @@ class KeyframeDatabase:
         eligible = self.eligible(frame_id, exclude_frames, exclude_recent)
         if not eligible.any():
             return []
-        if self._uses_two_stage(search):
-            key = self.descriptor.search_key(descriptor)
+        rows: np.ndarray | slice
+        two_stage = self._uses_two_stage(search)  # then the descriptor is keyed and its keys stored
+        if two_stage and self._keyed is not None and self._index is not None and self._keys is not None:
+            key = self._keyed.search_key(descriptor)
             rows = self._index.candidates(self._keys[: self._n], key, eligible, n_candidates)
             if len(rows) == 0:
                 return []
@@ -218,7 +224,8 @@ class KeyframeDatabase:
         if not ids:
             return None
         cand_t = [self._poses[r, :3, 3] for r in rows] + [validate_pose(c.pose)[:3, 3] for c in extra]
-        bank = np.stack([self._desc[r] for r in rows] + [np.asarray(c.descriptor, dtype=np.float64) for c in extra])
+        bank = np.stack([self.descriptors[r] for r in rows]
+                        + [np.asarray(c.descriptor, dtype=np.float64) for c in extra])
         sims = np.asarray(self.descriptor.similarity_many(descriptor, bank))
         best = int(np.argmax(sims))
         if abs(int(frame_id) - ids[best]) <= min_gap:

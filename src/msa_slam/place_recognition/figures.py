@@ -46,13 +46,13 @@ def markers_note(curves: Mapping[str, PRCurve]) -> str:
 def zoom_limits(curves: Mapping[str, PRCurve]) -> tuple[tuple[float, float], tuple[float, float]] | None:
     """(recall range, precision range) around every curve's knee (thresholds whose F1 is at least KNEE times
     the lowest F1-max), padded; None when that region already fills most of the unit square."""
-    scored = [c for c in curves.values() if c.f1_max]
+    scored = [(c, c.f1_max) for c in curves.values() if c.f1_max]
     if not scored:
         return None
-    floor = KNEE * min(c.f1_max for c in scored)
-    keep = [np.asarray(c.f1, dtype=float) >= floor for c in scored]
-    recall = np.concatenate([np.asarray(c.recall, dtype=float)[k] for c, k in zip(scored, keep)])
-    precision = np.concatenate([np.asarray(c.precision, dtype=float)[k] for c, k in zip(scored, keep)])
+    floor = KNEE * min(f1_max for _, f1_max in scored)
+    keep = [np.asarray(c.f1, dtype=float) >= floor for c, _ in scored]
+    recall = np.concatenate([np.asarray(c.recall, dtype=float)[k] for (c, _), k in zip(scored, keep)])
+    precision = np.concatenate([np.asarray(c.precision, dtype=float)[k] for (c, _), k in zip(scored, keep)])
     (r0, r1), (p0, p1) = (recall.min(), recall.max()), (precision.min(), precision.max())
     if r1 - r0 >= ZOOM_BELOW and p1 - p0 >= ZOOM_BELOW:
         return None
@@ -69,7 +69,7 @@ def plot_pr_curves(curves: Mapping[str, PRCurve], path: str | Path, title: str =
     fig, axes = plt.subplots(1, 2 if zoom else 1, figsize=(9 if zoom else 5.5, 4.8), dpi=150, squeeze=False,
                              layout="constrained")
     try:
-        for ax, limits in zip(axes[0], [((0.0, 1.02), (0.0, 1.02)), zoom]):
+        for ax, limits in zip(axes[0], [((0.0, 1.02), (0.0, 1.02)), *([] if zoom is None else [zoom])]):
             for label, style, marker in zip(order, cycle(STYLES), cycle(MARKERS)):
                 curve = curves[label]
                 auc = "n/a" if curve.auc is None else f"{curve.auc:.3f}"

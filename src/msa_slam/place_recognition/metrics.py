@@ -20,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.integrate import trapezoid
 
 from msa_slam.descriptors.base import Descriptor
@@ -55,8 +56,8 @@ class PRCurve:
 
 
 def precision_recall(
-    similarities: np.ndarray,
-    distances: np.ndarray,
+    similarities: ArrayLike,
+    distances: ArrayLike,
     max_distance: float = 3.0,
     thresholds: np.ndarray | None = None,
     strict_false_positive: bool = True,

@@ -11,12 +11,12 @@ the points are memory-mapped, so a run holds in RAM only the keyframes' clouds i
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
 from msa_slam.datasets import ScanSequence
-from msa_slam.io.cache import CacheDir, Computed, cache_key, sequence_inputs
+from msa_slam.io.cache import CacheDir, cache_key, sequence_inputs
 from msa_slam.io.fingerprint import code_fingerprint
 
 CLOUD_LIBRARIES = ("numpy", "small_gicp")
@@ -40,6 +40,14 @@ class FrameClouds:
         return np.asfortranarray(self.points[self.offsets[frame]:self.offsets[frame + 1]])
 
 
+class ComputedClouds(NamedTuple):
+    """io.cache.Computed of the frame clouds: a FrameClouds as `values` (clouds of varying size, not one array)."""
+
+    values: FrameClouds
+    cached: bool
+    ms: np.ndarray
+
+
 def cloud_key(sequence: ScanSequence, voxel_size: float, cache: CacheDir | None = None) -> str:
     """Cache key of a sequence's frame clouds: its scans' identity, the voxel size, CLOUD_CODE's fingerprint and
     library versions; `cache` memoises the files' digests."""
@@ -47,19 +55,24 @@ def cloud_key(sequence: ScanSequence, voxel_size: float, cache: CacheDir | None 
                      code_fingerprint(CLOUD_CODE), CLOUD_LIBRARIES)
 
 
-def load_frame_clouds(sequence: ScanSequence, voxel_size: float, cache: CacheDir, key: str) -> Computed | None:
+def load_frame_clouds(sequence: ScanSequence, voxel_size: float, cache: CacheDir,
+                      key: str) -> ComputedClouds | None:
     """The cached clouds of every frame downsampled at `voxel_size` (a FrameClouds as `values`; entries
     `frame-cloud-offsets-<key>` and `frame-clouds-<key>`, checked to fit each other and the sequence) with the
     time (ms) downsampling each took when computed, or None when any part is absent or bad."""
     offsets_name, points_name = f"frame-cloud-offsets-{key}", f"frame-clouds-{key}"
     offsets = cache.load(offsets_name, _offsets_check(len(sequence)))
-    ms = None if offsets is None else cache.load_times(points_name, len(sequence))
-    points = None if ms is None else cache.load(points_name, _points_check(int(offsets[-1])), mapped=True)
-    return None if points is None else Computed(FrameClouds(points, offsets, float(voxel_size)), True, ms)
+    if offsets is None:
+        return None
+    ms = cache.load_times(points_name, len(sequence))
+    if ms is None:
+        return None
+    points = cache.load(points_name, _points_check(int(offsets[-1])), mapped=True)
+    return None if points is None else ComputedClouds(FrameClouds(points, offsets, float(voxel_size)), True, ms)
 
 
 def save_frame_clouds(clouds: Sequence[np.ndarray], ms: np.ndarray, voxel_size: float, cache: CacheDir | None,
-                      key: str) -> Computed:
+                      key: str) -> ComputedClouds:
     """Every frame's freshly downsampled cloud (`clouds`, in frame order; computed while the front end reads the
     scans: pipeline.read_ahead) as one FrameClouds, stored in `cache` (None: not stored) with the time (ms)
     downsampling each took."""
@@ -70,7 +83,7 @@ def save_frame_clouds(clouds: Sequence[np.ndarray], ms: np.ndarray, voxel_size: 
         cache.save_times(points_name, ms)
         if cache.save(points_name, points) is not None:
             cache.save(f"frame-cloud-offsets-{key}", offsets)  # written last: an entry without it is recomputed
-    return Computed(FrameClouds(points, offsets, float(voxel_size)), False, ms)
+    return ComputedClouds(FrameClouds(points, offsets, float(voxel_size)), False, ms)
 
 
 def _offsets_check(frames: int) -> Callable[[np.ndarray], np.ndarray]:

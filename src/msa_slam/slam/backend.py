@@ -61,7 +61,8 @@ class Graph(Protocol):
     def describe(self) -> Mapping[str, JSONValue]: ...
 
     def add_keyframe(self, key: int, pose: np.ndarray) -> None: ...
-    def add_loop(self, target_key: int, source_key: int, T_target_source: np.ndarray) -> None: ...
+    def add_loop(self, target_key: int, source_key: int, T_target_source: np.ndarray,
+                 covariance: np.ndarray | None = None) -> None: ...
     def update(self, extra_iterations: int = 0) -> None: ...
     def optimize(self) -> np.ndarray: ...
 
@@ -146,11 +147,12 @@ class SlamBackend:
         self.odometry[i], self.times[i] = odom_pose, time_s
         if gt_pose is not None:
             self.gt[i] = gt_pose
-        if self.sampler.needs_points:
-            points = _scan(points)
+        sampled_points = _scan(points) if self.sampler.needs_points else None
+        if sampled_points is not None:
+            points = sampled_points
         self._pending[i] = (descriptor, points)
         sample_pose = self.gt[i] if self.settings.sample_on == "gt" else self.odometry[i]
-        new = self.sampler.push(sample_pose, descriptor, points if self.sampler.needs_points else None)
+        new = self.sampler.push(sample_pose, descriptor, sampled_points)
         t = self._timed("sampling", i, start)
         if self.local_map is not None:  # its upkeep is part of keeping keyframes
             self.local_map.add(i, self.odometry[i], _scan(points))
@@ -215,6 +217,7 @@ class SlamBackend:
                 verified = self.loop_closer.verify(candidates)
                 for loop in verified:
                     if loop.accepted:
+                        assert loop.T_match_query is not None, "verification gives an accepted loop its transform"
                         self.graph.add_loop(loop.match, loop.query, loop.T_match_query, loop.covariance)
                         accepted_any = True
                 self.loops.extend(verified)

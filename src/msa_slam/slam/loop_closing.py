@@ -113,7 +113,7 @@ class LoopCloser:
         gap = max(s.min_frame_gap, frame - reachable - 1)
         threshold, top_k = acceptance(s)
         if self.map_closures is not None:  # its own inlier threshold is the floor
-            threshold, matches = 0.0, self._map_closure_matches(frame, cloud, gap, top_k)
+            threshold, matches = 0.0, self._map_closure_matches(self.map_closures, frame, cloud, gap, top_k)
             if reachable >= 0 and not matches:
                 self._record_miss(frame, gt, gap)
         elif reachable < 0:  # nothing far enough back along the path yet
@@ -134,7 +134,8 @@ class LoopCloser:
                                        travelled_m=float(path[frame] - path[match.keyframe_id])))
         return out
 
-    def _map_closure_matches(self, frame: int, cloud: np.ndarray | None, gap: int, top_k: int) -> list:
+    def _map_closure_matches(self, detector: MapClosuresDetector, frame: int, cloud: np.ndarray | None, gap: int,
+                             top_k: int) -> list:
         """MapClosures' best `top_k` eligible keyframes for `frame` (it also enters `frame` into its database).
         The ineligible keyframes are the newest ones, so asking for top_k more than there are of them leaves
         top_k eligible ones whenever MapClosures finds that many."""
@@ -143,7 +144,7 @@ class LoopCloser:
         database = self.store.database
         eligible = database.eligible(frame, gap, self.settings.exclude_recent) if len(database) else np.zeros(0, bool)
         allowed = set(database.ids[eligible].tolist())
-        found = self.map_closures.query(frame, cloud, top_k + int((~eligible).sum()))
+        found = detector.query(frame, cloud, top_k + int((~eligible).sum()))
         matches = [m for m in found if m.keyframe_id in allowed][:top_k]
         for m in matches:
             self._guesses[(frame, m.keyframe_id)] = m.T_match_query

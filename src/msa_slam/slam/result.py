@@ -20,11 +20,13 @@ from msa_slam.evaluation.run_metrics import RunMetrics
 from msa_slam.place_recognition import PRCurve
 from msa_slam.registration import VerifierConfig
 from msa_slam.sampling.params import SamplerParams
+from msa_slam.slam.loop_closing import LoopSettings
 from msa_slam.types import LoopClosure
 
 
-class RunSettings(Protocol):
-    """The fields of a run's configuration the core reads (msa_slam.pipeline.config.RunConfig)."""
+class RunSettings(LoopSettings, Protocol):
+    """The fields of a run's configuration the core reads (msa_slam.pipeline.config.RunConfig): the loop-closing
+    ones and these."""
 
     dataset: str
     sampler: str
@@ -32,16 +34,8 @@ class RunSettings(Protocol):
     verifier: VerifierConfig
     descriptor: str
     descriptor_params: dict[str, Any]
-    mode: str
     sample_on: str
     flush: bool
-    similarity_threshold: float
-    min_frame_gap: int
-    exclude_recent: int
-    top_k: int
-    loop_radius: float
-    min_travel_m: float
-    loop_detector: str
     local_map_m: float
 
     @property
@@ -58,7 +52,7 @@ class RunResult:
     name: str
     times: np.ndarray
     odometry: np.ndarray
-    gt_poses: np.ndarray
+    gt_poses: np.ndarray | None  # None without ground truth
     keyframes: np.ndarray
     optimised: np.ndarray
     loops: list[LoopClosure]
@@ -85,7 +79,7 @@ class RunResult:
     @property
     def backend_ms(self) -> np.ndarray:
         """Per-frame time of everything after odometry (ms)."""
-        return sum(v for s, v in self.steps_ms.items() if s != "odometry")
+        return sum((v for s, v in self.steps_ms.items() if s != "odometry"), np.zeros(len(self.times)))
 
     @cached_property
     def optimised_full(self) -> np.ndarray:

@@ -35,7 +35,7 @@ def resolve_dataset(spec: str | SourceSpec, cache_dir: str | os.PathLike | None 
         return spec.path
     from msa_slam.sim import simulate_sequence
 
-    return simulate_sequence(spec.config, cache_dir=cache_dir, progress=progress)
+    return simulate_sequence(spec.simulation, cache_dir=cache_dir, progress=progress)
 
 
 def open_sequence(spec: str | SourceSpec, kind: str = "auto", cache_dir: str | os.PathLike | None = None,
@@ -65,7 +65,7 @@ def open_source(spec: str | SourceSpec, kind: str = "auto", cache_dir: str | os.
         from msa_slam.sim.live import live_source
 
         check_selection(spec, kind, source or SourceOptions())
-        return live_source(spec.config, spec.laps, spec.label)
+        return live_source(spec.simulation, spec.laps, spec.label)
     sequence = open_sequence(spec, kind, cache_dir, progress, source, mode)
     return FrameSource(sequence.name, sequence.gt_poses, lambda: iter(sequence), sequence, len(sequence),
                        sequence.times_known, sequence.point_times)
@@ -81,7 +81,7 @@ def check_selection(spec: str | SourceSpec, kind: str, source: SourceOptions) ->
         _refuse_recording_options(spec, kind, source, tuple(RECORDING_FLAGS))
     elif spec.kind == "sim":
         _refuse_recording_options(spec, kind, source, SIMULATED_FLAGS)
-        _check_enough_scans(spec, selected_count(spec.config.frame_count(), source.first, source.jump,
+        _check_enough_scans(spec, selected_count(spec.simulation.frame_count(), source.first, source.jump,
                                                  source.frames, f"dataset {spec.text!r}"))
 
 

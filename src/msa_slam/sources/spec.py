@@ -53,6 +53,13 @@ class SourceSpec:
         return self.kind != "recording"
 
     @property
+    def simulation(self) -> SimConfig:
+        """The validated simulation of a sim: or live: spec (a recording has none)."""
+        if self.config is None:
+            raise ValueError(f"dataset {self.text!r}: a recording has no simulation")
+        return self.config
+
+    @property
     def keys(self) -> tuple[str, ...]:
         """The keys the spec sets (sim/live)."""
         return tuple(key for key, _ in self.fields)

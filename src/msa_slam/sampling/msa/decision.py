@@ -69,7 +69,7 @@ def _normalised(values: np.ndarray, used: bool) -> np.ndarray:  # pragma: no cov
 
 @njit(cache=True)
 def _margin(score: np.ndarray, rho: np.ndarray, pi: np.ndarray, pi_low: np.ndarray, pi_high: np.ndarray,
-            use_rho: bool, use_pi: bool, alpha: float, beta: float, best: int):  # pragma: no cover
+            use_rho: bool, use_pi: bool, alpha: float, beta: float, best: int | np.integer):  # pragma: no cover
     """decision_margin with unused terms flagged instead of None (their arrays are then ignored)."""
     count = len(score)
     if count < 2:

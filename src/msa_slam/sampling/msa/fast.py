@@ -28,7 +28,7 @@ from msa_slam.sampling.msa.powerset import feasible_subsets
 from msa_slam.sampling.msa.terms import ScoreWeights, WindowResult
 
 if "NUMBA_THREADING_LAYER" not in os.environ:  # before the first parallel call; see the module docstring
-    numba.config.THREADING_LAYER = "workqueue"
+    numba.config.THREADING_LAYER = "workqueue"  # type: ignore[attr-defined]  # numba.config sets its options at import
 
 
 @njit(cache=True)
