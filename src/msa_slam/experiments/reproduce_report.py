@@ -11,7 +11,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from msa_slam.evaluation.display import fmt
-from msa_slam.evaluation.spread import MIN_SEEDS, PAIRED_TEST
+from msa_slam.evaluation.spread import MIN_SEEDS, PAIRED_TEST, ROUNDING
 from msa_slam.experiments import paper_claims as pc
 from msa_slam.experiments.grid import GridSpec, slug
 from msa_slam.experiments.paper import NOT_REPRODUCED, STAND_INS, column_of, dataset_name
@@ -72,6 +72,8 @@ def conditions(run: Run, extra: str = "") -> str:
             f"odometry {base.get('odometry', 'kiss')}; {' and '.join(modes) or 'no'} mode; seeds "
             f"{', '.join(map(str, seeds)) or 'none'}; frames " + ", ".join(f"{k} {v}" for k, v in frames.items())
             + "; ATE on the full-rate trajectory, SE(3)-aligned (Umeyama, no scale); mean ± sample std over seeds"
+            + f"; values differing only by floating-point rounding (within {ROUNDING:g} of their scale) are shown as "
+            "equal (difference 0.0)"
             + (f"; {extra}" if extra else "") + f". Cells and per-dataset tables: {run.folder}/results.md.")
 
 
