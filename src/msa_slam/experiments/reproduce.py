@@ -37,12 +37,14 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class Reproduction:
-    """What a reproduce run did: its report and the cells that failed (grid: cell: reason)."""
+    """What a reproduce run did: its report, the cells that failed (grid: cell: reason), and how many cells ran,
+    were finished earlier, or were copied from an identical cell of this or another grid (experiments.sharing)."""
 
     report: Path
     failed: dict[str, str] = field(default_factory=dict)
     ran: int = 0
     skipped: int = 0
+    shared: int = 0
 
 
 def run_reproduce(presets: Sequence[str], quick: bool = False, seeds: Sequence[int] | None = None,
@@ -66,14 +68,17 @@ def run_reproduce(presets: Sequence[str], quick: bool = False, seeds: Sequence[i
         for name, grid in grids.items():
             if grid.pipeline == "batch" and scheduler is None and workers > 1:
                 prepare_batch_inputs(grid, quiet)
+            others = [folder.path / GRIDS / other for other in PRESETS if other != name]
             run = run_grid(grid, folder.path / GRIDS / name, scheduler=scheduler, workers=workers, quiet=quiet,
-                           where=f"preset {name}")
+                           where=f"preset {name}", share_from=others)
             result.failed.update({f"{name}: {cell}": why for cell, why in run.failed.items()})
             result.ran, result.skipped = result.ran + len(run.ran), result.skipped + len(run.skipped)
+            result.shared += len(run.shared)
         stamp = (f"Command: `{command}`; msa-slam {_version()}; {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC; "
                  f"wall time {(time.monotonic() - started) / 60:.1f} min on {os.cpu_count()} cores, load average "
                  f"{load:.1f} at the start and {os.getloadavg()[0]:.1f} at the end; {result.ran} cell(s) run, "
-                 f"{result.skipped} reused from an earlier run{', quick variant' if quick else ''}.")
+                 f"{result.shared} copied from an identical cell, {result.skipped} reused from an earlier run"
+                 f"{', quick variant' if quick else ''}.")
         write_reproduce_report(folder.path, grids, stamp, result.failed)
         folder.record_files()
     return result
