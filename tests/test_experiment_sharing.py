@@ -75,3 +75,33 @@ def test_identical_cells_run_once_and_the_copies_say_where_from(tmp_path, monkey
     assert ran == ["all"] and not other.ran and list(other.shared.values()) in ([cell.id], [again.id])
     assert (tmp_path / "b" / "cells" / next(iter(other.shared)) / "metrics.json").read_bytes() == (
         tmp_path / "a" / "cells" / cell.id / "metrics.json").read_bytes()
+
+
+def test_parallel_workers_do_not_both_build_an_input(tmp_path, monkeypatch):
+    # two batch cells on one uncached simulated sequence, on two workers at once: the simulation and the front end
+    # are built once, by the preparation before the cells start, and both cells read them from the cache
+    distributed = pytest.importorskip("distributed")
+    from msa_slam.pipeline import read_ahead
+    from msa_slam.sim import sequence
+
+    builds = []
+
+    def counting(module, name):
+        real = getattr(module, name)
+
+        def wrapper(*args, **kwargs):
+            builds.append(name)
+            return real(*args, **kwargs)
+
+        monkeypatch.setattr(module, name, wrapper)
+
+    counting(sequence, "_write")  # casts the scans of a simulation not yet cached
+    counting(read_ahead, "save_descriptors")  # stores descriptors computed (not read from the cache)
+    grid = parse_grid({**TINY, "pipeline": "batch", "datasets": ["sim:figure-eight,stride=4,azimuth_steps=180"],
+                       "base": {"odometry": "kiss", "sample_on": "gt", "min_frame_gap": 20,
+                                "cache_dir": str(tmp_path / "cache")}})
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=":0") as cluster, distributed.Client(cluster) as client:
+        run = runner.run_grid(grid, tmp_path / "out", client=client)
+    assert len(run.ran) == 2 and not run.failed
+    assert builds == ["_write", "save_descriptors"]

@@ -10,7 +10,6 @@ first cell runs.
 
 from __future__ import annotations
 
-import logging
 import os
 import time
 from dataclasses import dataclass, field
@@ -32,7 +31,6 @@ KIND = "reproduce"  # the result-folder kind of msa_slam.io.outputs
 DEFAULT_OUT = DEFAULT_RESULTS / "reproduce"
 GRIDS = "grids"  # out/grids/<preset>: one experiment folder per paper grid
 FIG6_DATASETS = ("kitti-07", "city-tour")  # the paper's Fig. 6 shows MulRan KAIST and Apollo SanJose
-log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -66,8 +64,6 @@ def run_reproduce(presets: Sequence[str], quick: bool = False, seeds: Sequence[i
     with open_result_folder(target, kind=KIND, default_parent=target.parent, resume=True) as folder:
         folder.prepare_in_place(grows=(GRIDS,), unit_record=MARKER)
         for name, grid in grids.items():
-            if grid.pipeline == "batch" and scheduler is None and workers > 1:
-                prepare_batch_inputs(grid, quiet)
             others = [folder.path / GRIDS / other for other in PRESETS if other != name]
             run = run_grid(grid, folder.path / GRIDS / name, scheduler=scheduler, workers=workers, quiet=quiet,
                            where=f"preset {name}", share_from=others)
@@ -102,24 +98,6 @@ def rewrite_reproduce_report(folder: str | os.PathLike) -> Path:
         report = write_reproduce_report(path, grids, stamp, {})
         result.record_files()
     return report
-
-
-def prepare_batch_inputs(grid: GridSpec, quiet: bool) -> None:
-    """Simulate and run the front end (odometry, descriptors, clouds: cached per sequence) of each dataset of a
-    batch grid here, one after another, before its cells go to parallel workers, which would otherwise each
-    compute the same ones at once: wasted work, and two simulations of one sequence racing for its cache folder.
-    A dataset that fails here is left to its cells, which record why."""
-    from msa_slam.pipeline.config import make_config
-    from msa_slam.pipeline.frontend import prepare_frontend
-
-    first = {}
-    for cell in expand(grid):
-        first.setdefault(cell.config["dataset"], cell)
-    for cell in first.values():
-        try:
-            prepare_frontend(make_config(cell.config), quiet)
-        except Exception as exc:  # the cells meet it again and record it with its traceback
-            log.warning("reproduce: front end of %s not prepared ahead: %s", cell.dataset, exc)
 
 
 def _version() -> str:

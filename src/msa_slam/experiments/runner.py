@@ -28,6 +28,7 @@ from msa_slam.experiments.estimate import GridClock, GridEstimate, estimate_grid
 from msa_slam.experiments.folder import CELL_FILE, KIND, cell_dir, finished_cells, read_cell, stale_cells, write_grid
 from msa_slam.experiments.grid import Cell, GridSpec, check_datasets, expand, run_key
 from msa_slam.experiments.identity import CELL_IDENTITY, cell_identities, outdated_cells
+from msa_slam.experiments.inputs import input_groups, prepare_inputs
 from msa_slam.experiments.sharing import RUN_KEY, SharePlan, copy_cell, finished_runs, plan_sharing
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, some_names, staged_dir
@@ -260,6 +261,21 @@ def _run_cells(grid: GridSpec, todo: list[Cell], run: GridRun, scheduler: str | 
             _run_dask(todo, infos, run.out, grid.figures, scheduler, workers, client, run, advance)
 
 
+def _prepare_inputs(client, todo: list[Cell]) -> None:
+    """Build the inputs the `todo` cells share (experiments.inputs) on the cluster, one task a dataset, before any
+    cell is submitted; a failure is logged and left to the cells, which record it."""
+    from distributed import as_completed
+
+    groups = input_groups(todo)
+    futures = {client.submit(prepare_inputs, group, key=f"inputs-{k}-{todo[0].id}", pure=False): group
+               for k, group in enumerate(groups)}
+    for future in as_completed(futures):
+        try:
+            future.result()
+        except Exception as exc:  # the cells meet it again and record it with its traceback
+            log.warning("experiment: inputs of %s not prepared ahead: %s", futures[future][0][1]["dataset"], exc)
+
+
 def _run_dask(todo: list[Cell], infos: dict[str, dict[str, Any]], out: Path, figures: bool, scheduler: str | None,
               workers: int, client, run: GridRun, advance) -> None:
     from distributed import Client, LocalCluster, as_completed
@@ -276,6 +292,7 @@ def _run_dask(todo: list[Cell], infos: dict[str, dict[str, Any]], out: Path, fig
                 own_cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                            dashboard_address=":0")
                 client = own_client = Client(own_cluster)
+        _prepare_inputs(client, todo)
         futures = {client.submit(run_cell, infos[c.id], c.config, str(out.resolve()), figures, key=f"cell-{c.id}",
                                  pure=False): c for c in todo}
         for future in as_completed(futures):
