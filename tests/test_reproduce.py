@@ -21,6 +21,7 @@ from msa_slam.experiments.paper import PRESETS, QUICK_FRAMES, parse_presets, var
 from msa_slam.experiments.reproduce import GRIDS, write_reproduce_report
 from msa_slam.experiments.reproduce_report import SECTIONS, missing_parts
 from msa_slam.io.outputs import write_marker
+from msa_slam.io.poses import write_poses
 from test_cli_main import run_cli
 
 SPREAD = [0.0, 0.3, -0.2, 0.1, -0.1]  # per-seed noise shared by both sides of a pair
@@ -157,13 +158,20 @@ def _steps(folder: Path, bytes_per_m: float) -> None:
 
 
 def _frames(folder: Path) -> None:
-    """frames.csv of a 40-frame curve: odometry drifting sideways, every second frame a keyframe."""
+    """frames.csv and the full-rate trajectories of a 40-frame curve: odometry drifting sideways, the optimised
+    path less, every second frame a keyframe."""
     rows = ["frame,time,is_keyframe,odom_x,odom_y,odom_z,gt_x,gt_y,gt_z,opt_x,opt_y,opt_z,ate_odom_m,ate_opt_m"]
+    paths = {name: np.tile(np.eye(4), (40, 1, 1)) for name in ("gt", "odometry", "optimised")}
     for i in range(40):
         x, y = 20 * np.cos(i / 10), 20 * np.sin(i / 10)
         rows.append(f"{i},{i / 10},{int(i % 2 == 0)},{x},{y + 0.05 * i},0,{x},{y},0,{x},{y + 0.01 * i},0,"
                     f"{0.05 * i},{0.01 * i}")
+        for name, drift in (("gt", 0.0), ("odometry", 0.05), ("optimised", 0.01)):
+            paths[name][i, :2, 3] = x, y + drift * i
     (folder / "frames.csv").write_text("\n".join(rows) + "\n")
+    (folder / "trajectories").mkdir()
+    for name, poses in paths.items():
+        write_poses(folder / "trajectories" / f"{name}.kitti", poses, "kitti")
 
 
 def constructed_reproduction(out: Path, seeds: list[int]) -> dict:
@@ -259,3 +267,20 @@ def test_report_command_rewrites_a_reproduction(tmp_path):
     text = (out / "report.md").read_text()
     assert missing_parts(text) == [] and "Command: `msa-slam reproduce --quick`" in text
     assert "Report rewritten by `msa-slam report`" in text
+
+
+def test_fig6_paths_are_aligned_to_ground_truth_with_their_keyframes(tmp_path):
+    from types import SimpleNamespace
+
+    from msa_slam.experiments.paper_values import aligned_paths
+
+    _frames(tmp_path)
+    shifted = np.tile(np.eye(4), (40, 1, 1))  # the optimised path of _frames moved 100 m: alignment undoes it
+    shifted[:, :3, 3] = np.loadtxt(tmp_path / "trajectories" / "optimised.kitti")[:, [3, 7, 11]] + [100.0, 50.0, 0.0]
+    write_poses(tmp_path / "trajectories" / "optimised.kitti", shifted, "kitti")
+    gt, paths, keyframes = aligned_paths(SimpleNamespace(folder=tmp_path))
+    assert list(keyframes) == list(range(0, 40, 2)) and gt.shape == (40, 2)
+    assert paths["optimised"].errors.max() < 0.3 and np.abs(paths["optimised"].xy - gt).max() < 0.3
+    assert paths["odometry"].errors.max() > paths["optimised"].errors.max()
+    (tmp_path / "trajectories" / "gt.kitti").unlink()
+    assert aligned_paths(SimpleNamespace(folder=tmp_path)) is None
