@@ -314,6 +314,18 @@ def test_a_pool_of_workers_writes_the_same_bytes(tmp_path):
         simulate_sequence(cfg, out=tmp_path / "bad", workers=-1)
 
 
+def test_a_daemonic_process_casts_its_scans_itself(monkeypatch):
+    """A Dask worker is daemonic and may not start a pool: a long sequence simulated there is cast in it."""
+    from types import SimpleNamespace
+
+    from msa_slam.sim import sequence
+
+    monkeypatch.setattr(sequence.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    assert sequence.default_workers(1000) == 2 and sequence.default_workers(10) == 0
+    monkeypatch.setattr(sequence.multiprocessing, "current_process", lambda: SimpleNamespace(daemon=True))
+    assert sequence.default_workers(1000) == 0
+
+
 def test_damaged_simulation_is_simulated_again(tmp_path, caplog):
     """A scan truncated or lost after sim.json was written (a full disk, a killed copy) makes the sequence
     incomplete: the next use warns and simulates it again, never serving the short scan."""

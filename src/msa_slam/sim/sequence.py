@@ -121,9 +121,11 @@ def _worker_write(job: tuple[Path, int]) -> tuple[int, int | None]:
 
 def default_workers(frames: int) -> int:
     """Worker processes for a sequence of `frames` scans: one per CPU (at most MAX_WORKERS), or none (the
-    calling process casts) for a short sequence or a single CPU."""
+    calling process casts) for a short sequence, a single CPU, or a daemonic caller (a Dask worker, which may not
+    start processes: its grid cells and their inputs simulate there)."""
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return 0 if frames < PARALLEL_MIN_FRAMES or cpus < 2 else min(cpus, MAX_WORKERS)
+    daemon = multiprocessing.current_process().daemon
+    return 0 if frames < PARALLEL_MIN_FRAMES or cpus < 2 or daemon else min(cpus, MAX_WORKERS)
 
 
 def _written_scans(sim: Simulation, target: Path, workers: int, frames: list[int]
