@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -324,6 +325,23 @@ def test_a_daemonic_process_casts_its_scans_itself(monkeypatch):
     assert sequence.default_workers(1000) == 2 and sequence.default_workers(10) == 0
     monkeypatch.setattr(sequence.multiprocessing, "current_process", lambda: SimpleNamespace(daemon=True))
     assert sequence.default_workers(1000) == 0
+
+
+def test_a_writer_that_finishes_second_keeps_the_first_ones_sequence(tmp_path, monkeypatch):
+    """Two runs simulating one uncached sequence at once: the one that finishes second finds the folder complete
+    and uses it, instead of failing on it (rmdir or rename onto a folder no longer empty)."""
+    from msa_slam.sim import sequence
+
+    real = sequence._write
+
+    def first_finishes_meanwhile(sim, seq, *args):
+        real(sim, seq, *args)
+        shutil.copytree(seq, target)  # the other writer's complete sequence appears before this one's rename
+
+    cfg = make_config(**SMALL)
+    target = tmp_path / "seq"
+    monkeypatch.setattr(sequence, "_write", first_finishes_meanwhile)
+    assert simulate_sequence(cfg, out=target) == target and is_complete(target, cfg.key())
 
 
 def test_damaged_simulation_is_simulated_again(tmp_path, caplog):

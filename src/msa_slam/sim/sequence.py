@@ -236,12 +236,12 @@ def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
         target.parent.mkdir(parents=True, exist_ok=True)
         with partial_dir(target.parent, target.name) as tmp, _writing(target, tmp):  # mapped before tmp goes
             _write(sim, tmp / "seq", progress, default_workers(len(sim)) if workers is None else workers)
-            if target.exists():
-                target.rmdir()  # an empty directory (checked above) is replaced
             try:
+                if target.exists():
+                    target.rmdir()  # an empty directory (checked above) is replaced
                 os.replace(tmp / "seq", target)
-            except OSError:
-                if not is_complete(target, key):  # else a concurrent writer finished first
+            except OSError:  # a concurrent writer may have finished first: its folder is no longer empty
+                if not is_complete(target, key):
                     raise
     return target
 
