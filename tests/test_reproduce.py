@@ -35,7 +35,7 @@ def test_difference_needs_a_difference_beyond_the_seed_spread():
     assert noisy.sign == 0 and noisy.p >= 0.05
     few = v.difference(base[:2], [b - 9 for b in base[:2]])  # too few to test
     assert (few.sign, few.mean_difference, few.p, few.pairs) == (0, 9.0, None, 2)
-    assert few.text() == "mean difference +9 ± 0.0 over 2 pair(s), p n/a (2 seed(s), the paired test needs at least 3)"
+    assert few.text() == "mean difference +9 ± 0.0 over 2 pair(s), p n/a (2 pair(s), the paired test needs at least 3)"
     assert v.difference([b - 1.0 for b in base[:3]], base[:3]).sign == -1  # the same amount on every seed
     assert v.difference(base, base).sign == 0
     with pytest.raises(ValueError, match="unequal length"):

@@ -127,28 +127,29 @@ def _number(x: float, signed: bool = False) -> str:
 
 
 def paired_verdict(reference: Sequence[float | None], baseline: Sequence[float | None],
-                   higher_is_better: bool, seeds: Sequence[int]) -> PairedVerdict:
+                   higher_is_better: bool, seeds: Sequence[int], unit: str = "seed") -> PairedVerdict:
     """Whether the per-seed difference reference - baseline exceeds its seed-to-seed spread (PAIRED_TEST). No
     p-value, with the reason, when a value is n/a, with fewer than MIN_SEEDS pairs, when the values differ only
     by rounding, or when the difference is the same on every seed (no variance: the t statistic is undefined;
-    then `sign` still says which side, since every seed agrees)."""
+    then `sign` still says which side, since every seed agrees). `unit` names a pair in the reasons (a seed, or
+    a pair of runs on one world when they pool datasets)."""
     missing = [s for s, a, b in zip(seeds, reference, baseline) if a is None or b is None
                or math.isnan(a) or math.isnan(b)]
     if missing:
-        return PairedVerdict(len(seeds), None, None, None, 0, f"n/a: a value is n/a on seed(s) "
+        return PairedVerdict(len(seeds), None, None, None, 0, f"n/a: a value is n/a on {unit}(s) "
                              f"{', '.join(map(str, missing))} (that seed's notes say why)")
     diff = np.array([without_rounding(a, b) for a, b in zip(reference, baseline)], dtype=np.float64)
     mean = float(diff.mean()) if len(diff) else None
     std = float(diff.std(ddof=1)) if len(diff) >= 2 else None
     if len(seeds) < MIN_SEEDS:
         return PairedVerdict(len(seeds), mean, std, None, 0,
-                             f"n/a: {len(seeds)} seed(s), the paired test needs at least {MIN_SEEDS}")
+                             f"n/a: {len(seeds)} {unit}(s), the paired test needs at least {MIN_SEEDS}")
     if not diff.any():  # equal, or e.g. no loop closed: the optimiser only rounded
-        return PairedVerdict(len(seeds), 0.0, 0.0, None, 0, "no difference on any seed")
+        return PairedVerdict(len(seeds), 0.0, 0.0, None, 0, f"no difference on any {unit}")
     better = 1 if (mean > 0) == higher_is_better else -1
     if np.all(diff == diff[0]):  # zero variance: the t statistic is undefined
         return PairedVerdict(len(seeds), mean, 0.0, None, better,
-                             f"{'better' if better > 0 else 'worse'} by the same amount on every seed "
+                             f"{'better' if better > 0 else 'worse'} by the same amount on every {unit} "
                              "(no variance: no p-value)")
     with warnings.catch_warnings():  # scipy's "nearly identical data" warning: the p-value then says as much
         warnings.simplefilter("ignore", RuntimeWarning)

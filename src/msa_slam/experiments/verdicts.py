@@ -24,7 +24,7 @@ def difference(a: Sequence[float], b: Sequence[float]) -> PairedVerdict:
     spread); values that differ only by rounding are equal (spread.without_rounding)."""
     if len(a) != len(b):
         raise ValueError(f"paired values of unequal length ({len(a)} and {len(b)})")
-    return paired_verdict(list(a), list(b), True, list(range(len(a))))
+    return paired_verdict(list(a), list(b), True, list(range(len(a))), unit="pair")
 
 
 def mean_std(values: Sequence[float]) -> tuple[float, float]:
