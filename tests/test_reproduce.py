@@ -13,6 +13,7 @@ from typer.testing import CliRunner
 import msa_slam
 from msa_slam.cli import app
 from msa_slam.errors import InputError
+from msa_slam.evaluation.spread import PairedVerdict
 from msa_slam.experiments import verdicts as v
 from msa_slam.experiments.folder import write_grid
 from msa_slam.experiments.grid import expand, load_grid
@@ -20,6 +21,7 @@ from msa_slam.experiments.paper import PRESETS, QUICK_FRAMES, parse_presets, var
 from msa_slam.experiments.reproduce import GRIDS, write_reproduce_report
 from msa_slam.experiments.reproduce_report import SECTIONS, missing_parts
 from msa_slam.io.outputs import write_marker
+from msa_slam.io.poses import write_poses
 from test_cli_main import run_cli
 
 SPREAD = [0.0, 0.3, -0.2, 0.1, -0.1]  # per-seed noise shared by both sides of a pair
@@ -31,7 +33,9 @@ def test_difference_needs_a_difference_beyond_the_seed_spread():
     assert clear.sign == 1 and clear.p < 0.05
     noisy = v.difference([b + d for b, d in zip(base, [3.0, -2.5, 2.0, -3.0, 0.4])], base)
     assert noisy.sign == 0 and noisy.p >= 0.05
-    assert v.difference(base[:2], [b - 9 for b in base[:2]]) == v.Difference(0, 9.0, None, 2)  # too few to test
+    few = v.difference(base[:2], [b - 9 for b in base[:2]])  # too few to test
+    assert (few.sign, few.mean_difference, few.p, few.pairs) == (0, 9.0, None, 2)
+    assert few.text() == "mean difference +9 ± 0.0 over 2 pair(s), p n/a (2 pair(s), the paired test needs at least 3)"
     assert v.difference([b - 1.0 for b in base[:3]], base[:3]).sign == -1  # the same amount on every seed
     assert v.difference(base, base).sign == 0
     with pytest.raises(ValueError, match="unequal length"):
@@ -55,15 +59,20 @@ def test_above_limit_and_combined_parts():
     assert v.combine(v.HOLDS, v.HOLDS) == v.HOLDS
 
 
+def found(sign: int, mean: float, p: float | None, pairs: int) -> PairedVerdict:
+    """A paired test's outcome as the rules see it (std 1)."""
+    return PairedVerdict(pairs, mean, 1.0, p, sign, None if p is not None else "n/a: too few pairs")
+
+
 def test_expect_not_worse_and_bounds_rules():
-    up, down, none = v.Difference(1, 2.0, 0.01, 3), v.Difference(-1, -2.0, 0.01, 3), v.Difference(0, 0.1, 0.6, 3)
+    up, down, none = found(1, 2.0, 0.01, 3), found(-1, -2.0, 0.01, 3), found(0, 0.1, 0.6, 3)
     assert (v.expect(up, 1), v.expect(down, 1), v.expect(none, 1)) == (v.HOLDS, v.FAILS, v.NOT_SEPARABLE)
     assert (v.not_worse(up), v.not_worse(none), v.not_worse(down)) == (v.HOLDS, v.HOLDS, v.FAILS)
-    assert v.not_worse(v.Difference(0, 0.0, None, 1)) == v.NOT_SEPARABLE  # one seed: no test
+    assert v.not_worse(found(0, 0.0, None, 1)) == v.NOT_SEPARABLE  # one seed: no test
     assert v.stable_and_sensitive(none, down) == v.HOLDS
     assert v.stable_and_sensitive(up, down) == v.FAILS  # accuracy moved beyond the spread
     assert v.stable_and_sensitive(none, none) == v.NOT_SEPARABLE
-    assert v.stable_and_sensitive(v.Difference(0, 0.0, None, 1), down) == v.NOT_SEPARABLE
+    assert v.stable_and_sensitive(found(0, 0.0, None, 1), down) == v.NOT_SEPARABLE
 
 
 def test_no_universal_constant():
@@ -149,13 +158,20 @@ def _steps(folder: Path, bytes_per_m: float) -> None:
 
 
 def _frames(folder: Path) -> None:
-    """frames.csv of a 40-frame curve: odometry drifting sideways, every second frame a keyframe."""
+    """frames.csv and the full-rate trajectories of a 40-frame curve: odometry drifting sideways, the optimised
+    path less, every second frame a keyframe."""
     rows = ["frame,time,is_keyframe,odom_x,odom_y,odom_z,gt_x,gt_y,gt_z,opt_x,opt_y,opt_z,ate_odom_m,ate_opt_m"]
+    paths = {name: np.tile(np.eye(4), (40, 1, 1)) for name in ("gt", "odometry", "optimised")}
     for i in range(40):
         x, y = 20 * np.cos(i / 10), 20 * np.sin(i / 10)
         rows.append(f"{i},{i / 10},{int(i % 2 == 0)},{x},{y + 0.05 * i},0,{x},{y},0,{x},{y + 0.01 * i},0,"
                     f"{0.05 * i},{0.01 * i}")
+        for name, drift in (("gt", 0.0), ("odometry", 0.05), ("optimised", 0.01)):
+            paths[name][i, :2, 3] = x, y + drift * i
     (folder / "frames.csv").write_text("\n".join(rows) + "\n")
+    (folder / "trajectories").mkdir()
+    for name, poses in paths.items():
+        write_poses(folder / "trajectories" / f"{name}.kitti", poses, "kitti")
 
 
 def constructed_reproduction(out: Path, seeds: list[int]) -> dict:
@@ -196,6 +212,7 @@ def test_report_sections_and_claims_from_constructed_cells(tmp_path):
     assert claims["Emphasising rho (beta = 10) lowers memory and accuracy"] == "**holds**"
     assert claims["A window of N = 10 is solved in 5-15 ms"] == "**holds**"
     assert "| KITTI-05 | kitti-05 |" in text and "OverlapTransformer" in text
+    assert "values differing only by floating-point rounding (within 1e-09 of their scale) are shown as equal" in text
     for name in ("fig5_deviations.png", "fig6_kitti-05.png", "memory_distance.png", "distance_bounds.png"):
         assert (tmp_path / "figures" / name).is_file()
 
@@ -250,3 +267,20 @@ def test_report_command_rewrites_a_reproduction(tmp_path):
     text = (out / "report.md").read_text()
     assert missing_parts(text) == [] and "Command: `msa-slam reproduce --quick`" in text
     assert "Report rewritten by `msa-slam report`" in text
+
+
+def test_fig6_paths_are_aligned_to_ground_truth_with_their_keyframes(tmp_path):
+    from types import SimpleNamespace
+
+    from msa_slam.experiments.paper_values import aligned_paths
+
+    _frames(tmp_path)
+    shifted = np.tile(np.eye(4), (40, 1, 1))  # the optimised path of _frames moved 100 m: alignment undoes it
+    shifted[:, :3, 3] = np.loadtxt(tmp_path / "trajectories" / "optimised.kitti")[:, [3, 7, 11]] + [100.0, 50.0, 0.0]
+    write_poses(tmp_path / "trajectories" / "optimised.kitti", shifted, "kitti")
+    gt, paths, keyframes = aligned_paths(SimpleNamespace(folder=tmp_path))
+    assert list(keyframes) == list(range(0, 40, 2)) and gt.shape == (40, 2)
+    assert paths["optimised"].errors.max() < 0.3 and np.abs(paths["optimised"].xy - gt).max() < 0.3
+    assert paths["odometry"].errors.max() > paths["optimised"].errors.max()
+    (tmp_path / "trajectories" / "gt.kitti").unlink()
+    assert aligned_paths(SimpleNamespace(folder=tmp_path)) is None

@@ -7,7 +7,7 @@ from typer.testing import CliRunner
 
 from msa_slam.cli import app
 from msa_slam.errors import InputError
-from msa_slam.evaluation.spread import paired_verdict, seed_ranks, spreads
+from msa_slam.evaluation.spread import paired_verdict, seed_ranks, spreads, without_rounding
 from msa_slam.experiments.seeds import SEED_METRICS, parse_seeds, seed_markdown, seed_summary, seeded_datasets
 
 
@@ -27,22 +27,34 @@ def test_paired_verdicts():
     seeds = [0, 1, 2, 3]
     # MSA ahead by 10 +- 1 on worlds that differ by 50: beyond the spread of the differences
     msa, base = [60.0, 11.0, 35.0, 85.0], [49.0, 2.0, 24.0, 76.0]
-    assert paired_verdict(msa, base, True, seeds)["verdict"].startswith("better, beyond the seed spread (p")
-    assert paired_verdict(msa, base, False, seeds)["verdict"].startswith("worse, beyond")
+    assert paired_verdict(msa, base, True, seeds).verdict.startswith("better, beyond the seed spread (p")
+    assert paired_verdict(msa, base, False, seeds).verdict.startswith("worse, beyond")
     # differences of both signs: within the spread
-    assert paired_verdict([1.0, 2.0, 3.0, 4.0], [2.0, 1.0, 4.0, 3.0], True, seeds)["verdict"].startswith("within")
-    assert paired_verdict([1.0, 2.0], [0.0, 1.0], True, [0, 1])["verdict"] == (
+    assert paired_verdict([1.0, 2.0, 3.0, 4.0], [2.0, 1.0, 4.0, 3.0], True, seeds).verdict.startswith("within")
+    assert paired_verdict([1.0, 2.0], [0.0, 1.0], True, [0, 1]).verdict == (
         "n/a: 2 seed(s), the paired test needs at least 3")
-    assert paired_verdict([1.0, None, 3.0], [0.0, 1.0, 2.0], True, [0, 1, 2])["verdict"] == (
+    assert paired_verdict([1.0, None, 3.0], [0.0, 1.0, 2.0], True, [0, 1, 2]).verdict == (
         "n/a: a value is n/a on seed(s) 1 (that seed's notes say why)")
-    assert paired_verdict([1.0, 2.0, 3.0], [1.0, 2.0, 3.0], True, [0, 1, 2])["verdict"] == "no difference on any seed"
+    assert paired_verdict([1.0, 2.0, 3.0], [1.0, 2.0, 3.0], True, [0, 1, 2]).verdict == "no difference on any seed"
     # no loop closed by either (simulated KITTI-09): improvements of +-1e-11 % are the optimiser's rounding
     rounding = paired_verdict([6.3e-12, -1.3e-12, -2.2e-12], [1.7e-12, 4.6e-13, -3.1e-12], True, [0, 1, 2])
-    assert rounding["verdict"] == "no difference on any seed" and rounding["p"] is None
-    assert paired_verdict([1e-6, 2e-6, 4e-6], [0.0, 0.0, 0.0], True, [0, 1, 2])["p"] is not None
+    assert rounding.verdict == "no difference on any seed" and rounding.p is None
+    assert (rounding.mean_difference, rounding.std_difference, rounding.sign) == (0.0, 0.0, 0)
+    assert rounding.text() == "mean difference 0.0 ± 0.0 over 3 pair(s), p n/a (no difference on any seed)"
+    # a pair that differs by rounding alone counts as equal (0.0), the others as they are
+    assert without_rounding(50.0 + 1e-12, 50.0) == 0.0 and without_rounding(50.1, 50.0) == pytest.approx(0.1)
+    mixed = paired_verdict([1.0 + 1e-13, 2.0, 3.0], [1.0, 1.0, 1.0], True, [0, 1, 2])
+    assert mixed.mean_difference == pytest.approx(1.0) and mixed.p is not None
+    # no variance: no p-value, and why; every seed agrees on the side
+    same = paired_verdict([2.0, 3.0, 4.0], [1.0, 2.0, 3.0], False, [0, 1, 2])
+    assert (same.sign, same.p, same.std_difference) == (-1, None, 0.0)
+    assert same.verdict == "worse by the same amount on every seed (no variance: no p-value)"
+    one = paired_verdict([2.0], [1.0], True, [0])
+    assert one.std_difference is None and one.verdict == "n/a: 1 seed(s), the paired test needs at least 3"
+    assert paired_verdict([1e-6, 2e-6, 4e-6], [0.0, 0.0, 0.0], True, [0, 1, 2]).p is not None
     # a p-value under 0.001 prints as such, not as p=0.000
     far = paired_verdict([10.0, 20.0, 30.0, 40.0], [0.0, 10.001, 20.0, 29.999], True, seeds)
-    assert far["p"] < 0.001 and far["verdict"] == "better, beyond the seed spread (p<0.001)"
+    assert far.p < 0.001 and far.verdict == "better, beyond the seed spread (p<0.001)"
 
 
 def test_seed_summary_reports_mean_std_ranks_and_verdicts():
@@ -51,7 +63,7 @@ def test_seed_summary_reports_mean_std_ranks_and_verdicts():
     summary = seed_summary(rows)
     entry = summary.metrics["improvement_t_pct"]
     assert entry.methods["msa"].ranks == [1, 1, 1] and entry.methods["all"].mean == 30.0
-    assert entry.msa_vs["all"]["verdict"].startswith("better, beyond the seed spread")
+    assert entry.msa_vs["all"].verdict.startswith("better, beyond the seed spread")
     assert summary.metrics["keyframes"].msa_vs == {}  # no direction: no test
     text = seed_markdown(summary)
     assert "| msa | 32.100 ± 20.100 |" not in text and "| msa | 32.1 ± 20.1 |" in text

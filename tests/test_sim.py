@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -312,6 +313,35 @@ def test_a_pool_of_workers_writes_the_same_bytes(tmp_path):
     assert all((here / f).read_bytes() == (pool / f).read_bytes() for f in files)
     with pytest.raises(InputError, match="workers must be an integer >= 0, got -1"):
         simulate_sequence(cfg, out=tmp_path / "bad", workers=-1)
+
+
+def test_a_daemonic_process_casts_its_scans_itself(monkeypatch):
+    """A Dask worker is daemonic and may not start a pool: a long sequence simulated there is cast in it."""
+    from types import SimpleNamespace
+
+    from msa_slam.sim import sequence
+
+    monkeypatch.setattr(sequence.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    assert sequence.default_workers(1000) == 2 and sequence.default_workers(10) == 0
+    monkeypatch.setattr(sequence.multiprocessing, "current_process", lambda: SimpleNamespace(daemon=True))
+    assert sequence.default_workers(1000) == 0
+
+
+def test_a_writer_that_finishes_second_keeps_the_first_ones_sequence(tmp_path, monkeypatch):
+    """Two runs simulating one uncached sequence at once: the one that finishes second finds the folder complete
+    and uses it, instead of failing on it (rmdir or rename onto a folder no longer empty)."""
+    from msa_slam.sim import sequence
+
+    real = sequence._write
+
+    def first_finishes_meanwhile(sim, seq, *args):
+        real(sim, seq, *args)
+        shutil.copytree(seq, target)  # the other writer's complete sequence appears before this one's rename
+
+    cfg = make_config(**SMALL)
+    target = tmp_path / "seq"
+    monkeypatch.setattr(sequence, "_write", first_finishes_meanwhile)
+    assert simulate_sequence(cfg, out=target) == target and is_complete(target, cfg.key())
 
 
 def test_damaged_simulation_is_simulated_again(tmp_path, caplog):

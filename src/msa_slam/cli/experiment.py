@@ -29,8 +29,9 @@ def experiment_command(
     run = run_grid(load_grid(grid), out, scheduler=scheduler, workers=workers, quiet=quiet, overwrite=overwrite,
                    where=grid)
     rerun = f" ({len(run.rerun)} rerun: their data or code changed)" if run.rerun else ""
-    typer.echo(f"{len(run.ran)} cell(s) run{rerun}, {len(run.skipped)} already finished, {len(run.failed)} failed",
-               err=True)
+    shared = f", {len(run.shared)} copied from an identical cell" if run.shared else ""
+    typer.echo(f"{len(run.ran)} cell(s) run{rerun}{shared}, {len(run.skipped)} already finished, "
+               f"{len(run.failed)} failed", err=True)
     echo_stale(run.stale)
     for cell, reason in run.failed.items():
         typer.echo(f"failed: {cell}: {reason} (traceback: {run.out / 'errors' / (cell + '.txt')})", err=True)

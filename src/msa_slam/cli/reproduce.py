@@ -37,7 +37,8 @@ def reproduce_command(
     run = run_reproduce(names, quick=quick, seeds=None if seeds is None else parse_seeds(seeds), out=out,
                         scheduler=scheduler, workers=workers, quiet=quiet,
                         command=" ".join(["msa-slam", *sys.argv[1:]]))
-    typer.echo(f"{run.ran} cell(s) run, {run.skipped} already finished, {len(run.failed)} failed", err=True)
+    typer.echo(f"{run.ran} cell(s) run, {run.shared} copied from an identical cell, {run.skipped} already finished, "
+               f"{len(run.failed)} failed", err=True)
     for cell, reason in run.failed.items():
         typer.echo(f"failed: {cell}: {reason}", err=True)
     typer.echo(str(run.report))

@@ -10,6 +10,7 @@ cancels out and only the samplers' difference is tested against its own seed-to-
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Mapping, Sequence
 
@@ -72,30 +73,85 @@ def spreads(per_seed: Sequence[Mapping[str, float | None]], higher_is_better: bo
     return out
 
 
+def without_rounding(a: float, b: float) -> float:
+    """a - b, or 0.0 when the two differ only by floating-point rounding (within ROUNDING of their scale, at least
+    1): a report then shows them as equal instead of a difference of 1e-12 that means nothing."""
+    difference = a - b
+    return 0.0 if abs(difference) <= ROUNDING * max(1.0, abs(a), abs(b)) else difference
+
+
+@dataclass(frozen=True)
+class PairedVerdict:
+    """The paired test of a reference method (MSA) against one baseline over seeds that share a world
+    (PAIRED_TEST): the per-pair differences reference - baseline (rounding shown as 0.0: without_rounding), their
+    mean and sample std, the p-value, and `sign`: +1 the reference better beyond the seed spread, -1 worse, 0 no
+    separable difference. `na` says why there is no p-value (None when there is one)."""
+
+    pairs: int
+    mean_difference: float | None
+    std_difference: float | None
+    p: float | None
+    sign: int
+    na: str | None
+
+    @property
+    def verdict(self) -> str:
+        """One phrase: "better, beyond the seed spread (p=0.012)", "within the seed spread (p=0.4)", or n/a's
+        reason."""
+        if self.p is None:
+            return self.na or "n/a"
+        shown = "p<0.001" if self.p < 0.001 else f"p={self.p:.3f}"  # a p-value is never 0
+        if self.sign == 0:
+            return f"within the seed spread ({shown})"
+        return f"{'better' if self.sign > 0 else 'worse'}, beyond the seed spread ({shown})"
+
+    def text(self) -> str:
+        """"mean difference +1.2 ± 0.3 over 3 pair(s), p=0.012", or with why there is no p-value."""
+        mean = "n/a" if self.mean_difference is None else _number(self.mean_difference, signed=True)
+        std = "" if self.std_difference is None else f" ± {_number(self.std_difference)}"
+        if self.p is not None:
+            p = "p<0.001" if self.p < 0.001 else f"p={self.p:.3f}"
+        else:
+            p = f"p n/a ({(self.na or 'n/a').removeprefix('n/a: ')})"
+        return f"mean difference {mean}{std} over {self.pairs} pair(s), {p}"
+
+    def to_json(self) -> dict[str, object]:
+        """The verdict as seeds.json records it."""
+        return {"p": self.p, "mean_difference": self.mean_difference, "std_difference": self.std_difference,
+                "pairs": self.pairs, "verdict": self.verdict}
+
+
+def _number(x: float, signed: bool = False) -> str:
+    """Three significant digits; an exact zero (rounding removed: without_rounding) as 0.0."""
+    return "0.0" if x == 0 else f"{x:+.3g}" if signed else f"{x:.3g}"
+
+
 def paired_verdict(reference: Sequence[float | None], baseline: Sequence[float | None],
-                   higher_is_better: bool, seeds: Sequence[int]) -> dict[str, object]:
-    """Whether the per-seed difference reference - baseline exceeds its seed-to-seed spread (PAIRED_TEST):
-    {"p": p-value or None, "mean_difference": ..., "verdict": one phrase}."""
+                   higher_is_better: bool, seeds: Sequence[int], unit: str = "seed") -> PairedVerdict:
+    """Whether the per-seed difference reference - baseline exceeds its seed-to-seed spread (PAIRED_TEST). No
+    p-value, with the reason, when a value is n/a, with fewer than MIN_SEEDS pairs, when the values differ only
+    by rounding, or when the difference is the same on every seed (no variance: the t statistic is undefined;
+    then `sign` still says which side, since every seed agrees). `unit` names a pair in the reasons (a seed, or
+    a pair of runs on one world when they pool datasets)."""
     missing = [s for s, a, b in zip(seeds, reference, baseline) if a is None or b is None
                or math.isnan(a) or math.isnan(b)]
     if missing:
-        return {"p": None, "mean_difference": None, "verdict": f"n/a: a value is n/a on seed(s) "
-                f"{', '.join(map(str, missing))} (that seed's notes say why)"}
+        return PairedVerdict(len(seeds), None, None, None, 0, f"n/a: a value is n/a on {unit}(s) "
+                             f"{', '.join(map(str, missing))} (that seed's notes say why)")
+    diff = np.array([without_rounding(a, b) for a, b in zip(reference, baseline)], dtype=np.float64)
+    mean = float(diff.mean()) if len(diff) else None
+    std = float(diff.std(ddof=1)) if len(diff) >= 2 else None
     if len(seeds) < MIN_SEEDS:
-        return {"p": None, "mean_difference": None,
-                "verdict": f"n/a: {len(seeds)} seed(s), the paired test needs at least {MIN_SEEDS}"}
-    ref, base = np.asarray(reference, dtype=np.float64), np.asarray(baseline, dtype=np.float64)
-    diff = ref - base
-    mean = float(diff.mean())
-    better = (mean > 0) == higher_is_better
-    scale = max(1.0, float(np.abs(np.concatenate([ref, base])).max()))
-    if np.all(np.abs(diff) <= ROUNDING * scale):  # equal, or e.g. no loop closed: the optimiser only rounded
-        return {"p": None, "mean_difference": mean, "verdict": "no difference on any seed"}
-    if np.all(diff == diff[0]):  # no spread at all: the t statistic is undefined
-        return {"p": None, "mean_difference": mean,
-                "verdict": f"{'better' if better else 'worse'} by the same amount on every seed"}
-    p = float(stats.ttest_rel(ref, base).pvalue)
-    shown = "p<0.001" if p < 0.001 else f"p={p:.3f}"  # a p-value is never 0
-    verdict = (f"{'better' if better else 'worse'}, beyond the seed spread ({shown})" if p < ALPHA
-               else f"within the seed spread ({shown})")
-    return {"p": p, "mean_difference": mean, "verdict": verdict}
+        return PairedVerdict(len(seeds), mean, std, None, 0,
+                             f"n/a: {len(seeds)} {unit}(s), the paired test needs at least {MIN_SEEDS}")
+    if not diff.any():  # equal, or e.g. no loop closed: the optimiser only rounded
+        return PairedVerdict(len(seeds), 0.0, 0.0, None, 0, f"no difference on any {unit}")
+    better = 1 if (mean > 0) == higher_is_better else -1
+    if np.all(diff == diff[0]):  # zero variance: the t statistic is undefined
+        return PairedVerdict(len(seeds), mean, 0.0, None, better,
+                             f"{'better' if better > 0 else 'worse'} by the same amount on every {unit} "
+                             "(no variance: no p-value)")
+    with warnings.catch_warnings():  # scipy's "nearly identical data" warning: the p-value then says as much
+        warnings.simplefilter("ignore", RuntimeWarning)
+        p = float(stats.ttest_1samp(diff, 0.0).pvalue)  # = ttest_rel(reference, baseline), rounding left out
+    return PairedVerdict(len(seeds), mean, std, p, better if p < ALPHA else 0, None)

@@ -42,10 +42,13 @@ class GridEstimate:
     cell_s: dict[str, float]
     seconds: float | None
     basis: str
+    shared: int = 0
 
     def line(self) -> str:
         """The line printed before the first cell."""
-        counts = f"grid {self.name}: {self.total} cells, {self.finished} finished earlier, {len(self.cell_s)} to run"
+        copied = f", {self.shared} copied from an identical cell" if self.shared else ""
+        counts = (f"grid {self.name}: {self.total} cells, {self.finished} finished earlier{copied}, "
+                  f"{len(self.cell_s)} to run")
         if not self.cell_s:
             return counts
         if self.seconds is None:
@@ -54,9 +57,10 @@ class GridEstimate:
 
 
 def estimate_grid(name: str, cells: Sequence[Cell], finished: Mapping[str, tuple[dict, RunMetrics]],
-                  todo: Sequence[Cell], workers: int | None) -> GridEstimate:
+                  todo: Sequence[Cell], workers: int | None, shared: int = 0) -> GridEstimate:
     """The estimate of running `todo` (of the grid's `cells`; `finished`: read_cell's (info, metrics) by id) on
-    `workers` local processes (None: a Dask cluster of unknown size, then stated for one worker)."""
+    `workers` local processes (None: a Dask cluster of unknown size, then stated for one worker); `shared` cells
+    are copied from identical ones instead (experiments.sharing)."""
     opened: dict[tuple, tuple[int | None, int | None]] = {}  # each dataset is looked at once
     sizes = {cell.id: _size(cell, opened) for cell in todo}
     per_frame, basis = _recorded_cost(finished)
@@ -69,7 +73,7 @@ def estimate_grid(name: str, cells: Sequence[Cell], finished: Mapping[str, tuple
     known = [s for s in cell_s.values() if s is not None]
     if not known:  # no frame count (recordings that cannot be opened yet): the clock weighs the cells alike
         return GridEstimate(name, len(cells), len(finished), dict.fromkeys(cell_s, 1.0), None,
-                            f"the frames of {len(cell_s)} cell(s) are not known before they run")
+                            f"the frames of {len(cell_s)} cell(s) are not known before they run", shared)
     mean = sum(known) / len(known)
     unknown = len(cell_s) - len(known)
     if unknown:
@@ -78,7 +82,7 @@ def estimate_grid(name: str, cells: Sequence[Cell], finished: Mapping[str, tuple
     used = 1 if workers is None else max(1, min(workers, len(todo)))
     spread = "on one worker" if workers is None else f"on {used} worker{'s' * (used > 1)}"
     return GridEstimate(name, len(cells), len(finished), cell_s, sum(cell_s.values()) / used,
-                        f"{basis}; {spread}; start-up and writing results not included")
+                        f"{basis}; {spread}; start-up and writing results not included", shared)
 
 
 def _stage_costs() -> str:

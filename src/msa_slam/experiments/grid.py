@@ -152,6 +152,26 @@ class Cell:
                 "parameters": self.parameters, "seed": self.seed}
 
 
+# Config keys that name a run without changing what it computes: cells differing only there are one run.
+PRESENTATION_KEYS = ("label",)
+
+
+def run_key(cell: Cell, identity: Mapping[str, str | None]) -> str | None:
+    """What the cell computes, as a hash: its pipeline, its config as run (the sampler's parameters with their
+    defaults filled in; not its label) and the identity of its data and code (experiments.identity). Cells of
+    one grid or of two with the same key are one run (experiments.sharing copies it); None when the data cannot
+    be read now (such a cell is never shared)."""
+    from msa_slam.sampling.registry import check_sampler_params
+
+    if any(value is None for value in identity.values()):
+        return None
+    config = {k: v for k, v in cell.config.items() if k not in PRESENTATION_KEYS}
+    config["sampler_params"] = check_sampler_params(cell.sampler, config.get("sampler_params") or {}).model_dump(
+        mode="json")
+    content = {"pipeline": cell.pipeline, "config": config, "identity": dict(identity)}
+    return hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode()).hexdigest()
+
+
 def parse_grid(data: Any, where: str = "grid") -> GridSpec:
     """A validated GridSpec from a mapping; problems become one InputError naming `where`."""
     if not isinstance(data, Mapping):

@@ -1,5 +1,6 @@
 """Every read of a finished grid's cells that `reproduce` needs, in one place: the flat rows of
-experiments.report.make_rows, the MSA window solve times and the memory-over-distance series. Only this module
+experiments.report.make_rows, the MSA window solve times, the memory-over-distance series and the aligned
+trajectories of Fig. 6. Only this module
 walks a cell's metrics or files, so that a change of their layout is met here alone."""
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from msa_slam.errors import InputError
 from msa_slam.evaluation.run_metrics import TableRow
 from msa_slam.experiments.report import FinishedCell, load_cells, make_rows, read_steps
 from msa_slam.reporting.results import accounted_bytes
@@ -61,15 +63,31 @@ def memory_over_distance(cell: FinishedCell) -> tuple[np.ndarray, np.ndarray] | 
     return distance[step_frames], accounted_bytes(steps).astype(float)
 
 
-def trajectory_xy(cell: FinishedCell) -> dict[str, np.ndarray] | None:
-    """xy of ground truth, odometry (every frame) and the optimised keyframes, with the per-point ATE of the
-    latter two (frames.csv); None when the cell has no frames.csv."""
-    path = cell.folder / "frames.csv"
-    if not path.is_file():
+@dataclass(frozen=True)
+class AlignedPath:
+    """An estimate of every frame, SE(3)-aligned to ground truth as the ATE is: xy (N, 2) and each frame's position
+    error [m]."""
+
+    xy: np.ndarray
+    errors: np.ndarray
+
+
+def aligned_paths(cell: FinishedCell) -> tuple[np.ndarray, dict[str, AlignedPath], np.ndarray] | None:
+    """Ground-truth xy, the full-rate odometry and optimised trajectories aligned to it (trajectories/*.kitti, as
+    the full-rate ATE aligns them) and the keyframes' frame indices (frames.csv); None when a file is missing or
+    the alignment is undetermined (a straight prefix)."""
+    from msa_slam.evaluation.trajectory import align_se3
+    from msa_slam.io.poses import read_poses
+
+    folder = cell.folder / "trajectories"
+    try:
+        gt = read_poses(folder / "gt.kitti", "kitti")[0]
+        paths = {}
+        for name in ("odometry", "optimised"):
+            aligned = align_se3(read_poses(folder / f"{name}.kitti", "kitti")[0], gt)
+            errors = np.linalg.norm(aligned[:, :3, 3] - gt[:, :3, 3], axis=1)
+            paths[name] = AlignedPath(aligned[:, :2, 3], errors)
+        frames = np.genfromtxt(cell.folder / "frames.csv", delimiter=",", names=True)
+    except (OSError, InputError):  # AlignmentError among them
         return None
-    f = np.genfromtxt(path, delimiter=",", names=True)
-    kf = np.atleast_1d(f["is_keyframe"]).astype(bool)
-    return {"gt": np.column_stack([f["gt_x"], f["gt_y"]]), "odometry": np.column_stack([f["odom_x"], f["odom_y"]]),
-            "odometry_error": np.atleast_1d(f["ate_odom_m"]),
-            "optimised": np.column_stack([f["opt_x"], f["opt_y"]])[kf],
-            "optimised_error": np.atleast_1d(f["ate_opt_m"])[kf]}
+    return gt[:, :2, 3], paths, np.flatnonzero(np.atleast_1d(frames["is_keyframe"]).astype(bool))

@@ -10,7 +10,6 @@ first cell runs.
 
 from __future__ import annotations
 
-import logging
 import os
 import time
 from dataclasses import dataclass, field
@@ -18,6 +17,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Sequence
 
+from msa_slam.evaluation.spread import without_rounding
 from msa_slam.experiments import paper_claims as pc
 from msa_slam.experiments import reproduce_report as rr
 from msa_slam.experiments.grid import GridSpec, check_datasets, expand
@@ -31,17 +31,18 @@ KIND = "reproduce"  # the result-folder kind of msa_slam.io.outputs
 DEFAULT_OUT = DEFAULT_RESULTS / "reproduce"
 GRIDS = "grids"  # out/grids/<preset>: one experiment folder per paper grid
 FIG6_DATASETS = ("kitti-07", "city-tour")  # the paper's Fig. 6 shows MulRan KAIST and Apollo SanJose
-log = logging.getLogger(__name__)
 
 
 @dataclass
 class Reproduction:
-    """What a reproduce run did: its report and the cells that failed (grid: cell: reason)."""
+    """What a reproduce run did: its report, the cells that failed (grid: cell: reason), and how many cells ran,
+    were finished earlier, or were copied from an identical cell of this or another grid (experiments.sharing)."""
 
     report: Path
     failed: dict[str, str] = field(default_factory=dict)
     ran: int = 0
     skipped: int = 0
+    shared: int = 0
 
 
 def run_reproduce(presets: Sequence[str], quick: bool = False, seeds: Sequence[int] | None = None,
@@ -63,16 +64,17 @@ def run_reproduce(presets: Sequence[str], quick: bool = False, seeds: Sequence[i
     with open_result_folder(target, kind=KIND, default_parent=target.parent, resume=True) as folder:
         folder.prepare_in_place(grows=(GRIDS,), unit_record=MARKER)
         for name, grid in grids.items():
-            if grid.pipeline == "batch" and scheduler is None and workers > 1:
-                prepare_batch_inputs(grid, quiet)
+            others = [folder.path / GRIDS / other for other in PRESETS if other != name]
             run = run_grid(grid, folder.path / GRIDS / name, scheduler=scheduler, workers=workers, quiet=quiet,
-                           where=f"preset {name}")
+                           where=f"preset {name}", share_from=others)
             result.failed.update({f"{name}: {cell}": why for cell, why in run.failed.items()})
             result.ran, result.skipped = result.ran + len(run.ran), result.skipped + len(run.skipped)
+            result.shared += len(run.shared)
         stamp = (f"Command: `{command}`; msa-slam {_version()}; {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC; "
                  f"wall time {(time.monotonic() - started) / 60:.1f} min on {os.cpu_count()} cores, load average "
                  f"{load:.1f} at the start and {os.getloadavg()[0]:.1f} at the end; {result.ran} cell(s) run, "
-                 f"{result.skipped} reused from an earlier run{', quick variant' if quick else ''}.")
+                 f"{result.shared} copied from an identical cell, {result.skipped} reused from an earlier run"
+                 f"{', quick variant' if quick else ''}.")
         write_reproduce_report(folder.path, grids, stamp, result.failed)
         folder.record_files()
     return result
@@ -96,24 +98,6 @@ def rewrite_reproduce_report(folder: str | os.PathLike) -> Path:
         report = write_reproduce_report(path, grids, stamp, {})
         result.record_files()
     return report
-
-
-def prepare_batch_inputs(grid: GridSpec, quiet: bool) -> None:
-    """Simulate and run the front end (odometry, descriptors, clouds: cached per sequence) of each dataset of a
-    batch grid here, one after another, before its cells go to parallel workers, which would otherwise each
-    compute the same ones at once: wasted work, and two simulations of one sequence racing for its cache folder.
-    A dataset that fails here is left to its cells, which record why."""
-    from msa_slam.pipeline.config import make_config
-    from msa_slam.pipeline.frontend import prepare_frontend
-
-    first = {}
-    for cell in expand(grid):
-        first.setdefault(cell.config["dataset"], cell)
-    for cell in first.values():
-        try:
-            prepare_frontend(make_config(cell.config), quiet)
-        except Exception as exc:  # the cells meet it again and record it with its traceback
-            log.warning("reproduce: front end of %s not prepared ahead: %s", cell.dataset, exc)
 
 
 def _version() -> str:
@@ -173,7 +157,7 @@ def write_reproduce_report(out: Path, grids: dict[str, GridSpec], stamp: str, fa
 
 def fig5_panels(rows: list[dict]) -> dict[str, dict[str, list[float]]]:
     """The Fig. 5 panels: each method's t./R. ATE improvement minus all samples' on the same run (dataset, mode,
-    seed) in percentage points, and its memory and time."""
+    seed) in percentage points (a difference of rounding alone is 0.0), and its memory and time."""
     panels: dict[str, dict[str, list[float]]] = {"t. ATE impr. - all [pp]": {}, "R. ATE impr. - all [pp]": {},
                                                  "memory [MiB]": {}, "time [s]": {}}
     methods = list(dict.fromkeys(r["method"] for r in rows))
@@ -181,7 +165,7 @@ def fig5_panels(rows: list[dict]) -> dict[str, dict[str, list[float]]]:
         for title, column in zip(list(panels)[:2], ("improvement_t_pct", "improvement_r_pct")):
             a, b = pc.paired(rows, pc.method(m), pc.method("all"), column)
             if m != "all":
-                panels[title][m] = [x - y for x, y in zip(a, b)]
+                panels[title][m] = [without_rounding(x, y) for x, y in zip(a, b)]
         panels["memory [MiB]"][m] = [r["memory_mib"] for r in rows if r["method"] == m]
         panels["time [s]"][m] = [r["time_s"] for r in rows if r["method"] == m and r["time_s"] is not None]
     return panels

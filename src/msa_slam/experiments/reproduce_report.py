@@ -11,11 +11,11 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from msa_slam.evaluation.display import fmt
-from msa_slam.evaluation.spread import MIN_SEEDS, PAIRED_TEST
+from msa_slam.evaluation.spread import MIN_SEEDS, PAIRED_TEST, ROUNDING
 from msa_slam.experiments import paper_claims as pc
 from msa_slam.experiments.grid import GridSpec, slug
 from msa_slam.experiments.paper import NOT_REPRODUCED, STAND_INS, column_of, dataset_name
-from msa_slam.experiments.paper_values import GridValues, memory_over_distance, trajectory_xy
+from msa_slam.experiments.paper_values import GridValues, aligned_paths, memory_over_distance
 from msa_slam.experiments.verdicts import extrapolate
 
 Row = dict[str, Any]
@@ -72,6 +72,8 @@ def conditions(run: Run, extra: str = "") -> str:
             f"odometry {base.get('odometry', 'kiss')}; {' and '.join(modes) or 'no'} mode; seeds "
             f"{', '.join(map(str, seeds)) or 'none'}; frames " + ", ".join(f"{k} {v}" for k, v in frames.items())
             + "; ATE on the full-rate trajectory, SE(3)-aligned (Umeyama, no scale); mean ± sample std over seeds"
+            + f"; values differing only by floating-point rounding (within {ROUNDING:g} of their scale) are shown as "
+            "equal (difference 0.0)"
             + (f"; {extra}" if extra else "") + f". Cells and per-dataset tables: {run.folder}/results.md.")
 
 
@@ -187,7 +189,9 @@ def figure_name(text: str) -> str:
 
 
 def fig6_panels(run: Run, dataset: str) -> tuple[np.ndarray, list] | None:
-    """Ground truth and the odometry, entropy and MSA panels of the first seed's oracle run on `dataset`."""
+    """Ground truth and the odometry, entropy and MSA panels of the first seed's oracle run on `dataset`: every
+    frame's trajectory SE(3)-aligned to ground truth and coloured by its error, the keyframes as rings (the
+    paper's Fig. 6 compares MSA and entropy after optimisation with the raw odometry)."""
     from msa_slam.viz import TrajectoryPanel
 
     cells = {c.info["method"]: c for c in run.values.cells if c.info["dataset"] == dataset
@@ -195,13 +199,17 @@ def fig6_panels(run: Run, dataset: str) -> tuple[np.ndarray, list] | None:
              and c.info["seed"] == min(r["seed"] for r in run.values.rows)}
     if "msa" not in cells or "entropy" not in cells:
         return None
-    xy = {m: trajectory_xy(cells[m]) for m in ("msa", "entropy")}
-    if any(x is None for x in xy.values()):
+    found = {m: aligned_paths(cells[m]) for m in ("msa", "entropy")}
+    if any(x is None for x in found.values()):
         return None
-    panels = [TrajectoryPanel("KISS-ICP odometry", xy["msa"]["odometry"], xy["msa"]["odometry_error"])]
-    panels += [TrajectoryPanel(f"{m} (optimised keyframes)", xy[m]["optimised"], xy[m]["optimised_error"], ())
-               for m in ("entropy", "msa")]  # loops given (none drawn): the methods the colour scale is about
-    return xy["msa"]["gt"], panels
+    gt, odometry = found["msa"][0], found["msa"][1]["odometry"]
+    panels = [TrajectoryPanel("KISS-ICP odometry", odometry.xy, odometry.errors, keyframes=())]
+    for m in ("entropy", "msa"):  # loops given (none drawn): the methods the colour scale and the zoom are about
+        _, paths, keyframes = found[m]
+        path = paths["optimised"]
+        panels.append(TrajectoryPanel(f"{m} after optimisation, ATE {float(np.sqrt(np.mean(path.errors ** 2))):.2f} m",
+                                      path.xy, path.errors, (), keyframes=keyframes))
+    return gt, panels
 
 
 def missing_parts(text: str, min_claims: int = 6) -> list[str]:

@@ -20,14 +20,16 @@ import sys
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 from msa_slam.errors import InputError
 from msa_slam.evaluation.run_metrics import RunMetrics
 from msa_slam.experiments.estimate import GridClock, GridEstimate, estimate_grid
 from msa_slam.experiments.folder import CELL_FILE, KIND, cell_dir, finished_cells, read_cell, stale_cells, write_grid
-from msa_slam.experiments.grid import Cell, GridSpec, check_datasets, expand
+from msa_slam.experiments.grid import Cell, GridSpec, check_datasets, expand, run_key
 from msa_slam.experiments.identity import CELL_IDENTITY, cell_identities, outdated_cells
+from msa_slam.experiments.inputs import input_groups, prepare_inputs
+from msa_slam.experiments.sharing import RUN_KEY, SharePlan, copy_cell, finished_runs, plan_sharing
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, some_names, staged_dir
 from msa_slam.io.marker import foreign_in_units
@@ -116,13 +118,15 @@ def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bo
 
 @dataclass
 class GridRun:
-    """What a run of the grid did: cells finished now, skipped (finished earlier), rerun (finished earlier on
-    other data or code: id: the line saying so) and failed (id: reason), and the cell folders of an earlier,
-    different grid left out of the report."""
+    """What a run of the grid did: cells finished now, skipped (finished earlier), copied from an identical cell
+    (id: the folder copied; experiments.sharing), rerun (finished earlier on other data or code: id: the line
+    saying so) and failed (id: reason), and the cell folders of an earlier, different grid left out of the
+    report."""
 
     out: Path
     ran: list[str] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
+    shared: dict[str, str] = field(default_factory=dict)
     rerun: dict[str, str] = field(default_factory=dict)
     failed: dict[str, str] = field(default_factory=dict)
     stale: list[str] = field(default_factory=list)
@@ -146,7 +150,8 @@ def _record(run: GridRun, cell: Cell, error: BaseException | None) -> None:
 
 
 def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | None = None, workers: int = 1,
-             client=None, quiet: bool = True, overwrite: bool = False, where: str = "grid") -> GridRun:
+             client=None, quiet: bool = True, overwrite: bool = False, where: str = "grid",
+             share_from: Sequence[Path] = ()) -> GridRun:
     """Run the unfinished cells of `grid` into `out`, then write the aggregate report.
 
     `out` is checked and locked first (msa_slam.io.outputs): None picks a new timestamped folder under
@@ -156,7 +161,9 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
     `workers` single-threaded processes. Bad input (datasets, the scheduler address) is refused before any cell
     runs; `where` (the grid file) starts those messages. Every cell records the identity of its data and code
     (msa_slam.experiments.identity); a finished cell whose data or code changed since is removed and rerun,
-    with a warning and a line in report.md.
+    with a warning and a line in report.md. A cell that computes the same run as a finished cell of `out` or of
+    the experiment folders `share_from`, or as another cell of this run, is copied instead of run
+    (experiments.sharing).
     """
     from msa_slam.experiments.report import write_report
 
@@ -182,14 +189,37 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
         run.stale = stale_cells(run.out, cells)
         run.skipped = [cell.id for cell in cells if cell.id in finished]
         todo = [cell for cell in cells if cell.id not in finished]
+        keys = {cell.id: run_key(cell, identities[cell.id]) for cell in todo}
+        infos = {cell.id: {**cell.info(), CELL_IDENTITY: identities[cell.id], RUN_KEY: keys[cell.id]} for cell in todo}
+        plan = plan_sharing(todo, keys, finished_runs([run.out, *share_from]))
         local = scheduler is None and client is None
-        estimate = estimate_grid(grid.name, cells, finished, todo, workers if local else None)
+        estimate = estimate_grid(grid.name, cells, finished, plan.run, workers if local else None,
+                                 shared=len(plan.copies) + len(plan.after))
         if not quiet:  # before the first cell, on a terminal or not
             print(estimate.line(), file=sys.stderr, flush=True)
-        _run_cells(grid, todo, run, scheduler, workers, client, quiet, estimate, identities)
+        _run_cells(grid, plan.run, run, scheduler, workers, client, quiet, estimate, infos)
+        _copy_cells(run, plan, infos)
         write_report(run.out, finished=finished, rerun=list(run.rerun.values()))
         folder.record_files()
     return run
+
+
+def _copy_cells(run: GridRun, plan: SharePlan, infos: dict[str, dict[str, Any]]) -> None:
+    """Write the cells of `plan` that copy a finished cell; one whose cell of this run failed fails with it."""
+    sources = {**plan.copies, **{cid: cell_dir(run.out, first) for cid, first in plan.after.items()
+                                 if first not in run.failed}}
+    for cid, first in plan.after.items():
+        if first in run.failed:
+            run.failed[cid] = f"the same run as cell {first}, which failed: {run.failed[first]}"
+            write_text_atomic(run.out / "errors" / f"{cid}.txt", run.failed[cid] + "\n")
+    for cid, source in sources.items():
+        try:
+            copy_cell(source, run.out, infos[cid])
+        except OSError as exc:
+            run.failed[cid] = f"{type(exc).__name__}: copying the identical cell {source.name}: {exc}"
+            continue
+        (run.out / "errors" / f"{cid}.txt").unlink(missing_ok=True)
+        run.shared[cid] = source.name
 
 
 def check_scheduler(scheduler: str) -> None:
@@ -203,11 +233,10 @@ def check_scheduler(scheduler: str) -> None:
 
 
 def _run_cells(grid: GridSpec, todo: list[Cell], run: GridRun, scheduler: str | None, workers: int, client,
-               quiet: bool, estimate: GridEstimate, identities: dict[str, dict[str, str | None]]) -> None:
-    """Run the `todo` cells, each recording its identity (cell_identities) in its cell.json."""
+               quiet: bool, estimate: GridEstimate, infos: dict[str, dict[str, Any]]) -> None:
+    """Run the `todo` cells, each recording `infos` (its info, identity and run key) as its cell.json."""
     from msa_slam.progress import progress_bar
 
-    infos = {cell.id: {**cell.info(), CELL_IDENTITY: identities[cell.id]} for cell in todo}
     clock = GridClock(estimate)
     with progress_bar(quiet, transient=False, fields="{task.fields[left]}") as bar:
         task = bar.add_task(f"grid {grid.name} ({len(run.skipped)} done before)", total=len(todo), left=clock.left([]))
@@ -228,6 +257,21 @@ def _run_cells(grid: GridSpec, todo: list[Cell], run: GridRun, scheduler: str | 
             _run_dask(todo, infos, run.out, grid.figures, scheduler, workers, client, run, advance)
 
 
+def _prepare_inputs(client, todo: list[Cell]) -> None:
+    """Build the inputs the `todo` cells share (experiments.inputs) on the cluster, one task a dataset, before any
+    cell is submitted; a failure is logged and left to the cells, which record it."""
+    from distributed import as_completed
+
+    groups = input_groups(todo)
+    futures = {client.submit(prepare_inputs, group, key=f"inputs-{k}-{todo[0].id}", pure=False): group
+               for k, group in enumerate(groups)}
+    for future in as_completed(futures):
+        try:
+            future.result()
+        except Exception as exc:  # the cells meet it again and record it with its traceback
+            log.warning("experiment: inputs of %s not prepared ahead: %s", futures[future][0][1]["dataset"], exc)
+
+
 def _run_dask(todo: list[Cell], infos: dict[str, dict[str, Any]], out: Path, figures: bool, scheduler: str | None,
               workers: int, client, run: GridRun, advance) -> None:
     from distributed import Client, LocalCluster, as_completed
@@ -244,6 +288,7 @@ def _run_dask(todo: list[Cell], infos: dict[str, dict[str, Any]], out: Path, fig
                 own_cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                            dashboard_address=":0")
                 client = own_client = Client(own_cluster)
+        _prepare_inputs(client, todo)
         futures = {client.submit(run_cell, infos[c.id], c.config, str(out.resolve()), figures, key=f"cell-{c.id}",
                                  pure=False): c for c in todo}
         for future in as_completed(futures):

@@ -11,8 +11,8 @@ from msa_slam.errors import InputError
 from msa_slam.evaluation import NA, fmt
 from msa_slam.evaluation.display import spec_for
 from msa_slam.evaluation.run_metrics import TableRow
-from msa_slam.evaluation.spread import (MIN_SEEDS, PAIRED_TEST, PAIRED_TEST_WHY, REFERENCE, Spread, paired_verdict,
-                                        spreads)
+from msa_slam.evaluation.spread import (MIN_SEEDS, PAIRED_TEST, PAIRED_TEST_WHY, REFERENCE, PairedVerdict, Spread,
+                                        paired_verdict, spreads)
 from msa_slam.sources.spec import spec_kind
 
 # comparison column -> (label, higher is better; None: no direction, no rank and no test)
@@ -64,7 +64,7 @@ class SeedMetric:
     label: str
     higher_is_better: bool | None
     methods: dict[str, Spread]
-    msa_vs: dict[str, dict[str, object]]
+    msa_vs: dict[str, PairedVerdict]
 
 
 @dataclass(frozen=True)
@@ -78,7 +78,7 @@ class SeedSummary:
         """seeds.json."""
         return {"seeds": self.seeds, "test": PAIRED_TEST, "test_choice": PAIRED_TEST_WHY, "min_seeds": MIN_SEEDS,
                 "metrics": {column: {"label": e.label, "higher_is_better": e.higher_is_better,
-                                     "methods": {m: vars(sp) for m, sp in e.methods.items()}, "msa_vs": e.msa_vs}
+                                     "methods": {m: vars(sp) for m, sp in e.methods.items()}, "msa_vs": {m: pv.to_json() for m, pv in e.msa_vs.items()}}
                             for column, e in self.metrics.items()}}
 
 
@@ -150,7 +150,7 @@ def seed_markdown(summary: SeedSummary) -> str:
                   f"the seed-to-seed spread? ({PAIRED_TEST_WHY}.)", "",
                   "| baseline | " + " | ".join(e.label for e in ranked.values()) + " |",
                   "|" + "---|" * (len(ranked) + 1)]
-        lines += [f"| {b} | " + " | ".join(e.msa_vs[b]["verdict"] if b in e.msa_vs else NA
+        lines += [f"| {b} | " + " | ".join(e.msa_vs[b].verdict if b in e.msa_vs else NA
                                            for e in ranked.values()) + " |" for b in baselines]
     else:
         lines += ["", f"No paired test: no method labelled {REFERENCE!r} in the comparison."]
@@ -162,11 +162,12 @@ def seed_rows(summary: SeedSummary) -> list[TableRow]:
     out = []
     for column, entry in summary.metrics.items():
         for method, sp in entry.methods.items():
-            verdict = entry.msa_vs.get(method, {})  # none against itself, nor for a metric without a direction
+            verdict = entry.msa_vs.get(method)  # none against itself, nor for a metric without a direction
             out.append({"metric": column, "method": method, "mean": sp.mean, "std": sp.std,
                         "values": " ".join(NA if v is None else f"{v:.6g}" for v in sp.values),
                         "ranks": " ".join(NA if r is None else str(r) for r in sp.ranks),
-                        "msa_vs_p": verdict.get("p"), "msa_vs_verdict": verdict.get("verdict", "")})
+                        "msa_vs_p": None if verdict is None else verdict.p,
+                        "msa_vs_verdict": "" if verdict is None else verdict.verdict})
     return out
 
 

@@ -9,49 +9,22 @@ claim holds, and a claim that does not hold is reported as not holding.
 
 from __future__ import annotations
 
-import warnings
-from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 import numpy as np
 
-from msa_slam.evaluation.spread import MIN_SEEDS, paired_verdict
+from msa_slam.evaluation.spread import MIN_SEEDS, PairedVerdict, paired_verdict
 
 HOLDS, FAILS, NOT_SEPARABLE = "holds", "does not hold", "not separable"
 
 
-@dataclass(frozen=True)
-class Difference:
-    """How paired values a - b compare: `sign` +1 (a greater), -1 (a smaller) or 0 (not separable), the mean
-    difference and the test's p-value (None when it has none: too few pairs, or no spread at all)."""
-
-    sign: int
-    mean: float | None
-    p: float | None
-    pairs: int
-
-    def text(self) -> str:
-        p = "p n/a" if self.p is None else ("p<0.001" if self.p < 0.001 else f"p={self.p:.3f}")
-        mean = "n/a" if self.mean is None else f"{self.mean:+.3g}"
-        return f"mean difference {mean} over {self.pairs} pair(s), {p}"
-
-
-def difference(a: Sequence[float], b: Sequence[float]) -> Difference:
-    """Paired comparison of a against b (same length, pair i shares its world). Separable when the paired t-test
-    gives p < 0.05, or with at least MIN_SEEDS pairs all differing by the same non-zero amount (no spread)."""
+def difference(a: Sequence[float], b: Sequence[float]) -> PairedVerdict:
+    """Paired comparison of a against b (same length, pair i shares its world; higher is +1): separable when the
+    paired t-test gives p < 0.05, or with at least MIN_SEEDS pairs all differing by the same non-zero amount (no
+    spread); values that differ only by rounding are equal (spread.without_rounding)."""
     if len(a) != len(b):
         raise ValueError(f"paired values of unequal length ({len(a)} and {len(b)})")
-    mean = float(np.mean(np.subtract(a, b))) if len(a) else None
-    if len(a) < MIN_SEEDS or mean is None:
-        return Difference(0, mean, None, len(a))
-    with warnings.catch_warnings():  # scipy's "nearly identical data" warning: the p-value then says as much
-        warnings.simplefilter("ignore", RuntimeWarning)
-        found = paired_verdict(list(a), list(b), True, list(range(len(a))))
-    p = found["p"]
-    if p is None:  # no difference beyond rounding, or the same non-zero amount on every pair ("better by ...")
-        same = str(found["verdict"]).startswith(("better", "worse"))
-        return Difference(int(np.sign(mean)) if same else 0, mean, None, len(a))
-    return Difference(int(np.sign(mean)) if p < 0.05 else 0, mean, p, len(a))
+    return paired_verdict(list(a), list(b), True, list(range(len(a))), unit="pair")
 
 
 def mean_std(values: Sequence[float]) -> tuple[float, float]:
@@ -88,7 +61,7 @@ def combine(*verdicts: str) -> str:
     return NOT_SEPARABLE if NOT_SEPARABLE in verdicts else HOLDS
 
 
-def expect(found: Difference, sign: int) -> str:
+def expect(found: PairedVerdict, sign: int) -> str:
     """A part claiming a difference of `sign` (+1 greater, -1 smaller): holds when found so, does not hold when
     found the other way, not separable when no difference is."""
     if found.sign == 0:
@@ -96,7 +69,7 @@ def expect(found: Difference, sign: int) -> str:
     return HOLDS if found.sign == sign else FAILS
 
 
-def not_worse(found: Difference) -> str:
+def not_worse(found: PairedVerdict) -> str:
     """A part claiming a is kept at b's level ("keeps the accuracy"): does not hold when a is separably smaller;
     not separable when no test is possible (fewer than MIN_SEEDS pairs); holds otherwise."""
     if found.sign < 0:
@@ -104,7 +77,7 @@ def not_worse(found: Difference) -> str:
     return NOT_SEPARABLE if found.pairs < MIN_SEEDS else HOLDS
 
 
-def stable_and_sensitive(accuracy: Difference, memory: Difference) -> str:
+def stable_and_sensitive(accuracy: PairedVerdict, memory: PairedVerdict) -> str:
     """The distance-bound claim: accuracy stable (its largest difference between settings not separable) and
     memory sensitive (the memory at the sweep's two ends separable)."""
     if accuracy.pairs < MIN_SEEDS or memory.pairs < MIN_SEEDS:

@@ -121,9 +121,11 @@ def _worker_write(job: tuple[Path, int]) -> tuple[int, int | None]:
 
 def default_workers(frames: int) -> int:
     """Worker processes for a sequence of `frames` scans: one per CPU (at most MAX_WORKERS), or none (the
-    calling process casts) for a short sequence or a single CPU."""
+    calling process casts) for a short sequence, a single CPU, or a daemonic caller (a Dask worker, which may not
+    start processes: its grid cells and their inputs simulate there)."""
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return 0 if frames < PARALLEL_MIN_FRAMES or cpus < 2 else min(cpus, MAX_WORKERS)
+    daemon = multiprocessing.current_process().daemon
+    return 0 if frames < PARALLEL_MIN_FRAMES or cpus < 2 or daemon else min(cpus, MAX_WORKERS)
 
 
 def _written_scans(sim: Simulation, target: Path, workers: int, frames: list[int]
@@ -234,12 +236,12 @@ def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
         target.parent.mkdir(parents=True, exist_ok=True)
         with partial_dir(target.parent, target.name) as tmp, _writing(target, tmp):  # mapped before tmp goes
             _write(sim, tmp / "seq", progress, default_workers(len(sim)) if workers is None else workers)
-            if target.exists():
-                target.rmdir()  # an empty directory (checked above) is replaced
             try:
+                if target.exists():
+                    target.rmdir()  # an empty directory (checked above) is replaced
                 os.replace(tmp / "seq", target)
-            except OSError:
-                if not is_complete(target, key):  # else a concurrent writer finished first
+            except OSError:  # a concurrent writer may have finished first: its folder is no longer empty
+                if not is_complete(target, key):
                     raise
     return target
 

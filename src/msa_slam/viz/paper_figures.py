@@ -73,6 +73,8 @@ def plot_memory_distance(path: str | Path, series: Mapping[str, tuple[np.ndarray
             ax2.set(xlabel="distance travelled [km]", ylabel="accounted memory [GiB]",
                     title=f"all samples extrapolated to {target_km:.0f} km")
             ax2.grid(alpha=0.3)
+            top = max(gib, start[1], limit_gib or 0.0)
+            ax2.set_ylim(0.0, 1.45 * top if top > 0 else 1.0)  # room above the data and the limit for the legend
             ax2.legend(fontsize=7, loc="upper left")
         fig.legend(*ax.get_legend_handles_labels(), loc="outside right center", fontsize=7)
         if title:

@@ -31,13 +31,23 @@ from msa_slam.viz.save import save_figure  # noqa: E402
 class TrajectoryPanel:
     """One panel: an estimate's xy (K, 2) with per-point error (m; None without ground truth: drawn in one
     colour), and loops as index pairs into it (None: an estimate loops play no part in, such as the odometry,
-    whose title then counts none)."""
+    whose title then counts none). `keyframes` None: every point is a keyframe (a dot); else xy is every frame's
+    path, drawn as a line, with the keyframes at these indices as rings."""
 
     title: str
     xy: np.ndarray
     errors: np.ndarray | None
     loops: Sequence[tuple[int, int]] | None = None
     false_loops: Sequence[tuple[int, int]] = ()
+    keyframes: Sequence[int] | None = None
+
+    def counts(self) -> str:
+        """What the panel's points are: "120 keyframes", "40 keyframes of 300 frames" or "300 frames"."""
+        if self.keyframes is None:
+            return counted(len(self.xy), "keyframe")
+        if len(self.keyframes):
+            return f"{counted(len(self.keyframes), 'keyframe')} of {counted(len(self.xy), 'frame')}"
+        return counted(len(self.xy), "frame")
 
     @property
     def name(self) -> str:
@@ -49,6 +59,7 @@ TRUE_LOOP, FALSE_LOOP = "tab:orange", "tab:red"  # loop colours kept off the err
 PLAIN = "tab:blue"  # an estimate without errors to colour it by
 GROUND_TRUTH = "0.8"
 DOT = 5.0  # keyframe dot area (points^2); a loop's ring is wider, so the dot's error colour shows inside it
+KEYFRAME_RING, KEYFRAME_EDGE = "0.15", 0.5  # a keyframe on a path of every frame: a hollow dark ring over the line
 RING, RING_EDGE = 4.5, 0.7  # loop end markers (true: circle, false: square): hollow, size and edge width in points
 ZOOM_LABEL = "zoom"  # the zoom panel's axes label (the route panels have none)
 ZOOM_ERRORS, ZOOM_MIN_M, ZOOM_MAX = 25.0, 10.0, 0.3  # zoom side: 25 x the mean error, >= 10 m, <= 30 % of route
@@ -63,14 +74,22 @@ def _draw(ax, gt_xy: np.ndarray, panel: TrajectoryPanel, norm: Normalize, cmap: 
     if len(gt_xy):
         ax.plot(gt_xy[:, 0], gt_xy[:, 1], color=GROUND_TRUTH, lw=3.0, zorder=1)
     segments = np.stack([panel.xy[:-1], panel.xy[1:]], axis=1)
+    dots = panel.keyframes is None  # else a path of every frame: a line, its keyframes ringed
+    width = 1.2 if dots else 1.8
     if panel.errors is None:
-        lines = LineCollection(segments, colors=PLAIN, lw=1.2, zorder=2)
-        ax.scatter(panel.xy[:, 0], panel.xy[:, 1], color=PLAIN, s=DOT, zorder=3)
+        lines = LineCollection(segments, colors=PLAIN, lw=width, zorder=2)
+        if dots:
+            ax.scatter(panel.xy[:, 0], panel.xy[:, 1], color=PLAIN, s=DOT, zorder=3)
     else:
-        lines = LineCollection(segments, cmap=cmap, norm=norm, lw=1.2, zorder=2)
+        lines = LineCollection(segments, cmap=cmap, norm=norm, lw=width, zorder=2)
         lines.set_array(0.5 * (panel.errors[:-1] + panel.errors[1:]))
-        ax.scatter(panel.xy[:, 0], panel.xy[:, 1], c=panel.errors, cmap=cmap, norm=norm, s=DOT, zorder=3)
+        if dots:
+            ax.scatter(panel.xy[:, 0], panel.xy[:, 1], c=panel.errors, cmap=cmap, norm=norm, s=DOT, zorder=3)
     ax.add_collection(lines)
+    if not dots and len(panel.keyframes):
+        ring = panel.xy[np.asarray(panel.keyframes, dtype=int)]
+        ax.plot(ring[:, 0], ring[:, 1], ls="none", marker="o", ms=RING, mfc="none", mec=KEYFRAME_RING,
+                mew=KEYFRAME_EDGE, zorder=3)
     # A loop between nearby keyframes is a short edge that a line alone would hide: its ends get rings.
     for pairs, colour, marker in ((panel.loops or (), TRUE_LOOP, "o"), (panel.false_loops, FALSE_LOOP, "s")):
         if len(pairs):
@@ -82,7 +101,7 @@ def _draw(ax, gt_xy: np.ndarray, panel: TrajectoryPanel, norm: Normalize, cmap: 
                     mew=RING_EDGE, zorder=4)
     counts = "" if panel.loops is None else (f", {counted(len(panel.loops), 'loop')}" + (
         f", {len(panel.false_loops)} false" if len(panel.false_loops) else ""))
-    ax.set_title(f"{panel.title}\n{counted(len(panel.xy), 'keyframe')}{counts}", fontsize=8)
+    ax.set_title(f"{panel.title}\n{panel.counts()}{counts}", fontsize=8)
     ax.set_xlabel("x [m]", fontsize=8)
     ax.set_ylabel("y [m]", fontsize=8)
     ax.tick_params(labelsize=7)
@@ -120,8 +139,9 @@ def _draw_zoom(ax, gt_xy: np.ndarray, panels: Sequence[TrajectoryPanel], centre:
         inside = (np.abs(panel.xy - centre) <= side / 2).all(axis=1)
         if panel.errors is not None and inside.any():
             means.append(float(panel.errors[inside].mean()))
+        marks = None if panel.keyframes is None else [int(i) for i in panel.keyframes]  # a path: its keyframes
         ax.plot(panel.xy[:, 0], panel.xy[:, 1], "-o", color=colours[k % len(colours)], lw=1.0, ms=2.5, zorder=2,
-                label=panel.name)
+                label=panel.name, markevery=marks)
     half = side / 2
     ax.set(xlim=(centre[0] - half, centre[0] + half), ylim=(centre[1] - half, centre[1] + half))
     ax.set_aspect("equal", adjustable="box")
@@ -136,9 +156,17 @@ def _draw_zoom(ax, gt_xy: np.ndarray, panels: Sequence[TrajectoryPanel], centre:
 def _legend_handles(gt_xy: np.ndarray, panels: Sequence[TrajectoryPanel], cmap: str, zoom: bool) -> list[Line2D]:
     coloured = any(p.errors is not None for p in panels)
     handles = [Line2D([], [], color=GROUND_TRUTH, lw=3.0, label="ground truth")] if len(gt_xy) else []
-    handles.append(Line2D([], [], color=plt.get_cmap(cmap)(0.5) if coloured else PLAIN, marker="o", ms=3, lw=1.2,
-                          label="keyframes, SE(3)-aligned to ground truth (colour: ATE)" if coloured
-                          else "keyframes (no ground truth: no error to colour them by)"))
+    if any(p.keyframes is None for p in panels):
+        handles.append(Line2D([], [], color=plt.get_cmap(cmap)(0.5) if coloured else PLAIN, marker="o", ms=3,
+                              lw=1.2, label="keyframes, SE(3)-aligned to ground truth (colour: ATE)" if coloured
+                              else "keyframes (no ground truth: no error to colour them by)"))
+    if any(p.keyframes is not None for p in panels):
+        handles.append(Line2D([], [], color=plt.get_cmap(cmap)(0.5) if coloured else PLAIN, lw=1.8,
+                              label="every frame, SE(3)-aligned to ground truth (colour: ATE)" if coloured
+                              else "every frame (no ground truth: no error to colour it by)"))
+    if any(p.keyframes is not None and len(p.keyframes) for p in panels):
+        handles.append(Line2D([], [], ls="none", marker="o", ms=RING, mfc="none", mec=KEYFRAME_RING,
+                              mew=KEYFRAME_EDGE, label="keyframe"))
     if any(p.loops for p in panels):
         handles.append(Line2D([], [], color=TRUE_LOOP, marker="o", ms=RING, mfc="none", lw=0.8,
                               label="loop (true)" if len(gt_xy) else "loop (not judged: no ground truth)"))
@@ -210,7 +238,8 @@ def plot_trajectories(path: str | Path, gt_xy: np.ndarray, panels: Sequence[Traj
         if mappable is not None:
             over = any(float(np.max(p.errors)) > top for p in panels if p.errors is not None)
             left.colorbar(mappable, ax=axes[:len(panels)].tolist(), shrink=0.6, extend="max" if over else "neither",
-                          label="ATE per keyframe [m]" + (" (larger: top colour)" if over else ""))
+                          label=f"ATE per {'keyframe' if all(p.keyframes is None for p in panels) else 'frame'} [m]"
+                          + (" (larger: top colour)" if over else ""))
         if zoom:
             zoom_ax = right.subplots()
             _draw_zoom(zoom_ax, gt_xy, scaled, *zoom)
