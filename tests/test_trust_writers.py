@@ -4,7 +4,6 @@ experiment keeps a user's folders, a glob character in --out touches no other ru
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from pathlib import Path

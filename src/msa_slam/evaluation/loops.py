@@ -89,17 +89,10 @@ def account_loops(loops: Sequence[LoopClosure], keyframes: np.ndarray, gt: np.nd
     indices, every frame's ground-truth pose (None without), the true-loop radius (m), the candidates' minimum
     path apart (m) and the rejection reasons to list."""
     accepted = [c for c in loops if c.accepted]
-<<<<<<< HEAD
     counts = (len(loops), int(sum(c.verified for c in loops)), len(accepted), rejection_counts(loops, reasons))
     if gt is None or not np.isfinite(gt).all():
         gone = Unavailable(NO_GROUND_TRUTH)
         return LoopCounts(*counts, *(gone,) * 8), {"loop_truth": NO_GROUND_TRUTH}
-=======
-    registered, rejected = sum(c.verified for c in loops), rejection_counts(loops, reasons)
-    if gt is None or not np.isfinite(gt).all():
-        return LoopAccounting(len(loops), registered, len(accepted), rejected,
-                              unavailable={"loop_truth": NO_GROUND_TRUTH})
->>>>>>> types
     revisits = revisit_pairs(keyframes, gt, radius, min_travel_m)
     closed = {(c.match, c.query) for c in accepted} & revisits
     partnered, partnered_closed = {newer for _, newer in revisits}, {newer for _, newer in closed}
@@ -107,7 +100,6 @@ def account_loops(loops: Sequence[LoopClosure], keyframes: np.ndarray, gt: np.nd
     if not revisits:
         unavailable["revisit_recall"] = (f"no keyframe pair within {radius:g} m in ground truth is {min_travel_m:g} m "
                                          "or more apart along the path (no revisit)")
-<<<<<<< HEAD
 
     def recall(found: int, total: int) -> Value:
         return found / total if total else Unavailable(unavailable["revisit_recall"])
@@ -119,13 +111,3 @@ def account_loops(loops: Sequence[LoopClosure], keyframes: np.ndarray, gt: np.nd
         revisits=len(revisits), revisits_closed=len(closed), revisit_recall=recall(len(closed), len(revisits)),
         revisit_keyframes=len(partnered), revisit_keyframes_closed=len(partnered_closed),
         revisit_keyframe_recall=recall(len(partnered_closed), len(partnered))), unavailable
-=======
-    return LoopAccounting(
-        len(loops), registered, len(accepted), rejected,
-        true_candidates=sum(c.gt_distance <= radius for c in loops),
-        false_accepted=sum(is_false_loop(c, gt, radius) for c in accepted),
-        revisits=len(revisits), revisits_closed=len(closed), revisit_recall=_recall(len(closed), len(revisits)),
-        revisit_keyframes=len(partnered), revisit_keyframes_closed=len({newer for _, newer in closed}),
-        revisit_keyframe_recall=_recall(len({newer for _, newer in closed}), len(partnered)),
-        unavailable=unavailable)
->>>>>>> types

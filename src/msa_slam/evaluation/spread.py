@@ -138,7 +138,8 @@ def paired_verdict(reference: Sequence[float | None], baseline: Sequence[float |
     if missing:
         return PairedVerdict(len(seeds), None, None, None, 0, f"n/a: a value is n/a on {unit}(s) "
                              f"{', '.join(map(str, missing))} (that seed's notes say why)")
-    diff = np.array([without_rounding(a, b) for a, b in zip(reference, baseline)], dtype=np.float64)
+    diff = np.array([without_rounding(a, b) for a, b in zip(reference, baseline) if a is not None and b is not None],
+                    dtype=np.float64)
     mean = float(diff.mean()) if len(diff) else None
     std = float(diff.std(ddof=1)) if len(diff) >= 2 else None
     if len(seeds) < MIN_SEEDS:
@@ -146,7 +147,7 @@ def paired_verdict(reference: Sequence[float | None], baseline: Sequence[float |
                              f"n/a: {len(seeds)} {unit}(s), the paired test needs at least {MIN_SEEDS}")
     if not diff.any():  # equal, or e.g. no loop closed: the optimiser only rounded
         return PairedVerdict(len(seeds), 0.0, 0.0, None, 0, f"no difference on any {unit}")
-    better = 1 if (mean > 0) == higher_is_better else -1
+    better = 1 if (float(diff.mean()) > 0) == higher_is_better else -1
     if np.all(diff == diff[0]):  # zero variance: the t statistic is undefined
         return PairedVerdict(len(seeds), mean, 0.0, None, better,
                              f"{'better' if better > 0 else 'worse'} by the same amount on every {unit} "
