@@ -9,7 +9,8 @@ import pytest
 from msa_slam.errors import InputError
 from msa_slam.experiments.compare import PAPER_METHODS, check_compare_sampler, method_configs
 from msa_slam.pipeline.config import apply_params, make_config
-from test_messages_real import run_cli, write_scans
+from helpers.streams import write_scans
+from test_messages_real import run_cli
 
 
 def test_sampler_parameters_reach_msa_only():

@@ -2,8 +2,9 @@
 folder whose finished seeds were run with other settings is refused, and a finished seed whose data or code
 changed since it ran is rerun (msa_slam.experiments.seed_folder).
 
-Two methods on a 30-scan prefix of the simulated figure-eight (coarse azimuth: at 180 steps the odometry of
-seed 1 stalls and MSA keeps too few keyframes): a seed costs a few seconds.
+Two methods on a 60-scan prefix of the simulated figure-eight (coarse azimuth: at 180 steps the odometry of
+seed 1 stalls and MSA keeps too few keyframes), without figures (what is resumed is the same with them): a seed
+costs a few seconds.
 """
 
 from __future__ import annotations
@@ -65,7 +66,7 @@ def calls(monkeypatch):
 
 
 def _run(base, out, **kwargs):
-    return run_compare(base, out, methods=METHODS, seeds=SEEDS, **kwargs)
+    return run_compare(base, out, methods=METHODS, seeds=SEEDS, figures=False, **kwargs)
 
 
 def _interrupt_on_seed_1(monkeypatch):
@@ -127,7 +128,7 @@ def test_other_settings_are_refused_and_overwrite_replaces(base, whole, calls, t
     with pytest.raises(OutputError, match="seed 0 was run with other settings .threshold_sweep: true there, false now"):
         run_compare(base, out, methods=METHODS, seeds=[0], sweep=False)
 
-    run_compare(changed, out, methods=METHODS, seeds=[0], overwrite=True)
+    run_compare(changed, out, methods=METHODS, seeds=[0], overwrite=True, figures=False)
     assert calls == [0] and sorted(p.name for p in (out / "seeds").iterdir()) == ["seed-0"]  # replaced, not merged
     record = json.loads((out / "seeds" / "seed-0" / "seed.json").read_text())
     assert record["methods"]["msa"]["similarity_threshold"] == 0.7 and record["failed"] == {}
@@ -145,7 +146,7 @@ def test_sampler_parameters_reach_msa_and_are_settings_a_resume_compares(base, w
         refused.value)
     assert calls == []
 
-    run_compare(windowed, out, methods=METHODS, seeds=[0], overwrite=True)
+    run_compare(windowed, out, methods=METHODS, seeds=[0], overwrite=True, figures=False)
     assert calls == [0]
     used = {m: yaml.safe_load((out / "seeds" / "seed-0" / "runs" / m / "config.yaml").read_text())["sampler_params"]
             for m in ("all", "msa")}

@@ -52,8 +52,8 @@ def _same_files(serial: Path, parallel: Path) -> None:
 
 
 def test_two_workers_write_the_files_of_a_serial_run(base, tmp_path):
-    serial = run_compare(base, tmp_path / "serial", methods=METHODS, workers=1).parent
-    parallel = run_compare(base, tmp_path / "parallel", methods=METHODS, workers=2).parent
+    serial = run_compare(base, tmp_path / "serial", methods=METHODS, workers=1, figures=False).parent
+    parallel = run_compare(base, tmp_path / "parallel", methods=METHODS, workers=2, figures=False).parent
     _same_files(serial, parallel)
     content = stable_content(parallel)
     assert {f"runs/{name}/metrics.json" for name, _, _ in METHODS} <= set(content)
@@ -69,8 +69,10 @@ def test_seeds_with_two_workers_write_the_files_of_a_serial_run(tmp_path, cache_
     _no_rss_growth(monkeypatch)  # the workers inherit the patch by fork
     base = make_config(dataset="sim:test,end=60,azimuth_steps=360", cache_dir=str(cache_dir))
     methods, seeds = METHODS[::2], [0, 1]
-    serial = run_compare(base, tmp_path / "serial", methods=methods, seeds=seeds, sweep=False, workers=1).parent
-    parallel = run_compare(base, tmp_path / "parallel", methods=methods, seeds=seeds, sweep=False, workers=2).parent
+    serial = run_compare(base, tmp_path / "serial", methods=methods, seeds=seeds, sweep=False, workers=1,
+                         figures=False).parent
+    parallel = run_compare(base, tmp_path / "parallel", methods=methods, seeds=seeds, sweep=False, workers=2,
+                           figures=False).parent
     _same_files(serial, parallel)
     assert "seeds/seed-1/runs/msa/metrics.json" in stable_content(parallel)
 
@@ -80,7 +82,7 @@ def test_a_method_failing_in_a_worker_is_reported_as_in_a_serial_run(short, tmp_
     before_method(monkeypatch, "constant-2m", degenerate)
     out = tmp_path / "cmp"
     with pytest.raises(MethodsFailed) as failed:
-        run_compare(short, out, methods=METHODS, sweep=False, workers=workers)
+        run_compare(short, out, methods=METHODS, sweep=False, workers=workers, figures=False)
     assert failed.value.failed == {"constant-2m": "RuntimeError: degenerate scan statistics"}
     error = (out / "runs" / "constant-2m" / "error.txt").read_text()
     assert error.startswith("Traceback") and "in degenerate" in error and "degenerate scan statistics" in error
@@ -98,7 +100,7 @@ def test_a_worker_that_dies_fails_its_method_instead_of_the_comparison(short, tm
     before_method(monkeypatch, "msa", lambda: os.kill(os.getpid(), signal.SIGKILL))
     out = tmp_path / "cmp"
     with pytest.raises(MethodsFailed) as failed:
-        run_compare(short, out, methods=METHODS, sweep=False, workers=2)
+        run_compare(short, out, methods=METHODS, sweep=False, workers=2, figures=False)
     assert failed.value.failed["msa"].startswith("BrokenProcessPool")
     assert "terminated abruptly" in (out / "runs" / "msa" / "error.txt").read_text()
     assert (out / "report.md").is_file()

@@ -28,7 +28,8 @@ def report(sequence, odometry_file, cache_dir, tmp_path_factory) -> Path:
     """A short demo-like run: the demo's settings (Scan Context, oracle loops, no sweep) on the test sequence."""
     config = make_config(dataset=str(sequence), odometry=str(odometry_file), descriptor="sc", mode="oracle",
                          cache_dir=str(cache_dir))
-    return run_compare(config, tmp_path_factory.mktemp("demo-like") / "cmp", methods=METHODS, sweep=False)
+    return run_compare(config, tmp_path_factory.mktemp("demo-like") / "cmp", methods=METHODS, sweep=False,
+                       figures=False)
 
 
 def test_the_closing_lines_give_each_methods_metrics(report):

@@ -21,6 +21,7 @@ from msa_slam.io.poses import read_poses, write_poses
 from msa_slam.pipeline.config import apply_params, make_config
 from msa_slam.pipeline.frontend import check_window
 from msa_slam.types import validate_poses
+from helpers.streams import write_scans, write_straight_stream
 
 IDENTITY = "1 0 0 0 0 1 0 0 0 0 1 0"
 
@@ -29,18 +30,6 @@ def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
     """The console entry point (msa_slam.cli.main) in a fresh process, as a user runs it."""
     code = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
     return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=600, cwd=cwd)
-
-
-def write_scans(folder: Path, count: int) -> Path:
-    """`count` KITTI .bin scans (x y z reflectance, float32) of random points 2-40 m around the sensor."""
-    folder.mkdir(parents=True)
-    rng = np.random.default_rng(0)
-    for k in range(count):
-        points = rng.uniform(-40, 40, (2000, 4)).astype(np.float32)
-        points[:, 2] = rng.uniform(-2, 5, 2000)
-        points[:, :2] += np.sign(points[:, :2]) * 2
-        points.tofile(folder / f"{k:06d}.bin")
-    return folder
 
 
 # L1: a pose file's value errors name its line (1-based, comments counted), as its parse errors do
@@ -161,16 +150,8 @@ def test_compare_refuses_it_naming_what_compare_can_change(tmp_path):
     assert "odometry" not in result.stderr
 
 
-def _straight_scans(tmp_path, frames: int) -> tuple[Path, Path]:
-    """`frames` scans and an odometry pose file of a straight drive, 1.5 m a frame."""
-    poses = np.tile(np.eye(4), (frames, 1, 1))
-    poses[:, 0, 3] = np.arange(frames) * 1.5
-    write_poses(tmp_path / "odometry.txt", poses)
-    return write_scans(tmp_path / "scans", frames), tmp_path / "odometry.txt"
-
-
 def test_short_stream_warning_is_one_line_before_the_front_end(tmp_path):
-    scans, odometry = _straight_scans(tmp_path, 4)
+    scans, odometry = write_straight_stream(tmp_path, 4)
     result = run_cli("run", "-d", str(scans), "--mode", "realistic", "--odometry", str(odometry),
                      "--out", str(tmp_path / "out"), "--cache-dir", str(tmp_path / "cache"))
     lines = result.stderr.splitlines()
@@ -183,9 +164,10 @@ def test_short_stream_warning_is_one_line_before_the_front_end(tmp_path):
 
 
 def test_compare_warns_of_a_short_stream_without_advising_the_flush_it_does(tmp_path):
-    scans, odometry = _straight_scans(tmp_path, 6)
+    scans, odometry = write_straight_stream(tmp_path, 6)
     result = run_cli("compare", "-d", str(scans), "--mode", "realistic", "--odometry", str(odometry),
-                     "--no-sweep", "--quiet", "--out", str(tmp_path / "out"), "--cache-dir", str(tmp_path / "cache"))
+                     "--no-sweep", "--no-figures", "--quiet", "--out", str(tmp_path / "out"), "--cache-dir",
+                     str(tmp_path / "cache"))
     warned = [line for line in result.stderr.splitlines() if "window=10 is longer than the stream" in line]
     assert warned == ["warning: msa: window=10 is longer than the stream (6 frames): the window never filled, so only "
                       "frame 0 was selected online; only the end-of-stream flush chooses keyframes after it; use a "

@@ -141,6 +141,18 @@ def test_compare_without_sweep_says_it_was_not_run(base, frontend, tmp_path):
     assert metrics["unavailable"]["threshold_sweep"].startswith("not run: left out with `--no-sweep`")
 
 
+def test_compare_without_figures_writes_the_tables_and_data_files(base, frontend, tmp_path):
+    methods = (("constant-3m", "constant", {"distance": 3.0}), ("all", "all", {}))
+    folder = run_compare(base, tmp_path / "cmp", methods=methods, sweep=False, figures=False).parent
+    assert not list(folder.rglob("*.png")) and "![" not in (folder / "report.md").read_text()
+    assert {p.name for p in (folder / "figures").iterdir()} == {"pr.csv"}  # the curves' data, not drawn
+    assert {r["method"] for r in csv.DictReader(open(folder / "figures" / "pr.csv"))} == {"constant-3m", "all"}
+    for name, _, _ in methods:
+        run = folder / "runs" / name
+        assert not (run / "figures").exists() and "![" not in (run / "report.md").read_text()
+        assert {"metrics.json", "frames.csv", "loops.csv", "pr.csv"} <= {p.name for p in run.iterdir()}
+
+
 def test_full_rate_trajectory_is_written_and_evaluated(base, frontend, tmp_path):
     result = run(base, frontend)
     full = result.optimised_full

@@ -39,6 +39,8 @@ def compare_command(
                                         "same --out resumes an interrupted run"),
     sweep: bool = typer.Option(True, "--sweep/--no-sweep", help="also replay each method's back-end at "
                                "similarity thresholds 0.70-0.85 (about half of a method's time)"),
+    figures: bool = typer.Option(True, "--figures/--no-figures", help="draw the PNG figures (the comparison's and "
+                                 "each method's); --no-figures writes only the tables and data files"),
     workers: Optional[int] = typer.Option(None, "--workers", help="run the methods in N worker processes "
                                           "forked after the shared front end (default: one per CPU); 1 runs them "
                                           "one after another in this process. The files are identical either way, "
@@ -62,7 +64,7 @@ def compare_command(
     with reporting_failed_methods():
         try:  # run_compare checks --out, then (with the dataset opened once) the methods' windows, before any work
             report = run_compare(cfg, out, quiet=quiet, overwrite=overwrite, seeds=seed_list, sweep=sweep,
-                                 window_fix=COMPARE_WINDOW_FIX,
+                                 window_fix=COMPARE_WINDOW_FIX, figures=figures,
                                  workers=available_cpus() if workers is None else workers)
         except MethodsFailed as exc:  # the spread over the seeds that finished is still worth printing
             _echo_seeds(exc.report, seed_list)

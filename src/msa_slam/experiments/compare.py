@@ -100,7 +100,8 @@ class MethodsFailed(Exception):
 def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = True,
                 methods: Sequence[tuple[str, str, dict[str, Any]]] = PAPER_METHODS, overwrite: bool = False,
                 default_parent: Path = DEFAULT_RESULTS / "compare", seeds: Sequence[int] | None = None,
-                sweep: bool = True, window_fix: str = CONFIG_WINDOW_FIX, workers: int = 1) -> Path:
+                sweep: bool = True, window_fix: str = CONFIG_WINDOW_FIX, workers: int = 1, figures: bool = True
+                ) -> Path:
     """Run every method on the sequence of `base` and write the comparison folder; return its report.md.
 
     `out` is checked before any work (msa_slam.io.outputs; None: a new timestamped folder under
@@ -114,7 +115,9 @@ def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = Tr
     finished seeds run with the same settings on the same data and code, and reruns those whose data or code
     changed since (msa_slam.experiments.seed_folder); `overwrite` starts afresh.
 
-    `sweep=False` leaves out each method's threshold sweep (experiments/sweep.py), about half of a method's time.
+    `sweep=False` leaves out each method's threshold sweep (experiments/sweep.py), about half of a method's time;
+    `figures=False` the PNG figures (the comparison's and each method's, most of a short comparison's time):
+    the tables and data files are the same. It is no setting a resumed seed must match.
     A method whose sampler window the frames read never fill is refused before the shared front end
     (prepare_frontend; `window_fix`: what the error says to change).
 
@@ -128,41 +131,42 @@ def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = Tr
     with open_result_folder(out, "compare", default_parent, overwrite=overwrite, resume=plans is not None) as folder:
         if plans is None:
             with folder.staging() as tmp:
-                _, failed = _comparison(method_configs(base, methods), tmp, quiet, sweep, window_fix, workers)
+                _, failed = _comparison(method_configs(base, methods), tmp, quiet, sweep, window_fix, workers,
+                                        figures)
         else:
             if not overwrite:
                 check_seed_folder(folder.path)
             grown = folder.prepare_in_place(fresh=overwrite, grows=("seeds",), unit_record=RECORD)
-            failed = _seed_comparisons(base, plans, grown, quiet, sweep, window_fix, workers)
+            failed = _seed_comparisons(base, plans, grown, quiet, sweep, window_fix, workers, figures)
             folder.record_files()
     if failed:
         raise MethodsFailed(folder.path / "report.md", failed)
     return folder.path / "report.md"
 
 
-def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: bool, window_fix: str, workers: int
-                ) -> tuple[list[TableRow], dict[str, str]]:
+def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: bool, window_fix: str, workers: int,
+                figures: bool = True) -> tuple[list[TableRow], dict[str, str]]:
     """One comparison folder's files in `tmp` (the methods in `workers` processes); its table rows and failed
     methods."""
     workers = min(workers, len(configs))  # no idle workers
     frontend = prepare_frontend(configs[0], quiet, configs, window_fix)
-    results, failed = _run_methods(configs, frontend, tmp / "runs", quiet, sweep, workers)
+    results, failed = _run_methods(configs, frontend, tmp / "runs", quiet, sweep, workers, figures)
     rows = [table_row(r.metrics) for r in results]
     table = table_markdown(rows, rpe_segments(results[0].gt_poses)[0] if results else "KITTI segments")
     (tmp / "comparison.md").write_text(table)
     (tmp / "comparison.csv").write_text(rows_csv(rows, COLUMNS))
     write_json(tmp / "comparison.json", [to_json(r.metrics) for r in results])
-    figures = write_figures(results, tmp / "figures", failed) if results else []
+    drawn = write_figures(results, tmp / "figures", failed, figures) if results else []
     main_peak = mib(peak_rss_bytes())
     write_json(tmp / PROCESSES, {"workers": workers, "main_peak_rss": main_peak})
-    report = (comparison_report(frontend, results, table, figures, workers, main_peak) if results
+    report = (comparison_report(frontend, results, table, drawn, workers, main_peak) if results
               else f"# Sampler comparison on {display_name(frontend.name)}\n")
     (tmp / "report.md").write_text(report + failed_section(failed))
     return rows, failed
 
 
 def _seed_comparisons(base: RunConfig, plans: dict[int, list[RunConfig]], out: Path, quiet: bool,
-                      sweep: bool, window_fix: str, workers: int) -> dict[str, str]:
+                      sweep: bool, window_fix: str, workers: int, figures: bool = True) -> dict[str, str]:
     """Each seed's comparison (`plans`: seed -> method configs) under out/seeds/, reusing the ones finished
     earlier with the same settings, data and code (a seed whose data or code changed is removed and rerun, with
     a warning and a line in report.md), then the spread over seeds at the top of `out`."""
@@ -181,7 +185,7 @@ def _seed_comparisons(base: RunConfig, plans: dict[int, list[RunConfig]], out: P
         else:
             _say(quiet, f"seed {seed}: running")
             with staged_dir(target) as tmp:
-                _, seed_failed = _comparison(configs, tmp, quiet, sweep, window_fix, workers)
+                _, seed_failed = _comparison(configs, tmp, quiet, sweep, window_fix, workers, figures)
                 write_record(tmp, records[seed], identities[seed], seed_failed)
             failed.update({f"seed {seed}: {name}": error for name, error in seed_failed.items()})
         rows[seed] = [table_row(m) for m in finished_metrics(target) or []]
@@ -224,39 +228,40 @@ Outcome = tuple[RunResult | None, str | None]  # a method's result, or None and 
 
 
 def _run_methods(configs: Sequence[RunConfig], frontend: CachedFrontEnd, runs: Path, quiet: bool, sweep: bool,
-                 workers: int = 1) -> tuple[list[RunResult], dict[str, str]]:
+                 workers: int = 1, figures: bool = True) -> tuple[list[RunResult], dict[str, str]]:
     """Each method's run folder under `runs` (a failing method leaves its error.txt instead); the results and the
     failures, both in method order. With `workers` > 1 the methods run in that many processes forked from this
     one (msa_slam.workers: they share the front end), each running its methods one after another."""
     runs.mkdir()
     for cfg in configs:
         (runs / cfg.name).mkdir()
-    outcomes = (_serial(configs, frontend, runs, quiet, sweep) if workers == 1
-                else _parallel(configs, frontend, runs, quiet, sweep, workers))
+    outcomes = (_serial(configs, frontend, runs, quiet, sweep, figures) if workers == 1
+                else _parallel(configs, frontend, runs, quiet, sweep, workers, figures))
     results = [result for result, _ in outcomes if result is not None]
     failed = {cfg.name: error for cfg, (_, error) in zip(configs, outcomes) if error is not None}
     return results, failed
 
 
-def _serial(configs: Sequence[RunConfig], frontend: CachedFrontEnd, runs: Path, quiet: bool, sweep: bool
-            ) -> list[Outcome]:
+def _serial(configs: Sequence[RunConfig], frontend: CachedFrontEnd, runs: Path, quiet: bool, sweep: bool,
+            figures: bool = True) -> list[Outcome]:
     """The methods one after another in this process, each showing its back-end's progress."""
     outcomes = []
     with progress_bar(quiet, transient=False) as bar:
         task = bar.add_task("methods", total=len(configs))
         for cfg in configs:
             bar.update(task, description=f"method {cfg.name}")
-            outcomes.append(_run_method(cfg, frontend, runs / cfg.name, quiet, sweep))
+            outcomes.append(_run_method(cfg, frontend, runs / cfg.name, quiet, sweep, figures))
             bar.advance(task)
     return outcomes
 
 
 def _parallel(configs: Sequence[RunConfig], frontend: CachedFrontEnd, runs: Path, quiet: bool, sweep: bool,
-              workers: int) -> list[Outcome]:
+              workers: int, figures: bool = True) -> list[Outcome]:
     """The methods in `workers` forked processes; one bar, advancing as methods finish (in whatever order)."""
     outcomes: list[Outcome] = [(None, None)] * len(configs)
     with forked_workers(workers, frontend) as submit:
-        futures = {submit(_method_in_worker, cfg, runs / cfg.name, sweep): i for i, cfg in enumerate(configs)}
+        futures = {submit(_method_in_worker, cfg, runs / cfg.name, sweep, figures): i
+                   for i, cfg in enumerate(configs)}
         with progress_bar(quiet, transient=False) as bar:  # after the forks: the bar may run a thread
             task = bar.add_task(f"methods ({workers} worker processes)", total=len(configs))
             for future in as_completed(futures):
@@ -269,13 +274,14 @@ def _parallel(configs: Sequence[RunConfig], frontend: CachedFrontEnd, runs: Path
     return outcomes
 
 
-def _run_method(cfg: RunConfig, frontend: CachedFrontEnd, folder: Path, quiet: bool, sweep: bool) -> Outcome:
+def _run_method(cfg: RunConfig, frontend: CachedFrontEnd, folder: Path, quiet: bool, sweep: bool,
+                figures: bool = True) -> Outcome:
     """One method's run files in `folder`, or its error.txt when it fails."""
     try:
         result = run(cfg, frontend, quiet, sweep=threshold_sweep if sweep else None)
     except Exception as exc:  # one method's failure must not lose the others' results
         return None, _failure(folder, exc)
-    write_run_files(result, folder)
+    write_run_files(result, folder, figures=figures)
     return result, None
 
 
@@ -285,10 +291,10 @@ def _failure(folder: Path, exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}"
 
 
-def _method_in_worker(cfg: RunConfig, folder: Path, sweep: bool) -> Outcome:
+def _method_in_worker(cfg: RunConfig, folder: Path, sweep: bool, figures: bool = True) -> Outcome:
     """_run_method in a worker, on the front end its parent shares; the result goes back without what only the run
     files needed (the pose graph, which does not pickle, the map and the descriptors: large)."""
-    result, error = _run_method(cfg, shared(), folder, True, sweep)
+    result, error = _run_method(cfg, shared(), folder, True, sweep, figures)
     if result is not None:
         result = replace(result, graph_factors=None, map_points=None, descriptors=None)
     return result, error

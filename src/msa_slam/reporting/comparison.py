@@ -110,10 +110,15 @@ PR_FIGURES = (("paper", "pr_curves.png", "loop candidates per method (paper: key
                "pr_reference"))
 
 
-def write_figures(results: Sequence[RunResult], folder: Path, failed: Mapping[str, str]) -> list[str]:
+def write_figures(results: Sequence[RunResult], folder: Path, failed: Mapping[str, str], draw: bool = True
+                  ) -> list[str]:
     """metrics.png, trajectories.png and the PR curves of both protocols; each names the methods it leaves out
-    (`failed`: the methods that failed, with their error)."""
+    (`failed`: the methods that failed, with their error). pr.csv, their data, is written whether or not they are
+    drawn (`draw`)."""
     folder.mkdir()
+    (folder / "pr.csv").write_text(pr_csv(results))
+    if not draw:
+        return []
     labels = [r.config.name for r in results]
     sequence = sequence_title(results[0].metrics.run.sequence, results[0].config.source, len(results[0]))
     gone = {name: "failed" for name in failed}
@@ -134,7 +139,6 @@ def write_figures(results: Sequence[RunResult], folder: Path, failed: Mapping[st
         if curves:
             plot_pr_curves(curves, folder / file, title=f"{sequence}: {what}", absent=absent)
             names.append(file)
-    (folder / "pr.csv").write_text(pr_csv(results))
     return names
 
 

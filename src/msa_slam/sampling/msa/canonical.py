@@ -39,10 +39,10 @@ def canonicalise(lam: np.ndarray, vec: np.ndarray, m: int, work: np.ndarray) -> 
     lam_lanes = np.empty((m, 1))
     lam_lanes[:, 0] = lam
     err, fragile, clustered = np.empty(1), np.empty(1), np.empty(1)
-    cluster_scan_lanes(lam_lanes, m, 1, err, fragile, clustered)
+    cluster_scan_lanes(lam_lanes, m, np.int64(1), err, fragile, clustered)
     if clustered[0] != 0.0:
         tol = CLUSTER_RTOL * max(abs(lam[0]), abs(lam[m - 1]), 1e-300)
-        start = 0
+        start = np.int64(0)
         for j in range(1, m + 1):
             if j < m and lam[j] - lam[j - 1] <= tol:
                 continue
@@ -51,7 +51,7 @@ def canonicalise(lam: np.ndarray, vec: np.ndarray, m: int, work: np.ndarray) -> 
             start = j
     vec_lanes = np.empty((m, m, 1))
     vec_lanes[:, :, 0] = vec
-    sign_convention_lanes(vec_lanes, m, 1, err, fragile)
+    sign_convention_lanes(vec_lanes, m, np.int64(1), err, fragile)
     vec[:, :] = vec_lanes[:, :, 0]
     return np.inf if fragile[0] != 0.0 else err[0]
 

@@ -39,9 +39,9 @@ def symmetric_eigh(v: np.ndarray, d: np.ndarray, e: np.ndarray, n: int) -> None:
     for i in range(n):
         for j in range(n):
             lane_v[i, j, 0] = v[i, j]
-    symmetric_eigh_lanes(lane_v, lane_d, e.reshape((n, 1)), n, 1, work)
+    symmetric_eigh_lanes(lane_v, lane_d, e.reshape((n, 1)), n, np.int64(1), work)
     lam, vec = np.empty((n, 1)), np.empty((n, n, 1))
-    sort_lanes(lane_d, lane_v, lam, vec, n, 1)
+    sort_lanes(lane_d, lane_v, lam, vec, n, np.int64(1))
     for i in range(n):
         d[i] = lam[i, 0]
         for j in range(n):

@@ -77,7 +77,7 @@ def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.nda
     one = np.empty((m, 1), dtype=np.int64)  # a batch of one: the values of the batched loop
     one[:, 0] = members[:m]
     out = np.empty((3, 1))
-    canonical_batch(one, 1, m, dist, gram, batch_buffers(m), scratch, out, np.zeros(1, dtype=np.int64))
+    canonical_batch(one, np.int64(1), m, dist, gram, batch_buffers(m), scratch, out, np.zeros(1, dtype=np.int64))
     return out[0, 0], out[1, 0], out[2, 0]
 
 
@@ -121,10 +121,13 @@ def _information_block(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, pr
     members = np.empty(width, dtype=np.int64)
     waiting = np.empty((width, lanes), dtype=np.int64)  # the members of the batch's candidates
     index = np.empty(lanes, dtype=np.int64)
+    # Integers passed on to other kernels are int64, never literals: numba compiles a kernel once per type
+    # it is called with, and a literal 0 or 1 is a type of its own (cold, canonical_batch and everything it
+    # calls compiled five times, twice the CPU of a fresh checkout's first MSA run)
     for b in range(first, len(starts) - 1, step):
-        batch, batch_m = 0, 0
+        batch, batch_m = np.int64(0), np.int64(0)
         for i in range(starts[b], starts[b + 1]):
-            m = 0
+            m = np.int64(0)
             for p in range(width):
                 if masks[i] >> p & 1:
                     members[m] = p
@@ -155,7 +158,7 @@ def information_rows(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, prob
     starts = candidate_batches(masks, LANES)
     blocks = max(min(len(starts) - 1, blocks), 1)
     for block in prange(blocks):
-        _information_block(masks, dist, gram, probes, canonical, out, starts, block, blocks)
+        _information_block(masks, dist, gram, probes, canonical, out, starts, np.int64(block), blocks)
     return out
 
 
@@ -164,7 +167,8 @@ def information_rows_serial(masks: np.ndarray, dist: np.ndarray, gram: np.ndarra
                             canonical: bool = False) -> np.ndarray:  # pragma: no cover
     """information_rows on the calling thread (windows of fewer than PARALLEL_FROM candidates)."""
     out = np.zeros((3, len(masks)))
-    _information_block(masks, dist, gram, probes, canonical, out, candidate_batches(masks, LANES), 0, 1)
+    _information_block(masks, dist, gram, probes, canonical, out, candidate_batches(masks, LANES),
+                       np.int64(0), np.int64(1))
     return out
 
 

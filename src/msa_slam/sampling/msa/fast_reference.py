@@ -25,7 +25,7 @@ def reference_information(members: np.ndarray, m: int, dist: np.ndarray, gram: n
     one = np.empty((m, 1), dtype=np.int64)
     one[:, 0] = members[:m]
     g, c_lane = np.empty((m, m, 1)), np.empty((m, m, 1))
-    form_lanes(one, m, 1, dist, gram, g, c_lane, np.empty((m, m, 1)), np.empty((3, m, 1)), np.empty(1))
+    form_lanes(one, m, np.int64(1), dist, gram, g, c_lane, np.empty((m, m, 1)), np.empty((3, m, 1)), np.empty(1))
     c = c_lane.reshape((m, m))
     pi = _pi_of_information(c, g, m)
     lowest, highest = pi, pi

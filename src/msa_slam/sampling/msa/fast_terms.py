@@ -81,7 +81,8 @@ def pi_of_eigenpairs(lam: np.ndarray, vec: np.ndarray, g: np.ndarray, m: int, er
     lam_lanes[:, 0] = lam
     vec_lanes[:, :, 0] = vec
     values = np.empty((3, 1))
-    pi_lanes(lam_lanes, vec_lanes, g, m, 1, np.full(1, err), values, np.empty((4, m, 1)), np.empty((4, 1)))
+    pi_lanes(lam_lanes, vec_lanes, g, m, np.int64(1), np.full(1, err), values, np.empty((4, m, 1)),
+             np.empty((4, 1)))
     return values[0, 0], values[1, 0], values[2, 0]
 
 
