@@ -47,7 +47,7 @@ KITTI_SENSOR = SensorRealism(motion_distortion=True, elevation_bias_deg=-0.22, e
                              mixed_pixel_edge=0.5, vegetation_dropout=0.3, vegetation_depth=0.2)
 KITTI_WORLD = WorldRealism(moving_cars=2.0, pedestrians=2.0, transient_parking=0.4, parked_occupancy=0.85,
                            catalogue_designs=2, km_per_design=1.0, design_variants=3,
-                           catalogue_share=0.6, hard_share=0.25, foliage_gap=0.3)
+                           catalogue_share=0.6, hard_share=0.25, foliage_gap=0.3, upright=True)
 # "kitti-hard": odometry that drifts several times as much, for tests of what loop closing must repair. A receiver
 # 36x less sensitive (min_return_power 0.005, SIM_VERSION 9's value: the road fades ~20 m out, so KISS-ICP's pitch
 # drifts), twice the per-beam calibration errors, and more of the path in stretches where ICP degenerates along
