@@ -5,8 +5,9 @@ SIM_VERSION 2, byte for byte). "kitti", the default, is calibrated so that KISS-
 aliasing and the samplers' spread resemble real KITTI (benchmarks/bench_realism.py measures it):
 motion distortion over the 10 Hz sweep, KITTI's HDL-64 elevation error (about -0.22 deg, which kiss-icp's
 KITTI loader and msa-slam's KITTI-layout reader correct) with per-beam angle and range errors, range noise
-growing with range and incidence, lost dark/grazing returns, mixed pixels, foliage, moving and coming-and-going
-objects, repeated block designs and stretches with little structure along the road. "kitti-hard" is "kitti"
+growing with range and incidence, lost dark/grazing returns, mixed pixels at depth edges, foliage, moving and
+coming-and-going objects, repeated block designs and stretches with little structure along the road, in a world
+that stands along gravity (read from the drive: sim.level), not along the first LiDAR frame's z axis. "kitti-hard" is "kitti"
 with a less sensitive receiver, larger per-beam errors and more structureless stretches: several times its
 odometry drift, for tests.
 """
