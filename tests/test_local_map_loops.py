@@ -170,7 +170,8 @@ def test_the_backend_closes_the_revisit_with_local_maps_and_accounts_their_memor
     for c in accepted:
         truth = np.linalg.inv(poses[c.match]) @ poses[c.query]
         error = np.linalg.inv(truth) @ c.T_match_query
-        assert np.linalg.norm(error[:3, 3]) < 0.3 and np.degrees(np.arccos(np.clip((np.trace(error[:3, :3]) - 1) / 2, -1, 1))) < 1.0
+        angle = np.degrees(np.arccos(np.clip((np.trace(error[:3, :3]) - 1) / 2, -1, 1)))
+        assert np.linalg.norm(error[:3, 3]) < 0.3 and angle < 1.0
     assert all(c.query >= len(first) > c.match for c in accepted)
     # the local map holds at most the frames within 40 m of path (11 at 4 m) plus the one being added
     per_frame = max(len(s) for s in scans) * 12 + 128
