@@ -9,8 +9,8 @@ from typing import Iterator, NamedTuple
 import numpy as np
 
 from msa_slam.sim.config import SimConfig
-from msa_slam.sim.level import gravity_up
 from msa_slam.sim.coverage import check_reaches_ground, warn_short_range
+from msa_slam.sim.level import gravity_up
 from msa_slam.sim.realism import REALISM, Realism
 from msa_slam.sim.sensors import Lidar, LidarModel, get_sensor
 from msa_slam.sim.trajectories import Trajectory, frame_indices
