@@ -200,15 +200,37 @@ def test_dark_and_grazing_returns_are_lost():
     assert floor(dark, near=False) < 0.3 * floor(clean, near=False)
 
 
+def _one_beam(ranges: np.ndarray, azimuth_deg: np.ndarray) -> np.ndarray:
+    """Hit points of one horizontal beam at these azimuths and ranges."""
+    a = np.radians(azimuth_deg)
+    return ranges[:, None] * np.column_stack([np.cos(a), np.sin(a), np.zeros_like(a)])
+
+
 def test_mixed_pixels_lie_between_the_surfaces_of_a_depth_edge():
-    ranges = np.array([10.0] * 5 + [20.0] * 5)  # one beam, 10 columns: an edge between columns 4 and 5
+    azimuth = np.arange(10.0)  # one beam, 10 columns 1 deg apart
+    ranges = np.array([10.0] * 5 + [20.0] * 5) / np.cos(np.radians(azimuth))  # walls x = 10 m and x = 20 m
+    normals = np.tile([-1.0, 0.0, 0.0], (10, 1))
     ray_idx = np.arange(10)
-    mixed = mixed_pixels(ranges, ray_idx, (1, 10), edge=1.0, prob=0.999, rng=np.random.default_rng(0))
+    mixed = mixed_pixels(ranges, ray_idx, (1, 10), 1.0, 0.999, np.random.default_rng(0), _one_beam(ranges, azimuth),
+                         normals)
     changed = np.flatnonzero(mixed != ranges)
     assert set(changed) <= {0, 4, 5, 9}  # the edge, and the wrap-around edge between columns 9 and 0
-    assert len(changed) >= 3 and np.all((mixed[changed] > 10.0) & (mixed[changed] < 20.0))
-    wavy = 10.0 + 0.3 * np.sin(np.arange(10))  # no jump above 1 m between neighbours, wrap-around included
-    assert np.array_equal(mixed_pixels(wavy, ray_idx, (1, 10), 1.0, 0.999, np.random.default_rng(0)), wavy)
+    assert len(changed) >= 3 and np.all((mixed[changed] > 10.0) & (mixed[changed] < 20.3))
+    wavy = (10.0 + 0.3 * np.sin(azimuth)) / np.cos(np.radians(azimuth))  # no jump above 1 m, wrap-around included
+    assert np.array_equal(mixed_pixels(wavy, ray_idx, (1, 10), 1.0, 0.999, np.random.default_rng(0),
+                                       _one_beam(wavy, azimuth), normals), wavy)
+
+
+def test_a_surface_seen_at_a_grazing_angle_has_no_mixed_pixels():
+    """A wall 2 m to the side seen along it: neighbouring columns' ranges differ by metres, yet every hit lies on
+    the one plane, so no return straddles two surfaces (the old rule, a range jump alone, made ghosts there)."""
+    azimuth = np.linspace(3.0, 12.0, 10)
+    ranges = 2.0 / np.sin(np.radians(azimuth))
+    assert np.abs(np.diff(ranges)).max() > 1.0
+    normals = np.tile([0.0, -1.0, 0.0], (10, 1))
+    wall = mixed_pixels(ranges, np.arange(10), (1, 10), 0.5, 0.999, np.random.default_rng(0),
+                        _one_beam(ranges, azimuth), normals)
+    assert np.array_equal(wall, ranges)
 
 
 def test_foliage_returns_vary_from_scan_to_scan():

@@ -5,8 +5,9 @@ SIM_VERSION 2, byte for byte). "kitti", the default, is calibrated so that KISS-
 aliasing and the samplers' spread resemble real KITTI (benchmarks/bench_realism.py measures it):
 motion distortion over the 10 Hz sweep, KITTI's HDL-64 elevation error (about -0.22 deg, which kiss-icp's
 KITTI loader and msa-slam's KITTI-layout reader correct) with per-beam angle and range errors, range noise
-growing with range and incidence, lost dark/grazing returns, mixed pixels, foliage, moving and coming-and-going
-objects, repeated block designs and stretches with little structure along the road. "kitti-hard" is "kitti"
+growing with range and incidence, lost dark/grazing returns, mixed pixels at depth edges, foliage, moving and
+coming-and-going objects, repeated block designs and stretches with little structure along the road, in a world
+that stands along gravity (read from the drive: sim.level), not along the first LiDAR frame's z axis. "kitti-hard" is "kitti"
 with a less sensitive receiver, larger per-beam errors and more structureless stretches: several times its
 odometry drift, for tests.
 """
@@ -47,7 +48,7 @@ KITTI_SENSOR = SensorRealism(motion_distortion=True, elevation_bias_deg=-0.22, e
                              mixed_pixel_edge=0.5, vegetation_dropout=0.3, vegetation_depth=0.2)
 KITTI_WORLD = WorldRealism(moving_cars=2.0, pedestrians=2.0, transient_parking=0.4, parked_occupancy=0.85,
                            catalogue_designs=2, km_per_design=1.0, design_variants=3,
-                           catalogue_share=0.6, hard_share=0.25, foliage_gap=0.3)
+                           catalogue_share=0.6, hard_share=0.25, foliage_gap=0.3, upright=True)
 # "kitti-hard": odometry that drifts several times as much, for tests of what loop closing must repair. A receiver
 # 36x less sensitive (min_return_power 0.005, SIM_VERSION 9's value: the road fades ~20 m out, so KISS-ICP's pitch
 # drifts), twice the per-beam calibration errors, and more of the path in stretches where ICP degenerates along

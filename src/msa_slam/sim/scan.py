@@ -51,14 +51,25 @@ def lost_returns(reflectance: np.ndarray, cos_inc: np.ndarray, ranges: np.ndarra
 
 
 def mixed_pixels(ranges: np.ndarray, ray_idx: np.ndarray, grid: tuple[int, int], edge: float, prob: float,
-                 rng: np.random.Generator) -> np.ndarray:
-    """`ranges` with mixed pixels: a return whose azimuth neighbour in the same beam is more than `edge`
-    metres nearer or farther straddles both surfaces, and with probability `prob` reports a range anywhere
-    between them (the ghost points real sensors leave along depth edges)."""
-    image = np.full(grid[0] * grid[1], np.nan)
-    image[ray_idx] = ranges
-    image = image.reshape(grid)
-    jumps = [np.nan_to_num(np.roll(image, shift, axis=1).ravel()[ray_idx] - ranges) for shift in (1, -1)]
+                 rng: np.random.Generator, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """`ranges` with mixed pixels: a return at a depth edge (its azimuth neighbour in the same beam more than
+    `edge` metres nearer or farther, and that neighbour's hit more than `edge` off the plane of its own: another
+    surface) straddles both surfaces, and with probability `prob` reports a range anywhere between them (the
+    ghost points real sensors leave along depth edges). `points` and `normals` (P, 3, any one frame) are the
+    returns' hits and surface normals. A surface seen at a grazing angle (a far stretch of road, a wall along the
+    street) has neighbours metres apart in range but on one plane: no edge, its footprint sees one surface."""
+    index = np.full(grid[0] * grid[1], -1)
+    index[ray_idx] = np.arange(len(ray_idx))
+    index = index.reshape(grid)
+    jumps = []
+    for shift in (1, -1):
+        other = np.roll(index, shift, axis=1).ravel()[ray_idx]
+        seen = other >= 0
+        jump = np.zeros(len(ranges))
+        jump[seen] = ranges[other[seen]] - ranges[seen]
+        apart = np.einsum("ij,ij->i", normals[seen], points[other[seen]] - points[seen])
+        jump[seen] *= np.abs(apart) > edge
+        jumps.append(jump)
     jump = np.where(np.abs(jumps[0]) >= np.abs(jumps[1]), jumps[0], jumps[1])
     mixed = (np.abs(jump) > edge) & (rng.random(len(ranges)) < prob)
     return ranges + mixed * rng.random(len(ranges)) * jump

@@ -177,9 +177,9 @@ class Lidar:
         if m.dropout > 0:
             keep &= rng.random(len(ranges)) >= m.dropout
         cos_inc = np.abs(np.einsum("ij,ij->i", hits.normal, dirs_world[ray_idx]))
-        reflectance, material = hits.reflectance, hits.material
-        ranges, ray_idx, cos_inc, reflectance, material = (a[keep] for a in (ranges, ray_idx, cos_inc,
-                                                                              reflectance, material))
+        reflectance, material, normal = hits.reflectance, hits.material, hits.normal
+        ranges, ray_idx, cos_inc, reflectance, material, normal = (
+            a[keep] for a in (ranges, ray_idx, cos_inc, reflectance, material, normal))
         lost = np.zeros(len(ranges), dtype=bool)
         if r.min_return_power > 0:
             lost |= lost_returns(reflectance, cos_inc, ranges, r.min_return_power, rng)
@@ -187,13 +187,15 @@ class Lidar:
         if r.vegetation_dropout > 0:
             lost |= foliage & (rng.random(len(ranges)) < r.vegetation_dropout)
         if lost.any():
-            ranges, ray_idx, cos_inc, reflectance, foliage = (a[~lost] for a in (ranges, ray_idx, cos_inc,
-                                                                                  reflectance, foliage))
+            ranges, ray_idx, cos_inc, reflectance, foliage, normal = (
+                a[~lost] for a in (ranges, ray_idx, cos_inc, reflectance, foliage, normal))
+        surface = ranges  # where each ray met its surface (the mixed pixels' edges are between surfaces)
         if r.vegetation_depth > 0:
             ranges = ranges + foliage * rng.exponential(r.vegetation_depth, len(ranges))
         if r.mixed_pixel_prob > 0:
+            hit_points = np.broadcast_to(origins, dirs_world.shape)[ray_idx] + surface[:, None] * dirs_world[ray_idx]
             ranges = mixed_pixels(ranges, ray_idx, (m.beams, m.azimuth_steps), r.mixed_pixel_edge,
-                                  r.mixed_pixel_prob, rng)
+                                  r.mixed_pixel_prob, rng, hit_points, normal)
         sigma = (range_sigma(m.range_noise, r.range_noise_per_m, r.incidence_noise, ranges, cos_inc)
                  if r.range_noise_per_m > 0 or r.incidence_noise > 0 else m.range_noise)
         if np.any(sigma > 0):

@@ -10,6 +10,7 @@ import numpy as np
 
 from msa_slam.sim.config import SimConfig
 from msa_slam.sim.coverage import check_reaches_ground, warn_short_range
+from msa_slam.sim.level import gravity_up
 from msa_slam.sim.realism import REALISM, Realism
 from msa_slam.sim.sensors import Lidar, LidarModel, get_sensor
 from msa_slam.sim.trajectories import Trajectory, frame_indices
@@ -62,7 +63,8 @@ class Simulation:
 
 def prepare(config: SimConfig) -> Simulation:
     """Load the trajectory, select frames, check the sensor (before the long work) and build the world around
-    the whole selected range (unstrided, so every stride of the same range sees the same world)."""
+    the whole selected range (unstrided, so every stride of the same range sees the same world); an upright
+    world stands along the gravity of the whole trajectory, so a part of it is built as the whole is."""
     traj = config.load_trajectory()
     frames = frame_indices(len(traj), config.start, config.end, config.stride, config.label)
     model: LidarModel = get_sensor(config.sensor, azimuth_steps=config.azimuth_steps, max_range=config.max_range,
@@ -72,7 +74,12 @@ def prepare(config: SimConfig) -> Simulation:
     span = traj.poses[frames[0]:frames[-1] + 1]
     style = config.style or ("campus" if traj.platform == "walk" else "city")
     realism = REALISM[config.realism]
-    world = build_world(span, style, config.seed, traj.sensor_height, realism.world)
+    # a vehicle's gravity is read from its drive (sim.level); a walker's sway is no vehicle's roll, and the
+    # procedural walk is level as made
+    up = None
+    if realism.world.upright:
+        up = gravity_up(traj.poses, traj.times) if traj.platform == "car" else np.array([0.0, 0.0, 1.0])
+    world = build_world(span, style, config.seed, traj.sensor_height, realism.world, up)
     return Simulation(config, frames, traj, world, Lidar(model, world, realism.sensor, config.seed), realism)
 
 

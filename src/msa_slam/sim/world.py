@@ -20,6 +20,7 @@ from trimesh.ray.ray_pyembree import RayMeshIntersector
 from msa_slam.errors import InputError
 from msa_slam.sim.dynamic import DynamicObjects, DynamicRecipe, PathFrame, make_dynamic, unit_hash
 from msa_slam.sim.layout import STYLES, StreetLayout
+from msa_slam.sim.level import LEVEL_DEG, gravity_up, levelling_rotation, tilt_deg
 from msa_slam.sim.plan import HARD_KINDS, Stretch, first_visits, make_catalogue, plan_stretches
 from msa_slam.sim.shapes import Material, MeshBuilder
 
@@ -44,6 +45,7 @@ class WorldRealism:
     hard_share: float = 0.0         # share of the path in stretches where ICP degenerates along the path
     hard_kinds: tuple[str, ...] = HARD_KINDS
     foliage_gap: float = 0.0        # share of rays that pass a crown's surface, drawn per scan and ray
+    upright: bool = False           # build along gravity (level.gravity_up), not along the trajectory frame's z
 
     def __post_init__(self) -> None:
         for name in ("moving_cars", "pedestrians"):
@@ -106,11 +108,13 @@ class Hits:
 
 class World:
     """A static mesh with per-face reflectance and material, and optional dynamic objects; `cast` gives
-    the first hit of each ray at a time. Arc lengths in `stretches` start `PATH_LEAD` m before the first pose."""
+    the first hit of each ray at a time. Arc lengths in `stretches` start `PATH_LEAD` m before the first pose.
+    An upright world is built in a levelled frame: `levelling` (3, 3) takes the trajectory's frame, in which
+    rays are given, to it (None: the same frame)."""
 
     def __init__(self, mesh: trimesh.Trimesh, reflectance: np.ndarray, material: np.ndarray | None = None,
                  dynamic: DynamicObjects | None = None, realism: WorldRealism = WorldRealism(),
-                 seed: int = 0, stretches: tuple[Stretch, ...] = ()) -> None:
+                 seed: int = 0, stretches: tuple[Stretch, ...] = (), levelling: np.ndarray | None = None) -> None:
         self.mesh = mesh
         self.reflectance = reflectance
         self.material = (np.full(len(mesh.faces), Material.SOLID, dtype=np.uint8) if material is None
@@ -119,6 +123,7 @@ class World:
         self.realism = realism
         self.seed = seed
         self.stretches = stretches  # the planned designed and hard stretches, arc lengths on the extended path
+        self.levelling = levelling
         self.face_normals = np.asarray(mesh.face_normals)
         self._face_origins = np.asarray(mesh.triangles[:, 0, :])
         self._intersector = RayMeshIntersector(mesh)
@@ -138,8 +143,15 @@ class World:
 
     def cast(self, origins: np.ndarray, directions: np.ndarray, time: float = 0.0) -> Hits:
         """First hits of unit `directions` (R, 3) from `origins` ((3,) or (R, 3)) against the static mesh
-        and the dynamic objects as they are at `time` (s on the trajectory's clock)."""
+        and the dynamic objects as they are at `time` (s on the trajectory's clock); normals in the rays' frame."""
         origins = np.broadcast_to(np.asarray(origins, dtype=np.float64), directions.shape)
+        if self.levelling is not None:
+            hits = self._cast_level(origins @ self.levelling.T, directions @ self.levelling.T, time)
+            return replace(hits, normal=hits.normal @ self.levelling)
+        return self._cast_level(origins, directions, time)
+
+    def _cast_level(self, origins: np.ndarray, directions: np.ndarray, time: float) -> Hits:
+        """`cast` in the frame the world was built in."""
         tri, ray, dist = self._cast_static(origins, directions)
         if self.realism.foliage_gap > 0:
             tri, ray, dist = self._through_foliage(origins, directions, tri, ray, dist, time)
@@ -238,11 +250,19 @@ def extend_path(xy: np.ndarray, length: float) -> np.ndarray:
 
 
 def build_world(poses: np.ndarray, style: str = "city", seed: int = 0, sensor_height: float = 1.73,
-                realism: WorldRealism = WorldRealism()) -> World:
+                realism: WorldRealism = WorldRealism(), up: np.ndarray | None = None) -> World:
     """The world around `poses` (N, 4, 4): same seed, poses and realism give the same world, triangle for
-    triangle and object for object. The realism features draw from their own seeded streams."""
+    triangle and object for object. The realism features draw from their own seeded streams. An upright
+    world stands along `up` (gravity in the poses' frame; default: level.gravity_up of `poses`)."""
     if style not in STYLES:
         raise InputError(f"unknown world style {style!r}; choose one of {', '.join(STYLES)}")
+    levelling = None
+    if realism.upright:
+        up = gravity_up(poses) if up is None else np.asarray(up, dtype=np.float64)
+        if tilt_deg(up) >= LEVEL_DEG:
+            levelling = levelling_rotation(up)
+            poses = poses.copy()
+            poses[:, :3, :] = np.einsum("ij,njk->nik", levelling, poses[:, :3, :])
     st = STYLES[style]
     if realism.parked_occupancy > 0 and st.p_parked > 0:  # a style without parking (campus) keeps none
         st = replace(st, p_parked=realism.parked_occupancy)
@@ -271,4 +291,4 @@ def build_world(poses: np.ndarray, style: str = "city", seed: int = 0, sensor_he
                            st.pedestrian_offset, realism.turnover_period)
     dynamic = make_dynamic(path, ground, recipe, np.array(layout.transient).reshape(-1, 11),
                            np.random.default_rng([seed, 12, 3]), seed)
-    return World(mesh, reflectance, material, dynamic, realism, seed, plan)
+    return World(mesh, reflectance, material, dynamic, realism, seed, plan, levelling)
