@@ -41,6 +41,8 @@ test-slow: $(DEV) $(EXTRAS)
 # Type-checks the packages [tool.mypy] lists in pyproject.toml; no prerequisite: run it after `make test` (whose
 # dev install brings mypy), so it never installs anything itself
 lint:
+	$(PY) -m ruff check src tests benchmarks
+	$(PY) -m ruff format --check src tests benchmarks
 	$(PY) -m mypy
 
 bench: $(BASE)

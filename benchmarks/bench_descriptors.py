@@ -51,7 +51,9 @@ def bench_extraction(scans: list[np.ndarray], ot_weights: str | None) -> None:
             ot.compute(scan)
             ot_ms = f"{median_ms(lambda: ot.compute(scan), 5):.1f}"
         table.add_row(
-            str(k), str(len(scan)), str(len(down)),
+            str(k),
+            str(len(scan)),
+            str(len(down)),
             f"{median_ms(lambda: voxel_downsample(scan), 30):.2f}",
             f"{median_ms(lambda: sc.bin(down), 30):.2f}",
             f"{median_ms(lambda: sc.compute(scan), 30):.2f}",
@@ -59,8 +61,10 @@ def bench_extraction(scans: list[np.ndarray], ot_weights: str | None) -> None:
         )
     console.print(table)
     if ot is not None:
-        console.print(f"  OT: range projection alone {median_ms(lambda: range_projection(scans[0]), 10):.1f} ms; "
-                      f"weights: {ot_weights or 'random (timing only; pass --ot-weights for the authors checkpoint)'}")
+        console.print(
+            f"  OT: range projection alone {median_ms(lambda: range_projection(scans[0]), 10):.1f} ms; "
+            f"weights: {ot_weights or 'random (timing only; pass --ot-weights for the authors checkpoint)'}"
+        )
 
 
 def _ot_model(weights: str | None):
@@ -75,8 +79,10 @@ def _ot_model(weights: str | None):
     if weights:
         return OverlapTransformer(weights)
     rng = np.random.default_rng(0)
-    state = {name: torch.from_numpy(rng.normal(0, 0.02, t.shape).astype(np.float32))
-             for name, t in OverlapTransformerNet().state_dict().items()}
+    state = {
+        name: torch.from_numpy(rng.normal(0, 0.02, t.shape).astype(np.float32))
+        for name, t in OverlapTransformerNet().state_dict().items()
+    }
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "random_weights.pth"
         torch.save({"state_dict": state}, path)
@@ -114,8 +120,17 @@ def revisit_queries(bank: np.ndarray, n: int, seed: int) -> tuple[np.ndarray, np
 def bench_queries(base: np.ndarray, sizes: list[int], n_queries: int) -> None:
     sc = ScanContext()
     table = Table(title="Loop query vs database size (Scan Context 20x60, all 60 shifts)")
-    for col in ("keyframes", "exhaustive ms", "two-stage ms", "tree build ms", "recall@1 2-stage(10) vs exh.",
-                "recall@1 2-stage(50) vs exh.", "exh. finds revisit", "2-stage(10) finds revisit", "bytes/keyframe"):
+    for col in (
+        "keyframes",
+        "exhaustive ms",
+        "two-stage ms",
+        "tree build ms",
+        "recall@1 2-stage(10) vs exh.",
+        "recall@1 2-stage(50) vs exh.",
+        "exh. finds revisit",
+        "2-stage(10) finds revisit",
+        "bytes/keyframe",
+    ):
         table.add_column(col, justify="right")
     for n in sizes:
         bank = random_walk_bank(base, n, seed=n)
@@ -138,8 +153,17 @@ def bench_queries(base: np.ndarray, sizes: list[int], n_queries: int) -> None:
             exh_hit += abs(e - target) <= 2
             two_hit += abs(s - target) <= 2
         m = len(queries)
-        table.add_row(f"{n:,}", f"{exh_ms:.1f}", f"{two_ms:.2f}", f"{build_ms:.0f}", f"{agree / m:.3f}",
-                      f"{agree50 / m:.3f}", f"{exh_hit / m:.3f}", f"{two_hit / m:.3f}", f"{db.bytes_per_keyframe:.0f}")
+        table.add_row(
+            f"{n:,}",
+            f"{exh_ms:.1f}",
+            f"{two_ms:.2f}",
+            f"{build_ms:.0f}",
+            f"{agree / m:.3f}",
+            f"{agree50 / m:.3f}",
+            f"{exh_hit / m:.3f}",
+            f"{two_hit / m:.3f}",
+            f"{db.bytes_per_keyframe:.0f}",
+        )
         del db, bank
     console.print(table)
     console.print(
@@ -159,8 +183,10 @@ def bench_pairwise(base: np.ndarray) -> None:
         na, nb = np.linalg.norm(base), np.linalg.norm(b)
         return max(float(np.sum(np.roll(base, k, axis=1) * b)) / (na * nb) for k in range(60))
 
-    console.print(f"Pairwise similarity: np.roll loop {median_ms(per_pair, 200):.3f} ms/pair, "
-                  f"ScanContext.similarity {median_ms(lambda: sc.similarity(base, b), 200):.3f} ms/pair")
+    console.print(
+        f"Pairwise similarity: np.roll loop {median_ms(per_pair, 200):.3f} ms/pair, "
+        f"ScanContext.similarity {median_ms(lambda: sc.similarity(base, b), 200):.3f} ms/pair"
+    )
 
 
 def main() -> None:

@@ -25,13 +25,22 @@ import time
 from pathlib import Path
 
 from msa_slam.evaluation import fmt
-from msa_slam.pipeline import make_config
 from msa_slam.experiments.compare import run_compare
+from msa_slam.pipeline import make_config
 
 NEVER_WORSE_PCT = -5.0
-COLUMNS = (("improvement_t_pct", "t. ATE impr. %"), ("rpe_pct", "RPE %"), ("pr_auc", "PR-AUC"),
-           ("f1_max", "F1-max"), ("keyframes", "keyframes"), ("verified", "loops"), ("rejected", "rejected"),
-           ("false_loops", "false"), ("memory_mib", "memory MiB"), ("rss_growth_mib", "RSS growth MiB"))
+COLUMNS = (
+    ("improvement_t_pct", "t. ATE impr. %"),
+    ("rpe_pct", "RPE %"),
+    ("pr_auc", "PR-AUC"),
+    ("f1_max", "F1-max"),
+    ("keyframes", "keyframes"),
+    ("verified", "loops"),
+    ("rejected", "rejected"),
+    ("false_loops", "false"),
+    ("memory_mib", "memory MiB"),
+    ("rss_growth_mib", "RSS growth MiB"),
+)
 
 
 def _cell(entry: dict, digits: str) -> str:
@@ -55,26 +64,38 @@ def comparison(dataset: str, mode: str, seeds: list[int], folder: Path, cache_di
 def print_table(title: str, summary: dict) -> None:
     metrics = summary["metrics"]
     methods = list(metrics["improvement_t_pct"]["methods"])
-    print(f"\n### {title} (seeds {', '.join(map(str, summary['seeds']))}; mean ± std over seeds; full-rate ATE, "
-          "Umeyama SE(3) alignment on every frame)\n")
+    print(
+        f"\n### {title} (seeds {', '.join(map(str, summary['seeds']))}; mean ± std over seeds; full-rate ATE, "
+        "Umeyama SE(3) alignment on every frame)\n"
+    )
     print("| method | " + " | ".join(label for _, label in COLUMNS) + " |")
     print("|" + "---|" * (len(COLUMNS) + 1))
     for m in methods:
-        cells = [_cell(metrics[key]["methods"][m], ".3f" if key in ("pr_auc", "f1_max") else ".1f")
-                 for key, _ in COLUMNS]
+        cells = [
+            _cell(metrics[key]["methods"][m], ".3f" if key in ("pr_auc", "f1_max") else ".1f") for key, _ in COLUMNS
+        ]
         print(f"| {m} | " + " | ".join(cells) + " |")
     ranked = [(key, label) for key, label in COLUMNS if metrics[key]["higher_is_better"] is not None]
-    ranks = ["/".join("n/a" if r is None else str(r) for r in metrics[key]["methods"]["msa"]["ranks"])
-             for key, _ in ranked]
+    ranks = [
+        "/".join("n/a" if r is None else str(r) for r in metrics[key]["methods"]["msa"]["ranks"]) for key, _ in ranked
+    ]
     print("\nMSA's rank per seed (1 = best of 7): " + "; ".join(f"{label} {r}" for (_, label), r in zip(ranked, ranks)))
     verdicts = {b: v["verdict"] for b, v in metrics["improvement_t_pct"]["msa_vs"].items()}
-    print("MSA vs each baseline on t. ATE improvement (" + summary["test"] + "): "
-          + "; ".join(f"{b}: {v}" for b, v in verdicts.items()))
-    worst = min((v for m in methods for v in metrics["improvement_t_pct"]["methods"][m]["values"] if v is not None),
-                default=None)
+    print(
+        "MSA vs each baseline on t. ATE improvement ("
+        + summary["test"]
+        + "): "
+        + "; ".join(f"{b}: {v}" for b, v in verdicts.items())
+    )
+    worst = min(
+        (v for m in methods for v in metrics["improvement_t_pct"]["methods"][m]["values"] if v is not None),
+        default=None,
+    )
     verdict = "n/a" if worst is None else ("ok" if worst >= NEVER_WORSE_PCT else "VIOLATED")
-    print(f"never worse than odometry by more than 5 %: worst sampler-seed improvement {fmt(worst, '.1f', ' %')} "
-          f"-> {verdict}")
+    print(
+        f"never worse than odometry by more than 5 %: worst sampler-seed improvement {fmt(worst, '.1f', ' %')} "
+        f"-> {verdict}"
+    )
 
 
 def main() -> None:
@@ -96,8 +117,9 @@ def main() -> None:
             start = time.perf_counter()
             summary = comparison(dataset, mode, seeds, args.out / f"kitti-{seq}-{mode}", args.cache_dir)
             print_table(f"KITTI-{seq}, {mode} loops, {args.frames or 'all'} frames at 10 Hz", summary)
-            print(f"({time.perf_counter() - start:.0f} s; result folder {args.out / f'kitti-{seq}-{mode}'})",
-                  flush=True)
+            print(
+                f"({time.perf_counter() - start:.0f} s; result folder {args.out / f'kitti-{seq}-{mode}'})", flush=True
+            )
 
 
 if __name__ == "__main__":

@@ -18,8 +18,8 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import numba
+import numpy as np
 from numba import njit
 
 from msa_slam.io.provenance import cpu_model
@@ -71,8 +71,11 @@ def canonical_run(poses, desc, window: int, threads: int, parallel_from: int | N
         fast.PARALLEL_FROM = saved
         numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
     ms = float(np.median(sampler.stats.optimisation_ms))
-    return ms, sampler.stats.candidates_evaluated / max(sampler.stats.window_optimisations, 1), \
-        cpu * 1e6 / max(sampler.stats.candidates_evaluated, 1)
+    return (
+        ms,
+        sampler.stats.candidates_evaluated / max(sampler.stats.window_optimisations, 1),
+        cpu * 1e6 / max(sampler.stats.candidates_evaluated, 1),
+    )
 
 
 def literal_speedup(poses, desc, window: int = 10, windows: int = 12):
@@ -83,10 +86,12 @@ def literal_speedup(poses, desc, window: int = 10, windows: int = 12):
     results = {"literal": [], "exact": [], "fast": []}
     starts = np.linspace(0, len(poses) - window, windows).astype(int)
     for s in starts:
-        args = (t[s:s + window], desc[s:s + window], 0.1, 3.0)
-        for name, call in (("literal", lambda: optimise_window_literal(*args, weights)),
-                           ("exact", lambda: optimise_window(*args, weights, "exact", workspace)),
-                           ("fast", lambda: optimise_window(*args, weights, "fast"))):
+        args = (t[s : s + window], desc[s : s + window], 0.1, 3.0)
+        for name, call in (
+            ("literal", lambda: optimise_window_literal(*args, weights)),
+            ("exact", lambda: optimise_window(*args, weights, "exact", workspace)),
+            ("fast", lambda: optimise_window(*args, weights, "fast")),
+        ):
             t0 = time.perf_counter()
             call()
             results[name].append((time.perf_counter() - t0) * 1e3)
@@ -136,8 +141,11 @@ def eigensolver_timings(sizes=(3, 5, 9, 10, 13, 15, 19), count=2048, repeats=5):
         x = np.random.default_rng(m).standard_normal((count, m, m))
         cs = x @ x.transpose(0, 2, 1)
         v, d, e = np.empty((m, m)), np.empty(m), np.empty(m)
-        calls = {"dsyevd": lambda: _lapack_each(cs), "compiled": lambda: _compiled_each(cs, v, d, e),
-                 "lanes": lambda: _lanes_each(cs)}
+        calls = {
+            "dsyevd": lambda: _lapack_each(cs),
+            "compiled": lambda: _compiled_each(cs, v, d, e),
+            "lanes": lambda: _lanes_each(cs),
+        }
         timing = {}
         for name, call in calls.items():
             call()
@@ -177,8 +185,17 @@ def parity_counts():
                 if not match:
                     continue
                 n, nb, a, b, lo, hi = match.groups()
-                sampler = make_sampler("msa", window=int(n), neighbours=int(nb), alpha=float(a),
-                                       beta=float(b), lambda_l=float(lo), lambda_u=float(hi), mode=mode, pi=pi)
+                sampler = make_sampler(
+                    "msa",
+                    window=int(n),
+                    neighbours=int(nb),
+                    alpha=float(a),
+                    beta=float(b),
+                    lambda_l=float(lo),
+                    lambda_u=float(hi),
+                    mode=mode,
+                    pi=pi,
+                )
                 same = sampler.run(data["poses"], data["descriptors"]) == keyframes
                 if sampler.stats.ambiguous:
                     tally["ambiguous"] += 1
@@ -198,11 +215,15 @@ def canonical_targets(shapes, repeats: int = 3) -> None:
     run's median moves by a quarter from run to run."""
     targets = {10: 0.5, 16: 10.0, 20: 100.0}
     most = numba.config.NUMBA_NUM_THREADS
-    print(f"\nCanonical vs reference pi, fast mode (random-walk streams; reference refuses N > 16); "
-          f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs ({cpu_model()}); ms per window: median over "
-          f"{repeats} runs of each run's median window (wall)")
-    print(f"{'shape':8} {'N':>3} {'cand/window':>12} {'reference':>10} {f'canon. {most} thr':>13} "
-          f"{'(range)':>15} {'canon. 1 thr':>13} {f'all threaded':>13} {'run CPU us/c':>12} {'target ms':>10}")
+    print(
+        f"\nCanonical vs reference pi, fast mode (random-walk streams; reference refuses N > 16); "
+        f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs ({cpu_model()}); ms per window: median over "
+        f"{repeats} runs of each run's median window (wall)"
+    )
+    print(
+        f"{'shape':8} {'N':>3} {'cand/window':>12} {'reference':>10} {f'canon. {most} thr':>13} "
+        f"{'(range)':>15} {'canon. 1 thr':>13} {'all threaded':>13} {'run CPU us/c':>12} {'target ms':>10}"
+    )
     for shape_name, shape in shapes.items():
         for n, target in targets.items():
             stream = random_walk_stream(shape, 240 if n <= 12 else 60)
@@ -221,16 +242,23 @@ def canonical_targets(shapes, repeats: int = 3) -> None:
             reference = f"{median['reference']:>10.3f}" if median["reference"] is not None else f"{'n/a':>10}"
             spread = f"{min(runs['both']):.3f}-{max(runs['both']):.3f}"
             handed = f"{median['handed']:>13.3f}" if median["handed"] is not None else f"{'':>13}"
-            print(f"{shape_name:8} {n:>3} {cands:>12.0f} {reference} {median['both']:>13.3f} {spread:>15} "
-                  f"{median['one']:>13.3f} {handed} {median['cpu']:>12.2f} {target:>10.1f}", flush=True)
+            print(
+                f"{shape_name:8} {n:>3} {cands:>12.0f} {reference} {median['both']:>13.3f} {spread:>15} "
+                f"{median['one']:>13.3f} {handed} {median['cpu']:>12.2f} {target:>10.1f}",
+                flush=True,
+            )
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="N = 8, 10, 12 only; skip parity")
     parser.add_argument("--canonical-only", action="store_true", help="only the canonical-pi table")
-    parser.add_argument("--repeats", type=int, default=3,
-                        help="sampler runs per canonical-pi figure, reported as their median (default 3)")
+    parser.add_argument(
+        "--repeats",
+        type=int,
+        default=3,
+        help="sampler runs per canonical-pi figure, reported as their median (default 3)",
+    )
     args = parser.parse_args()
     if args.repeats < 1:
         parser.error(f"--repeats must be at least 1, got {args.repeats}")
@@ -250,22 +278,27 @@ def main() -> int:
             for n in sizes:
                 frames = 240 if n <= 12 else 120
                 med, p95, cands, us = time_sampler(*random_walk_stream(shape, frames), n, mode)
-                print(f"{mode:6} {shape_name:8} {n:>3} {med:>10.3f} {p95:>9.3f} {cands:>12.0f} {us:>8.2f}",
-                      flush=True)
+                print(f"{mode:6} {shape_name:8} {n:>3} {med:>10.3f} {p95:>9.3f} {cands:>12.0f} {us:>8.2f}", flush=True)
 
     print("\nSpeed-up at N = 10 over a one-candidate-at-a-time transcription (same windows, median ms)")
     print(f"{'shape':8} {'one-at-a-time':>14} {'exact':>8} {'fast':>8} {'exact x':>8} {'fast x':>8}")
     for shape_name, shape in shapes.items():
         r = literal_speedup(*random_walk_stream(shape, 240))
-        print(f"{shape_name:8} {r['literal']:>14.2f} {r['exact']:>8.2f} {r['fast']:>8.3f} "
-              f"{r['literal'] / r['exact']:>8.1f} {r['literal'] / r['fast']:>8.1f}")
+        print(
+            f"{shape_name:8} {r['literal']:>14.2f} {r['exact']:>8.2f} {r['fast']:>8.3f} "
+            f"{r['literal'] / r['exact']:>8.1f} {r['literal'] / r['fast']:>8.1f}"
+        )
 
-    print(f"\nEigensolver per matrix (random C = X X^T, median us): LAPACK dsyevd vs msa/eigen.py, one matrix "
-          f"at a time and {LANES} at a time")
+    print(
+        f"\nEigensolver per matrix (random C = X X^T, median us): LAPACK dsyevd vs msa/eigen.py, one matrix "
+        f"at a time and {LANES} at a time"
+    )
     print(f"{'m':>3} {'dsyevd':>8} {'compiled':>9} {'speed-up':>9} {'lanes':>8} {'speed-up':>9}")
     for m, lapack, compiled, lanes in eigensolver_timings():
-        print(f"{m:>3} {lapack:>8.2f} {compiled:>9.2f} {lapack / compiled:>8.2f}x "
-              f"{lanes:>8.2f} {lapack / lanes:>8.2f}x", flush=True)
+        print(
+            f"{m:>3} {lapack:>8.2f} {compiled:>9.2f} {lapack / compiled:>8.2f}x {lanes:>8.2f} {lapack / lanes:>8.2f}x",
+            flush=True,
+        )
 
     if args.quick:
         return 0
@@ -282,8 +315,7 @@ def main() -> int:
     print("rounding could change, see sampling/msa/decision.py)")
     print(f"{'mode/pi':16} {'identical':>10} {'ambiguous':>10} {'(of which match)':>17} {'differing':>10}")
     for mode, c in counts.items():
-        print(f"{mode:16} {c['identical']:>10} {c['ambiguous']:>10} {c['ambiguous_matching']:>17} "
-              f"{c['differing']:>10}")
+        print(f"{mode:16} {c['identical']:>10} {c['ambiguous']:>10} {c['ambiguous_matching']:>17} {c['differing']:>10}")
     return 0
 
 

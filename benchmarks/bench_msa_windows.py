@@ -26,30 +26,38 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 from msa_slam.errors import InputError
 from msa_slam.evaluation import ATE_ALIGNMENT, NA, fmt
+from msa_slam.evaluation.run_metrics import RunMetrics
 from msa_slam.evaluation.spread import spreads
 from msa_slam.experiments.folder import cell_dir, read_cell
 from msa_slam.experiments.grid import GridSpec, SamplerSpec, expand
 from msa_slam.experiments.runner import run_grid
-from msa_slam.io.atomic import write_text_atomic
-from msa_slam.evaluation.run_metrics import RunMetrics
-from msa_slam.reporting.comparison import table_row
 from msa_slam.experiments.seeds import parse_seeds
+from msa_slam.io.atomic import write_text_atomic
+from msa_slam.reporting.comparison import table_row
 from msa_slam.sampling import make_sampler
 
 NEIGHBOURS = 0
 PIS = ("reference", "canonical")
 BASELINE = (10, "reference", "exact")  # the pipeline's default MSA: keyframe agreement is measured against it
 # (row key, header, format); the keys are those of `row_values`
-COLUMNS = (("keyframes", "keyframes", ".1f"), ("verified", "loops", ".1f"),
-           ("improvement_t_pct", "t. ATE impr. %", ".1f"), ("rpe_pct", "RPE %", ".2f"), ("pr_auc", "PR-AUC", ".3f"),
-           ("memory_mib", "memory MiB", ".1f"), ("window_ms", "ms / window", ".1f"),
-           ("ambiguous", "ambiguous windows", ".1f"), ("jaccard_pct", "kf Jaccard vs N=10 ref. %", ".1f"))
+COLUMNS = (
+    ("keyframes", "keyframes", ".1f"),
+    ("verified", "loops", ".1f"),
+    ("improvement_t_pct", "t. ATE impr. %", ".1f"),
+    ("rpe_pct", "RPE %", ".2f"),
+    ("pr_auc", "PR-AUC", ".3f"),
+    ("memory_mib", "memory MiB", ".1f"),
+    ("window_ms", "ms / window", ".1f"),
+    ("ambiguous", "ambiguous windows", ".1f"),
+    ("jaccard_pct", "kf Jaccard vs N=10 ref. %", ".1f"),
+)
 
 
 @dataclass(frozen=True)
@@ -106,8 +114,13 @@ def row_values(metrics: RunMetrics) -> dict[str, Any]:
     """A run's table values: compare's columns plus the MSA statistics and the keyframe frames (of the cell's
     metrics.json, which records them)."""
     stats = metrics.sampler_stats
-    return {**table_row(metrics), "frames": metrics.run.frames, "window_ms": stats["optimisation_ms_median"],
-            "ambiguous": stats["ambiguous_windows"], "keyframe_frames": list(metrics.stamp.keyframe_frames)}
+    return {
+        **table_row(metrics),
+        "frames": metrics.run.frames,
+        "window_ms": stats["optimisation_ms_median"],
+        "ambiguous": stats["ambiguous_windows"],
+        "keyframe_frames": list(metrics.stamp.keyframe_frames),
+    }
 
 
 def _cell(values: Sequence[float | None], spec: str) -> str:
@@ -117,8 +130,12 @@ def _cell(values: Sequence[float | None], spec: str) -> str:
     return fmt(spread.mean, spec) + ("" if spread.std is None else f" ± {fmt(spread.std, spec)}")
 
 
-def table_markdown(rows: Sequence[Variant], runs: Mapping[tuple[int, str, str], Mapping[int, Mapping[str, Any]]],
-                   seeds: Sequence[int], failed: Mapping[tuple[int, str, str], str] | None = None) -> str:
+def table_markdown(
+    rows: Sequence[Variant],
+    runs: Mapping[tuple[int, str, str], Mapping[int, Mapping[str, Any]]],
+    seeds: Sequence[int],
+    failed: Mapping[tuple[int, str, str], str] | None = None,
+) -> str:
     """The table: one line per variant, each column mean ± std (ddof 1) over the seeds that finished
     (`runs`: variant key -> seed -> row_values); refused or failed variants as n/a with the reason."""
     failed = failed or {}
@@ -129,15 +146,29 @@ def table_markdown(rows: Sequence[Variant], runs: Mapping[tuple[int, str, str], 
         done = runs.get(v.key, {})
         reason = v.refused or failed.get(v.key) or ("" if done else "not run")
         if not done:
-            lines.append(f"| {v.window} | {v.pi} | {v.mode} | "
-                         + " | ".join([f"n/a: {reason}"] + [NA] * (len(COLUMNS) - 1)) + f" | {NA} |")
+            lines.append(
+                f"| {v.window} | {v.pi} | {v.mode} | "
+                + " | ".join([f"n/a: {reason}"] + [NA] * (len(COLUMNS) - 1))
+                + f" | {NA} |"
+            )
             continue
-        per_seed = [{**done[s], "jaccard_pct": jaccard_pct(done[s]["keyframe_frames"], base[s]["keyframe_frames"])
-                     if s in base else None} for s in seeds if s in done]
+        per_seed = [
+            {
+                **done[s],
+                "jaccard_pct": jaccard_pct(done[s]["keyframe_frames"], base[s]["keyframe_frames"])
+                if s in base
+                else None,
+            }
+            for s in seeds
+            if s in done
+        ]
         cells = [_cell([r[key] for r in per_seed], spec) for key, _, spec in COLUMNS]
         note = f" ({reason})" if reason else ""
-        lines.append(f"| {v.window} | {v.pi} | {v.mode} | " + " | ".join(cells)
-                     + f" | {', '.join(str(s) for s in seeds if s in done)}{note} |")
+        lines.append(
+            f"| {v.window} | {v.pi} | {v.mode} | "
+            + " | ".join(cells)
+            + f" | {', '.join(str(s) for s in seeds if s in done)}{note} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -145,28 +176,40 @@ def header(sequence: str, frames: int | None, seeds: Sequence[int], mode: str, r
     """The conditions the table was measured under, in one line."""
     counts = sorted({r["frames"] for per_seed in runs.values() for r in per_seed.values()})
     n = "/".join(map(str, counts)) or "?"
-    return (f"MSA alone on simulated KITTI-{sequence} (`kitti` realism, HDL-64 with 720 azimuth steps, 10 Hz), "
-            f"{'all ' if frames is None else 'the first '}{n} frames, world seeds {', '.join(map(str, seeds))}, "
-            f"{mode} loops, KISS-ICP odometry, Scan Context; MSA neighbours={NEIGHBOURS}; full-rate ATE after "
-            f"{ATE_ALIGNMENT} alignment on every frame; RPE over KITTI's 100-800 m segments; PR-AUC of the paper's "
-            "protocol; memory: accounted keyframe clouds + descriptors + graph; ms / window: median wall time of "
-            "one window optimisation (the machine is shared); kf Jaccard: keyframe sets against N=10, reference "
-            "pi, exact mode on the same seed; mean ± std (ddof 1) over seeds")
+    return (
+        f"MSA alone on simulated KITTI-{sequence} (`kitti` realism, HDL-64 with 720 azimuth steps, 10 Hz), "
+        f"{'all ' if frames is None else 'the first '}{n} frames, world seeds {', '.join(map(str, seeds))}, "
+        f"{mode} loops, KISS-ICP odometry, Scan Context; MSA neighbours={NEIGHBOURS}; full-rate ATE after "
+        f"{ATE_ALIGNMENT} alignment on every frame; RPE over KITTI's 100-800 m segments; PR-AUC of the paper's "
+        "protocol; memory: accounted keyframe clouds + descriptors + graph; ms / window: median wall time of "
+        "one window optimisation (the machine is shared); kf Jaccard: keyframe sets against N=10, reference "
+        "pi, exact mode on the same seed; mean ± std (ddof 1) over seeds"
+    )
 
 
-def grid_for(variants_: Sequence[Variant], sequence: str, seeds: Sequence[int], mode: str, frames: int | None,
-             cache_dir: str | None) -> GridSpec:
+def grid_for(
+    variants_: Sequence[Variant],
+    sequence: str,
+    seeds: Sequence[int],
+    mode: str,
+    frames: int | None,
+    cache_dir: str | None,
+) -> GridSpec:
     """The experiment grid of the runnable variants: the batch pipeline on one simulated sequence, MSA only."""
     base: dict[str, Any] = {"mode": mode, "cache_dir": cache_dir}
     if frames is not None:
         base["source"] = {"frames": frames}
     runnable = [v for v in variants_ if v.refused is None]
     labels = [v.label for v in runnable]
-    return GridSpec(name="msa_windows", pipeline="batch",
-                    datasets=[f"sim:kitti-{sequence},azimuth_steps=720,seed={{seed}}"],
-                    samplers=[SamplerSpec(sampler="msa", label=v.label, params=v.params) for v in runnable],
-                    seeds=list(seeds), base=base,
-                    reference=Variant(*BASELINE).label if Variant(*BASELINE).label in labels else None)
+    return GridSpec(
+        name="msa_windows",
+        pipeline="batch",
+        datasets=[f"sim:kitti-{sequence},azimuth_steps=720,seed={{seed}}"],
+        samplers=[SamplerSpec(sampler="msa", label=v.label, params=v.params) for v in runnable],
+        seeds=list(seeds),
+        base=base,
+        reference=Variant(*BASELINE).label if Variant(*BASELINE).label in labels else None,
+    )
 
 
 def run(args: argparse.Namespace) -> str:
@@ -192,14 +235,22 @@ def run(args: argparse.Namespace) -> str:
             key = by_label[cell.method]
             failed[key] = "; ".join(filter(None, [failed.get(key), f"seed {cell.seed}: {done.failed[cell.id]}"]))
     base = list(runs.get(BASELINE, {}).values())
-    chance = (f"\nChance level of the Jaccard column: two random keyframe sets of the N=10 reference row's size "
-              "would share "
-              f"{fmt(sum(chance_jaccard_pct(r['keyframes'], r['frames']) for r in base) / len(base), '.1f')} % "
-              "(mean over seeds).\n" if base else "")
-    text = (header(sequence, args.frames, seeds, args.mode, runs) + "\n\n" + table_markdown(rows, runs, seeds, failed)
-            + chance
-            + f"\n{len(done.ran)} runs now, {len(done.skipped)} reused; {time.perf_counter() - start:.0f} s wall, "
-            f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}; run folders: {done.out / 'cells'}\n")
+    chance = (
+        f"\nChance level of the Jaccard column: two random keyframe sets of the N=10 reference row's size "
+        "would share "
+        f"{fmt(sum(chance_jaccard_pct(r['keyframes'], r['frames']) for r in base) / len(base), '.1f')} % "
+        "(mean over seeds).\n"
+        if base
+        else ""
+    )
+    text = (
+        header(sequence, args.frames, seeds, args.mode, runs)
+        + "\n\n"
+        + table_markdown(rows, runs, seeds, failed)
+        + chance
+        + f"\n{len(done.ran)} runs now, {len(done.skipped)} reused; {time.perf_counter() - start:.0f} s wall, "
+        f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}; run folders: {done.out / 'cells'}\n"
+    )
     write_text_atomic(done.out / "table.md", text)
     return text
 

@@ -50,8 +50,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dataset", default="sim:test")
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--threads", type=int, nargs="+", default=[1, 0],
-                        help="KISS-ICP num_threads settings to compare (0: all cores)")
+    parser.add_argument(
+        "--threads", type=int, nargs="+", default=[1, 0], help="KISS-ICP num_threads settings to compare (0: all cores)"
+    )
     parser.add_argument("--cache-dir", default=None)
     parser.add_argument("--one", nargs=2, metavar=("THREADS", "OUT"), help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -69,8 +70,9 @@ def main() -> None:
         seconds = statistics.median(s for s, _ in runs)
         identical = all(np.array_equal(runs[0][1], poses) for _, poses in runs[1:])
         diff = max(float(np.abs(poses - reference).max()) for _, poses in runs)
-        print(f"{threads} | {len(reference) / seconds:.1f} | {seconds:.2f} | {'yes' if identical else 'no'} | "
-              f"{diff:.1e}")
+        print(
+            f"{threads} | {len(reference) / seconds:.1f} | {seconds:.2f} | {'yes' if identical else 'no'} | {diff:.1e}"
+        )
 
 
 if __name__ == "__main__":

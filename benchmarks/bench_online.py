@@ -47,9 +47,9 @@ import numpy as np
 from msa_slam.datasets import Frame
 from msa_slam.evaluation import fmt
 from msa_slam.odometry import KissOdometry
-from msa_slam.pipeline.live import STEPS
 from msa_slam.pipeline import LiveFrontEnd, run
 from msa_slam.pipeline.config import make_online_config
+from msa_slam.pipeline.live import STEPS
 from msa_slam.sources import open_source
 from msa_slam.types import FrameSource
 
@@ -71,9 +71,11 @@ def in_memory(spec: str, frames: int | None) -> FrameSource:
         if frames is not None and i >= frames:
             break
         scans.append(frame)
-    print(f"simulated {len(scans)} scans of {spec} in {time.perf_counter() - t0:.0f} s "
-          f"({np.mean([len(f.points) for f in scans]):.0f} points each)")
-    gt = source.gt_poses[:len(scans)]
+    print(
+        f"simulated {len(scans)} scans of {spec} in {time.perf_counter() - t0:.0f} s "
+        f"({np.mean([len(f.points) for f in scans]):.0f} points each)"
+    )
+    gt = source.gt_poses[: len(scans)]
     return FrameSource(source.name, gt, lambda: (Frame(f.index, f.time, f.points, f.gt_pose) for f in scans))
 
 
@@ -95,14 +97,31 @@ SCALE_RUNS = ("live:kitti-00,sensor=hdl64,azimuth_steps=360", "live:city-tour,se
 def scale(quiet: bool) -> None:
     import tempfile
 
-    head = ["run", "frames", "km", "keyframes", "loops", "false", "ATE odom -> iSAM2 [m]", "F1-max",
-            "bytes/keyframe (RAM + disk)", "accounted RAM MiB", "clouds on disk MiB", "RSS @10% MiB",
-            "RSS end MiB", "peak RSS MiB", "back-end fps", "p99 ms", "wall s"]
+    head = [
+        "run",
+        "frames",
+        "km",
+        "keyframes",
+        "loops",
+        "false",
+        "ATE odom -> iSAM2 [m]",
+        "F1-max",
+        "bytes/keyframe (RAM + disk)",
+        "accounted RAM MiB",
+        "clouds on disk MiB",
+        "RSS @10% MiB",
+        "RSS end MiB",
+        "peak RSS MiB",
+        "back-end fps",
+        "p99 ms",
+        "wall s",
+    ]
     rows = []
     for spec in SCALE_RUNS:
         with tempfile.TemporaryDirectory(prefix="msa-scale-") as store:
-            cfg = make_online_config(dataset=spec, odometry="gt-noise", sampler="msa", cloud_store="disk",
-                                     store_dir=store)
+            cfg = make_online_config(
+                dataset=spec, odometry="gt-noise", sampler="msa", cloud_store="disk", store_dir=store
+            )
             t0 = time.perf_counter()
             r = run(cfg, quiet=quiet)
             wall = time.perf_counter() - t0
@@ -111,15 +130,31 @@ def scale(quiet: bool) -> None:
         km = float(np.linalg.norm(np.diff(r.gt_poses[:, :3, 3], axis=0), axis=1).sum()) / 1e3
         ram = mem["descriptor_bytes"][-1] + mem["graph_bytes"][-1] + mem["cloud_bytes"][-1]
         mib = lambda b: f"{b / 2**20:.0f}"  # noqa: E731
-        rows.append([r.name, m.run.frames, f"{km:.1f}", m.run.keyframes, m.loops.verified, m.loops.false_loops,
-                     f"{fmt(kt.before.ate_translation_m, '.2f')} -> {fmt(kt.after.ate_translation_m, '.2f')}",
-                     fmt(m.place_recognition.f1_max), f"{m.memory.bytes_per_keyframe(m.run.keyframes):.0f}",
-                     mib(ram), mib(m.memory.accounted.clouds_on_disk),
-                     mib(mem["rss_bytes"][len(mem["rss_bytes"]) // 10]),
-                     mib(mem["rss_bytes"][-1]), mib(m.memory.peak_rss_bytes), f"{th.backend_fps:.1f}",
-                     f"{th.latency_ms['backend'].p99:.1f}", f"{wall:.0f}"])
-        print("| " + " | ".join(head) + " |\n|" + "---|" * len(head) + "\n| " + " | ".join(map(str, rows[-1])) + " |",
-              flush=True)
+        rows.append(
+            [
+                r.name,
+                m.run.frames,
+                f"{km:.1f}",
+                m.run.keyframes,
+                m.loops.verified,
+                m.loops.false_loops,
+                f"{fmt(kt.before.ate_translation_m, '.2f')} -> {fmt(kt.after.ate_translation_m, '.2f')}",
+                fmt(m.place_recognition.f1_max),
+                f"{m.memory.bytes_per_keyframe(m.run.keyframes):.0f}",
+                mib(ram),
+                mib(m.memory.accounted.clouds_on_disk),
+                mib(mem["rss_bytes"][len(mem["rss_bytes"]) // 10]),
+                mib(mem["rss_bytes"][-1]),
+                mib(m.memory.peak_rss_bytes),
+                f"{th.backend_fps:.1f}",
+                f"{th.latency_ms['backend'].p99:.1f}",
+                f"{wall:.0f}",
+            ]
+        )
+        print(
+            "| " + " | ".join(head) + " |\n|" + "---|" * len(head) + "\n| " + " | ".join(map(str, rows[-1])) + " |",
+            flush=True,
+        )
     print("\n| " + " | ".join(head) + " |")
     print("|" + "---|" * len(head))
     for row in rows:
@@ -145,17 +180,22 @@ def memory(laps: int, quiet: bool) -> None:
     mib = lambda b: f"{b / 2**20:.1f}"  # noqa: E731
     print(f"\n{r.name}: {m.run.frames} frames, {m.run.keyframes} keyframes, {m.loops.verified} loops, {wall:.0f} s\n")
     print("| part | MiB |\n|---|---|")
-    for label, value in [("keyframe descriptors", acc.keyframe_descriptors),
-                         ("pose graph (GTSAM, iSAM2)", acc.graph),
-                         ("keyframe clouds in RAM", acc.keyframe_clouds - acc.clouds_on_disk),
-                         ("run records (per frame, loops)", acc.run_records), ("map", acc.map),
-                         ("accounted in RAM", acc.in_ram),
-                         ("(keyframe clouds on disk)", acc.clouds_on_disk),
-                         ("RSS growth over the run", m.memory.rss_growth_bytes)]:
+    for label, value in [
+        ("keyframe descriptors", acc.keyframe_descriptors),
+        ("pose graph (GTSAM, iSAM2)", acc.graph),
+        ("keyframe clouds in RAM", acc.keyframe_clouds - acc.clouds_on_disk),
+        ("run records (per frame, loops)", acc.run_records),
+        ("map", acc.map),
+        ("accounted in RAM", acc.in_ram),
+        ("(keyframe clouds on disk)", acc.clouds_on_disk),
+        ("RSS growth over the run", m.memory.rss_growth_bytes),
+    ]:
         print(f"| {label} | {mib(value)} |")
     print(f"| ratio RSS growth / accounted | {fmt(m.memory.rss_growth_ratio, '.2f')} |")
-    print(f"| after lap 1: RSS growth / accounted growth | {mib(late_rss)} / {mib(late_acc)} = "
-          f"{late_rss / late_acc:.2f} |")
+    print(
+        f"| after lap 1: RSS growth / accounted growth | {mib(late_rss)} / {mib(late_acc)} = "
+        f"{late_rss / late_acc:.2f} |"
+    )
 
 
 def main() -> None:
@@ -184,23 +224,45 @@ def main() -> None:
     print(f"KISS-ICP alone: {kiss * 1e3:.0f} ms per scan = {1 / kiss:.1f} frames/s (median of {args.kiss_frames - 1})")
     warm = make_online_config(dataset=spec, odometry="gt-noise", sampler="msa", max_frames=30)
     run(warm, LiveFrontEnd(source))  # compile the numba kernels outside the measured runs
-    head = ["sampler", "keyframes", "loops", "back-end fps", "RTF", *[f"{s} ms" for s in STEPS[1:]],
-            "p50 ms", "p99 ms", "max ms"]
+    head = [
+        "sampler",
+        "keyframes",
+        "loops",
+        "back-end fps",
+        "RTF",
+        *[f"{s} ms" for s in STEPS[1:]],
+        "p50 ms",
+        "p99 ms",
+        "max ms",
+    ]
     rows = []
     for label in args.samplers.split(","):
         sampler, params = SAMPLERS[label]
-        cfg = make_online_config(dataset=spec, odometry="gt-noise", sampler=sampler, sampler_params=params,
-                                 label=label)
+        cfg = make_online_config(dataset=spec, odometry="gt-noise", sampler=sampler, sampler_params=params, label=label)
         runs = [run(cfg, LiveFrontEnd(source)) for _ in range(args.repeats)]
         pick = sorted(runs, key=lambda r: r.metrics.throughput.backend_fps)[len(runs) // 2]  # the median run
         m, th = pick.metrics, pick.metrics.throughput
         per_step = [statistics.median(float(r.steps_ms[s].sum()) / n for r in runs) for s in STEPS[1:]]
         lat = th.latency_ms["backend"]
-        rows.append([label, m.run.keyframes, m.loops.verified, f"{th.backend_fps:.1f}",
-                     f"{th.backend_fps / 10:.2f}", *[f"{v:.2f}" for v in per_step],
-                     f"{lat.p50:.1f}", f"{lat.p99:.1f}", f"{lat.max:.0f}"])
-        print(f"  {label}: {th.backend_fps:.1f} fps (runs: "
-              + ", ".join(f"{r.metrics.throughput.backend_fps:.1f}" for r in runs) + ")", flush=True)
+        rows.append(
+            [
+                label,
+                m.run.keyframes,
+                m.loops.verified,
+                f"{th.backend_fps:.1f}",
+                f"{th.backend_fps / 10:.2f}",
+                *[f"{v:.2f}" for v in per_step],
+                f"{lat.p50:.1f}",
+                f"{lat.p99:.1f}",
+                f"{lat.max:.0f}",
+            ]
+        )
+        print(
+            f"  {label}: {th.backend_fps:.1f} fps (runs: "
+            + ", ".join(f"{r.metrics.throughput.backend_fps:.1f}" for r in runs)
+            + ")",
+            flush=True,
+        )
     print(f"\n{n} frames of {spec} (odometry: ground truth + noise; KISS-ICP: {1 / kiss:.1f} fps apart)\n")
     print("| " + " | ".join(head) + " |")
     print("|" + "---|" * len(head))

@@ -50,28 +50,30 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
+from peer_timing import median_timing, timed_jobs
 
 from msa_slam.evaluation import ATE_ALIGNMENT, fmt
 from msa_slam.evaluation.metrics import known as number_or_none
 from msa_slam.evaluation.metrics_json import from_json
 from msa_slam.evaluation.trajectory import ate
+from msa_slam.experiments.compare import PAPER_METHODS, run_compare
 from msa_slam.io.poses import read_poses
 from msa_slam.io.provenance import cpu_model
 from msa_slam.pipeline import make_config
 from msa_slam.pipeline.config import RunConfig, apply_overrides
-from msa_slam.experiments.compare import PAPER_METHODS, run_compare
 from msa_slam.sim.trajectories import interpolate_poses
 from msa_slam.viz.labels import counted
-from peer_timing import median_timing, timed_jobs
 
 DRIVER = Path(__file__).with_name("peer_kiss_slam.py")
 CLI = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
-INSTALL = ("KISS-SLAM (the peer) is not installed for {python}: {error}\n"
-           "Install it into its own venv (kiss-slam pins numpy and pydantic older than msa-slam's):\n"
-           "    python3 -m venv peer-venv && peer-venv/bin/pip install 'kiss-slam>=0.0.2'\n"
-           "    (open3d, which kiss-slam imports, needs libusb: apt-get install libusb-1.0-0)\n"
-           "then pass --peer-python peer-venv/bin/python (or set MSA_SLAM_PEER_PYTHON). "
-           "The peer's rows are n/a until then.")
+INSTALL = (
+    "KISS-SLAM (the peer) is not installed for {python}: {error}\n"
+    "Install it into its own venv (kiss-slam pins numpy and pydantic older than msa-slam's):\n"
+    "    python3 -m venv peer-venv && peer-venv/bin/pip install 'kiss-slam>=0.0.2'\n"
+    "    (open3d, which kiss-slam imports, needs libusb: apt-get install libusb-1.0-0)\n"
+    "then pass --peer-python peer-venv/bin/python (or set MSA_SLAM_PEER_PYTHON). "
+    "The peer's rows are n/a until then."
+)
 
 
 def trajectory_name(sequence: str) -> str:
@@ -99,8 +101,20 @@ def simulated(sequence: str, seed: int, end: int | None, root: Path) -> Path:
     folder = root / run_name(sequence, seed, end)
     if not (folder / "sim.json").is_file():
         shutil.rmtree(folder, ignore_errors=True)
-        command = [sys.executable, "-c", CLI, "simulate", "--trajectory", trajectory_name(sequence), "--seed", str(seed),
-                   "--out", str(folder), "--quiet", *([] if end is None else ["--end", str(end)])]
+        command = [
+            sys.executable,
+            "-c",
+            CLI,
+            "simulate",
+            "--trajectory",
+            trajectory_name(sequence),
+            "--seed",
+            str(seed),
+            "--out",
+            str(folder),
+            "--quiet",
+            *([] if end is None else ["--end", str(end)]),
+        ]
         subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
     return folder
 
@@ -118,12 +132,17 @@ def peer_run(python: str, method: str, folder: Path, out: Path, threads: int, ex
     if not out.is_file():
         tmp = out.with_suffix(".partial.npz")
         start = time.perf_counter()
-        done = subprocess.run([python, str(DRIVER), method, str(folder), str(tmp), "--threads", str(threads), *extra],
-                              capture_output=True, text=True)  # the peer's optimiser prints every iteration
+        done = subprocess.run(
+            [python, str(DRIVER), method, str(folder), str(tmp), "--threads", str(threads), *extra],
+            capture_output=True,
+            text=True,
+        )  # the peer's optimiser prints every iteration
         wall = time.perf_counter() - start
         if done.returncode:
-            raise RuntimeError(f"{DRIVER.name} {method} failed (exit status {done.returncode}):\n"
-                               + "\n".join(done.stderr.splitlines()[-20:]))
+            raise RuntimeError(
+                f"{DRIVER.name} {method} failed (exit status {done.returncode}):\n"
+                + "\n".join(done.stderr.splitlines()[-20:])
+            )
         with np.load(tmp) as data:
             np.savez(out, **data, wall=np.float64(wall))
         tmp.unlink()
@@ -131,8 +150,9 @@ def peer_run(python: str, method: str, folder: Path, out: Path, threads: int, ex
         return {k: data[k] for k in data}
 
 
-def compared(folder: Path, out: Path, methods: list[tuple], cache_dir: Path, params: list[str]
-             ) -> tuple[Path, float | None]:
+def compared(
+    folder: Path, out: Path, methods: list[tuple], cache_dir: Path, params: list[str]
+) -> tuple[Path, float | None]:
     """msa-slam's comparison folder (run once) and its wall seconds (None when reused); `params`: -p overrides."""
     if (out / "comparison.csv").is_file():
         return out, None
@@ -173,8 +193,16 @@ def rows_for(sequence: str, seed: int, args: argparse.Namespace, peer: str | Non
     for key in args.peer_methods:
         label, method, extra, deskew = PEER_RUNS[key]
         if peer is None:
-            rows.append({"estimator": label, "ape": None, "rot": None, "loops": None, "time": None,
-                         "note": "peer not installed"})
+            rows.append(
+                {
+                    "estimator": label,
+                    "ape": None,
+                    "rot": None,
+                    "loops": None,
+                    "time": None,
+                    "note": "peer not installed",
+                }
+            )
             continue
         run = peer_run(peer, method, folder, out.with_name(out.name + f"-peer-{key}.npz"), args.peer_threads, extra)
         mid_sweep, _ = ape(run["poses"], gt)
@@ -182,8 +210,17 @@ def rows_for(sequence: str, seed: int, args: argparse.Namespace, peer: str | Non
         if deskew.endswith("sweep end"):
             deskew += f"; APE against the truth at sweep end (against mid-sweep: {mid_sweep:.3f} m)"
         loops = None if int(run["closures"]) < 0 else counted(int(run["closures"]), "closure")
-        rows.append({"estimator": label, "ape": t, "rot": r, "loops": loops, "time": float(run["seconds"]),
-                     "note": f"{counted(int(run['threads']), 'thread')}; {deskew}", "peer": key})
+        rows.append(
+            {
+                "estimator": label,
+                "ape": t,
+                "rot": r,
+                "loops": loops,
+                "time": float(run["seconds"]),
+                "note": f"{counted(int(run['threads']), 'thread')}; {deskew}",
+                "peer": key,
+            }
+        )
     methods = [m for m in PAPER_METHODS if args.methods is None or m[0] in args.methods]
     suffix = "-compare" + (f"-{args.label}" if args.label else "")
     comparison, wall = compared(folder, out.with_name(out.name + suffix), methods, args.cache_dir, args.params)
@@ -191,8 +228,16 @@ def rows_for(sequence: str, seed: int, args: argparse.Namespace, peer: str | Non
     for label, _, _ in methods:
         run = comparison / "runs" / label
         if not (run / "metrics.json").is_file():
-            rows.append({"estimator": f"msa-slam {label}", "ape": None, "rot": None, "loops": None, "time": None,
-                         "note": "failed: see " + str(run / "error.txt")})
+            rows.append(
+                {
+                    "estimator": f"msa-slam {label}",
+                    "ape": None,
+                    "rot": None,
+                    "loops": None,
+                    "time": None,
+                    "note": "failed: see " + str(run / "error.txt"),
+                }
+            )
             continue
         m = from_json(json.loads((run / "metrics.json").read_text()), str(run / "metrics.json"))
         front = sum(m.timing.frontend_s.values())
@@ -201,22 +246,42 @@ def rows_for(sequence: str, seed: int, args: argparse.Namespace, peer: str | Non
             replayed = m.timing.frontend_cached.get("odometry")
             cached = " (replayed from the cache: time when computed)" if replayed else ""
             threads = counted(m.setup.odometry_threads, "thread")
-            rows.append({"estimator": "msa-slam odometry (KISS-ICP)", "ape": t, "rot": r, "loops": None,
-                         "time": m.timing.frontend_s.get("odometry"), "odometry": True,
-                         "note": f"{threads}; {deskew_note(m.setup.odometry_config)}{cached}"})
+            rows.append(
+                {
+                    "estimator": "msa-slam odometry (KISS-ICP)",
+                    "ape": t,
+                    "rot": r,
+                    "loops": None,
+                    "time": m.timing.frontend_s.get("odometry"),
+                    "odometry": True,
+                    "note": f"{threads}; {deskew_note(m.setup.odometry_config)}{cached}",
+                }
+            )
             first = False
         t, r = ape(read_poses(run / "trajectories" / "optimised.kitti")[0], gt)
         acc = m.loops.accounting
         recall = fmt(acc.revisit_keyframe_recall, ".2f")
-        rows.append({"estimator": f"msa-slam {label}", "ape": t, "rot": r, "method": label,
-                     "recall": number_or_none(acc.revisit_keyframe_recall), "false": number_or_none(acc.false_accepted),
-                     "loops": f"{acc.accepted} of {acc.candidates} cand. ({number_or_none(acc.false_accepted)} false), "
-                              f"revisit kf recall {recall}",
-                     "time": front + m.timing.backend_total,
-                     "note": f"{m.run.keyframes} keyframes; front end {front:.1f} s + back end "
-                             f"{m.timing.backend_total:.1f} s"})
-    conditions = {"sequence": f"simulated {trajectory_name(sequence)}", "seed": seed, "frames": len(gt),
-                  "compare_wall_s": wall}
+        rows.append(
+            {
+                "estimator": f"msa-slam {label}",
+                "ape": t,
+                "rot": r,
+                "method": label,
+                "recall": number_or_none(acc.revisit_keyframe_recall),
+                "false": number_or_none(acc.false_accepted),
+                "loops": f"{acc.accepted} of {acc.candidates} cand. ({number_or_none(acc.false_accepted)} false), "
+                f"revisit kf recall {recall}",
+                "time": front + m.timing.backend_total,
+                "note": f"{m.run.keyframes} keyframes; front end {front:.1f} s + back end "
+                f"{m.timing.backend_total:.1f} s",
+            }
+        )
+    conditions = {
+        "sequence": f"simulated {trajectory_name(sequence)}",
+        "seed": seed,
+        "frames": len(gt),
+        "compare_wall_s": wall,
+    }
     return rows, conditions
 
 
@@ -233,41 +298,59 @@ def verdicts(rows: list[dict], conditions: dict) -> dict:
         return all(v is not None for v in values)
 
     return {
-        "sequence": conditions["sequence"], "seed": conditions["seed"],
-        "msa_ape": msa and msa["ape"], "peer_ape": peer and peer["ape"],
+        "sequence": conditions["sequence"],
+        "seed": conditions["seed"],
+        "msa_ape": msa and msa["ape"],
+        "peer_ape": peer and peer["ape"],
         "msa_le_peer": msa["ape"] <= peer["ape"] if msa and peer and known(msa["ape"], peer["ape"]) else None,
-        "recall_ratio": (msa["recall"] / every["recall"] if msa and every and known(msa["recall"], every["recall"])
-                         and every["recall"] > 0 else None),
+        "recall_ratio": (
+            msa["recall"] / every["recall"]
+            if msa and every and known(msa["recall"], every["recall"]) and every["recall"] > 0
+            else None
+        ),
         "false_loops": sum(r["false"] or 0 for r in by_method.values()) if by_method else None,
-        "worse_than_odometry": ([m for m, r in by_method.items() if known(r["ape"]) and r["ape"] > odometry["ape"]]
-                                if odometry else None),
+        "worse_than_odometry": (
+            [m for m, r in by_method.items() if known(r["ape"]) and r["ape"] > odometry["ape"]] if odometry else None
+        ),
     }
 
 
 def verdict_table(results: list[dict]) -> str:
     """One line per sequence and seed: the goals' figures and whether each holds."""
+
     def yes(value) -> str:
         return "n/a" if value is None else ("yes" if value else "no")
 
-    lines = ["| sequence | seed | MSA APE [m] | KISS-SLAM APE [m] | MSA <= KISS-SLAM | MSA / all revisit kf recall "
-             "| false loops (all methods) | worse than odometry |", "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| sequence | seed | MSA APE [m] | KISS-SLAM APE [m] | MSA <= KISS-SLAM | MSA / all revisit kf recall "
+        "| false loops (all methods) | worse than odometry |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for v in results:
         ratio, worse = v["recall_ratio"], v["worse_than_odometry"]
         ratio_text = fmt(ratio, ".2f") + ("" if ratio is None else " (>= 0.8)" if ratio >= 0.8 else " (< 0.8)")
         worse_text = "n/a" if worse is None else ", ".join(worse) or "none"
-        lines.append(f"| {v['sequence']} | {v['seed']} | {fmt(v['msa_ape'])} | {fmt(v['peer_ape'])} "
-                     f"| {yes(v['msa_le_peer'])} | {ratio_text} | {fmt(v['false_loops'], 'd')} | {worse_text} |")
+        lines.append(
+            f"| {v['sequence']} | {v['seed']} | {fmt(v['msa_ape'])} | {fmt(v['peer_ape'])} "
+            f"| {yes(v['msa_le_peer'])} | {ratio_text} | {fmt(v['false_loops'], 'd')} | {worse_text} |"
+        )
     return "\n".join(lines) + "\n"
 
 
 def table(rows: list[dict], conditions: dict) -> str:
     wall = conditions["compare_wall_s"]
-    lines = [f"### {conditions['sequence']}, world seed {conditions['seed']}, {conditions['frames']} frames"
-             + ("" if wall is None else f" (msa-slam compare: {wall:.0f} s wall)"), "",
-             "| estimator | APE t RMSE [m] | APE rot RMSE [deg] | loops | time [s] | conditions |",
-             "|---|---|---|---|---|---|"]
-    lines += [f"| {r['estimator']} | {fmt(r['ape'])} | {fmt(r['rot'])} | {r['loops'] or ''} | {fmt(r['time'], '.1f')} "
-              f"| {r['note']} |" for r in rows]
+    lines = [
+        f"### {conditions['sequence']}, world seed {conditions['seed']}, {conditions['frames']} frames"
+        + ("" if wall is None else f" (msa-slam compare: {wall:.0f} s wall)"),
+        "",
+        "| estimator | APE t RMSE [m] | APE rot RMSE [deg] | loops | time [s] | conditions |",
+        "|---|---|---|---|---|---|",
+    ]
+    lines += [
+        f"| {r['estimator']} | {fmt(r['ape'])} | {fmt(r['rot'])} | {r['loops'] or ''} | {fmt(r['time'], '.1f')} "
+        f"| {r['note']} |"
+        for r in rows
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -280,12 +363,17 @@ def speed_table(sequence: str, seed: int, args: argparse.Namespace, peer: str | 
     root = args.out / (run_name(sequence, seed, args.end) + "-speed")
     timings = timed_jobs(folder, root, CLI, peer, DRIVER, args.peer_threads, args.speed_repeats)
     last = root / "last"
-    accuracy = {"msa-slam run --sampler msa": last / "run" / "trajectories" / "optimised.kitti",
-                "msa-slam compare (7 methods)": last / "compare" / "runs" / "msa" / "trajectories" / "optimised.kitti"}
-    lines = [f"### Speed: simulated {trajectory_name(sequence)}, world seed {seed}, {len(gt)} frames, cold cache, "
-             f"median of {args.speed_repeats} runs", "",
-             "| job | wall [s] | CPU [s] | peak RSS [MiB] | wall / KISS-SLAM's | APE t RMSE [m] | runs' wall [s] |",
-             "|---|---|---|---|---|---|---|"]
+    accuracy = {
+        "msa-slam run --sampler msa": last / "run" / "trajectories" / "optimised.kitti",
+        "msa-slam compare (7 methods)": last / "compare" / "runs" / "msa" / "trajectories" / "optimised.kitti",
+    }
+    lines = [
+        f"### Speed: simulated {trajectory_name(sequence)}, world seed {seed}, {len(gt)} frames, cold cache, "
+        f"median of {args.speed_repeats} runs",
+        "",
+        "| job | wall [s] | CPU [s] | peak RSS [MiB] | wall / KISS-SLAM's | APE t RMSE [m] | runs' wall [s] |",
+        "|---|---|---|---|---|---|---|",
+    ]
     peer_wall = median_timing(timings["KISS-SLAM"]).wall_s if "KISS-SLAM" in timings else None
     for name, runs in timings.items():
         median = median_timing(runs)
@@ -295,12 +383,17 @@ def speed_table(sequence: str, seed: int, args: argparse.Namespace, peer: str | 
         else:
             error = ape(read_poses(accuracy[name])[0], gt)[0]
         ratio = None if peer_wall is None else median.wall_s / peer_wall
-        lines.append(f"| {name} | {median.wall_s:.1f} | {median.cpu_s:.1f} | {median.peak_rss_mib:.0f} "
-                     f"| {fmt(ratio, '.2f')} | {error:.3f} | {', '.join(f'{t.wall_s:.1f}' for t in runs)} |")
+        lines.append(
+            f"| {name} | {median.wall_s:.1f} | {median.cpu_s:.1f} | {median.peak_rss_mib:.0f} "
+            f"| {fmt(ratio, '.2f')} | {error:.3f} | {', '.join(f'{t.wall_s:.1f}' for t in runs)} |"
+        )
     threads = "all cores" if args.peer_threads == 0 else counted(args.peer_threads, "thread")
-    lines += ["", f"KISS-SLAM: KISS-ICP on {threads}, deskew to sweep end (APE against the truth at sweep end). "
-              "msa-slam: its defaults (odometry on one thread, deskew to mid-sweep; compare's methods in one worker "
-              "process per CPU); compare's APE is MSA's. Goals: run <= 1.00, compare <= 1.50 of KISS-SLAM's wall."]
+    lines += [
+        "",
+        f"KISS-SLAM: KISS-ICP on {threads}, deskew to sweep end (APE against the truth at sweep end). "
+        "msa-slam: its defaults (odometry on one thread, deskew to mid-sweep; compare's methods in one worker "
+        "process per CPU); compare's APE is MSA's. Goals: run <= 1.00, compare <= 1.50 of KISS-SLAM's wall.",
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -309,22 +402,38 @@ def main() -> None:
     parser.add_argument("--sequences", default="07", help="KITTI trajectories to simulate, e.g. 07,09")
     parser.add_argument("--seeds", default="0", help="world seeds, e.g. 0,1")
     parser.add_argument("--end", type=int, default=None, help="first N frames of each trajectory only")
-    parser.add_argument("--methods", default=None,
-                        help="msa-slam methods (compare's labels, e.g. msa,constant-2m; default: all seven)")
-    parser.add_argument("--peer-python", default=os.environ.get("MSA_SLAM_PEER_PYTHON", sys.executable),
-                        help="Python with kiss-slam installed (default: $MSA_SLAM_PEER_PYTHON, else this one)")
+    parser.add_argument(
+        "--methods", default=None, help="msa-slam methods (compare's labels, e.g. msa,constant-2m; default: all seven)"
+    )
+    parser.add_argument(
+        "--peer-python",
+        default=os.environ.get("MSA_SLAM_PEER_PYTHON", sys.executable),
+        help="Python with kiss-slam installed (default: $MSA_SLAM_PEER_PYTHON, else this one)",
+    )
     parser.add_argument("--peer-threads", type=int, default=1, help="KISS-ICP threads of the peer (0: all cores)")
-    parser.add_argument("--peer-methods", default=",".join(PEER_RUNS),
-                        help="the peer's runs: icp (KISS-ICP alone, KISS-SLAM's odometry settings), slam (KISS-SLAM "
-                             "with the per-point times), slam-raw (KISS-SLAM without them, as its CLI reads .bin)")
-    parser.add_argument("-p", "--param", dest="params", action="append", default=[],
-                        help="msa-slam run configuration override KEY=VALUE, as the commands' -p (repeatable)")
+    parser.add_argument(
+        "--peer-methods",
+        default=",".join(PEER_RUNS),
+        help="the peer's runs: icp (KISS-ICP alone, KISS-SLAM's odometry settings), slam (KISS-SLAM "
+        "with the per-point times), slam-raw (KISS-SLAM without them, as its CLI reads .bin)",
+    )
+    parser.add_argument(
+        "-p",
+        "--param",
+        dest="params",
+        action="append",
+        default=[],
+        help="msa-slam run configuration override KEY=VALUE, as the commands' -p (repeatable)",
+    )
     parser.add_argument("--label", default=None, help="name of a run with -p overrides (kept apart from the default)")
     parser.add_argument("--out", type=Path, default=Path("msa_slam_results/bench_peer"))
     parser.add_argument("--cache-dir", type=Path, default=None, help="msa-slam's cache (default: --out/cache)")
-    parser.add_argument("--speed", action="store_true",
-                        help="instead of the accuracy tables: time KISS-SLAM, `msa-slam run` and `msa-slam compare` "
-                             "end to end from a cold cache (wall, CPU, peak RSS)")
+    parser.add_argument(
+        "--speed",
+        action="store_true",
+        help="instead of the accuracy tables: time KISS-SLAM, `msa-slam run` and `msa-slam compare` "
+        "end to end from a cold cache (wall, CPU, peak RSS)",
+    )
     parser.add_argument("--speed-repeats", type=int, default=3, help="--speed: runs of each job (medians)")
     args = parser.parse_args()
     args.methods = None if args.methods is None else args.methods.split(",")
@@ -343,10 +452,13 @@ def main() -> None:
         print(INSTALL.format(python=args.peer_python, error=missing), file=sys.stderr)
     peer = None if missing is not None else args.peer_python
     date = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    text = [f"bench_peer, {date}, {cpu_model()} ({os.cpu_count()} CPUs). APE: evo, {ATE_ALIGNMENT} fitted on "
-            "every frame, RMSE over every frame against the simulator's ground truth. msa-slam: compare --mode "
-            "realistic --no-sweep (full-rate trajectory; loops: accepted of candidates, false accepted = pose off "
-            "ground truth by > 3 m or 5 deg, revisit keyframe recall); time = front end + back end.", ""]
+    text = [
+        f"bench_peer, {date}, {cpu_model()} ({os.cpu_count()} CPUs). APE: evo, {ATE_ALIGNMENT} fitted on "
+        "every frame, RMSE over every frame against the simulator's ground truth. msa-slam: compare --mode "
+        "realistic --no-sweep (full-rate trajectory; loops: accepted of candidates, false accepted = pose off "
+        "ground truth by > 3 m or 5 deg, revisit keyframe recall); time = front end + back end.",
+        "",
+    ]
     print(text[0] + "\n", flush=True)
     if args.params:
         text[0] += f" Overrides ({args.label}): " + " ".join(f"-p {p}" for p in args.params) + "."

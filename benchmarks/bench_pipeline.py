@@ -16,10 +16,10 @@ import statistics
 import time
 
 from msa_slam.evaluation.metrics import known
+from msa_slam.experiments.compare import method_configs
 from msa_slam.experiments.sweep import threshold_sweep
 from msa_slam.pipeline import make_config, prepare_frontend, run
 from msa_slam.pipeline.frontend import BACKEND_STAGES
-from msa_slam.experiments.compare import method_configs
 
 
 def main() -> None:
@@ -35,29 +35,53 @@ def main() -> None:
     start = time.perf_counter()
     frontend = prepare_frontend(base, quiet=True)
     n = len(frontend)
-    print(f"dataset {args.dataset} ({frontend.name}): {n} frames, the whole trajectory "
-          f"(front end ready in {time.perf_counter() - start:.1f} s)")
+    print(
+        f"dataset {args.dataset} ({frontend.name}): {n} frames, the whole trajectory "
+        f"(front end ready in {time.perf_counter() - start:.1f} s)"
+    )
     for stage, seconds in frontend.timer.seconds.items():
         state = "cached" if frontend.cached.get(stage) else f"{1e3 * seconds / n:.1f} ms/frame"
         print(f"  front end {stage:<12} {seconds:8.2f} s  ({state})")
     print(f"back-end medians over {args.repeats} runs, mode {args.mode}\n")
 
-    columns = ["method", "kf", "cand", "ver", *BACKEND_STAGES, "total s", "sampler/data", "desc MiB", "clouds MiB",
-               "graph KiB", "peak RSS MiB"]
+    columns = [
+        "method",
+        "kf",
+        "cand",
+        "ver",
+        *BACKEND_STAGES,
+        "total s",
+        "sampler/data",
+        "desc MiB",
+        "clouds MiB",
+        "graph KiB",
+        "peak RSS MiB",
+    ]
     print(" | ".join(columns))
     print("|".join("---" for _ in columns))
     for cfg in method_configs(base):
         runs = [run(cfg, frontend, sweep=threshold_sweep).metrics for _ in range(args.repeats)]
         m = runs[-1]
-        med = {s: statistics.median(r.timing.stages.get(s, 0.0) for r in runs)  # the stages a batch run has
-               for s in (*BACKEND_STAGES, "backend_total")}
+        med = {
+            s: statistics.median(r.timing.stages.get(s, 0.0) for r in runs)  # the stages a batch run has
+            for s in (*BACKEND_STAGES, "backend_total")
+        }
         mem = m.memory.accounted
         fractions = [known(r.timing.sampler_realtime_fraction) for r in runs]
         fraction = "n/a" if None in fractions else f"{statistics.median(fractions):.4f}"
-        row = [cfg.name, m.run.keyframes, m.loops.candidates, m.loops.verified,
-               *(f"{med[s]:.2f}" for s in BACKEND_STAGES), f"{med['backend_total']:.2f}", fraction,
-               f"{mem.keyframe_descriptors / 2**20:.2f}", f"{mem.keyframe_clouds / 2**20:.1f}",
-               f"{mem.graph / 2**10:.0f}", f"{m.memory.peak_rss_bytes / 2**20:.0f}"]
+        row = [
+            cfg.name,
+            m.run.keyframes,
+            m.loops.candidates,
+            m.loops.verified,
+            *(f"{med[s]:.2f}" for s in BACKEND_STAGES),
+            f"{med['backend_total']:.2f}",
+            fraction,
+            f"{mem.keyframe_descriptors / 2**20:.2f}",
+            f"{mem.keyframe_clouds / 2**20:.1f}",
+            f"{mem.graph / 2**10:.0f}",
+            f"{m.memory.peak_rss_bytes / 2**20:.0f}",
+        ]
         print(" | ".join(map(str, row)), flush=True)
 
 

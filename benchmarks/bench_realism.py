@@ -45,14 +45,18 @@ from numpy import trapezoid
 
 from msa_slam.evaluation.full_rate import KITTI_LENGTHS_M, STEP_FRAMES, segment_error_motions
 from msa_slam.evaluation.metrics import known, reason_of
-from msa_slam.pipeline import make_config, prepare_frontend, run
 from msa_slam.experiments.compare import method_configs
+from msa_slam.pipeline import make_config, prepare_frontend, run
 from msa_slam.sources import resolve_dataset
 
 FAR_M = 20.0
 THRESHOLD = 0.8
-METHODS = (("all", "all", {}), ("constant-2m", "constant", {"distance": 2.0}),
-           ("constant-3m", "constant", {"distance": 3.0}), ("spaciousness", "spaciousness", {}))
+METHODS = (
+    ("all", "all", {}),
+    ("constant-2m", "constant", {"distance": 2.0}),
+    ("constant-3m", "constant", {"distance": 3.0}),
+    ("spaciousness", "spaciousness", {}),
+)
 
 
 def relative_translation_error(gt: np.ndarray, est: np.ndarray) -> tuple[float, float, float] | None:
@@ -71,15 +75,18 @@ def pitch_drift(gt: np.ndarray, est: np.ndarray) -> float | None:
     """Mean signed pitch error (deg per 100 m) over KITTI's 100..800 m segments, positive when the estimate's
     forward axis turns up against the truth's (about the segment end's lateral axis); None when the path is
     shorter than 100 m."""
-    parts = [np.degrees(np.arcsin(np.clip(motions[:, 0, 2], -1.0, 1.0))) * 100.0 / length
-             for length in KITTI_LENGTHS_M
-             for motions in (segment_error_motions(est, gt, length, STEP_FRAMES),)]
+    parts = [
+        np.degrees(np.arcsin(np.clip(motions[:, 0, 2], -1.0, 1.0))) * 100.0 / length
+        for length in KITTI_LENGTHS_M
+        for motions in (segment_error_motions(est, gt, length, STEP_FRAMES),)
+    ]
     pitch = np.concatenate(parts)
     return float(np.mean(pitch)) if len(pitch) else None
 
 
-def dataset_spec(seq: str, seed: int, realism: str, start: int = 0, frames: int | None = None,
-                 azimuth_steps: int | None = None) -> str:
+def dataset_spec(
+    seq: str, seed: int, realism: str, start: int = 0, frames: int | None = None, azimuth_steps: int | None = None
+) -> str:
     """The simulated dataset of one row: KITTI trajectory `seq`, world seed, preset, frames start..start+frames."""
     fields = [f"seed={seed}", f"realism={realism}"]
     fields += [f"start={start}"] if start else []
@@ -136,16 +143,23 @@ def evaluate(spec: str, cache_dir: str | None, pair_step: int) -> dict:
     rte = relative_translation_error(gt, frontend.odometry)
     pitch = pitch_drift(gt, frontend.odometry)
     best, above = far_pair_similarity(frontend, gt[:, :3, 3], pair_step)
-    runs = {cfg.name: run(cfg, frontend)  # the threshold sweep is not in this table
-            for cfg in method_configs(base, METHODS)}
+    runs = {
+        cfg.name: run(cfg, frontend)  # the threshold sweep is not in this table
+        for cfg in method_configs(base, METHODS)
+    }
     kf_const, kf_spac = set(runs["constant-3m"].keyframes.tolist()), set(runs["spaciousness"].keyframes.tolist())
     reference = {name: run.metrics.place_recognition.reference for name, run in runs.items()}  # batch: ReferencePR
     return {
-        "frames": len(frontend), "rte": rte, "pitch": pitch, "best": best, "above": above,
+        "frames": len(frontend),
+        "rte": rte,
+        "pitch": pitch,
+        "best": best,
+        "above": above,
         "auc_all": known(reference["all"].pr_auc),
         "auc_all_perfect": perfect_precision_auc(runs["all"].pr_reference),
         "recall_all_08": recall_at(runs["all"].pr_reference, THRESHOLD),
-        "matches_all": reference["all"].matches, "auc_c2": known(reference["constant-2m"].pr_auc),
+        "matches_all": reference["all"].matches,
+        "auc_c2": known(reference["constant-2m"].pr_auc),
         "batch_all": known(runs["all"].metrics.place_recognition.pr_auc),
         "batch_c2": known(runs["constant-2m"].metrics.place_recognition.pr_auc),
         "batch_all_perfect": perfect_precision_auc(runs["all"].pr),
@@ -153,7 +167,8 @@ def evaluate(spec: str, cache_dir: str | None, pair_step: int) -> dict:
         "batch_all_why": reason_of(runs["all"].metrics.place_recognition.pr_auc),
         "spac_diff": len(kf_const ^ kf_spac) / max(1, len(kf_const | kf_spac)),
         "kf": (len(kf_spac), len(kf_const)),
-        "scans_per_s": len(frontend) / sim_s if sim_s > 1.0 else None, "disk": disk_per_scan(folder),
+        "scans_per_s": len(frontend) / sim_s if sim_s > 1.0 else None,
+        "disk": disk_per_scan(folder),
         "odometry_warnings": [w for w in frontend.warnings if "odometry" in w.lower()],
     }
 
@@ -168,21 +183,34 @@ def _auc_targets(per_seq: dict[str, list[dict]], all_key: str, c2_key: str) -> s
     undefined are counted with the reason the metric gives; a run whose all-samples matches are all true is
     scored with perfect_precision_auc (counted apart)."""
     scored = {seq: [(_scored(r, all_key), r) for r in rs] for seq, rs in per_seq.items()}
-    defined = {seq: [(a, r) for a, r in rows if a is not None and r[c2_key] is not None]
-               for seq, rows in scored.items()}
+    defined = {
+        seq: [(a, r) for a, r in rows if a is not None and r[c2_key] is not None] for seq, rows in scored.items()
+    }
     gap = sum(np.mean([a - r[c2_key] for a, r in rows]) >= 0.05 for rows in defined.values() if rows)
     aucs = [a for rows in defined.values() for a, _ in rows]
     runs = [(a, r) for rows in scored.values() for a, r in rows]
     perfect = sum(r[all_key] is None and a is not None for a, r in runs)
     undefined = [r for a, r in runs if a is None]
-    why = Counter(re.sub(r"(?:the )?\d+ quer(?:y|ies)", "its queries", r[f"{all_key}_why"])
-                  for r in undefined if r[f"{all_key}_why"])
-    na = (f"; all samples undefined on {len(undefined)} of {len(runs)} runs: "
-          + "; ".join(f"{count} x {reason}" for reason, count in why.most_common()) if why else "")
-    star = (f"; * all samples' matches all true on {perfect} of {len(runs)} runs, scored by the trapezoid over "
-            "precision 1" if perfect else "")
-    return (f"min all-samples PR-AUC {_pct(min(aucs) if aucs else None)} (target > 70); constant 2 m >= 5 points below "
-            f"all samples on {gap} of {len(per_seq)} sequences (target >= 3 of 5){star}{na}")
+    why = Counter(
+        re.sub(r"(?:the )?\d+ quer(?:y|ies)", "its queries", r[f"{all_key}_why"])
+        for r in undefined
+        if r[f"{all_key}_why"]
+    )
+    na = (
+        f"; all samples undefined on {len(undefined)} of {len(runs)} runs: "
+        + "; ".join(f"{count} x {reason}" for reason, count in why.most_common())
+        if why
+        else ""
+    )
+    star = (
+        f"; * all samples' matches all true on {perfect} of {len(runs)} runs, scored by the trapezoid over precision 1"
+        if perfect
+        else ""
+    )
+    return (
+        f"min all-samples PR-AUC {_pct(min(aucs) if aucs else None)} (target > 70); constant 2 m >= 5 points below "
+        f"all samples on {gap} of {len(per_seq)} sequences (target >= 3 of 5){star}{na}"
+    )
 
 
 def _scored(r: dict, key: str) -> float | None:
@@ -212,8 +240,10 @@ def _rte_mean_std(rtes: list[tuple[float, float, float] | None]) -> list[str]:
     if not rtes or any(r is None for r in rtes):
         return ["n/a"] * 3
     arr = np.array(rtes)
-    return [f"{m:.2f}" + (f" +- {sd:.2f}" if len(arr) > 1 else "")
-            for m, sd in zip(arr.mean(0), arr.std(0, ddof=1) if len(arr) > 1 else arr[0])]
+    return [
+        f"{m:.2f}" + (f" +- {sd:.2f}" if len(arr) > 1 else "")
+        for m, sd in zip(arr.mean(0), arr.std(0, ddof=1) if len(arr) > 1 else arr[0])
+    ]
 
 
 def main() -> None:
@@ -228,11 +258,31 @@ def main() -> None:
     parser.add_argument("--cache-dir", default=None)
     args = parser.parse_args()
 
-    print(f"realism {args.realism}, frames {args.frames or 'all'} from {args.start}, azimuth steps "
-          f"{args.azimuth_steps or 'default'}, far pairs on every {args.pair_step}. frame\n")
-    header = ("seq", "seed", "frames", "RTE %", "horiz %", "vert %", "pitch deg/100 m", "max far SC", "far > 0.8 %",
-              "AUC all", "all matches", "all rec@0.8", "AUC c2m", "batch AUC all", "batch AUC c2m",
-              "spac vs c3m kf diff %", "kf spac/c3m", "scans/s", "KiB/scan")
+    print(
+        f"realism {args.realism}, frames {args.frames or 'all'} from {args.start}, azimuth steps "
+        f"{args.azimuth_steps or 'default'}, far pairs on every {args.pair_step}. frame\n"
+    )
+    header = (
+        "seq",
+        "seed",
+        "frames",
+        "RTE %",
+        "horiz %",
+        "vert %",
+        "pitch deg/100 m",
+        "max far SC",
+        "far > 0.8 %",
+        "AUC all",
+        "all matches",
+        "all rec@0.8",
+        "AUC c2m",
+        "batch AUC all",
+        "batch AUC c2m",
+        "spac vs c3m kf diff %",
+        "kf spac/c3m",
+        "scans/s",
+        "KiB/scan",
+    )
     print(" | ".join(header))
     print("|".join("---" for _ in header))
     rows = []
@@ -243,34 +293,75 @@ def main() -> None:
             rows.append((seq, r))
             rte = r["rte"] or (float("nan"),) * 3
             pitch = "n/a" if r["pitch"] is None else f"{r['pitch']:+.3f}"
-            print(" | ".join([seq, str(seed), str(r["frames"]), *(f"{v:.2f}" for v in rte), pitch, f"{r['best']:.3f}",
-                              f"{100 * r['above']:.3f}", _auc_all(r), str(r["matches_all"]), _pct(r["recall_all_08"]),
-                              _pct(r["auc_c2"]), _pct(r["batch_all"]), _pct(r["batch_c2"]),
-                              f"{100 * r['spac_diff']:.1f}", "/".join(map(str, r["kf"])),
-                              "cached" if r["scans_per_s"] is None else f"{r['scans_per_s']:.1f}",
-                              f"{r['disk'] / 1024:.0f}"]), flush=True)
+            print(
+                " | ".join(
+                    [
+                        seq,
+                        str(seed),
+                        str(r["frames"]),
+                        *(f"{v:.2f}" for v in rte),
+                        pitch,
+                        f"{r['best']:.3f}",
+                        f"{100 * r['above']:.3f}",
+                        _auc_all(r),
+                        str(r["matches_all"]),
+                        _pct(r["recall_all_08"]),
+                        _pct(r["auc_c2"]),
+                        _pct(r["batch_all"]),
+                        _pct(r["batch_c2"]),
+                        f"{100 * r['spac_diff']:.1f}",
+                        "/".join(map(str, r["kf"])),
+                        "cached" if r["scans_per_s"] is None else f"{r['scans_per_s']:.1f}",
+                        f"{r['disk'] / 1024:.0f}",
+                    ]
+                ),
+                flush=True,
+            )
             for warning in r["odometry_warnings"]:
                 print(f"  warning: {warning}")
     rtes = [r["rte"] for _, r in rows if r["rte"]]
     if rtes:
         mean = np.mean(rtes, axis=0)
-        print(f"\nmean RTE {mean[0]:.2f} % (horizontal {mean[1]:.2f}, vertical {mean[2]:.2f}); target 0.3-1.0 % "
-              "with horizontal >= half")
+        print(
+            f"\nmean RTE {mean[0]:.2f} % (horizontal {mean[1]:.2f}, vertical {mean[2]:.2f}); target 0.3-1.0 % "
+            "with horizontal >= half"
+        )
     per_seq = {seq: [r for s, r in rows if s == seq] for seq, _ in rows}
     false_everywhere = all(any(r["best"] > THRESHOLD for r in rs) for rs in per_seq.values())
-    print(f"pairs > 20 m above 0.8 on every sequence: {false_everywhere}; spaciousness differs from constant 3 m: "
-          f"{any(r['spac_diff'] > 0 for _, r in rows)}")
-    for protocol, all_key, c2_key in (("reference protocol", "auc_all", "auc_c2"),
-                                      ("batch search", "batch_all", "batch_c2")):
+    print(
+        f"pairs > 20 m above 0.8 on every sequence: {false_everywhere}; spaciousness differs from constant 3 m: "
+        f"{any(r['spac_diff'] > 0 for _, r in rows)}"
+    )
+    for protocol, all_key, c2_key in (
+        ("reference protocol", "auc_all", "auc_c2"),
+        ("batch search", "batch_all", "batch_c2"),
+    ):
         print(f"{protocol}: {_auc_targets(per_seq, all_key, c2_key)}")
-    print("\nper sequence, mean +- sample std over its seeds (RTE and its horizontal and vertical parts, %; PR-AUC, "
-          "points; all samples as the targets score it): seq | RTE % | horiz % | vert % | AUC all | AUC c2m | gap | "
-          "batch AUC all | batch AUC c2m | batch gap")
+    print(
+        "\nper sequence, mean +- sample std over its seeds (RTE and its horizontal and vertical parts, %; PR-AUC, "
+        "points; all samples as the targets score it): seq | RTE % | horiz % | vert % | AUC all | AUC c2m | gap | "
+        "batch AUC all | batch AUC c2m | batch gap"
+    )
     for seq, rs in per_seq.items():
-        print(" | ".join([seq, *_rte_mean_std([r["rte"] for r in rs]),
-                          *(_mean_std([_scored(r, a) for r in rs], [r[b] for r in rs] if b else None)
-                            for a, b in (("auc_all", None), ("auc_c2", None), ("auc_all", "auc_c2"),
-                                         ("batch_all", None), ("batch_c2", None), ("batch_all", "batch_c2")))]))
+        print(
+            " | ".join(
+                [
+                    seq,
+                    *_rte_mean_std([r["rte"] for r in rs]),
+                    *(
+                        _mean_std([_scored(r, a) for r in rs], [r[b] for r in rs] if b else None)
+                        for a, b in (
+                            ("auc_all", None),
+                            ("auc_c2", None),
+                            ("auc_all", "auc_c2"),
+                            ("batch_all", None),
+                            ("batch_c2", None),
+                            ("batch_all", "batch_c2"),
+                        )
+                    ),
+                ]
+            )
+        )
 
 
 if __name__ == "__main__":

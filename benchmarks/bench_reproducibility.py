@@ -44,8 +44,10 @@ def cpu_line() -> str:
             key, _, value = line.partition(":")
             fields[key.strip()] = value.strip()
     flags = fields.get("flags", "").split()
-    return (f"{cpu_model()}, family {fields.get('cpu family', '?')} model {fields.get('model', '?')}, "
-            f"AVX-512 {'yes' if 'avx512f' in flags else 'no'}, AVX2 {'yes' if 'avx2' in flags else 'no'}")
+    return (
+        f"{cpu_model()}, family {fields.get('cpu family', '?')} model {fields.get('model', '?')}, "
+        f"AVX-512 {'yes' if 'avx512f' in flags else 'no'}, AVX2 {'yes' if 'avx2' in flags else 'no'}"
+    )
 
 
 def main() -> int:
@@ -58,17 +60,24 @@ def main() -> int:
         value = getattr(args, name)
         if value is not None and value < 1:
             parser.error(f"--{name.replace('_', '-')} must be at least 1, got {value}")
-    blas = [f"{i['internal_api']} {i.get('architecture', '?')} {i['version']}" for i in threadpoolctl.threadpool_info()
-            if i["user_api"] == "blas"]
+    blas = [
+        f"{i['internal_api']} {i.get('architecture', '?')} {i['version']}"
+        for i in threadpoolctl.threadpool_info()
+        if i["user_api"] == "blas"
+    ]
     print(f"CPU: {cpu_line()}; numpy BLAS: {', '.join(blas) or 'none found'}")
     started = time.perf_counter()
     sim = prepare(DEFAULT_CONFIGS["demo"])
     frames = len(sim) if args.frames is None else min(args.frames, len(sim))
     world = sim.world
-    rows = [("world mesh (vertices, faces)", f"{len(world.mesh.faces)} faces",
-             digest(np.asarray(world.mesh.vertices), np.asarray(world.mesh.faces))),
-            ("world reflectance, materials", f"{len(world.reflectance)} faces",
-             digest(world.reflectance, world.material))]
+    rows = [
+        (
+            "world mesh (vertices, faces)",
+            f"{len(world.mesh.faces)} faces",
+            digest(np.asarray(world.mesh.vertices), np.asarray(world.mesh.faces)),
+        ),
+        ("world reflectance, materials", f"{len(world.reflectance)} faces", digest(world.reflectance, world.material)),
+    ]
     descriptor = make_descriptor("sc")
     scans, times, descriptors, odometry_scans = [], [], [], []
     every_scan = hashlib.sha256()  # = `cat velodyne/*.bin | sha256sum` of the demo's cached sequence
@@ -88,8 +97,9 @@ def main() -> int:
             scans, times, descriptors = [], [], []
     rows.append((f"every scan 0-{frames - 1} in turn", "cat velodyne/*.bin", every_scan.hexdigest()[:16]))
     kiss = KissOdometry(deskew=True)  # as the pipeline runs the demo: its scans carry per-point times
-    poses = np.stack([kiss.register(points, stamps, float(sim.times[k]))
-                      for k, (points, stamps) in enumerate(odometry_scans)])
+    poses = np.stack(
+        [kiss.register(points, stamps, float(sim.times[k])) for k, (points, stamps) in enumerate(odometry_scans)]
+    )
     rows.append((f"KISS-ICP odometry 0-{len(poses) - 1}", f"end {poses[-1, :3, 3].round(3).tolist()} m", digest(poses)))
     print(f"\nDigests of the demo's stages (sim:demo, SHA-256 first 16 hex; {time.perf_counter() - started:.0f} s)")
     print(f"{'stage':34} {'size':32} digest")

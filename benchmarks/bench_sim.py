@@ -62,14 +62,18 @@ def main() -> None:
 
     print(f"Scans per second on the KITTI-00 world (median over {SAMPLE} frames spread over the path)")
     print(f"{'sensor':<10}{'beams x azimuth':>16}{'points/scan':>13}{'ms/scan':>10}{'scans/s':>9}")
-    rows = [(name, None) for name in SENSORS] + [("hdl64", DEFAULT_CONFIGS["demo"].azimuth_steps),
-                                                 ("hdl64", DEFAULT_CONFIGS["test"].azimuth_steps)]
+    rows = [(name, None) for name in SENSORS] + [
+        ("hdl64", DEFAULT_CONFIGS["demo"].azimuth_steps),
+        ("hdl64", DEFAULT_CONFIGS["test"].azimuth_steps),
+    ]
     for name, az in rows:
         cfg = make_config(trajectory="kitti-00", sensor=name, azimuth_steps=az)
         sec, pts = per_scan(cfg)
         model = SENSORS[name]
-        print(f"{name:<10}{f'{model.beams} x {az or model.azimuth_steps}':>16}{pts:>13.0f}{1000 * sec:>10.1f}"
-              f"{1 / sec:>9.1f}")
+        print(
+            f"{name:<10}{f'{model.beams} x {az or model.azimuth_steps}':>16}{pts:>13.0f}{1000 * sec:>10.1f}"
+            f"{1 / sec:>9.1f}"
+        )
 
     print("\nWhole KITTI-00 (4541 frames), HDL-64 at its default 64 x 1800, written to disk")
     full_cfg = make_config(trajectory="kitti-00", sensor="hdl64")
@@ -80,8 +84,10 @@ def main() -> None:
         else:
             sec, _ = per_scan(full_cfg, write_dir=Path(tmp))
             total = build_s + 4541 * sec
-            print(f"  extrapolated from {SAMPLE} frames: {sec * 1000:.1f} ms/scan x 4541 + {build_s:.1f} s world"
-                  f" = {total:.0f} s ({total / 60:.1f} min; target <= 10 min)")
+            print(
+                f"  extrapolated from {SAMPLE} frames: {sec * 1000:.1f} ms/scan x 4541 + {build_s:.1f} s world"
+                f" = {total:.0f} s ({total / 60:.1f} min; target <= 10 min)"
+            )
 
     print("\nEmbedded defaults, generated from scratch (measured)")
     for kind, cfg in DEFAULT_CONFIGS.items():
@@ -89,8 +95,10 @@ def main() -> None:
             sec = _timed(lambda: simulate_sequence(cfg, out=Path(tmp) / kind))
             n = len(list((Path(tmp) / kind / "velodyne").glob("*.bin")))
             size = sum(f.stat().st_size for f in (Path(tmp) / kind / "velodyne").iterdir()) / 1e6
-        print(f"  {kind:<5} {cfg.trajectory} stride {cfg.stride}, {n} frames, 64 x {cfg.azimuth_steps}: "
-              f"{sec:.1f} s, {size:.0f} MB")
+        print(
+            f"  {kind:<5} {cfg.trajectory} stride {cfg.stride}, {n} frames, 64 x {cfg.azimuth_steps}: "
+            f"{sec:.1f} s, {size:.0f} MB"
+        )
 
 
 if __name__ == "__main__":

@@ -84,8 +84,12 @@ def run(method: str, folder: Path, end: int | None, threads: int, times: bool = 
             poses.append(np.array(odometry.last_pose))
             seconds += time.perf_counter() - start
         closures = -1
-    return {"poses": np.asarray(poses, dtype=np.float64), "seconds": np.float64(seconds),
-            "closures": np.int64(closures), "threads": np.int64(threads)}
+    return {
+        "poses": np.asarray(poses, dtype=np.float64),
+        "seconds": np.float64(seconds),
+        "closures": np.int64(closures),
+        "threads": np.int64(threads),
+    }
 
 
 def main() -> None:
@@ -95,8 +99,11 @@ def main() -> None:
     parser.add_argument("out", type=Path)
     parser.add_argument("--end", type=int, default=None, help="first N scans only")
     parser.add_argument("--threads", type=int, default=1, help="KISS-ICP threads (0: all cores)")
-    parser.add_argument("--no-times", action="store_true",
-                        help="give no per-point times (no deskew), as the peer's CLI reads .bin scans")
+    parser.add_argument(
+        "--no-times",
+        action="store_true",
+        help="give no per-point times (no deskew), as the peer's CLI reads .bin scans",
+    )
     args = parser.parse_args()
     np.savez(args.out, **run(args.method, args.sequence, args.end, args.threads, not args.no_times))
 

@@ -45,25 +45,61 @@ def measured(command: list[str], log: Path) -> Timing:
     return Timing(wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024.0)
 
 
-def jobs(folder: Path, work: Path, cli: str, peer_python: str | None, driver: Path, threads: int
-         ) -> dict[str, list[str]]:
+def jobs(
+    folder: Path, work: Path, cli: str, peer_python: str | None, driver: Path, threads: int
+) -> dict[str, list[str]]:
     """The commands to time on `folder`; outputs and cold caches under `work` (a folder of this benchmark's)."""
     msa_slam = [sys.executable, "-c", cli]
     commands = {
-        "msa-slam run --sampler msa": [*msa_slam, "run", "-d", str(folder), "--sampler", "msa", "--mode", "realistic",
-                                       "--out", str(work / "run"), "--cache-dir", str(work / "cache-run"), "--quiet"],
-        "msa-slam compare (7 methods)": [*msa_slam, "compare", "-d", str(folder), "--mode", "realistic",
-                                         "--no-sweep", "--out", str(work / "compare"),
-                                         "--cache-dir", str(work / "cache-compare"), "--quiet"],
+        "msa-slam run --sampler msa": [
+            *msa_slam,
+            "run",
+            "-d",
+            str(folder),
+            "--sampler",
+            "msa",
+            "--mode",
+            "realistic",
+            "--out",
+            str(work / "run"),
+            "--cache-dir",
+            str(work / "cache-run"),
+            "--quiet",
+        ],
+        "msa-slam compare (7 methods)": [
+            *msa_slam,
+            "compare",
+            "-d",
+            str(folder),
+            "--mode",
+            "realistic",
+            "--no-sweep",
+            "--out",
+            str(work / "compare"),
+            "--cache-dir",
+            str(work / "cache-compare"),
+            "--quiet",
+        ],
     }
     if peer_python is not None:
-        commands = {"KISS-SLAM": [peer_python, str(driver), "slam", str(folder), str(work / "peer.npz"),
-                                  "--threads", str(threads)], **commands}
+        commands = {
+            "KISS-SLAM": [
+                peer_python,
+                str(driver),
+                "slam",
+                str(folder),
+                str(work / "peer.npz"),
+                "--threads",
+                str(threads),
+            ],
+            **commands,
+        }
     return commands
 
 
-def timed_jobs(folder: Path, root: Path, cli: str, peer_python: str | None, driver: Path, threads: int,
-               repeats: int) -> dict[str, list[Timing]]:
+def timed_jobs(
+    folder: Path, root: Path, cli: str, peer_python: str | None, driver: Path, threads: int, repeats: int
+) -> dict[str, list[Timing]]:
     """Every job `repeats` times, alternating, each in a new folder under `root` (so from a cold cache); the
     outputs of the last repeat are kept (root/last) for the accuracy columns."""
     root.mkdir(parents=True, exist_ok=True)
@@ -80,5 +116,8 @@ def timed_jobs(folder: Path, root: Path, cli: str, peer_python: str | None, driv
 
 
 def median_timing(runs: list[Timing]) -> Timing:
-    return Timing(statistics.median(t.wall_s for t in runs), statistics.median(t.cpu_s for t in runs),
-                  statistics.median(t.peak_rss_mib for t in runs))
+    return Timing(
+        statistics.median(t.wall_s for t in runs),
+        statistics.median(t.cpu_s for t in runs),
+        statistics.median(t.peak_rss_mib for t in runs),
+    )

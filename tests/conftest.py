@@ -10,8 +10,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from msa_slam.io.poses import read_poses, write_poses
-from msa_slam.sources import resolve_dataset
 from msa_slam.sim import DEFAULT_CONFIGS, simulate_sequence
+from msa_slam.sources import resolve_dataset
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DIR = REPO_ROOT.parent / "shared"
@@ -31,6 +31,7 @@ def shared() -> callable:
 
 
 # Small simulated sequence shared by the pipeline tests (simulated once per session).
+
 
 def drifted(gt: np.ndarray, yaw_per_frame: float = 0.002, scale: float = 1.01) -> np.ndarray:
     """Odometry with a known drift: every relative motion scaled and followed by a small yaw."""

@@ -243,7 +243,7 @@ def test_loop_covariance_weights_the_loop(square):
 
 
 def test_robust_kernel_follows_the_mode():
-    """"auto": none in oracle mode and where the batch graph keeps only consistent loops (realistic mode);
+    """ "auto": none in oracle mode and where the batch graph keeps only consistent loops (realistic mode);
     Cauchy in realistic mode when every loop is used (iSAM2, or loop_inliers=all)."""
     assert PoseGraph(mode="realistic").kernel == "none" and PoseGraph(mode="oracle").kernel == "none"
     assert PoseGraph(GraphConfig(loop_inliers="all"), mode="realistic").kernel == "cauchy"

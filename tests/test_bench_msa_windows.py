@@ -15,9 +15,16 @@ def bench():
 
 def test_rows_modes_and_refusals_come_from_the_sampler(bench):
     rows = {v.key: v for v in bench.variants([10, 16, 20], exact_up_to=10)}
-    assert set(rows) == {(10, "reference", "exact"), (10, "reference", "fast"), (10, "canonical", "exact"),
-                         (10, "canonical", "fast"), (16, "reference", "fast"), (16, "canonical", "fast"),
-                         (20, "reference", "fast"), (20, "canonical", "fast")}
+    assert set(rows) == {
+        (10, "reference", "exact"),
+        (10, "reference", "fast"),
+        (10, "canonical", "exact"),
+        (10, "canonical", "fast"),
+        (16, "reference", "fast"),
+        (16, "canonical", "fast"),
+        (20, "reference", "fast"),
+        (20, "canonical", "fast"),
+    }
     refused = {k for k, v in rows.items() if v.refused}
     assert refused == {(20, "reference", "fast")}  # the neighbours setting keeps N=20 canonical fast accepted
     assert "524286 candidates" in rows[20, "reference", "fast"].refused
@@ -44,8 +51,10 @@ def test_table_mean_std_jaccard_and_na(bench):
     base, big = bench.Variant(10, "reference", "exact"), bench.Variant(16, "canonical", "fast")
     refused = bench.Variant(20, "reference", "fast", refused="too many candidates")
     failed = bench.Variant(20, "canonical", "fast")
-    runs = {base.key: {0: _values(bench, [0, 2, 4], 10.0), 1: _values(bench, [0, 3], 20.0)},
-            big.key: {0: _values(bench, [0, 4], 30.0), 1: _values(bench, [0, 3], 50.0)}}
+    runs = {
+        base.key: {0: _values(bench, [0, 2, 4], 10.0), 1: _values(bench, [0, 3], 20.0)},
+        big.key: {0: _values(bench, [0, 4], 30.0), 1: _values(bench, [0, 3], 50.0)},
+    }
     text = bench.table_markdown([base, big, refused, failed], runs, [0, 1], {failed.key: "seed 0: boom"})
     base_row, big_row, refused_row, failed_row = text.splitlines()[2:]
     assert _column(bench, base_row, "t. ATE impr. %") == "15.0 ± 7.1"  # mean and sample std of 10 and 20

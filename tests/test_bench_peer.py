@@ -29,10 +29,17 @@ def test_a_missing_interpreter_is_reported_not_raised(bench, tmp_path):
 
 
 def test_table_prints_missing_values_as_na(bench):
-    rows = [{"estimator": "KISS-SLAM", "ape": None, "rot": None, "loops": None, "time": None,
-             "note": "peer not installed"},
-            {"estimator": "msa-slam msa", "ape": 1.23456, "rot": 0.5, "loops": "3 of 9 cand.", "time": 61.04,
-             "note": "40 keyframes"}]
+    rows = [
+        {"estimator": "KISS-SLAM", "ape": None, "rot": None, "loops": None, "time": None, "note": "peer not installed"},
+        {
+            "estimator": "msa-slam msa",
+            "ape": 1.23456,
+            "rot": 0.5,
+            "loops": "3 of 9 cand.",
+            "time": 61.04,
+            "note": "40 keyframes",
+        },
+    ]
     text = bench.table(rows, {"sequence": "simulated KITTI-07", "seed": 0, "frames": 1101, "compare_wall_s": None})
     lines = text.splitlines()
     assert lines[0] == "### simulated KITTI-07, world seed 0, 1101 frames"
@@ -44,11 +51,12 @@ def test_the_peer_is_scored_against_the_truth_at_sweep_end(bench):
     # mid-sweep truth accelerating on a weaving path (x = 2 t^2, y = sin t), frames 0.1 s apart: the sweep-end truth is the pose
     # 0.05 s later (interpolated linearly between frames: within 6 mm), the last frame's extrapolated
     import numpy as np
+
     stamps = np.arange(50) * 0.1
 
     def path(t):
         poses = np.tile(np.eye(4), (len(t), 1, 1))
-        poses[:, 0, 3], poses[:, 1, 3] = 2.0 * t ** 2, np.sin(t)
+        poses[:, 0, 3], poses[:, 1, 3] = 2.0 * t**2, np.sin(t)
         return poses
 
     end = bench.sweep_end_truth(path(stamps), stamps)

@@ -33,7 +33,8 @@ def test_other_curves_keep_the_metric_or_stay_undefined(bench):
     assert bench._scored(row, "auc_all") == 1.0 and bench._scored(row, "auc_c2") == 0.9
     assert bench._auc_all(row) == "100.0*"
     assert "constant 2 m >= 5 points below all samples on 1 of 1" in bench._auc_targets(
-        {"05": [{**row, "auc_all_why": "precision is 1 by construction"}]}, "auc_all", "auc_c2")
+        {"05": [{**row, "auc_all_why": "precision is 1 by construction"}]}, "auc_all", "auc_c2"
+    )
 
 
 def test_drift_is_split_into_horizontal_and_vertical_parts(bench):

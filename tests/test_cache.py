@@ -17,6 +17,7 @@ from importlib import metadata
 from pathlib import Path
 
 import numpy as np
+from helpers.cache_data import data, fill_excerpt  # noqa: F401 (data: a fixture)
 
 import msa_slam.io.cache
 import msa_slam.odometry.cache
@@ -24,10 +25,9 @@ from msa_slam.datasets import open_dataset
 from msa_slam.io.cache import CacheDir, locked_temp
 from msa_slam.odometry import KissOdometry, OdometryCache
 from msa_slam.pipeline import make_config, prepare_frontend
-from msa_slam.pipeline.live import make_online_odometry
 from msa_slam.pipeline.config import make_online_config
+from msa_slam.pipeline.live import make_online_odometry
 from msa_slam.sources import open_source
-from helpers.cache_data import data, fill_excerpt  # noqa: F401 (data: a fixture)
 
 
 def _config(data: Path, cache: Path, **fields):
@@ -87,8 +87,9 @@ def test_online_replays_the_odometry_of_the_scans_it_reads(data, tmp_path, caplo
     """Each selection of scans (-n) has its own odometry entry, and online finds the one of the scans it reads:
     keyed as the whole recording, online -n 6 found the 12 rows of a full run and warned as if it were damaged."""
     cache = tmp_path / "cache"
-    runs = {frames: prepare_frontend(_config(data, cache, sampler="all", source={"frames": frames}))
-            for frames in (None, 6)}
+    runs = {
+        frames: prepare_frontend(_config(data, cache, sampler="all", source={"frames": frames})) for frames in (None, 6)
+    }
     assert not any(run.cached["odometry"] for run in runs.values())
     assert len(list((cache / "pipeline").glob("odometry-*.npy"))) == 2
     for frames, run in runs.items():
@@ -111,14 +112,17 @@ def test_run_and_online_from_the_cache_name_the_frames_kiss_icp_could_not_regist
     data.mkdir()
     for k in range(12):
         (near + np.float32(500.0) if k == 5 else near).tofile(data / f"{k:06d}.bin")
-    line = ("odometry: KISS-ICP could not register 1 of 12 frames (frame 5): fewer than 3 of their points lie "
-            "within 0-50 m, so their poses were extrapolated at constant velocity")
+    line = (
+        "odometry: KISS-ICP could not register 1 of 12 frames (frame 5): fewer than 3 of their points lie "
+        "within 0-50 m, so their poses were extrapolated at constant velocity"
+    )
     cfg = _config(data, tmp_path / "cache", sampler="all", mode="realistic", odometry_params={"max_range": 50.0})
     fresh, cached = prepare_frontend(cfg), prepare_frontend(cfg)
     assert not fresh.cached["odometry"] and cached.cached["odometry"]
     assert line in fresh.warnings and line in cached.warnings
-    config = make_online_config(dataset=str(data), cache_dir=str(tmp_path / "cache"), mode="realistic",
-                                odometry_params={"max_range": 50.0})
+    config = make_online_config(
+        dataset=str(data), cache_dir=str(tmp_path / "cache"), mode="realistic", odometry_params={"max_range": 50.0}
+    )
     odometry, replayed = make_online_odometry(config, open_source(config.dataset, mode="realistic"), 12)
     assert replayed and odometry.notes == [line]
 
@@ -129,8 +133,16 @@ def test_truncated_or_nan_entries_are_recomputed_with_a_warning(data, tmp_path, 
     files = sorted((tmp_path / "cache" / "pipeline").glob("*.npy"))
     # each entry's per-frame compute times (ms-NAME), the odometry's unregistered frames beside the entries, the
     # frame clouds' points and offsets
-    assert sorted(p.name.split("-")[0] for p in files) == ["descriptors", "frame", "frame", "ms", "ms", "ms",
-                                                           "odometry", "unregistered"]
+    assert sorted(p.name.split("-")[0] for p in files) == [
+        "descriptors",
+        "frame",
+        "frame",
+        "ms",
+        "ms",
+        "ms",
+        "odometry",
+        "unregistered",
+    ]
     entries = {p.name.split("-")[0]: p for p in files if not p.name.startswith("ms-")}
     odometry = entries["odometry"]
     odometry.write_bytes(odometry.read_bytes()[:300])
@@ -193,7 +205,8 @@ def test_full_disk_warns_once_and_leaves_no_temp(tmp_path, monkeypatch, caplog):
     assert store.save("a", np.zeros(10)) is None and store.save("b", np.zeros(10)) is None
     assert [r.getMessage() for r in caplog.records] == [
         f"cache: cannot write {tmp_path / 'a.npy'} (No space left on device; needs 0.00 MiB); "
-        "continuing without the cache"]
+        "continuing without the cache"
+    ]
     assert list(tmp_path.iterdir()) == []
 
 
@@ -207,9 +220,11 @@ def test_entries_respect_the_umask(tmp_path):
 
 
 def test_temporaries_of_killed_writers_are_removed(tmp_path, monkeypatch):
-    code = ("import os, sys; from pathlib import Path; from msa_slam.io.cache import locked_temp\n"
-            "with locked_temp(Path(sys.argv[1])) as handle:\n"
-            "    handle.write(b'half an entry'); handle.flush(); os._exit(9)\n")
+    code = (
+        "import os, sys; from pathlib import Path; from msa_slam.io.cache import locked_temp\n"
+        "with locked_temp(Path(sys.argv[1])) as handle:\n"
+        "    handle.write(b'half an entry'); handle.flush(); os._exit(9)\n"
+    )
     killed = subprocess.run([sys.executable, "-c", code, str(tmp_path / "odometry-k.npy")])
     assert killed.returncode == 9
     (orphan,) = tmp_path.glob(".*.tmp")

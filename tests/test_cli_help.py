@@ -19,8 +19,9 @@ COMMANDS = ["", *GROUP.commands]  # "": msa-slam --help itself
 def _help_source(name: str) -> str:
     """The help texts --help renders for `name`: the command's, every option's and the closing paragraphs."""
     command = GROUP.commands[name] if name else GROUP
-    return "\n".join([command.help or "", *(getattr(p, "help", None) or "" for p in command.params),
-                      command.epilog or ""])
+    return "\n".join(
+        [command.help or "", *(getattr(p, "help", None) or "" for p in command.params), command.epilog or ""]
+    )
 
 
 @pytest.mark.parametrize("columns", ["80", "200"])

@@ -23,14 +23,28 @@ def test_usage_error_names_the_missing_option():
     assert "Missing option '--poses'" in result.stderr and "Traceback" not in result.stderr
 
 
-HEAVY = ("numpy", "scipy", "gtsam", "matplotlib", "trimesh", "embreex", "torch", "dask", "kiss_icp", "small_gicp",
-         "pydantic", "yaml")
+HEAVY = (
+    "numpy",
+    "scipy",
+    "gtsam",
+    "matplotlib",
+    "trimesh",
+    "embreex",
+    "torch",
+    "dask",
+    "kiss_icp",
+    "small_gicp",
+    "pydantic",
+    "yaml",
+)
 
 
 def test_help_imports_no_heavy_library():
-    code = ("import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', '--help']\n"
-            "try:\n    main()\nexcept SystemExit:\n    pass\n"
-            f"print(sorted(m for m in {HEAVY!r} if m in sys.modules))")
+    code = (
+        "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', '--help']\n"
+        "try:\n    main()\nexcept SystemExit:\n    pass\n"
+        f"print(sorted(m for m in {HEAVY!r} if m in sys.modules))"
+    )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert "Usage: msa-slam" in result.stdout
     assert result.stdout.strip().splitlines()[-1] == "[]"
@@ -63,15 +77,22 @@ def test_no_library_module_imports_the_cli():
         if path.is_relative_to(root / "cli"):
             continue
         for node in ast.walk(ast.parse(path.read_text())):
-            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
-                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            names = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else [node.module or ""]
+                if isinstance(node, ast.ImportFrom)
+                else []
+            )
             offenders += [f"{path.relative_to(root)}: {n}" for n in names if n.split(".")[:2] == ["msa_slam", "cli"]]
     assert offenders == []
 
 
 def test_importing_one_module_does_not_import_its_package_siblings():
-    code = ("import sys, msa_slam.experiments.grid, msa_slam.evaluation.display, msa_slam.sampling.params\n"
-            "print(sorted(m for m in ('matplotlib', 'evo', 'scipy', 'gtsam') if m in sys.modules))")
+    code = (
+        "import sys, msa_slam.experiments.grid, msa_slam.evaluation.display, msa_slam.sampling.params\n"
+        "print(sorted(m for m in ('matplotlib', 'evo', 'scipy', 'gtsam') if m in sys.modules))"
+    )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert result.stdout.strip() == "[]", result.stderr
 
@@ -101,5 +122,6 @@ def test_permission_error_is_one_line_without_traceback(monkeypatch, capsys):
     with pytest.raises(SystemExit) as exit_info:
         cli.main()
     assert exit_info.value.code == 2
-    assert capsys.readouterr().err == ("error: /data/seq/velodyne/000007.bin: permission denied (check its "
-                                       "permissions)\n")
+    assert capsys.readouterr().err == (
+        "error: /data/seq/velodyne/000007.bin: permission denied (check its permissions)\n"
+    )

@@ -8,9 +8,9 @@ import json
 
 import numpy as np
 import pytest
+from helpers.methods import before_method, degenerate
 from typer.testing import CliRunner
 
-from helpers.methods import before_method, degenerate
 from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.io.poses import read_poses
@@ -24,10 +24,31 @@ runner = CliRunner()
 @pytest.fixture(scope="module")
 def run_folder(sequence, odometry_file, cache_dir, tmp_path_factory):
     out = tmp_path_factory.mktemp("cli") / "run"
-    result = runner.invoke(app, ["run", "--dataset", str(sequence), "--odometry", str(odometry_file),
-                                 "--sampler", "constant", "--param", "distance=3", "--param", "graph.robust=huber",
-                                 "--descriptor", "sc", "--mode", "oracle", "--cache-dir", str(cache_dir),
-                                 "--out", str(out), "--quiet"])
+    result = runner.invoke(
+        app,
+        [
+            "run",
+            "--dataset",
+            str(sequence),
+            "--odometry",
+            str(odometry_file),
+            "--sampler",
+            "constant",
+            "--param",
+            "distance=3",
+            "--param",
+            "graph.robust=huber",
+            "--descriptor",
+            "sc",
+            "--mode",
+            "oracle",
+            "--cache-dir",
+            str(cache_dir),
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+    )
     assert result.exit_code == 0, result.output
     assert result.output.strip() == str(out / "report.md")
     return out
@@ -38,8 +59,20 @@ def test_run_writes_config_and_metrics(run_folder, sequence):
     assert cfg.sampler == "constant" and cfg.sampler_params == {"distance": 3}
     assert cfg.graph.robust == "huber" and cfg.dataset == str(sequence)
     metrics = json.loads((run_folder / "metrics.json").read_text())
-    for key in ("keyframes", "candidates", "verified", "false_loops", "before", "after", "improvement_pct",
-                "pr_auc", "f1_max", "memory_bytes", "peak_rss_bytes", "time_s"):
+    for key in (
+        "keyframes",
+        "candidates",
+        "verified",
+        "false_loops",
+        "before",
+        "after",
+        "improvement_pct",
+        "pr_auc",
+        "f1_max",
+        "memory_bytes",
+        "peak_rss_bytes",
+        "time_s",
+    ):
         assert key in metrics
     assert metrics["after"]["ate_translation_m"] < metrics["before"]["ate_translation_m"]
     assert len(metrics["keyframe_frames"]) == metrics["keyframes"]
@@ -53,8 +86,11 @@ def test_run_writes_frames_and_trajectories(run_folder):
     assert [int(r["frame"]) for r in keyframes] == metrics["keyframe_frames"]
     assert all(r["opt_x"] and r["ate_opt_m"] for r in keyframes)
     assert not any(r["opt_x"] for r in rows if r["is_keyframe"] == "0")
-    for name, length in (("optimised_keyframes", metrics["keyframes"]), ("gt_keyframes", metrics["keyframes"]),
-                         ("odometry", metrics["frames"])):
+    for name, length in (
+        ("optimised_keyframes", metrics["keyframes"]),
+        ("gt_keyframes", metrics["keyframes"]),
+        ("odometry", metrics["frames"]),
+    ):
         kitti, _ = read_poses(run_folder / "trajectories" / f"{name}.kitti", "kitti")
         tum, times = read_poses(run_folder / "trajectories" / f"{name}.tum", "tum")
         assert len(kitti) == len(tum) == length
@@ -87,8 +123,22 @@ def test_run_leaves_out_the_sweep_by_default(run_folder):
 def swept_folder(sequence, odometry_file, cache_dir, tmp_path_factory):
     """MSA (the default sampler: window optimisations to time) with --sweep."""
     out = tmp_path_factory.mktemp("cli") / "swept"
-    result = runner.invoke(app, ["run", "--dataset", str(sequence), "--odometry", str(odometry_file), "--sweep",
-                                 "--cache-dir", str(cache_dir), "--out", str(out), "--quiet"])
+    result = runner.invoke(
+        app,
+        [
+            "run",
+            "--dataset",
+            str(sequence),
+            "--odometry",
+            str(odometry_file),
+            "--sweep",
+            "--cache-dir",
+            str(cache_dir),
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+    )
     assert result.exit_code == 0, result.output
     return out
 
@@ -124,8 +174,19 @@ def test_sampler_realtime_fraction_of_known_and_unknown_times():
 
 
 def test_run_reports_bad_input(tmp_path, cache_dir):
-    result = runner.invoke(app, ["run", "--dataset", str(tmp_path / "missing"), "--cache-dir", str(cache_dir),
-                                 "--out", str(tmp_path / "out"), "--quiet"])
+    result = runner.invoke(
+        app,
+        [
+            "run",
+            "--dataset",
+            str(tmp_path / "missing"),
+            "--cache-dir",
+            str(cache_dir),
+            "--out",
+            str(tmp_path / "out"),
+            "--quiet",
+        ],
+    )
     assert isinstance(result.exception, InputError) and "missing" in str(result.exception)
     result = runner.invoke(app, ["run", "--dataset", "sim:test", "--param", "thresold=0.5", "--quiet"])
     assert isinstance(result.exception, InputError) and "thresold" in str(result.exception)
@@ -139,15 +200,31 @@ def test_compare_keeps_finished_methods_when_one_fails(sequence, odometry_file, 
 
     methods = (("constant-3m", "constant", {"distance": 3.0}), ("entropy", "entropy", {}))
     monkeypatch.setattr(compare, "PAPER_METHODS", methods)
-    with_defaults = [name for name, p in inspect.signature(compare.run_compare).parameters.items()
-                     if p.default is not inspect.Parameter.empty]
+    with_defaults = [
+        name
+        for name, p in inspect.signature(compare.run_compare).parameters.items()
+        if p.default is not inspect.Parameter.empty
+    ]
     defaults = list(compare.run_compare.__defaults__)
     defaults[with_defaults.index("methods")] = methods
     monkeypatch.setattr(compare.run_compare, "__defaults__", tuple(defaults))
     before_method(monkeypatch, "entropy", degenerate)
     out = tmp_path / "cmp"
-    result = runner.invoke(app, ["compare", "--dataset", str(sequence), "--odometry", str(odometry_file),
-                                 "--cache-dir", str(cache_dir), "--out", str(out), "--quiet"])
+    result = runner.invoke(
+        app,
+        [
+            "compare",
+            "--dataset",
+            str(sequence),
+            "--odometry",
+            str(odometry_file),
+            "--cache-dir",
+            str(cache_dir),
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+    )
     assert result.exit_code == 1
     assert "failed: entropy: RuntimeError: degenerate scan statistics" in result.output
     report = (out / "report.md").read_text()
@@ -160,8 +237,21 @@ def test_run_records_effective_odometry_config_threads_and_degenerate_odometry(s
     """A stalled KISS-ICP (coarse azimuth: too few points) is named in metrics and report.md, and the full
     effective odometry configuration with its thread counts is recorded."""
     out = tmp_path / "stalled"
-    result = runner.invoke(app, ["run", "--dataset", "sim:test,azimuth_steps=180", "--sampler", "all",
-                                 "--cache-dir", str(cache_dir), "--out", str(out), "--quiet"])
+    result = runner.invoke(
+        app,
+        [
+            "run",
+            "--dataset",
+            "sim:test,azimuth_steps=180",
+            "--sampler",
+            "all",
+            "--cache-dir",
+            str(cache_dir),
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+    )
     assert result.exit_code == 0, result.output
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["threads"] == {"odometry": 1, "verification": 1, "blas_backend": 1}

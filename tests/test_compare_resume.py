@@ -18,12 +18,12 @@ import yaml
 import msa_slam.experiments.compare as compare
 import msa_slam.experiments.identity as identity
 import msa_slam.slam.backend as backend
-from msa_slam.io import staging
-from msa_slam.io.outputs import MARKER, OutputError, write_marker
-from msa_slam.pipeline import make_config
 from msa_slam.experiments.compare import method_configs, run_compare
 from msa_slam.experiments.seed_folder import seed_identities
 from msa_slam.experiments.seeds import seeded_datasets
+from msa_slam.io import staging
+from msa_slam.io.outputs import MARKER, OutputError, write_marker
+from msa_slam.pipeline import make_config
 
 METHODS = (("all", "all", {}), ("msa", "msa", {}))
 SEEDS = [0, 1]
@@ -143,13 +143,16 @@ def test_sampler_parameters_reach_msa_and_are_settings_a_resume_compares(base, w
     with pytest.raises(OutputError) as refused:
         run_compare(windowed, out, methods=METHODS, seeds=[0])
     assert "seed 0 was run with other settings (methods.msa.sampler_params.window: absent there, 8 now)" in str(
-        refused.value)
+        refused.value
+    )
     assert calls == []
 
     run_compare(windowed, out, methods=METHODS, seeds=[0], overwrite=True, figures=False)
     assert calls == [0]
-    used = {m: yaml.safe_load((out / "seeds" / "seed-0" / "runs" / m / "config.yaml").read_text())["sampler_params"]
-            for m in ("all", "msa")}
+    used = {
+        m: yaml.safe_load((out / "seeds" / "seed-0" / "runs" / m / "config.yaml").read_text())["sampler_params"]
+        for m in ("all", "msa")
+    }
     assert used == {"all": {}, "msa": {"window": 8}}
     record = json.loads((out / "seeds" / "seed-0" / "seed.json").read_text())
     assert {m: record["methods"][m]["sampler_params"] for m in ("all", "msa")} == used
@@ -207,10 +210,13 @@ def _without_rerun_note(report: str) -> str:
     return head + tail.partition("\n\n")[2] if note else report
 
 
-def test_finished_seeds_record_their_identity_and_are_reused_while_it_holds(base, whole, calls, tmp_path, capsys,
-                                                                           caplog):
-    plans = {s: method_configs(make_config({**base.dump(), "dataset": d}), METHODS)
-             for s, d in zip(SEEDS, seeded_datasets(base.dataset, SEEDS))}
+def test_finished_seeds_record_their_identity_and_are_reused_while_it_holds(
+    base, whole, calls, tmp_path, capsys, caplog
+):
+    plans = {
+        s: method_configs(make_config({**base.dump(), "dataset": d}), METHODS)
+        for s, d in zip(SEEDS, seeded_datasets(base.dataset, SEEDS))
+    }
     current = seed_identities(plans)
     assert current[0]["code"] == current[1]["code"] and current[0]["data"] != current[1]["data"]  # the world seed
     assert {s: _seed_json(whole, s)["identity"] for s in SEEDS} == current
@@ -270,8 +276,9 @@ def test_a_seed_of_the_previous_format_is_rerun(base, whole, calls, tmp_path, ca
     write_marker(out, "compare")
     _run(base, out)
     assert calls == [0]
-    assert _warnings(caplog) == ["compare: seed 0: it records no identity of its data and code (an older msa-slam "
-                               "ran it); rerun"]
+    assert _warnings(caplog) == [
+        "compare: seed 0: it records no identity of its data and code (an older msa-slam ran it); rerun"
+    ]
     assert _seed_json(out, 0)["identity"] == _seed_json(whole, 0)["identity"]
     assert (out / "seeds.json").read_bytes() == (whole / "seeds.json").read_bytes()
 

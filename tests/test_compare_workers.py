@@ -17,27 +17,28 @@ import sys
 from pathlib import Path
 
 import pytest
-from typer.testing import CliRunner
-
 from helpers.methods import before_method, degenerate
 from helpers.orphans import poll, proc_stat
 from helpers.results import differences, stable_content
 from helpers.signals import terminal_signals
-from msa_slam.cli import app
-from msa_slam.errors import InputError
-from msa_slam.pipeline import make_config
-from msa_slam.experiments.compare import MethodsFailed, run_compare
-from msa_slam.workers import forked_workers
 from test_compare_resume import _no_rss_growth
 from test_pipeline import PERMISSIVE
+from typer.testing import CliRunner
+
+from msa_slam.cli import app
+from msa_slam.errors import InputError
+from msa_slam.experiments.compare import MethodsFailed, run_compare
+from msa_slam.pipeline import make_config
+from msa_slam.workers import forked_workers
 
 METHODS = (("all", "all", {}), ("constant-2m", "constant", {"distance": 2.0}), ("msa", "msa", {}))
 
 
 @pytest.fixture(scope="module")
 def base(sequence, odometry_file, cache_dir):
-    return make_config(dataset=str(sequence), odometry=str(odometry_file), cache_dir=str(cache_dir), mode="realistic",
-                       **PERMISSIVE)
+    return make_config(
+        dataset=str(sequence), odometry=str(odometry_file), cache_dir=str(cache_dir), mode="realistic", **PERMISSIVE
+    )
 
 
 @pytest.fixture(scope="module")
@@ -69,10 +70,12 @@ def test_seeds_with_two_workers_write_the_files_of_a_serial_run(tmp_path, cache_
     _no_rss_growth(monkeypatch)  # the workers inherit the patch by fork
     base = make_config(dataset="sim:test,end=60,azimuth_steps=360", cache_dir=str(cache_dir))
     methods, seeds = METHODS[::2], [0, 1]
-    serial = run_compare(base, tmp_path / "serial", methods=methods, seeds=seeds, sweep=False, workers=1,
-                         figures=False).parent
-    parallel = run_compare(base, tmp_path / "parallel", methods=methods, seeds=seeds, sweep=False, workers=2,
-                           figures=False).parent
+    serial = run_compare(
+        base, tmp_path / "serial", methods=methods, seeds=seeds, sweep=False, workers=1, figures=False
+    ).parent
+    parallel = run_compare(
+        base, tmp_path / "parallel", methods=methods, seeds=seeds, sweep=False, workers=2, figures=False
+    ).parent
     _same_files(serial, parallel)
     assert "seeds/seed-1/runs/msa/metrics.json" in stable_content(parallel)
 
@@ -111,8 +114,10 @@ def test_workers_below_one_are_refused_before_any_work(base, tmp_path, workers):
     with pytest.raises(InputError, match=f"^--workers must be >= 1, got {workers}$"):
         run_compare(base, tmp_path / "cmp", methods=METHODS, workers=workers)
     assert not (tmp_path / "cmp").exists()
-    result = CliRunner().invoke(app, ["compare", "--dataset", base.dataset, "--workers", str(workers),
-                                      "--out", str(tmp_path / "cli"), "--quiet"])
+    result = CliRunner().invoke(
+        app,
+        ["compare", "--dataset", base.dataset, "--workers", str(workers), "--out", str(tmp_path / "cli"), "--quiet"],
+    )
     assert isinstance(result.exception, InputError) and "--workers must be >= 1" in str(result.exception)
     assert not (tmp_path / "cli").exists()
 
@@ -122,8 +127,10 @@ def _pools() -> dict[str, int]:
     import numba
     from threadpoolctl import threadpool_info
 
-    return {**{f"{p['internal_api']} {p['filepath']}": p["num_threads"] for p in threadpool_info()},
-            "numba": numba.get_num_threads()}
+    return {
+        **{f"{p['internal_api']} {p['filepath']}": p["num_threads"] for p in threadpool_info()},
+        "numba": numba.get_num_threads(),
+    }
 
 
 def test_workers_run_every_thread_pool_on_one_thread():
@@ -153,8 +160,14 @@ with forked_workers(2, None) as submit:
 def test_workers_end_with_their_parent(stop):
     """kill -9 of the parent (the kernel's parent-death signal) or Ctrl-C (the parent kills them) ends the
     workers mid-job."""
-    parent = subprocess.Popen([sys.executable, "-c", _PARENT], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                              stderr=subprocess.DEVNULL, text=True, preexec_fn=terminal_signals)
+    parent = subprocess.Popen(
+        [sys.executable, "-c", _PARENT],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        preexec_fn=terminal_signals,
+    )
     workers = [int(parent.stdout.readline()) for _ in range(2)]
     try:
         parent.send_signal(stop)

@@ -32,8 +32,9 @@ def test_bare_weights_reach_the_overlap_transformer(weights, order):
 def test_bare_weights_same_as_the_dotted_key(weights):
     base = make_config(dataset="x", descriptor="overlap_transformer", descriptor_params={"weights": str(weights)})
     assert apply_params(base.model_copy(update={"descriptor_params": {}}), [f"weights={weights}"]) == base
-    assert apply_params(make_config(dataset="x"), ["descriptor=ot", f"descriptor.weights={weights}"]) \
-        .descriptor_params == {"weights": str(weights)}
+    assert apply_params(
+        make_config(dataset="x"), ["descriptor=ot", f"descriptor.weights={weights}"]
+    ).descriptor_params == {"weights": str(weights)}
 
 
 def test_weights_without_the_overlap_transformer_say_how(weights):
@@ -43,14 +44,20 @@ def test_weights_without_the_overlap_transformer_say_how(weights):
 
 
 def test_unknown_bare_key_still_lists_what_exists():
-    with pytest.raises(InputError, match=r"--param 'wieghts': not a config key \(dataset, .*similarity_threshold"
-                                         r".*\), a parameter of sampler 'msa' \(window, .*lambda_u.*\) nor weights"):
+    with pytest.raises(
+        InputError,
+        match=r"--param 'wieghts': not a config key \(dataset, .*similarity_threshold"
+        r".*\), a parameter of sampler 'msa' \(window, .*lambda_u.*\) nor weights",
+    ):
         apply_params(make_config(dataset="x"), ["wieghts=a.pth"])
 
 
 def test_overlap_transformer_weights_checked_when_the_config_is_made(tmp_path):
-    with pytest.raises(InputError, match=r"descriptor 'ot' needs its weights file, -p weights=FILE: .*"
-                                         r"pretrained_overlap_transformer\.pth\.tar"):
+    with pytest.raises(
+        InputError,
+        match=r"descriptor 'ot' needs its weights file, -p weights=FILE: .*"
+        r"pretrained_overlap_transformer\.pth\.tar",
+    ):
         apply_params(make_config(dataset="x", descriptor="ot"), [])
     missing = tmp_path / "missing.pth"
     with pytest.raises(InputError, match=re.escape(f"descriptor 'ot': weights file not found: {missing}")):
@@ -61,10 +68,26 @@ def test_cli_refuses_a_missing_weights_file_before_reading_scans(tmp_path):
     # the dataset does not exist either: the weights come first, one line, nothing written
     missing = tmp_path / "missing.pth"
     code = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
-    result = subprocess.run([sys.executable, "-c", code, "run", "--dataset", str(tmp_path / "no-data"), "--descriptor",
-                             "ot", "-p", f"weights={missing}", "--out", str(tmp_path / "out")],
-                            capture_output=True, text=True, timeout=120,
-                            env={**os.environ, "MSA_SLAM_CACHE": str(tmp_path / "cache")})
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            code,
+            "run",
+            "--dataset",
+            str(tmp_path / "no-data"),
+            "--descriptor",
+            "ot",
+            "-p",
+            f"weights={missing}",
+            "--out",
+            str(tmp_path / "out"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "MSA_SLAM_CACHE": str(tmp_path / "cache")},
+    )
     assert result.returncode == 2
     assert result.stderr.startswith(f"error: config: descriptor 'ot': weights file not found: {missing}; ")
     assert len(result.stderr.strip().splitlines()) == 1
@@ -80,16 +103,25 @@ def test_online_config_routes_and_checks_the_weights(weights, tmp_path):
         apply_online_params({"dataset": "x"}, ["descriptor=ot", f"weights={tmp_path / 'nope.pth'}"])
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--descriptor", "foo"], "error: config: descriptor: unknown name 'foo'; choose one of sc, "),
-    (["--descriptor", "precomputed"], "error: config: descriptor 'precomputed' needs its descriptor file, "
-                                      "-p descriptor.path=FILE.npy"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--descriptor", "foo"], "error: config: descriptor: unknown name 'foo'; choose one of sc, "),
+        (
+            ["--descriptor", "precomputed"],
+            "error: config: descriptor 'precomputed' needs its descriptor file, -p descriptor.path=FILE.npy",
+        ),
+    ],
+)
 def test_cli_refuses_a_bad_descriptor_before_simulating_the_dataset(tmp_path, args, message):
     """sim:test is simulated on first use: a typo in the descriptor must not cost that first."""
     code = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
-    result = subprocess.run([sys.executable, "-c", code, "run", "--dataset", "sim:test", *args,
-                             "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=120,
-                            env={**os.environ, "MSA_SLAM_CACHE": str(tmp_path / "cache")})
+    result = subprocess.run(
+        [sys.executable, "-c", code, "run", "--dataset", "sim:test", *args, "--out", str(tmp_path / "out")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "MSA_SLAM_CACHE": str(tmp_path / "cache")},
+    )
     assert result.returncode == 2 and result.stderr.startswith(message), result.stderr
     assert not (tmp_path / "out").exists() and not (tmp_path / "cache").exists()

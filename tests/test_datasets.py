@@ -7,12 +7,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.scans import write_bin
 from scipy.spatial.transform import Rotation
 
 from msa_slam.datasets import Frame, open_dataset, read_cloud, read_pcd
 from msa_slam.errors import InputError
 from msa_slam.io.poses import format_kitti, write_poses
-from helpers.scans import write_bin
 
 TR = np.eye(4)
 TR[:3, :3] = Rotation.from_euler("zyx", [-90, 0, -90], degrees=True).as_matrix()  # LiDAR x-forward -> camera z
@@ -35,8 +35,9 @@ def _kitti(root: Path, n: int = 3, poses_in_sequence: bool = True) -> Path:
     seq = root / "sequences" / "07"
     for k in range(n):
         write_bin(seq / "velodyne" / f"{k:06d}.bin", _points(k))
-    (seq / "calib.txt").write_text("P0: " + " ".join(["0"] * 12) + "\nTr: "
-                                   + " ".join(f"{v:.12e}" for v in TR[:3].ravel()) + "\n")
+    (seq / "calib.txt").write_text(
+        "P0: " + " ".join(["0"] * 12) + "\nTr: " + " ".join(f"{v:.12e}" for v in TR[:3].ravel()) + "\n"
+    )
     (seq / "times.txt").write_text("".join(f"{0.1 * k:.6f}\n" for k in range(n)))
     cam = TR @ _lidar_poses(n) @ np.linalg.inv(TR)
     pose_file = seq / "poses.txt" if poses_in_sequence else root / "poses" / "07.txt"
@@ -183,12 +184,15 @@ def test_implausible_scan_values(tmp_path):
     np.testing.assert_array_equal(read_cloud(path), np.delete(_points(0), [4, 7], axis=0))
 
 
-@pytest.mark.parametrize(("times", "line", "problem"), [
-    (["0.0", "nan", "0.2"], 2, "time nan is not a finite number"),
-    (["0.0", "0.1", "0.1"], 3, r"time 0.1 repeats the previous one \(0.1\)"),
-    (["0.0", "0.2", "0.1"], 3, r"time 0.1 is before the previous one \(0.2\)"),
-    (["0.0", "", "0.1", "abc"], 4, "'abc' is not a time in seconds"),
-])
+@pytest.mark.parametrize(
+    ("times", "line", "problem"),
+    [
+        (["0.0", "nan", "0.2"], 2, "time nan is not a finite number"),
+        (["0.0", "0.1", "0.1"], 3, r"time 0.1 repeats the previous one \(0.1\)"),
+        (["0.0", "0.2", "0.1"], 3, r"time 0.1 is before the previous one \(0.2\)"),
+        (["0.0", "", "0.1", "abc"], 4, "'abc' is not a time in seconds"),
+    ],
+)
 def test_bad_times_name_the_line(tmp_path, times, line, problem):
     seq = _kitti(tmp_path)
     (seq / "times.txt").write_text("\n".join(times) + "\n")
@@ -243,9 +247,11 @@ def _pcd_header(n: int, data: str, extra: bool) -> str:
     fields = "x y z intensity" if extra else "x y z"
     sizes = "4 4 4 2" if extra else "4 4 4"
     types = "F F F U" if extra else "F F F"
-    return (f"# .PCD v0.7\nVERSION 0.7\nFIELDS {fields}\nSIZE {sizes}\nTYPE {types}\n"
-            f"COUNT {' '.join(['1'] * len(fields.split()))}\nWIDTH {n}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\n"
-            f"POINTS {n}\nDATA {data}\n")
+    return (
+        f"# .PCD v0.7\nVERSION 0.7\nFIELDS {fields}\nSIZE {sizes}\nTYPE {types}\n"
+        f"COUNT {' '.join(['1'] * len(fields.split()))}\nWIDTH {n}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\n"
+        f"POINTS {n}\nDATA {data}\n"
+    )
 
 
 def test_pcd_ascii_and_binary(tmp_path):
@@ -329,7 +335,8 @@ def test_apollo_layout_without_open3d(tmp_path):
     for k in range(3):
         pts = _points(k, n=5)
         (tmp_path / "pcds" / f"{k + 1}.pcd").write_text(
-            _pcd_header(5, "ascii", False) + "".join(f"{x} {y} {z}\n" for x, y, z in pts))
+            _pcd_header(5, "ascii", False) + "".join(f"{x} {y} {z}\n" for x, y, z in pts)
+        )
     (tmp_path / "poses").mkdir()
     lines = [f"{k} {k * 0.1} {10 + 2 * k} 5 0 0 0 0 1\n" for k in range(3)]  # index time x y z qx qy qz qw
     (tmp_path / "poses" / "gt_poses.txt").write_text("".join(lines))
@@ -341,10 +348,12 @@ def test_apollo_layout_without_open3d(tmp_path):
 
 # --- per-point times ---------------------------------------------------------------------
 
+
 def test_kitti_frames_derive_point_times_from_azimuth(tmp_path):
     seq = _kitti(tmp_path)
-    ahead_left_right_behind = np.array([[10, 0, 0], [0, 10, 0], [0, -10, 0], [-10, 1e-3, 0], [-10, -1e-3, 0]],
-                                       np.float32)
+    ahead_left_right_behind = np.array(
+        [[10, 0, 0], [0, 10, 0], [0, -10, 0], [-10, 1e-3, 0], [-10, -1e-3, 0]], np.float32
+    )
     write_bin(seq / "velodyne" / "000001.bin", ahead_left_right_behind)
     frame = open_dataset(seq)[1]
     # HDL-64 at 10 Hz, clockwise from the back: forward at mid-sweep (the scan's timestamp), as kiss-icp

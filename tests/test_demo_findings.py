@@ -13,23 +13,27 @@ from typer.testing import CliRunner
 import msa_slam.demo
 from msa_slam.cli import app
 from msa_slam.evaluation import fmt
-from msa_slam.pipeline import make_config
 from msa_slam.experiments.compare import run_compare
+from msa_slam.pipeline import make_config
 from msa_slam.reporting.findings import findings
 
 METHODS = (("all", "all", {}), ("constant-2m", "constant", {"distance": 2.0}), ("msa", "msa", {}))
-LINE = re.compile(r"^  (?P<method>\S+) +(?P<keyframes>\d+) keyframes \((?P<share>\S+) % of frames\), memory "
-                  r"(?P<memory>\S+) % of all samples, t\. ATE improvement (?P<ate>\S+) %, (?P<loops>\d+) loops, "
-                  r"PR-AUC (?P<pr_auc>\S+)$")
+LINE = re.compile(
+    r"^  (?P<method>\S+) +(?P<keyframes>\d+) keyframes \((?P<share>\S+) % of frames\), memory "
+    r"(?P<memory>\S+) % of all samples, t\. ATE improvement (?P<ate>\S+) %, (?P<loops>\d+) loops, "
+    r"PR-AUC (?P<pr_auc>\S+)$"
+)
 
 
 @pytest.fixture(scope="module")
 def report(sequence, odometry_file, cache_dir, tmp_path_factory) -> Path:
     """A short demo-like run: the demo's settings (Scan Context, oracle loops, no sweep) on the test sequence."""
-    config = make_config(dataset=str(sequence), odometry=str(odometry_file), descriptor="sc", mode="oracle",
-                         cache_dir=str(cache_dir))
-    return run_compare(config, tmp_path_factory.mktemp("demo-like") / "cmp", methods=METHODS, sweep=False,
-                       figures=False)
+    config = make_config(
+        dataset=str(sequence), odometry=str(odometry_file), descriptor="sc", mode="oracle", cache_dir=str(cache_dir)
+    )
+    return run_compare(
+        config, tmp_path_factory.mktemp("demo-like") / "cmp", methods=METHODS, sweep=False, figures=False
+    )
 
 
 def test_the_closing_lines_give_each_methods_metrics(report):

@@ -48,8 +48,9 @@ def test_precomputed_errors(npy, tmp_path):
         PrecomputedDescriptors(corrupt)
     huge = tmp_path / "huge.npy"  # a valid header claiming 48 TB, then 800 bytes: refused before any allocation
     with huge.open("wb") as file:
-        np.lib.format.write_array_header_1_0(file, {"descr": "<f8", "fortran_order": False,
-                                                    "shape": (60, 10**6, 10**5)})
+        np.lib.format.write_array_header_1_0(
+            file, {"descr": "<f8", "fortran_order": False, "shape": (60, 10**6, 10**5)}
+        )
         file.write(bytes(800))
     with pytest.raises(InputError, match="huge.npy is not a readable .npy array \\(truncated or corrupt"):
         PrecomputedDescriptors(huge)
@@ -82,8 +83,9 @@ def test_registry_names_and_errors(npy):
     assert isinstance(make_descriptor("Scan_Context", n_ring=10).shape, tuple)
     assert make_descriptor("scan_context", n_ring=10).shape == (10, 60)
     assert isinstance(make_descriptor("precomputed", path=npy), PrecomputedDescriptors)
-    with pytest.raises(InputError, match="unknown name 'nope'; choose one of sc, scan_context, ot, "
-                                         "overlap_transformer, precomputed"):
+    with pytest.raises(
+        InputError, match="unknown name 'nope'; choose one of sc, scan_context, ot, overlap_transformer, precomputed"
+    ):
         make_descriptor("nope")
     with pytest.raises(InputError, match="bad parameters"):
         make_descriptor("sc", rings=3)

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import shared_path
 from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
-from conftest import shared_path
 from msa_slam.datasets.point_times import sweep_fraction
 from msa_slam.errors import InputError
 from msa_slam.odometry import KissOdometry
@@ -61,7 +61,7 @@ def _distorted_sequence(n: int, step: np.ndarray, columns: int = 720) -> tuple[l
         fraction = (np.floor(sweep_fraction(local[:, 0], local[:, 1]) * columns) + 0.5) / columns
         # seen from the pose at fraction s, mid @ exp((s - 0.5) xi): exp((0.5 - s) xi) applied to `local`
         points = deskew(local, 1.0 - fraction, rho, phi)
-        scans.append((points[k % 2::2], PERIOD * fraction[k % 2::2]))
+        scans.append((points[k % 2 :: 2], PERIOD * fraction[k % 2 :: 2]))
         truth.append(mid)
     return scans, np.array(truth)
 

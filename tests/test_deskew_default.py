@@ -7,6 +7,9 @@ import json
 from pathlib import Path
 
 import numpy as np
+from helpers.scans import write_bin
+from test_inputs import _pcd, _write_bag
+from test_real_inputs_times import N, _points
 from typer.testing import CliRunner
 
 from msa_slam.cli import app
@@ -14,9 +17,6 @@ from msa_slam.odometry.kiss import NO_POINT_TIMES
 from msa_slam.pipeline.config import make_config
 from msa_slam.pipeline.frontend import make_odometry
 from msa_slam.sources import open_sequence
-from test_inputs import _pcd, _write_bag
-from test_real_inputs_times import N, _points
-from helpers.scans import write_bin
 
 
 def _pcd_folder(root: Path) -> Path:
@@ -33,11 +33,26 @@ def _bin_folder(root: Path) -> Path:
     return root
 
 
-def _metrics(command: str, dataset: Path, out: Path, *params: str, options: tuple[str, ...] = ()
-             ) -> tuple[dict, str]:
-    result = CliRunner().invoke(app, [command, "-d", str(dataset), "--sampler", "all", "--mode", "realistic", "-q",
-                                      "--cache-dir", str(out.parent / "cache"), "--out", str(out), *options,
-                                      *[arg for p in params for arg in ("-p", p)]])
+def _metrics(command: str, dataset: Path, out: Path, *params: str, options: tuple[str, ...] = ()) -> tuple[dict, str]:
+    result = CliRunner().invoke(
+        app,
+        [
+            command,
+            "-d",
+            str(dataset),
+            "--sampler",
+            "all",
+            "--mode",
+            "realistic",
+            "-q",
+            "--cache-dir",
+            str(out.parent / "cache"),
+            "--out",
+            str(out),
+            *options,
+            *[arg for p in params for arg in ("-p", p)],
+        ],
+    )
     assert result.exit_code == 0, result.output
     return json.loads((out / "metrics.json").read_text()), (out / "report.md").read_text()
 
@@ -64,7 +79,10 @@ def test_a_bag_with_a_per_point_time_field_is_deskewed_by_default(tmp_path):
 def test_deskew_false_turns_it_off(tmp_path):
     m, report = _metrics("run", _pcd_folder(tmp_path / "pcd"), tmp_path / "off", "odometry.deskew=false")
     assert (m["deskew"], m["deskew_from"], m["odometry_config"]["data"]["deskew"]) == (
-        False, "odometry.deskew=false", False)
+        False,
+        "odometry.deskew=false",
+        False,
+    )
     assert "Odometry: deskew off (odometry.deskew=false)." in report
 
 

@@ -32,10 +32,14 @@ def _twist(xi: np.ndarray) -> np.ndarray:
 
 def _room() -> World:
     """A closed 60 x 40 x 12 m box with a pillar off-centre, so no direction is symmetric."""
-    mesh = trimesh.util.concatenate([trimesh.creation.box(extents=[60.0, 40.0, 12.0]),
-                                     trimesh.creation.box(extents=[2.0, 3.0, 10.0],
-                                                          transform=trimesh.transformations.translation_matrix(
-                                                              [9.0, 6.0, 0.0]))])
+    mesh = trimesh.util.concatenate(
+        [
+            trimesh.creation.box(extents=[60.0, 40.0, 12.0]),
+            trimesh.creation.box(
+                extents=[2.0, 3.0, 10.0], transform=trimesh.transformations.translation_matrix([9.0, 6.0, 0.0])
+            ),
+        ]
+    )
     faces = len(mesh.faces)
     return World(mesh, np.full(faces, 0.5, dtype=np.float32), np.full(faces, Material.SOLID, dtype=np.uint8))
 
@@ -52,7 +56,8 @@ def _pose_at(times: np.ndarray) -> np.ndarray:
 def sweep():
     model = LidarModel("test", tuple(np.linspace(10.0, -20.0, 16)), azimuth_steps=720, range_noise=0.0)
     points, times = Lidar(model, _room(), SensorRealism(motion_distortion=True)).sweep(
-        _pose_at, 0.0, np.random.default_rng(0))
+        _pose_at, 0.0, np.random.default_rng(0)
+    )
     points = points[:, :3].astype(np.float64)
     # ground truth: each point through the pose of its firing time into the frame of the scan timestamp
     fired = _pose_at(times - model.sweep_period / 2)
@@ -85,15 +90,17 @@ def test_odometry_deskew_of_a_simulated_sweep(sweep):
     half_column = (np.linalg.norm(MOTION[:3]) + reach * MOTION[5]) / (2 * model.azimuth_steps)  # m a point moves
     assert np.abs(corrected - truth).max() < 1.01 * half_column
 
+
 def _drift(deskew_on: bool, dataset: str, cache: str) -> tuple[float, float]:
     """(mean frame-to-frame translation error, error over the whole prefix) of KISS-ICP, m."""
     config = apply_params(make_config(dataset=dataset, cache_dir=cache), [f"odometry.deskew={str(deskew_on).lower()}"])
     frontend = prepare_frontend(config)
     gt = np.linalg.inv(frontend.gt_poses[0]) @ frontend.gt_poses
     est = frontend.odometry
-    steps = [np.linalg.norm((np.linalg.inv(np.linalg.inv(gt[k - 1]) @ gt[k])
-                             @ np.linalg.inv(est[k - 1]) @ est[k])[:3, 3])
-             for k in range(1, len(gt))]
+    steps = [
+        np.linalg.norm((np.linalg.inv(np.linalg.inv(gt[k - 1]) @ gt[k]) @ np.linalg.inv(est[k - 1]) @ est[k])[:3, 3])
+        for k in range(1, len(gt))
+    ]
     return float(np.mean(steps)), float(np.linalg.norm((np.linalg.inv(gt[-1]) @ est[-1])[:3, 3]))
 
 

@@ -25,8 +25,14 @@ WALL_CLOCK_KEYS = {"time_s", "frontend_time_s", "peak_rss_bytes", "frontend_cach
 
 def _wall_clock(key: str) -> bool:
     """Metrics that measure the machine or the cache rather than the result (times, RSS, cache hits)."""
-    return key in WALL_CLOCK_KEYS or "_ms" in key or "rss" in key or "cached" in key or "realtime" in key \
+    return (
+        key in WALL_CLOCK_KEYS
+        or "_ms" in key
+        or "rss" in key
+        or "cached" in key
+        or "realtime" in key
         or key.endswith("_s")
+    )
 
 
 def _result_metrics(value):
@@ -41,8 +47,9 @@ def _cold_run(root: Path, name: str) -> tuple[Path, Path]:
     code = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
     # The cache root comes from the environment: --cache-dir would be recorded in config.yaml.
     env = {**os.environ, "MSA_SLAM_CACHE": str(cache)}
-    done = subprocess.run([sys.executable, "-c", code, *RUN, "--out", str(out)], env=env, capture_output=True,
-                          text=True, timeout=600)
+    done = subprocess.run(
+        [sys.executable, "-c", code, *RUN, "--out", str(out)], env=env, capture_output=True, text=True, timeout=600
+    )
     assert done.returncode == 0, done.stderr
     return out, cache
 
@@ -55,8 +62,12 @@ def _cached(cache: Path, kind: str) -> np.ndarray:
 
 def test_two_cold_runs_are_bitwise_identical(tmp_path):
     (a, cache_a), (b, cache_b) = _cold_run(tmp_path, "a"), _cold_run(tmp_path, "b")
-    files = ["config.yaml", "frames.csv", "loops.csv",
-             *sorted(str(p.relative_to(a)) for p in (a / "trajectories").iterdir())]
+    files = [
+        "config.yaml",
+        "frames.csv",
+        "loops.csv",
+        *sorted(str(p.relative_to(a)) for p in (a / "trajectories").iterdir()),
+    ]
     assert len(files) > 3
     for name in files:
         assert (a / name).read_bytes() == (b / name).read_bytes(), name
@@ -92,14 +103,17 @@ def test_config_is_the_full_effective_kiss_icp_config():
     assert config["kiss_icp_version"]
 
 
-@pytest.mark.parametrize(("params", "problem"), [
-    ({"num_threads": -1}, "num_threads=-1: must be an integer >= 0"),
-    ({"num_threads": "abc"}, "num_threads='abc'"),
-    ({"max_range": float("nan")}, "max_range=nan: must be a finite number > 0"),
-    ({"voxel_size": 0}, "voxel_size=0"),
-    ({"max_num_iterations": 0}, "max_num_iterations=0"),
-    ({"deskew": "yes"}, "deskew='yes': must be true or false"),
-])
+@pytest.mark.parametrize(
+    ("params", "problem"),
+    [
+        ({"num_threads": -1}, "num_threads=-1: must be an integer >= 0"),
+        ({"num_threads": "abc"}, "num_threads='abc'"),
+        ({"max_range": float("nan")}, "max_range=nan: must be a finite number > 0"),
+        ({"voxel_size": 0}, "voxel_size=0"),
+        ({"max_num_iterations": 0}, "max_num_iterations=0"),
+        ({"deskew": "yes"}, "deskew='yes': must be true or false"),
+    ],
+)
 def test_bad_kiss_parameters_name_the_key(params, problem):
     with pytest.raises(InputError, match=problem.replace("(", r"\(")):
         KissOdometry(**params)

@@ -8,8 +8,21 @@ from scipy.spatial.transform import Rotation
 
 import msa_slam.evaluation.resources as resources
 from msa_slam.errors import InputError
-from msa_slam.evaluation import (AlignmentError, StageTimer, align_se3, alignment_warnings, array_bytes, ate,
-                                 evaluate_trajectories, fmt, improvement, improvement_pct, notes, peak_rss_bytes, rpe)
+from msa_slam.evaluation import (
+    AlignmentError,
+    StageTimer,
+    align_se3,
+    alignment_warnings,
+    array_bytes,
+    ate,
+    evaluate_trajectories,
+    fmt,
+    improvement,
+    improvement_pct,
+    notes,
+    peak_rss_bytes,
+    rpe,
+)
 from msa_slam.evaluation.metrics import Unavailable
 
 
@@ -135,8 +148,11 @@ def _spin(n: int = 30, step: np.ndarray | None = None) -> np.ndarray:
     return poses
 
 
-@pytest.mark.parametrize("reference", [_spin(), np.tile(np.eye(4), (30, 1, 1)), _spin(step=np.array([1.0, 0, 0]))],
-                         ids=["rotation-only", "stationary", "straight"])
+@pytest.mark.parametrize(
+    "reference",
+    [_spin(), np.tile(np.eye(4), (30, 1, 1)), _spin(step=np.array([1.0, 0, 0]))],
+    ids=["rotation-only", "stationary", "straight"],
+)
 def test_undetermined_alignment_gives_ate_none_with_reason(reference):
     estimate = reference.copy()
     estimate[:, :3, :3] = estimate[:, :3, :3] @ Rotation.from_euler("z", 1.0, degrees=True).as_matrix()
@@ -167,12 +183,16 @@ def test_short_straight_run_warns_that_rotation_ate_is_unreliable():
     est[:, 2, 3] += 0.01 * (-1.0) ** np.arange(n)  # 1 cm of vertical noise
     assert alignment_warnings(ref) == [
         f"nearly straight: ground-truth positions spread {0.05 * np.std(np.sin(np.arange(n))):.3f} m across the "
-        "main direction (less than 2 m)"]
+        "main direction (less than 2 m)"
+    ]
     ev = evaluate_trajectories(est, ref, ref, np.arange(n))
     assert ev.trajectory.before.ate_translation_m == pytest.approx(0.01, rel=0.05)
     assert ev.trajectory.rotation_reliable is False
-    assert len(ev.warnings) == 1 and ev.warnings[0].startswith("rotation ATE unreliable") and "nearly straight" in \
-        ev.warnings[0]
+    assert (
+        len(ev.warnings) == 1
+        and ev.warnings[0].startswith("rotation ATE unreliable")
+        and "nearly straight" in ev.warnings[0]
+    )
     assert "all 30 keyframes (frames 0..29)" in ev.trajectory.alignment
     small = _curve(8)
     small[:, :3, 3] *= 0.05  # a 5 m stretch of the helix
@@ -210,8 +230,9 @@ def test_fmt_prints_na_and_never_negative_zero():
 def test_spec_for_gives_each_kind_of_metric_one_number_of_decimals():
     from msa_slam.evaluation.display import spec_for
 
-    assert {spec_for(k) for k in ("ate_after_m", "rpe_pct", "rpe_kitti_rotation_deg_per_100m", "pr_auc",
-                                  "f1_max_reference")} == {".3f"}
+    assert {
+        spec_for(k) for k in ("ate_after_m", "rpe_pct", "rpe_kitti_rotation_deg_per_100m", "pr_auc", "f1_max_reference")
+    } == {".3f"}
     assert {spec_for(k) for k in ("improvement_t_pct", "kf_improvement_r_pct")} == {".1f"}
     assert {spec_for(k) for k in ("memory_mib", "rss_growth_mib", "time_s")} == {".2f"}
 
@@ -233,9 +254,13 @@ def test_seed_ranks_tie_values_equal_at_their_displayed_precision():
 def test_seed_summary_ranks_at_each_metrics_displayed_precision():
     from msa_slam.experiments.seeds import seed_summary
 
-    rows = {0: [{"method": "msa", "pr_auc": 0.9999999999999999, "ate_after_m": 0.412000003},
-                {"method": "all", "pr_auc": 1.0, "ate_after_m": 0.412},
-                {"method": "entropy", "pr_auc": 0.5, "ate_after_m": 0.5}]}
+    rows = {
+        0: [
+            {"method": "msa", "pr_auc": 0.9999999999999999, "ate_after_m": 0.412000003},
+            {"method": "all", "pr_auc": 1.0, "ate_after_m": 0.412},
+            {"method": "entropy", "pr_auc": 0.5, "ate_after_m": 0.5},
+        ]
+    }
     metrics = seed_summary(rows).metrics
     assert {m: e.ranks for m, e in metrics["pr_auc"].methods.items()} == {"msa": [1], "all": [1], "entropy": [3]}
     assert {m: e.ranks for m, e in metrics["ate_after_m"].methods.items()} == {"msa": [1], "all": [1], "entropy": [3]}
@@ -254,8 +279,12 @@ def test_ate_difference_figure_labels_its_reference(tmp_path, monkeypatch):
         return real(fig, path)
 
     monkeypatch.setattr(figures, "_save", recording)
-    figures.plot_ate_difference(tmp_path / "msa.png", {"all": [0.1, 0.3, -0.05], "entropy": [0.02, -0.1, 0.0]},
-                                title="ATE after optimisation minus msa", reference="msa")
+    figures.plot_ate_difference(
+        tmp_path / "msa.png",
+        {"all": [0.1, 0.3, -0.05], "entropy": [0.02, -0.1, 0.0]},
+        title="ATE after optimisation minus msa",
+        reference="msa",
+    )
     figures.plot_ate_difference(tmp_path / "all.png", {"msa": [-0.1]})
     assert labels == ["ATE - ATE(msa) [m]", "ATE - ATE(all) [m]"]
     assert (tmp_path / "msa.png").is_file()

@@ -6,13 +6,13 @@ import json
 from pathlib import Path
 
 import pytest
+from test_experiments import TINY
 
 from msa_slam.experiments import runner
 from msa_slam.experiments.grid import expand, parse_grid, run_key
 from msa_slam.experiments.paper import PRESETS, paper_grids
 from msa_slam.experiments.report import load_cells
 from msa_slam.experiments.sharing import RUN_KEY, SHARED_FROM, plan_sharing
-from test_experiments import TINY
 
 IDENTITY = {"data": "d", "code": "c"}
 
@@ -22,9 +22,17 @@ def _keys(cells, identity=IDENTITY):
 
 
 def test_run_key_is_what_the_cell_computes_not_its_label():
-    grid = parse_grid({**TINY, "samplers": [
-        "msa", {"label": "msa-defaults", "sampler": "msa", "params": {"lambda_l": 0.1, "lambda_u": 3}},
-        {"label": "msa-wide", "sampler": "msa", "params": {"lambda_u": 5.0}}], "seeds": [0, 1]})
+    grid = parse_grid(
+        {
+            **TINY,
+            "samplers": [
+                "msa",
+                {"label": "msa-defaults", "sampler": "msa", "params": {"lambda_l": 0.1, "lambda_u": 3}},
+                {"label": "msa-wide", "sampler": "msa", "params": {"lambda_u": 5.0}},
+            ],
+            "seeds": [0, 1],
+        }
+    )
     cells = {(c.method, c.seed): c for c in expand(grid)}
     key = run_key(cells["msa", 0], IDENTITY)
     assert run_key(cells["msa-defaults", 0], IDENTITY) == key  # the defaults spelled out: the same run
@@ -70,11 +78,13 @@ def test_identical_cells_run_once_and_the_copies_say_where_from(tmp_path, monkey
     rows = {c.info["method"]: c.metrics.run.keyframes for c in load_cells(tmp_path / "a")}
     assert rows["all"] == rows["all-again"] > 0
     # another grid with the same run, told of the first folder: a copy, nothing run
-    other = runner.run_grid(parse_grid({**TINY, "name": "u", "samplers": ["all"]}), tmp_path / "b",
-                            share_from=[tmp_path / "a"])
+    other = runner.run_grid(
+        parse_grid({**TINY, "name": "u", "samplers": ["all"]}), tmp_path / "b", share_from=[tmp_path / "a"]
+    )
     assert ran == ["all"] and not other.ran and list(other.shared.values()) in ([cell.id], [again.id])
     assert (tmp_path / "b" / "cells" / next(iter(other.shared)) / "metrics.json").read_bytes() == (
-        tmp_path / "a" / "cells" / cell.id / "metrics.json").read_bytes()
+        tmp_path / "a" / "cells" / cell.id / "metrics.json"
+    ).read_bytes()
 
 
 def test_parallel_workers_do_not_both_build_an_input(tmp_path, monkeypatch):
@@ -97,11 +107,18 @@ def test_parallel_workers_do_not_both_build_an_input(tmp_path, monkeypatch):
 
     counting(sequence, "_write")  # casts the scans of a simulation not yet cached
     counting(read_ahead, "save_descriptors")  # stores descriptors computed (not read from the cache)
-    grid = parse_grid({**TINY, "pipeline": "batch", "datasets": ["sim:figure-eight,stride=4,azimuth_steps=180"],
-                       "base": {"odometry": "kiss", "sample_on": "gt", "min_frame_gap": 20,
-                                "cache_dir": str(tmp_path / "cache")}})
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
-                                  dashboard_address=":0") as cluster, distributed.Client(cluster) as client:
+    grid = parse_grid(
+        {
+            **TINY,
+            "pipeline": "batch",
+            "datasets": ["sim:figure-eight,stride=4,azimuth_steps=180"],
+            "base": {"odometry": "kiss", "sample_on": "gt", "min_frame_gap": 20, "cache_dir": str(tmp_path / "cache")},
+        }
+    )
+    with (
+        distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster,
+        distributed.Client(cluster) as client,
+    ):
         run = runner.run_grid(grid, tmp_path / "out", client=client)
     assert len(run.ran) == 2 and not run.failed
     assert builds == ["_write", "save_descriptors"]

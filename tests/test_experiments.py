@@ -4,61 +4,89 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import pytest
 import yaml
+from helpers.metrics import stored_metrics
+from test_cli_main import run_cli
 from typer.testing import CliRunner
 
 import msa_slam
 from msa_slam.cli import app
 from msa_slam.errors import InputError
-from msa_slam.experiments import (expand, is_finished, load_cells, load_grid, make_rows, parse_grid, run_cell,
-                                  run_grid, write_report)
+from msa_slam.experiments import (
+    expand,
+    is_finished,
+    load_cells,
+    load_grid,
+    make_rows,
+    parse_grid,
+    run_cell,
+    run_grid,
+    write_report,
+)
 from msa_slam.experiments.folder import write_grid
 from msa_slam.experiments.grid import Cell
 from msa_slam.experiments.identity import CELL_IDENTITY, cell_identities
-from msa_slam.io.outputs import OutputError, open_result_folder, write_marker
 from msa_slam.io import staging
-from test_cli_main import run_cli
-from helpers.metrics import stored_metrics
+from msa_slam.io.outputs import OutputError, open_result_folder, write_marker
 
 TINY = {
     "name": "t",
     "datasets": ["live:figure-eight,stride=4,azimuth_steps=180"],
     "samplers": ["all", {"label": "const-2m", "sampler": "constant", "params": {"distance": 2.0}}],
-    "base": {"odometry": "gt-noise", "odometry_params": {"translation_noise": 0.02, "rotation_noise_deg": 0.1},
-             "min_frame_gap": 20},
+    "base": {
+        "odometry": "gt-noise",
+        "odometry_params": {"translation_noise": 0.02, "rotation_noise_deg": 0.1},
+        "min_frame_gap": 20,
+    },
 }
 
 # One cell that fails fast (its single keyframe is too few), after a real start.
 TOO_SPARSE = {**TINY, "samplers": [{"label": "too-sparse", "sampler": "constant", "params": {"distance": 1000.0}}]}
 
 
-@pytest.mark.parametrize("change, message", [
-    ({"dataset": ["x"]}, r"unknown key 'dataset'; valid keys: name, pipeline, datasets, descriptors, samplers"),
-    ({"samplers": [{"sampler": "msa", "parms": {}}]},
-     r"g.yaml: unknown key 'samplers.0.parms'; valid keys: sampler, label"),
-    ({"samplers": [{"sampler": "msa", "params": {"alpha_": 2}}]}, r"unknown parameter\(s\) alpha_; it takes: window"),
-    ({"samplers": ["nope"]}, "unknown sampler 'nope'"),
-    ({"base": {"odometry": "gt-noise", "colud_store": "disk"}}, "unknown key 'colud_store'; valid keys: .*cloud_store"),
-    ({"parameters": {"verifier.gate": [1]}}, "unknown key 'verifier.gate'"),
-    ({"pipeline": "offline"}, "pipeline: Input should be 'online' or 'batch'"),
-    ({"seeds": []}, "seeds: List should have at least 1 item"),
-    ({"samplers": ["msa", "msa"]}, "method labels repeat"),
-    ({"parameters": {"similarity_threshold": []}}, "parameters 'similarity_threshold' has no values"),
-    ({"reference": "msa"}, "reference 'msa' is not a method of the grid; methods: all, const-2m"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"dataset": ["x"]}, r"unknown key 'dataset'; valid keys: name, pipeline, datasets, descriptors, samplers"),
+        (
+            {"samplers": [{"sampler": "msa", "parms": {}}]},
+            r"g.yaml: unknown key 'samplers.0.parms'; valid keys: sampler, label",
+        ),
+        (
+            {"samplers": [{"sampler": "msa", "params": {"alpha_": 2}}]},
+            r"unknown parameter\(s\) alpha_; it takes: window",
+        ),
+        ({"samplers": ["nope"]}, "unknown sampler 'nope'"),
+        (
+            {"base": {"odometry": "gt-noise", "colud_store": "disk"}},
+            "unknown key 'colud_store'; valid keys: .*cloud_store",
+        ),
+        ({"parameters": {"verifier.gate": [1]}}, "unknown key 'verifier.gate'"),
+        ({"pipeline": "offline"}, "pipeline: Input should be 'online' or 'batch'"),
+        ({"seeds": []}, "seeds: List should have at least 1 item"),
+        ({"samplers": ["msa", "msa"]}, "method labels repeat"),
+        ({"parameters": {"similarity_threshold": []}}, "parameters 'similarity_threshold' has no values"),
+        ({"reference": "msa"}, "reference 'msa' is not a method of the grid; methods: all, const-2m"),
+    ],
+)
 def test_grid_validation_errors(change, message):
     with pytest.raises(InputError, match=message):
         parse_grid({**TINY, **change}, "g.yaml")
 
 
 def test_grid_expansion_sweeps_parameters_and_stable_ids():
-    grid = parse_grid({**TINY, "samplers": ["all", {"sampler": "msa", "params": {"lambda_u": 5.0},
-                                                    "sweep": {"lambda_l": [0.0, 1.0]}}],
-                       "parameters": {"similarity_threshold": [0.7, 0.8]}, "seeds": [0, 1]})
+    grid = parse_grid(
+        {
+            **TINY,
+            "samplers": ["all", {"sampler": "msa", "params": {"lambda_u": 5.0}, "sweep": {"lambda_l": [0.0, 1.0]}}],
+            "parameters": {"similarity_threshold": [0.7, 0.8]},
+            "seeds": [0, 1],
+        }
+    )
     cells = expand(grid)
     assert len(cells) == 3 * 2 * 2
     assert {c.method for c in cells} == {"all", "msa lambda_l=0.0", "msa lambda_l=1.0"}
@@ -72,8 +100,11 @@ def test_grid_expansion_sweeps_parameters_and_stable_ids():
 def test_shipped_presets_validate():
     counts = {name: len(expand(load_grid(name))) for name in ("table2", "ablation", "distance_bounds", "tiny")}
     assert counts == {"table2": 24, "ablation": 30, "distance_bounds": 26, "tiny": 2}
-    with pytest.raises(InputError, match="grid file not found .*presets: ablation, distance_bounds, "
-                                         "paper-ablation, paper-bounds, paper-table1, paper-table2, table2, tiny"):
+    with pytest.raises(
+        InputError,
+        match="grid file not found .*presets: ablation, distance_bounds, "
+        "paper-ablation, paper-bounds, paper-table1, paper-table2, table2, tiny",
+    ):
         load_grid("nope")
 
 
@@ -111,8 +142,10 @@ def test_failing_cell_is_recorded_and_retried(tmp_path):
 
 def test_dask_local_cluster_runs_two_cells(tmp_path):
     distributed = pytest.importorskip("distributed")
-    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
-                                  dashboard_address=":0") as cluster, distributed.Client(cluster) as client:
+    with (
+        distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=":0") as cluster,
+        distributed.Client(cluster) as client,
+    ):
         run = run_grid(parse_grid(TINY), tmp_path, client=client)
     assert sorted(run.ran) == sorted(c.id for c in expand(parse_grid(TINY))) and not run.failed
     assert len((tmp_path / "results.csv").read_text().splitlines()) == 3
@@ -144,6 +177,7 @@ def finished_experiment(root: Path, grid_data: dict, metrics_of: Callable[[Cell]
 
 def _fake_experiment(root: Path, grid_data: dict, memory: dict[str, int], ate_after: dict[str, float]) -> list:
     """finished_experiment with made-up metrics per method (`memory` bytes, `ate_after` metres)."""
+
     def metrics(cell: Cell) -> dict:
         ate = ate_after[cell.method]
         m = stored_metrics(f"{cell.pipeline}.json")
@@ -151,8 +185,17 @@ def _fake_experiment(root: Path, grid_data: dict, memory: dict[str, int], ate_af
         for block in (m, m["full_rate"]):
             block["before"]["ate_translation_m"], block["after"]["ate_translation_m"] = 2.0, ate
             block["improvement_pct"] = dict(improvement)
-        m.update(frames=100, keyframes=50, candidates=4, verified=3, false_loops=0, pr_auc=0.9, f1_max=0.8,
-                 peak_rss_bytes=2**20, msa_slam_version=msa_slam.__version__)
+        m.update(
+            frames=100,
+            keyframes=50,
+            candidates=4,
+            verified=3,
+            false_loops=0,
+            pr_auc=0.9,
+            f1_max=0.8,
+            peak_rss_bytes=2**20,
+            msa_slam_version=msa_slam.__version__,
+        )
         m["memory_bytes"]["total"], m["time_s"]["backend_total"] = memory[cell.method], 1.0
         if cell.pipeline == "online":
             m.update(fps=50.0, backend_fps=60.0)
@@ -163,8 +206,12 @@ def _fake_experiment(root: Path, grid_data: dict, memory: dict[str, int], ate_af
 
 
 def _sweep_experiment(root: Path) -> list:
-    return _fake_experiment(root, SWEEP, {"all": 4000, "msa lambda_l=0.0": 2000, "msa lambda_l=1.0": 1000},
-                            {"all": 0.5, "msa lambda_l=0.0": 0.6, "msa lambda_l=1.0": 0.9})
+    return _fake_experiment(
+        root,
+        SWEEP,
+        {"all": 4000, "msa lambda_l=0.0": 2000, "msa lambda_l=1.0": 1000},
+        {"all": 0.5, "msa lambda_l=0.0": 0.6, "msa lambda_l=1.0": 0.9},
+    )
 
 
 def test_report_relative_memory_ate_difference_and_sweep_figure(tmp_path):
@@ -178,14 +225,19 @@ def test_report_relative_memory_ate_difference_and_sweep_figure(tmp_path):
     for name in ("ate_difference.png", "distance_bounds.png"):
         assert (tmp_path / "figures" / name).is_file()
     assert "| msa lambda_l=1.0 | 50 | 55.0 % |" in (tmp_path / "results.md").read_text()
-    assert "before of the full-rate trajectory (every frame, posed from the keyframe before it; SE(3)-aligned)" \
-        in (tmp_path / "report.md").read_text()  # what the "(full rate)" columns show
+    assert (
+        "before of the full-rate trajectory (every frame, posed from the keyframe before it; SE(3)-aligned)"
+        in (tmp_path / "report.md").read_text()
+    )  # what the "(full rate)" columns show
 
 
 def test_report_reference_must_be_a_method_of_the_experiment(tmp_path):
     _sweep_experiment(tmp_path)
-    with pytest.raises(InputError, match=r"--reference 'foo': not a method of this experiment; available: all, "
-                                         r"msa lambda_l=0.0, msa lambda_l=1.0"):
+    with pytest.raises(
+        InputError,
+        match=r"--reference 'foo': not a method of this experiment; available: all, "
+        r"msa lambda_l=0.0, msa lambda_l=1.0",
+    ):
         write_report(tmp_path, "foo")
     assert not (tmp_path / "report.md").exists()
     rows = {r["method"]: r for r in make_rows(load_cells(tmp_path), "msa lambda_l=0.0")}
@@ -201,8 +253,9 @@ def test_changed_grid_into_same_out_reports_only_its_own_cells(tmp_path):
     assert run.stale == sorted(c.id for c in old)
     assert [c.info["id"] for c in load_cells(tmp_path)] == [new.id]
     assert len((tmp_path / "results.csv").read_text().splitlines()) == 2
-    assert ("1 seed(s)" in (tmp_path / "results.md").read_text()
-            and "const-2m" not in (tmp_path / "results.md").read_text())
+    assert (
+        "1 seed(s)" in (tmp_path / "results.md").read_text() and "const-2m" not in (tmp_path / "results.md").read_text()
+    )
     report = (tmp_path / "report.md").read_text()
     assert "1 of 1 cell(s) finished" in report
     assert all(c.id in report.split("Stale cells")[1].splitlines()[0] for c in old)
@@ -249,8 +302,7 @@ def test_output_not_written_by_an_experiment_is_refused_untouched(tmp_path):
         run_grid(parse_grid(TINY), other)
     assert sorted(p.name for p in other.iterdir()) == [".msa-slam-result", "metrics.json"]
     result = CliRunner().invoke(app, ["report", str(user)])
-    assert isinstance(result.exception, InputError) and "not a msa-slam result folder" in str(
-        result.exception)
+    assert isinstance(result.exception, InputError) and "not a msa-slam result folder" in str(result.exception)
     assert {p: p.read_bytes() for p in user.rglob("*") if p.is_file()} == before
 
 
@@ -299,8 +351,10 @@ def test_grid_without_cells_is_an_error_before_any_work(tmp_path):
     grid_file.write_text(yaml.safe_dump({**TINY, "parameters": {"similarity_threshold": []}}))
     result = CliRunner().invoke(app, ["experiment", str(grid_file), "--out", str(tmp_path / "o"), "--quiet"])
     assert result.exit_code != 0 and isinstance(result.exception, InputError)
-    assert str(result.exception) == (f"{grid_file}: parameters: Value error, parameters 'similarity_threshold' "
-                                     "has no values (the grid would have no cells)")
+    assert str(result.exception) == (
+        f"{grid_file}: parameters: Value error, parameters 'similarity_threshold' "
+        "has no values (the grid would have no cells)"
+    )
     assert not (tmp_path / "o").exists()
 
 
@@ -320,5 +374,7 @@ def test_report_names_a_cell_whose_files_are_damaged(tmp_path):
     assert CliRunner().invoke(app, ["report", str(tmp_path / "exp")]).exit_code == 0
     text = (tmp_path / "exp" / "report.md").read_text()
     assert "1 of 2 cell(s) finished" in text
-    assert f"Cells left out, their cell.json or metrics.json unreadable (run the experiment again to redo them): " \
-           f"cells/{cells[1].id}" in text
+    assert (
+        f"Cells left out, their cell.json or metrics.json unreadable (run the experiment again to redo them): "
+        f"cells/{cells[1].id}" in text
+    )

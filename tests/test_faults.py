@@ -12,7 +12,6 @@ import sys
 from pathlib import Path
 
 import pytest
-
 from helpers.results import differences, stable_content
 from helpers.signals import terminal_signals
 
@@ -20,11 +19,19 @@ DRIVER = Path(__file__).parent / "helpers" / "fault_driver.py"
 DATASET = "sim:test,end=80"  # 40 frames of the figure-eight: seconds per run
 
 
-def cli(tmp: Path, where: str, args: list[str], cache: Path, out: Path, occurrence: int = 1
-        ) -> subprocess.CompletedProcess:
+def cli(
+    tmp: Path, where: str, args: list[str], cache: Path, out: Path, occurrence: int = 1
+) -> subprocess.CompletedProcess:
     env = {**os.environ, "MSA_FAULT_CACHE": str(cache), "MSA_FAULT_OUT": str(out)}
-    return subprocess.run([sys.executable, str(DRIVER), where, str(occurrence), "--", *args], cwd=tmp, env=env,
-                          capture_output=True, text=True, timeout=600, preexec_fn=terminal_signals)
+    return subprocess.run(
+        [sys.executable, str(DRIVER), where, str(occurrence), "--", *args],
+        cwd=tmp,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        preexec_fn=terminal_signals,
+    )
 
 
 def leftovers(*folders: Path) -> list[str]:
@@ -32,15 +39,28 @@ def leftovers(*folders: Path) -> list[str]:
     found = []
     for folder in folders:
         if folder.is_dir():
-            found += [str(p) for p in folder.rglob("*")
-                      if p.name.endswith((".tmp", ".lock")) or ".partial-" in p.name or ".old-" in p.name]
+            found += [
+                str(p)
+                for p in folder.rglob("*")
+                if p.name.endswith((".tmp", ".lock")) or ".partial-" in p.name or ".old-" in p.name
+            ]
     return found
 
 
 def command(name: str, tmp: Path, out: Path, cache: Path) -> list[str]:
     if name == "sample":
-        return ["sample", "--poses", str(tmp / "poses.txt"), "--descriptors", str(tmp / "desc.npy"),
-                "-p", "window=6", "--out", str(out), "--quiet"]
+        return [
+            "sample",
+            "--poses",
+            str(tmp / "poses.txt"),
+            "--descriptors",
+            str(tmp / "desc.npy"),
+            "-p",
+            "window=6",
+            "--out",
+            str(out),
+            "--quiet",
+        ]
     extra = ["--sampler", "msa"] if name in ("run", "online") else []
     return [name, "--dataset", DATASET, *extra, "--out", str(out), "--cache-dir", str(cache), "--quiet"]
 
@@ -50,6 +70,7 @@ def stream_files(tmp_path: Path) -> Path:
     import numpy as np
 
     from msa_slam.io.poses import write_poses
+
     poses = np.tile(np.eye(4), (40, 1, 1))
     poses[:, 0, 3] = np.arange(40) * 1.2
     write_poses(tmp_path / "poses.txt", poses)

@@ -29,12 +29,15 @@ def _overlaps(a, b) -> bool:
     return a.x0 < b.x1 and b.x0 < a.x1 and a.y0 < b.y1 and b.y0 < a.y1
 
 
-@pytest.mark.parametrize("name, shown", [
-    ("figure-eight_hdl64_32fb48a0c1d2e3f4a5b6c7d8", "figure-eight (hdl64)"),
-    ("loop_7b570b446c66ff1a9d7f1108", "loop"),
-    ("kitti_06", "kitti_06"),
-    ("00", "00"),
-])
+@pytest.mark.parametrize(
+    "name, shown",
+    [
+        ("figure-eight_hdl64_32fb48a0c1d2e3f4a5b6c7d8", "figure-eight (hdl64)"),
+        ("loop_7b570b446c66ff1a9d7f1108", "loop"),
+        ("kitti_06", "kitti_06"),
+        ("00", "00"),
+    ],
+)
 def test_display_name_drops_cache_hashes(name, shown):
     assert display_name(name) == shown
 
@@ -67,8 +70,11 @@ def test_trajectory_figure_has_units_equal_aspect_visible_loops_and_a_legend_off
         assert ax.get_xlabel() == "x [m]" and ax.get_ylabel() == "y [m]"
         assert ax.get_aspect() == 1.0
         assert ax.get_legend() is None
-    rings = [[ln for ln in ax.get_lines() if ln.get_color() == colour and ln.get_marker() == marker]
-             for ax in axes for colour, marker in ((TRUE_LOOP, "o"), (FALSE_LOOP, "s"))]
+    rings = [
+        [ln for ln in ax.get_lines() if ln.get_color() == colour and ln.get_marker() == marker]
+        for ax in axes
+        for colour, marker in ((TRUE_LOOP, "o"), (FALSE_LOOP, "s"))
+    ]
     assert [len(ln.get_xdata()) for group in rings for ln in group] == [2, 2, 4, 2]  # both ends of every loop
     (legend,) = fig.legends
     box = legend.get_window_extent()
@@ -99,8 +105,9 @@ def test_loops_leave_the_keyframes_error_colours_visible(figures, tmp_path):
 
 def _coverage(ax) -> float:
     """Share of the axes' area (in data units) that the bounding box of everything drawn on it covers."""
-    points = [ln.get_xydata() for ln in ax.get_lines()] + [c.get_offsets() for c in ax.collections
-                                                          if len(c.get_offsets()) > 1]
+    points = [ln.get_xydata() for ln in ax.get_lines()] + [
+        c.get_offsets() for c in ax.collections if len(c.get_offsets()) > 1
+    ]
     xy = np.vstack([np.asarray(p, dtype=float) for p in points])
     xy = xy[np.isfinite(xy).all(axis=1)]
     (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
@@ -152,8 +159,10 @@ def test_without_ground_truth_the_trajectory_figure_shows_no_ground_truth_artefa
     from msa_slam.viz import TrajectoryPanel, plot_trajectories
 
     xy = _panel().xy
-    panels = [TrajectoryPanel("odometry (no ground truth)", xy, None),
-              TrajectoryPanel("msa optimised (no ground truth)", xy, None, [(2, 50)])]
+    panels = [
+        TrajectoryPanel("odometry (no ground truth)", xy, None),
+        TrajectoryPanel("msa optimised (no ground truth)", xy, None, [(2, 50)]),
+    ]
     plot_trajectories(tmp_path / "t.png", np.empty((0, 2)), panels)
     fig = figures[-1]
     assert not [ax for ax in fig.axes if ax.get_label() == "<colorbar>"]
@@ -170,13 +179,17 @@ def test_metrics_figure_shows_differences_to_all_samples_keyframes_and_one_odome
 
     methods = ["all", "constant-1m", "msa"]
     ate = [0.707, 0.730, 0.715]
-    plot_method_metrics(tmp_path / "m.png", methods, [
-        MethodMetric("t. ATE", "m", ate, 3, difference=True),
-        MethodMetric("R. ATE", "deg", [None, None, None], difference=True, why="no ground truth"),
-        MethodMetric("t. ATE, every frame", "m", ate, 3, line=("odometry", 1.3)),
-        MethodMetric("keyframes", "", [500, 120, 60], 0),
-        MethodMetric("memory (keyframes + graph)", "MiB", [14.0, 6.0, 3.0]),
-    ])
+    plot_method_metrics(
+        tmp_path / "m.png",
+        methods,
+        [
+            MethodMetric("t. ATE", "m", ate, 3, difference=True),
+            MethodMetric("R. ATE", "deg", [None, None, None], difference=True, why="no ground truth"),
+            MethodMetric("t. ATE, every frame", "m", ate, 3, line=("odometry", 1.3)),
+            MethodMetric("keyframes", "", [500, 120, 60], 0),
+            MethodMetric("memory (keyframes + graph)", "MiB", [14.0, 6.0, 3.0]),
+        ],
+    )
     fig = figures[-1]
     titles = {ax.get_title(): ax for ax in fig.axes if ax.axison}
     assert {"t. ATE - all", "keyframes", "memory (keyframes + graph)"} <= set(titles)
@@ -281,8 +294,9 @@ def test_a_panel_without_loops_counts_none_in_its_title(figures, tmp_path):
     odometry = TrajectoryPanel("odometry", panel.xy, panel.errors)
     plot_trajectories(tmp_path / "t.png", panel.xy, [odometry, panel])
     first, second = _route_axes(figures[-1])
-    assert first.get_title() == "odometry\n60 keyframes" and not [ln for ln in first.get_lines()
-                                                                  if ln.get_color() == TRUE_LOOP]
+    assert first.get_title() == "odometry\n60 keyframes" and not [
+        ln for ln in first.get_lines() if ln.get_color() == TRUE_LOOP
+    ]
     assert second.get_title() == "msa optimised\n60 keyframes, 1 loop, 1 false"  # not "1 loops"
 
 
@@ -311,9 +325,13 @@ def test_figures_are_the_same_bytes_on_every_run(tmp_path):
     apart = np.full(401, 0.2)
     apart[300:320] = 1.0
     for name in ("a", "b"):
-        plot_trajectories(tmp_path / f"t-{name}.png", gt, [TrajectoryPanel("x", gt, np.full(401, 0.2), [(0, 300)]),
-                                                           TrajectoryPanel("y", gt, apart, [])])
-        plot_method_metrics(tmp_path / f"m-{name}.png", ["all", "msa"], [MethodMetric("t. ATE", "m", [0.7, 0.72],
-                                                                                      difference=True)])
+        plot_trajectories(
+            tmp_path / f"t-{name}.png",
+            gt,
+            [TrajectoryPanel("x", gt, np.full(401, 0.2), [(0, 300)]), TrajectoryPanel("y", gt, apart, [])],
+        )
+        plot_method_metrics(
+            tmp_path / f"m-{name}.png", ["all", "msa"], [MethodMetric("t. ATE", "m", [0.7, 0.72], difference=True)]
+        )
     assert (tmp_path / "t-a.png").read_bytes() == (tmp_path / "t-b.png").read_bytes()
     assert (tmp_path / "m-a.png").read_bytes() == (tmp_path / "m-b.png").read_bytes()

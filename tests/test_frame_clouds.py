@@ -9,6 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from helpers.metrics import metrics_json
 
 from msa_slam.backend import PoseGraph
 from msa_slam.pipeline import make_config, prepare_frontend, run
@@ -16,7 +17,6 @@ from msa_slam.pipeline.frontend import pipeline_cache
 from msa_slam.registration import KeyframeCloudStore, downsample
 from msa_slam.registration.cloud_cache import cloud_key
 from msa_slam.slam import build_backend
-from helpers.metrics import metrics_json
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +57,7 @@ def test_a_damaged_entry_is_recomputed_with_a_warning(frontend, config, caplog):
     entry = pipeline_cache(config.cache_dir) / f"frame-clouds-{key}.npy"
     original = entry.read_bytes()
     try:
-        entry.write_bytes(original[:len(original) // 2])  # truncated
+        entry.write_bytes(original[: len(original) // 2])  # truncated
         with caplog.at_level(logging.WARNING):
             again = prepare_frontend(config)
         assert not again.cached["clouds"] and f"ignoring {entry}" in caplog.text
@@ -71,8 +71,9 @@ def test_a_back_end_filled_from_frame_clouds_stores_what_it_would_downsample(fro
     with_clouds = run(config, frontend)
     without = run(config, replace(frontend, clouds=None))
     assert np.array_equal(with_clouds.keyframes, without.keyframes)
-    assert [(c.query, c.match, c.accepted) for c in with_clouds.loops] == \
-        [(c.query, c.match, c.accepted) for c in without.loops]
+    assert [(c.query, c.match, c.accepted) for c in with_clouds.loops] == [
+        (c.query, c.match, c.accepted) for c in without.loops
+    ]
     assert np.array_equal(with_clouds.map_points, without.map_points)
     assert metrics_json(with_clouds)["memory_bytes"] == metrics_json(without)["memory_bytes"]
 
@@ -83,5 +84,12 @@ def test_frame_clouds_of_another_voxel_size_are_not_used(frontend, config):
     local_map = config.model_copy(update={"loop_detector": "local-map"})
     assert frontend.clouds_for(local_map) is None
     with pytest.raises(ValueError, match="frame clouds downsampled at 0.5 m .* 1.0 m voxels"):
-        build_backend(coarser, frontend.descriptor, KeyframeCloudStore(1.0), PoseGraph(coarser.graph), len(frontend),
-                      "test", frame_clouds=frontend.clouds)
+        build_backend(
+            coarser,
+            frontend.descriptor,
+            KeyframeCloudStore(1.0),
+            PoseGraph(coarser.graph),
+            len(frontend),
+            "test",
+            frame_clouds=frontend.clouds,
+        )

@@ -79,8 +79,16 @@ def _evo_rpe_mean(reference: np.ndarray, estimate: np.ndarray, relation: str) ->
     stamps = np.arange(len(reference)) * 0.1
     ref, est = (PoseTrajectory3D(poses_se3=list(p), timestamps=stamps) for p in (reference, estimate))
     pose_relation = {"trans_part": PoseRelation.translation_part, "angle_deg": PoseRelation.rotation_angle_deg}
-    return rpe(ref, est, pose_relation[relation], delta=10, delta_unit=Unit.meters, rel_delta_tol=0.1,
-               all_pairs=True, pairs_from_reference=True).stats["mean"]
+    return rpe(
+        ref,
+        est,
+        pose_relation[relation],
+        delta=10,
+        delta_unit=Unit.meters,
+        rel_delta_tol=0.1,
+        all_pairs=True,
+        pairs_from_reference=True,
+    ).stats["mean"]
 
 
 def test_10m_rpe_is_what_the_documented_evo_command_prints():

@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-
 from helpers.results import VOLATILE_KEY, differences
+
 from msa_slam.io.poses import write_poses
 
 GOLDEN = Path(__file__).parent / "data" / "golden_outputs.json"
@@ -121,8 +121,12 @@ def produce(root: Path) -> dict[str, Any]:
     from msa_slam.reporting.results import write_run_files
 
     seq, odometry = make_input(root)
-    settings = {"dataset": str(seq), "odometry": str(odometry), "cache_dir": str(root / "cache"),
-                "graph": {"drift_translation": 0.01, "drift_rotation": 0.003}}  # the drift _drifted() makes
+    settings = {
+        "dataset": str(seq),
+        "odometry": str(odometry),
+        "cache_dir": str(root / "cache"),
+        "graph": {"drift_translation": 0.01, "drift_rotation": 0.003},
+    }  # the drift _drifted() makes
     out: dict[str, Any] = {}
 
     run_dir = root / "run"
@@ -131,9 +135,12 @@ def produce(root: Path) -> dict[str, Any]:
     out["run"] = _summary(run_dir, json.loads((run_dir / "metrics.json").read_text()))
 
     report = run_compare(make_config(settings), root / "compare", methods=COMPARE_METHODS)
-    out["compare"] = {label: _summary(report.parent / "runs" / label,
-                                      json.loads((report.parent / "runs" / label / "metrics.json").read_text()))
-                      for label, _, _ in COMPARE_METHODS}
+    out["compare"] = {
+        label: _summary(
+            report.parent / "runs" / label, json.loads((report.parent / "runs" / label / "metrics.json").read_text())
+        )
+        for label, _, _ in COMPARE_METHODS
+    }
     out["compare_table"] = _metrics(json.loads((report.parent / "comparison.json").read_text()))
 
     online_dir = root / "online"
@@ -188,8 +195,11 @@ def test_metrics_files_read_back_to_the_same_bytes(golden_root):
     assert len(files) == 5
     for path in files:
         data = json.loads(path.read_text())
-        again = [to_json(from_json(m, str(path))) for m in data] if isinstance(data, list) else to_json(
-            from_json(data, str(path)))
+        again = (
+            [to_json(from_json(m, str(path))) for m in data]
+            if isinstance(data, list)
+            else to_json(from_json(data, str(path)))
+        )
         write_json(path.with_name("again.json"), again)
         assert path.with_name("again.json").read_bytes() == path.read_bytes(), path
 

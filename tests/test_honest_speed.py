@@ -11,13 +11,13 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+from test_real_inputs_times import _kitti
 from typer.testing import CliRunner
 
 from msa_slam.cli import app
 from msa_slam.evaluation.metrics import Timing
 from msa_slam.evaluation.resources import throughput
 from msa_slam.experiments.estimate import recorded_seconds
-from test_real_inputs_times import _kitti
 
 REPLAYED = "(odometry replayed from the cache, counted as computed)"
 LINE = re.compile(r"^online (?P<label>.*): done \S+ in \S+ s, +(?P<fps>\S+) fps +RTF +(?P<rtf>\S+)x")
@@ -26,8 +26,22 @@ LINE = re.compile(r"^online (?P<label>.*): done \S+ in \S+ s, +(?P<fps>\S+) fps 
 def _command(name: str, dataset: Path, root: Path, out: str) -> tuple[str, dict, str]:
     """`msa-slam NAME` (KISS-ICP, progress on) on `dataset` with the cache in `root`: (its output, metrics.json,
     report.md)."""
-    result = CliRunner().invoke(app, [name, "-d", str(dataset), "--sampler", "all", "--mode", "realistic",
-                                      "--cache-dir", str(root / "cache"), "--out", str(root / out)])
+    result = CliRunner().invoke(
+        app,
+        [
+            name,
+            "-d",
+            str(dataset),
+            "--sampler",
+            "all",
+            "--mode",
+            "realistic",
+            "--cache-dir",
+            str(root / "cache"),
+            "--out",
+            str(root / out),
+        ],
+    )
     assert result.exit_code == 0, result.output
     folder = root / out
     return result.output, json.loads((folder / "metrics.json").read_text()), (folder / "report.md").read_text()
@@ -76,23 +90,32 @@ def test_batch_stage_times_count_replayed_stages_as_computed(tmp_path):
     data = _kitti(tmp_path / "seq")
     _, fresh, _ = _command("run", data, tmp_path, "fresh")
     output, again, report = _command("run", data, tmp_path, "again")
-    assert fresh["replayed_time_s"] == {} and again["frontend_cached"] == {"odometry": True, "descriptors": True,
-                                                                                    "clouds": True}
+    assert fresh["replayed_time_s"] == {} and again["frontend_cached"] == {
+        "odometry": True,
+        "descriptors": True,
+        "clouds": True,
+    }
     replayed = again["replayed_time_s"]
     assert set(replayed) == {"odometry", "descriptors", "clouds"} and replayed["odometry"] > 0
     for stage, seconds in replayed.items():  # read from the cache, plus the time it took when computed
         assert again["frontend_time_s"][stage] >= seconds
         assert seconds <= fresh["frontend_time_s"][stage]
-    assert ("(odometry, descriptors, clouds replayed from the cache, counted with the time they took when computed)"
-            in report)
-    assert (f"front end replayed from the cache: odometry (computed in {replayed['odometry']:.1f} s), descriptors "
-            f"(computed in {replayed['descriptors']:.1f} s), clouds (computed in {replayed['clouds']:.1f} s)"
-            ) in output
+    assert (
+        "(odometry, descriptors, clouds replayed from the cache, counted with the time they took when computed)"
+        in report
+    )
+    assert (
+        f"front end replayed from the cache: odometry (computed in {replayed['odometry']:.1f} s), descriptors "
+        f"(computed in {replayed['descriptors']:.1f} s), clouds (computed in {replayed['clouds']:.1f} s)"
+    ) in output
 
 
 def test_a_grid_estimate_counts_what_a_cell_spent_not_replayed_time():
     """A cell that replayed its front end spent its time reading it, not the time it counts as computed."""
-    timing = Timing(stages={"odometry": 2.5, "sampling": 1.0, "backend_total": 1.0, "threshold_sweep": None},
-                    replayed_s={"odometry": 2.0, "descriptors": 2.75}, frontend_s={"dataset": 0.5, "descriptors": 3.0})
+    timing = Timing(
+        stages={"odometry": 2.5, "sampling": 1.0, "backend_total": 1.0, "threshold_sweep": None},
+        replayed_s={"odometry": 2.0, "descriptors": 2.75},
+        frontend_s={"dataset": 0.5, "descriptors": 3.0},
+    )
     assert recorded_seconds(timing) == pytest.approx(2.5 + 1.0 + 0.5 + 3.0 - 2.0 - 2.75)
     assert recorded_seconds(replace(timing, replayed_s={})) == pytest.approx(7.0)

@@ -9,16 +9,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.scans import write_bin
 
 from msa_slam.datasets import LOADERS, detect_loader, open_dataset
 from msa_slam.datasets.kiss_loaders import OUSTER_COLUMNS, OUSTER_ROWS
 from msa_slam.datasets.lzf import lzf_decompress
-from msa_slam.datasets.pcd import read_timed_pcd
 from msa_slam.datasets.options import SourceOptions
+from msa_slam.datasets.pcd import read_timed_pcd
 from msa_slam.errors import InputError
 from msa_slam.io.poses import format_kitti
 from msa_slam.sources import open_sequence
-from helpers.scans import write_bin
 
 N = 4
 
@@ -39,13 +39,13 @@ def lzf_compress(data: bytes) -> bytes:
 
     def flush():
         for s in range(0, len(literal), 32):
-            chunk = literal[s:s + 32]
+            chunk = literal[s : s + 32]
             out.extend([len(chunk) - 1, *chunk])
         literal.clear()
 
     while i < len(data):
-        ref = seen.get(data[i:i + 3]) if i + 3 <= len(data) else None
-        seen[data[i:i + 3]] = i
+        ref = seen.get(data[i : i + 3]) if i + 3 <= len(data) else None
+        seen[data[i : i + 3]] = i
         if ref is not None and i - ref - 1 < 8192:
             length = 3
             while i + length < len(data) and length < 264 and data[ref + length] == data[i + length]:
@@ -67,8 +67,10 @@ def lzf_compress(data: bytes) -> bytes:
 def _pcd(path: Path, points: np.ndarray, times: np.ndarray, mode: str) -> None:
     """A PCD file with x y z (float32) and t (uint32 ns) fields in encoding `mode`."""
     n = len(points)
-    header = (f"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z t\nSIZE 4 4 4 4\nTYPE F F F U\nCOUNT 1 1 1 1\nWIDTH {n}\n"
-              f"HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA {mode}\n").encode()
+    header = (
+        f"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z t\nSIZE 4 4 4 4\nTYPE F F F U\nCOUNT 1 1 1 1\nWIDTH {n}\n"
+        f"HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA {mode}\n"
+    ).encode()
     t = times.astype(np.uint32)
     if mode == "ascii":
         body = "".join(f"{x} {y} {z} {s}\n" for (x, y, z), s in zip(points.tolist(), t.tolist())).encode()
@@ -128,7 +130,8 @@ def test_ply_folder_with_kitti_ground_truth(tmp_path):
 
     for k in range(N):
         trimesh.PointCloud(_points(k)).export(tmp_path / "scans" / f"{k:03d}.ply") if (tmp_path / "scans").mkdir(
-            exist_ok=True) is None else None
+            exist_ok=True
+        ) is None else None
     (tmp_path / "gt.txt").write_text(format_kitti(_poses()))
     seq = open_dataset(tmp_path / "scans", poses=tmp_path / "gt.txt")
     np.testing.assert_allclose(seq.gt_poses, _poses())
@@ -169,8 +172,18 @@ def test_ouster_scans_carry_column_times(tmp_path):
 
 
 def test_helipr_sensor_records_and_ground_truth(tmp_path):
-    record = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"), ("t", "<u4"),
-                       ("reflectivity", "<u2"), ("ring", "<u2"), ("ambient", "<u2")])
+    record = np.dtype(
+        [
+            ("x", "<f4"),
+            ("y", "<f4"),
+            ("z", "<f4"),
+            ("intensity", "<f4"),
+            ("t", "<u4"),
+            ("reflectivity", "<u2"),
+            ("ring", "<u2"),
+            ("ambient", "<u2"),
+        ]
+    )
     assert record.itemsize == 26  # kiss-icp's "=ffffIHHH"
     stamps = 1_690_000_000_000_000_000 + np.arange(N) * 100_000_000
     for k, stamp in enumerate(stamps):
@@ -204,24 +217,35 @@ def test_kitti_root_sequence_and_part_of_a_recording(tmp_path):
         open_dataset(seq_dir).select(first=9)
 
 
-@pytest.mark.parametrize("selection, message", [
-    ({"first": 5000}, r"dataset 'sim:test': --first 5000 is beyond its 214 scans \(0\.\.213\)"),
-    ({"first": 212}, r"dataset 'sim:test': 2 scans selected; a run needs at least 3"),
-    ({"jump": 200}, r"dataset 'sim:test': 2 scans selected; a run needs at least 3"),
-    ({"frames": 2}, r"dataset 'sim:test': 2 scans selected; a run needs at least 3"),
-    ({"first": 213}, r"dataset 'sim:test': 1 scan selected; a run needs at least 3")])
+@pytest.mark.parametrize(
+    "selection, message",
+    [
+        ({"first": 5000}, r"dataset 'sim:test': --first 5000 is beyond its 214 scans \(0\.\.213\)"),
+        ({"first": 212}, r"dataset 'sim:test': 2 scans selected; a run needs at least 3"),
+        ({"jump": 200}, r"dataset 'sim:test': 2 scans selected; a run needs at least 3"),
+        ({"frames": 2}, r"dataset 'sim:test': 2 scans selected; a run needs at least 3"),
+        ({"first": 213}, r"dataset 'sim:test': 1 scan selected; a run needs at least 3"),
+    ],
+)
 def test_a_simulated_sequence_refuses_what_it_cannot_select_before_it_is_simulated(tmp_path, selection, message):
     with pytest.raises(InputError, match=f"^{message}$"):
         open_sequence("sim:test", cache_dir=tmp_path, source=SourceOptions(**selection))
     assert not any(tmp_path.iterdir())  # nothing was cast
 
 
-@pytest.mark.parametrize("kind, selection, given", [
-    ("mulran", {}, "--loader applies"), ("auto", {"topic": "/points"}, "--topic applies"),
-    ("helipr", {"sequence": "05"}, "--loader, --sequence apply")])
+@pytest.mark.parametrize(
+    "kind, selection, given",
+    [
+        ("mulran", {}, "--loader applies"),
+        ("auto", {"topic": "/points"}, "--topic applies"),
+        ("helipr", {"sequence": "05"}, "--loader, --sequence apply"),
+    ],
+)
 def test_a_simulated_sequence_refuses_options_of_recordings_before_it_is_simulated(tmp_path, kind, selection, given):
-    with pytest.raises(InputError, match=f"^dataset 'sim:test': {given} to recordings; a sim: dataset is one "
-                                         "simulated sequence in KITTI's layout"):
+    with pytest.raises(
+        InputError,
+        match=f"^dataset 'sim:test': {given} to recordings; a sim: dataset is one simulated sequence in KITTI's layout",
+    ):
         open_sequence("sim:test", kind, cache_dir=tmp_path, source=SourceOptions(**selection))
     assert not any(tmp_path.iterdir())
 
@@ -231,17 +255,23 @@ def test_apollo_and_newer_college_times_are_real(tmp_path):
     for k in range(N):
         _pcd(apollo / "pcds" / f"{k + 1}.pcd", _points(k), np.zeros(40), "binary")
     (apollo / "poses").mkdir()
-    (apollo / "poses" / "gt_poses.txt").write_text("".join(f"{k} {1500000000.5 + 0.1 * k} {k} 0 0 0 0 0 1\n"
-                                                           for k in range(N)))
+    (apollo / "poses" / "gt_poses.txt").write_text(
+        "".join(f"{k} {1500000000.5 + 0.1 * k} {k} 0 0 0 0 0 1\n" for k in range(N))
+    )
     assert detect_loader(apollo) == "apollo"
     assert open_dataset(apollo).times[1] == pytest.approx(1500000000.6)
     ncd = tmp_path / "ncd"
     for k in range(N):
-        _pcd(ncd / "raw_format" / "ouster_scan" / f"cloud_1583836591_{k * 100_000_000:09d}.pcd", _points(k),
-             np.zeros(40), "ascii")
+        _pcd(
+            ncd / "raw_format" / "ouster_scan" / f"cloud_1583836591_{k * 100_000_000:09d}.pcd",
+            _points(k),
+            np.zeros(40),
+            "ascii",
+        )
     (ncd / "ground_truth").mkdir()
     (ncd / "ground_truth" / "registered_poses.csv").write_text(
-        "".join(f"1583836591,{k * 100_000_000},{k},0,0,0,0,0,1\n" for k in range(N)))
+        "".join(f"1583836591,{k * 100_000_000},{k},0,0,0,0,0,1\n" for k in range(N))
+    )
     assert detect_loader(ncd) == "ncd"
     assert open_dataset(ncd).times[2] == pytest.approx(1583836591.2)
 
@@ -251,15 +281,25 @@ def _cloud_msg(typestore, k: int, stamp_ns: int):
     fields_t = typestore.types["sensor_msgs/msg/PointField"]
     rows = np.zeros(len(pts), [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("t", "<u4")])
     rows["x"], rows["y"], rows["z"], rows["t"] = pts[:, 0], pts[:, 1], pts[:, 2], np.arange(len(pts)) * 1000
-    fields = [fields_t(name=n, offset=4 * i, datatype=7 if n != "t" else 6, count=1)
-              for i, n in enumerate("xyzt")]
+    fields = [fields_t(name=n, offset=4 * i, datatype=7 if n != "t" else 6, count=1) for i, n in enumerate("xyzt")]
     header_t = typestore.types["std_msgs/msg/Header"]
     ros1 = {"seq": k} if "seq" in header_t.__dataclass_fields__ else {}
-    header = header_t(**ros1, stamp=typestore.types["builtin_interfaces/msg/Time"](
-        sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9), frame_id="os_sensor")
+    header = header_t(
+        **ros1,
+        stamp=typestore.types["builtin_interfaces/msg/Time"](sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9),
+        frame_id="os_sensor",
+    )
     return typestore.types["sensor_msgs/msg/PointCloud2"](
-        header=header, height=1, width=len(pts), fields=fields, is_bigendian=False, point_step=16,
-        row_step=16 * len(pts), data=np.frombuffer(rows.tobytes(), np.uint8), is_dense=True)
+        header=header,
+        height=1,
+        width=len(pts),
+        fields=fields,
+        is_bigendian=False,
+        point_step=16,
+        row_step=16 * len(pts),
+        data=np.frombuffer(rows.tobytes(), np.uint8),
+        is_dense=True,
+    )
 
 
 def _write_bag(path: Path, kind: str) -> None:
@@ -370,8 +410,20 @@ def test_gt_format_option_reaches_the_pose_reader(tmp_path, command):
         write_bin(folder / f"{k}.bin", _points(k))
     tum = tmp_path / "gt.txt"
     tum.write_text("".join(f"{k * 0.1:.1f} {2.0 * k} 0 0 0 0 0 1\n" for k in range(N)))
-    args = [command, "--dataset", str(folder), "--gt", str(tum), "--mode", "realistic", "--out",
-            str(tmp_path / "out"), "--cache-dir", str(tmp_path / "cache"), "--quiet"]
+    args = [
+        command,
+        "--dataset",
+        str(folder),
+        "--gt",
+        str(tum),
+        "--mode",
+        "realistic",
+        "--out",
+        str(tmp_path / "out"),
+        "--cache-dir",
+        str(tmp_path / "cache"),
+        "--quiet",
+    ]
     result = CliRunner().invoke(app, [*args, "--gt-format", "kitti"])
     assert result.exit_code != 0
     assert "gt.txt:1: 8 values, expected 12 (kitti format)" in str(result.output) + str(result.exception)
@@ -392,12 +444,15 @@ def _tum_rows(n: int = N) -> list[str]:
     return [f"{0.1 * k:.1f} {2.0 * k} 0 0 0 0 0 1" for k in range(n)]
 
 
-@pytest.mark.parametrize(("time", "problem"), [
-    ("0.1", "time 0.1 repeats the previous one (0.1 on line 4) on line 5; times must increase strictly"),
-    ("0.05", "time 0.05 is before the previous one (0.1 on line 4) on line 5; times must increase strictly"),
-    ("nan", "time nan is not a finite number on line 5"),
-    ("inf", "time inf is not a finite number on line 5"),
-])
+@pytest.mark.parametrize(
+    ("time", "problem"),
+    [
+        ("0.1", "time 0.1 repeats the previous one (0.1 on line 4) on line 5; times must increase strictly"),
+        ("0.05", "time 0.05 is before the previous one (0.1 on line 4) on line 5; times must increase strictly"),
+        ("nan", "time nan is not a finite number on line 5"),
+        ("inf", "time inf is not a finite number on line 5"),
+    ],
+)
 def test_tum_times_are_checked_by_the_reader_naming_the_line(tmp_path, time, problem):
     from msa_slam.io.poses import read_poses
 
@@ -414,12 +469,15 @@ def test_tum_times_are_checked_by_the_reader_naming_the_line(tmp_path, time, pro
         open_dataset(tmp_path / "scans", poses=path)
 
 
-@pytest.mark.parametrize(("quaternion", "norm"), [
-    ("0.7 0 0 0", "0.7"),  # corrupt, or the columns in another order
-    ("0 0 0 0", "0"),
-    ("0 0 nan 1", "nan"),
-    ("0 0 inf 1", "inf"),
-])
+@pytest.mark.parametrize(
+    ("quaternion", "norm"),
+    [
+        ("0.7 0 0 0", "0.7"),  # corrupt, or the columns in another order
+        ("0 0 0 0", "0"),
+        ("0 0 nan 1", "nan"),
+        ("0 0 inf 1", "inf"),
+    ],
+)
 def test_tum_quaternion_far_from_unit_norm_is_refused_naming_the_line(tmp_path, quaternion, norm):
     from msa_slam.io.poses import read_poses
 
@@ -462,8 +520,19 @@ def test_sample_command_refuses_a_bad_tum_quaternion(tmp_path):
     rows[1] = " ".join([*rows[1].split()[:4], "1 0 0 0.7"])  # norm 1.22: e.g. qw written twice
     path = _tum_file(tmp_path / "poses.txt", rows)
     np.save(tmp_path / "desc.npy", np.zeros((N, 8)))
-    result = CliRunner().invoke(app, ["sample", "--poses", str(path), "--descriptors", str(tmp_path / "desc.npy"),
-                                      "--out", str(tmp_path / "out"), "--quiet"])
+    result = CliRunner().invoke(
+        app,
+        [
+            "sample",
+            "--poses",
+            str(path),
+            "--descriptors",
+            str(tmp_path / "desc.npy"),
+            "--out",
+            str(tmp_path / "out"),
+            "--quiet",
+        ],
+    )
     assert isinstance(result.exception, InputError), result.output
     assert str(result.exception).startswith(f"{path}:4: quaternion (qx qy qz qw) [1.0, 0.0, 0.0, 0.7] has norm 1.22066")
     assert not (tmp_path / "out").exists()
@@ -529,8 +598,11 @@ def test_tum_ground_truth_with_one_pose_a_scan_is_matched_by_time(tmp_path):
     jittered = _tum(tmp_path / "same.tum", 0.1 * np.arange(N) + 0.01, _poses())
     np.testing.assert_allclose(open_dataset(seq, poses=jittered).gt_poses, _poses())
     shifted = _tum(tmp_path / "shifted.tum", 0.1 * np.arange(1, N + 1), _poses())  # one frame late
-    with pytest.raises(InputError, match=r"shifted.tum: no pose within 0.05 s of scan 0 \(time 0.000000 s; nearest "
-                                         r"pose at 0.100000 s\); the pose times must be the scans' clock"):
+    with pytest.raises(
+        InputError,
+        match=r"shifted.tum: no pose within 0.05 s of scan 0 \(time 0.000000 s; nearest "
+        r"pose at 0.100000 s\); the pose times must be the scans' clock",
+    ):
         open_dataset(seq, poses=shifted)
     other_clock = _tum(tmp_path / "clock.tum", 1.7e9 + 0.1 * np.arange(N), _poses())
     with pytest.raises(InputError, match=r"clock.tum: no pose within 0.05 s of scan 0 "):
@@ -548,6 +620,9 @@ def test_tum_ground_truth_gives_untimed_scans_its_times(tmp_path):
     np.testing.assert_allclose(opened.times, 50.0 + 0.1 * np.arange(N))
     assert opened.times_known
     short = _tum(tmp_path / "short.tum", 50.0 + 0.1 * np.arange(N - 1), _poses(N - 1))
-    with pytest.raises(InputError, match=r"short.tum: 3 poses but .*k has 4 scans, which have no timestamps to "
-                                         r"match the TUM times to; give one pose a scan"):
+    with pytest.raises(
+        InputError,
+        match=r"short.tum: 3 poses but .*k has 4 scans, which have no timestamps to "
+        r"match the TUM times to; give one pose a scan",
+    ):
         open_dataset(seq, poses=short)

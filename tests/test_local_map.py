@@ -61,13 +61,16 @@ def test_frames_beyond_the_length_are_left_out_and_forgotten():
         lm.add(3, _pose(0.0), _wall(1.0))
 
 
-@pytest.mark.parametrize("override, message", [
-    ({"loop_detector": "mapclosures"}, "loop_detector"),
-    ({"loop_protocol": "strict"}, "loop_protocol"),
-    ({"verified_top_k": 0}, "verified_top_k"),
-    ({"local_map_m": -5.0}, "local_map_m"),
-    ({"verified_min_similarity": 1.5}, "verified_min_similarity"),
-])
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ({"loop_detector": "mapclosures"}, "loop_detector"),
+        ({"loop_protocol": "strict"}, "loop_protocol"),
+        ({"verified_top_k": 0}, "verified_top_k"),
+        ({"local_map_m": -5.0}, "local_map_m"),
+        ({"verified_min_similarity": 1.5}, "verified_min_similarity"),
+    ],
+)
 def test_bad_loop_settings_are_one_clear_error(override, message):
     with pytest.raises(InputError, match=message):
         make_config(dataset="unused", **override)

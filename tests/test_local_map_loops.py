@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import shared_path
+from helpers.slam import config_backend
 from scipy.spatial.transform import Rotation
 
-from conftest import shared_path
 from msa_slam.backend import PoseGraph
 from msa_slam.descriptors import ScanContext
 from msa_slam.errors import InputError
@@ -25,7 +26,6 @@ from msa_slam.sim.config import make_config as sim_config
 from msa_slam.sim.simulation import prepare
 from msa_slam.sim.world import PATH_LEAD
 from msa_slam.slam import KeyframeStore, LoopCloser
-from helpers.slam import config_backend
 from msa_slam.slam.local_map import LocalMap
 from msa_slam.slam.map_closures_detector import MapClosuresDetector
 
@@ -78,10 +78,12 @@ def _keyframe(world, route: list[np.ndarray], seed: int) -> tuple[np.ndarray, np
 
 @pytest.fixture(scope="module")
 def keyframes(world):
-    return {"A": _keyframe(world, _route(world, 300.0), 1),
-            "B": _keyframe(world, _route(world, 300.0, reverse=True, lateral_m=3.5), 2),
-            "C": _keyframe(world, _route(world, 840.0), 3),
-            "D": _keyframe(world, _route(world, 600.0), 4)}
+    return {
+        "A": _keyframe(world, _route(world, 300.0), 1),
+        "B": _keyframe(world, _route(world, 300.0, reverse=True, lateral_m=3.5), 2),
+        "C": _keyframe(world, _route(world, 840.0), 3),
+        "D": _keyframe(world, _route(world, 600.0), 4),
+    }
 
 
 def _lap_odometry() -> np.ndarray:
@@ -94,8 +96,17 @@ def _lap_odometry() -> np.ndarray:
 def _verified_closer(keyframes, **settings):
     """Loop closing over local-map Scan Context, keyframes A, C, D stored, B queried (verified protocol,
     realistic mode, no drift check: nothing but the clouds decides)."""
-    config = make_config(**{"dataset": "unused", "mode": "realistic", "loop_detector": "local-map",
-                            "loop_protocol": "verified", "drift_check": "off", "exclude_recent": 0, **settings})
+    config = make_config(
+        **{
+            "dataset": "unused",
+            "mode": "realistic",
+            "loop_detector": "local-map",
+            "loop_protocol": "verified",
+            "drift_check": "off",
+            "exclude_recent": 0,
+            **settings,
+        }
+    )
     descriptor = ScanContext()
     store = KeyframeStore(descriptor, KeyframeCloudStore(config.verifier.voxel_size))
     closer = LoopCloser(store, Verifier(config.verifier), config)
@@ -152,10 +163,24 @@ def test_the_backend_closes_the_revisit_with_local_maps_and_accounts_their_memor
     descs = [descriptor.compute(s) for s in scans]
 
     def run(**settings):
-        config = make_config(**{"dataset": "unused", "sampler": "all", "mode": "realistic", "min_frame_gap": 3,
-                                "exclude_recent": 3, **settings})
-        backend = config_backend(config, descriptor, KeyframeCloudStore(0.5), PoseGraph(config.graph, mode="realistic"),
-                                 len(poses), "two passes")
+        config = make_config(
+            **{
+                "dataset": "unused",
+                "sampler": "all",
+                "mode": "realistic",
+                "min_frame_gap": 3,
+                "exclude_recent": 3,
+                **settings,
+            }
+        )
+        backend = config_backend(
+            config,
+            descriptor,
+            KeyframeCloudStore(0.5),
+            PoseGraph(config.graph, mode="realistic"),
+            len(poses),
+            "two passes",
+        )
         peak = 0
         for i, pose in enumerate(poses):
             backend.add_frame(pose, descs[i], lambda i=i: scans[i], pose, 0.1 * i)

@@ -10,11 +10,17 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from msa_slam.evaluation.loops import (
+    FALSE_LOOP_ANGLE_DEG,
+    NO_GROUND_TRUTH,
+    account_loops,
+    is_false_loop,
+    relative_pose_error,
+    revisit_pairs,
+)
 from msa_slam.evaluation.metrics import Unavailable
-from msa_slam.evaluation.loops import (FALSE_LOOP_ANGLE_DEG, NO_GROUND_TRUTH, account_loops, is_false_loop,
-                                       relative_pose_error, revisit_pairs)
-from msa_slam.pipeline import make_config
 from msa_slam.experiments.compare import run_compare
+from msa_slam.pipeline import make_config
 from msa_slam.reporting.comparison import COLUMNS, REJECTED_COLUMNS
 from msa_slam.slam.loop_closing import REJECTION_REASONS
 from msa_slam.types import LoopClosure
@@ -40,8 +46,9 @@ def _loop(gt, match, query, rejected="", accepted=False, verified=True, error=No
     T_true = np.linalg.inv(gt[match]) @ gt[query]
     measured = T_true @ (np.eye(4) if error is None else error) if accepted else None
     distance = float(np.linalg.norm(gt[query, :3, 3] - gt[match, :3, 3]))
-    return LoopClosure(query, match, 0.9, distance, verified=verified, accepted=accepted, T_match_query=measured,
-                       rejected=rejected)
+    return LoopClosure(
+        query, match, 0.9, distance, verified=verified, accepted=accepted, T_match_query=measured, rejected=rejected
+    )
 
 
 def _shift(x=0.0, yaw_deg=0.0) -> np.ndarray:
@@ -96,8 +103,9 @@ def test_pair_recall_and_keyframe_recall_differ_on_dense_keyframes():
 
 def test_a_loop_away_from_the_revisits_closes_none():
     gt = _poses(XS)
-    acc, _ = account_loops([_loop(gt, 1, 4, accepted=True)], np.arange(len(XS)), gt, RADIUS, MIN_TRAVEL,
-                           REJECTION_REASONS)
+    acc, _ = account_loops(
+        [_loop(gt, 1, 4, accepted=True)], np.arange(len(XS)), gt, RADIUS, MIN_TRAVEL, REJECTION_REASONS
+    )
     assert (acc.revisits, acc.revisits_closed, acc.revisit_recall, acc.revisit_keyframe_recall) == (3, 0, 0.0, 0.0)
     assert acc.true_candidates == 0 and acc.false_accepted == 0  # its measured pose is the true one
 
@@ -134,13 +142,19 @@ def test_relative_pose_error_and_false_loop_limits():
 # End to end: the small simulated figure-eight (conftest: sim "test", odometry with a known drift), realistic mode
 # with a low similarity threshold so that candidates are registered, and the residual gate (no drift check: the
 # fixture's drift exceeds the drift model's allowance) accepts the true ones and rejects others.
-LOOSE = {"similarity_threshold": 0.4, "min_travel_m": 0.0, "mode": "realistic", "drift_check": "off",
-         "verifier": {"max_residual": 0.3, "min_inliers": 1, "min_inlier_fraction": 0.0}}
+LOOSE = {
+    "similarity_threshold": 0.4,
+    "min_travel_m": 0.0,
+    "mode": "realistic",
+    "drift_check": "off",
+    "verifier": {"max_residual": 0.3, "min_inliers": 1, "min_inlier_fraction": 0.0},
+}
 
 
 def test_compare_reports_the_loop_accounting(sequence, odometry_file, cache_dir, tmp_path):
-    base = make_config(dataset=str(sequence), odometry=str(odometry_file), cache_dir=str(cache_dir),
-                       sampler="msa", **LOOSE)
+    base = make_config(
+        dataset=str(sequence), odometry=str(odometry_file), cache_dir=str(cache_dir), sampler="msa", **LOOSE
+    )
     methods = (("constant-3m", "constant", {"distance": 3.0}), ("msa", "msa", {}))
     folder = run_compare(base, tmp_path / "cmp", methods=methods, sweep=False, figures=False).parent
     rows = list(csv.DictReader(open(folder / "comparison.csv")))
@@ -148,8 +162,18 @@ def test_compare_reports_the_loop_accounting(sequence, odometry_file, cache_dir,
     for row in rows:
         m = json.loads((folder / "runs" / row["method"] / "metrics.json").read_text())
         acc = m["loop_accounting"]
-        count = {c: int(row[c]) for c in ("candidates", "true_candidates", "verified", "rejected", *REJECTED_COLUMNS,
-                                          "false_accepted", "revisits")}
+        count = {
+            c: int(row[c])
+            for c in (
+                "candidates",
+                "true_candidates",
+                "verified",
+                "rejected",
+                *REJECTED_COLUMNS,
+                "false_accepted",
+                "revisits",
+            )
+        }
         assert count["candidates"] == acc["registered"] == m["registrations"] > 0  # realistic: all registered
         assert count["verified"] + count["rejected"] == acc["registered"]
         assert sum(count[c] for c in REJECTED_COLUMNS) == count["rejected"]
@@ -165,5 +189,7 @@ def test_compare_reports_the_loop_accounting(sequence, odometry_file, cache_dir,
     report = (folder / "report.md").read_text()
     assert "| true cand. | verified | rejected | rej. sparse |" in report and "revisit recall" in report
     msa = json.loads((folder / "runs" / "msa" / "metrics.json").read_text())["loop_accounting"]
-    assert (f"Loop accounting: {msa['registered']} of {counted(msa['candidates'], 'candidate')} registered, "
-            f"{msa['accepted']} accepted") in (folder / "runs" / "msa" / "report.md").read_text()
+    assert (
+        f"Loop accounting: {msa['registered']} of {counted(msa['candidates'], 'candidate')} registered, "
+        f"{msa['accepted']} accepted"
+    ) in (folder / "runs" / "msa" / "report.md").read_text()

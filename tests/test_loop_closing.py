@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.scans import scan_points
+from helpers.slam import config_backend
 from scipy.spatial.transform import Rotation
 
 from msa_slam.backend import PoseGraph
@@ -20,9 +22,7 @@ from msa_slam.descriptors import make_descriptor
 from msa_slam.pipeline.config import make_config
 from msa_slam.registration import KeyframeCloudStore, Verifier
 from msa_slam.slam import KeyframeStore, LoopCloser
-from helpers.slam import config_backend
 from msa_slam.slam.loop_closing import loop_summary
-from helpers.scans import scan_points
 
 LAP = 300  # frames of the odometry lap between the two keyframes
 
@@ -42,14 +42,18 @@ def scans() -> dict[str, np.ndarray]:
     s0, s15 = scan_points(0).astype(np.float64), scan_points(15).astype(np.float64)
     other = s15 * [1, -1, 1]  # another street: scan 15 mirrored
     yaw = Rotation.from_euler("z", 25, degrees=True).as_matrix()
-    return {"target": s0[::2], "true": s0[1::2], "other_place": other[(other[:, 2] < -1.2)
-                                                                     & (np.linalg.norm(other[:, :2], axis=1) < 30)],
-            "wrong_yaw": s0[1::2] @ yaw}  # the sensor turned by 25 deg
+    return {
+        "target": s0[::2],
+        "true": s0[1::2],
+        "other_place": other[(other[:, 2] < -1.2) & (np.linalg.norm(other[:, :2], axis=1) < 30)],
+        "wrong_yaw": s0[1::2] @ yaw,
+    }  # the sensor turned by 25 deg
 
 
 def _close(query_cloud: np.ndarray, target: np.ndarray, **settings) -> tuple[LoopCloser, list]:
-    config = make_config(**{"dataset": "unused", "similarity_threshold": 0.0, "exclude_recent": 0, "mode": "realistic",
-                            **settings})
+    config = make_config(
+        **{"dataset": "unused", "similarity_threshold": 0.0, "exclude_recent": 0, "mode": "realistic", **settings}
+    )
     descriptor = make_descriptor("sc")
     store = KeyframeStore(descriptor, KeyframeCloudStore(config.verifier.voxel_size))
     closer = LoopCloser(store, Verifier(config.verifier), config)
@@ -104,8 +108,14 @@ def _standstill(min_travel_m: float, frames: int = 90):
     descriptor = make_descriptor("sc")
     cloud = scan_points(0).astype(np.float64)[::8]
     desc = descriptor.compute(cloud)
-    backend = config_backend(config, descriptor, KeyframeCloudStore(config.verifier.voxel_size),
-                             PoseGraph(config.graph, mode=config.mode), frames, "standstill")
+    backend = config_backend(
+        config,
+        descriptor,
+        KeyframeCloudStore(config.verifier.voxel_size),
+        PoseGraph(config.graph, mode=config.mode),
+        frames,
+        "standstill",
+    )
     for i in range(frames):
         backend.add_frame(np.eye(4), desc, cloud, np.eye(4), 0.1 * i)
     return backend.finish()

@@ -73,8 +73,9 @@ def _wrong(gt: np.ndarray, steps: int, offset: int) -> tuple[int, int, np.ndarra
     return target + offset, source, measured
 
 
-def _graph(odom: np.ndarray, loops: list[tuple[int, int, np.ndarray]], config: GraphConfig = CONFIG,
-           mode: str = "realistic") -> PoseGraph:
+def _graph(
+    odom: np.ndarray, loops: list[tuple[int, int, np.ndarray]], config: GraphConfig = CONFIG, mode: str = "realistic"
+) -> PoseGraph:
     graph = PoseGraph(config, mode=mode)
     for k, pose in enumerate(odom):
         graph.add_keyframe(k, pose)
@@ -136,8 +137,9 @@ def test_a_single_true_loop_correcting_large_drift_is_used_in_full(drive):
     assert after < 0.01 * before
     # the same loop under the realistic mode's former kernel (Cauchy, scale 1 on whitened residuals) is mostly
     # discounted: it removes less than half of the error between its frames
-    cauchy = _graph(odom, [(target, source, measured)], CONFIG.model_copy(update={"loop_inliers": "all",
-                                                                                   "robust": "cauchy"}))
+    cauchy = _graph(
+        odom, [(target, source, measured)], CONFIG.model_copy(update={"loop_inliers": "all", "robust": "cauchy"})
+    )
     assert _relative_error(cauchy.optimize(), gt, target, source) > 0.5 * before
 
 
@@ -264,8 +266,10 @@ def _lateral_loop(closer, query: int, metres: float):
     return LoopClosure(query, 0, 1.0, 0.0, travelled_m=float(query)), T
 
 
-@pytest.mark.parametrize("length_m, metres, accepted", [(100.0, 5.0, False), (1000.0, 5.0, True),
-                                                       (1000.0, 30.0, True), (1000.0, 120.0, False)])
+@pytest.mark.parametrize(
+    "length_m, metres, accepted",
+    [(100.0, 5.0, False), (1000.0, 5.0, True), (1000.0, 30.0, True), (1000.0, 120.0, False)],
+)
 def test_the_drift_gate_scales_with_the_accumulated_odometry_covariance(length_m, metres, accepted):
     """Sideways corrections with the default drift model, gate and slack: 5 m is beyond what 100 m of odometry
     can drift (sigma ~0.5 m); over 1,000 m the random walk's sigma is ~5.6 m (mostly the heading error's lever
@@ -281,8 +285,13 @@ def test_the_drift_gate_follows_the_configured_drift_model():
     closer, query = _closer(100.0)
     cand, T = _lateral_loop(closer, query, 4.0)
     assert closer.exceeds_drift(cand, T)
-    loose, _ = _closer(100.0, graph={"drift_rotation": 4 * GraphConfig().drift_rotation,
-                                     "drift_translation": 4 * GraphConfig().drift_translation})
+    loose, _ = _closer(
+        100.0,
+        graph={
+            "drift_rotation": 4 * GraphConfig().drift_rotation,
+            "drift_translation": 4 * GraphConfig().drift_translation,
+        },
+    )
     assert not loose.exceeds_drift(cand, T)
 
 
@@ -316,8 +325,14 @@ def test_the_slam_core_records_loops_left_out_as_inconsistent(drive):
     from msa_slam.types import LoopClosure
 
     gt, odom = drive
-    planned = {source: (target, measured, wrong) for (target, source, measured), wrong in
-               ((_true(gt, 2), False), (_wrong(gt, 5, 15), True), (_true(gt, 12), False))}
+    planned = {
+        source: (target, measured, wrong)
+        for (target, source, measured), wrong in (
+            (_true(gt, 2), False),
+            (_wrong(gt, 5, 15), True),
+            (_true(gt, 12), False),
+        )
+    }
 
     class Closer:  # loop closing as if these three loops were found and verified
         best_similarity: list[float] = []
@@ -330,8 +345,10 @@ def test_the_slam_core_records_loops_left_out_as_inconsistent(drive):
             return [LoopClosure(frame, target, 0.9, distance, travelled_m=2.0 * (frame - target))]
 
         def verify(self, candidates):
-            return [replace(c, verified=True, accepted=True, T_match_query=planned[c.query][1], covariance=LOOP_COV)
-                    for c in candidates]
+            return [
+                replace(c, verified=True, accepted=True, T_match_query=planned[c.query][1], covariance=LOOP_COV)
+                for c in candidates
+            ]
 
         def pr_curve(self):
             return None
@@ -340,14 +357,24 @@ def test_the_slam_core_records_loops_left_out_as_inconsistent(drive):
     descriptor = make_descriptor("sc")
     cloud = np.random.default_rng(0).uniform(-20, 20, (200, 3))
     store = KeyframeStore(descriptor, KeyframeCloudStore(config.verifier.voxel_size))
-    backend = SlamBackend(config, make_sampler("all"), store, Closer(), PoseGraph(config.graph, mode="realistic"),
-                          len(odom), "constructed")
+    backend = SlamBackend(
+        config,
+        make_sampler("all"),
+        store,
+        Closer(),
+        PoseGraph(config.graph, mode="realistic"),
+        len(odom),
+        "constructed",
+    )
     desc = descriptor.compute(cloud)
     for i, pose in enumerate(odom):
         backend.add_frame(pose, desc, cloud, gt[i], 0.1 * i)
     result = backend.finish()
     assert [(c.query, c.accepted, c.rejected) for c in result.loops] == [
-        (LAP + 2, True, ""), (LAP + 5, False, "inconsistent"), (LAP + 12, True, "")]
+        (LAP + 2, True, ""),
+        (LAP + 5, False, "inconsistent"),
+        (LAP + 12, True, ""),
+    ]
     summary = loop_summary(result.loops, config, result.graph_info)
     assert summary.rejected["inconsistent"] == 1 and summary.details["inlier_selection"]["kept"] == 2
     assert summary.details["loop_kernel"] == "none" and summary.details["loop_inliers"] == "consistent"

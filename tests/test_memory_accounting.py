@@ -10,12 +10,12 @@ import sys
 
 import numpy as np
 import pytest
+from helpers.metrics import metrics_json
 
 from msa_slam.backend import IncrementalPoseGraph, PoseGraph
 from msa_slam.evaluation.resources import heap_in_use_bytes
 from msa_slam.pipeline import run
 from msa_slam.pipeline.config import make_online_config
-from helpers.metrics import metrics_json
 
 glibc = pytest.mark.skipif(heap_in_use_bytes() is None, reason="needs glibc's mallinfo2 / malloc_trim")
 
@@ -79,8 +79,13 @@ def test_release_free_heap_returns_freed_pages():
 
 def test_online_in_ram_bytes_include_records_and_map():
     """RSS growth is compared with what the run keeps in RAM: SLAM memory, its records and its map."""
-    cfg = make_online_config(dataset="live:figure-eight,stride=4,azimuth_steps=180,realism=clean", max_frames=80,
-                             odometry="gt-noise", sampler="constant", sampler_params={"distance": 2.0})
+    cfg = make_online_config(
+        dataset="live:figure-eight,stride=4,azimuth_steps=180,realism=clean",
+        max_frames=80,
+        odometry="gt-noise",
+        sampler="constant",
+        sampler_params={"distance": 2.0},
+    )
     result = run(cfg)
     m = metrics_json(result)
     mem = m["memory_bytes"]

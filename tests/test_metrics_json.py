@@ -8,8 +8,8 @@ import copy
 import json
 
 import pytest
-
 from helpers.metrics import STORED, stored_metrics
+
 from msa_slam.errors import InputError
 from msa_slam.evaluation.metrics import Unavailable
 from msa_slam.evaluation.metrics_json import from_json, to_json
@@ -58,14 +58,17 @@ def test_experiment_row_names_the_reason_of_each_na_column():
     assert values["pr_auc"].reason == NO_REVISIT and "batch pipeline" in values["fps"].reason
 
 
-@pytest.mark.parametrize("edit, key, problem", [
-    (lambda m: m["full_rate"]["after"].pop("ate_translation_m"), "full_rate.after.ate_translation_m", "is missing"),
-    (lambda m: m.pop("loop_accounting"), "loop_accounting", "is missing"),
-    (lambda m: m.update(frames="214"), "frames", "must be an integer, not '214' (str)"),
-    (lambda m: m["memory_bytes"].update(total=1.5), "memory_bytes.total", "must be an integer, not 1.5"),
-    (lambda m: m.update(pr_auc=True), "pr_auc", "must be a number or null, not True (bool)"),
-    (lambda m: m["threshold_sweep"][1].pop("candidates"), "threshold_sweep[1].candidates", "is missing"),
-])
+@pytest.mark.parametrize(
+    "edit, key, problem",
+    [
+        (lambda m: m["full_rate"]["after"].pop("ate_translation_m"), "full_rate.after.ate_translation_m", "is missing"),
+        (lambda m: m.pop("loop_accounting"), "loop_accounting", "is missing"),
+        (lambda m: m.update(frames="214"), "frames", "must be an integer, not '214' (str)"),
+        (lambda m: m["memory_bytes"].update(total=1.5), "memory_bytes.total", "must be an integer, not 1.5"),
+        (lambda m: m.update(pr_auc=True), "pr_auc", "must be a number or null, not True (bool)"),
+        (lambda m: m["threshold_sweep"][1].pop("candidates"), "threshold_sweep[1].candidates", "is missing"),
+    ],
+)
 def test_bad_metrics_is_one_error_naming_the_file_and_key(edit, key, problem, tmp_path):
     data = stored_metrics("batch.json")
     edit(data)

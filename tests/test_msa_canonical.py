@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import shared_path
+from helpers.msa_windows import planar_window
+from helpers.parity import MSA_NAME, STREAMS, load_stream, sampler_for, stream  # noqa: F401 (stream: a fixture)
+
 from msa_slam.sampling.msa import exact, fast, terms
 from msa_slam.sampling.msa.canonical import SIGN_ATOL, canonicalise
 from msa_slam.sampling.msa.powerset import feasible_subsets, subsets_by_size
-from helpers.msa_windows import planar_window
-from helpers.parity import MSA_NAME, STREAMS, load_stream, sampler_for, stream  # noqa: F401 (stream: a fixture)
 
 
 def spectrum_matrix(lam: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -114,8 +114,9 @@ def test_exact_and_fast_paths_choose_the_same_canonical_keyframes(stream):
     _, poses, descriptors, _, expected = stream
     configs = [c for c in expected if MSA_NAME.match(c)][::6]  # 4 of 24: both N and both neighbour counts
     for config in configs:
-        assert sampler_for(config, "exact", "canonical").run(poses, descriptors) == \
-            sampler_for(config, "fast", "canonical").run(poses, descriptors), config
+        assert sampler_for(config, "exact", "canonical").run(poses, descriptors) == sampler_for(
+            config, "fast", "canonical"
+        ).run(poses, descriptors), config
 
 
 @pytest.mark.parametrize("m", [3, 10, 19])
@@ -234,9 +235,9 @@ def lane_decomposition(mats: list[np.ndarray], count: int) -> tuple[np.ndarray, 
     m = len(mats[0])
     values, vectors, flags = [], [], []
     for start in range(0, len(mats), count):
-        batch = np.stack(mats[start:start + count], axis=-1)
+        batch = np.stack(mats[start : start + count], axis=-1)
         v = np.zeros((m, m, LANES))
-        v[:, :, :batch.shape[-1]] = batch
+        v[:, :, : batch.shape[-1]] = batch
         d, e, work = np.empty((m, LANES)), np.empty((m, LANES)), np.empty((LANE_WORK, LANES))
         symmetric_eigh_lanes(v, d, e, m, batch.shape[-1], work)
         for lane in range(batch.shape[-1]):
@@ -262,7 +263,7 @@ def test_lane_eigensolver_gives_each_matrix_its_own_values_whatever_the_other_la
         lam = np.repeat(rng.uniform(0, 5, (m + 1) // 2), 2)[:m]  # repeated eigenvalues
         mats[3] = spectrum_matrix(np.sort(lam), m)[0]
         split = mats[8].copy()
-        split[: m // 2, m // 2:] = split[m // 2:, : m // 2] = 1e-18 * np.abs(split).max()  # nearly two blocks:
+        split[: m // 2, m // 2 :] = split[m // 2 :, : m // 2] = 1e-18 * np.abs(split).max()  # nearly two blocks:
         mats[8] = split  # QL's tridiagonal splits (negligible entries)
         mats[11] = np.zeros((m, m))
         mats[12] = np.diag(np.arange(m, dtype=float))

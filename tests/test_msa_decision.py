@@ -18,12 +18,17 @@ def test_compiled_decision_equals_the_numpy_score_definition(seed):
         pi = np.round(rng.uniform(0, 0.7, count), int(rng.integers(1, 4)))  # rounded: ties happen
         if trial % 6 == 0:
             rho[:] = rho[0]  # all equal: minmax gives ones
-        weights = ScoreWeights(alpha=float(rng.choice([0.5, 1.0, 10.0])), beta=float(rng.choice([1.0, 2.0])),
-                               use_rho=trial % 4 != 0, use_pi=trial % 5 != 0)
+        weights = ScoreWeights(
+            alpha=float(rng.choice([0.5, 1.0, 10.0])),
+            beta=float(rng.choice([1.0, 2.0])),
+            use_rho=trial % 4 != 0,
+            use_pi=trial % 5 != 0,
+        )
         scores = score(rho, pi, weights)
         want = int(np.argmin(scores))
-        best, ambiguous, margin = decide(count, rho if weights.use_rho else None, pi if weights.use_pi else None,
-                                         pi, pi, weights)
+        best, ambiguous, margin = decide(
+            count, rho if weights.use_rho else None, pi if weights.use_pi else None, pi, pi, weights
+        )
         assert best == want
         assert margin == float(np.min(np.delete(scores, want)) / scores[want] - 1.0)
         assert ambiguous or margin > 0  # a tie for the minimum is always ambiguous

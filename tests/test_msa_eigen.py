@@ -21,7 +21,7 @@ def zero_column_matrices(m: int, seed: int) -> list[np.ndarray]:
         mats.append(c)
     x = rng.standard_normal((m, m + 2))
     split = x @ x.T
-    split[: m // 2, m // 2:] = split[m // 2:, : m // 2] = 0.0
+    split[: m // 2, m // 2 :] = split[m // 2 :, : m // 2] = 0.0
     mats.append(split)
     return mats
 

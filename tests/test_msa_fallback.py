@@ -30,9 +30,12 @@ def test_tiny_bounds_make_every_window_fall_back_and_warn(mode):
     with pytest.warns(UserWarning) as caught:  # during the stream: a caller need not finish() it to be told
         sampler.run(poses, desc)
     told = [str(w.message) for w in caught if "windows so far" in str(w.message)]
-    assert len(told) == 1 and re.fullmatch(r"msa: 3 of the 3 windows so far had no subset whose consecutive members "
-                                           r"lie within the distance bounds \(last \[0\.001\d*, 0\.01\d*\] m .*"
-                                           r"check lambda_l=0\.001 and lambda_u=0\.01", told[0]), told
+    assert len(told) == 1 and re.fullmatch(
+        r"msa: 3 of the 3 windows so far had no subset whose consecutive members "
+        r"lie within the distance bounds \(last \[0\.001\d*, 0\.01\d*\] m .*"
+        r"check lambda_l=0\.001 and lambda_u=0\.01",
+        told[0],
+    ), told
     online = sampler.stats.window_optimisations
     assert online > 3 and sampler.stats.fallback_windows == online
     with warnings.catch_warnings():
@@ -84,8 +87,24 @@ def test_sample_warns_once_without_flush_and_not_for_its_kernel_warm_up(tmp_path
     np.save(tmp_path / "desc.npy", desc)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        result = CliRunner().invoke(app, ["sample", "--poses", str(tmp_path / "poses.txt"), "--descriptors",
-                                          str(tmp_path / "desc.npy"), "-p", "window=6", "-p", "lambda_l=0.001",
-                                          "-p", "lambda_u=0.01", "--out", str(tmp_path / "out"), "-q"])
+        result = CliRunner().invoke(
+            app,
+            [
+                "sample",
+                "--poses",
+                str(tmp_path / "poses.txt"),
+                "--descriptors",
+                str(tmp_path / "desc.npy"),
+                "-p",
+                "window=6",
+                "-p",
+                "lambda_l=0.001",
+                "-p",
+                "lambda_u=0.01",
+                "--out",
+                str(tmp_path / "out"),
+                "-q",
+            ],
+        )
     assert result.exit_code == 0, result.output
     assert len([w for w in caught if "windows so far had no subset" in str(w.message)]) == 1

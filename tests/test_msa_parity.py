@@ -15,10 +15,11 @@ import warnings
 
 import numpy as np
 import pytest
-
 from conftest import shared_path
-from msa_slam.sampling.msa import exact, sampler as msa_module, window
 from helpers.parity import MSA_NAME, STREAMS, load_stream, sampler_for, stream  # noqa: F401 (stream: a fixture)
+
+from msa_slam.sampling.msa import exact, window
+from msa_slam.sampling.msa import sampler as msa_module
 
 MAX_AMBIGUOUS_CONFIGS = 4  # per stream and mode (of 24): the detector must stay a narrow screen
 CROSS_CPU_CASE = ("stream_s2_sc20x60.npz", "msa_N10_nn2_a10_b1_l0.1_u5")  # 73 here, 77 on an AVX2 EPYC
@@ -58,8 +59,11 @@ def test_msa_reproduces_every_unambiguous_configuration(stream, mode, record_pro
     ambiguous = sorted(c for c, o in outcome.items() if o == "ambiguous")
     record_property(f"{mode}_ambiguous", ambiguous)
     if ambiguous:
-        warnings.warn(f"{name} ({mode}): {len(ambiguous)} of 24 MSA configurations have a numerically "
-                      f"ambiguous window and agree up to it: {', '.join(ambiguous)}", stacklevel=1)
+        warnings.warn(
+            f"{name} ({mode}): {len(ambiguous)} of 24 MSA configurations have a numerically "
+            f"ambiguous window and agree up to it: {', '.join(ambiguous)}",
+            stacklevel=1,
+        )
     assert [c for c, o in outcome.items() if o == "differing"] == []
     assert len(ambiguous) <= MAX_AMBIGUOUS_CONFIGS
 
@@ -84,8 +88,11 @@ def flipped_windows(windows, monkeypatch, name: str, perturb) -> set[int]:
     """Indices of the windows whose choice changes when `name` in msa/exact.py is wrapped by `perturb`."""
     monkeypatch.setattr(exact, name, perturb(getattr(exact, name)))
     try:
-        return {k for k, (args, result) in enumerate(windows)
-                if window.optimise_window(*args, "exact").positions != result.positions}
+        return {
+            k
+            for k, (args, result) in enumerate(windows)
+            if window.optimise_window(*args, "exact").positions != result.positions
+        }
     finally:
         monkeypatch.undo()
 
@@ -106,13 +113,16 @@ def test_cross_cpu_difference_is_flagged_and_only_flagged_windows_flip(monkeypat
             def perturbed(c):
                 noise = rng.standard_normal(c.shape) * 1e-15
                 return sanitize(c) * (1.0 + (noise + noise.transpose(0, 2, 1)) / 2)
+
             return perturbed
+
         return wrap
 
     def perturb_pi(seed):
         rng = np.random.default_rng(seed)
-        return lambda information: lambda *args: (lambda pi: pi * (1 + 1e-15 * rng.standard_normal(pi.shape)))(
-            information(*args))
+        return lambda information: (
+            lambda *args: (lambda pi: pi * (1 + 1e-15 * rng.standard_normal(pi.shape)))(information(*args))
+        )
 
     flips = [flipped_windows(windows, monkeypatch, "_sanitize", perturb_information(seed)) for seed in range(8)]
     flips += [flipped_windows(windows, monkeypatch, "_information", perturb_pi(seed)) for seed in range(2)]

@@ -18,9 +18,10 @@ import json
 
 import numpy as np
 import pytest
+from conftest import SHARED_DIR
+from helpers.slam import config_backend
 from scipy.spatial.transform import Rotation
 
-from conftest import SHARED_DIR
 from msa_slam.backend import PoseGraph
 from msa_slam.descriptors import make_descriptor
 from msa_slam.errors import InputError
@@ -29,7 +30,6 @@ from msa_slam.pipeline.config import apply_params, make_config
 from msa_slam.registration import KeyframeCloudStore
 from msa_slam.sampling import make_sampler, sampler_parameters
 from msa_slam.sampling.registry import SAMPLERS
-from helpers.slam import config_backend
 from msa_slam.slam.backend import STANDSTILL_GATE, slam_sampler_params
 
 STANDSTILL = 1000
@@ -94,8 +94,11 @@ def test_a_1000_frame_standstill_makes_no_keyframe_with_the_gate():
     assert len(ungated.online_keyframes) > STANDSTILL // 20  # the problem the gate solves
     gated = make_sampler("msa", window=10, **GATE)
     sizes = []
-    with pytest.warns(UserWarning, match=r"never filled in 1000 frames \(only 1 moved at least 0\.01 m from the "
-                                         r"member before them; the standstill gate held back 999 that moved < 0\.1 m\)"):
+    with pytest.warns(
+        UserWarning,
+        match=r"never filled in 1000 frames \(only 1 moved at least 0\.01 m from the "
+        r"member before them; the standstill gate held back 999 that moved < 0\.1 m\)",
+    ):
         for pose, descriptor in zip(poses, descriptors):
             gated.push(pose, descriptor)
             sizes.append(gated.nbytes)
@@ -106,8 +109,16 @@ def test_a_1000_frame_standstill_makes_no_keyframe_with_the_gate():
     assert ungated.nbytes > gated.nbytes
 
 
-@pytest.mark.parametrize("name, params", [("msa", {"window": 10}), ("msa", {"window": 8, "mode": "fast"}),
-                                          ("constant", {"distance": 0.02}), ("entropy", {}), ("spaciousness", {})])
+@pytest.mark.parametrize(
+    "name, params",
+    [
+        ("msa", {"window": 10}),
+        ("msa", {"window": 8, "mode": "fast"}),
+        ("constant", {"distance": 0.02}),
+        ("entropy", {}),
+        ("spaciousness", {}),
+    ],
+)
 def test_a_stop_between_drives_is_as_if_it_had_not_happened(name, params):
     """Drive, stand 1,000 frames, drive on: the gated sampler's keyframes are those of the sampler run on the
     drives alone (standstill frames removed, indices mapped back), and its accounted bytes are the same at the
@@ -122,17 +133,20 @@ def test_a_stop_between_drives_is_as_if_it_had_not_happened(name, params):
         if i in (stop.start, stop.stop - 1):
             sizes[i] = gated.nbytes
     gated.finish()
-    moving = np.r_[0:stop.start, stop.stop:len(poses)]
-    alone = make_sampler(name, **params).run(poses[moving], descriptors[moving], [clouds[i] for i in moving],
-                                             flush=True)
+    moving = np.r_[0 : stop.start, stop.stop : len(poses)]
+    alone = make_sampler(name, **params).run(
+        poses[moving], descriptors[moving], [clouds[i] for i in moving], flush=True
+    )
     assert gated.keyframes == [int(moving[k]) for k in alone]
     assert not set(gated.keyframes) & set(range(stop.start, stop.stop))
     assert gated.stats.standstill_frames == STANDSTILL
     assert sizes[stop.start] == sizes[stop.stop - 1]
 
 
-@pytest.mark.parametrize("name, params", [("msa", {"window": 10}), ("constant", {"distance": 2.0}),
-                                          ("entropy", {}), ("spaciousness", {}), ("all", {})])
+@pytest.mark.parametrize(
+    "name, params",
+    [("msa", {"window": 10}), ("constant", {"distance": 2.0}), ("entropy", {}), ("spaciousness", {}), ("all", {})],
+)
 def test_moving_streams_keep_their_keyframes(name, params):
     """Every frame moves 0.2-1 m: the gate holds back nothing and the keyframes are those without it."""
     rng = np.random.default_rng(3)
@@ -186,17 +200,23 @@ def test_the_slam_core_gates_every_sampler_but_all():
     assert all({"min_motion", "min_rotation"} <= set(sampler_parameters(name)) for name in SAMPLERS)
 
 
-@pytest.mark.parametrize("params, message", [
-    ({"min_motion": -0.1}, r"min_motion=-0\.1 is not allowed; expected a finite number >= 0"),
-    ({"min_motion": float("nan")}, r"min_motion=nan is not allowed"),
-    ({"min_motion": "0.1"}, r"min_motion='0\.1' is not allowed"),
-    ({"min_motion": True}, r"min_motion=True is not allowed"),
-    ({"min_motion": 0.1, "min_rotation": 180}, r"min_rotation=180 is not allowed; expected a finite number >= 0 "
-                                               r"and < 180"),
-    ({"min_motion": 0.1, "min_rotation": -1}, r"min_rotation=-1 is not allowed"),
-    ({"min_rotation": 0.5}, r"min_rotation=0\.5 needs min_motion > 0"),
-    ({"min_motoin": 0.1}, r"unknown parameter\(s\) min_motoin; it takes: .*min_motion=0\.0, min_rotation=0\.0"),
-])
+@pytest.mark.parametrize(
+    "params, message",
+    [
+        ({"min_motion": -0.1}, r"min_motion=-0\.1 is not allowed; expected a finite number >= 0"),
+        ({"min_motion": float("nan")}, r"min_motion=nan is not allowed"),
+        ({"min_motion": "0.1"}, r"min_motion='0\.1' is not allowed"),
+        ({"min_motion": True}, r"min_motion=True is not allowed"),
+        (
+            {"min_motion": 0.1, "min_rotation": 180},
+            r"min_rotation=180 is not allowed; expected a finite number >= 0 "
+            r"and < 180",
+        ),
+        ({"min_motion": 0.1, "min_rotation": -1}, r"min_rotation=-1 is not allowed"),
+        ({"min_rotation": 0.5}, r"min_rotation=0\.5 needs min_motion > 0"),
+        ({"min_motoin": 0.1}, r"unknown parameter\(s\) min_motoin; it takes: .*min_motion=0\.0, min_rotation=0\.0"),
+    ],
+)
 @pytest.mark.parametrize("name", ["msa", "constant", "all"])
 def test_bad_gate_values_are_refused_naming_them(name, params, message):
     with pytest.raises(InputError, match=f"sampler '{name}': " + message):
@@ -206,8 +226,14 @@ def test_bad_gate_values_are_refused_naming_them(name, params, message):
 def _backend(sampler: str, frames: int, **params):
     config = make_config(dataset="unused", sampler=sampler, sampler_params=params, mode="realistic")
     descriptor = make_descriptor("sc")
-    return config_backend(config, descriptor, KeyframeCloudStore(config.verifier.voxel_size),
-                          PoseGraph(config.graph, mode=config.mode), frames, "standstill")
+    return config_backend(
+        config,
+        descriptor,
+        KeyframeCloudStore(config.verifier.voxel_size),
+        PoseGraph(config.graph, mode=config.mode),
+        frames,
+        "standstill",
+    )
 
 
 def test_the_slam_cores_accounted_memory_does_not_grow_while_standing_still():
@@ -223,11 +249,14 @@ def test_the_slam_cores_accounted_memory_does_not_grow_while_standing_still():
         cloud = (world - pose[:3, 3]) @ pose[:3, :3]
         backend.add_frame(pose, descriptors[i].astype(np.float32), cloud, pose, 0.1 * i)
         if i in (stop.start, stop.stop - 1):
-            memory[i] = {**backend.memory_bytes(), "pending": backend.pending_bytes,
-                         "sampler": backend.sampler.nbytes}
+            memory[i] = {**backend.memory_bytes(), "pending": backend.pending_bytes, "sampler": backend.sampler.nbytes}
     before, after = memory[stop.start], memory[stop.stop - 1]
-    per_frame = (backend.odometry[0].nbytes + backend.gt[0].nbytes + backend.times.itemsize
-                 + sum(v.itemsize for v in backend.steps_ms.values()))  # 284 bytes: pose, ground truth, times
+    per_frame = (
+        backend.odometry[0].nbytes
+        + backend.gt[0].nbytes
+        + backend.times.itemsize
+        + sum(v.itemsize for v in backend.steps_ms.values())
+    )  # 284 bytes: pose, ground truth, times
     assert after.pop("record_bytes") - before.pop("record_bytes") == (STANDSTILL - 1) * per_frame
     assert after == before
     result = backend.finish()

@@ -29,5 +29,8 @@ def test_load_kernels_runs_each_setting_once_per_process(monkeypatch):
     warm.load_kernels("msa", {"window": 12, "mode": "fast"}, (256,))
     warm.load_kernels("msa", {"window": 12, "mode": "fast"}, (20, 60))
     warm.load_kernels("constant", {"distance": 2.0}, (256,))
-    assert runs == [({"window": 12, "mode": "exact"}, (256,)), ({"window": 12, "mode": "fast"}, (256,)),
-                    ({"window": 12, "mode": "fast"}, (20, 60))]
+    assert runs == [
+        ({"window": 12, "mode": "exact"}, (256,)),
+        ({"window": 12, "mode": "fast"}, (256,)),
+        ({"window": 12, "mode": "fast"}, (20, 60)),
+    ]

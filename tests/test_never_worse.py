@@ -5,10 +5,10 @@ realistic mode, and "ATE before" is the same number for every sampler."""
 from __future__ import annotations
 
 import pytest
-
-from msa_slam.pipeline import make_config, prepare_frontend, run
-from msa_slam.experiments.compare import method_configs
 from helpers.metrics import metrics_json
+
+from msa_slam.experiments.compare import method_configs
+from msa_slam.pipeline import make_config, prepare_frontend, run
 
 MAX_WORSENING = 0.05  # the issue's bound, relative to the odometry's full-rate ATE
 # Rotation ATE on sim:test is ~0.1 deg; below this absolute change it is registration noise, not a regression.

@@ -5,18 +5,19 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.metrics import metrics_json
 
 from msa_slam.errors import InputError
 from msa_slam.pipeline import LiveFrontEnd, run
 from msa_slam.pipeline.config import make_online_config
 from msa_slam.sources import open_source
-from helpers.metrics import metrics_json
 
 
 def test_online_without_ground_truth_reports_na(scans_only):
     folder, poses = scans_only
-    config = make_online_config(dataset=str(folder), mode="realistic", odometry=str(poses), sampler="constant",
-                                sampler_params={"distance": 1.0})
+    config = make_online_config(
+        dataset=str(folder), mode="realistic", odometry=str(poses), sampler="constant", sampler_params={"distance": 1.0}
+    )
     source = open_source(config.dataset, mode=config.mode)
     assert source.gt_poses is None and len(source) == 90
     result = run(config, LiveFrontEnd(source))
@@ -53,8 +54,22 @@ def test_cli_commands_write_results_without_ground_truth(command, scans_only, tm
     folder, poses = scans_only
     out = tmp_path / command
     extra = [] if command == "compare" else ["--sampler", "constant", "-p", "distance=1.0"]
-    result = CliRunner().invoke(app, [command, "--dataset", str(folder), "--mode", "realistic", "--odometry",
-                                      str(poses), *extra, "--out", str(out), "--quiet"])
+    result = CliRunner().invoke(
+        app,
+        [
+            command,
+            "--dataset",
+            str(folder),
+            "--mode",
+            "realistic",
+            "--odometry",
+            str(poses),
+            *extra,
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+    )
     assert result.exit_code == 0, result.output
     run = out / "runs" / "msa" if command == "compare" else out
     metrics = json.loads((run / "metrics.json").read_text())

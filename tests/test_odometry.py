@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.poses import pose_error
+from helpers.scans import scan_points
 from scipy.spatial.transform import Rotation
 
 from msa_slam.datasets import folder_sequence
@@ -11,8 +13,6 @@ from msa_slam.errors import InputError
 from msa_slam.io.poses import write_poses
 from msa_slam.odometry import KissOdometry, OdometryCache, PosesFromFile, sequence_odometry
 from msa_slam.registration import Verifier
-from helpers.poses import pose_error
-from helpers.scans import scan_points
 
 
 def test_kiss_icp_agrees_with_gicp_on_real_scans():
@@ -36,7 +36,7 @@ def test_kiss_icp_recovers_known_motion_of_a_real_scan():
     odometry = KissOdometry(max_range=60.0)
     truth = np.eye(4)
     for k in range(4):
-        sensor_points = (cloud[k % 2::2] - truth[:3, 3]) @ truth[:3, :3]  # world points seen from `truth`
+        sensor_points = (cloud[k % 2 :: 2] - truth[:3, 3]) @ truth[:3, :3]  # world points seen from `truth`
         pose = odometry.register(sensor_points)
         trans, rot = pose_error(pose, truth)
         assert trans < 0.05 and rot < 0.1, f"frame {k}: {trans:.3f} m, {rot:.3f} deg"
@@ -84,8 +84,9 @@ def test_pose_file_odometry_follows_the_scan_selection(tmp_path):
     part = make_odometry(make_config(dataset="sim:test", odometry=str(tmp_path / "part.txt"), source=selection), 3)
     assert [part.register()[0, 3] for _ in range(3)] == [2.0, 5.0, 8.0]
     with pytest.raises(InputError, match=r"odom.txt: 10 poses but the run reads 4 scans \(scans 2, 5, \.\.\. 11"):
-        make_odometry(make_config(dataset="sim:test", odometry=str(tmp_path / "odom.txt"),
-                                  source={**selection, "frames": 4}), 4)
+        make_odometry(
+            make_config(dataset="sim:test", odometry=str(tmp_path / "odom.txt"), source={**selection, "frames": 4}), 4
+        )
 
 
 class _CountingOdometry:
@@ -159,7 +160,8 @@ def test_a_cached_run_knows_the_frames_kiss_icp_could_not_register(tmp_path):
     np.testing.assert_array_equal(again, poses)
     assert replayed.unregistered_warning(3) == [
         "odometry: KISS-ICP could not register 1 of 3 frames (frame 1): fewer than 3 of their points lie within "
-        "0-50 m, so their poses were extrapolated at constant velocity"]
+        "0-50 m, so their poses were extrapolated at constant velocity"
+    ]
     assert KissOdometry().unregistered_warning(3) == []
     key = OdometryCache.key(folder_sequence(folder), fresh.config)
     cache.store.path(f"unregistered-{key}").unlink()

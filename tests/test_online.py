@@ -11,6 +11,7 @@ import tempfile
 
 import numpy as np
 import pytest
+from helpers.metrics import metrics_json
 from typer.testing import CliRunner
 
 from msa_slam.cli import app
@@ -18,16 +19,14 @@ from msa_slam.datasets import Frame, SourceOptions
 from msa_slam.descriptors import make_descriptor
 from msa_slam.errors import InputError
 from msa_slam.io.staging import WRITER
-from msa_slam.pipeline.live import STEPS
+from msa_slam.odometry import NoisyOdometry
 from msa_slam.pipeline import LiveFrontEnd, run
 from msa_slam.pipeline.config import make_online_config
-from msa_slam.odometry import NoisyOdometry
-from msa_slam.sources import open_source
-from msa_slam.registration import DiskCloudStore
-from msa_slam.types import FrameSource
-from msa_slam.registration import downsample
+from msa_slam.pipeline.live import STEPS
+from msa_slam.registration import DiskCloudStore, downsample
 from msa_slam.sampling import make_sampler
-from helpers.metrics import metrics_json
+from msa_slam.sources import open_source
+from msa_slam.types import FrameSource
 
 EIGHT = "live:figure-eight,stride=2,azimuth_steps=360,realism=clean"
 COARSE = "live:figure-eight,stride=4,azimuth_steps=180,realism=clean"
@@ -44,8 +43,11 @@ def msa_run():
 def coarse_runs(tmp_path_factory):
     store = tmp_path_factory.mktemp("store")
     base = dict(dataset=COARSE, odometry="gt-noise", odometry_params=NOISE, sampler="all", min_frame_gap=20)
-    return (run(make_online_config(base)),
-            run(make_online_config(base, cloud_store="disk", store_dir=str(store))), store)
+    return (
+        run(make_online_config(base)),
+        run(make_online_config(base, cloud_store="disk", store_dir=str(store))),
+        store,
+    )
 
 
 def test_online_msa_finds_loops_and_reduces_ate(msa_run):
@@ -130,16 +132,22 @@ def test_pending_scans_stay_bounded_while_standing_still():
     data stays within a window of scans, and the keyframes are those of the sampler run on its own."""
     window = 10
     source, scans, order = _pausing_source(pause=300)
-    cfg = make_online_config(dataset=COARSE, odometry="gt-noise", sampler="msa", sampler_params={"window": window},
-                             odometry_params={"translation_noise": 0.0, "rotation_noise_deg": 0.0})
+    cfg = make_online_config(
+        dataset=COARSE,
+        odometry="gt-noise",
+        sampler="msa",
+        sampler_params={"window": window},
+        odometry_params={"translation_noise": 0.0, "rotation_noise_deg": 0.0},
+    )
     result = run(cfg, LiveFrontEnd(source))
     descriptor = make_descriptor(cfg.descriptor, **cfg.descriptor_params)
     descriptors = [np.asarray(descriptor.compute(s.points, frame=k), dtype=np.float64) for k, s in enumerate(scans)]
     largest_scan = max(s.points.nbytes for s in scans) + descriptors[0].nbytes
     pending = result.memory["pending_bytes"]
     assert pending.max() > 0 and pending.max() <= (window + 1) * largest_scan
-    alone = make_sampler("msa", window=window).run(source.gt_poses, np.stack([descriptors[k] for k in order]),
-                                                   flush=True)
+    alone = make_sampler("msa", window=window).run(
+        source.gt_poses, np.stack([descriptors[k] for k in order]), flush=True
+    )
     assert result.keyframes.tolist() == sorted(alone) and result.keyframes[-1] > 300
 
 
@@ -175,10 +183,17 @@ def test_online_run_removes_its_cloud_folder_even_when_it_fails(tmp_path, monkey
 def test_stale_cloud_folders_of_ended_runs_are_removed(tmp_path):
     ended = subprocess.Popen([sys.executable, "-c", "pass"])
     ended.wait()
-    stale, live, foreign = (tmp_path / f"msa-kf-clouds-{ended.pid}-a", tmp_path / f"msa-kf-clouds-{os.getpid()}-b",
-                            tmp_path / f"msa-kf-clouds-{ended.pid}-c")
-    for folder, name in ((stale, "kf_3.npy"), (stale, ".kf_4.npy.x1y2.tmp"), (live, "kf_3.npy"),
-                         (foreign, "thesis.tex")):
+    stale, live, foreign = (
+        tmp_path / f"msa-kf-clouds-{ended.pid}-a",
+        tmp_path / f"msa-kf-clouds-{os.getpid()}-b",
+        tmp_path / f"msa-kf-clouds-{ended.pid}-c",
+    )
+    for folder, name in (
+        (stale, "kf_3.npy"),
+        (stale, ".kf_4.npy.x1y2.tmp"),
+        (live, "kf_3.npy"),
+        (foreign, "thesis.tex"),
+    ):
         folder.mkdir(exist_ok=True)
         (folder / name).write_bytes(b"x")
     (tmp_path / "notes.txt").write_text("mine")
@@ -199,7 +214,7 @@ def test_live_source_laps_drive_back_and_forth():
     one = open_source(COARSE)
     three = open_source(COARSE + ",laps=3")
     assert len(three) == 3 * len(one) and three.name.endswith("-x3")
-    np.testing.assert_array_equal(three.gt_poses[len(one):2 * len(one)], one.gt_poses[::-1])
+    np.testing.assert_array_equal(three.gt_poses[len(one) : 2 * len(one)], one.gt_poses[::-1])
     steps = np.linalg.norm(np.diff(three.gt_poses[:, :3, 3], axis=0), axis=1)
     assert steps.max() < 3 * np.median(steps)  # continuous path: no jump between passes
     frame = next(iter(three.frames()))
@@ -211,17 +226,21 @@ def test_noisy_odometry_is_exact_without_noise_and_seeded_with_it():
     exact = NoisyOdometry(gt, 0.0, 0.0)
     np.testing.assert_allclose(np.stack([exact.register() for _ in range(30)]), gt, atol=1e-9)
     a, b = NoisyOdometry(gt, seed=3), NoisyOdometry(gt, seed=3)
-    np.testing.assert_array_equal(np.stack([a.register() for _ in range(30)]),
-                                  np.stack([b.register() for _ in range(30)]))
+    np.testing.assert_array_equal(
+        np.stack([a.register() for _ in range(30)]), np.stack([b.register() for _ in range(30)])
+    )
     with pytest.raises(InputError, match="frame 30 requested"):
         a.register()
 
 
-@pytest.mark.parametrize("data, message", [
-    ({"dataset": EIGHT, "clouds": "disk"}, "unknown key 'clouds'; valid keys: .*cloud_store"),
-    ({"dataset": EIGHT, "cloud_store": "ssd"}, "cloud_store"),
-    ({"dataset": EIGHT, "verifier": {"gate": 1}}, "unknown key 'verifier.gate'; valid keys: voxel_size"),
-])
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        ({"dataset": EIGHT, "clouds": "disk"}, "unknown key 'clouds'; valid keys: .*cloud_store"),
+        ({"dataset": EIGHT, "cloud_store": "ssd"}, "cloud_store"),
+        ({"dataset": EIGHT, "verifier": {"gate": 1}}, "unknown key 'verifier.gate'; valid keys: voxel_size"),
+    ],
+)
 def test_online_config_errors(data, message):
     with pytest.raises(InputError, match=message):
         make_online_config(data)
@@ -232,11 +251,17 @@ def test_bad_sources_and_odometry_parameters():
         open_source("live:figure-eight,laps=0")
     with pytest.raises(InputError, match="unknown simulated sequence 'moon-walk'"):
         open_source("live:moon-walk")
-    with pytest.raises(InputError, match=r"^dataset 'live:figure-eight': --first applies to recordings, not to a live: "
-                                         r"source .*start=, end=, stride=.*-p max_frames=N$"):
+    with pytest.raises(
+        InputError,
+        match=r"^dataset 'live:figure-eight': --first applies to recordings, not to a live: "
+        r"source .*start=, end=, stride=.*-p max_frames=N$",
+    ):
         open_source("live:figure-eight", source=SourceOptions(first=100))
-    with pytest.raises(InputError, match=r"^dataset 'live:figure-eight': --loader, --gt, --jump, -n apply to "
-                                         r"recordings"):
+    with pytest.raises(
+        InputError,
+        match=r"^dataset 'live:figure-eight': --loader, --gt, --jump, -n apply to "
+        r"recordings",
+    ):
         open_source("live:figure-eight", "kitti", source=SourceOptions(gt="poses.txt", jump=2, frames=9))
     cfg = make_online_config(dataset=COARSE, odometry="gt-noise", odometry_params={"drift": 1})
     with pytest.raises(InputError, match="translation_noise, rotation_noise_deg"):
@@ -245,9 +270,27 @@ def test_bad_sources_and_odometry_parameters():
 
 def test_online_cli_writes_result_folder(tmp_path):
     out = tmp_path / "run"
-    result = CliRunner().invoke(app, ["online", "-d", COARSE, "--odometry", "gt-noise", "-p", "min_frame_gap=20",
-                                      "-p", "odometry.translation_noise=0.02", "--sampler", "constant",
-                                      "-p", "distance=2.0", "--out", str(out), "--quiet"])
+    result = CliRunner().invoke(
+        app,
+        [
+            "online",
+            "-d",
+            COARSE,
+            "--odometry",
+            "gt-noise",
+            "-p",
+            "min_frame_gap=20",
+            "-p",
+            "odometry.translation_noise=0.02",
+            "--sampler",
+            "constant",
+            "-p",
+            "distance=2.0",
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+    )
     assert result.exit_code == 0, result.output
     assert (out / "report.md").is_file() and str(out / "report.md") in result.output
     lines = (out / "steps.csv").read_text().splitlines()
@@ -262,8 +305,13 @@ def test_online_cli_writes_result_folder(tmp_path):
 def test_long_tour_keeps_memory_bounded(tmp_path):
     """Three passes over the 2.2 km city tour (~3,900 scans): clouds on disk, so RSS grows only by the
     per-keyframe bookkeeping (descriptor, pose, graph), not by the clouds."""
-    cfg = make_online_config(dataset="live:city-tour,stride=2,azimuth_steps=360,laps=3", odometry="gt-noise",
-                             sampler="msa", cloud_store="disk", store_dir=str(tmp_path))
+    cfg = make_online_config(
+        dataset="live:city-tour,stride=2,azimuth_steps=360,laps=3",
+        odometry="gt-noise",
+        sampler="msa",
+        cloud_store="disk",
+        store_dir=str(tmp_path),
+    )
     r = run(cfg)
     m, mem = metrics_json(r), r.memory
     assert m["verified"] > 50 and m["false_loops"] == 0
@@ -282,8 +330,9 @@ def test_online_trajectories_carry_the_frames_own_times(tmp_path):
     scans = [f for _, f in zip(range(40), open_source(COARSE).frames())]
     times = 100.0 + 0.1 * np.arange(40) + 0.03 * (np.arange(40) % 2)  # irregular, not starting at 0
     gt = np.stack([s.gt_pose for s in scans])
-    source = FrameSource("timed", gt, lambda: (Frame(i, t, s.points, s.gt_pose) for i, (t, s) in
-                                                enumerate(zip(times, scans))))
+    source = FrameSource(
+        "timed", gt, lambda: (Frame(i, t, s.points, s.gt_pose) for i, (t, s) in enumerate(zip(times, scans)))
+    )
     cfg = make_online_config(dataset=COARSE, odometry="gt-noise", sampler="constant", sampler_params={"distance": 1.0})
     result = run(cfg, LiveFrontEnd(source))
     write_run_files(result, tmp_path, figures=False)
@@ -298,8 +347,9 @@ def test_online_samples_on_ground_truth_when_asked():
     frames = [f for _, f in zip(range(60), open_source(COARSE).frames())]
     source = FrameSource("first-60", np.stack([f.gt_pose for f in frames]), lambda: iter(frames))
     noisy = {"translation_noise": 0.3, "rotation_noise_deg": 2.0}
-    cfg = make_online_config(dataset=COARSE, odometry="gt-noise", odometry_params=noisy, sampler="constant",
-                             sampler_params={"distance": 2.0})
+    cfg = make_online_config(
+        dataset=COARSE, odometry="gt-noise", odometry_params=noisy, sampler="constant", sampler_params={"distance": 2.0}
+    )
     expected = sorted(make_sampler("constant", distance=2.0).run(source.gt_poses, None, flush=True))
     on_gt = run(cfg.model_copy(update={"sample_on": "gt"}), LiveFrontEnd(source))
     on_odometry = run(cfg, LiveFrontEnd(source))

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
+from helpers.metrics import metrics_json
 
 from msa_slam.datasets import Frame
 from msa_slam.pipeline import LiveFrontEnd, run
 from msa_slam.pipeline.config import make_online_config
 from msa_slam.sources import open_source
 from msa_slam.types import FrameSource
-from helpers.metrics import metrics_json
 
 COARSE = "live:figure-eight,stride=4,azimuth_steps=180,realism=clean"
 

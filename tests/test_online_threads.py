@@ -12,16 +12,16 @@ import subprocess
 import sys
 
 import yaml
+from helpers.metrics import metrics_json
+from test_real_inputs_times import _kitti
 
 from msa_slam.evaluation.metrics import Deskew, RunSetup
 from msa_slam.evaluation.metrics_json import from_json
-from msa_slam.pipeline.live import threads_note, with_odometry_threads
 from msa_slam.pipeline import run
 from msa_slam.pipeline.config import NOT_REPRODUCIBLE, make_online_config
+from msa_slam.pipeline.live import threads_note, with_odometry_threads
 from msa_slam.reporting.report import threads_text
 from msa_slam.workers import available_cpus
-from test_real_inputs_times import _kitti
-from helpers.metrics import metrics_json
 
 COARSE = "live:figure-eight,stride=4,azimuth_steps=180,realism=clean"
 CLI = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
@@ -29,9 +29,27 @@ CLI = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.a
 
 def test_live_source_uses_every_core_and_says_it_is_not_reproducible(tmp_path):
     out = tmp_path / "live"
-    done = subprocess.run([sys.executable, "-c", CLI, "online", "-d", COARSE, "--sampler", "all",
-                           "-p", "max_frames=12", "--cache-dir", str(tmp_path / "cache"),
-                           "--out", str(out)], capture_output=True, text=True, timeout=600)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            CLI,
+            "online",
+            "-d",
+            COARSE,
+            "--sampler",
+            "all",
+            "-p",
+            "max_frames=12",
+            "--cache-dir",
+            str(tmp_path / "cache"),
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert done.returncode == 0, done.stderr
     metrics = json.loads((out / "metrics.json").read_text())
     cores = available_cpus()
@@ -40,12 +58,13 @@ def test_live_source_uses_every_core_and_says_it_is_not_reproducible(tmp_path):
     assert f"(odometry: {cores} thread" in done.stderr  # the progress label
     noted = [w for w in metrics["warnings"] if NOT_REPRODUCIBLE in w]
     assert noted == threads_note(cores) and (noted != []) == (cores > 1)
-    assert threads_text(from_json(metrics, 'metrics.json').setup) in (out / "report.md").read_text()
+    assert threads_text(from_json(metrics, "metrics.json").setup) in (out / "report.md").read_text()
 
 
 def test_recorded_source_runs_on_one_thread(tmp_path):
-    config = make_online_config(dataset=str(_kitti(tmp_path / "seq")), sampler="all", mode="realistic",
-                                cache_dir=str(tmp_path / "cache"))
+    config = make_online_config(
+        dataset=str(_kitti(tmp_path / "seq")), sampler="all", mode="realistic", cache_dir=str(tmp_path / "cache")
+    )
     result = run(config)
     assert metrics_json(result)["threads"] == {"odometry": 1, "verification": 1, "blas_backend": 1}
     assert "num_threads" not in result.config.odometry_params  # the default, as before
@@ -54,8 +73,7 @@ def test_recorded_source_runs_on_one_thread(tmp_path):
 
 
 def test_explicit_thread_count_wins_on_a_live_source():
-    config = make_online_config(dataset=COARSE, sampler="all", max_frames=12,
-                                odometry_params={"num_threads": 1})
+    config = make_online_config(dataset=COARSE, sampler="all", max_frames=12, odometry_params={"num_threads": 1})
     result = run(config)
     assert metrics_json(result)["threads"]["odometry"] == 1 and result.config.odometry_params["num_threads"] == 1
     assert not [w for w in metrics_json(result)["warnings"] if NOT_REPRODUCIBLE in w]

@@ -13,8 +13,7 @@ from typer.testing import CliRunner
 
 from msa_slam.cli import app
 from msa_slam.errors import InputError
-from msa_slam.io.outputs import (MARKER, OutputError, is_result_folder, open_result_folder, staged_dir,
-                                 write_marker)
+from msa_slam.io.outputs import MARKER, OutputError, is_result_folder, open_result_folder, staged_dir, write_marker
 from msa_slam.io.staging import WRITER, stamp
 
 runner = CliRunner()
@@ -47,20 +46,26 @@ def stream(tmp_path: Path) -> tuple[Path, Path]:
 
 def sample(stream, *extra) -> object:
     poses, desc = stream
-    return runner.invoke(app, ["sample", "--poses", str(poses), "--descriptors", str(desc), "-p", "window=5",
-                               "--quiet", *map(str, extra)])
+    return runner.invoke(
+        app,
+        ["sample", "--poses", str(poses), "--descriptors", str(desc), "-p", "window=5", "--quiet", *map(str, extra)],
+    )
 
 
-@pytest.mark.parametrize("command", [
-    ["run", "--dataset", "sim:test"],
-    ["compare", "--dataset", "sim:test"],
-    ["online", "--dataset", "sim:test"],
-    ["demo"],
-])
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["run", "--dataset", "sim:test"],
+        ["compare", "--dataset", "sim:test"],
+        ["online", "--dataset", "sim:test"],
+        ["demo"],
+    ],
+)
 def test_pipeline_commands_refuse_a_user_folder_before_any_work(command, user_folder, tmp_path):
     before = tree(user_folder)
-    result = runner.invoke(app, [*command, "--out", str(user_folder), "--cache-dir", str(tmp_path / "cache"),
-                                 "--quiet"])
+    result = runner.invoke(
+        app, [*command, "--out", str(user_folder), "--cache-dir", str(tmp_path / "cache"), "--quiet"]
+    )
     assert isinstance(result.exception, OutputError), result.output
     assert "is not a msa-slam result folder" in str(result.exception)
     assert tree(user_folder) == before
@@ -226,16 +231,22 @@ def test_a_folder_grown_in_place_never_takes_a_users_files_or_edits_for_its_own(
     (out / "cells" / "c").mkdir()
     (out / "cells" / "c" / "cell.json").write_text("{}")  # a cell a killed run finished (not listed yet)
     _grow(out, tmp_path, {"b": "second"})  # a resume: lists its new cell and the killed run's, nothing else
-    with pytest.raises(OutputError, match=r"holds files msa-slam did not write \(cells/a/mine.txt, "
-                                          r"cells/mine/notes.txt\)"):
+    with pytest.raises(
+        OutputError,
+        match=r"holds files msa-slam did not write \(cells/a/mine.txt, "
+        r"cells/mine/notes.txt\)",
+    ):
         _grow(out, tmp_path, {}, overwrite=True)
     (out / "cells" / "a" / "mine.txt").unlink()
     (out / "cells" / "mine" / "notes.txt").unlink()
     (out / "cells" / "mine").rmdir()  # even empty, it would keep an --overwrite off (test_..._empty_user_folder)
     (out / "report.md").write_text("my notes\n")
     before = tree(out)
-    with pytest.raises(OutputError, match=r"holds files changed since msa-slam wrote them \(report.md\); this run "
-                                          r"would replace them"):
+    with pytest.raises(
+        OutputError,
+        match=r"holds files changed since msa-slam wrote them \(report.md\); this run "
+        r"would replace them",
+    ):
         _grow(out, tmp_path, {"d": "third"})  # a plain rerun would have replaced report.md
     assert tree(out) == before
     (out / "report.md").write_text("cells: ['a', 'b', 'c', 'mine']\n")
@@ -258,8 +269,11 @@ def test_a_run_writing_the_folder_is_named_before_its_half_written_files(tmp_pat
         (out / "cells" / "b" / "x.txt").write_text("half")  # its unit, not listed yet
         (out / "report.md").write_text("being rewritten\n")  # its report, not recorded yet
         before = tree(out)
-        with pytest.raises(OutputError, match=r"exp: another msa-slam run is writing this output folder; wait for "
-                                              r"it or choose another --out"):
+        with pytest.raises(
+            OutputError,
+            match=r"exp: another msa-slam run is writing this output folder; wait for "
+            r"it or choose another --out",
+        ):
             with open_result_folder(out, "experiment", tmp_path, overwrite=overwrite, resume=resume):
                 pass
         assert tree(out) == before

@@ -14,10 +14,10 @@ import gtsam
 import numpy as np
 import pytest
 import trimesh
+from helpers.results import stable_content
 from scipy.integrate import trapezoid
 from typer.testing import CliRunner
 
-from helpers.results import stable_content
 from msa_slam.cli import app
 from msa_slam.io.ply import write_ply
 from msa_slam.io.poses import read_poses
@@ -27,9 +27,25 @@ DOCS = Path(__file__).resolve().parents[1] / "docs" / "metrics.md"
 
 
 def _run(command: str, sequence, odometry_file, cache_dir, out: Path) -> Path:
-    result = runner.invoke(app, [command, "--dataset", str(sequence), "--odometry", str(odometry_file),
-                                 "--descriptor", "sc", "--mode", "oracle", "--cache-dir", str(cache_dir),
-                                 "--out", str(out), "--quiet"])
+    result = runner.invoke(
+        app,
+        [
+            command,
+            "--dataset",
+            str(sequence),
+            "--odometry",
+            str(odometry_file),
+            "--descriptor",
+            "sc",
+            "--mode",
+            "oracle",
+            "--cache-dir",
+            str(cache_dir),
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+    )
     assert result.exit_code == 0, result.output
     return out
 
@@ -66,14 +82,18 @@ def test_write_ply_gives_float32_vertices_other_readers_open(tmp_path, count):
     points = np.random.default_rng(count).normal(size=(count, 4)) * 50  # a fourth column (intensity) is left out
     write_ply(tmp_path / "map.ply", points)
     raw = (tmp_path / "map.ply").read_bytes()
-    header = (b"ply\nformat binary_little_endian 1.0\ncomment written by msa-slam\nelement vertex %d\n"
-              b"property float x\nproperty float y\nproperty float z\nend_header\n" % count)
+    header = (
+        b"ply\nformat binary_little_endian 1.0\ncomment written by msa-slam\nelement vertex %d\n"
+        b"property float x\nproperty float y\nproperty float z\nend_header\n" % count
+    )
     assert raw.startswith(header)
-    np.testing.assert_array_equal(np.frombuffer(raw[len(header):], "<f4").reshape(-1, 3),
-                                  points[:, :3].astype(np.float32))
+    np.testing.assert_array_equal(
+        np.frombuffer(raw[len(header) :], "<f4").reshape(-1, 3), points[:, :3].astype(np.float32)
+    )
     if count:
-        np.testing.assert_array_equal(np.asarray(trimesh.load(tmp_path / "map.ply").vertices, np.float32),
-                                      points[:, :3].astype(np.float32))
+        np.testing.assert_array_equal(
+            np.asarray(trimesh.load(tmp_path / "map.ply").vertices, np.float32), points[:, :3].astype(np.float32)
+        )
 
 
 def test_map_ply_holds_the_keyframe_clouds_at_their_optimised_poses(batch):
@@ -147,8 +167,18 @@ def test_descriptors_npy_lets_sample_reproduce_the_runs_keyframes(batch, tmp_pat
     metrics = _metrics(batch)
     descriptors = np.load(batch / "descriptors.npy")
     assert len(descriptors) == metrics["frames"]
-    args = ["sample", "--poses", str(batch / "trajectories" / "odometry.kitti"), "--descriptors",
-            str(batch / "descriptors.npy"), "--sampler", metrics["sampler"], "--out", str(tmp_path / "s"), "--quiet"]
+    args = [
+        "sample",
+        "--poses",
+        str(batch / "trajectories" / "odometry.kitti"),
+        "--descriptors",
+        str(batch / "descriptors.npy"),
+        "--sampler",
+        metrics["sampler"],
+        "--out",
+        str(tmp_path / "s"),
+        "--quiet",
+    ]
     if metrics["sampler_stats"]["flushed_keyframes"]:
         args.append("--flush")
     result = runner.invoke(app, args)

@@ -7,11 +7,11 @@ import sys
 
 import numpy as np
 import pytest
-
 from conftest import shared_path
+from helpers.scans import load_scan
+
 from msa_slam.descriptors.range_image import projection_coordinates, range_projection
 from msa_slam.errors import InputError
-from helpers.scans import load_scan
 
 
 @pytest.fixture(scope="module")
@@ -73,7 +73,7 @@ def test_border_tolerance_accepts_only_border_points():
     _, col, _ = projection_coordinates(points)
     assert abs(col[0] - 669.0) <= BORDER_ULPS * np.spacing(np.float32(669.0))
     image = range_projection(points)
-    (r, c), = np.argwhere(image == image[:, 668:670].max())
+    ((r, c),) = np.argwhere(image == image[:, 668:670].max())
     other = image.copy()  # another CPU's outcome: the border point on the other side of column 669
     other[r, c], other[r, 1337 - c] = -1.0, image[r, c]
     assert border_tolerant_mismatches(image, other, points) == []
@@ -156,8 +156,9 @@ def test_compute_from_raw_scan_and_similarity(model, golden):
     d0 = model.compute(load_scan("000000"))
     np.testing.assert_allclose(d0, golden["descriptors"][0], atol=1e-5, rtol=0)
     d1 = golden["descriptors"][1]
-    assert model.similarity(d0, d1) == pytest.approx(1.0 / (1.0 + np.linalg.norm(d0.astype(np.float64) - d1)),
-                                                     rel=1e-12)
+    assert model.similarity(d0, d1) == pytest.approx(
+        1.0 / (1.0 + np.linalg.norm(d0.astype(np.float64) - d1)), rel=1e-12
+    )
     assert model.similarity(d0, d0) == 1.0
     # d0 matches golden[0] only to the network's cross-CPU tolerance (1e-5 above), so compare like with like
     bank = golden["descriptors"][:2]
@@ -226,8 +227,9 @@ def test_published_checkpoint_plain_state_dict_and_converted_file_agree(torch_mo
     from msa_slam.descriptors.overlap_transformer import OverlapTransformer, convert_checkpoint
 
     published = tmp_path / "pretrained_overlap_transformer.pth.tar"
-    torch_mod.save({"epoch": 30, "state_dict": state, "optimizer": {"state": {}, "param_groups": [{"lr": 1e-5}]}},
-                   published)
+    torch_mod.save(
+        {"epoch": 30, "state_dict": state, "optimizer": {"state": {}, "param_groups": [{"lr": 1e-5}]}}, published
+    )
     torch_mod.save(state, tmp_path / "plain.pth")
     torch_mod.save({f"module.{k}": v for k, v in state.items()}, tmp_path / "parallel.pth")
     converted = convert_checkpoint(published, tmp_path / "converted.pth")

@@ -26,9 +26,13 @@ def _write_pcd(path: Path, k: int, mode: str) -> None:
     for axis in "xyz":
         rows[axis] = rng.normal(size=50) * 10
     rows["t"] = np.arange(50) * 1000
-    header = (f"VERSION 0.7\nFIELDS x y z t\nSIZE 4 4 4 4\nTYPE F F F U\nCOUNT 1 1 1 1\nWIDTH 50\nHEIGHT 1\n"
-              f"POINTS 50\nDATA {mode}\n").encode()
-    body = rows.tobytes() if mode == "binary" else "".join(f"{x} {y} {z} {t}\n" for x, y, z, t in rows.tolist()).encode()
+    header = (
+        f"VERSION 0.7\nFIELDS x y z t\nSIZE 4 4 4 4\nTYPE F F F U\nCOUNT 1 1 1 1\nWIDTH 50\nHEIGHT 1\n"
+        f"POINTS 50\nDATA {mode}\n"
+    ).encode()
+    body = (
+        rows.tobytes() if mode == "binary" else "".join(f"{x} {y} {z} {t}\n" for x, y, z, t in rows.tolist()).encode()
+    )
     path.write_bytes(header + body)
 
 
@@ -65,7 +69,13 @@ def test_text_scans_are_told_from_binary_ones_by_their_header(tmp_path):
     (tmp_path / "b.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 0\nend_header\n")
     (tmp_path / "c.bin").write_bytes(bytes(16))
     assert [is_text_scan(tmp_path / name) for name in ("a.pcd", "b.pcd", "a.ply", "b.ply", "c.bin", "none.pcd")] == [
-        True, False, True, False, False, False]
+        True,
+        False,
+        True,
+        False,
+        False,
+        False,
+    ]
 
 
 def test_a_run_parses_each_text_scan_once_and_reads_the_same_frames(tmp_path, parses):
@@ -88,8 +98,13 @@ def test_a_run_parses_each_text_scan_once_and_reads_the_same_frames(tmp_path, pa
 
 
 def test_binary_scans_are_read_directly(tmp_path, parses):
-    sequence = open_sequence(str(_folder(tmp_path, "binary")), "folder", cache_dir=tmp_path / "cache",
-                             source=SourceOptions(first=1), keep_parsed=True)
+    sequence = open_sequence(
+        str(_folder(tmp_path, "binary")),
+        "folder",
+        cache_dir=tmp_path / "cache",
+        source=SourceOptions(first=1),
+        keep_parsed=True,
+    )
     for _ in range(2):
         for i in range(len(sequence)):
             sequence[i]

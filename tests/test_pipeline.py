@@ -14,25 +14,30 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import drifted
+from helpers.metrics import edited, metrics_json
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
-from conftest import drifted
 from msa_slam.cli import app
 from msa_slam.errors import InputError
-from msa_slam.io.poses import read_poses, write_poses
-from msa_slam.experiments.sweep import threshold_sweep
-from msa_slam.pipeline import apply_params, make_config, prepare_frontend, run
 from msa_slam.experiments.compare import run_compare
+from msa_slam.experiments.sweep import threshold_sweep
+from msa_slam.io.poses import read_poses, write_poses
+from msa_slam.pipeline import apply_params, make_config, prepare_frontend, run
 from msa_slam.reporting.comparison import COLUMNS, table_markdown, table_row
 from msa_slam.reporting.results import write_run
-from helpers.metrics import edited, metrics_json
 
 
 @pytest.fixture(scope="session")
 def base(sequence, odometry_file, cache_dir):
-    return make_config(dataset=str(sequence), odometry=str(odometry_file), cache_dir=str(cache_dir),
-                       sampler="constant", sampler_params={"distance": 3.0})
+    return make_config(
+        dataset=str(sequence),
+        odometry=str(odometry_file),
+        cache_dir=str(cache_dir),
+        sampler="constant",
+        sampler_params={"distance": 3.0},
+    )
 
 
 @pytest.fixture(scope="session")
@@ -41,8 +46,12 @@ def frontend(base):
 
 
 # Loose gates and threshold: many candidates, and verification accepts nearly anything it registers.
-PERMISSIVE = {"similarity_threshold": 0.4, "min_travel_m": 0.0, "drift_check": "off",
-              "verifier": {"max_residual": 10.0, "min_inliers": 1, "min_inlier_fraction": 0.0}}
+PERMISSIVE = {
+    "similarity_threshold": 0.4,
+    "min_travel_m": 0.0,
+    "drift_check": "off",
+    "verifier": {"max_residual": 10.0, "min_inliers": 1, "min_inlier_fraction": 0.0},
+}
 
 
 def test_optimisation_reduces_ate_when_loops_exist(base, frontend):
@@ -125,8 +134,9 @@ def test_compare_writes_table(base, frontend, tmp_path):
     assert rows[0]["ate_before_m"] == rows[1]["ate_before_m"] != ""
     assert rows[0]["kf_ate_before_m"] != rows[1]["kf_ate_before_m"]
     pr = list(csv.DictReader(open(folder / "figures" / "pr.csv")))
-    assert {(r["method"], r["protocol"]) for r in pr} == {(m, p) for m in ("constant-3m", "msa")
-                                                          for p in ("paper", "reference")}
+    assert {(r["method"], r["protocol"]) for r in pr} == {
+        (m, p) for m in ("constant-3m", "msa") for p in ("paper", "reference")
+    }
     assert "| method | 0.70 | 0.75 | 0.80 | 0.85 |" in report.read_text()
     assert "| RPE 100-400 m [%] |" in (folder / "comparison.md").read_text() and "100-800" not in report.read_text()
 
@@ -190,8 +200,9 @@ def test_threshold_sweep_replays_the_backend(base, frontend):
     for k in result.keyframes:
         clouds.add(int(k), frontend.sequence[int(k)].points)
     again = replay(result.config, frontend, clouds, result.keyframes, {})
-    assert [(c.query, c.match, c.accepted) for c in again.loops] == [(c.query, c.match, c.accepted)
-                                                                     for c in result.loops]
+    assert [(c.query, c.match, c.accepted) for c in again.loops] == [
+        (c.query, c.match, c.accepted) for c in result.loops
+    ]
     np.testing.assert_allclose(again.optimised, result.optimised, atol=1e-9)
 
 
@@ -238,8 +249,16 @@ def test_mismatched_pose_file_is_rejected(base, odometry_file, tmp_path):
 
 
 def test_apply_params_routes_keys():
-    cfg = apply_params(make_config(dataset="x"), ["lambda_u=5", "verifier.max_residual=0.2", "graph.robust=cauchy",
-                                                   "similarity_threshold=0.7", "odometry.max_range=80"])
+    cfg = apply_params(
+        make_config(dataset="x"),
+        [
+            "lambda_u=5",
+            "verifier.max_residual=0.2",
+            "graph.robust=cauchy",
+            "similarity_threshold=0.7",
+            "odometry.max_range=80",
+        ],
+    )
     assert cfg.sampler_params == {"lambda_u": 5}
     assert cfg.verifier.max_residual == 0.2 and cfg.graph.robust == "cauchy"
     assert cfg.similarity_threshold == 0.7 and cfg.odometry_params == {"max_range": 80}
@@ -256,7 +275,8 @@ def test_unregistrable_candidate_is_rejected_not_fatal():
         store.add_cloud(k, points)
         store.add(k, np.eye(4), np.zeros((20, 60)))
     out = LoopCloser(store, Verifier(), make_config(dataset="x", mode="realistic")).verify(
-        [LoopClosure(1, 0, 0.9, 1.0)])
+        [LoopClosure(1, 0, 0.9, 1.0)]
+    )
     assert out[0].verified and not out[0].accepted and out[0].residual == float("inf")
 
 
@@ -265,7 +285,7 @@ def _posed_sequence(folder: Path, sequence: Path, gt: np.ndarray, odometry: np.n
     (folder / "velodyne").mkdir(parents=True)
     for i in range(len(gt)):
         (folder / "velodyne" / f"{i:06d}.bin").symlink_to(sequence / "velodyne" / f"{i:06d}.bin")
-    times = (sequence / "times.txt").read_text().splitlines()[:len(gt)]
+    times = (sequence / "times.txt").read_text().splitlines()[: len(gt)]
     (folder / "times.txt").write_text("\n".join(times) + "\n")
     shutil.copy(sequence / "calib.txt", folder / "calib.txt")  # Tr = identity: poses are LiDAR poses
     write_poses(folder / "poses.txt", gt)
@@ -283,8 +303,23 @@ def test_rotation_only_run_reports_ate_na_through_the_cli(sequence, cache_dir, t
     gt = _spin(30)
     dataset, odometry = _posed_sequence(tmp_path / "spin", sequence, gt, drifted(gt, yaw_per_frame=0.01))
     out = tmp_path / "run"
-    result = CliRunner().invoke(app, ["run", "--dataset", str(dataset), "--odometry", str(odometry), "--sampler",
-                                      "all", "--cache-dir", str(cache_dir), "--out", str(out), "--quiet"])
+    result = CliRunner().invoke(
+        app,
+        [
+            "run",
+            "--dataset",
+            str(dataset),
+            "--odometry",
+            str(odometry),
+            "--sampler",
+            "all",
+            "--cache-dir",
+            str(cache_dir),
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+    )
     assert result.exit_code == 0, result.output
     m = json.loads((out / "metrics.json").read_text())
     assert m["before"]["ate_translation_m"] is None and m["after"]["ate_rotation_deg"] is None
@@ -314,8 +349,15 @@ def test_short_straight_run_warns_and_has_no_pr(sequence, cache_dir, tmp_path):
     gt[:, 0, 3] = np.arange(n) * 1.0
     gt[:, 1, 3] = 0.05 * np.sin(np.arange(n))
     dataset, odometry = _posed_sequence(tmp_path / "straight", sequence, gt, drifted(gt))
-    cfg = make_config(dataset=str(dataset), odometry=str(odometry), cache_dir=str(cache_dir), sampler="all",
-                      min_frame_gap=5, exclude_recent=2, min_travel_m=5.0)
+    cfg = make_config(
+        dataset=str(dataset),
+        odometry=str(odometry),
+        cache_dir=str(cache_dir),
+        sampler="all",
+        min_frame_gap=5,
+        exclude_recent=2,
+        min_travel_m=5.0,
+    )
     result = run(cfg, sweep=threshold_sweep)
     m = metrics_json(result)
     assert m["before"]["ate_rotation_deg"] is not None and m["ate_rotation_reliable"] is False
@@ -328,15 +370,19 @@ def test_short_straight_run_warns_and_has_no_pr(sequence, cache_dir, tmp_path):
     assert "| ATE rotation [deg] (unreliable: see notes), keyframes only |" in report and "| n/a / n/a |" in report
     assert f"- warning: {m['warnings'][0]}" in report and f"- PR-AUC / F1-max n/a: {m['unavailable']['pr']}" in report
     assert f"of the keyframe rows: {m['ate_alignment']} (`evo_ape tum" in report
-    assert (f"ATE alignment of the full-rate rows: {m['full_rate']['ate_alignment']} (`evo_ape tum trajectories/gt.tum "
-            "trajectories/optimised.tum -a`") in report and "on all" in m["full_rate"]["ate_alignment"]
+    assert (
+        f"ATE alignment of the full-rate rows: {m['full_rate']['ate_alignment']} (`evo_ape tum trajectories/gt.tum "
+        "trajectories/optimised.tum -a`"
+    ) in report and "on all" in m["full_rate"]["ate_alignment"]
 
 
 def _improvement(translation: float, rotation: float):
     """An edit of metrics.json setting both % improvements (keyframes and full rate)."""
+
     def change(m: dict) -> None:
         m["improvement_pct"] = {"translation": translation, "rotation": rotation}
         m["full_rate"]["improvement_pct"] = {"translation": translation, "rotation": rotation}
+
     return change
 
 
@@ -358,8 +404,10 @@ def _decimals(cell: str) -> int | None:
 def test_comparison_table_columns_keep_one_number_of_decimals():
     """A column never mixes 0.123 and 12.3 (values either side of 10 used to switch from 3 to 1 decimal)."""
     small = {c: 0.5 + i for i, c in enumerate(COLUMNS)}
-    rows = [{**small, "method": "a", "keyframes": 7}, {**{c: 12.5 + 10 * i for i, c in enumerate(COLUMNS)},
-                                                       "method": "b", "keyframes": 70}]
+    rows = [
+        {**small, "method": "a", "keyframes": 7},
+        {**{c: 12.5 + 10 * i for i, c in enumerate(COLUMNS)}, "method": "b", "keyframes": 70},
+    ]
     lines = table_markdown(rows).splitlines()
     header = [h.strip() for h in lines[0].strip("|").split("|")]
     cells = [[c.strip() for c in line.strip("|").split("|")] for line in lines[2:]]
@@ -369,11 +417,14 @@ def test_comparison_table_columns_keep_one_number_of_decimals():
     assert decimals["memory [MiB]"] == decimals["time [s]"] == {2} and decimals["keyframes"] == {None}
 
 
-@pytest.mark.parametrize("length, span, said", [
-    (250.0, "100-200 m", "segments of 100, 200 m only (the trajectory of 250.0 m is too short"),
-    (850.0, "100-800 m", "RPE over KITTI's 100-800 m segments"),
-    (50.0, "KITTI segments", "n/a: the trajectory of 50.0 m is shorter than the segment lengths (100-800 m)"),
-])
+@pytest.mark.parametrize(
+    "length, span, said",
+    [
+        (250.0, "100-200 m", "segments of 100, 200 m only (the trajectory of 250.0 m is too short"),
+        (850.0, "100-800 m", "RPE over KITTI's 100-800 m segments"),
+        (50.0, "KITTI segments", "n/a: the trajectory of 50.0 m is shorter than the segment lengths (100-800 m)"),
+    ],
+)
 def test_rpe_segments_name_the_lengths_evaluated(length, span, said):
     from msa_slam.reporting.report import rpe_segments
 

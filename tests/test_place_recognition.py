@@ -177,12 +177,20 @@ def test_query_with_no_eligible_keyframe_returns_nothing():
     assert [m.keyframe_id for m in db.query(9, desc, exclude_frames=5)] == [1]
 
 
-@pytest.mark.parametrize("sims, dists, reason", [
-    ([0.9, 0.5, 0.3], [10.0, 20.0, 5.0], "no best match of the 3 queries lies within 3 m.*recall is undefined"),
-    ([0.9, 0.5], [1.0, 2.0], "the best match of each of the 2 queries lies within 3 m.*precision is 1 by construction"),
-    ([-0.5, -0.2], [1.0, 10.0], "no match reached the lowest similarity threshold"),
-    ([], [], "no loop query had a match to score"),
-], ids=["no-revisit", "only-revisits", "below-thresholds", "empty"])
+@pytest.mark.parametrize(
+    "sims, dists, reason",
+    [
+        ([0.9, 0.5, 0.3], [10.0, 20.0, 5.0], "no best match of the 3 queries lies within 3 m.*recall is undefined"),
+        (
+            [0.9, 0.5],
+            [1.0, 2.0],
+            "the best match of each of the 2 queries lies within 3 m.*precision is 1 by construction",
+        ),
+        ([-0.5, -0.2], [1.0, 10.0], "no match reached the lowest similarity threshold"),
+        ([], [], "no loop query had a match to score"),
+    ],
+    ids=["no-revisit", "only-revisits", "below-thresholds", "empty"],
+)
 def test_uninformative_pr_metrics_are_none_with_reason(sims, dists, reason):
     curve = precision_recall(sims, dists)
     assert curve.auc is None and curve.f1_max is None and curve.f1_max_threshold is None

@@ -75,9 +75,24 @@ def test_a_non_tty_run_logs_its_long_stages(tmp_path, sequence, odometry_file):
     code = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
     env = {**os.environ, "MSA_SLAM_CACHE": str(tmp_path / "cache")}  # empty: the descriptors are computed
     with open(tmp_path / "log.txt", "w") as log:
-        done = subprocess.run([sys.executable, "-c", code, "run", "--dataset", str(sequence), "--odometry",
-                               str(odometry_file), "--out", str(tmp_path / "out")], env=env, stdout=log,
-                              stderr=subprocess.STDOUT, timeout=600)
+        done = subprocess.run(
+            [
+                sys.executable,
+                "-c",
+                code,
+                "run",
+                "--dataset",
+                str(sequence),
+                "--odometry",
+                str(odometry_file),
+                "--out",
+                str(tmp_path / "out"),
+            ],
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            timeout=600,
+        )
     text = (tmp_path / "log.txt").read_text()
     assert done.returncode == 0, text
     # the front end's one pass over the scans (odometry from the pose file, descriptors and frame clouds computed)

@@ -18,20 +18,22 @@ from msa_slam.descriptors.cache import compute_descriptors, descriptor_key
 from msa_slam.errors import InputError
 from msa_slam.io.cache import TIMES_PREFIX, CacheDir
 from msa_slam.odometry import OdometryCache, sequence_odometry
-from msa_slam.pipeline import make_config, prepare_frontend
-from msa_slam.pipeline.frontend import make_odometry
-from msa_slam.pipeline import LiveFrontEnd, run
+from msa_slam.pipeline import LiveFrontEnd, make_config, prepare_frontend, run
 from msa_slam.pipeline.config import make_online_config
+from msa_slam.pipeline.frontend import make_odometry
 from msa_slam.pipeline.read_ahead import DEPTH, ReadAhead
-from msa_slam.sources import open_sequence, open_source
 from msa_slam.registration import downsample
+from msa_slam.sources import open_sequence, open_source
 
 
 def _entries(folder: Path, clouds: bool = True) -> dict[str, bytes]:
     """The cache's entries by name (the frame clouds' unless not `clouds`), without the per-frame compute times
     (wall clock) and the digest memo."""
-    return {p.name: p.read_bytes() for p in sorted(folder.glob("*.npy"))
-            if not p.name.startswith(TIMES_PREFIX) and (clouds or not p.name.startswith("frame-cloud"))}
+    return {
+        p.name: p.read_bytes()
+        for p in sorted(folder.glob("*.npy"))
+        if not p.name.startswith(TIMES_PREFIX) and (clouds or not p.name.startswith("frame-cloud"))
+    }
 
 
 def test_one_pass_gives_the_stages_results_and_cache_entries(sequence, tmp_path):

@@ -11,21 +11,20 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.metrics import metrics_json
+from helpers.scans import write_bin
 
 from msa_slam.datasets import Frame, open_dataset
 from msa_slam.errors import InputError
 from msa_slam.io.cache import sequence_identity
 from msa_slam.odometry import KissOdometry, OdometryCache, sequence_odometry
-from msa_slam.pipeline.config import make_config
+from msa_slam.pipeline import LiveFrontEnd, run
+from msa_slam.pipeline.config import NO_TIMESTAMPS, make_config, make_online_config
 from msa_slam.pipeline.frontend import make_odometry
 from msa_slam.pipeline.live import frame_rate_hz
-from msa_slam.pipeline import LiveFrontEnd, run
-from msa_slam.pipeline.config import NO_TIMESTAMPS, make_online_config
 from msa_slam.reporting.report import _online_lines as online_report_lines
 from msa_slam.sources import open_source
 from msa_slam.types import FrameSource
-from helpers.scans import write_bin
-from helpers.metrics import metrics_json
 
 N = 6
 COARSE = "live:figure-eight,stride=4,azimuth_steps=180,realism=clean"
@@ -36,7 +35,7 @@ def _points(k: int, n: int = 400) -> np.ndarray:
     rng = np.random.default_rng(k)
     walls = rng.uniform(-10, 10, (n, 3))
     walls[: n // 2, 1] = np.where(rng.random(n // 2) < 0.5, -6.0, 6.0)
-    walls[n // 2:, 0] = np.where(rng.random(n - n // 2) < 0.5, -10.0, 10.0)
+    walls[n // 2 :, 0] = np.where(rng.random(n - n // 2) < 0.5, -10.0, 10.0)
     walls[:, 0] -= 0.2 * k
     return walls.astype(np.float32)
 
@@ -58,8 +57,12 @@ def test_per_point_time_files_are_part_of_the_cache_key(tmp_path):
     config = KissOdometry(deskew=True).config
     key = OdometryCache.key(open_dataset(seq), config)
     identity = sequence_identity(open_dataset(seq).select(count=2))
-    assert [entry[0] for entry in identity[:4]] == ["velodyne/000000.bin", "velodyne/000001.bin",
-                                                    "velodyne_times/000000.npy", "velodyne_times/000001.npy"]
+    assert [entry[0] for entry in identity[:4]] == [
+        "velodyne/000000.bin",
+        "velodyne/000001.bin",
+        "velodyne_times/000000.npy",
+        "velodyne_times/000001.npy",
+    ]
     shutil.copytree(seq, tmp_path / "b")  # copy2: same sizes and times, elsewhere
     assert OdometryCache.key(open_dataset(tmp_path / "b"), config) == key
     times_file = seq / "velodyne_times" / "000003.npy"
@@ -78,8 +81,10 @@ def test_scans_without_timestamps_are_marked_and_warned_once(tmp_path, caplog):
     assert not open_source(str(untimed)).times_known and open_source(str(tmp_path / "timed")).times_known
     np.testing.assert_array_equal(first.times, np.arange(N))
     warnings = [r.getMessage() for r in caplog.records]
-    assert warnings == [f"{untimed}: the scans have no timestamps (no times.txt or TUM ground truth); taking frame "
-                        "k to be at k s (1 frame/s)"]
+    assert warnings == [
+        f"{untimed}: the scans have no timestamps (no times.txt or TUM ground truth); taking frame "
+        "k to be at k s (1 frame/s)"
+    ]
 
 
 class _TimeRecorder:
@@ -118,7 +123,8 @@ def test_deskew_without_per_point_times_is_warned_and_recorded_off(tmp_path, cap
             poses, from_cache, _ = sequence_odometry(sequence, odometry, cache, quiet=True)
         assert from_cache is not fresh and odometry.config["data"]["deskew"] is False
         assert [r.getMessage() for r in caplog.records] == [
-            "odometry: no per-point times: deskewing has no effect (recorded as deskew false)"]
+            "odometry: no per-point times: deskewing has no effect (recorded as deskew false)"
+        ]
     assert sequence_odometry(open_dataset(folder), KissOdometry(max_range=30.0), cache, quiet=True)[1]  # same entry
     fresh, _, _ = sequence_odometry(open_dataset(folder), KissOdometry(max_range=30.0), quiet=True)
     np.testing.assert_array_equal(poses, fresh)
@@ -132,19 +138,24 @@ def test_real_time_factor_uses_the_sensor_rate_when_frames_have_no_timestamps(ca
     assert frame_rate_hz(0.0, 11.0, 12, 10.0, times_known=False) == (10.0, NO_TIMESTAMPS)
     scans = [f for _, f in zip(range(30), open_source(COARSE).frames())]
     gt = np.stack([s.gt_pose for s in scans])
-    source = FrameSource("untimed", gt, lambda: (Frame(i, float(i), s.points, s.gt_pose) for i, s in enumerate(scans)),
-                         times_known=False)
-    cfg = make_online_config(dataset=COARSE, odometry="gt-noise", sampler="constant", sampler_params={"distance": 1.0},
-                             sensor_rate_hz=20.0)
+    source = FrameSource(
+        "untimed", gt, lambda: (Frame(i, float(i), s.points, s.gt_pose) for i, s in enumerate(scans)), times_known=False
+    )
+    cfg = make_online_config(
+        dataset=COARSE, odometry="gt-noise", sampler="constant", sampler_params={"distance": 1.0}, sensor_rate_hz=20.0
+    )
     with caplog.at_level(logging.WARNING, logger="msa_slam.pipeline.live"):
         result = run(cfg, LiveFrontEnd(source))
     metrics = metrics_json(result)
     assert metrics["frame_rate_hz"] == 20.0 and metrics["frame_rate_from"] == NO_TIMESTAMPS
-    assert "over the data's 20.0 frames/s (the config's sensor_rate_hz: the frames have no timestamps)" in \
-        "\n".join(online_report_lines(result))
+    assert "over the data's 20.0 frames/s (the config's sensor_rate_hz: the frames have no timestamps)" in "\n".join(
+        online_report_lines(result)
+    )
     assert metrics["realtime_factor"] == pytest.approx(metrics["fps"] / 20.0)
-    assert "the frames have no timestamps; the real-time factor is taken against the config's sensor_rate_hz " \
-           "(20 Hz)" in caplog.text
+    assert (
+        "the frames have no timestamps; the real-time factor is taken against the config's sensor_rate_hz "
+        "(20 Hz)" in caplog.text
+    )
 
 
 def _coarse(n: int, fail_at: int | None = None) -> FrameSource:

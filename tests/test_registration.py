@@ -11,20 +11,23 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-
 from conftest import shared_path
-from msa_slam.errors import InputError
-from msa_slam.registration import KeyframeCloudStore, Verifier, VerifierConfig, downsample
 from helpers.poses import pose_error
 from helpers.scans import scan_points
+from scipy.spatial.transform import Rotation
+
+from msa_slam.errors import InputError
+from msa_slam.registration import KeyframeCloudStore, Verifier, VerifierConfig, downsample
 
 
 def _gt_lidar_relative(a: int, b: int) -> np.ndarray:
     """T_a_b from KITTI cam0 GT converted to the Velodyne frame: inv(Tr) P Tr."""
     rows = np.loadtxt(shared_path("data", "kitti_gt", "00.txt")).reshape(-1, 3, 4)
-    calib = [line.split() for line in shared_path("data", "kitti_gt", "calib.txt").read_text().splitlines()
-             if line.startswith("00 ")][0]
+    calib = [
+        line.split()
+        for line in shared_path("data", "kitti_gt", "calib.txt").read_text().splitlines()
+        if line.startswith("00 ")
+    ][0]
     tr = np.eye(4)
     tr[:3, :4] = np.array(calib[1:], dtype=float).reshape(3, 4)
 

@@ -14,10 +14,10 @@ from typer.testing import CliRunner
 
 from msa_slam.cli import app
 from msa_slam.errors import InputError
+from msa_slam.experiments.compare import run_compare
 from msa_slam.io.marker import edited_files, foreign_files
 from msa_slam.io.outputs import MARKER, OutputError
 from msa_slam.pipeline import make_config
-from msa_slam.experiments.compare import run_compare
 
 METHODS = (("all", "all", {}), ("constant-3m", "constant", {"distance": 3.0}))
 
@@ -46,8 +46,22 @@ def _report_again(folder: Path) -> None:
 @pytest.fixture(scope="module")
 def run_folder(sequence, odometry_file, cache_dir, tmp_path_factory):
     out = tmp_path_factory.mktemp("report-run") / "run"
-    result = _cli("run", "--dataset", str(sequence), "--odometry", str(odometry_file), "--sampler", "constant",
-                  "-p", "distance=3.0", "--cache-dir", str(cache_dir), "--out", str(out), "--quiet")
+    result = _cli(
+        "run",
+        "--dataset",
+        str(sequence),
+        "--odometry",
+        str(odometry_file),
+        "--sampler",
+        "constant",
+        "-p",
+        "distance=3.0",
+        "--cache-dir",
+        str(cache_dir),
+        "--out",
+        str(out),
+        "--quiet",
+    )
     assert result.exit_code == 0, result.output
     return out
 
@@ -68,8 +82,7 @@ def test_report_of_a_compare_folder_is_the_one_compare_wrote(compare_folder):
 
 
 def test_report_of_a_compare_seeds_folder_is_the_one_compare_wrote(tmp_path):
-    base = make_config(dataset="sim:test,end=40,azimuth_steps=360", cache_dir=str(tmp_path / "cache"),
-                       odometry="kiss")
+    base = make_config(dataset="sim:test,end=40,azimuth_steps=360", cache_dir=str(tmp_path / "cache"), odometry="kiss")
     out = run_compare(base, tmp_path / "seeds", methods=METHODS[:1], seeds=[0], sweep=False).parent
     assert (out / "seeds" / "seed-0" / "report.md").is_file()
     _report_again(out)
@@ -79,8 +92,22 @@ def test_report_of_a_compare_seeds_folder_is_the_one_compare_wrote(tmp_path):
 def test_report_without_ground_truth_says_na_and_names_no_missing_file(command, scans_only, tmp_path):
     folder, poses = scans_only
     out = tmp_path / command
-    result = _cli(command, "--dataset", str(folder), "--mode", "realistic", "--odometry", str(poses), "--sampler",
-                  "constant", "-p", "distance=1.0", "--out", str(out), "--quiet")
+    result = _cli(
+        command,
+        "--dataset",
+        str(folder),
+        "--mode",
+        "realistic",
+        "--odometry",
+        str(poses),
+        "--sampler",
+        "constant",
+        "-p",
+        "distance=1.0",
+        "--out",
+        str(out),
+        "--quiet",
+    )
     assert result.exit_code == 0, result.output
     report = (out / "report.md").read_text()
     assert "ATE (and its % improvement) n/a: no ground truth" in report
@@ -95,9 +122,11 @@ def test_report_refuses_a_folder_msa_slam_did_not_write(tmp_path):
     (tmp_path / "notes.txt").write_text("mine")
     result = _cli("report", str(tmp_path))
     assert isinstance(result.exception, InputError)
-    assert str(result.exception) == (f"{tmp_path}: not a msa-slam result folder (no {MARKER} written by msa-slam); "
-                                     "expected a folder written by `msa-slam run`, `online`, `compare`, `demo`, "
-                                     "`experiment` or `reproduce`; nothing written")
+    assert str(result.exception) == (
+        f"{tmp_path}: not a msa-slam result folder (no {MARKER} written by msa-slam); "
+        "expected a folder written by `msa-slam run`, `online`, `compare`, `demo`, "
+        "`experiment` or `reproduce`; nothing written"
+    )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
 
 

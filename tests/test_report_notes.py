@@ -11,22 +11,22 @@ import shutil
 from pathlib import Path
 
 import pytest
+from helpers.metrics import stored_metrics
+from test_experiments import TINY, _fake_experiment, finished_experiment
 from typer.testing import CliRunner
 
 import msa_slam
 from msa_slam.cli import app
 from msa_slam.datasets.options import SourceOptions
 from msa_slam.errors import InputError
-from msa_slam.experiments import load_grid, parse_grid, run_grid, write_report
+from msa_slam.evaluation.run_metrics import BATCH_UNTIMED
 from msa_slam.experiments import folder as folder_module
+from msa_slam.experiments import load_grid, parse_grid, run_grid, write_report
 from msa_slam.experiments import report as report_module
 from msa_slam.experiments.folder import grid_cells
 from msa_slam.experiments.identity import cell_identities, outdated_cells
-from msa_slam.evaluation.run_metrics import BATCH_UNTIMED
 from msa_slam.experiments.runner import GridRun, _record
 from msa_slam.reporting.report import scans_read
-from test_experiments import TINY, _fake_experiment, finished_experiment
-from helpers.metrics import stored_metrics
 
 PR_REASON = "no keyframe had an older keyframe to query"
 
@@ -41,11 +41,20 @@ def _metrics(method: str, seed: int, batch: bool) -> dict:
     full["after"].update(ate_translation_m=1.0 + seed / 10, rpe_kitti_translation_pct=0.5, rpe_10m_translation_m=0.1)
     full["improvement_pct"] = {"translation": 50.0 - 5 * seed, "rotation": 10.0 + seed}
     m["before"]["ate_translation_m"], m["after"]["ate_translation_m"] = 2.0, 1.0
-    m.update(frames=100, keyframes=50, candidates=4, verified=3, false_loops=0,
-             improvement_pct={"translation": 50.0, "rotation": 10.0},
-             pr_auc=None if no_pr else 0.9 - seed / 100, f1_max=None if no_pr else 0.8 + seed / 100,
-             unavailable={"pr": PR_REASON} if no_pr else {}, peak_rss_bytes=2**20, rss_growth_bytes=3 * 2**20,
-             msa_slam_version=msa_slam.__version__)
+    m.update(
+        frames=100,
+        keyframes=50,
+        candidates=4,
+        verified=3,
+        false_loops=0,
+        improvement_pct={"translation": 50.0, "rotation": 10.0},
+        pr_auc=None if no_pr else 0.9 - seed / 100,
+        f1_max=None if no_pr else 0.8 + seed / 100,
+        unavailable={"pr": PR_REASON} if no_pr else {},
+        peak_rss_bytes=2**20,
+        rss_growth_bytes=3 * 2**20,
+        msa_slam_version=msa_slam.__version__,
+    )
     m["memory_bytes"]["total"], m["time_s"]["backend_total"] = 4000 if method == "all" else 1000, 1.0
     rejected = {**dict.fromkeys(m["loop_accounting"]["rejected"], 0), "sparse": 1, "drift": seed}
     m["loop_accounting"]["rejected"] = m["loop_closing"]["rejected"] = rejected
@@ -56,8 +65,9 @@ def _metrics(method: str, seed: int, batch: bool) -> dict:
 
 
 def _experiment(root: Path, grid_data: dict) -> list:
-    return finished_experiment(root, grid_data,
-                               lambda cell: _metrics(cell.method, cell.seed, grid_data.get("pipeline") == "batch"))
+    return finished_experiment(
+        root, grid_data, lambda cell: _metrics(cell.method, cell.seed, grid_data.get("pipeline") == "batch")
+    )
 
 
 BATCH = {"name": "b", "pipeline": "batch", "datasets": ["sim:test"], "samplers": ["all", "msa"]}
@@ -71,8 +81,10 @@ def test_batch_grid_says_why_frames_per_second_and_p99_are_na(tmp_path):
     assert "| n/a | n/a |" in table  # frames/s and back-end p99 of a batch cell
     assert f"- frames/s, back-end p99 n/a (every method): {BATCH_UNTIMED}" in table
     rows = list(csv.DictReader(io.StringIO((tmp_path / "results.csv").read_text())))
-    assert all(json.loads(r["unavailable"]) == dict.fromkeys(("backend_fps", "backend_p99_ms", "fps"), BATCH_UNTIMED)
-               for r in rows)
+    assert all(
+        json.loads(r["unavailable"]) == dict.fromkeys(("backend_fps", "backend_p99_ms", "fps"), BATCH_UNTIMED)
+        for r in rows
+    )
 
 
 def test_spread_table_has_rss_growth_and_rejected_and_reasons_for_its_na(tmp_path):
@@ -124,10 +136,13 @@ def test_a_method_whose_cells_failed_has_an_na_row_and_a_note_saying_why(tmp_pat
     row = next(line for line in table.splitlines() if line.startswith("| msa |"))
     assert {c.strip() for c in row.strip("|").split("|")[1:]} == {"n/a"}
     notes = table.split("Notes (n/a values")[1].splitlines()
-    assert f"- every value n/a (msa): the cell failed with InputError: {kept} (traceback in errors/<cell id>.txt)" \
-        in notes
-    assert ("- every value n/a (all on seed(s) 2): the cell failed with RuntimeError: degenerate scan statistics "
-            "(traceback in errors/<cell id>.txt)") in notes  # a message's first line
+    assert (
+        f"- every value n/a (msa): the cell failed with InputError: {kept} (traceback in errors/<cell id>.txt)" in notes
+    )
+    assert (
+        "- every value n/a (all on seed(s) 2): the cell failed with RuntimeError: degenerate scan statistics "
+        "(traceback in errors/<cell id>.txt)"
+    ) in notes  # a message's first line
     assert "2 of 6 cell(s) finished, 4 failed" in (tmp_path / "report.md").read_text()
     assert len((tmp_path / "results.csv").read_text().splitlines()) == 1 + 2  # finished cells only
 
@@ -149,12 +164,17 @@ def test_a_user_folder_under_cells_is_no_stale_cell(tmp_path):
     assert (mine / "notes.txt").read_text() == "mine"
 
 
-@pytest.mark.parametrize("text, where", [
-    ("name: t\ndatasets: [a, b\nsamplers: [all]\n",
-     "not valid YAML at line 3, column 9: expected ',' or ']', but got ':' (while parsing a flow sequence started "
-     "at line 2, column 11)"),
-    ("name: t: u\n", "not valid YAML at line 1, column 8: mapping values are not allowed here"),
-])
+@pytest.mark.parametrize(
+    "text, where",
+    [
+        (
+            "name: t\ndatasets: [a, b\nsamplers: [all]\n",
+            "not valid YAML at line 3, column 9: expected ',' or ']', but got ':' (while parsing a flow sequence started "
+            "at line 2, column 11)",
+        ),
+        ("name: t: u\n", "not valid YAML at line 1, column 8: mapping values are not allowed here"),
+    ],
+)
 def test_invalid_grid_yaml_is_one_line_naming_line_and_column(tmp_path, text, where):
     path = tmp_path / "g.yaml"
     path.write_text(text)
@@ -202,16 +222,22 @@ def test_outdated_cells_uses_what_was_read(tmp_path):
     assert outdated_cells(finished, identities) == {}
     info, metrics = finished[cells[0].id]
     finished[cells[0].id] = ({**info, "identity": {**info["identity"], "data": "0" * 24}}, metrics)
-    assert outdated_cells(finished, identities) == {cells[0].id: f"cell {cells[0].id}: its data changed since it "
-                                                                 "ran; rerun"}
+    assert outdated_cells(finished, identities) == {
+        cells[0].id: f"cell {cells[0].id}: its data changed since it ran; rerun"
+    }
 
 
-@pytest.mark.parametrize("options, said", [
-    ({}, "every scan"),
-    ({"frames": 200}, "at most 200 scans (-n 200)"),
-    ({"first": 10, "jump": 2, "frames": 50}, "from scan 10 (--first 10), one scan in 2 (--jump 2), at most 50 scans "
-                                             "(-n 50)"),
-])
+@pytest.mark.parametrize(
+    "options, said",
+    [
+        ({}, "every scan"),
+        ({"frames": 200}, "at most 200 scans (-n 200)"),
+        (
+            {"first": 10, "jump": 2, "frames": 50},
+            "from scan 10 (--first 10), one scan in 2 (--jump 2), at most 50 scans (-n 50)",
+        ),
+    ],
+)
 def test_scans_read_names_the_options_that_chose_them(options, said):
     assert scans_read(SourceOptions(**options)) == said
 
@@ -221,8 +247,14 @@ def test_run_report_names_the_sequence_readably_and_the_scans_read(sequence, odo
     from msa_slam.reporting.results import write_run
     from msa_slam.viz.labels import display_name
 
-    cfg = make_config(dataset=str(sequence), odometry=str(odometry_file), cache_dir=str(cache_dir),
-                      sampler="constant", sampler_params={"distance": 3.0}, source={"frames": 80})
+    cfg = make_config(
+        dataset=str(sequence),
+        odometry=str(odometry_file),
+        cache_dir=str(cache_dir),
+        sampler="constant",
+        sampler_params={"distance": 3.0},
+        source={"frames": 80},
+    )
     result = run(cfg)
     report = write_run(lambda: result, tmp_path / "out").read_text()
     title = report.splitlines()[0]

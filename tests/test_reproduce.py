@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_cli_main import run_cli
 from typer.testing import CliRunner
 
 import msa_slam
@@ -22,7 +23,6 @@ from msa_slam.experiments.reproduce import GRIDS, write_reproduce_report
 from msa_slam.experiments.reproduce_report import SECTIONS, missing_parts
 from msa_slam.io.outputs import write_marker
 from msa_slam.io.poses import write_poses
-from test_cli_main import run_cli
 
 SPREAD = [0.0, 0.3, -0.2, 0.1, -0.1]  # per-seed noise shared by both sides of a pair
 
@@ -42,10 +42,16 @@ def test_difference_needs_a_difference_beyond_the_seed_spread():
         v.difference([1.0], [1.0, 2.0])
 
 
-@pytest.mark.parametrize("values, low, high, verdict", [
-    ([10.0, 12.0, 8.0], 5, 15, v.HOLDS), ([30.0, 31.0, 29.0], 5, 15, v.FAILS), ([18.0, 12.0, 24.0], 5, 15,
-                                                                               v.NOT_SEPARABLE),
-    ([3.0], 5, 15, v.FAILS), ([], 5, 15, v.NOT_SEPARABLE)])
+@pytest.mark.parametrize(
+    "values, low, high, verdict",
+    [
+        ([10.0, 12.0, 8.0], 5, 15, v.HOLDS),
+        ([30.0, 31.0, 29.0], 5, 15, v.FAILS),
+        ([18.0, 12.0, 24.0], 5, 15, v.NOT_SEPARABLE),
+        ([3.0], 5, 15, v.FAILS),
+        ([], 5, 15, v.NOT_SEPARABLE),
+    ],
+)
 def test_within_band(values, low, high, verdict):
     assert v.within(values, low, high) == verdict
 
@@ -83,8 +89,9 @@ def test_no_universal_constant():
     verdict, beaten = v.no_universal({"urban": {"c1": good, "c3": bad}, "campus": {"c1": good, "c3": bad}})
     assert verdict == v.FAILS and beaten["c1"] == []
     close = list(60 + seeds[::-1])
-    assert v.no_universal({"urban": {"c1": good, "c3": close}, "campus": {"c1": close, "c3": good}})[0] \
-        == v.NOT_SEPARABLE
+    assert (
+        v.no_universal({"urban": {"c1": good, "c3": close}, "campus": {"c1": close, "c3": good}})[0] == v.NOT_SEPARABLE
+    )
 
 
 def test_extrapolation_follows_the_steady_growth():
@@ -126,21 +133,44 @@ def _metrics(cell, pipeline: str, frames: int = 100) -> dict:
     alpha = 10 more keyframes and accuracy."""
     noise = SPREAD[cell.seed]
     dataset = cell.dataset.split(":", 1)[1].split(",")[0]
-    impr = {"all": 50.0, "msa": 50.0, "entropy": 40.0, "spaciousness": 35.0, "constant-2m": 30.0,
-            "constant-1m": 45.0 if dataset == "kitti-05" else 20.0, "constant-3m": 20.0 if dataset == "kitti-05"
-            else 45.0, "msa alpha=10": 55.0, "msa beta=10": 45.0}.get(cell.method, 50.0)
+    impr = {
+        "all": 50.0,
+        "msa": 50.0,
+        "entropy": 40.0,
+        "spaciousness": 35.0,
+        "constant-2m": 30.0,
+        "constant-1m": 45.0 if dataset == "kitti-05" else 20.0,
+        "constant-3m": 20.0 if dataset == "kitti-05" else 45.0,
+        "msa alpha=10": 55.0,
+        "msa beta=10": 45.0,
+    }.get(cell.method, 50.0)
     impr += noise * (1.0 + 0.1 * len(cell.method))
     memory = {"all": 4000, "msa": 2000, "msa alpha=10": 2600, "msa beta=10": 1500}.get(cell.method, 1800)
     keyframes = {"all": 100, "msa alpha=10": 60, "msa beta=10": 40}.get(cell.method, 50) + cell.seed
     m = json.loads((STORED_METRICS / f"{pipeline}.json").read_text())
-    errors = {"before": {"ate_translation_m": 2.0}, "after": {"ate_translation_m": 2.0 * (1 - impr / 100)},
-              "improvement_pct": {"translation": impr, "rotation": impr / 2}}
+    errors = {
+        "before": {"ate_translation_m": 2.0},
+        "after": {"ate_translation_m": 2.0 * (1 - impr / 100)},
+        "improvement_pct": {"translation": impr, "rotation": impr / 2},
+    }
     for key, values in errors.items():
         m[key].update(values)
         m["full_rate"][key].update(values)
-    m.update({"method": cell.method, "mode": cell.config.get("mode", "oracle"), "frames": frames,
-              "keyframes": keyframes, "candidates": 4, "verified": 3, "false_loops": 0, "pr_auc": 0.9,
-              "f1_max": 0.8, "peak_rss_bytes": 2**20, "msa_slam_version": msa_slam.__version__})
+    m.update(
+        {
+            "method": cell.method,
+            "mode": cell.config.get("mode", "oracle"),
+            "frames": frames,
+            "keyframes": keyframes,
+            "candidates": 4,
+            "verified": 3,
+            "false_loops": 0,
+            "pr_auc": 0.9,
+            "f1_max": 0.8,
+            "peak_rss_bytes": 2**20,
+            "msa_slam_version": msa_slam.__version__,
+        }
+    )
     m["memory_bytes"]["total"] = memory * 2**10 + cell.seed
     m["time_s"]["backend_total"] = 1.0 + noise
     m["sampler_stats"]["optimisation_ms_median"] = 9.0 + noise
@@ -152,8 +182,10 @@ def _steps(folder: Path, bytes_per_m: float) -> None:
     n = 40
     frames = ["frame,gt_x,gt_y,gt_z"] + [f"{i},{float(i)},0,0" for i in range(n)]
     (folder / "frames.csv").write_text("\n".join(frames) + "\n")
-    steps = ["frame,keyframes,cloud_bytes,cloud_disk_bytes,descriptor_bytes,graph_bytes,graph_update_ms,"
-             "loop_detection_ms,rss_bytes"] + [f"{i},{i + 1},{bytes_per_m * i:.0f},0,0,0,0,0,0" for i in range(n)]
+    steps = [
+        "frame,keyframes,cloud_bytes,cloud_disk_bytes,descriptor_bytes,graph_bytes,graph_update_ms,"
+        "loop_detection_ms,rss_bytes"
+    ] + [f"{i},{i + 1},{bytes_per_m * i:.0f},0,0,0,0,0,0" for i in range(n)]
     (folder / "steps.csv").write_text("\n".join(steps) + "\n")
 
 
@@ -164,8 +196,9 @@ def _frames(folder: Path) -> None:
     paths = {name: np.tile(np.eye(4), (40, 1, 1)) for name in ("gt", "odometry", "optimised")}
     for i in range(40):
         x, y = 20 * np.cos(i / 10), 20 * np.sin(i / 10)
-        rows.append(f"{i},{i / 10},{int(i % 2 == 0)},{x},{y + 0.05 * i},0,{x},{y},0,{x},{y + 0.01 * i},0,"
-                    f"{0.05 * i},{0.01 * i}")
+        rows.append(
+            f"{i},{i / 10},{int(i % 2 == 0)},{x},{y + 0.05 * i},0,{x},{y},0,{x},{y + 0.01 * i},0,{0.05 * i},{0.01 * i}"
+        )
         for name, drift in (("gt", 0.0), ("odometry", 0.05), ("optimised", 0.01)):
             paths[name][i, :2, 3] = x, y + drift * i
     (folder / "frames.csv").write_text("\n".join(rows) + "\n")
@@ -201,8 +234,11 @@ def test_report_sections_and_claims_from_constructed_cells(tmp_path):
     text = write_reproduce_report(tmp_path, grids, "stamp line", {}).read_text()
     headings = [line[3:] for line in text.splitlines() if line.startswith("## ")]
     assert headings == list(SECTIONS)
-    claims = {line.split(" | ")[0][2:]: line.split(" | ")[1] for line in text.split("## Claims")[1].splitlines()
-              if line.startswith("| ") and "**" in line}
+    claims = {
+        line.split(" | ")[0][2:]: line.split(" | ")[1]
+        for line in text.split("## Claims")[1].splitlines()
+        if line.startswith("| ") and "**" in line
+    }
     assert len(claims) >= 6 and missing_parts(text) == []
     assert missing_parts(text.replace("## Ablations", "## Ablation")) == ["section 'Ablations'"]
     assert claims["MSA keeps all samples' accuracy with 40-60 % of the memory"] == "**holds**"
@@ -227,13 +263,16 @@ def test_report_with_one_seed_says_not_separable(tmp_path):
     assert "Accuracy stable, memory sensitive over lambda_u | **not separable**" in claims
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--presets", "table9"], "unknown preset(s) table9"),
-    (["--seeds", "0,x"], "--seeds '0,x': expected comma-separated non-negative integers"),
-    (["--seeds", "1,1"], "expected distinct non-negative integers"),
-    (["--workers", "0"], "--workers must be >= 1"),
-    (["--scheduler", "localhost"], "--scheduler 'localhost':"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--presets", "table9"], "unknown preset(s) table9"),
+        (["--seeds", "0,x"], "--seeds '0,x': expected comma-separated non-negative integers"),
+        (["--seeds", "1,1"], "expected distinct non-negative integers"),
+        (["--workers", "0"], "--workers must be >= 1"),
+        (["--scheduler", "localhost"], "--scheduler 'localhost':"),
+    ],
+)
 def test_cli_bad_input_is_refused_before_any_work(tmp_path, args, message):
     result = CliRunner().invoke(app, ["reproduce", "--out", str(tmp_path / "r"), *args])
     assert isinstance(result.exception, InputError) and message in str(result.exception)

@@ -11,7 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from helpers.metrics import edited, metrics_json
 from matplotlib.figure import Figure
+from test_single_open import _untimed_folder
 
 from msa_slam.datasets.options import SourceOptions
 from msa_slam.datasets.sequences import UNTIMED, _warn_untimed
@@ -20,10 +22,8 @@ from msa_slam.pipeline import LiveFrontEnd, run
 from msa_slam.pipeline.config import load_config, make_config, make_online_config
 from msa_slam.reporting.report import report_markdown, sequence_title
 from msa_slam.reporting.results import write_run_files
-from msa_slam.sources import open_source
 from msa_slam.slam import RunResult
-from test_single_open import _untimed_folder
-from helpers.metrics import edited, metrics_json
+from msa_slam.sources import open_source
 
 DESKEW = {"max_range": 30.0, "deskew": True}  # asked, but the .bin scans carry no per-point times
 
@@ -33,8 +33,14 @@ def batch(tmp_path_factory) -> tuple[RunResult, Path]:
     """A KISS-ICP batch run from scan 1 of an untimed .bin folder, asked to deskew, and its result folder."""
     root = tmp_path_factory.mktemp("untimed")
     scans, _ = _untimed_folder(root)
-    config = make_config(dataset=str(scans), mode="realistic", sampler="all", odometry_params=DESKEW,
-                         cache_dir=str(root / "cache"), source={"first": 1})
+    config = make_config(
+        dataset=str(scans),
+        mode="realistic",
+        sampler="all",
+        odometry_params=DESKEW,
+        cache_dir=str(root / "cache"),
+        source={"first": 1},
+    )
     result = run(config)
     out = root / "out"
     out.mkdir()
@@ -65,12 +71,15 @@ def test_report_counts_loop_candidates_in_the_right_number(batch):
         assert text in report_markdown(result, [], set())
 
 
-@pytest.mark.parametrize("source, frames, title", [
-    (SourceOptions(), 12, "figure-eight (hdl64)"),
-    (SourceOptions(frames=200), 200, "figure-eight (hdl64), scans 0-199"),
-    (SourceOptions(first=100, frames=50), 50, "figure-eight (hdl64), scans 100-149"),
-    (SourceOptions(first=1, jump=2), 5, "figure-eight (hdl64), scans 1, 3, ... 9"),
-])
+@pytest.mark.parametrize(
+    "source, frames, title",
+    [
+        (SourceOptions(), 12, "figure-eight (hdl64)"),
+        (SourceOptions(frames=200), 200, "figure-eight (hdl64), scans 0-199"),
+        (SourceOptions(first=100, frames=50), 50, "figure-eight (hdl64), scans 100-149"),
+        (SourceOptions(first=1, jump=2), 5, "figure-eight (hdl64), scans 1, 3, ... 9"),
+    ],
+)
 def test_sequence_title_names_the_part_read(source, frames, title):
     assert sequence_title("figure-eight_hdl64_32fb48a0c1d2e3f4a5b6c7d8", source, frames) == title
 

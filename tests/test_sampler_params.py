@@ -15,8 +15,7 @@ from typer.testing import CliRunner
 from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.experiments.grid import parse_grid
-from msa_slam.pipeline.config import RunConfig, apply_params, make_config
-from msa_slam.pipeline.config import OnlineConfig, apply_online_params
+from msa_slam.pipeline.config import OnlineConfig, RunConfig, apply_online_params, apply_params, make_config
 from msa_slam.sampling import SAMPLERS, SamplerChoice, SamplerParams, build_sampler, check_sampler_params
 from msa_slam.sampling.baselines import ConstantParams
 from msa_slam.sampling.msa.params import MSAParams
@@ -74,19 +73,29 @@ def test_every_param_spelling_gets_the_same_message(override):
 @pytest.mark.parametrize("model", [RunConfig, OnlineConfig])
 def test_an_unknown_key_lists_the_samplers_keys_with_their_defaults(model):
     config = model(dataset="x", sampler="entropy")
-    with pytest.raises(InputError, match=re.escape("sampler 'entropy': unknown parameter(s) bns; it takes: "
-                                                   "threshold=0.05, max_distance=5.0, bins=10, min_motion=0.0, "
-                                                   "min_rotation=0.0")):
+    with pytest.raises(
+        InputError,
+        match=re.escape(
+            "sampler 'entropy': unknown parameter(s) bns; it takes: "
+            "threshold=0.05, max_distance=5.0, bins=10, min_motion=0.0, "
+            "min_rotation=0.0"
+        ),
+    ):
         apply_params(config, ["sampler_params.bns=20"])
 
 
-@pytest.mark.parametrize("params, message", [
-    ({"bins": 0}, "sampler 'entropy': bins=0 is not allowed; expected an integer >= 1 and <= 100"),
-    ({"bins": "10"}, "sampler 'entropy': bins='10' is not allowed; expected an integer >= 1 and <= 100"),
-    ({"threshold": True}, "sampler 'entropy': threshold=True is not allowed; expected a finite number >= 0"),
-    ({"max_distance": float("inf")},
-     "sampler 'entropy': max_distance=inf is not allowed; expected a finite number > 0"),
-])
+@pytest.mark.parametrize(
+    "params, message",
+    [
+        ({"bins": 0}, "sampler 'entropy': bins=0 is not allowed; expected an integer >= 1 and <= 100"),
+        ({"bins": "10"}, "sampler 'entropy': bins='10' is not allowed; expected an integer >= 1 and <= 100"),
+        ({"threshold": True}, "sampler 'entropy': threshold=True is not allowed; expected a finite number >= 0"),
+        (
+            {"max_distance": float("inf")},
+            "sampler 'entropy': max_distance=inf is not allowed; expected a finite number > 0",
+        ),
+    ],
+)
 def test_bad_values_name_the_sampler_the_key_and_the_range(params, message):
     with pytest.raises(InputError, match=f"^config: {re.escape(message)}$"):
         make_config(dataset="x", sampler="entropy", sampler_params=params)
@@ -95,8 +104,10 @@ def test_bad_values_name_the_sampler_the_key_and_the_range(params, message):
 
 
 def test_an_unknown_sampler_lists_the_samplers():
-    with pytest.raises(InputError, match=re.escape("config: unknown sampler 'msb'; available: all, constant, entropy, "
-                                                   "spaciousness, msa")):
+    with pytest.raises(
+        InputError,
+        match=re.escape("config: unknown sampler 'msb'; available: all, constant, entropy, spaciousness, msa"),
+    ):
         make_config(dataset="x", sampler="msb")
 
 
@@ -113,8 +124,11 @@ def test_a_config_file_with_bad_sampler_parameters_names_the_file(tmp_path):
 
     path = tmp_path / "c.yaml"
     path.write_text("sampler: constant\nsampler_params: {distance: -1}\n")
-    with pytest.raises(InputError, match=f"^{re.escape(str(path))}: sampler 'constant': distance=-1 is not allowed; "
-                                         "expected a finite number >= 0$"):
+    with pytest.raises(
+        InputError,
+        match=f"^{re.escape(str(path))}: sampler 'constant': distance=-1 is not allowed; "
+        "expected a finite number >= 0$",
+    ):
         read_config_file(path)
 
 
@@ -122,13 +136,24 @@ def _grid(method: dict) -> dict:
     return {"datasets": ["sim:test"], "pipeline": "batch", "samplers": [method]}
 
 
-@pytest.mark.parametrize("method, message", [
-    ({"sampler": "msa", "params": {"window": 2}}, "sampler 'msa': window=2 is not allowed; expected an integer >= 3"),
-    ({"sampler": "msa", "sweep": {"lambda_l": [0.5, 4]}},
-     "sampler 'msa': lambda_l=4.0 > lambda_u=3.0 is not allowed; expected lambda_l <= lambda_u"),
-    ({"sampler": "constant", "params": {"distnce": 2}}, "sampler 'constant': unknown parameter(s) distnce; it takes: "
-                                                        "distance=1.0, min_motion=0.0, min_rotation=0.0"),
-])
+@pytest.mark.parametrize(
+    "method, message",
+    [
+        (
+            {"sampler": "msa", "params": {"window": 2}},
+            "sampler 'msa': window=2 is not allowed; expected an integer >= 3",
+        ),
+        (
+            {"sampler": "msa", "sweep": {"lambda_l": [0.5, 4]}},
+            "sampler 'msa': lambda_l=4.0 > lambda_u=3.0 is not allowed; expected lambda_l <= lambda_u",
+        ),
+        (
+            {"sampler": "constant", "params": {"distnce": 2}},
+            "sampler 'constant': unknown parameter(s) distnce; it takes: "
+            "distance=1.0, min_motion=0.0, min_rotation=0.0",
+        ),
+    ],
+)
 def test_grid_params_and_sweeps_are_refused_naming_the_cell_and_the_key(method, message):
     with pytest.raises(InputError, match=re.escape(message)) as err:
         parse_grid(_grid(method), "g.yaml")
@@ -148,11 +173,25 @@ def test_the_command_line_refuses_bad_sampler_parameters_before_any_work(command
 def test_the_sample_command_refuses_them_naming_the_key(tmp_path):
     poses = tmp_path / "poses.txt"
     poses.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n" * 3)
-    result = runner.invoke(app, ["sample", "--poses", str(poses), "--sampler", "spaciousness", "-p", "smoothing=1",
-                                 "--out", str(tmp_path / "out"), "--quiet"])
+    result = runner.invoke(
+        app,
+        [
+            "sample",
+            "--poses",
+            str(poses),
+            "--sampler",
+            "spaciousness",
+            "-p",
+            "smoothing=1",
+            "--out",
+            str(tmp_path / "out"),
+            "--quiet",
+        ],
+    )
     assert isinstance(result.exception, InputError)
-    assert str(result.exception) == ("sampler 'spaciousness': smoothing=1 is not allowed; expected a finite number "
-                                     ">= 0 and < 1")
+    assert str(result.exception) == (
+        "sampler 'spaciousness': smoothing=1 is not allowed; expected a finite number >= 0 and < 1"
+    )
 
 
 def test_the_parameters_are_a_read_only_mapping_of_what_was_given():

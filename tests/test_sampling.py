@@ -6,13 +6,13 @@ import re
 
 import numpy as np
 import pytest
+from helpers.msa_windows import planar_window
 
 from msa_slam.errors import InputError
 from msa_slam.sampling import SAMPLERS, make_sampler, sampler_parameters
 from msa_slam.sampling.baselines import histogram_entropy, spaciousness_threshold
 from msa_slam.sampling.msa import ScoreWeights, optimise_window
 from msa_slam.sampling.msa.powerset import subsets_by_size
-from helpers.msa_windows import planar_window
 
 
 def straight_line(n: int, step: float = 1.0) -> np.ndarray:
@@ -45,28 +45,34 @@ def test_unknown_parameter_lists_known_ones():
         make_sampler("msa", windw=5)
 
 
-@pytest.mark.parametrize("name, params, fragment", [
-    ("msa", {"window": 2}, "window=2 is not allowed; expected an integer >= 3"),
-    ("msa", {"window": "abc"}, "window='abc' is not allowed; expected an integer >= 3"),
-    ("msa", {"window": 9.5}, "window=9.5 is not allowed"),
-    ("msa", {"mode": "quick"}, "mode='quick' is not allowed; expected one of exact, fast"),
-    ("msa", {"alpha": 0}, "alpha=0 is not allowed; expected a finite number > 0"),
-    ("msa", {"alpha": float("nan")}, "alpha=nan is not allowed; expected a finite number > 0"),
-    ("msa", {"beta": float("inf")}, "beta=inf is not allowed; expected a finite number > 0"),
-    ("msa", {"lambda_u": float("inf")}, "lambda_u=inf is not allowed; expected a finite number > 0"),
-    ("msa", {"lambda_l": "0.1"}, "lambda_l='0.1' is not allowed; expected a finite number >= 0"),
-    ("msa", {"lambda_l": 4.0, "lambda_u": 3.0},
-     "lambda_l=4.0 > lambda_u=3.0 is not allowed; expected lambda_l <= lambda_u"),
-    ("msa", {"use_rho": "maybe"}, "use_rho='maybe' is not allowed; expected true or false"),
-    ("msa", {"use_pi": 1}, "use_pi=1 is not allowed; expected true or false"),
-    ("msa", {"neighbours": -1}, "neighbours=-1 is not allowed; expected an integer >= 0"),
-    ("msa", {"neighbours": True}, "neighbours=True is not allowed"),
-    ("constant", {"distance": -1}, "distance=-1 is not allowed; expected a finite number >= 0"),
-    ("constant", {"distance": "abc"}, "distance='abc' is not allowed; expected a finite number >= 0"),
-    ("entropy", {"bins": 1000}, "bins=1000 is not allowed; expected an integer >= 1 and <= 100"),
-    ("entropy", {"max_distance": float("nan")}, "max_distance=nan is not allowed; expected a finite number > 0"),
-    ("spaciousness", {"smoothing": 1.0}, "smoothing=1.0 is not allowed; expected a finite number >= 0 and < 1"),
-])
+@pytest.mark.parametrize(
+    "name, params, fragment",
+    [
+        ("msa", {"window": 2}, "window=2 is not allowed; expected an integer >= 3"),
+        ("msa", {"window": "abc"}, "window='abc' is not allowed; expected an integer >= 3"),
+        ("msa", {"window": 9.5}, "window=9.5 is not allowed"),
+        ("msa", {"mode": "quick"}, "mode='quick' is not allowed; expected one of exact, fast"),
+        ("msa", {"alpha": 0}, "alpha=0 is not allowed; expected a finite number > 0"),
+        ("msa", {"alpha": float("nan")}, "alpha=nan is not allowed; expected a finite number > 0"),
+        ("msa", {"beta": float("inf")}, "beta=inf is not allowed; expected a finite number > 0"),
+        ("msa", {"lambda_u": float("inf")}, "lambda_u=inf is not allowed; expected a finite number > 0"),
+        ("msa", {"lambda_l": "0.1"}, "lambda_l='0.1' is not allowed; expected a finite number >= 0"),
+        (
+            "msa",
+            {"lambda_l": 4.0, "lambda_u": 3.0},
+            "lambda_l=4.0 > lambda_u=3.0 is not allowed; expected lambda_l <= lambda_u",
+        ),
+        ("msa", {"use_rho": "maybe"}, "use_rho='maybe' is not allowed; expected true or false"),
+        ("msa", {"use_pi": 1}, "use_pi=1 is not allowed; expected true or false"),
+        ("msa", {"neighbours": -1}, "neighbours=-1 is not allowed; expected an integer >= 0"),
+        ("msa", {"neighbours": True}, "neighbours=True is not allowed"),
+        ("constant", {"distance": -1}, "distance=-1 is not allowed; expected a finite number >= 0"),
+        ("constant", {"distance": "abc"}, "distance='abc' is not allowed; expected a finite number >= 0"),
+        ("entropy", {"bins": 1000}, "bins=1000 is not allowed; expected an integer >= 1 and <= 100"),
+        ("entropy", {"max_distance": float("nan")}, "max_distance=nan is not allowed; expected a finite number > 0"),
+        ("spaciousness", {"smoothing": 1.0}, "smoothing=1.0 is not allowed; expected a finite number >= 0 and < 1"),
+    ],
+)
 def test_invalid_parameter_values(name, params, fragment):
     with pytest.raises(InputError, match=re.escape(f"sampler {name!r}: {fragment}")):
         make_sampler(name, **params)
@@ -78,13 +84,18 @@ def test_valid_parameter_values_are_normalised():
     assert sampler.weights == ScoreWeights(alpha=10.0, use_rho=False)
 
 
-@pytest.mark.parametrize("params, fragment", [
-    ({"window": 30}, "window=30: up to 2^29 - 2 = 536870910 candidates per window optimisation, "
-                     "more than the limit of 32766"),
-    ({"window": 200}, "window=200: up to 2^199 - 2 = about 10^59 candidates"),
-    ({"window": 17}, "window=17: up to 2^16 - 2 = 65534 candidates"),
-    ({"window": 16, "neighbours": 2}, "window=16 (+1 neighbour): up to 2^16 - 2 = 65534 candidates"),
-])
+@pytest.mark.parametrize(
+    "params, fragment",
+    [
+        (
+            {"window": 30},
+            "window=30: up to 2^29 - 2 = 536870910 candidates per window optimisation, more than the limit of 32766",
+        ),
+        ({"window": 200}, "window=200: up to 2^199 - 2 = about 10^59 candidates"),
+        ({"window": 17}, "window=17: up to 2^16 - 2 = 65534 candidates"),
+        ({"window": 16, "neighbours": 2}, "window=16 (+1 neighbour): up to 2^16 - 2 = 65534 candidates"),
+    ],
+)
 def test_window_with_too_many_candidates_is_refused(params, fragment):
     with pytest.raises(InputError, match=re.escape(fragment)):
         make_sampler("msa", **params)
@@ -96,14 +107,19 @@ def test_largest_allowed_window_is_accepted():
     assert make_sampler("msa", window=20, mode="fast", pi="canonical").window_size == 20
 
 
-@pytest.mark.parametrize("params, fragment", [
-    ({"window": 21, "mode": "fast", "pi": "canonical"},
-     "window=21: up to 2^20 - 2 = 1048574 candidates per window optimisation, more than the limit of 524286 "
-     "(window + max(neighbours - 1, 0) <= 20)"),
-    ({"window": 20, "mode": "exact", "pi": "canonical"}, "window=20: up to 2^19 - 2 = 524286 candidates"),
-    ({"window": 17, "mode": "fast"}, "up to 20 with mode='fast', pi='canonical'"),
-    ({"pi": "lapack"}, "pi"),
-])
+@pytest.mark.parametrize(
+    "params, fragment",
+    [
+        (
+            {"window": 21, "mode": "fast", "pi": "canonical"},
+            "window=21: up to 2^20 - 2 = 1048574 candidates per window optimisation, more than the limit of 524286 "
+            "(window + max(neighbours - 1, 0) <= 20)",
+        ),
+        ({"window": 20, "mode": "exact", "pi": "canonical"}, "window=20: up to 2^19 - 2 = 524286 candidates"),
+        ({"window": 17, "mode": "fast"}, "up to 20 with mode='fast', pi='canonical'"),
+        ({"pi": "lapack"}, "pi"),
+    ],
+)
 def test_canonical_window_limit_and_pi_choice(params, fragment):
     with pytest.raises(InputError, match=re.escape(fragment)):
         make_sampler("msa", **params)
@@ -114,7 +130,7 @@ def test_window_of_twenty_runs_with_canonical_pi():
     sampler = make_sampler("msa", window=20, mode="fast", pi="canonical")
     keyframes = sampler.run(poses, desc)
     assert sampler.stats.window_optimisations >= 1 and keyframes[0] == 0 and len(keyframes) > 1
-    assert sampler.stats.candidates_evaluated > 2 ** 15
+    assert sampler.stats.candidates_evaluated > 2**15
 
 
 def test_window_longer_than_the_stream_warns():
@@ -212,7 +228,7 @@ def test_candidate_enumeration_follows_itertools_order():
     groups = subsets_by_size(5)
     assert [g.shape for g in groups] == [(4, 2), (6, 3), (4, 4)]
     assert groups[1][:3].tolist() == [[0, 1, 2], [0, 1, 3], [0, 1, 4]]
-    assert sum(len(g) for g in subsets_by_size(10)) == 2 ** 9 - 2
+    assert sum(len(g) for g in subsets_by_size(10)) == 2**9 - 2
 
 
 def test_window_without_feasible_subset_falls_back_to_ends():
@@ -330,8 +346,11 @@ def test_a_window_that_never_fills_on_a_standing_stream_says_why():
     sampler = make_sampler("msa", window=5)
     for _ in range(20):  # twenty frames at one place: none joins the window
         sampler.push(np.eye(4), np.ones(4))
-    with pytest.warns(UserWarning, match=r"window=5: the window never filled in 20 frames \(only 1 moved at least "
-                                         r"0.01 m from the member before them\), so only frame 0"):
+    with pytest.warns(
+        UserWarning,
+        match=r"window=5: the window never filled in 20 frames \(only 1 moved at least "
+        r"0.01 m from the member before them\), so only frame 0",
+    ):
         sampler.finish()
 
 

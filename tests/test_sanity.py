@@ -83,8 +83,9 @@ def _ground_plane_scan(pose: np.ndarray, rng: np.random.Generator) -> np.ndarray
     """What a LiDAR 1.7 m above an endless flat ground sees: a disc of ground points, nothing else."""
     radius = 40.0 * np.sqrt(rng.uniform(0.01, 1.0, 3000))
     angle = rng.uniform(0.0, 2 * np.pi, 3000)
-    world = np.column_stack([pose[0, 3] + radius * np.cos(angle), pose[1, 3] + radius * np.sin(angle),
-                             np.full(3000, -1.7)])
+    world = np.column_stack(
+        [pose[0, 3] + radius * np.cos(angle), pose[1, 3] + radius * np.sin(angle), np.full(3000, -1.7)]
+    )
     return (world - pose[:3, 3]) @ pose[:3, :3]
 
 
@@ -114,7 +115,8 @@ def test_kiss_icp_logs_frames_it_could_not_register(caplog):
         odometry.register(near)
     assert odometry.unregistered_frames == [1]
     assert [r.getMessage()[:60] for r in caplog.records] == [
-        "KISS-ICP frame 1: none of its 2000 points lies within 0-50 m"]
+        "KISS-ICP frame 1: none of its 2000 points lies within 0-50 m"
+    ]
 
 
 def test_camera_frame_ground_truth_is_named(kitti):
@@ -125,7 +127,10 @@ def test_camera_frame_ground_truth_is_named(kitti):
     cam = velo_to_cam @ gt @ np.linalg.inv(velo_to_cam)
     warnings = frontend_warnings(cam, _drifted(gt), times)
     assert len(warnings) == 1
-    assert re.fullmatch(r"ground truth: the sensor moves along its z axis on (\d+) of (\d+) moving steps, as a "
-                        r"camera does; .*calib\.txt's Tr.*", warnings[0])
+    assert re.fullmatch(
+        r"ground truth: the sensor moves along its z axis on (\d+) of (\d+) moving steps, as a "
+        r"camera does; .*calib\.txt's Tr.*",
+        warnings[0],
+    )
     along, moving = map(int, re.findall(r"\d+", warnings[0])[:2])
     assert along > 0.9 * moving and moving > 250

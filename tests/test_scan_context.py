@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import shared_path
+from helpers.scans import load_scan
+
 from msa_slam.descriptors.scan_context import ScanContext
 from msa_slam.descriptors.voxel import voxel_downsample
 from msa_slam.errors import InputError
-from helpers.scans import load_scan
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,7 @@ def test_ranks_follow_the_metric_direction_and_skip_missing_values():
 
 def test_spread_is_the_sample_std_over_available_seeds():
     out = spreads([{"msa": 1.0, "all": 5.0}, {"msa": 3.0, "all": None}], higher_is_better=True)
-    assert out["msa"].mean == 2.0 and out["msa"].std == pytest.approx(2 ** 0.5)
+    assert out["msa"].mean == 2.0 and out["msa"].std == pytest.approx(2**0.5)
     assert out["all"].mean == 5.0 and out["all"].std is None and out["all"].ranks == [1, None]
 
 
@@ -32,9 +32,11 @@ def test_paired_verdicts():
     # differences of both signs: within the spread
     assert paired_verdict([1.0, 2.0, 3.0, 4.0], [2.0, 1.0, 4.0, 3.0], True, seeds).verdict.startswith("within")
     assert paired_verdict([1.0, 2.0], [0.0, 1.0], True, [0, 1]).verdict == (
-        "n/a: 2 seed(s), the paired test needs at least 3")
+        "n/a: 2 seed(s), the paired test needs at least 3"
+    )
     assert paired_verdict([1.0, None, 3.0], [0.0, 1.0, 2.0], True, [0, 1, 2]).verdict == (
-        "n/a: a value is n/a on seed(s) 1 (that seed's notes say why)")
+        "n/a: a value is n/a on seed(s) 1 (that seed's notes say why)"
+    )
     assert paired_verdict([1.0, 2.0, 3.0], [1.0, 2.0, 3.0], True, [0, 1, 2]).verdict == "no difference on any seed"
     # no loop closed by either (simulated KITTI-09): improvements of +-1e-11 % are the optimiser's rounding
     rounding = paired_verdict([6.3e-12, -1.3e-12, -2.2e-12], [1.7e-12, 4.6e-13, -3.1e-12], True, [0, 1, 2])
@@ -58,8 +60,13 @@ def test_paired_verdicts():
 
 
 def test_seed_summary_reports_mean_std_ranks_and_verdicts():
-    rows = {s: [{"method": "all", "improvement_t_pct": 10.0 + 20 * s, "keyframes": 100},
-                {"method": "msa", "improvement_t_pct": 12.0 + 20 * s + 0.1 * s, "keyframes": 40}] for s in range(3)}
+    rows = {
+        s: [
+            {"method": "all", "improvement_t_pct": 10.0 + 20 * s, "keyframes": 100},
+            {"method": "msa", "improvement_t_pct": 12.0 + 20 * s + 0.1 * s, "keyframes": 40},
+        ]
+        for s in range(3)
+    }
     summary = seed_summary(rows)
     entry = summary.metrics["improvement_t_pct"]
     assert entry.methods["msa"].ranks == [1, 1, 1] and entry.methods["all"].mean == 30.0
@@ -71,8 +78,7 @@ def test_seed_summary_reports_mean_std_ranks_and_verdicts():
 
 
 def test_seed_table_gives_each_metric_one_number_of_decimals():
-    rows = {s: [{"method": "msa", "ate_after_m": 9.5 + s, "rpe_pct": 0.5 + s, "keyframes": 40 + s}]
-            for s in range(3)}
+    rows = {s: [{"method": "msa", "ate_after_m": 9.5 + s, "rpe_pct": 0.5 + s, "keyframes": 40 + s}] for s in range(3)}
     text = seed_markdown(seed_summary(rows))
     # ATE crosses 10 m between seeds yet keeps 3 decimals; counts (a mean over seeds) take 1
     assert "| 10.500 ± 1.000 |" in text and "| 1.500 ± 1.000 |" in text and "| 41.0 ± 1.0 |" in text
@@ -80,15 +86,21 @@ def test_seed_table_gives_each_metric_one_number_of_decimals():
 
 
 def test_seed_table_says_why_a_value_is_n_a_or_has_no_spread():
-    rows = {s: [{"method": "all", "pr_auc": None, "ate_after_m": 1.0 if s == 0 else None},
-                {"method": "msa", "pr_auc": 0.9, "ate_after_m": 2.0 + s}] for s in range(3)}
+    rows = {
+        s: [
+            {"method": "all", "pr_auc": None, "ate_after_m": 1.0 if s == 0 else None},
+            {"method": "msa", "pr_auc": 0.9, "ate_after_m": 2.0 + s},
+        ]
+        for s in range(3)
+    }
     text = seed_markdown(seed_summary(rows))
     assert "| all | n/a¹ | n/a¹ | 1.000² |" in text
     assert "¹ n/a: the value is n/a on every seed" in text and "² known on one seed only" in text
-    assert ("| all | n/a, n/a, n/a | n/a, n/a, n/a | 1, n/a, n/a |" in text
-            and "Ranks: n/a where that seed has no value" in text)
-    full = seed_markdown(seed_summary({s: [{"method": "msa", **{k: 1.0 + s for k in SEED_METRICS}}]
-                                       for s in range(3)}))
+    assert (
+        "| all | n/a, n/a, n/a | n/a, n/a, n/a | 1, n/a, n/a |" in text
+        and "Ranks: n/a where that seed has no value" in text
+    )
+    full = seed_markdown(seed_summary({s: [{"method": "msa", **{k: 1.0 + s for k in SEED_METRICS}}] for s in range(3)}))
     assert "¹" not in full and "²" not in full and "Ranks: n/a" not in full
 
 
@@ -107,8 +119,9 @@ def test_seeds_are_parsed_and_only_simulated_data_takes_them():
 def test_compare_refuses_seeds_on_real_data_before_any_work(tmp_path):
     folder = tmp_path / "seq"
     folder.mkdir()
-    result = CliRunner().invoke(app, ["compare", "--dataset", str(folder), "--seeds", "0,1,2",
-                                      "--out", str(tmp_path / "out")])
+    result = CliRunner().invoke(
+        app, ["compare", "--dataset", str(folder), "--seeds", "0,1,2", "--out", str(tmp_path / "out")]
+    )
     assert isinstance(result.exception, InputError) and "not simulated" in str(result.exception)
     assert not (tmp_path / "out").exists()
 
@@ -117,10 +130,23 @@ def test_grid_table_reports_the_spread_over_seeds():
     from msa_slam.experiments.report import table2_markdown
 
     def row(method: str, seed: int, impr: float) -> dict:
-        return {"dataset": "sim:test", "descriptor": "scan_context", "parameters": "", "method": method, "seed": seed,
-                "keyframes": 10, "improvement_t_pct": impr, "improvement_r_pct": 1.0, "f1_max": 0.5,
-                "memory_mib": 1.0, "memory_vs_reference_pct": 100.0, "time_s": 1.0, "fps": None,
-                "backend_p99_ms": None, "unavailable": '{"backend_p99_ms": "not timed", "fps": "not timed"}'}
+        return {
+            "dataset": "sim:test",
+            "descriptor": "scan_context",
+            "parameters": "",
+            "method": method,
+            "seed": seed,
+            "keyframes": 10,
+            "improvement_t_pct": impr,
+            "improvement_r_pct": 1.0,
+            "f1_max": 0.5,
+            "memory_mib": 1.0,
+            "memory_vs_reference_pct": 100.0,
+            "time_s": 1.0,
+            "fps": None,
+            "backend_p99_ms": None,
+            "unavailable": '{"backend_p99_ms": "not timed", "fps": "not timed"}',
+        }
 
     rows = [row("all", s, 10.0 * s) for s in range(3)] + [row("msa", s, 10.0 * s + 5 + 0.1 * s) for s in range(3)]
     text = table2_markdown(rows)

@@ -20,8 +20,17 @@ from msa_slam.errors import InputError
 from msa_slam.io.cache import partial_dir, sequence_identity
 from msa_slam.io.poses import read_poses
 from msa_slam.sim import (
-    DEFAULT_CONFIGS, Lidar, World, build_world, default_sequence, get_sensor, iter_frames, load_trajectory,
-    make_config, prepare, simulate_sequence,
+    DEFAULT_CONFIGS,
+    Lidar,
+    World,
+    build_world,
+    default_sequence,
+    get_sensor,
+    iter_frames,
+    load_trajectory,
+    make_config,
+    prepare,
+    simulate_sequence,
 )
 from msa_slam.sim.sequence import is_complete
 from msa_slam.sim.trajectories import frame_indices
@@ -42,6 +51,7 @@ def _revisit_pairs(positions: np.ndarray, radius: float, min_gap: int) -> list[t
 
 
 # --- trajectories -----------------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("seq", ["00", "05", "06", "07", "09"])
 def test_shipped_kitti_trajectory_is_ground_truth_in_lidar_frame(seq):
@@ -136,6 +146,7 @@ def test_trajectory_errors():
 
 # --- sensors ----------------------------------------------------------------------------------------
 
+
 def test_sensor_models():
     hdl = get_sensor("hdl64")
     assert hdl.beams == 64 and max(hdl.elevations_deg) == 2.0 and min(hdl.elevations_deg) == -24.8
@@ -184,19 +195,23 @@ def test_scan_points_lie_on_surfaces_in_sensor_frame():
 def test_range_noise_dropout_and_max_range():
     room = _room()
     clean = Lidar(get_sensor("hdl64", azimuth_steps=512, range_noise=0.0), room).scan(
-        np.eye(4), np.random.default_rng(0))
+        np.eye(4), np.random.default_rng(0)
+    )
     noisy = Lidar(get_sensor("hdl64", azimuth_steps=512, range_noise=0.05), room).scan(
-        np.eye(4), np.random.default_rng(0))
+        np.eye(4), np.random.default_rng(0)
+    )
     delta = np.linalg.norm(noisy[:, :3], axis=1) - np.linalg.norm(clean[:, :3], axis=1)
     assert np.std(delta) == pytest.approx(0.05, rel=0.05)
     dropped = Lidar(get_sensor("hdl64", azimuth_steps=512, dropout=0.3), room).scan(np.eye(4), np.random.default_rng(0))
     assert len(dropped) / len(clean) == pytest.approx(0.7, abs=0.02)
     short = Lidar(get_sensor("hdl64", azimuth_steps=512, max_range=16.0), room).scan(
-        np.eye(4), np.random.default_rng(0))
+        np.eye(4), np.random.default_rng(0)
+    )
     assert 0 < len(short) < len(clean) and np.linalg.norm(short[:, :3], axis=1).max() < 16.1
 
 
 # --- worlds -----------------------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("name", ["figure-eight", "city-tour"])
 def test_road_stays_clear_where_the_path_crosses_or_returns(name):
@@ -231,6 +246,7 @@ def test_scans_see_structure_and_ground():
 
 # --- sequences --------------------------------------------------------------------------------------
 
+
 def test_iterator_is_deterministic_and_seeded():
     cfg = make_config(**SMALL)
     first, second = list(iter_frames(cfg)), list(iter_frames(cfg))
@@ -247,8 +263,9 @@ def test_iterator_is_deterministic_and_seeded():
 
 def test_same_place_looks_the_same_when_revisited(test_sequence):
     poses, _ = read_poses(test_sequence / "poses.txt")
-    i, j = min(_revisit_pairs(poses[:, :3, 3], 1.5, 50), key=lambda p: np.linalg.norm(
-        poses[p[0], :3, 3] - poses[p[1], :3, 3]))
+    i, j = min(
+        _revisit_pairs(poses[:, :3, 3], 1.5, 50), key=lambda p: np.linalg.norm(poses[p[0], :3, 3] - poses[p[1], :3, 3])
+    )
 
     def world_points(k: int) -> np.ndarray:
         """Non-ground points of scan k in the world frame."""
@@ -367,9 +384,11 @@ def test_damaged_simulation_is_simulated_again(tmp_path, caplog):
 def test_partial_simulation_of_a_killed_writer_is_removed(tmp_path, monkeypatch):
     cfg = make_config(**SMALL)
     name = f"{cfg.trajectory}_{cfg.sensor}_{cfg.key()}"
-    code = ("import os, sys; from pathlib import Path; from msa_slam.io.cache import partial_dir\n"
-            "with partial_dir(Path(sys.argv[1]), sys.argv[2]) as tmp:\n"
-            "    (tmp / 'seq').mkdir(); os._exit(9)\n")
+    code = (
+        "import os, sys; from pathlib import Path; from msa_slam.io.cache import partial_dir\n"
+        "with partial_dir(Path(sys.argv[1]), sys.argv[2]) as tmp:\n"
+        "    (tmp / 'seq').mkdir(); os._exit(9)\n"
+    )
     killed = subprocess.run([sys.executable, "-c", code, str(tmp_path), name])
     assert killed.returncode == 9
     with partial_dir(tmp_path, name) as alive:  # a writer that is still running keeps its folder
@@ -415,16 +434,50 @@ def test_cli_simulate(tmp_path, monkeypatch, capsys):
     from msa_slam.cli import main
 
     out = tmp_path / "cli"
-    monkeypatch.setattr(sys, "argv", ["msa-slam", "simulate", "--trajectory", "kitti-07", "--end", "3",
-                                      "--azimuth-steps", "64", "--realism", "clean", "--out", str(out), "--quiet"])
+    monkeypatch.setattr(
+        sys,
+        "argv",
+        [
+            "msa-slam",
+            "simulate",
+            "--trajectory",
+            "kitti-07",
+            "--end",
+            "3",
+            "--azimuth-steps",
+            "64",
+            "--realism",
+            "clean",
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+    )
     with pytest.raises(SystemExit) as done:
         main()
     assert done.value.code == 0
     assert capsys.readouterr().out.strip() == str(out) and len(os.listdir(out / "velodyne")) == 3
     assert not (out / "velodyne_times").exists()
     hard = tmp_path / "hard"
-    monkeypatch.setattr(sys, "argv", ["msa-slam", "simulate", "--trajectory", "kitti-07", "--end", "2",
-                                      "--azimuth-steps", "64", "--realism", "kitti-hard", "--out", str(hard), "-q"])
+    monkeypatch.setattr(
+        sys,
+        "argv",
+        [
+            "msa-slam",
+            "simulate",
+            "--trajectory",
+            "kitti-07",
+            "--end",
+            "2",
+            "--azimuth-steps",
+            "64",
+            "--realism",
+            "kitti-hard",
+            "--out",
+            str(hard),
+            "-q",
+        ],
+    )
     with pytest.raises(SystemExit) as done:
         main()
     assert done.value.code == 0 and json.loads((hard / "sim.json").read_text())["config"]["realism"] == "kitti-hard"
@@ -436,6 +489,7 @@ def test_cli_simulate(tmp_path, monkeypatch, capsys):
 
 
 # --- realism ----------------------------------------------------------------------------------------
+
 
 def test_default_sequences_are_the_documented_ones(test_sequence):
     demo = DEFAULT_CONFIGS["demo"]
@@ -472,8 +526,12 @@ def test_scan_context_separates_revisits_from_other_places(test_sequence):
 
     poses, _ = read_poses(test_sequence / "poses.txt")
     sc = ScanContext()
-    desc = np.array([sc.compute(np.fromfile(f, dtype=np.float32).reshape(-1, 4)[:, :3])
-                     for f in sorted((test_sequence / "velodyne").glob("*.bin"))])
+    desc = np.array(
+        [
+            sc.compute(np.fromfile(f, dtype=np.float32).reshape(-1, 4)[:, :3])
+            for f in sorted((test_sequence / "velodyne").glob("*.bin"))
+        ]
+    )
     pos = poses[:, :3, 3]
     revisits = [sc.similarity(desc[i], desc[j]) for i, j in _revisit_pairs(pos, 3.0, 50)]
     rng = np.random.default_rng(0)
@@ -518,9 +576,27 @@ def test_simulate_a_kitti_trajectory_file_through_the_cli(tmp_path, monkeypatch,
     lidar = _arc_poses()
     poses_file, times_file, calib_file = _write_camera_trajectory(tmp_path / "drive", lidar, dt=0.1037)
     out = tmp_path / "sim"
-    monkeypatch.setattr(sys, "argv", ["msa-slam", "simulate", "--trajectory", str(poses_file), "--times",
-                                      str(times_file), "--calib", str(calib_file), "--end", "4",
-                                      "--azimuth-steps", "64", "--out", str(out), "--quiet"])
+    monkeypatch.setattr(
+        sys,
+        "argv",
+        [
+            "msa-slam",
+            "simulate",
+            "--trajectory",
+            str(poses_file),
+            "--times",
+            str(times_file),
+            "--calib",
+            str(calib_file),
+            "--end",
+            "4",
+            "--azimuth-steps",
+            "64",
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+    )
     with pytest.raises(SystemExit) as done:
         main()
     assert done.value.code == 0 and capsys.readouterr().out.strip() == str(out)
@@ -538,6 +614,7 @@ def test_trajectory_file_is_keyed_by_content_and_usable_as_sim_spec(tmp_path):
     poses_file, times_file, _ = _write_camera_trajectory(tmp_path / "a", _arc_poses())
     lidar_file = tmp_path / "a" / "lidar.txt"
     from msa_slam.io.poses import format_kitti
+
     lidar_file.write_text(format_kitti(_arc_poses()))
     copy = tmp_path / "b" / "moved.txt"
     copy.parent.mkdir()
@@ -549,8 +626,9 @@ def test_trajectory_file_is_keyed_by_content_and_usable_as_sim_spec(tmp_path):
     assert make_config(trajectory=str(copy), end=3).key() != key
     path = resolve_dataset(f"sim:trajectory={lidar_file},end=3,azimuth_steps=64", cache_dir=tmp_path / "cache")
     assert path.name.startswith("file-lidar_hdl64_") and len(list((path / "velodyne").glob("*.bin"))) == 3
-    assert path.name.endswith(make_config(trajectory=str(copy.parent.parent / "a" / "lidar.txt"), end=3,
-                                          azimuth_steps=64).key())
+    assert path.name.endswith(
+        make_config(trajectory=str(copy.parent.parent / "a" / "lidar.txt"), end=3, azimuth_steps=64).key()
+    )
 
 
 def _tum_lines(poses: np.ndarray, times: np.ndarray) -> list[str]:
@@ -559,9 +637,17 @@ def _tum_lines(poses: np.ndarray, times: np.ndarray) -> list[str]:
     return format_tum(poses, times).splitlines()
 
 
-@pytest.mark.parametrize("defect, line", [
-    ("columns", 5), ("nan", 7), ("shear", 9), ("few", 1), ("backward", 12), ("quaternion", 4),
-])
+@pytest.mark.parametrize(
+    "defect, line",
+    [
+        ("columns", 5),
+        ("nan", 7),
+        ("shear", 9),
+        ("few", 1),
+        ("backward", 12),
+        ("quaternion", 4),
+    ],
+)
 def test_bad_trajectory_files_name_the_line(tmp_path, defect, line):
     from msa_slam.io.poses import format_kitti
 
@@ -584,7 +670,8 @@ def test_bad_trajectory_files_name_the_line(tmp_path, defect, line):
             rows[3] = " ".join([*rows[3].split()[:4], "0.5", "0.5", "0.5", "0.9"])
     path.write_text("\n".join(rows) + "\n")
     pattern = {"few": f"{path}: 1 pose", "backward": f"{path}: pose {line - 1}: .* on line {line}; times must"}.get(
-        defect, f"{path}:{line}: ")
+        defect, f"{path}:{line}: "
+    )
     with pytest.raises(InputError, match=pattern):
         make_config(trajectory=str(path))
 
@@ -598,8 +685,9 @@ def test_trajectory_file_options_are_checked():
 
 def test_camera_poses_without_calib_are_refused(tmp_path):
     poses_file, _, calib_file = _write_camera_trajectory(tmp_path, _arc_poses())
-    with pytest.raises(InputError, match=f"{poses_file}: the sensor moves along its z axis on 39 of 39 moving "
-                                         "steps.*--calib"):
+    with pytest.raises(
+        InputError, match=f"{poses_file}: the sensor moves along its z axis on 39 of 39 moving steps.*--calib"
+    ):
         make_config(trajectory=str(poses_file))
     assert make_config(trajectory=str(poses_file), calib=str(calib_file)).is_file
 
@@ -678,5 +766,7 @@ def test_motion_distortion_follows_the_trajectory_clock(monkeypatch):
     points, times = prepare(make_config(trajectory="kitti-05", start=700, end=701, azimuth_steps=360)).scan(0)
     ahead = np.abs(np.arctan2(points[:, 1], points[:, 0])) < 0.05
     assert np.median(times[ahead]) == pytest.approx(0.05, abs=2e-3)
-    assert prepare(make_config(trajectory="kitti-05", start=700, end=701, azimuth_steps=64,
-                               realism="clean")).scan(0)[1] is None
+    assert (
+        prepare(make_config(trajectory="kitti-05", start=700, end=701, azimuth_steps=64, realism="clean")).scan(0)[1]
+        is None
+    )

@@ -25,7 +25,7 @@ def _drive(n: int = 1500, hill: bool = True, seed: int = 0) -> np.ndarray:
     xy = np.cumsum(np.column_stack([np.cos(yaw), np.sin(yaw)]), axis=0)
     grade = np.where(hill & ((s % 400) < 100), 0.06, 0.0)
     z = np.cumsum(grade)
-    roll = np.radians(0.3) * np.convolve(rng.standard_normal(n), np.ones(50) / 50 ** 0.5, "same")
+    roll = np.radians(0.3) * np.convolve(rng.standard_normal(n), np.ones(50) / 50**0.5, "same")
     pitch = -np.arctan(grade) + np.radians(MOUNT_NOSE_DOWN_DEG)
     poses = np.tile(np.eye(4), (n, 1, 1))
     poses[:, :3, :3] = Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll])).as_matrix()

@@ -11,8 +11,8 @@ from msa_slam.datasets import open_dataset
 from msa_slam.datasets.point_times import azimuth_times
 from msa_slam.datasets.vertical_angle import KISS_ICP_KITTI_DEG, raise_elevation
 from msa_slam.errors import InputError
-from msa_slam.sim.scan import fixed_pose, mixed_pixels, range_sigma
 from msa_slam.sim.realism import REALISM
+from msa_slam.sim.scan import fixed_pose, mixed_pixels, range_sigma
 from msa_slam.sim.sensors import Lidar, LidarModel, SensorRealism, get_sensor
 from msa_slam.sim.shapes import Material
 from msa_slam.sim.trajectories import load_trajectory
@@ -47,17 +47,29 @@ def _reference_scan(model: LidarModel, world: World, pose: np.ndarray, rng: np.r
 
 def _moving(velocity: np.ndarray):
     """pose_at of a sensor moving at constant `velocity` (m/s) through the origin at time 0."""
+
     def pose_at(times: np.ndarray) -> np.ndarray:
         poses = np.tile(np.eye(4), (len(times), 1, 1))
         poses[:, :3, 3] = np.asarray(times)[:, None] * velocity
         return poses
+
     return pose_at
 
 
-REALISTIC = SensorRealism(motion_distortion=True, elevation_bias_deg=-0.22, elevation_sigma_deg=0.03,
-                          azimuth_sigma_deg=0.03, range_bias_sigma=0.015, range_noise_per_m=1e-4,
-                          incidence_noise=2e-4, min_return_power=0.003, mixed_pixel_prob=0.3,
-                          mixed_pixel_edge=1.0, vegetation_dropout=0.2, vegetation_depth=0.15)
+REALISTIC = SensorRealism(
+    motion_distortion=True,
+    elevation_bias_deg=-0.22,
+    elevation_sigma_deg=0.03,
+    azimuth_sigma_deg=0.03,
+    range_bias_sigma=0.015,
+    range_noise_per_m=1e-4,
+    incidence_noise=2e-4,
+    min_return_power=0.003,
+    mixed_pixel_prob=0.3,
+    mixed_pixel_edge=1.0,
+    vegetation_dropout=0.2,
+    vegetation_depth=0.15,
+)
 
 
 @pytest.fixture(scope="module")
@@ -76,7 +88,8 @@ def test_clean_path_reproduces_the_old_scan_bytes(street):
     points, times = lidar.sweep(traj.pose_at, float(traj.times[430]), np.random.default_rng(7))
     assert points.tobytes() == expected and len(times) == len(points)
     moving, _ = Lidar(model, world, SensorRealism(motion_distortion=True)).sweep(
-        traj.pose_at, float(traj.times[430]), np.random.default_rng(7))
+        traj.pose_at, float(traj.times[430]), np.random.default_rng(7)
+    )
     assert moving.tobytes() != expected  # the car moves ~1 m a sweep: distortion changes the scan
 
 
@@ -123,8 +136,9 @@ def test_imperfections_are_deterministic_per_seed_and_change_with_it(street):
     assert a[0].tobytes() == b[0].tobytes() and np.array_equal(a[1], b[1])
     assert sweep(4)[0].tobytes() != a[0].tobytes()  # other calibration errors
     assert sweep(3, scan_seed=2)[0].tobytes() != a[0].tobytes()  # other per-scan noise
-    assert not np.array_equal(Lidar(model, world, REALISTIC, seed=3).range_bias,
-                              Lidar(model, world, REALISTIC, seed=4).range_bias)
+    assert not np.array_equal(
+        Lidar(model, world, REALISTIC, seed=3).range_bias, Lidar(model, world, REALISTIC, seed=4).range_bias
+    )
 
 
 def test_the_readers_vertical_angle_correction_is_kiss_icps():
@@ -140,7 +154,8 @@ def test_the_readers_vertical_angle_correction_is_kiss_icps():
 def test_vertical_angle_error_bends_the_floor_as_kitti_and_kiss_icp_correction_flattens_it():
     model = get_sensor("hdl64", azimuth_steps=360, range_noise=0.0)
     points = Lidar(model, _room(), SensorRealism(elevation_bias_deg=-KISS_ICP_KITTI_DEG)).scan(
-        np.eye(4), np.random.default_rng(0))
+        np.eye(4), np.random.default_rng(0)
+    )
     inside = (np.abs(points[:, 0]) < HALF[0] - 2) & (np.abs(points[:, 1]) < HALF[1] - 2)  # not on a wall
     floor = points[inside & (points[:, 2] < -HALF[2] + 0.5), :3]
     horizontal = np.hypot(floor[:, 0], floor[:, 1])
@@ -155,8 +170,9 @@ def test_vertical_angle_error_bends_the_floor_as_kitti_and_kiss_icp_correction_f
 def test_per_beam_errors_and_range_bias_are_drawn_per_sequence():
     model = get_sensor("os1-64", azimuth_steps=256, range_noise=0.0)
     clean = Lidar(model, _room()).scan(np.eye(4), np.random.default_rng(0))
-    biased = Lidar(model, _room(), SensorRealism(range_bias_sigma=0.05), seed=2).scan(np.eye(4),
-                                                                                       np.random.default_rng(0))
+    biased = Lidar(model, _room(), SensorRealism(range_bias_sigma=0.05), seed=2).scan(
+        np.eye(4), np.random.default_rng(0)
+    )
     delta = (np.linalg.norm(biased[:, :3], axis=1) - np.linalg.norm(clean[:, :3], axis=1)).reshape(64, 256)
     assert np.allclose(delta, delta[:, :1], atol=1e-4)  # one bias per beam
     assert 0.02 < delta[:, 0].std() < 0.08
@@ -211,14 +227,17 @@ def test_mixed_pixels_lie_between_the_surfaces_of_a_depth_edge():
     ranges = np.array([10.0] * 5 + [20.0] * 5) / np.cos(np.radians(azimuth))  # walls x = 10 m and x = 20 m
     normals = np.tile([-1.0, 0.0, 0.0], (10, 1))
     ray_idx = np.arange(10)
-    mixed = mixed_pixels(ranges, ray_idx, (1, 10), 1.0, 0.999, np.random.default_rng(0), _one_beam(ranges, azimuth),
-                         normals)
+    mixed = mixed_pixels(
+        ranges, ray_idx, (1, 10), 1.0, 0.999, np.random.default_rng(0), _one_beam(ranges, azimuth), normals
+    )
     changed = np.flatnonzero(mixed != ranges)
     assert set(changed) <= {0, 4, 5, 9}  # the edge, and the wrap-around edge between columns 9 and 0
     assert len(changed) >= 3 and np.all((mixed[changed] > 10.0) & (mixed[changed] < 20.3))
     wavy = (10.0 + 0.3 * np.sin(azimuth)) / np.cos(np.radians(azimuth))  # no jump above 1 m, wrap-around included
-    assert np.array_equal(mixed_pixels(wavy, ray_idx, (1, 10), 1.0, 0.999, np.random.default_rng(0),
-                                       _one_beam(wavy, azimuth), normals), wavy)
+    assert np.array_equal(
+        mixed_pixels(wavy, ray_idx, (1, 10), 1.0, 0.999, np.random.default_rng(0), _one_beam(wavy, azimuth), normals),
+        wavy,
+    )
 
 
 def test_a_surface_seen_at_a_grazing_angle_has_no_mixed_pixels():
@@ -228,8 +247,9 @@ def test_a_surface_seen_at_a_grazing_angle_has_no_mixed_pixels():
     ranges = 2.0 / np.sin(np.radians(azimuth))
     assert np.abs(np.diff(ranges)).max() > 1.0
     normals = np.tile([0.0, -1.0, 0.0], (10, 1))
-    wall = mixed_pixels(ranges, np.arange(10), (1, 10), 0.5, 0.999, np.random.default_rng(0),
-                        _one_beam(ranges, azimuth), normals)
+    wall = mixed_pixels(
+        ranges, np.arange(10), (1, 10), 0.5, 0.999, np.random.default_rng(0), _one_beam(ranges, azimuth), normals
+    )
     assert np.array_equal(wall, ranges)
 
 
@@ -241,8 +261,10 @@ def test_foliage_returns_vary_from_scan_to_scan():
     assert len(first) / (model.beams * model.azimuth_steps) == pytest.approx(0.7, abs=0.02)
     assert first.tobytes() != second.tobytes()
     walls = Lidar(model, _room(material=Material.SOLID), realism)
-    assert walls.scan(np.eye(4), np.random.default_rng(1)).tobytes() == \
-        Lidar(model, _room()).scan(np.eye(4), np.random.default_rng(1)).tobytes()
+    assert (
+        walls.scan(np.eye(4), np.random.default_rng(1)).tobytes()
+        == Lidar(model, _room()).scan(np.eye(4), np.random.default_rng(1)).tobytes()
+    )
 
 
 def test_bad_realism_values_name_the_knob():

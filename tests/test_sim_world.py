@@ -18,8 +18,7 @@ from msa_slam.sim.sensors import get_sensor
 from msa_slam.sim.shapes import Material
 from msa_slam.sim.world import PATH_LEAD, START_STRUCTURE_M, World, WorldRealism, build_world
 
-BUSY = WorldRealism(moving_cars=3.0, pedestrians=3.0, transient_parking=0.5, turnover_period=10.0,
-                    foliage_gap=0.4)
+BUSY = WorldRealism(moving_cars=3.0, pedestrians=3.0, transient_parking=0.5, turnover_period=10.0, foliage_gap=0.4)
 
 
 def _path(n: int, bend: float = 40.0) -> np.ndarray:
@@ -59,8 +58,11 @@ def test_clean_world_is_the_world_before_realism():
     recorded from it, rounded to 1e-6), for the default and the explicit clean realism."""
     poses = _path(300)
     for realism in (None, WorldRealism.clean()):
-        world = (build_world(poses, "city", seed=5) if realism is None
-                 else build_world(poses, "city", seed=5, realism=realism))
+        world = (
+            build_world(poses, "city", seed=5)
+            if realism is None
+            else build_world(poses, "city", seed=5, realism=realism)
+        )
         assert world.triangles == 36510
         assert _digest(world.mesh.vertices, world.mesh.faces, world.reflectance) == "306a8ae2f34d00f0"
         tri, ray, dist = world.cast(poses[150, :3, 3], _directions())
@@ -99,8 +101,9 @@ def test_moving_objects_move_and_parked_ones_stay():
 
 def test_parked_occupancy_fills_the_car_slots_of_streets_with_parking():
     def transient_cars(style: str, occupancy: float) -> int:
-        world = build_world(_path(400, bend=0.0), style, seed=2,
-                            realism=WorldRealism(transient_parking=0.5, parked_occupancy=occupancy))
+        world = build_world(
+            _path(400, bend=0.0), style, seed=2, realism=WorldRealism(transient_parking=0.5, parked_occupancy=occupancy)
+        )
         return 0 if world.dynamic is None else int(np.sum(world.dynamic.motion == FIXED))
 
     assert transient_cars("city", 0.95) > 1.2 * transient_cars("city", 0.0) > 0  # the city style's own: 0.5
@@ -168,6 +171,7 @@ def test_foliage_returns_vary_between_scans_but_not_within_one():
         out = np.full(len(dirs), np.inf)
         out[h.ray] = h.dist
         return out
+
     da, db, d0 = dist_of(a), dist_of(b), dist_of(base)
     assert np.all(da[veg] >= d0[veg] - 1e-9)  # passing a crown never brings a return closer
     assert 0.2 < np.mean(da[veg] > d0[veg] + 1e-6) < 0.8
@@ -185,8 +189,11 @@ def test_two_far_places_of_the_same_design_look_alike():
     world = build_world(poses, "city", seed=7, realism=realism)
     plain = build_world(poses, "city", seed=7)
     pitch = make_catalogue(1, STYLES["city"], np.random.default_rng([7, 12, 2]))[0].pitch
-    designed = [s for s in world.stretches if s.kind == "design" and s.end - s.start > 150
-                and PATH_LEAD + 80 < s.start < PATH_LEAD + len(poses) - 230]
+    designed = [
+        s
+        for s in world.stretches
+        if s.kind == "design" and s.end - s.start > 150 and PATH_LEAD + 80 < s.start < PATH_LEAD + len(poses) - 230
+    ]
     assert len(designed) >= 2
     a, b = designed[0], designed[1]
     frame_a = int((a.start + a.end) / 2 - PATH_LEAD)
@@ -198,6 +205,7 @@ def test_two_far_places_of_the_same_design_look_alike():
     def sim(w: World) -> float:
         query = sc.compute(_scan(w, poses[frame_a]))
         return max(sc.similarity(query, sc.compute(_scan(w, poses[k]))) for k in frames_b)
+
     assert sim(world) > 0.8
     assert sim(world) > sim(plain) + 0.1
 
@@ -213,7 +221,7 @@ def test_house_types_of_a_design_follow_one_irregular_order():
         assert len({v.length for v in design.variants}) == 3 and len({v.height for v in design.variants}) == 3
         order = design.variant_order()
         assert np.array_equal(order, design.variant_order()) and set(order) == {0, 1, 2}
-        assert all(not np.array_equal(order[:60], order[p:p + 60]) for p in range(1, 21))
+        assert all(not np.array_equal(order[:60], order[p : p + 60]) for p in range(1, 21))
         assert design.house(order, 5) == design.variants[order[5]]
     assert all(d.variants == () for d in make_catalogue(2, STYLES["city"], np.random.default_rng(3)))
 
@@ -225,12 +233,17 @@ def test_house_types_keep_a_street_from_matching_itself_a_few_houses_along():
     sc = ScanContext()
 
     def best_ahead(variants: int) -> float:
-        world = build_world(poses, "city", seed=7, realism=WorldRealism(catalogue_designs=1, catalogue_share=0.6,
-                                                                        design_variants=variants))
+        world = build_world(
+            poses,
+            "city",
+            seed=7,
+            realism=WorldRealism(catalogue_designs=1, catalogue_share=0.6, design_variants=variants),
+        )
         s = max((x for x in world.stretches if x.kind == "design"), key=lambda x: x.end - x.start)
         k = int((s.start + s.end) / 2 - PATH_LEAD)
         query = sc.compute(_scan(world, poses[k]))
         return max(sc.similarity(query, sc.compute(_scan(world, poses[k + d]))) for d in range(30, 61, 2))
+
     identical, typed = best_ahead(1), best_ahead(3)
     assert identical > 0.95
     assert typed < identical - 0.05
@@ -263,14 +276,23 @@ def test_walls_make_places_along_the_stretch_alike():
 
     def sim(w: World) -> float:
         return sc.similarity(sc.compute(_scan(w, poses[k])), sc.compute(_scan(w, poses[k + 30])))
+
     assert sim(world) > 0.85 > sim(plain)
 
 
 # --- determinism and knobs ---------------------------------------------------------------------------
 def test_worlds_are_deterministic_per_seed():
     poses = _path(300)
-    realism = WorldRealism(moving_cars=2.0, pedestrians=2.0, transient_parking=0.3, catalogue_designs=2,
-                           catalogue_share=0.4, hard_share=0.3, foliage_gap=0.3, design_variants=3)
+    realism = WorldRealism(
+        moving_cars=2.0,
+        pedestrians=2.0,
+        transient_parking=0.3,
+        catalogue_designs=2,
+        catalogue_share=0.4,
+        hard_share=0.3,
+        foliage_gap=0.3,
+        design_variants=3,
+    )
     a, b, c = (build_world(poses, "city", seed=s, realism=realism) for s in (11, 11, 12))
     dirs = _directions(20000)
     origin = poses[150, :3, 3]
@@ -282,16 +304,19 @@ def test_worlds_are_deterministic_per_seed():
     assert a.triangles != c.triangles or not np.array_equal(ha.dist, hc.dist)
 
 
-@pytest.mark.parametrize("knob,value,message", [
-    ("moving_cars", -1.0, "moving_cars must be in"),
-    ("foliage_gap", 1.0, "foliage_gap must be in"),
-    ("catalogue_share", 0.5, "catalogue_designs must be >= 1"),
-    ("hard_kinds", ("swamp",), "hard_kinds"),
-    ("design_variants", 0, "design_variants must be in"),
-    ("turnover_period", 0.0, "turnover_period must be > 0"),
-    ("km_per_design", -1.0, "km_per_design must be in"),
-    ("parked_occupancy", 1.5, "parked_occupancy must be in"),
-])
+@pytest.mark.parametrize(
+    "knob,value,message",
+    [
+        ("moving_cars", -1.0, "moving_cars must be in"),
+        ("foliage_gap", 1.0, "foliage_gap must be in"),
+        ("catalogue_share", 0.5, "catalogue_designs must be >= 1"),
+        ("hard_kinds", ("swamp",), "hard_kinds"),
+        ("design_variants", 0, "design_variants must be in"),
+        ("turnover_period", 0.0, "turnover_period must be > 0"),
+        ("km_per_design", -1.0, "km_per_design must be in"),
+        ("parked_occupancy", 1.5, "parked_occupancy must be in"),
+    ],
+)
 def test_bad_realism_knobs_are_one_clear_error(knob, value, message):
     with pytest.raises(InputError, match=message):
         WorldRealism(**{knob: value})
@@ -334,16 +359,28 @@ def test_only_first_visits_are_planned():
     on the first visit only: no design or hard stretch is planned on the second, and the shares count the
     first visits. A crossing is no revisit."""
     t = np.arange(0.0, 400.0)
-    loop = np.vstack([np.column_stack([t, 0 * t]), np.column_stack([400 + 0 * t[:60], t[:60]]),
-                      np.column_stack([400 - t, 60 + 0 * t]), np.column_stack([0 * t[:60], 60 - t[:60]])])
+    loop = np.vstack(
+        [
+            np.column_stack([t, 0 * t]),
+            np.column_stack([400 + 0 * t[:60], t[:60]]),
+            np.column_stack([400 - t, 60 + 0 * t]),
+            np.column_stack([0 * t[:60], 60 - t[:60]]),
+        ]
+    )
     xy = np.vstack([loop, loop[:300]])
     visits = first_visits(xy)
     assert len(visits) == 1 and visits[0][0] == 0.0 and abs(visits[0][1] - len(loop)) < 15.0
     plan = plan_stretches(xy, 0.6, 0.25, ("wall",), 2, np.random.default_rng(0))
     assert plan and all(s.start < visits[0][1] for s in plan)
     u = np.arange(0.0, 200.0)  # 300 m east, 100 m north, 150 m west, then south across the first leg
-    cross = np.vstack([np.column_stack([t[:300], 0 * t[:300]]), np.column_stack([300 + 0 * u[:100], u[:100]]),
-                       np.column_stack([300 - u[:150], 100 + 0 * u[:150]]), np.column_stack([150 + 0 * u, 100 - u])])
+    cross = np.vstack(
+        [
+            np.column_stack([t[:300], 0 * t[:300]]),
+            np.column_stack([300 + 0 * u[:100], u[:100]]),
+            np.column_stack([300 - u[:150], 100 + 0 * u[:150]]),
+            np.column_stack([150 + 0 * u, 100 - u]),
+        ]
+    )
     assert len(first_visits(cross)) == 1 and first_visits(cross)[0][1] > 740.0
 
 
@@ -390,6 +427,7 @@ def test_a_designed_street_goes_on_past_the_turn():
         square = np.abs(world.face_normals[:, 0]) > 0.999  # faces square to the first leg
         near = np.linalg.norm(world.mesh.triangles_center[:, :2] - past, axis=1) < design.length / 2
         return bool(np.any(square & near & (world.material == Material.SOLID)))
+
     world = build_world(poses, "city", seed=4, realism=realism)
     first = next(s for s in world.stretches if s.kind == "design")
     assert first.end < PATH_LEAD + 155.0 < first.end + 10.0, "the first design should end at the turn"
@@ -415,6 +453,7 @@ def test_every_house_of_a_design_has_the_same_parked_cars():
             car = len(h) == 1 and h.material[0] == Material.VEHICLE
             out.append((car, round(float(h.dist[0]), 3) if car else 0.0))
         return out
+
     first = curb(1)
     assert any(car for car, _ in first)
     assert curb(2) == first
@@ -437,5 +476,6 @@ def test_kiss_icp_starts_on_kitti_06_for_a_seed_it_once_stalled_on():
     odometry = KissOdometry()
     for k in range(25):
         pose = odometry.register(sim.scan(k)[0][:, :3].astype(np.float64))
-    assert np.linalg.norm(pose[:3, 3]) == pytest.approx(np.linalg.norm(sim.poses[24, :3, 3] - sim.poses[0, :3, 3]),
-                                                         rel=0.1)
+    assert np.linalg.norm(pose[:3, 3]) == pytest.approx(
+        np.linalg.norm(sim.poses[24, :3, 3] - sim.poses[0, :3, 3]), rel=0.1
+    )

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.scans import write_bin
+from test_real_inputs_times import COARSE, _coarse, _kitti, _points
 from typer.testing import CliRunner
 
 from msa_slam.cli import app
@@ -16,18 +18,16 @@ from msa_slam.datasets import open_dataset
 from msa_slam.datasets.options import SourceOptions
 from msa_slam.datasets.sequences import _warn_untimed
 from msa_slam.errors import InputError
+from msa_slam.experiments.compare import run_compare
 from msa_slam.io.poses import write_poses
 from msa_slam.odometry import KissOdometry
-from msa_slam.sources import sequence as source_module
 from msa_slam.pipeline import run
-from msa_slam.experiments.compare import run_compare
 from msa_slam.pipeline.config import make_config, make_online_config
 from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, prepare_frontend
 from msa_slam.pipeline.live import make_online_odometry
 from msa_slam.sources import open_sequence
+from msa_slam.sources import sequence as source_module
 from msa_slam.types import FrameSource
-from test_real_inputs_times import COARSE, _coarse, _kitti, _points
-from helpers.scans import write_bin
 
 FRAMES = 6
 NO_POINT_TIMES = "odometry: no per-point times: deskewing has no effect (recorded as deskew false)"
@@ -58,16 +58,39 @@ def _counting_opens(monkeypatch) -> list[str]:
 
 def _config(tmp_path: Path, **fields):
     scans, odometry = _untimed_folder(tmp_path)
-    return make_config(**{"dataset": str(scans), "odometry": str(odometry), "mode": "realistic", "sampler": "all",
-                          "cache_dir": str(tmp_path / "cache"), **fields})
+    return make_config(
+        **{
+            "dataset": str(scans),
+            "odometry": str(odometry),
+            "mode": "realistic",
+            "sampler": "all",
+            "cache_dir": str(tmp_path / "cache"),
+            **fields,
+        }
+    )
 
 
 def _command(name: str, tmp_path: Path, *options: str, frames: int = FRAMES):
     """`msa-slam NAME` in this process on an untimed folder with its pose-file odometry."""
     scans, odometry = _untimed_folder(tmp_path, frames)
-    return CliRunner().invoke(app, [name, "-d", str(scans), "--odometry", str(odometry), "--mode", "realistic",
-                                    "--out", str(tmp_path / "out"), "--cache-dir", str(tmp_path / "cache"), "-q",
-                                    *options])
+    return CliRunner().invoke(
+        app,
+        [
+            name,
+            "-d",
+            str(scans),
+            "--odometry",
+            str(odometry),
+            "--mode",
+            "realistic",
+            "--out",
+            str(tmp_path / "out"),
+            "--cache-dir",
+            str(tmp_path / "cache"),
+            "-q",
+            *options,
+        ],
+    )
 
 
 def test_run_opens_its_dataset_once_and_warns_once_that_it_has_no_timestamps(tmp_path, monkeypatch, caplog):
@@ -80,7 +103,8 @@ def test_run_opens_its_dataset_once_and_warns_once_that_it_has_no_timestamps(tmp
     assert opened == [str(scans)] and (tmp_path / "out" / "report.md").is_file()
     assert [r.getMessage() for r in caplog.records if "no timestamps" in r.getMessage()] == [
         f"{scans}: the scans have no timestamps (no times.txt or TUM ground truth); taking frame k to be at k s "
-        "(1 frame/s)"]
+        "(1 frame/s)"
+    ]
 
 
 def test_compare_opens_its_dataset_once_for_all_its_methods(tmp_path, monkeypatch):
@@ -95,14 +119,17 @@ def test_compare_opens_its_dataset_once_for_all_its_methods(tmp_path, monkeypatc
 
 def test_the_library_checks_the_window_before_the_front_end(tmp_path, monkeypatch):
     """run and run_compare refuse a window that never fills before any odometry, as the commands do."""
+
     def no_odometry(*args, **kwargs):
         raise AssertionError("the odometry ran before the window check")
 
     monkeypatch.setattr("msa_slam.pipeline.read_ahead.sequence_odometry", no_odometry)
     config = _config(tmp_path, sampler="msa", flush=False)
-    expected = (f"sampler 'msa': window=10 is longer than the {FRAMES} frames read, so it never fills and only frame "
-                "0 becomes a keyframe (flush is off); the evaluation needs at least 3: "
-                + CONFIG_WINDOW_FIX.format(frames=FRAMES, window=10))
+    expected = (
+        f"sampler 'msa': window=10 is longer than the {FRAMES} frames read, so it never fills and only frame "
+        "0 becomes a keyframe (flush is off); the evaluation needs at least 3: "
+        + CONFIG_WINDOW_FIX.format(frames=FRAMES, window=10)
+    )
     with pytest.raises(InputError) as err:
         run(config)
     assert str(err.value) == expected
@@ -120,6 +147,7 @@ def test_a_window_check_with_flush_only_warns(tmp_path):
 
 # Scan 0 is not read when the dataset is opened: the first scan of the selection is.
 
+
 def _damaged_first(tmp_path: Path, damage: str) -> Path:
     folder, _ = _untimed_folder(tmp_path)
     scan0 = folder / "000000.bin"
@@ -130,10 +158,13 @@ def _damaged_first(tmp_path: Path, damage: str) -> Path:
     return folder
 
 
-@pytest.mark.parametrize(("damage", "error"), [
-    ("truncated", "20 bytes is not a whole number of 16-byte (x, y, z, r) float32 points"),
-    ("garbage", "coordinate "),
-])
+@pytest.mark.parametrize(
+    ("damage", "error"),
+    [
+        ("truncated", "20 bytes is not a whole number of 16-byte (x, y, z, r) float32 points"),
+        ("garbage", "coordinate "),
+    ],
+)
 def test_a_damaged_scan_0_stops_only_a_run_that_reads_it(tmp_path, damage, error):
     folder = _damaged_first(tmp_path, damage)
     later = open_sequence(str(folder), source=SourceOptions(first=1))
@@ -155,11 +186,13 @@ def test_point_times_are_known_from_the_first_selected_scan(tmp_path):
 
 # Deskew without per-point times: switched off once, where the odometry is made
 
+
 def test_deskew_without_point_times_is_switched_off_where_the_odometry_is_made(tmp_path, caplog):
     scans, _ = _untimed_folder(tmp_path)
     params = {"max_range": 30.0, "deskew": True}
-    config = make_config(dataset=str(scans), mode="realistic", sampler="all", odometry_params=params,
-                         cache_dir=str(tmp_path / "cache"))
+    config = make_config(
+        dataset=str(scans), mode="realistic", sampler="all", odometry_params=params, cache_dir=str(tmp_path / "cache")
+    )
     for fresh in (True, False):  # computed, then from the cache: both warn once and record deskew off
         caplog.clear()
         with caplog.at_level(logging.WARNING, logger="msa_slam.odometry"):
@@ -194,9 +227,15 @@ def test_kiss_odometry_refuses_deskew_on_a_scan_without_point_times():
 
 # The online progress line
 
+
 def test_online_progress_counts_the_accepted_loops(capsys):
-    config = make_online_config(dataset=COARSE, odometry="gt-noise", sampler="all", min_frame_gap=20,
-                                odometry_params={"translation_noise": 0.02, "rotation_noise_deg": 0.1})
+    config = make_online_config(
+        dataset=COARSE,
+        odometry="gt-noise",
+        sampler="all",
+        min_frame_gap=20,
+        odometry_params={"translation_noise": 0.02, "rotation_noise_deg": 0.1},
+    )
     result = run(config, quiet=False)
     accepted = sum(c.accepted for c in result.loops)
     done = [line for line in capsys.readouterr().err.splitlines() if line.startswith(f"online {config.name}: done")]
@@ -207,8 +246,9 @@ def test_a_seeds_comparison_refused_once_the_data_is_open_leaves_no_folder(tmp_p
     """compare --seeds creates its folder to grow it in place; a window refused on seed 0 removes it again
     (with the `latest` link, for a timestamped folder), as nothing was written into it, and the default parent
     it made for it, left empty."""
-    config = make_config(dataset="sim:test", sampler="msa", flush=False, cache_dir=str(tmp_path / "cache"),
-                         source={"frames": 5})
+    config = make_config(
+        dataset="sim:test", sampler="msa", flush=False, cache_dir=str(tmp_path / "cache"), source={"frames": 5}
+    )
     methods = (("all", "all", {}), ("msa", "msa", {}))
     for out in (tmp_path / "out", None):
         with pytest.raises(InputError, match="window=10 is longer than the 5 frames read"):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.slam import config_backend
 
 from msa_slam.backend import PoseGraph
 from msa_slam.descriptors import ScanContext
@@ -11,7 +12,6 @@ from msa_slam.errors import InputError
 from msa_slam.pipeline import make_config
 from msa_slam.registration import KeyframeCloudStore
 from msa_slam.sampling import make_sampler
-from helpers.slam import config_backend
 
 
 class _Replaying:
@@ -40,8 +40,15 @@ def _frames(n: int):
 
 def _backend(n: int, sampler="all"):
     config = make_config(dataset="x", sampler=sampler if isinstance(sampler, str) else "all")
-    return config_backend(config, ScanContext(), KeyframeCloudStore(0.5), PoseGraph(), n, "stub",
-                          None if isinstance(sampler, str) else sampler)
+    return config_backend(
+        config,
+        ScanContext(),
+        KeyframeCloudStore(0.5),
+        PoseGraph(),
+        n,
+        "stub",
+        None if isinstance(sampler, str) else sampler,
+    )
 
 
 def test_core_streams_frames_into_keyframes_and_a_result():
@@ -55,10 +62,13 @@ def test_core_streams_frames_into_keyframes_and_a_result():
     assert result.memory_bytes["cloud_bytes"] > 0 and result.memory_bytes["descriptor_bytes"] > 0
 
 
-@pytest.mark.parametrize("window, error", [
-    ((), "chose frame 0 at frame 2, but frame 0 had left its window"),
-    ((0, 1, 2), "chose frame 0 after keyframe 1 .keyframes must come in time order"),
-])
+@pytest.mark.parametrize(
+    "window, error",
+    [
+        ((), "chose frame 0 at frame 2, but frame 0 had left its window"),
+        ((0, 1, 2), "chose frame 0 after keyframe 1 .keyframes must come in time order"),
+    ],
+)
 def test_keyframes_the_sampler_can_no_longer_give_are_refused(window, error):
     backend = _backend(4, _Replaying({1: [1], 2: [0]}, window))
     descriptor = ScanContext()

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.cache_data import data, fill_excerpt  # noqa: F401 (data: a fixture)
 
 import msa_slam.io.cache
 import msa_slam.io.fingerprint
@@ -28,7 +29,6 @@ from msa_slam.io.outputs import OutputError
 from msa_slam.odometry import KissOdometry, OdometryCache
 from msa_slam.pipeline import make_config, prepare_frontend
 from msa_slam.sim import DEFAULT_CONFIGS
-from helpers.cache_data import data, fill_excerpt  # noqa: F401 (data: a fixture)
 
 
 def _frontend(data: Path, cache: Path, **fields):
@@ -59,18 +59,27 @@ def _shift_keeping_times(scan: Path, dx: float) -> None:
 def test_a_source_edit_changes_the_keys_of_what_that_code_computes_only(data, tmp_path, monkeypatch):
     seq = open_dataset(data)
     config = KissOdometry().config
-    keys = {"descriptors": descriptor_key(seq, "sc", {}), "odometry": OdometryCache.key(seq, config),
-            "simulation": DEFAULT_CONFIGS["test"].key()}
+    keys = {
+        "descriptors": descriptor_key(seq, "sc", {}),
+        "odometry": OdometryCache.key(seq, config),
+        "simulation": DEFAULT_CONFIGS["test"].key(),
+    }
 
     def keys_with(package: Path) -> dict[str, str]:
         monkeypatch.setattr(msa_slam.io.fingerprint, "PACKAGE_DIR", package)
-        return {"descriptors": descriptor_key(seq, "sc", {}), "odometry": OdometryCache.key(seq, config),
-                "simulation": DEFAULT_CONFIGS["test"].key()}
+        return {
+            "descriptors": descriptor_key(seq, "sc", {}),
+            "odometry": OdometryCache.key(seq, config),
+            "simulation": DEFAULT_CONFIGS["test"].key(),
+        }
 
     assert keys_with(_package_copy(tmp_path / "same")) == keys  # where the package is installed does not count
     edited = _package_copy(tmp_path / "descriptors")
-    _edit(edited / "descriptors" / "scan_context.py", "self.shape = (self.n_ring, self.n_sector)",
-          "self.shape = (self.n_ring, self.n_sector)  # an edit")
+    _edit(
+        edited / "descriptors" / "scan_context.py",
+        "self.shape = (self.n_ring, self.n_sector)",
+        "self.shape = (self.n_ring, self.n_sector)  # an edit",
+    )
     changed = keys_with(edited)
     assert changed["descriptors"] != keys["descriptors"]
     assert (changed["odometry"], changed["simulation"]) == (keys["odometry"], keys["simulation"])
@@ -144,8 +153,13 @@ def _cache_warnings(caplog) -> list[str]:
 
 
 def _two_dataset_grid(first: Path, second: Path, cache: Path) -> dict:
-    return {"name": "identity", "pipeline": "batch", "datasets": [str(first), str(second)], "samplers": ["all"],
-            "base": {"cache_dir": str(cache), "odometry_params": {"voxel_size": 1.5}}}
+    return {
+        "name": "identity",
+        "pipeline": "batch",
+        "datasets": [str(first), str(second)],
+        "samplers": ["all"],
+        "base": {"cache_dir": str(cache), "odometry_params": {"voxel_size": 1.5}},
+    }
 
 
 def test_a_resumed_grid_reruns_only_the_cells_whose_data_changed(sequence, tmp_path, caplog):
@@ -177,24 +191,33 @@ def test_a_cell_to_rerun_holding_a_persons_file_is_refused_and_kept(sequence, tm
     notes.write_text("mine\n")
     for k in range(8, 12):
         _shift_keeping_times(first / "velodyne" / f"{k:06d}.bin", 3.0)
-    with pytest.raises(OutputError, match=rf"cell {on_first.id} must be rerun, but its folder holds files msa-slam "
-                                          rf"did not write \(cells/{on_first.id}/notes.txt\)"):
+    with pytest.raises(
+        OutputError,
+        match=rf"cell {on_first.id} must be rerun, but its folder holds files msa-slam "
+        rf"did not write \(cells/{on_first.id}/notes.txt\)",
+    ):
         run_grid(grid, out)
     assert notes.read_text() == "mine\n" and (out / "cells" / on_first.id / "cell.json").is_file()
     notes.unlink()
     assert run_grid(grid, out).ran == [on_first.id]  # without the person's file, the cell is rerun
 
 
-@pytest.mark.parametrize("kind, damage, reason", [
-    ("descriptors", lambda a: a.reshape(len(a), a.shape[2], a.shape[1]), "shape (12, 60, 20), expected (12, 20, 60)"),
-    ("descriptors", lambda a: a.astype(np.float32), "dtype <f4, expected <f8"),
-    ("descriptors", lambda a: a.astype(">f8"), "dtype >f8, expected <f8"),
-    ("odometry", lambda a: a.astype(np.float32), "dtype <f4, expected <f8"),
-    ("odometry", lambda a: a.astype(">f8"), "dtype >f8, expected <f8"),
-    ("odometry", lambda a: a[:, :3, :], "shape (12, 3, 4), expected (12, 4, 4)"),
-])
-def test_entries_of_another_shape_precision_or_byte_order_are_recomputed(data, tmp_path, caplog, kind, damage,
-                                                                           reason):
+@pytest.mark.parametrize(
+    "kind, damage, reason",
+    [
+        (
+            "descriptors",
+            lambda a: a.reshape(len(a), a.shape[2], a.shape[1]),
+            "shape (12, 60, 20), expected (12, 20, 60)",
+        ),
+        ("descriptors", lambda a: a.astype(np.float32), "dtype <f4, expected <f8"),
+        ("descriptors", lambda a: a.astype(">f8"), "dtype >f8, expected <f8"),
+        ("odometry", lambda a: a.astype(np.float32), "dtype <f4, expected <f8"),
+        ("odometry", lambda a: a.astype(">f8"), "dtype >f8, expected <f8"),
+        ("odometry", lambda a: a[:, :3, :], "shape (12, 3, 4), expected (12, 4, 4)"),
+    ],
+)
+def test_entries_of_another_shape_precision_or_byte_order_are_recomputed(data, tmp_path, caplog, kind, damage, reason):
     cache = tmp_path / "cache"
     first = _frontend(data, cache)
     (entry,) = (cache / "pipeline").glob(f"{kind}-*.npy")

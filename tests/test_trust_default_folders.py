@@ -8,8 +8,9 @@ import signal
 import time
 from pathlib import Path
 
-from msa_slam.io.outputs import is_result_folder, open_result_folder, staged_dir
 from test_faults import cli, command, leftovers, stream_files  # noqa: F401 (stream_files: a fixture)
+
+from msa_slam.io.outputs import is_result_folder, open_result_folder, staged_dir
 
 STEM = "2026-01-01_00-00-00"
 
@@ -18,7 +19,7 @@ def default_sample(tmp: Path) -> list[str]:
     """The `sample` command of test_faults without --out: its result goes to msa_slam_results/sample/<time>."""
     args = command("sample", tmp, tmp / "unused", tmp / "cache")
     at = args.index("--out")
-    return args[:at] + args[at + 2:]
+    return args[:at] + args[at + 2 :]
 
 
 def test_two_default_runs_in_the_same_second_get_two_folders(tmp_path, monkeypatch):

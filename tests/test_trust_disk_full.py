@@ -16,6 +16,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from test_faults import cli, command, leftovers, stream_files  # noqa: F401 (stream_files: a fixture)
 
 import msa_slam.sampling.figure
 import msa_slam.sim.sequence
@@ -23,7 +24,6 @@ from msa_slam.cli import main
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.cache import CacheDir
 from msa_slam.io.outputs import OutputError
-from test_faults import cli, command, leftovers, stream_files  # noqa: F401 (stream_files: a fixture)
 
 SHORT_WRITE = OSError("1835008 requested and 0 written")  # what numpy's tofile raises: no errno
 
@@ -52,12 +52,18 @@ def test_simulation_short_write_on_a_full_disk_is_one_line(tmp_path, monkeypatch
 
     monkeypatch.setattr(msa_slam.sim.sequence, "_write_scan", fill_the_disk)
     out = tmp_path / "S"
-    code, err = run_cli(monkeypatch, capsys, ["simulate", "--trajectory", "kitti-07", "--end", "6",
-                                              "--azimuth-steps", "360", "--out", str(out), "--quiet"])
+    code, err = run_cli(
+        monkeypatch,
+        capsys,
+        ["simulate", "--trajectory", "kitti-07", "--end", "6", "--azimuth-steps", "360", "--out", str(out), "--quiet"],
+    )
     assert code == 2 and len(err) == 1
-    assert re.fullmatch(rf"error: {re.escape(str(out))}: no space left on the device \(0\.0 MiB free; at least "
-                        r"0\.[1-9] MiB needed\); free some space or choose a writable --out or cache folder "
-                        r"\(MSA_SLAM_CACHE\)", err[0]), err[0]
+    assert re.fullmatch(
+        rf"error: {re.escape(str(out))}: no space left on the device \(0\.0 MiB free; at least "
+        r"0\.[1-9] MiB needed\); free some space or choose a writable --out or cache folder "
+        r"\(MSA_SLAM_CACHE\)",
+        err[0],
+    ), err[0]
     assert list(tmp_path.iterdir()) == []
 
 
@@ -73,13 +79,19 @@ def test_result_folder_short_write_on_a_full_disk_is_one_line(stream_files, monk
     assert not (stream_files / "results").exists()
 
 
-@pytest.mark.parametrize("failure, message", [
-    (SHORT_WRITE, r"no space left on the device \(0\.0 MiB free; at least 0\.0 MiB needed\); free some space or "
-                  "choose another --out$"),
-    (OSError(errno.EDQUOT, os.strerror(errno.EDQUOT)), "no space left on the device"),
-    (PermissionError(errno.EACCES, os.strerror(errno.EACCES)), r"cannot write there \(.*: permission denied\)"),
-    (OSError(errno.EIO, os.strerror(errno.EIO)), r"cannot write there \(.*: input/output error\)"),
-])
+@pytest.mark.parametrize(
+    "failure, message",
+    [
+        (
+            SHORT_WRITE,
+            r"no space left on the device \(0\.0 MiB free; at least 0\.0 MiB needed\); free some space or "
+            "choose another --out$",
+        ),
+        (OSError(errno.EDQUOT, os.strerror(errno.EDQUOT)), "no space left on the device"),
+        (PermissionError(errno.EACCES, os.strerror(errno.EACCES)), r"cannot write there \(.*: permission denied\)"),
+        (OSError(errno.EIO, os.strerror(errno.EIO)), r"cannot write there \(.*: input/output error\)"),
+    ],
+)
 def test_atomic_write_failure_is_one_line_and_leaves_no_temp(tmp_path, monkeypatch, full_disk, failure, message):
     def fail(path, text):
         Path(path).open("w").close()  # the temporary file exists when the write fails
@@ -102,7 +114,8 @@ def test_cache_short_write_on_a_full_disk_warns_once_naming_the_cause(tmp_path, 
         assert store.save("a", np.zeros(10)) is None and store.save("b", np.zeros(10)) is None
     assert [r.getMessage() for r in caplog.records] == [
         f"cache: cannot write {tmp_path / 'a.npy'} (No space left on device; needs 0.00 MiB); "
-        "continuing without the cache"]
+        "continuing without the cache"
+    ]
     assert list(tmp_path.iterdir()) == []
 
 
@@ -111,8 +124,13 @@ def tiny_disk(tmp_path):
     """A 2 MiB tmpfs mounted for the test (skipped where mounting is not permitted)."""
     mount = tmp_path / "tiny"
     mount.mkdir()
-    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mount)],
-                                           capture_output=True).returncode != 0:
+    if (
+        os.geteuid() != 0
+        or subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mount)], capture_output=True
+        ).returncode
+        != 0
+    ):
         pytest.skip("mounting a tmpfs is not permitted here")
     try:
         yield mount
@@ -126,7 +144,10 @@ def test_simulation_on_a_really_full_disk_is_one_line(tiny_disk, tmp_path):
     full = cli(tmp_path, "none", args, tmp_path / "cache", out)
     assert full.returncode == 2, full.stderr
     (line,) = full.stderr.strip().splitlines()
-    assert re.fullmatch(rf"error: {re.escape(str(out))}: no space left on the device \(\d+\.\d MiB free; at least "
-                        r"\d+\.\d MiB needed\); free some space or choose a writable --out or cache folder "
-                        r"\(MSA_SLAM_CACHE\)", line), line
+    assert re.fullmatch(
+        rf"error: {re.escape(str(out))}: no space left on the device \(\d+\.\d MiB free; at least "
+        r"\d+\.\d MiB needed\); free some space or choose a writable --out or cache folder "
+        r"\(MSA_SLAM_CACHE\)",
+        line,
+    ), line
     assert list(tiny_disk.iterdir()) == [] and leftovers(tiny_disk) == []

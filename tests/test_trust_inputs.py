@@ -16,16 +16,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from helpers.orphans import poll, proc_stat
 from scipy.spatial.transform import Rotation
+from test_cli_main import run_cli
+from test_experiments import TINY
 
 from msa_slam.datasets import open_dataset
 from msa_slam.errors import InputError
 from msa_slam.experiments import expand, parse_grid
 from msa_slam.io.poses import format_kitti
 from msa_slam.odometry import KissOdometry
-from helpers.orphans import poll, proc_stat
-from test_cli_main import run_cli
-from test_experiments import TINY
 
 
 def _kitti_with_tr(root: Path, tr_line: str) -> Path:
@@ -48,9 +48,10 @@ def test_a_non_rigid_tr_is_named_in_calib_txt_not_as_a_pose(tmp_path):
     calib = seq / "calib.txt"
     with pytest.raises(InputError) as err:
         open_dataset(seq)
-    assert str(err.value) == (f"{calib}:2: Tr (the Velodyne->camera extrinsic) is not a rigid transform "
-                              "(|R R^T - I| = 2.10e-01, det R = 1.100000); it must be a rotation and a translation")
-
+    assert str(err.value) == (
+        f"{calib}:2: Tr (the Velodyne->camera extrinsic) is not a rigid transform "
+        "(|R R^T - I| = 2.10e-01, det R = 1.100000); it must be a rotation and a translation"
+    )
 
 
 def test_a_scan_too_sparse_to_register_is_extrapolated_and_named(caplog):
@@ -67,11 +68,13 @@ def test_a_scan_too_sparse_to_register_is_extrapolated_and_named(caplog):
         "KISS-ICP frame 3: it has only 1 point (registration needs 3), so it was not registered (pose extrapolated "
         "at constant velocity)",
         "KISS-ICP frame 4: only 2 of its 3 points lie within 0-50 m (registration needs 3), so it was not "
-        "registered (pose extrapolated at constant velocity)"]
+        "registered (pose extrapolated at constant velocity)",
+    ]
     np.testing.assert_allclose(poses[3], poses[2] @ np.linalg.inv(poses[1]) @ poses[2], atol=1e-9)
     assert odometry.unregistered_warning(5) == [
         "odometry: KISS-ICP could not register 2 of 5 frames (frames 3, 4): fewer than 3 of their points lie within "
-        "0-50 m, so their poses were extrapolated at constant velocity"]
+        "0-50 m, so their poses were extrapolated at constant velocity"
+    ]
 
 
 def test_a_grid_states_its_cells_and_time_before_it_starts_and_the_time_left_as_it_runs(tmp_path):
@@ -83,11 +86,13 @@ def test_a_grid_states_its_cells_and_time_before_it_starts_and_the_time_left_as_
     first = run_cli("experiment", str(grid_file), "--out", str(out))
     assert first.returncode == 0, first.stderr
     lines = first.stderr.splitlines()
-    assert re.fullmatch(r"grid t: 2 cells, 0 finished earlier, 2 to run; estimated time \d+ s \(rough: each cell's "
-                        r"frames times an assumed cost a frame of its stages on a 2-core machine like this project's: "
-                        r"simulation 27 ms, kiss-icp 126 ms for 46080 points a scan \(scaled by a scan's points\), "
-                        r"descriptor 7 ms, back end 17 ms; on 1 worker; start-up and writing results not included\)",
-                        lines[0]), lines[0]
+    assert re.fullmatch(
+        r"grid t: 2 cells, 0 finished earlier, 2 to run; estimated time \d+ s \(rough: each cell's "
+        r"frames times an assumed cost a frame of its stages on a 2-core machine like this project's: "
+        r"simulation 27 ms, kiss-icp 126 ms for 46080 points a scan \(scaled by a scan's points\), "
+        r"descriptor 7 ms, back end 17 ms; on 1 worker; start-up and writing results not included\)",
+        lines[0],
+    ), lines[0]
     assert lines[1] == "grid t (0 done before): start (2)"
     assert re.fullmatch(r".*: 1/2 \(50 %\), [\d.]+ s, ~\d+ s left", lines[2]), lines[2]
 
@@ -101,7 +106,8 @@ def test_a_grid_states_its_cells_and_time_before_it_starts_and_the_time_left_as_
     assert second.stderr.splitlines()[0] == (
         f"grid t: 2 cells, 1 finished earlier, 1 to run; estimated time {per_frame * metrics['frames']:.0f} s "
         f"(the stage times 1 finished cell(s) of this grid recorded (metrics.json time_s), {1e3 * per_frame:.3g} ms "
-        "a frame, times each cell's frames; on 1 worker; start-up and writing results not included)")
+        "a frame, times each cell's frames; on 1 worker; start-up and writing results not included)"
+    )
 
 
 # The demo's role: start the background compile, then work until killed (stdin stays open until then).
@@ -132,8 +138,13 @@ def test_a_killed_parent_takes_its_compile_child_with_it(tmp_path, when):
     anything; `fallback`: a child with only the thread watching its parent (no prctl), killed once that runs.
     An empty numba cache makes the compile child compile (about a minute of CPU) rather than load."""
     script, ready = (_WATCHED_PARENT if when == "fallback" else _COMPILING_PARENT), tmp_path / "ready"
-    parent = subprocess.Popen([sys.executable, "-c", script, str(ready)], stdin=subprocess.PIPE,
-                              stdout=subprocess.PIPE, text=True, env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)})
+    parent = subprocess.Popen(
+        [sys.executable, "-c", script, str(ready)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)},
+    )
     child = int(parent.stdout.readline())
     try:
         if when == "compiling":

@@ -8,13 +8,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+from test_experiments import TOO_SPARSE
+from test_faults import cli, command, leftovers, stream_files  # noqa: F401 (stream_files: a fixture)
 from typer.testing import CliRunner
 
 from msa_slam.cli import app
 from msa_slam.experiments import parse_grid, run_grid
 from msa_slam.io.outputs import is_result_folder
-from test_experiments import TOO_SPARSE
-from test_faults import cli, command, leftovers, stream_files  # noqa: F401 (stream_files: a fixture)
 
 SIM = ["simulate", "--trajectory", "kitti-07", "--end", "12", "--azimuth-steps", "360", "--quiet"]
 
@@ -52,12 +52,18 @@ def test_resumed_experiment_keeps_user_folders_and_removes_killed_writers_leftov
     (out / "stores" / "mydata.txt").write_text("mine")
     (out / "cells" / ".mynotes.partial-keep").mkdir()
     (out / "cells" / ".mynotes.partial-keep" / "notes.txt").write_text("mine")
-    _killed_python("import os, sys; from pathlib import Path; from msa_slam.io.staging import staged_dir\n"
-                   "with staged_dir(Path(sys.argv[1])) as tmp:\n"
-                   "    (tmp / 'metrics.json').write_text('{'); os._exit(9)\n", str(out / "cells" / "cell-a"))
-    _killed_python("import os, sys, numpy as np; from msa_slam.registration import DiskCloudStore\n"
-                   "store = DiskCloudStore(0.5, sys.argv[1]); store.add(1, np.ones((50, 3)) * np.arange(50)[:, None])\n"
-                   "os._exit(9)\n", str(out / "stores" / "cell-b"))
+    _killed_python(
+        "import os, sys; from pathlib import Path; from msa_slam.io.staging import staged_dir\n"
+        "with staged_dir(Path(sys.argv[1])) as tmp:\n"
+        "    (tmp / 'metrics.json').write_text('{'); os._exit(9)\n",
+        str(out / "cells" / "cell-a"),
+    )
+    _killed_python(
+        "import os, sys, numpy as np; from msa_slam.registration import DiskCloudStore\n"
+        "store = DiskCloudStore(0.5, sys.argv[1]); store.add(1, np.ones((50, 3)) * np.arange(50)[:, None])\n"
+        "os._exit(9)\n",
+        str(out / "stores" / "cell-b"),
+    )
     killed = [p for p in (out / "cells").iterdir() if p.name.startswith(".cell-a.partial-")]
     assert len(killed) == 1 and (out / "stores" / "cell-b").is_dir()
 
@@ -70,11 +76,14 @@ def test_resumed_experiment_keeps_user_folders_and_removes_killed_writers_leftov
 def test_glob_characters_in_out_touch_no_other_run_and_its_own_leftovers_go(stream_files):
     tmp, parent = stream_files, stream_files / "P"
     parent.mkdir()
-    code = ("import sys; from pathlib import Path; from msa_slam.io.staging import staged_dir\n"
-            "with staged_dir(Path(sys.argv[1]), 'compare') as tmp:\n"
-            "    (tmp / 'report.md').write_text('cab'); print('ready', flush=True); sys.stdin.readline()\n")
-    compare = subprocess.Popen([sys.executable, "-c", code, str(parent / "cab")], stdin=subprocess.PIPE,
-                               stdout=subprocess.PIPE, text=True)
+    code = (
+        "import sys; from pathlib import Path; from msa_slam.io.staging import staged_dir\n"
+        "with staged_dir(Path(sys.argv[1]), 'compare') as tmp:\n"
+        "    (tmp / 'report.md').write_text('cab'); print('ready', flush=True); sys.stdin.readline()\n"
+    )
+    compare = subprocess.Popen(
+        [sys.executable, "-c", code, str(parent / "cab")], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
     try:
         assert compare.stdout.readline().strip() == "ready"  # its .cab.partial-* is being written
         star = cli(tmp, "none", command("sample", tmp, parent / "c*", tmp / "cache"), tmp / "cache", parent / "c*")
@@ -109,8 +118,13 @@ def test_out_that_is_the_working_directory_or_a_parent_is_refused(stream_files):
     empty.mkdir()
     folder = empty.stat().st_ino
     for out in (".", "..", str(empty)):
-        refused = cli(empty, "none", command("sample", stream_files, Path(out), stream_files / "cache"),
-                      stream_files / "cache", empty)
+        refused = cli(
+            empty,
+            "none",
+            command("sample", stream_files, Path(out), stream_files / "cache"),
+            stream_files / "cache",
+            empty,
+        )
         (line,) = refused.stderr.strip().splitlines()
         assert refused.returncode == 2 and "current working directory; choose a new folder" in line, line
     assert empty.stat().st_ino == folder and list(empty.iterdir()) == []

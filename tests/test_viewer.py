@@ -16,8 +16,22 @@ runner = CliRunner()
 
 
 def _online(sequence, odometry_file, cache_dir, out, *extra):
-    return runner.invoke(app, ["online", "--dataset", str(sequence), "--odometry", str(odometry_file),
-                               "--cache-dir", str(cache_dir), "--out", str(out), "--quiet", *extra])
+    return runner.invoke(
+        app,
+        [
+            "online",
+            "--dataset",
+            str(sequence),
+            "--odometry",
+            str(odometry_file),
+            "--cache-dir",
+            str(cache_dir),
+            "--out",
+            str(out),
+            "--quiet",
+            *extra,
+        ],
+    )
 
 
 def test_a_saved_recording_holds_every_logged_entity_per_frame(sequence, odometry_file, cache_dir, tmp_path):
@@ -47,8 +61,9 @@ def test_viewer_save_never_replaces_a_users_file(sequence, odometry_file, cache_
     assert mine.read_text() == "mine" and not (tmp_path / "out").exists()
 
 
-def test_viewer_without_rerun_is_one_clear_error_before_any_work(sequence, odometry_file, cache_dir, tmp_path,
-                                                                 monkeypatch):
+def test_viewer_without_rerun_is_one_clear_error_before_any_work(
+    sequence, odometry_file, cache_dir, tmp_path, monkeypatch
+):
     monkeypatch.setitem(sys.modules, "rerun", None)  # import rerun raises ImportError
     result = _online(sequence, odometry_file, cache_dir, tmp_path / "out", "--viewer")
     assert isinstance(result.exception, InputError) and "pip install 'msa-slam[viewer]'" in str(result.exception)

@@ -5,8 +5,9 @@ InputError line naming the key and, for an unknown key, the valid ones: a typo n
 from __future__ import annotations
 
 import typing
+from collections.abc import Mapping
 from contextvars import ContextVar
-from typing import Any, ClassVar, Mapping
+from typing import Any, ClassVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
@@ -60,8 +61,10 @@ def check_key_names(model: type[BaseModel], data: Mapping[Any, Any], where: str,
     validation error. `where` starts the InputError, `section` is the dotted path of `data` within it."""
     for key, value in data.items():
         if not isinstance(key, str):
-            raise InputError(f"{where}: {section + ': ' if section else ''}key {key!r} is not a name; valid keys: "
-                             f"{', '.join(model.model_fields)}")
+            raise InputError(
+                f"{where}: {section + ': ' if section else ''}key {key!r} is not a name; valid keys: "
+                f"{', '.join(model.model_fields)}"
+            )
         field = model.model_fields.get(key)
         if field is None or not isinstance(value, Mapping):
             continue

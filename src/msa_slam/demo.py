@@ -14,8 +14,8 @@ import time
 from pathlib import Path
 
 from msa_slam.descriptors.registry import make_descriptor
-from msa_slam.io.outputs import DEFAULT_RESULTS
 from msa_slam.experiments.compare import method_configs, run_compare
+from msa_slam.io.outputs import DEFAULT_RESULTS
 from msa_slam.pipeline.config import make_config
 from msa_slam.sampling.msa.warm import compile_in_background
 from msa_slam.workers import available_cpus
@@ -23,19 +23,35 @@ from msa_slam.workers import available_cpus
 DEMO_DATASET = "sim:demo"
 
 
-def run_demo(out: str | os.PathLike | None = None, cache_dir: str | os.PathLike | None = None,
-             quiet: bool = False, overwrite: bool = False) -> Path:
+def run_demo(
+    out: str | os.PathLike | None = None,
+    cache_dir: str | os.PathLike | None = None,
+    quiet: bool = False,
+    overwrite: bool = False,
+) -> Path:
     """Run the comparison with the paper's settings (KISS-ICP, Scan Context, oracle loops); return report.md.
 
     `out=None` writes a new timestamped folder under msa_slam_results/demo (linked as `latest`). The threshold
     sweep is left out (it would add about half to the methods' time); `msa-slam compare -d sim:demo` runs it."""
     start = time.perf_counter()
-    config = make_config(dataset=DEMO_DATASET, odometry="kiss", descriptor="sc", mode="oracle",
-                         cache_dir=None if cache_dir is None else str(cache_dir))
+    config = make_config(
+        dataset=DEMO_DATASET,
+        odometry="kiss",
+        descriptor="sc",
+        mode="oracle",
+        cache_dir=None if cache_dir is None else str(cache_dir),
+    )
     msa = next(cfg for cfg in method_configs(config) if cfg.sampler == "msa")
     compile_in_background(msa.sampler_params, make_descriptor(config.descriptor, **config.descriptor_params).shape)
-    report = run_compare(config, out, quiet=quiet, overwrite=overwrite,
-                         default_parent=DEFAULT_RESULTS / "demo", sweep=False, workers=available_cpus())
+    report = run_compare(
+        config,
+        out,
+        quiet=quiet,
+        overwrite=overwrite,
+        default_parent=DEFAULT_RESULTS / "demo",
+        sweep=False,
+        workers=available_cpus(),
+    )
     if not quiet:
         print(f"demo finished in {time.perf_counter() - start:.0f} s")
     return report

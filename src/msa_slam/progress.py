@@ -21,8 +21,15 @@ def progress_bar(quiet: bool = False, transient: bool = True, fields: str = "") 
     if not quiet and not Console().is_terminal:
         return LogProgress(fields=fields)
     extra = [TextColumn(fields)] if fields else []
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), *extra, TimeElapsedColumn(),
-                    disable=quiet, transient=transient)
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        *extra,
+        TimeElapsedColumn(),
+        disable=quiet,
+        transient=transient,
+    )
 
 
 @dataclass
@@ -64,8 +71,16 @@ class LogProgress:
     def advance(self, task_id: TaskID, advance: float = 1) -> None:
         self.update(task_id, advance=advance)
 
-    def update(self, task_id: TaskID, *, completed: float | None = None, advance: float | None = None,
-               description: str | None = None, total: float | None = None, **fields: Any) -> None:
+    def update(
+        self,
+        task_id: TaskID,
+        *,
+        completed: float | None = None,
+        advance: float | None = None,
+        description: str | None = None,
+        total: float | None = None,
+        **fields: Any,
+    ) -> None:
         task = self._tasks[task_id]
         if description is not None:
             task.description = description
@@ -84,13 +99,17 @@ class LogProgress:
         step = int(task.completed / task.total / STEP)
         if step > task.logged_step and time.monotonic() - task.logged_at >= self.min_interval_s:
             task.logged_step, task.logged_at = step, time.monotonic()
-            self._log(f"{task.description}: {self._count(task)} ({100 * task.completed / task.total:.0f} %), "
-                      f"{time.monotonic() - task.start:.1f} s{self._fields(task)}")
+            self._log(
+                f"{task.description}: {self._count(task)} ({100 * task.completed / task.total:.0f} %), "
+                f"{time.monotonic() - task.start:.1f} s{self._fields(task)}"
+            )
 
     def _finish(self, task: _Task, word: str) -> None:
         task.finished = True
-        self._log(f"{task.description}: {word} {self._count(task)} in {time.monotonic() - task.start:.1f} s"
-                  f"{self._fields(task)}")
+        self._log(
+            f"{task.description}: {word} {self._count(task)} in {time.monotonic() - task.start:.1f} s"
+            f"{self._fields(task)}"
+        )
 
     @staticmethod
     def _count(task: _Task) -> str:

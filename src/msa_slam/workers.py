@@ -25,9 +25,10 @@ import multiprocessing
 import os
 import signal
 import sys
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from contextlib import contextmanager
-from typing import Any, Callable, Iterator
+from typing import Any
 
 from msa_slam.errors import InputError
 from msa_slam.lifetime import end_with_parent
@@ -61,8 +62,9 @@ def forked_workers(workers: int, shared_object: Any) -> Iterator[Callable[..., F
     global _shared
     _shared = shared_object
     gc.freeze()
-    executor = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"),
-                                   initializer=_start_worker, initargs=(os.getpid(),))
+    executor = ProcessPoolExecutor(
+        workers, mp_context=multiprocessing.get_context("fork"), initializer=_start_worker, initargs=(os.getpid(),)
+    )
     try:
         yield executor.submit
     except BaseException:

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import importlib.util
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
-from typing import Iterator
 
 BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 

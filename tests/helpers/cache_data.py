@@ -18,7 +18,7 @@ def fill_excerpt(data: Path, source: Path, first: int) -> Path:
     gt, _ = read_poses(source / "poses.txt")
     for i in range(N_SCANS):
         (data / "velodyne" / f"{i:06d}.bin").write_bytes((source / "velodyne" / f"{first + i:06d}.bin").read_bytes())
-    write_poses(data / "poses.txt", gt[first:first + N_SCANS])
+    write_poses(data / "poses.txt", gt[first : first + N_SCANS])
     (data / "calib.txt").write_text(CALIB_TEXT)
     return data
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 def main() -> None:
     where, occurrence = sys.argv[1], int(sys.argv[2])
-    args = sys.argv[sys.argv.index("--") + 1:]
+    args = sys.argv[sys.argv.index("--") + 1 :]
     cache = Path(os.environ.get("MSA_FAULT_CACHE", "/nonexistent")).resolve()
     out = Path(os.environ.get("MSA_FAULT_OUT", "/nonexistent")).resolve()
     kill = signal.Signals[os.environ.get("MSA_FAULT_SIGNAL", "SIGKILL")]

@@ -3,7 +3,7 @@ processes inherit the patch by fork)."""
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import pytest
 

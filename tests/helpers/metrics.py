@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import copy
 import json
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from msa_slam.evaluation.metrics_json import from_json, to_json
 from msa_slam.slam import RunResult

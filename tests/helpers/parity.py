@@ -8,8 +8,8 @@ import re
 
 import numpy as np
 import pytest
-
 from conftest import SHARED_DIR, shared_path
+
 from msa_slam.sampling import make_sampler
 
 MSA_NAME = re.compile(r"msa_N(\d+)_nn(\d+)_a([\d.]+)_b([\d.]+)_l([\d.]+)_u([\d.]+)$")
@@ -21,12 +21,21 @@ def sampler_for(config: str, mode: str = "exact", pi: str = "reference"):
     match = MSA_NAME.match(config)
     if match:
         n, nb, a, b, lo, hi = match.groups()
-        return make_sampler("msa", window=int(n), neighbours=int(nb), alpha=float(a), beta=float(b),
-                            lambda_l=float(lo), lambda_u=float(hi), mode=mode, pi=pi)
+        return make_sampler(
+            "msa",
+            window=int(n),
+            neighbours=int(nb),
+            alpha=float(a),
+            beta=float(b),
+            lambda_l=float(lo),
+            lambda_u=float(hi),
+            mode=mode,
+            pi=pi,
+        )
     if config == "fixed_0":
         return make_sampler("all")
     if config.startswith("fixed_"):
-        return make_sampler("constant", distance=float(config[len("fixed_"):]))
+        return make_sampler("constant", distance=float(config[len("fixed_") :]))
     if config == "entropy_t0.05_d5":
         return make_sampler("entropy", threshold=0.05, max_distance=5.0)
     if config == "spaciousness_paper":

@@ -15,8 +15,10 @@ from msa_slam.io.marker import MARKER
 VOLATILE_KEY = re.compile(r"time|(^|_)ms(_|$)|rss|fps|latency|cached|realtime|_s$")
 # Files that carry those figures as text or pixels (report.md, figures, per-step timings), and provenance.json
 # (date, command line, machine).
-VOLATILE_FILE = re.compile(r"(^|/)(report\.md|provenance\.json|processes\.json|comparison\.md|results\.md|figures/.*|steps\.csv"
-                           r"|.*\.png|errors/.*)$")
+VOLATILE_FILE = re.compile(
+    r"(^|/)(report\.md|provenance\.json|processes\.json|comparison\.md|results\.md|figures/.*|steps\.csv"
+    r"|.*\.png|errors/.*)$"
+)
 
 
 def _strip(value: Any) -> Any:

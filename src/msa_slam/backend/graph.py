@@ -26,7 +26,7 @@ consistency bookkeeping, accounting) keyframe_graph.py's.
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import gtsam
 import numpy as np
@@ -55,8 +55,9 @@ class PoseGraph(KeyframeGraph):
         self._graph.push_back(graph)
         self._values.insert(values)
 
-    def add_loop(self, target_key: int, source_key: int, T_target_source: np.ndarray,
-                 covariance: np.ndarray | None = None) -> None:
+    def add_loop(
+        self, target_key: int, source_key: int, T_target_source: np.ndarray, covariance: np.ndarray | None = None
+    ) -> None:
         """Add a verified loop: the pose of `source_key` seen from `target_key`, with the registration's
         6x6 covariance (rotation, translation) when it has one."""
         self._loops.push_back(self._loop_factor(target_key, source_key, T_target_source, covariance))
@@ -96,8 +97,13 @@ class IncrementalPoseGraph(KeyframeGraph):
 
     SELECTS_INLIERS = True
 
-    def __init__(self, config: GraphConfig | None = None, relinearize_threshold: float = 0.01,
-                 final_iterations: int = 10, mode: str = "oracle") -> None:
+    def __init__(
+        self,
+        config: GraphConfig | None = None,
+        relinearize_threshold: float = 0.01,
+        final_iterations: int = 10,
+        mode: str = "oracle",
+    ) -> None:
         super().__init__(config, mode)
         self.final_iterations = int(final_iterations)
         params = gtsam.ISAM2Params()
@@ -115,8 +121,9 @@ class IncrementalPoseGraph(KeyframeGraph):
         self._pending_graph.push_back(graph)
         self._pending_values.insert(values)
 
-    def add_loop(self, target_key: int, source_key: int, T_target_source: np.ndarray,
-                 covariance: np.ndarray | None = None) -> None:
+    def add_loop(
+        self, target_key: int, source_key: int, T_target_source: np.ndarray, covariance: np.ndarray | None = None
+    ) -> None:
         factor = self._loop_factor(target_key, source_key, T_target_source, covariance)
         if self.selects_inliers:  # enters iSAM2 at the next update if the consistent set keeps it
             self._loop_factors.append(factor)

@@ -76,8 +76,11 @@ class GraphConfig(StageConfig):
     def loop_covariance(self, covariance: np.ndarray | None) -> np.ndarray:
         """The 6x6 covariance a loop factor gets: the registration's, bounded, or the fixed one."""
         if self.loop_noise == "hessian" and covariance is not None:
-            return bounded_covariance(covariance, sigma_pair(self.loop_min_rotation, self.loop_min_translation),
-                                      sigma_pair(self.loop_max_rotation, self.loop_max_translation))
+            return bounded_covariance(
+                covariance,
+                sigma_pair(self.loop_min_rotation, self.loop_min_translation),
+                sigma_pair(self.loop_max_rotation, self.loop_max_translation),
+            )
         return np.diag(sigma_pair(self.loop_rotation, self.loop_translation) ** 2)
 
     def odometry_covariance(self, motion: np.ndarray) -> np.ndarray:

@@ -70,8 +70,13 @@ def pair_chi2(a: LoopEdge, b: LoopEdge, path: PathCovariance) -> float:
     ad = _adjoint
     inv_a = np.linalg.inv(a.measured)
     tail_b = b.measured @ o2  # what follows o1
-    cov = (ad(np.linalg.inv(o1 @ tail_b)) @ ad(a.measured) @ a.covariance @ ad(a.measured).T
-           @ ad(np.linalg.inv(o1 @ tail_b)).T)
+    cov = (
+        ad(np.linalg.inv(o1 @ tail_b))
+        @ ad(a.measured)
+        @ a.covariance
+        @ ad(a.measured).T
+        @ ad(np.linalg.inv(o1 @ tail_b)).T
+    )
     cov += ad(np.linalg.inv(tail_b)) @ c1 @ ad(np.linalg.inv(tail_b)).T
     cov += ad(np.linalg.inv(o2)) @ b.covariance @ ad(np.linalg.inv(o2)).T
     cov += c2

@@ -47,8 +47,11 @@ class KeyframeGraph:
         self._odometry = _sigmas(cfg.odometry_rotation, cfg.odometry_translation)
         self._odometry_floor = np.diag(sigma_pair(cfg.odometry_floor_rotation, cfg.odometry_floor_translation) ** 2)
         self._loop = _sigmas(cfg.loop_rotation, cfg.loop_translation)
-        self._kernel = {"huber": gtsam.noiseModel.mEstimator.Huber, "cauchy": gtsam.noiseModel.mEstimator.Cauchy,
-                        "none": None}[self.kernel]
+        self._kernel = {
+            "huber": gtsam.noiseModel.mEstimator.Huber,
+            "cauchy": gtsam.noiseModel.mEstimator.Cauchy,
+            "none": None,
+        }[self.kernel]
         self._keys: list[int] = []
         self._position: dict[int, int] = {}  # key -> position in the keyframe sequence (consistency checks)
         self._initial: dict[int, np.ndarray] = {}
@@ -84,15 +87,21 @@ class KeyframeGraph:
     def describe(self) -> dict[str, Any]:
         """How loops entered the graph (metrics.json `loop_closing`): the kernel, whether inliers were
         selected and, after a selection, what it kept."""
-        out: dict[str, Any] = {"loop_kernel": self.kernel,
-                               "loop_inliers": "consistent" if self.selects_inliers else "all"}
+        out: dict[str, Any] = {
+            "loop_kernel": self.kernel,
+            "loop_inliers": "consistent" if self.selects_inliers else "all",
+        }
         if self.inliers is not None:
             sel = self.inliers
-            out["inlier_selection"] = {"loops": self.num_loops, "kept": len(sel.kept),
-                                       "dropped": self.num_loops - len(sel.kept), "method": sel.method,
-                                       "consistent_pairs": sel.consistent_pairs,
-                                       "chi2_threshold": round(sel.threshold, 4),
-                                       "confidence": self.config.inlier_confidence}
+            out["inlier_selection"] = {
+                "loops": self.num_loops,
+                "kept": len(sel.kept),
+                "dropped": self.num_loops - len(sel.kept),
+                "method": sel.method,
+                "consistent_pairs": sel.consistent_pairs,
+                "chi2_threshold": round(sel.threshold, 4),
+                "confidence": self.config.inlier_confidence,
+            }
         return out
 
     @property
@@ -128,9 +137,13 @@ class KeyframeGraph:
         cfg = self.config
         noise = self._loop
         if cfg.loop_noise == "hessian" and covariance is not None:
-            noise = gtsam.noiseModel.Gaussian.Covariance(bounded_covariance(
-                covariance, sigma_pair(cfg.loop_min_rotation, cfg.loop_min_translation),
-                sigma_pair(cfg.loop_max_rotation, cfg.loop_max_translation)))
+            noise = gtsam.noiseModel.Gaussian.Covariance(
+                bounded_covariance(
+                    covariance,
+                    sigma_pair(cfg.loop_min_rotation, cfg.loop_min_translation),
+                    sigma_pair(cfg.loop_max_rotation, cfg.loop_max_translation),
+                )
+            )
         if self._kernel is None:
             return noise
         return gtsam.noiseModel.Robust.Create(self._kernel.Create(cfg.robust_threshold), noise)
@@ -158,8 +171,9 @@ class KeyframeGraph:
         self._all.push_back(graph)
         return graph, values
 
-    def _loop_factor(self, target_key: int, source_key: int, T_target_source: np.ndarray,
-                     covariance: np.ndarray | None) -> gtsam.NonlinearFactorGraph:
+    def _loop_factor(
+        self, target_key: int, source_key: int, T_target_source: np.ndarray, covariance: np.ndarray | None
+    ) -> gtsam.NonlinearFactorGraph:
         for key in (target_key, source_key):
             if key not in self._initial:
                 raise InputError(f"loop {target_key}->{source_key}: keyframe {key} is not in the pose graph")
@@ -169,14 +183,26 @@ class KeyframeGraph:
         if covariance is not None:
             covariance = np.asarray(covariance, dtype=np.float64)
             if covariance.shape != (6, 6) or not np.isfinite(covariance).all():
-                raise InputError(f"loop {target_key}->{source_key}: covariance must be a finite 6x6 matrix, "
-                                 f"got shape {covariance.shape}")
+                raise InputError(
+                    f"loop {target_key}->{source_key}: covariance must be a finite 6x6 matrix, "
+                    f"got shape {covariance.shape}"
+                )
         graph = gtsam.NonlinearFactorGraph()
-        graph.add(gtsam.BetweenFactorPose3(int(target_key), int(source_key), gtsam.Pose3(measured),
-                                           self._loop_noise(covariance)))
+        graph.add(
+            gtsam.BetweenFactorPose3(
+                int(target_key), int(source_key), gtsam.Pose3(measured), self._loop_noise(covariance)
+            )
+        )
         if self.selects_inliers:
-            self._consistency.add(LoopEdge(self._position[int(target_key)], self._position[int(source_key)],
-                                           measured, self.config.loop_covariance(covariance)), self._path)
+            self._consistency.add(
+                LoopEdge(
+                    self._position[int(target_key)],
+                    self._position[int(source_key)],
+                    measured,
+                    self.config.loop_covariance(covariance),
+                ),
+                self._path,
+            )
         self._loop_slots.append(self._all.size())
         self._all.push_back(graph)
         self.num_factors += 1

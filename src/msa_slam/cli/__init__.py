@@ -10,8 +10,9 @@ import contextlib
 import signal
 import sys
 import warnings
+from collections.abc import Iterator
 from types import FrameType
-from typing import Iterator, Optional, TextIO
+from typing import Optional, TextIO
 
 import typer
 
@@ -38,8 +39,9 @@ def _print_version(value: bool) -> None:
 
 @app.callback()
 def _main(
-    version: Optional[bool] = typer.Option(None, "--version", callback=_print_version, is_eager=True,
-                                           help="print the version and exit"),
+    version: Optional[bool] = typer.Option(
+        None, "--version", callback=_print_version, is_eager=True, help="print the version and exit"
+    ),
 ) -> None:
     """msa-slam command line."""
 
@@ -76,8 +78,14 @@ def _warnings_as_lines() -> Iterator[None]:
     its end) twice."""
     seen: set[str] = set()
 
-    def show(message: Warning | str, category: type[Warning], filename: str, lineno: int,
-             file: TextIO | None = None, line: str | None = None) -> None:
+    def show(
+        message: Warning | str,
+        category: type[Warning],
+        filename: str,
+        lineno: int,
+        file: TextIO | None = None,
+        line: str | None = None,
+    ) -> None:
         text = str(message)
         if text not in seen:
             seen.add(text)

@@ -6,8 +6,9 @@ import contextlib
 import functools
 import inspect
 import typing
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Callable, Iterator, Optional
+from typing import Any, Optional
 
 import typer
 from typer.core import TyperCommand, TyperGroup
@@ -35,22 +36,30 @@ class Group(_FlagsTakeNoValue, TyperGroup):
 
 SAMPLER_NAMES = ("all", "constant", "entropy", "spaciousness", "msa")  # tests check: == the registry's names
 SAMPLER_HELP = f"{', '.join(SAMPLER_NAMES)} (default msa)"
-DESCRIPTOR_HELP = ("sc (Scan Context, default), ot (OverlapTransformer: needs torch and the authors' pretrained "
-                   "weights, -p weights=FILE; where to get them: the end of this help), precomputed "
-                   "(-p descriptor.path=FILE.npy)")
+DESCRIPTOR_HELP = (
+    "sc (Scan Context, default), ot (OverlapTransformer: needs torch and the authors' pretrained "
+    "weights, -p weights=FILE; where to get them: the end of this help), precomputed "
+    "(-p descriptor.path=FILE.npy)"
+)
 # After the options, a paragraph per line as wide as the terminal: a URL in an option's narrow help column would
 # be cut (descriptors.overlap_transformer.WEIGHTS_URL, not imported: --help must not load numpy)
-WEIGHTS_EPILOG = ("OverlapTransformer weights (--descriptor ot -p weights=FILE): the authors' "
-                  "pretrained_overlap_transformer.pth.tar, published at\n\n"
-                  "https://drive.google.com/file/d/1FNrx9pcDa9NF7z8CFtuTWyauNkeSEFW4\n\n"
-                  "via github.com/haomo-ai/OverlapTransformer.")
+WEIGHTS_EPILOG = (
+    "OverlapTransformer weights (--descriptor ot -p weights=FILE): the authors' "
+    "pretrained_overlap_transformer.pth.tar, published at\n\n"
+    "https://drive.google.com/file/d/1FNrx9pcDa9NF7z8CFtuTWyauNkeSEFW4\n\n"
+    "via github.com/haomo-ai/OverlapTransformer."
+)
 MODE_HELP = "oracle (default, the paper; needs ground truth) or realistic"
-DATASET_HELP = ("sequence folder (KITTI, MulRan, HeLiPR, Apollo, Newer College layout, or a folder of .bin/.pcd/.ply "
-                "scans), a ROS1/ROS2 bag (.bag, bag folder, .db3, .mcap), or sim:NAME (sim:demo, sim:kitti-05,...)")
+DATASET_HELP = (
+    "sequence folder (KITTI, MulRan, HeLiPR, Apollo, Newer College layout, or a folder of .bin/.pcd/.ply "
+    "scans), a ROS1/ROS2 bag (.bag, bag folder, .db3, .mcap), or sim:NAME (sim:demo, sim:kitti-05,...)"
+)
 LOADER_NAMES = ("kitti", "mulran", "helipr", "apollo", "ncd", "rosbag", "folder")  # tests: == datasets.LOADERS
-LOADER_HELP = ("how to read --dataset: auto (default: from its layout) or kitti (velodyne/*.bin), mulran "
-               "(sensor_data/Ouster/*.bin + global_pose.csv), helipr (LiDAR/<sensor>/*.bin; --sequence <sensor>), "
-               "apollo (pcds/*.pcd), ncd (Newer College raw_format/ouster_scan), rosbag (--topic), folder (scans)")
+LOADER_HELP = (
+    "how to read --dataset: auto (default: from its layout) or kitti (velodyne/*.bin), mulran "
+    "(sensor_data/Ouster/*.bin + global_pose.csv), helipr (LiDAR/<sensor>/*.bin; --sequence <sensor>), "
+    "apollo (pcds/*.pcd), ncd (Newer College raw_format/ouster_scan), rosbag (--topic), folder (scans)"
+)
 TOPIC_HELP = "PointCloud2 topic of a bag (needed when it has several)"
 GT_HELP = "ground-truth pose file, LiDAR frame: KITTI (one pose a scan) or TUM (matched by time); optional"
 GT_FORMAT_HELP = "format of --gt: auto (default: 12 values a line KITTI, 8 TUM), kitti or tum"
@@ -77,10 +86,15 @@ def with_source_options(command: Callable[..., None]) -> Callable[..., None]:
     run, compare and online instead of eight repeated parameters each."""
     signature = inspect.signature(command)
     hints = typing.get_type_hints(command)  # real types: the command's module may postpone annotations
-    own = [p.replace(annotation=hints.get(name, p.annotation)) for name, p in signature.parameters.items()
-           if name != "source"]
-    added = [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=option, annotation=kind)
-             for name, (kind, option) in SOURCE_OPTIONS.items()]
+    own = [
+        p.replace(annotation=hints.get(name, p.annotation))
+        for name, p in signature.parameters.items()
+        if name != "source"
+    ]
+    added = [
+        inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=option, annotation=kind)
+        for name, (kind, option) in SOURCE_OPTIONS.items()
+    ]
     at = next(i for i, p in enumerate(own) if p.name == "dataset") + 1
     params = [p.replace(kind=inspect.Parameter.KEYWORD_ONLY) for p in own]
     params[at:at] = added
@@ -101,16 +115,20 @@ WINDOW_FIX = "use a window of at most {frames} frames (-p window={frames}), -p f
 
 OVERWRITE_HELP = "replace a previous msa-slam result in --out (never anything msa-slam did not write)"
 CACHE_HELP = "cache root (default $MSA_SLAM_CACHE or ~/.cache/msa-slam)"
-PARAM_HELP = ("override as key=value (repeatable): a config key (similarity_threshold=0.7), a section field "
-              "(verifier.max_residual=0.2, graph.robust=cauchy), a stage parameter (sampler.lambda_u=5, "
-              "odometry.max_range=80) or a bare sampler parameter, or weights=FILE "
-              "(the OverlapTransformer's, with --descriptor ot)")
+PARAM_HELP = (
+    "override as key=value (repeatable): a config key (similarity_threshold=0.7), a section field "
+    "(verifier.max_residual=0.2, graph.robust=cauchy), a stage parameter (sampler.lambda_u=5, "
+    "odometry.max_range=80) or a bare sampler parameter, or weights=FILE "
+    "(the OverlapTransformer's, with --descriptor ot)"
+)
 
 
 def out_help(command: str) -> str:
     """--out help text: what the default is and what is refused."""
-    return (f"result folder (default: a new ./msa_slam_results/{command}/<date_time>, linked as latest); an existing "
-            "folder must be empty or a previous result (with --overwrite)")
+    return (
+        f"result folder (default: a new ./msa_slam_results/{command}/<date_time>, linked as latest); an existing "
+        "folder must be empty or a previous result (with --overwrite)"
+    )
 
 
 @contextlib.contextmanager

@@ -12,8 +12,11 @@ EXPECTED = "a folder written by `msa-slam run`, `online`, `compare`, `demo`, `ex
 
 def report_command(
     results_dir: Path = typer.Argument(..., help=f"result folder: {EXPECTED}"),
-    reference: Optional[str] = typer.Option(None, help="experiments: the method the memory and ATE differences "
-                                                       "compare to (default: the grid's reference, usually all)"),
+    reference: Optional[str] = typer.Option(
+        None,
+        help="experiments: the method the memory and ATE differences "
+        "compare to (default: the grid's reference, usually all)",
+    ),
 ) -> None:
     """(Re)write a result folder's report.md from its files, without running anything (a comparison's also each
     method's): an experiment's also its results.csv, results.md and figures from the finished cells of its

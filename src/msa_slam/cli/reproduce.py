@@ -11,17 +11,30 @@ import typer
 
 
 def reproduce_command(
-    quick: bool = typer.Option(False, "--quick", help="the same grids on short prefixes: fewer datasets, one "
-                                                      "seed, oracle mode, each sweep at its ends (a smoke run)"),
-    out: Optional[Path] = typer.Option(None, help="results folder: new, empty, or an earlier reproduction's "
-                                                  "(resumed) (default: ./msa_slam_results/reproduce)"),
-    scheduler: Optional[str] = typer.Option(None, help="Dask scheduler address (tcp://host:port); the output "
-                                                       "folder must be on a file system the workers share"),
+    quick: bool = typer.Option(
+        False,
+        "--quick",
+        help="the same grids on short prefixes: fewer datasets, one "
+        "seed, oracle mode, each sweep at its ends (a smoke run)",
+    ),
+    out: Optional[Path] = typer.Option(
+        None,
+        help="results folder: new, empty, or an earlier reproduction's "
+        "(resumed) (default: ./msa_slam_results/reproduce)",
+    ),
+    scheduler: Optional[str] = typer.Option(
+        None,
+        help="Dask scheduler address (tcp://host:port); the output folder must be on a file system the workers share",
+    ),
     workers: int = typer.Option(1, help="local worker processes (Dask LocalCluster) when no --scheduler"),
-    seeds: Optional[str] = typer.Option(None, help="world seeds of every grid, e.g. 0,1,2 (default: the grids' "
-                                                   "own, 0,1,2; --quick keeps the first)"),
-    presets: Optional[str] = typer.Option(None, help="the paper grids to run, comma-separated (default: all of "
-                                                     "paper-table1, paper-table2, paper-ablation, paper-bounds)"),
+    seeds: Optional[str] = typer.Option(
+        None, help="world seeds of every grid, e.g. 0,1,2 (default: the grids' own, 0,1,2; --quick keeps the first)"
+    ),
+    presets: Optional[str] = typer.Option(
+        None,
+        help="the paper grids to run, comma-separated (default: all of "
+        "paper-table1, paper-table2, paper-ablation, paper-bounds)",
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
 ) -> None:
     """Run the paper's evaluation grids (finished cells are kept and skipped), then write one report.md with
@@ -34,11 +47,21 @@ def reproduce_command(
     if scheduler is not None and workers != 1:
         raise typer.BadParameter("give either --scheduler or --workers, not both", param_hint="--workers")
     names = parse_presets(presets)
-    run = run_reproduce(names, quick=quick, seeds=None if seeds is None else parse_seeds(seeds), out=out,
-                        scheduler=scheduler, workers=workers, quiet=quiet,
-                        command=" ".join(["msa-slam", *sys.argv[1:]]))
-    typer.echo(f"{run.ran} cell(s) run, {run.shared} copied from an identical cell, {run.skipped} already finished, "
-               f"{len(run.failed)} failed", err=True)
+    run = run_reproduce(
+        names,
+        quick=quick,
+        seeds=None if seeds is None else parse_seeds(seeds),
+        out=out,
+        scheduler=scheduler,
+        workers=workers,
+        quiet=quiet,
+        command=" ".join(["msa-slam", *sys.argv[1:]]),
+    )
+    typer.echo(
+        f"{run.ran} cell(s) run, {run.shared} copied from an identical cell, {run.skipped} already finished, "
+        f"{len(run.failed)} failed",
+        err=True,
+    )
     for cell, reason in run.failed.items():
         typer.echo(f"failed: {cell}: {reason}", err=True)
     typer.echo(str(run.report))

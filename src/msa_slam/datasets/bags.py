@@ -36,9 +36,11 @@ def bag_files(path: Path) -> list[Path]:
         return sorted(path.glob("*.bag"))
     if path.is_file() and path.suffix.lower() in (".db3", ".mcap"):
         if not (path.parent / "metadata.yaml").is_file():  # rosbags reads a ROS2 bag through its metadata
-            raise InputError(f"{path}: a ROS2 bag file is read with its folder's metadata.yaml, which "
-                             f"{path.parent} lacks; give the bag's folder as recorded (ros2 bag reindex "
-                             "rebuilds a lost metadata.yaml)")
+            raise InputError(
+                f"{path}: a ROS2 bag file is read with its folder's metadata.yaml, which "
+                f"{path.parent} lacks; give the bag's folder as recorded (ros2 bag reindex "
+                "rebuilds a lost metadata.yaml)"
+            )
         return [path.parent]
     return [path]
 
@@ -106,8 +108,9 @@ class BagSequence(ScanSequence):
         clouds = sorted(t for t, info in self._bag.topics.items() if info.msgtype == POINTCLOUD2)
         listed = ", ".join(clouds) or "none"
         if topic is not None and topic not in clouds:
-            raise InputError(f"{self.path}: --topic {topic} is not a PointCloud2 topic of this bag; its "
-                             f"PointCloud2 topics: {listed}")
+            raise InputError(
+                f"{self.path}: --topic {topic} is not a PointCloud2 topic of this bag; its PointCloud2 topics: {listed}"
+            )
         if topic is None and len(clouds) != 1:
             what = "has no PointCloud2 topic" if not clouds else f"has several PointCloud2 topics ({listed})"
             raise InputError(f"{self.path}: {what}; name one with --topic")

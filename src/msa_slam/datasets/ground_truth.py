@@ -26,8 +26,10 @@ def nearest_in_time(pose_times: np.ndarray, scan_times: np.ndarray, path: str | 
     bad = np.flatnonzero(gap > tolerance)
     if len(bad):
         k = int(bad[0])
-        raise InputError(f"{path}: no pose within {tolerance:.3g} s of scan {k} (time {scan_times[k]:.6f} s; "
-                         f"nearest pose at {pose_times[nearest[k]]:.6f} s); the pose times must be the scans' clock")
+        raise InputError(
+            f"{path}: no pose within {tolerance:.3g} s of scan {k} (time {scan_times[k]:.6f} s; "
+            f"nearest pose at {pose_times[nearest[k]]:.6f} s); the pose times must be the scans' clock"
+        )
     return nearest
 
 
@@ -39,11 +41,15 @@ def attach_ground_truth(sequence: ScanSequence, path: str | os.PathLike, fmt: st
         sequence.gt_poses = poses[nearest_in_time(times, sequence.times, path)]
         return sequence
     if len(poses) != len(sequence) and times is None:
-        raise InputError(f"{path}: {len(poses)} poses but {sequence.path} has {len(sequence)} scans; a KITTI pose "
-                         "file needs one pose a scan (a TUM file is matched to the scans by time)")
+        raise InputError(
+            f"{path}: {len(poses)} poses but {sequence.path} has {len(sequence)} scans; a KITTI pose "
+            "file needs one pose a scan (a TUM file is matched to the scans by time)"
+        )
     if len(poses) != len(sequence):
-        raise InputError(f"{path}: {len(poses)} poses but {sequence.path} has {len(sequence)} scans, which have no "
-                         "timestamps to match the TUM times to; give one pose a scan")
+        raise InputError(
+            f"{path}: {len(poses)} poses but {sequence.path} has {len(sequence)} scans, which have no "
+            "timestamps to match the TUM times to; give one pose a scan"
+        )
     sequence.gt_poses = poses
     if times is not None:
         sequence.times, sequence.times_known = times, True

@@ -18,15 +18,58 @@ from msa_slam.io.poses import read_poses
 
 # kiss-icp's struct formats ("=" packing) as numpy records, with the time field and its unit in seconds
 _RECORDS = {
-    "Ouster": (np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"), ("t", "<u4"),
-                         ("reflectivity", "<u2"), ("ring", "<u2"), ("ambient", "<u2")]), "t", 1e-9),
-    "Velodyne": (np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"), ("ring", "<u2"),
-                           ("time", "<f4")]), "time", 1.0),
-    "Aeva": (np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("reflectivity", "<f4"), ("velocity", "<f4"),
-                       ("time_offset_ns", "<i4"), ("line_index", "<u1"), ("intensity", "<f4")]), "time_offset_ns",
-             1e-9),
-    "Avia": (np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("reflectivity", "<u1"), ("tag", "<u1"),
-                       ("line", "<u1"), ("offset_time", "<u4")]), "offset_time", 1e-9),
+    "Ouster": (
+        np.dtype(
+            [
+                ("x", "<f4"),
+                ("y", "<f4"),
+                ("z", "<f4"),
+                ("intensity", "<f4"),
+                ("t", "<u4"),
+                ("reflectivity", "<u2"),
+                ("ring", "<u2"),
+                ("ambient", "<u2"),
+            ]
+        ),
+        "t",
+        1e-9,
+    ),
+    "Velodyne": (
+        np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"), ("ring", "<u2"), ("time", "<f4")]),
+        "time",
+        1.0,
+    ),
+    "Aeva": (
+        np.dtype(
+            [
+                ("x", "<f4"),
+                ("y", "<f4"),
+                ("z", "<f4"),
+                ("reflectivity", "<f4"),
+                ("velocity", "<f4"),
+                ("time_offset_ns", "<i4"),
+                ("line_index", "<u1"),
+                ("intensity", "<f4"),
+            ]
+        ),
+        "time_offset_ns",
+        1e-9,
+    ),
+    "Avia": (
+        np.dtype(
+            [
+                ("x", "<f4"),
+                ("y", "<f4"),
+                ("z", "<f4"),
+                ("reflectivity", "<u1"),
+                ("tag", "<u1"),
+                ("line", "<u1"),
+                ("offset_time", "<u4"),
+            ]
+        ),
+        "offset_time",
+        1e-9,
+    ),
 }
 HELIPR_SENSORS = tuple(_RECORDS)
 AEVA_WITHOUT_INTENSITY = 1691936557946849179  # Aeva scans up to this time lack the intensity field (kiss-icp)
@@ -58,8 +101,10 @@ def helipr_sequence(path: str | os.PathLike, sensor: str | None) -> ScanSequence
     path = Path(path)
     if sensor not in _RECORDS:
         found = sorted(p.name for p in (path / "LiDAR").iterdir() if p.is_dir()) if (path / "LiDAR").is_dir() else []
-        raise InputError(f"{path}: HeLiPR needs --sequence naming its LiDAR: one of {', '.join(HELIPR_SENSORS)} "
-                         f"(found under {path / 'LiDAR'}: {', '.join(found) or 'nothing'})")
+        raise InputError(
+            f"{path}: HeLiPR needs --sequence naming its LiDAR: one of {', '.join(HELIPR_SENSORS)} "
+            f"(found under {path / 'LiDAR'}: {', '.join(found) or 'nothing'})"
+        )
     folder = path / "LiDAR" / sensor
     scans = sorted(folder.glob("*.bin"), key=lambda p: int(p.stem) if p.stem.isdigit() else -1)
     if not scans:
@@ -74,7 +119,8 @@ def helipr_sequence(path: str | os.PathLike, sensor: str | None) -> ScanSequence
         gt, _ = read_poses(gt_file, "tum")
         if len(gt) != len(scans):
             raise InputError(f"{gt_file}: {len(gt)} poses but {folder} has {len(scans)} scans")
-    sequence = ScanSequence(path, scans, gt, times, timed_reader=partial(read_helipr_scan, sensor=sensor),
-                            kitti_bins=False)
+    sequence = ScanSequence(
+        path, scans, gt, times, timed_reader=partial(read_helipr_scan, sensor=sensor), kitti_bins=False
+    )
     sequence.name = f"{path.name}-{sensor}"
     return sequence

@@ -75,8 +75,9 @@ def mulran_poses(pose_file: Path, scan_times: np.ndarray) -> np.ndarray:
     try:
         rows = np.loadtxt(pose_file, delimiter=",", ndmin=2)
     except ValueError as exc:
-        raise InputError(f"{pose_file}: not MulRan's global_pose.csv "
-                         f"(time, then 12 pose values a row): {exc}") from None
+        raise InputError(
+            f"{pose_file}: not MulRan's global_pose.csv (time, then 12 pose values a row): {exc}"
+        ) from None
     if rows.shape[1] != 13:
         raise InputError(f"{pose_file}: {rows.shape[1]} values a row; MulRan's global_pose.csv has 13 (time, 3x4 pose)")
     pose_times = check_times(rows[:, 0] * 1e-9, lambda i: f"{pose_file}: row {i + 1}")
@@ -108,8 +109,10 @@ def apollo_times(pose_file: Path) -> np.ndarray:
     rows, width = read_number_rows(pose_file), len(APOLLO_COLUMNS.split())
     for lineno, values in rows:
         if len(values) != width:
-            raise InputError(f"{pose_file}:{lineno}: {len(values)} values; Apollo's gt_poses.txt has {width} a line "
-                             f"({APOLLO_COLUMNS})")
+            raise InputError(
+                f"{pose_file}:{lineno}: {len(values)} values; Apollo's gt_poses.txt has {width} a line "
+                f"({APOLLO_COLUMNS})"
+            )
     return np.array([values[1] for _, values in rows])
 
 
@@ -121,8 +124,10 @@ def kiss_sequence(name: str, path: str | os.PathLike) -> ScanSequence:
     if name == "apollo":
         from kiss_icp.datasets.apollo import ApolloDataset
 
-        scans = sorted(_require(path / "pcds", "Apollo pcds/ folder").glob("*.pcd"), key=lambda p: int(p.stem)
-                       if p.stem.isdigit() else p.stem)
+        scans = sorted(
+            _require(path / "pcds", "Apollo pcds/ folder").glob("*.pcd"),
+            key=lambda p: int(p.stem) if p.stem.isdigit() else p.stem,
+        )
         pose_file = _require(path / "poses" / "gt_poses.txt", "Apollo ground truth")
         times = apollo_times(pose_file)
         return ScanSequence(path, scans, ApolloDataset.read_poses(str(pose_file)), times, read_pcd)
@@ -134,6 +139,11 @@ def kiss_sequence(name: str, path: str | os.PathLike) -> ScanSequence:
         names = NewerCollegeDataset.get_pcd_filenames(str(folder))
         stamps = [m for n in names if (m := _NCD_NAME.match(n))]
         named_times = np.array([int(m[1]) + 1e-9 * int(m[2]) for m in stamps]) if len(stamps) == len(names) else None
-        return ScanSequence(path, [folder / f for f in names], NewerCollegeDataset.load_gt_poses(str(pose_file)),
-                            named_times, timed_reader=partial(_with_ouster_times, read_pcd))
+        return ScanSequence(
+            path,
+            [folder / f for f in names],
+            NewerCollegeDataset.load_gt_poses(str(pose_file)),
+            named_times,
+            timed_reader=partial(_with_ouster_times, read_pcd),
+        )
     raise InputError(f"unknown dataset loader {name!r}; choose one of {', '.join(KISS_DATASETS)}")

@@ -25,7 +25,7 @@ def _decompress(data: np.ndarray, out: np.ndarray) -> int:
             length = ctrl + 1
             if i + length > n or o + length > size:
                 return -1 - i
-            out[o:o + length] = data[i:i + length]
+            out[o : o + length] = data[i : i + length]
             i += length
             o += length
             continue

@@ -13,8 +13,8 @@ import hashlib
 import logging
 import os
 import weakref
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -88,8 +88,11 @@ class ParsedScans:
                 folder, writer = new_scratch(self.root, SCRATCH_NAME, SCRATCH_KIND)
             except OSError as exc:
                 self._failed = True
-                log.warning("cannot keep parsed scans in %s (%s); text scans are parsed at every read", self.root,
-                            exc.strerror or exc)
+                log.warning(
+                    "cannot keep parsed scans in %s (%s); text scans are parsed at every read",
+                    self.root,
+                    exc.strerror or exc,
+                )
                 return None
             weakref.finalize(self, _remove, folder, writer, os.getpid())
             self._store = CacheDir(folder)

@@ -12,8 +12,18 @@ import numpy as np
 from msa_slam.datasets.points import checked_points, field_names
 from msa_slam.errors import InputError
 
-PCD_TYPES = {("F", 4): "<f4", ("F", 8): "<f8", ("I", 1): "<i1", ("I", 2): "<i2", ("I", 4): "<i4",
-             ("I", 8): "<i8", ("U", 1): "<u1", ("U", 2): "<u2", ("U", 4): "<u4", ("U", 8): "<u8"}
+PCD_TYPES = {
+    ("F", 4): "<f4",
+    ("F", 8): "<f8",
+    ("I", 1): "<i1",
+    ("I", 2): "<i2",
+    ("I", 4): "<i4",
+    ("I", 8): "<i8",
+    ("U", 1): "<u1",
+    ("U", 2): "<u2",
+    ("U", 4): "<u4",
+    ("U", 8): "<u8",
+}
 PCD_MODES = ("ascii", "binary", "binary_compressed")
 TIME_FIELDS = ("t", "time", "timestamp", "timestamps")  # kiss-icp's names; integer ones count nanoseconds
 
@@ -37,8 +47,9 @@ def _header(raw: bytes, path: Path) -> tuple[dict[str, list[str]], int]:
 
 def _dtype(fields: list[str], sizes: list[int], types: list[str], counts: list[int], path: Path) -> np.dtype:
     try:
-        return np.dtype([(f, PCD_TYPES[(t.upper(), s)], (c,) if c > 1 else ())
-                         for f, s, t, c in zip(fields, sizes, types, counts)])
+        return np.dtype(
+            [(f, PCD_TYPES[(t.upper(), s)], (c,) if c > 1 else ()) for f, s, t, c in zip(fields, sizes, types, counts)]
+        )
     except KeyError as exc:
         raise InputError(f"{path}: unsupported PCD field type {exc}") from None
 
@@ -51,9 +62,10 @@ def _compressed(raw: bytes, offset: int, dtype: np.dtype, n: int, path: Path) ->
         raise InputError(f"{path}: PCD binary_compressed data is truncated (no size words)")
     packed, size = struct.unpack_from("<II", raw, offset)
     if size != n * dtype.itemsize:
-        raise InputError(f"{path}: PCD binary_compressed declares {size} bytes for {n} points of "
-                         f"{dtype.itemsize} bytes")
-    data = raw[offset + 8:offset + 8 + packed]
+        raise InputError(
+            f"{path}: PCD binary_compressed declares {size} bytes for {n} points of {dtype.itemsize} bytes"
+        )
+    data = raw[offset + 8 : offset + 8 + packed]
     if len(data) < packed:
         raise InputError(f"{path}: PCD binary_compressed data is truncated ({len(data)} of {packed} bytes)")
     plain = lzf_decompress(data, size, f"{path}") if n else b""
@@ -61,8 +73,9 @@ def _compressed(raw: bytes, offset: int, dtype: np.dtype, n: int, path: Path) ->
     start = 0
     for name in field_names(dtype):
         field = dtype[name]
-        table[name] = np.frombuffer(plain, dtype=field.base, count=n * max(1, int(np.prod(field.shape))),
-                                    offset=start).reshape((n, *field.shape))
+        table[name] = np.frombuffer(
+            plain, dtype=field.base, count=n * max(1, int(np.prod(field.shape))), offset=start
+        ).reshape((n, *field.shape))
         start += n * field.itemsize
     return table
 
@@ -126,7 +139,7 @@ def read_pcd_table(path: str | os.PathLike) -> np.ndarray:
     table = np.empty(n, dtype=dtype)
     column = 0
     for name, count in zip(fields, counts):
-        table[name] = flat[:, column] if count == 1 else flat[:, column:column + count]
+        table[name] = flat[:, column] if count == 1 else flat[:, column : column + count]
         column += count
     return table
 

@@ -44,8 +44,9 @@ def read_point_times(path: Path, raw_points: int, keep: np.ndarray | None = None
     except (OSError, ValueError, EOFError) as exc:
         raise InputError(f"{path}: cannot read per-point times ({exc})") from None
     if times.ndim != 1 or len(times) != raw_points:
-        raise InputError(f"{path}: {times.shape} per-point times for a scan of {raw_points} points; "
-                         "need one time a point")
+        raise InputError(
+            f"{path}: {times.shape} per-point times for a scan of {raw_points} points; need one time a point"
+        )
     times = times.astype(np.float64)
     if not np.isfinite(times).all():
         raise InputError(f"{path}: per-point times are not all finite numbers")

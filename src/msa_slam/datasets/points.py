@@ -32,13 +32,16 @@ def checked_points(points: np.ndarray, path: Path) -> np.ndarray:
     hint = "; KITTI .bin scans are float32 x, y, z, reflectance" if path.suffix.lower() == ".bin" else ""
     largest = float(magnitude.max())
     if not largest <= MAX_COORDINATE:
-        raise InputError(f"{path}: coordinate {largest:.3g} m is beyond any sensor's range (|x| <= "
-                         f"{MAX_COORDINATE:g} m){hint}")
+        raise InputError(
+            f"{path}: coordinate {largest:.3g} m is beyond any sensor's range (|x| <= {MAX_COORDINATE:g} m){hint}"
+        )
     small = magnitude < TINY
     tiny = float(((magnitude > 0) & small).any(axis=1).mean()) if small.any() else 0.0
     if tiny > 0.5:
-        raise InputError(f"{path}: {100 * tiny:.0f} % of the points have coordinates below {TINY:g} m in "
-                         f"magnitude, which no LiDAR measures{hint}")
+        raise InputError(
+            f"{path}: {100 * tiny:.0f} % of the points have coordinates below {TINY:g} m in "
+            f"magnitude, which no LiDAR measures{hint}"
+        )
     return points
 
 

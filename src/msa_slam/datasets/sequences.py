@@ -5,9 +5,10 @@ from __future__ import annotations
 import copy
 import logging
 import os
+from collections.abc import Callable, Iterator, Sequence
 from functools import cache, partial
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Iterator, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -46,12 +47,19 @@ class ScanSequence:
     kitti_bins = True
     correction: str | None = None  # what the reader corrects in every scan (see kitti_sequence); part of its identity
     _point_times: bool | None = None  # see point_times: None until a scan was read for it
-    parsed: "ParsedScans | None" = None  # a run's copies of the text scans it parsed (datasets.parsed)
+    parsed: ParsedScans | None = None  # a run's copies of the text scans it parsed (datasets.parsed)
 
-    def __init__(self, path: Path, scan_files: Sequence[Path], gt_poses: np.ndarray | None = None,
-                 times: np.ndarray | None = None, reader: Callable[[Path], np.ndarray] = read_cloud,
-                 timed_reader: Callable[[Path], tuple[np.ndarray, np.ndarray | None]] | None = None,
-                 kitti_bins: bool = True, point_time_files: Sequence[Path] = ()) -> None:
+    def __init__(
+        self,
+        path: Path,
+        scan_files: Sequence[Path],
+        gt_poses: np.ndarray | None = None,
+        times: np.ndarray | None = None,
+        reader: Callable[[Path], np.ndarray] = read_cloud,
+        timed_reader: Callable[[Path], tuple[np.ndarray, np.ndarray | None]] | None = None,
+        kitti_bins: bool = True,
+        point_time_files: Sequence[Path] = (),
+    ) -> None:
         self.path = Path(path)
         self.name = self.path.name
         self.scan_files = [Path(f) for f in scan_files]
@@ -82,7 +90,7 @@ class ScanSequence:
             self._point_times = self[0].timestamps is not None
         return self._point_times
 
-    def select(self, first: int = 0, jump: int = 1, count: int | None = None) -> "ScanSequence":
+    def select(self, first: int = 0, jump: int = 1, count: int | None = None) -> ScanSequence:
         """Part of the recording: every `jump`-th scan from scan `first`, at most `count` of them (the frames
         keep their times and ground truth; indices restart at 0). What a run reads is known only here, so
         here the sizes of its .bin files are checked, its first scan read (point_times) and missing timestamps
@@ -134,8 +142,9 @@ def selected_count(total: int, first: int, jump: int, count: int | None, where: 
     `where` for a selection that is malformed or starts beyond the last scan. Also checked before a simulated
     sequence is cast, from its frame count alone."""
     if first < 0 or jump < 1 or (count is not None and count < 1):
-        raise InputError(f"{where}: bad selection first={first}, jump={jump}, n={count}; need first >= 0, "
-                         "jump >= 1, n >= 1")
+        raise InputError(
+            f"{where}: bad selection first={first}, jump={jump}, n={count}; need first >= 0, jump >= 1, n >= 1"
+        )
     if first >= total:
         raise InputError(f"{where}: --first {first} is beyond its {total} scans (0..{total - 1})")
     selected = len(range(first, total, jump))
@@ -181,8 +190,10 @@ def read_kitti_calibration(path: Path) -> np.ndarray:
                 raise InputError(f"{path}:{lineno}: Tr is not numeric ({exc})") from exc
             fault = pose_fault(tr[None])
             if fault is not None:
-                raise InputError(f"{path}:{lineno}: Tr (the Velodyne->camera extrinsic) {fault[1]}; it must be a "
-                                 "rotation and a translation")
+                raise InputError(
+                    f"{path}:{lineno}: Tr (the Velodyne->camera extrinsic) {fault[1]}; it must be a "
+                    "rotation and a translation"
+                )
             return tr
     raise InputError(f"{path}: no 'Tr:' line (the Velodyne->camera extrinsic)")
 
@@ -226,12 +237,20 @@ def kitti_sequence(path: str | os.PathLike) -> ScanSequence:
     if stored:
         missing = next((stored_times_path(s) for s in scans if not stored_times_path(s).is_file()), None)
         if missing is not None:
-            raise InputError(f"{missing}: missing; {path / TIMES_FOLDER} must hold the per-point times of "
-                             "every scan (or be removed to derive them from azimuth)")
+            raise InputError(
+                f"{missing}: missing; {path / TIMES_FOLDER} must hold the per-point times of "
+                "every scan (or be removed to derive them from azimuth)"
+            )
     correct = needs_correction(path)
     reader = partial(_read_corrected, stored=stored) if correct else partial(read_timed_scan, stored=stored)
-    sequence = ScanSequence(path, scans, gt, times, timed_reader=reader,
-                            point_time_files=[stored_times_path(s) for s in scans] if stored else ())
+    sequence = ScanSequence(
+        path,
+        scans,
+        gt,
+        times,
+        timed_reader=reader,
+        point_time_files=[stored_times_path(s) for s in scans] if stored else (),
+    )
     sequence.correction = CORRECTION_NAME if correct else None
     return sequence
 
@@ -243,8 +262,9 @@ def _read_corrected(path: Path, stored: bool) -> tuple[np.ndarray, np.ndarray]:
     return raise_elevation(points), stamps
 
 
-def folder_sequence(path: str | os.PathLike, poses: str | os.PathLike | None = None,
-                    pose_format: str = "auto") -> ScanSequence:
+def folder_sequence(
+    path: str | os.PathLike, poses: str | os.PathLike | None = None, pose_format: str = "auto"
+) -> ScanSequence:
     """A folder of .bin/.ply/.pcd scans (one format, natural order) with an optional LiDAR pose file."""
     path = Path(path)
     if not path.is_dir():
@@ -272,8 +292,9 @@ def load_cloud_stack(source: str | os.PathLike, n_frames: int) -> list[np.ndarra
         except (OSError, ValueError, EOFError) as exc:
             raise InputError(f"{source}: not a readable .npy array ({exc})") from exc
         if clouds.ndim != 3 or clouds.shape[2] not in (3, 4):  # (N, 20, 60) would be descriptors, not points
-            raise InputError(f"{source}: clouds must have shape (N, P, 3) (x y z) or (N, P, 4) (x y z intensity), "
-                             f"got {clouds.shape}")
+            raise InputError(
+                f"{source}: clouds must have shape (N, P, 3) (x y z) or (N, P, 4) (x y z intensity), got {clouds.shape}"
+            )
         items = list(clouds)
     else:
         items = [read_cloud(f) for f in folder_sequence(source).scan_files]

@@ -23,8 +23,13 @@ def descriptor_key(sequence: ScanSequence, name: str, params: dict[str, Any], ca
     weights) by content, the descriptor settings, DESCRIPTOR_CODE's fingerprint and library versions; `cache`
     memoises the files' digests."""
     inputs = sequence_inputs(sequence, named_files(params), cache)
-    return cache_key("descriptors", inputs, {"descriptor": name, "params": params}, code_fingerprint(DESCRIPTOR_CODE),
-                     DESCRIPTOR_LIBRARIES)
+    return cache_key(
+        "descriptors",
+        inputs,
+        {"descriptor": name, "params": params},
+        code_fingerprint(DESCRIPTOR_CODE),
+        DESCRIPTOR_LIBRARIES,
+    )
 
 
 def load_descriptors(sequence: ScanSequence, descriptor: Descriptor, cache: CacheDir, key: str) -> Computed | None:
@@ -47,8 +52,9 @@ def save_descriptors(cache: CacheDir | None, key: str, values: np.ndarray, ms: n
     return Computed(values, False, ms)
 
 
-def compute_descriptors(sequence: ScanSequence, descriptor: Descriptor, cache: CacheDir | None, key: str,
-                        quiet: bool = True) -> Computed:
+def compute_descriptors(
+    sequence: ScanSequence, descriptor: Descriptor, cache: CacheDir | None, key: str, quiet: bool = True
+) -> Computed:
     """(N, *descriptor.shape) descriptors of every frame, whether they came from `cache` (load_descriptors) and
     the time (ms) computing each took."""
     if cache is not None:
@@ -58,8 +64,9 @@ def compute_descriptors(sequence: ScanSequence, descriptor: Descriptor, cache: C
     return save_descriptors(cache, key, *describe_sequence(sequence, descriptor, quiet))
 
 
-def describe_sequence(sequence: ScanSequence, descriptor: Descriptor,
-                      quiet: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def describe_sequence(
+    sequence: ScanSequence, descriptor: Descriptor, quiet: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
     """(descriptors, ms computing each took) of every frame, read and computed one after another."""
     values, ms = [], np.empty(len(sequence))
     with progress_bar(quiet) as bar:

@@ -20,8 +20,10 @@ from msa_slam.errors import InputError
 
 DESCRIPTOR_DIM = 256
 WEIGHTS_URL = "https://drive.google.com/file/d/1FNrx9pcDa9NF7z8CFtuTWyauNkeSEFW4/view?usp=sharing"
-WEIGHTS_HINT = (f"the authors' pretrained_overlap_transformer.pth.tar ({WEIGHTS_URL}, linked from "
-                "github.com/haomo-ai/OverlapTransformer), given as --descriptor ot -p weights=FILE")
+WEIGHTS_HINT = (
+    f"the authors' pretrained_overlap_transformer.pth.tar ({WEIGHTS_URL}, linked from "
+    "github.com/haomo-ai/OverlapTransformer), given as --descriptor ot -p weights=FILE"
+)
 # Present in the authors' checkpoint, not used at inference (batch norms and the unused heads).
 _UNUSED_PREFIXES = ("bn", "linear.", "linear1.", "linear2.", "linear3.", "net_vlad.bn2.")
 
@@ -42,10 +44,12 @@ def state_dict_of(checkpoint: object, path: Path) -> dict:
     state = checkpoint.get("state_dict", checkpoint) if isinstance(checkpoint, dict) else None
     if not isinstance(state, dict) or not state or not all(isinstance(k, str) for k in state):
         found = type(checkpoint).__name__ if not isinstance(checkpoint, dict) else f"keys {sorted(checkpoint)[:5]}"
-        raise InputError(f"overlap_transformer: {path} is not an OverlapTransformer checkpoint (a dict with a "
-                         f"'state_dict', or a state_dict); it holds {found}. Expected {WEIGHTS_HINT}")
+        raise InputError(
+            f"overlap_transformer: {path} is not an OverlapTransformer checkpoint (a dict with a "
+            f"'state_dict', or a state_dict); it holds {found}. Expected {WEIGHTS_HINT}"
+        )
     if all(k.startswith("module.") for k in state):
-        state = {k[len("module."):]: v for k, v in state.items()}
+        state = {k[len("module.") :]: v for k, v in state.items()}
     return state
 
 
@@ -58,8 +62,10 @@ def read_checkpoint(weights: str | Path) -> dict:
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for unreadable files
-        raise InputError(f"overlap_transformer: cannot read weights file {path} as a torch checkpoint: {exc}; "
-                         f"expected {WEIGHTS_HINT}") from exc
+        raise InputError(
+            f"overlap_transformer: cannot read weights file {path} as a torch checkpoint: {exc}; "
+            f"expected {WEIGHTS_HINT}"
+        ) from exc
     return state_dict_of(checkpoint, path)
 
 
@@ -77,9 +83,7 @@ def load_network(weights: str | Path):
     for name, tensor in wanted.items():
         got = tuple(state[name].shape)
         if got != tuple(tensor.shape):
-            raise InputError(
-                f"overlap_transformer: {path}: '{name}' has shape {got}, expected {tuple(tensor.shape)}"
-            )
+            raise InputError(f"overlap_transformer: {path}: '{name}' has shape {got}, expected {tuple(tensor.shape)}")
     unknown = [n for n in state if n not in wanted and not n.startswith(_UNUSED_PREFIXES)]
     if unknown:
         raise InputError(f"overlap_transformer: {path} has unexpected weights: {', '.join(unknown[:5])}")

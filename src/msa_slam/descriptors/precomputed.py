@@ -31,14 +31,17 @@ def load_descriptor_file(path: str | Path, n_frames: int | None = None) -> np.nd
     try:  # memory-mapped: a header that claims more than the file holds fails here, before any allocation
         data = np.load(path, mmap_mode="r", allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
-        raise InputError(f"precomputed descriptors: {path} is not a readable .npy array (truncated or corrupt: "
-                         f"{exc})") from exc
+        raise InputError(
+            f"precomputed descriptors: {path} is not a readable .npy array (truncated or corrupt: {exc})"
+        ) from exc
     if data.dtype.kind not in "fiu":
-        raise InputError(f"precomputed descriptors: {path} holds {data.dtype} values; expected real numbers "
-                         "(float or integer)")
+        raise InputError(
+            f"precomputed descriptors: {path} holds {data.dtype} values; expected real numbers (float or integer)"
+        )
     if data.ndim < 2:
-        raise InputError(f"precomputed descriptors: {path} must hold an array (N, ...) of N descriptors, got shape "
-                         f"{data.shape}")
+        raise InputError(
+            f"precomputed descriptors: {path} must hold an array (N, ...) of N descriptors, got shape {data.shape}"
+        )
     if n_frames is not None and len(data) != n_frames:
         raise InputError(f"precomputed descriptors: {path} has {len(data)} frames, the sequence has {n_frames}")
     finite = np.isfinite(data.reshape(len(data), -1)).all(axis=1)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 from msa_slam.evaluation.metrics import Unavailable
 
@@ -22,8 +22,16 @@ def fmt(value: float | Unavailable | None, spec: str = ".3f", unit: str = "") ->
 
 
 # counted, not measured (as are compare's rejected_<reason> columns)
-COUNT_KEYS = ("keyframes", "candidates", "verified", "rejected", "false_loops", "true_candidates", "false_accepted",
-              "revisits")
+COUNT_KEYS = (
+    "keyframes",
+    "candidates",
+    "verified",
+    "rejected",
+    "false_loops",
+    "true_candidates",
+    "false_accepted",
+    "revisits",
+)
 
 
 def spec_for(key: str) -> str:
@@ -38,21 +46,29 @@ def spec_for(key: str) -> str:
     return ".3f"
 
 
-NOTE_LABELS = {"ate": "ATE (and its % improvement)", "ate_odometry": "ATE of the odometry",
-               "ate_optimised": "ATE after optimisation", "improvement_translation": "translation ATE improvement",
-               "improvement_rotation": "rotation ATE improvement", "pr": "PR-AUC / F1-max",
-               "full_rate_ate": "full-rate ATE (and its % improvement)",
-               "full_rate_ate_optimised": "full-rate ATE after optimisation",
-               "full_rate_improvement_translation": "full-rate translation ATE improvement",
-               "full_rate_improvement_rotation": "full-rate rotation ATE improvement",
-               "rpe_kitti": "RPE over KITTI's 100-800 m segments", "rpe_10m": "RPE over 10 m (all pairs)",
-               "pr_reference": "PR-AUC / F1-max of the reference example's protocol",
-               "loop_truth": "true candidates, false accepted loops and revisit recall",
-               "revisit_recall": "revisit recall", "threshold_sweep": "threshold sensitivity",
-               "sampler_realtime_fraction": "sampler time over the data's duration"}
+NOTE_LABELS = {
+    "ate": "ATE (and its % improvement)",
+    "ate_odometry": "ATE of the odometry",
+    "ate_optimised": "ATE after optimisation",
+    "improvement_translation": "translation ATE improvement",
+    "improvement_rotation": "rotation ATE improvement",
+    "pr": "PR-AUC / F1-max",
+    "full_rate_ate": "full-rate ATE (and its % improvement)",
+    "full_rate_ate_optimised": "full-rate ATE after optimisation",
+    "full_rate_improvement_translation": "full-rate translation ATE improvement",
+    "full_rate_improvement_rotation": "full-rate rotation ATE improvement",
+    "rpe_kitti": "RPE over KITTI's 100-800 m segments",
+    "rpe_10m": "RPE over 10 m (all pairs)",
+    "pr_reference": "PR-AUC / F1-max of the reference example's protocol",
+    "loop_truth": "true candidates, false accepted loops and revisit recall",
+    "revisit_recall": "revisit recall",
+    "threshold_sweep": "threshold sensitivity",
+    "sampler_realtime_fraction": "sampler time over the data's duration",
+}
 
 
 def notes(reasons: Mapping[str, str], warnings: Sequence[str]) -> list[str]:
     """One sentence per n/a metric (`reasons`: metric -> why it is unavailable) and per warning of a run."""
-    return ([f"{NOTE_LABELS.get(key, key)} n/a: {reason}" for key, reason in reasons.items()]
-            + [f"warning: {text}" for text in warnings])
+    return [f"{NOTE_LABELS.get(key, key)} n/a: {reason}" for key, reason in reasons.items()] + [
+        f"warning: {text}" for text in warnings
+    ]

@@ -19,7 +19,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from evo.core import filters
 
 from msa_slam.errors import InputError
@@ -94,22 +93,25 @@ def segment_error_motions(estimate: np.ndarray, reference: np.ndarray, length: f
     return _error_motions(estimate, reference, starts[keep], ends[keep])
 
 
-def segment_errors(estimate: np.ndarray, reference: np.ndarray, length: float,
-                   step: int = 1) -> tuple[np.ndarray, np.ndarray]:
+def segment_errors(
+    estimate: np.ndarray, reference: np.ndarray, length: float, step: int = 1
+) -> tuple[np.ndarray, np.ndarray]:
     """Translation (m) and rotation (deg) errors of the relative motion over every segment of `length`
     metres (segment_error_motions), as the KITTI devkit measures them; empty arrays when the path is shorter."""
     return _errors(segment_error_motions(estimate, reference, length, step))
 
 
-def all_pairs_errors(estimate: np.ndarray, reference: np.ndarray, length: float,
-                     tolerance: float = SHORT_LENGTH_TOLERANCE) -> tuple[np.ndarray, np.ndarray]:
+def all_pairs_errors(
+    estimate: np.ndarray, reference: np.ndarray, length: float, tolerance: float = SHORT_LENGTH_TOLERANCE
+) -> tuple[np.ndarray, np.ndarray]:
     """Translation (m) and rotation (deg) errors over evo's all-pairs RPE pairs (`evo_rpe --delta length
     --delta_unit m --all_pairs --pairs_from_reference --delta_tol tolerance`): from every frame to the later one
     whose path distance along `reference` is nearest `length`, kept when within `tolerance` x `length` of it.
     evo's own filter chooses the pairs, so the numbers are evo's; the errors are computed here in one batch
     rather than pair by pair (evo's loop takes about 50 times longer)."""
-    pairs = np.array(filters.filter_pairs_by_path(list(reference), length, length * tolerance, all_pairs=True),
-                     dtype=np.int64).reshape(-1, 2)
+    pairs = np.array(
+        filters.filter_pairs_by_path(list(reference), length, length * tolerance, all_pairs=True), dtype=np.int64
+    ).reshape(-1, 2)
     return _errors(_error_motions(estimate, reference, pairs[:, 0], pairs[:, 1]))
 
 
@@ -124,19 +126,24 @@ def distance_rpe(estimate: np.ndarray, reference: np.ndarray) -> tuple[Block, di
     t_rel = np.concatenate([t / length for (t, _), length in zip(pairs, KITTI_LENGTHS_M)])
     r_rel = np.concatenate([r / length for (_, r), length in zip(pairs, KITTI_LENGTHS_M)])
     if len(t_rel):
-        out.update(rpe_kitti_translation_pct=float(100 * t_rel.mean()), rpe_kitti_rotation_deg_per_100m=float(
-            100 * r_rel.mean()))
+        out.update(
+            rpe_kitti_translation_pct=float(100 * t_rel.mean()),
+            rpe_kitti_rotation_deg_per_100m=float(100 * r_rel.mean()),
+        )
     else:
         out.update(rpe_kitti_translation_pct=None, rpe_kitti_rotation_deg_per_100m=None)
-        unavailable["rpe_kitti"] = (f"the ground-truth path is {total:.1f} m, shorter than KITTI's shortest "
-                                    f"segment ({KITTI_LENGTHS_M[0]:g} m)")
+        unavailable["rpe_kitti"] = (
+            f"the ground-truth path is {total:.1f} m, shorter than KITTI's shortest segment ({KITTI_LENGTHS_M[0]:g} m)"
+        )
     t10, r10 = all_pairs_errors(estimate, reference, SHORT_LENGTH_M)
     if len(t10):
         out.update(rpe_10m_translation_m=float(t10.mean()), rpe_10m_rotation_deg=float(r10.mean()))
     else:
         out.update(rpe_10m_translation_m=None, rpe_10m_rotation_deg=None)
-        unavailable["rpe_10m"] = (f"no two frames of the {total:.1f} m ground-truth path are "
-                                  f"{SHORT_LENGTH_M:g} +- {SHORT_LENGTH_M * SHORT_LENGTH_TOLERANCE:g} m apart along it")
+        unavailable["rpe_10m"] = (
+            f"no two frames of the {total:.1f} m ground-truth path are "
+            f"{SHORT_LENGTH_M:g} +- {SHORT_LENGTH_M * SHORT_LENGTH_TOLERANCE:g} m apart along it"
+        )
     return out, unavailable
 
 
@@ -154,18 +161,29 @@ class FullRateEvaluation:
     reasons: dict[str, str]
 
 
-def evaluate_full_rate(odometry: np.ndarray, full_rate: np.ndarray, reference: np.ndarray | None
-                       ) -> FullRateEvaluation:
+def evaluate_full_rate(odometry: np.ndarray, full_rate: np.ndarray, reference: np.ndarray | None) -> FullRateEvaluation:
     """Full-rate metrics: `before` (odometry) and `after` (full-rate optimised) ATE and distance RPE, the % ATE
     improvement and the alignment used, each undefined one unavailable with its reason."""
     if reference is None or not np.isfinite(reference).all():
-        keys = ("ate_translation_m", "ate_rotation_deg", "rpe_kitti_translation_pct",
-                "rpe_kitti_rotation_deg_per_100m", "rpe_10m_translation_m", "rpe_10m_rotation_deg")
+        keys = (
+            "ate_translation_m",
+            "ate_rotation_deg",
+            "rpe_kitti_translation_pct",
+            "rpe_kitti_rotation_deg_per_100m",
+            "rpe_10m_translation_m",
+            "rpe_10m_rotation_deg",
+        )
         empty = dict.fromkeys(keys)
-        return _evaluation({"before": empty, "after": dict(empty), "improvement_pct": {"translation": None,
-                                                                                      "rotation": None},
-                            "frames": len(odometry), "ate_alignment": None},
-                           {"full_rate_ate": "no ground-truth pose for every frame"})
+        return _evaluation(
+            {
+                "before": empty,
+                "after": dict(empty),
+                "improvement_pct": {"translation": None, "rotation": None},
+                "frames": len(odometry),
+                "ate_alignment": None,
+            },
+            {"full_rate_ate": "no ground-truth pose for every frame"},
+        )
     before, reason_b, unavailable = _block(validate_poses(odometry, "odometry"), reference)
     after, reason_a, _ = _block(validate_poses(full_rate, "full-rate trajectory"), reference)
     if reason_b:
@@ -177,14 +195,23 @@ def evaluate_full_rate(odometry: np.ndarray, full_rate: np.ndarray, reference: n
         odometry_ate = before[key]
         improvements[part] = improvement_pct(odometry_ate, after[key])
         if improvements[part] is None and odometry_ate is not None and not odometry_ate > ZERO_ERROR:
-            unavailable[f"full_rate_improvement_{part}"] = (f"odometry ATE {part} is 0 ({odometry_ate:.1g}): "
-                                                            "% improvement undefined")
-    return _evaluation({"before": before, "after": after, "improvement_pct": improvements, "frames": len(reference),
-                        "ate_alignment": f"{ATE_ALIGNMENT}, fitted separately for each estimate on all "
-                                         f"{len(reference)} frames"}, unavailable)
+            unavailable[f"full_rate_improvement_{part}"] = (
+                f"odometry ATE {part} is 0 ({odometry_ate:.1g}): % improvement undefined"
+            )
+    return _evaluation(
+        {
+            "before": before,
+            "after": after,
+            "improvement_pct": improvements,
+            "frames": len(reference),
+            "ate_alignment": f"{ATE_ALIGNMENT}, fitted separately for each estimate on all {len(reference)} frames",
+        },
+        unavailable,
+    )
 
 
 def _evaluation(metrics: dict[str, object], reasons: dict[str, str]) -> FullRateEvaluation:
     """The evaluation with its figures typed, each undefined one unavailable with its reason."""
-    return FullRateEvaluation(read_full_rate(MetricsDocument(metrics, "the full-rate evaluation", reasons=reasons)),
-                              reasons)
+    return FullRateEvaluation(
+        read_full_rate(MetricsDocument(metrics, "the full-rate evaluation", reasons=reasons)), reasons
+    )

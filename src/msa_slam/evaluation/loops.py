@@ -29,7 +29,7 @@ for the reason under "revisit_recall" (the keys of metrics.json `unavailable`).
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -58,8 +58,9 @@ def relative_pose_error(T_measured: np.ndarray, T_true: np.ndarray) -> tuple[flo
     return float(np.linalg.norm(error[:3, 3])), float(angle)
 
 
-def is_false_loop(loop: LoopClosure, gt: np.ndarray, max_shift_m: float,
-                  max_angle_deg: float = FALSE_LOOP_ANGLE_DEG) -> bool:
+def is_false_loop(
+    loop: LoopClosure, gt: np.ndarray, max_shift_m: float, max_angle_deg: float = FALSE_LOOP_ANGLE_DEG
+) -> bool:
     """Whether an accepted loop's measured T_match_query is off the ground-truth relative pose of its keyframes
     (`gt`: every frame's pose) by more than `max_shift_m` or `max_angle_deg`."""
     if loop.T_match_query is None:
@@ -82,8 +83,14 @@ def revisit_pairs(keyframes: np.ndarray, gt: np.ndarray, radius: float, min_trav
     return {(int(keyframes[i]), int(keyframes[j])) for i, j in pairs[far]}
 
 
-def account_loops(loops: Sequence[LoopClosure], keyframes: np.ndarray, gt: np.ndarray | None, radius: float,
-                  min_travel_m: float, reasons: Sequence[str]) -> tuple[LoopCounts, dict[str, str]]:
+def account_loops(
+    loops: Sequence[LoopClosure],
+    keyframes: np.ndarray,
+    gt: np.ndarray | None,
+    radius: float,
+    min_travel_m: float,
+    reasons: Sequence[str],
+) -> tuple[LoopCounts, dict[str, str]]:
     """The loop accounting of a run (module docstring: definitions), each count that cannot be given unavailable
     with why, and those reasons by key (loop_truth, revisit_recall): from its loop records, keyframe frame
     indices, every frame's ground-truth pose (None without), the true-loop radius (m), the candidates' minimum
@@ -98,8 +105,10 @@ def account_loops(loops: Sequence[LoopClosure], keyframes: np.ndarray, gt: np.nd
     partnered, partnered_closed = {newer for _, newer in revisits}, {newer for _, newer in closed}
     unavailable = {}
     if not revisits:
-        unavailable["revisit_recall"] = (f"no keyframe pair within {radius:g} m in ground truth is {min_travel_m:g} m "
-                                         "or more apart along the path (no revisit)")
+        unavailable["revisit_recall"] = (
+            f"no keyframe pair within {radius:g} m in ground truth is {min_travel_m:g} m "
+            "or more apart along the path (no revisit)"
+        )
 
     def recall(found: int, total: int) -> Value:
         return found / total if total else Unavailable(unavailable["revisit_recall"])
@@ -108,6 +117,10 @@ def account_loops(loops: Sequence[LoopClosure], keyframes: np.ndarray, gt: np.nd
         *counts,
         true_candidates=int(sum(c.gt_distance <= radius for c in loops)),
         false_accepted=int(sum(is_false_loop(c, gt, radius) for c in accepted)),
-        revisits=len(revisits), revisits_closed=len(closed), revisit_recall=recall(len(closed), len(revisits)),
-        revisit_keyframes=len(partnered), revisit_keyframes_closed=len(partnered_closed),
-        revisit_keyframe_recall=recall(len(partnered_closed), len(partnered))), unavailable
+        revisits=len(revisits),
+        revisits_closed=len(closed),
+        revisit_recall=recall(len(closed), len(revisits)),
+        revisit_keyframes=len(partnered),
+        revisit_keyframes_closed=len(partnered_closed),
+        revisit_keyframe_recall=recall(len(partnered_closed), len(partnered)),
+    ), unavailable

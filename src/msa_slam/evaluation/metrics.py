@@ -10,8 +10,9 @@ finished seeds and experiment cells.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping, Union
+from typing import Union
 
 BATCH = "batch"
 ONLINE = "online"

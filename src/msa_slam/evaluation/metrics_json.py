@@ -7,12 +7,31 @@ from __future__ import annotations
 
 from typing import Any
 
-from msa_slam.evaluation.metrics import (ONLINE, AccountedMemory, Deskew, FullRateErrors, FullRateTrajectory,
-                                         Improvement, KeyframeErrors, KeyframeTrajectory, Latency, LoopClosing,
-                                         LoopCounts, Loops, Memory, PlaceRecognition, ReferencePR, RunIdentity,
-                                         RunSetup, SweepRow, Throughput, Timing, Unavailable)
-from msa_slam.evaluation.run_metrics import RunMetrics, Stamp
+from msa_slam.evaluation.metrics import (
+    ONLINE,
+    AccountedMemory,
+    Deskew,
+    FullRateErrors,
+    FullRateTrajectory,
+    Improvement,
+    KeyframeErrors,
+    KeyframeTrajectory,
+    Latency,
+    LoopClosing,
+    LoopCounts,
+    Loops,
+    Memory,
+    PlaceRecognition,
+    ReferencePR,
+    RunIdentity,
+    RunSetup,
+    SweepRow,
+    Throughput,
+    Timing,
+    Unavailable,
+)
 from msa_slam.evaluation.metrics_reader import MetricsDocument
+from msa_slam.evaluation.run_metrics import RunMetrics, Stamp
 
 NOT_BATCH = "online runs have no reference protocol and no threshold sweep (batch-only analyses)"
 NOTHING_IN_RAM = "nothing accounted in RAM to compare the RSS growth with"
@@ -32,22 +51,33 @@ def _fields(obj: Any, names: tuple[str, ...]) -> dict[str, Any]:
 
 # ---- reading -------------------------------------------------------------------------------------------------
 
+
 def _keyframe_errors(doc: MetricsDocument, ate_keys: tuple[str, ...]) -> KeyframeErrors:
-    return KeyframeErrors(doc.value("ate_translation_m", *ate_keys), doc.value("ate_rotation_deg", *ate_keys),
-                          doc.value("rpe_translation_m", "rpe", "ate"), doc.value("rpe_rotation_deg", "rpe", "ate"))
+    return KeyframeErrors(
+        doc.value("ate_translation_m", *ate_keys),
+        doc.value("ate_rotation_deg", *ate_keys),
+        doc.value("rpe_translation_m", "rpe", "ate"),
+        doc.value("rpe_rotation_deg", "rpe", "ate"),
+    )
 
 
 def _full_rate_errors(doc: MetricsDocument, ate_keys: tuple[str, ...]) -> FullRateErrors:
     kitti, ten = ("rpe_kitti", *ate_keys), ("rpe_10m", *ate_keys)
-    return FullRateErrors(doc.value("ate_translation_m", *ate_keys), doc.value("ate_rotation_deg", *ate_keys),
-                          doc.value("rpe_kitti_translation_pct", *kitti),
-                          doc.value("rpe_kitti_rotation_deg_per_100m", *kitti),
-                          doc.value("rpe_10m_translation_m", *ten), doc.value("rpe_10m_rotation_deg", *ten))
+    return FullRateErrors(
+        doc.value("ate_translation_m", *ate_keys),
+        doc.value("ate_rotation_deg", *ate_keys),
+        doc.value("rpe_kitti_translation_pct", *kitti),
+        doc.value("rpe_kitti_rotation_deg_per_100m", *kitti),
+        doc.value("rpe_10m_translation_m", *ten),
+        doc.value("rpe_10m_rotation_deg", *ten),
+    )
 
 
 def _improvement(doc: MetricsDocument, prefix: str, ate_keys: tuple[str, ...]) -> Improvement:
-    return Improvement(doc.value("translation", f"{prefix}improvement_translation", *ate_keys),
-                       doc.value("rotation", f"{prefix}improvement_rotation", *ate_keys))
+    return Improvement(
+        doc.value("translation", f"{prefix}improvement_translation", *ate_keys),
+        doc.value("rotation", f"{prefix}improvement_rotation", *ate_keys),
+    )
 
 
 def _text(doc: MetricsDocument, key: str, *reason_keys: str) -> str | Unavailable:
@@ -57,37 +87,58 @@ def _text(doc: MetricsDocument, key: str, *reason_keys: str) -> str | Unavailabl
 
 def read_keyframe_trajectory(doc: MetricsDocument) -> KeyframeTrajectory:
     reliable = doc.typed("ate_rotation_reliable", bool, nullable=True)
-    return KeyframeTrajectory(_keyframe_errors(doc.sub("before"), ("ate_odometry", "ate")),
-                              _keyframe_errors(doc.sub("after"), ("ate_optimised", "ate")),
-                              _improvement(doc.sub("improvement_pct"), "", ("ate_optimised", "ate", "ate_odometry")),
-                              _text(doc, "ate_alignment", "ate"),
-                              doc.unavailable("ate") if reliable is None else reliable)
+    return KeyframeTrajectory(
+        _keyframe_errors(doc.sub("before"), ("ate_odometry", "ate")),
+        _keyframe_errors(doc.sub("after"), ("ate_optimised", "ate")),
+        _improvement(doc.sub("improvement_pct"), "", ("ate_optimised", "ate", "ate_odometry")),
+        _text(doc, "ate_alignment", "ate"),
+        doc.unavailable("ate") if reliable is None else reliable,
+    )
 
 
 def read_full_rate(doc: MetricsDocument) -> FullRateTrajectory:
-    return FullRateTrajectory(_full_rate_errors(doc.sub("before"), ("full_rate_ate",)),
-                              _full_rate_errors(doc.sub("after"), _FULL_RATE),
-                              _improvement(doc.sub("improvement_pct"), "full_rate_", _FULL_RATE),
-                              doc.typed("frames", int), _text(doc, "ate_alignment", "full_rate_ate"))
+    return FullRateTrajectory(
+        _full_rate_errors(doc.sub("before"), ("full_rate_ate",)),
+        _full_rate_errors(doc.sub("after"), _FULL_RATE),
+        _improvement(doc.sub("improvement_pct"), "full_rate_", _FULL_RATE),
+        doc.typed("frames", int),
+        _text(doc, "ate_alignment", "full_rate_ate"),
+    )
 
 
 def _loops(doc: MetricsDocument) -> Loops:
     closing = doc.sub("loop_closing")
     rejected = closing.mapping("rejected", int)
     details = {k: v for k, v in closing.data.items() if k != "rejected"}
-    return Loops(doc.typed("candidates", int), doc.value("true_candidates", "loop_truth", kind=int),
-                 doc.typed("verified", int), doc.typed("registrations", int), doc.typed("false_loops", int),
-                 LoopClosing(rejected, details), read_loop_counts(doc.sub("loop_accounting")))
+    return Loops(
+        doc.typed("candidates", int),
+        doc.value("true_candidates", "loop_truth", kind=int),
+        doc.typed("verified", int),
+        doc.typed("registrations", int),
+        doc.typed("false_loops", int),
+        LoopClosing(rejected, details),
+        read_loop_counts(doc.sub("loop_accounting")),
+    )
 
 
 def read_loop_counts(acc: MetricsDocument) -> LoopCounts:
     """metrics.json `loop_accounting` (evaluation.loops.account_loops)."""
     true_candidates, false_accepted, revisits, closed = (acc.value(k, "loop_truth", kind=int) for k in LOOP_TRUTH)
     keyframes, keyframes_closed = (acc.value(k, "loop_truth", kind=int) for k in REVISIT_KEYFRAMES)
-    return LoopCounts(acc.typed("candidates", int), acc.typed("registered", int), acc.typed("accepted", int),
-                      acc.mapping("rejected", int), true_candidates, false_accepted, revisits, closed,
-                      acc.value("revisit_recall", "revisit_recall", "loop_truth"), keyframes, keyframes_closed,
-                      acc.value("revisit_keyframe_recall", "revisit_recall", "loop_truth"))
+    return LoopCounts(
+        acc.typed("candidates", int),
+        acc.typed("registered", int),
+        acc.typed("accepted", int),
+        acc.mapping("rejected", int),
+        true_candidates,
+        false_accepted,
+        revisits,
+        closed,
+        acc.value("revisit_recall", "revisit_recall", "loop_truth"),
+        keyframes,
+        keyframes_closed,
+        acc.value("revisit_keyframe_recall", "revisit_recall", "loop_truth"),
+    )
 
 
 def _place_recognition(doc: MetricsDocument) -> PlaceRecognition:
@@ -96,43 +147,78 @@ def _place_recognition(doc: MetricsDocument) -> PlaceRecognition:
     sweep: tuple[SweepRow, ...] | Unavailable = Unavailable(NOT_BATCH)
     if not online:
         ref = doc.sub("pr_reference")
-        reference = ReferencePR(ref.value("pr_auc", "pr_reference"), ref.value("f1_max", "pr_reference"),
-                                ref.typed("matches", int))
+        reference = ReferencePR(
+            ref.value("pr_auc", "pr_reference"), ref.value("f1_max", "pr_reference"), ref.typed("matches", int)
+        )
         rows = doc.typed("threshold_sweep", list, nullable=True)
-        sweep = doc.unavailable("threshold_sweep") if rows is None else tuple(
-            _sweep_row(MetricsDocument(row, doc.source, f"threshold_sweep[{i}]", doc.reasons))
-            for i, row in enumerate(rows))
-    return PlaceRecognition(doc.value("pr_auc", "pr"), doc.value("f1_max", "pr"), doc.typed("pr_queries", int),
-                            reference, sweep)
+        sweep = (
+            doc.unavailable("threshold_sweep")
+            if rows is None
+            else tuple(
+                _sweep_row(MetricsDocument(row, doc.source, f"threshold_sweep[{i}]", doc.reasons))
+                for i, row in enumerate(rows)
+            )
+        )
+    return PlaceRecognition(
+        doc.value("pr_auc", "pr"), doc.value("f1_max", "pr"), doc.typed("pr_queries", int), reference, sweep
+    )
 
 
 def _sweep_row(doc: MetricsDocument) -> SweepRow:
-    return SweepRow(doc.typed("threshold", float), doc.typed("candidates", int), doc.typed("loops_accepted", int),
-                    doc.typed("false_loops", int), doc.value("ate_after_m", *_FULL_RATE),
-                    doc.value("improvement_t_pct", "full_rate_improvement_translation", *_FULL_RATE))
+    return SweepRow(
+        doc.typed("threshold", float),
+        doc.typed("candidates", int),
+        doc.typed("loops_accepted", int),
+        doc.typed("false_loops", int),
+        doc.value("ate_after_m", *_FULL_RATE),
+        doc.value("improvement_t_pct", "full_rate_improvement_translation", *_FULL_RATE),
+    )
 
 
 def _memory(doc: MetricsDocument) -> Memory:
     mem = doc.sub("memory_bytes")
-    optional = {key: mem.typed(key, kind) if mem.has(key) else None
-                for key, kind in (("local_map", int), ("keyframe_clouds_on_disk", int), ("cloud_store", str))}
-    accounted = AccountedMemory(mem.typed("keyframe_descriptors", int), mem.typed("keyframe_clouds", int),
-                                mem.typed("graph", int), optional["local_map"], mem.typed("total", int),
-                                mem.typed("run_records", int), mem.typed("map", int), mem.typed("in_ram", int),
-                                optional["keyframe_clouds_on_disk"], optional["cloud_store"])
-    return Memory(accounted, doc.typed("peak_rss_bytes", int), doc.typed("peak_rss_scope", str),
-                  doc.typed("rss_growth_bytes", int), doc.value("rss_growth_ratio", default=NOTHING_IN_RAM))
+    optional = {
+        key: mem.typed(key, kind) if mem.has(key) else None
+        for key, kind in (("local_map", int), ("keyframe_clouds_on_disk", int), ("cloud_store", str))
+    }
+    accounted = AccountedMemory(
+        mem.typed("keyframe_descriptors", int),
+        mem.typed("keyframe_clouds", int),
+        mem.typed("graph", int),
+        optional["local_map"],
+        mem.typed("total", int),
+        mem.typed("run_records", int),
+        mem.typed("map", int),
+        mem.typed("in_ram", int),
+        optional["keyframe_clouds_on_disk"],
+        optional["cloud_store"],
+    )
+    return Memory(
+        accounted,
+        doc.typed("peak_rss_bytes", int),
+        doc.typed("peak_rss_scope", str),
+        doc.typed("rss_growth_bytes", int),
+        doc.value("rss_growth_ratio", default=NOTHING_IN_RAM),
+    )
 
 
 def _throughput(doc: MetricsDocument) -> Throughput:
     latency = doc.sub("latency_ms")
-    steps = {step: Latency(*(latency.sub(step).typed(p, float) for p in ("p50", "p95", "p99", "max")))
-             for step in latency.data}
+    steps = {
+        step: Latency(*(latency.sub(step).typed(p, float) for p in ("p50", "p95", "p99", "max")))
+        for step in latency.data
+    }
     doc.typed("bytes_per_keyframe", float)  # written from memory_bytes.total and keyframes (to_json)
-    return Throughput(doc.typed("pipeline_time_s", float),
-                      doc.typed("fps", float), doc.typed("backend_fps", float), doc.typed("frame_rate_hz", float),
-                      doc.typed("frame_rate_from", str), doc.typed("realtime_factor", float), steps,
-                      doc.typed("odometry_cached", bool))
+    return Throughput(
+        doc.typed("pipeline_time_s", float),
+        doc.typed("fps", float),
+        doc.typed("backend_fps", float),
+        doc.typed("frame_rate_hz", float),
+        doc.typed("frame_rate_from", str),
+        doc.typed("realtime_factor", float),
+        steps,
+        doc.typed("odometry_cached", bool),
+    )
 
 
 def _timing(doc: MetricsDocument, online: bool) -> Timing:
@@ -140,8 +226,13 @@ def _timing(doc: MetricsDocument, online: bool) -> Timing:
     replayed = doc.mapping("replayed_time_s", float)
     if online:
         return Timing(stages, replayed)
-    return Timing(stages, replayed, doc.mapping("frontend_time_s", float), doc.mapping("frontend_cached", bool),
-                  doc.value("sampler_realtime_fraction", "sampler_realtime_fraction"))
+    return Timing(
+        stages,
+        replayed,
+        doc.mapping("frontend_time_s", float),
+        doc.mapping("frontend_cached", bool),
+        doc.value("sampler_realtime_fraction", "sampler_realtime_fraction"),
+    )
 
 
 def _setup(doc: MetricsDocument, online: bool) -> RunSetup:
@@ -159,9 +250,11 @@ def from_json(data: Any, source: str) -> RunMetrics:
     if online and pipeline != ONLINE:
         raise doc.error("pipeline", f"must be {ONLINE!r} when present, not {pipeline!r}")
     sequence, dataset, method, sampler, descriptor, mode = (
-        doc.typed(k, str) for k in ("sequence", "dataset", "method", "sampler", "descriptor", "mode"))
-    run = RunIdentity(sequence, dataset, method, sampler, descriptor, mode, doc.typed("frames", int),
-                      doc.typed("keyframes", int))
+        doc.typed(k, str) for k in ("sequence", "dataset", "method", "sampler", "descriptor", "mode")
+    )
+    run = RunIdentity(
+        sequence, dataset, method, sampler, descriptor, mode, doc.typed("frames", int), doc.typed("keyframes", int)
+    )
     stamp = None
     if doc.has("msa_slam_version"):
         frames = doc.typed("keyframe_frames", list)
@@ -171,30 +264,65 @@ def from_json(data: Any, source: str) -> RunMetrics:
     warnings = doc.typed("warnings", list)
     if not all(isinstance(w, str) for w in warnings):
         raise doc.error("warnings", "must be a list of strings")
-    return RunMetrics(pipeline, run, _loops(doc), read_keyframe_trajectory(doc), read_full_rate(doc.sub("full_rate")),
-                      doc.reasons, tuple(warnings), _place_recognition(doc), _memory(doc),
-                      doc.mapping("sampler_stats"), _timing(doc, online), _setup(doc, online),
-                      _throughput(doc) if online else None, stamp)
+    return RunMetrics(
+        pipeline,
+        run,
+        _loops(doc),
+        read_keyframe_trajectory(doc),
+        read_full_rate(doc.sub("full_rate")),
+        doc.reasons,
+        tuple(warnings),
+        _place_recognition(doc),
+        _memory(doc),
+        doc.mapping("sampler_stats"),
+        _timing(doc, online),
+        _setup(doc, online),
+        _throughput(doc) if online else None,
+        stamp,
+    )
 
 
 # ---- writing -------------------------------------------------------------------------------------------------
 
 KEYFRAME_ERRORS = ("ate_translation_m", "ate_rotation_deg", "rpe_translation_m", "rpe_rotation_deg")
-FULL_RATE_ERRORS = ("ate_translation_m", "ate_rotation_deg", "rpe_kitti_translation_pct",
-                    "rpe_kitti_rotation_deg_per_100m", "rpe_10m_translation_m", "rpe_10m_rotation_deg")
+FULL_RATE_ERRORS = (
+    "ate_translation_m",
+    "ate_rotation_deg",
+    "rpe_kitti_translation_pct",
+    "rpe_kitti_rotation_deg_per_100m",
+    "rpe_10m_translation_m",
+    "rpe_10m_rotation_deg",
+)
 IMPROVEMENT = ("translation", "rotation")
 SWEEP_ROW = ("threshold", "candidates", "loops_accepted", "false_loops", "ate_after_m", "improvement_t_pct")
-ACCOUNTING = ("candidates", "registered", "accepted", "rejected", "true_candidates", "false_accepted", "revisits",
-              "revisits_closed", "revisit_recall", "revisit_keyframes", "revisit_keyframes_closed",
-              "revisit_keyframe_recall")
+ACCOUNTING = (
+    "candidates",
+    "registered",
+    "accepted",
+    "rejected",
+    "true_candidates",
+    "false_accepted",
+    "revisits",
+    "revisits_closed",
+    "revisit_recall",
+    "revisit_keyframes",
+    "revisit_keyframes_closed",
+    "revisit_keyframe_recall",
+)
 
 
 def _memory_json(memory: Memory) -> dict[str, Any]:
     a = memory.accounted
     out: dict[str, Any] = {
-        "keyframe_descriptors": a.keyframe_descriptors, "keyframe_clouds": a.keyframe_clouds, "graph": a.graph,
+        "keyframe_descriptors": a.keyframe_descriptors,
+        "keyframe_clouds": a.keyframe_clouds,
+        "graph": a.graph,
         **({} if a.local_map is None else {"local_map": a.local_map}),
-        "total": a.total, "run_records": a.run_records, "map": a.map, "in_ram": a.in_ram}
+        "total": a.total,
+        "run_records": a.run_records,
+        "map": a.map,
+        "in_ram": a.in_ram,
+    }
     if a.cloud_store is not None:
         out.update(keyframe_clouds_on_disk=a.clouds_on_disk, cloud_store=a.cloud_store)
     return out
@@ -205,52 +333,83 @@ def _batch_tail(m: RunMetrics) -> dict[str, Any]:
     ref = pr.reference
     if t.frontend_s is None or t.frontend_cached is None:
         raise ValueError(f"{m.run.sequence}: a batch run's report lacks its front end's timing")
-    return {"sampler_realtime_fraction": _none(t.sampler_realtime_fraction), "time_s": dict(t.stages),
-            "frontend_time_s": dict(t.frontend_s), "frontend_cached": dict(t.frontend_cached),
-            "replayed_time_s": dict(t.replayed_s), "odometry_config": s.odometry_config,
-            "deskew": s.deskew.on, "deskew_from": s.deskew.why, "threads": dict(s.threads),
-            "pr_reference": _fields(ref, ("pr_auc", "f1_max", "matches")),
-            "threshold_sweep": None if isinstance(pr.sweep, Unavailable) else [
-                _fields(row, SWEEP_ROW) for row in pr.sweep]}
+    return {
+        "sampler_realtime_fraction": _none(t.sampler_realtime_fraction),
+        "time_s": dict(t.stages),
+        "frontend_time_s": dict(t.frontend_s),
+        "frontend_cached": dict(t.frontend_cached),
+        "replayed_time_s": dict(t.replayed_s),
+        "odometry_config": s.odometry_config,
+        "deskew": s.deskew.on,
+        "deskew_from": s.deskew.why,
+        "threads": dict(s.threads),
+        "pr_reference": _fields(ref, ("pr_auc", "f1_max", "matches")),
+        "threshold_sweep": None if isinstance(pr.sweep, Unavailable) else [_fields(row, SWEEP_ROW) for row in pr.sweep],
+    }
 
 
 def _online_tail(m: RunMetrics) -> dict[str, Any]:
     th, s = m.throughput, m.setup
     if th is None:
         raise ValueError(f"{m.run.sequence}: an online run's report lacks its throughput")
-    return {"bytes_per_keyframe": m.memory.bytes_per_keyframe(m.run.keyframes), "time_s": dict(m.timing.stages),
-            "pipeline_time_s": th.pipeline_time_s, "fps": th.fps, "backend_fps": th.backend_fps,
-            "frame_rate_hz": th.frame_rate_hz, "frame_rate_from": th.frame_rate_from,
-            "realtime_factor": th.realtime_factor,
-            "latency_ms": {step: _fields(p, ("p50", "p95", "p99", "max")) for step, p in th.latency_ms.items()},
-            "odometry_cached": th.odometry_cached, "replayed_time_s": dict(m.timing.replayed_s),
-            "threads": dict(s.threads), "deskew": s.deskew.on, "deskew_from": s.deskew.why}
+    return {
+        "bytes_per_keyframe": m.memory.bytes_per_keyframe(m.run.keyframes),
+        "time_s": dict(m.timing.stages),
+        "pipeline_time_s": th.pipeline_time_s,
+        "fps": th.fps,
+        "backend_fps": th.backend_fps,
+        "frame_rate_hz": th.frame_rate_hz,
+        "frame_rate_from": th.frame_rate_from,
+        "realtime_factor": th.realtime_factor,
+        "latency_ms": {step: _fields(p, ("p50", "p95", "p99", "max")) for step, p in th.latency_ms.items()},
+        "odometry_cached": th.odometry_cached,
+        "replayed_time_s": dict(m.timing.replayed_s),
+        "threads": dict(s.threads),
+        "deskew": s.deskew.on,
+        "deskew_from": s.deskew.why,
+    }
 
 
 def to_json(m: RunMetrics) -> dict[str, Any]:
     """The report as metrics.json holds it (key order included); with its stamp when it has one."""
     run, loops, kt, full, pr, memory = m.run, m.loops, m.keyframe_trajectory, m.full_rate, m.place_recognition, m.memory
     out: dict[str, Any] = {"pipeline": ONLINE} if m.online else {}
-    out.update({
-        **_fields(run, ("sequence", "dataset", "method", "sampler", "descriptor", "mode", "frames", "keyframes")),
-        "candidates": loops.candidates, "true_candidates": _none(loops.true_candidates), "verified": loops.verified,
-        "registrations": loops.registrations, "false_loops": loops.false_loops,
-        "loop_closing": {"rejected": dict(loops.closing.rejected), **loops.closing.details},
-        "loop_accounting": {**_fields(loops.accounting, ACCOUNTING), "rejected": dict(loops.accounting.rejected)},
-        "before": _fields(kt.before, KEYFRAME_ERRORS), "after": _fields(kt.after, KEYFRAME_ERRORS),
-        "improvement_pct": _fields(kt.improvement, IMPROVEMENT), "ate_alignment": _none(kt.alignment),
-        "ate_rotation_reliable": _none(kt.rotation_reliable), "unavailable": dict(m.reasons),
-        "full_rate": {"before": _fields(full.before, FULL_RATE_ERRORS), "after": _fields(full.after, FULL_RATE_ERRORS),
-                      "improvement_pct": _fields(full.improvement, IMPROVEMENT), "frames": full.frames,
-                      "ate_alignment": _none(full.alignment)},
-        "warnings": list(m.warnings), "pr_auc": _none(pr.pr_auc), "f1_max": _none(pr.f1_max),
-        "pr_queries": pr.queries, "memory_bytes": _memory_json(memory), "peak_rss_bytes": memory.peak_rss_bytes,
-        "peak_rss_scope": memory.peak_rss_scope, "rss_growth_bytes": memory.rss_growth_bytes,
-        "rss_growth_ratio": _none(memory.rss_growth_ratio), "sampler_stats": dict(m.sampler_stats),
-    })
+    out.update(
+        {
+            **_fields(run, ("sequence", "dataset", "method", "sampler", "descriptor", "mode", "frames", "keyframes")),
+            "candidates": loops.candidates,
+            "true_candidates": _none(loops.true_candidates),
+            "verified": loops.verified,
+            "registrations": loops.registrations,
+            "false_loops": loops.false_loops,
+            "loop_closing": {"rejected": dict(loops.closing.rejected), **loops.closing.details},
+            "loop_accounting": {**_fields(loops.accounting, ACCOUNTING), "rejected": dict(loops.accounting.rejected)},
+            "before": _fields(kt.before, KEYFRAME_ERRORS),
+            "after": _fields(kt.after, KEYFRAME_ERRORS),
+            "improvement_pct": _fields(kt.improvement, IMPROVEMENT),
+            "ate_alignment": _none(kt.alignment),
+            "ate_rotation_reliable": _none(kt.rotation_reliable),
+            "unavailable": dict(m.reasons),
+            "full_rate": {
+                "before": _fields(full.before, FULL_RATE_ERRORS),
+                "after": _fields(full.after, FULL_RATE_ERRORS),
+                "improvement_pct": _fields(full.improvement, IMPROVEMENT),
+                "frames": full.frames,
+                "ate_alignment": _none(full.alignment),
+            },
+            "warnings": list(m.warnings),
+            "pr_auc": _none(pr.pr_auc),
+            "f1_max": _none(pr.f1_max),
+            "pr_queries": pr.queries,
+            "memory_bytes": _memory_json(memory),
+            "peak_rss_bytes": memory.peak_rss_bytes,
+            "peak_rss_scope": memory.peak_rss_scope,
+            "rss_growth_bytes": memory.rss_growth_bytes,
+            "rss_growth_ratio": _none(memory.rss_growth_ratio),
+            "sampler_stats": dict(m.sampler_stats),
+        }
+    )
     out.update(_online_tail(m) if m.online else _batch_tail(m))
     if m.stamp is not None:
         out.update(msa_slam_version=m.stamp.version, keyframe_frames=list(m.stamp.keyframe_frames))
     return out
-
-

@@ -8,16 +8,25 @@ gives under the first of the metric's reason keys present (the keys docs/metrics
 from __future__ import annotations
 
 import numbers
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 from msa_slam.errors import InputError
 from msa_slam.evaluation.metrics import Unavailable, Value
 
-NO_REASON = ("this cell's metrics.json holds neither a value nor a reason (cells written by older msa-slam versions "
-             "lack some metrics)")
+NO_REASON = (
+    "this cell's metrics.json holds neither a value nor a reason (cells written by older msa-slam versions "
+    "lack some metrics)"
+)
 _ACCEPTED = {int: numbers.Integral, float: numbers.Real}  # numpy's too (a fresh run's figures); bool apart
-_TYPES = {int: "an integer", float: "a number", str: "a string", bool: "true or false", dict: "an object",
-          list: "a list"}
+_TYPES = {
+    int: "an integer",
+    float: "a number",
+    str: "a string",
+    bool: "true or false",
+    dict: "an object",
+    list: "a list",
+}
 
 
 class MetricsDocument:
@@ -31,8 +40,9 @@ class MetricsDocument:
         self.reasons: Mapping[str, str] = reasons if reasons is not None else {}
 
     def error(self, key: str, problem: str) -> InputError:
-        return InputError(f"{self.source}: metrics key {key!r} {problem} (written by another msa-slam version, or "
-                          "edited?)")
+        return InputError(
+            f"{self.source}: metrics key {key!r} {problem} (written by another msa-slam version, or edited?)"
+        )
 
     def _where(self, key: str) -> str:
         return f"{self.path}.{key}" if self.path else key

@@ -7,16 +7,32 @@ memory, time, settings and, online, throughput. metrics.json is `evaluation.metr
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Mapping, Sequence
 
-from msa_slam.evaluation.metrics import (ONLINE, FullRateTrajectory, JSONValue, KeyframeTrajectory, Loops, Memory,
-                                         PlaceRecognition, ReferencePR, RunIdentity, RunSetup, Throughput, Timing,
-                                         Unavailable, Value, known)
+from msa_slam.evaluation.metrics import (
+    ONLINE,
+    FullRateTrajectory,
+    JSONValue,
+    KeyframeTrajectory,
+    Loops,
+    Memory,
+    PlaceRecognition,
+    ReferencePR,
+    RunIdentity,
+    RunSetup,
+    Throughput,
+    Timing,
+    Unavailable,
+    Value,
+    known,
+)
 
 TableRow = dict[str, object]  # one row of a table (compare's, an experiment's): column -> value, None when n/a
-BATCH_UNTIMED = ("the batch pipeline (Table I protocol) optimises the whole sequence at once, so it has no per-frame "
-                 "throughput or latency (an online grid measures them)")
+BATCH_UNTIMED = (
+    "the batch pipeline (Table I protocol) optimises the whole sequence at once, so it has no per-frame "
+    "throughput or latency (an online grid measures them)"
+)
 
 
 @dataclass(frozen=True)
@@ -67,11 +83,18 @@ class RunMetrics:
     def trajectory_values(self) -> dict[str, Value]:
         """Full-rate ATE/RPE (every frame) and keyframe-only ATE, by the column names tables give them."""
         full, kf = self.full_rate, self.keyframe_trajectory
-        return {"ate_before_m": full.before.ate_translation_m, "ate_after_m": full.after.ate_translation_m,
-                "improvement_t_pct": full.improvement.translation, "improvement_r_pct": full.improvement.rotation,
-                "rpe_pct": full.after.rpe_kitti_translation_pct, "rpe_10m_m": full.after.rpe_10m_translation_m,
-                "kf_ate_before_m": kf.before.ate_translation_m, "kf_ate_after_m": kf.after.ate_translation_m,
-                "kf_improvement_t_pct": kf.improvement.translation, "kf_improvement_r_pct": kf.improvement.rotation}
+        return {
+            "ate_before_m": full.before.ate_translation_m,
+            "ate_after_m": full.after.ate_translation_m,
+            "improvement_t_pct": full.improvement.translation,
+            "improvement_r_pct": full.improvement.rotation,
+            "rpe_pct": full.after.rpe_kitti_translation_pct,
+            "rpe_10m_m": full.after.rpe_10m_translation_m,
+            "kf_ate_before_m": kf.before.ate_translation_m,
+            "kf_ate_after_m": kf.after.ate_translation_m,
+            "kf_improvement_t_pct": kf.improvement.translation,
+            "kf_improvement_r_pct": kf.improvement.rotation,
+        }
 
     def comparison_row(self, rejection_reasons: Sequence[str]) -> TableRow:
         """compare's Table-I row (reporting.comparison.COLUMNS): full-rate ATE/RPE first, keyframe-only ATE as kf_*
@@ -80,20 +103,40 @@ class RunMetrics:
         reference = pr.reference if isinstance(pr.reference, ReferencePR) else None
         values = self.trajectory_values()
         row = {
-            "method": self.method, "keyframes": self.run.keyframes, "candidates": loops.candidates,
-            "true_candidates": acc.true_candidates, "verified": loops.verified, "rejected": loops.rejected,
+            "method": self.method,
+            "keyframes": self.run.keyframes,
+            "candidates": loops.candidates,
+            "true_candidates": acc.true_candidates,
+            "verified": loops.verified,
+            "rejected": loops.rejected,
             **{f"rejected_{reason}": acc.rejected.get(reason, 0) for reason in rejection_reasons},
-            "false_loops": loops.false_loops, "false_accepted": acc.false_accepted, "revisits": acc.revisits,
-            "revisit_recall": acc.revisit_recall, "revisit_keyframe_recall": acc.revisit_keyframe_recall,
-            **{k: values[k] for k in ("ate_before_m", "ate_after_m", "improvement_t_pct", "improvement_r_pct",
-                                      "rpe_pct", "rpe_10m_m")},
-            "pr_auc": pr.pr_auc, "f1_max": pr.f1_max,
+            "false_loops": loops.false_loops,
+            "false_accepted": acc.false_accepted,
+            "revisits": acc.revisits,
+            "revisit_recall": acc.revisit_recall,
+            "revisit_keyframe_recall": acc.revisit_keyframe_recall,
+            **{
+                k: values[k]
+                for k in (
+                    "ate_before_m",
+                    "ate_after_m",
+                    "improvement_t_pct",
+                    "improvement_r_pct",
+                    "rpe_pct",
+                    "rpe_10m_m",
+                )
+            },
+            "pr_auc": pr.pr_auc,
+            "f1_max": pr.f1_max,
             "pr_auc_reference": None if reference is None else reference.pr_auc,
             "f1_max_reference": None if reference is None else reference.f1_max,
-            "memory_mib": self.memory.total_mib, "rss_growth_mib": self.memory.rss_growth_mib,
+            "memory_mib": self.memory.total_mib,
+            "rss_growth_mib": self.memory.rss_growth_mib,
             "time_s": self.timing.backend_total,
-            **{k: values[k] for k in ("kf_ate_before_m", "kf_ate_after_m", "kf_improvement_t_pct",
-                                      "kf_improvement_r_pct")},
+            **{
+                k: values[k]
+                for k in ("kf_ate_before_m", "kf_ate_after_m", "kf_improvement_t_pct", "kf_improvement_r_pct")
+            },
         }
         return {k: known(v) for k, v in row.items()}
 
@@ -103,12 +146,19 @@ class RunMetrics:
         values = self.trajectory_values()
         del values["kf_improvement_r_pct"]
         return {
-            "frames": self.run.frames, "keyframes": self.run.keyframes, "candidates": self.loops.candidates,
-            "verified": self.loops.verified, "false_loops": self.loops.false_loops, **values,
-            "pr_auc": self.place_recognition.pr_auc, "f1_max": self.place_recognition.f1_max,
-            "memory_mib": self.memory.total_mib, "bytes_per_keyframe": self.memory.accounted.total
-            / max(1, self.run.keyframes), "time_s": self.timing.backend_total,
+            "frames": self.run.frames,
+            "keyframes": self.run.keyframes,
+            "candidates": self.loops.candidates,
+            "verified": self.loops.verified,
+            "false_loops": self.loops.false_loops,
+            **values,
+            "pr_auc": self.place_recognition.pr_auc,
+            "f1_max": self.place_recognition.f1_max,
+            "memory_mib": self.memory.total_mib,
+            "bytes_per_keyframe": self.memory.accounted.total / max(1, self.run.keyframes),
+            "time_s": self.timing.backend_total,
             **{figure: self.per_frame(figure) for figure in ("fps", "backend_fps", "backend_p99_ms")},
             "process_peak_rss_mib": self.memory.peak_rss_bytes / 2**20,  # the cell's whole process, not the method
-            "rss_growth_mib": self.memory.rss_growth_mib, "rejected": self.loops.rejected,
+            "rss_growth_mib": self.memory.rss_growth_mib,
+            "rejected": self.loops.rejected,
         }

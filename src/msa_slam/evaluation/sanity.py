@@ -53,10 +53,12 @@ def implausible_steps(poses: np.ndarray, times: np.ndarray, what: str) -> list[s
     if not len(bad):
         return []
     i = int(bad[np.argmax(moves[bad])])
-    return [f"{what}: {len(bad)} implausible step(s); the largest, frames {i} -> {i + 1}: {moves[i]:.2f} m and "
-            f"{turns[i]:.1f} deg in {dt[i]:.3g} s ({speed[i]:.1f} m/s, {rate[i]:.0f} deg/s; a platform moves at "
-            f"most {MAX_SPEED_MPS:g} m/s and {MAX_ROTATION_RATE_DPS:g} deg/s; the median step is "
-            f"{np.median(moves):.2f} m)"]
+    return [
+        f"{what}: {len(bad)} implausible step(s); the largest, frames {i} -> {i + 1}: {moves[i]:.2f} m and "
+        f"{turns[i]:.1f} deg in {dt[i]:.3g} s ({speed[i]:.1f} m/s, {rate[i]:.0f} deg/s; a platform moves at "
+        f"most {MAX_SPEED_MPS:g} m/s and {MAX_ROTATION_RATE_DPS:g} deg/s; the median step is "
+        f"{np.median(moves):.2f} m)"
+    ]
 
 
 def steps_along_z(poses: np.ndarray) -> tuple[np.ndarray, int]:
@@ -73,9 +75,11 @@ def camera_frame_poses(gt_poses: np.ndarray) -> list[str]:
     along_z, moving = steps_along_z(validate_poses(gt_poses, "ground truth"))
     if moving == 0 or len(along_z) <= 0.5 * moving:
         return []
-    return [f"ground truth: the sensor moves along its z axis on {len(along_z)} of {moving} moving steps, as a "
-            "camera does; ground truth must be LiDAR-frame poses (x forward, z up): KITTI's cam0 poses need "
-            "calib.txt's Tr (a KITTI layout folder with calib.txt converts them)"]
+    return [
+        f"ground truth: the sensor moves along its z axis on {len(along_z)} of {moving} moving steps, as a "
+        "camera does; ground truth must be LiDAR-frame poses (x forward, z up): KITTI's cam0 poses need "
+        "calib.txt's Tr (a KITTI layout folder with calib.txt converts them)"
+    ]
 
 
 def reversed_ground_truth(gt_poses: np.ndarray, odometry: np.ndarray) -> list[str]:
@@ -91,11 +95,13 @@ def reversed_ground_truth(gt_poses: np.ndarray, odometry: np.ndarray) -> list[st
     reversed_steps = int((cos < REVERSED_COS).sum())
     if not moving.any() or reversed_steps <= REVERSED_SHARE * moving.sum():
         return []
-    return [f"ground truth: in the sensor frame it moves against the odometry on {reversed_steps} of the "
-            f"{int(moving.sum())} steps where both move: its frame is turned about 180 deg against the LiDAR's (the "
-            "rotation ATE comes out near 180 deg). MulRan: global_pose.csv must hold the vehicle base's poses, as "
-            "shipped; the loader turns them into the Ouster's with the base-to-Ouster calibration (a 179.7 deg "
-            "yaw), so poses already in the Ouster frame come out turned"]
+    return [
+        f"ground truth: in the sensor frame it moves against the odometry on {reversed_steps} of the "
+        f"{int(moving.sum())} steps where both move: its frame is turned about 180 deg against the LiDAR's (the "
+        "rotation ATE comes out near 180 deg). MulRan: global_pose.csv must hold the vehicle base's poses, as "
+        "shipped; the loader turns them into the Ouster's with the base-to-Ouster calibration (a 179.7 deg "
+        "yaw), so poses already in the Ouster frame come out turned"
+    ]
 
 
 def stalled_odometry(gt_poses: np.ndarray, odometry: np.ndarray) -> list[str]:
@@ -106,15 +112,19 @@ def stalled_odometry(gt_poses: np.ndarray, odometry: np.ndarray) -> list[str]:
     warnings = []
     start_gt, start_odom = gt_moves[:START_FRAMES].sum(), odom_moves[:START_FRAMES].sum()
     if start_gt >= MIN_START_PATH_M and start_odom < STALLED_FRACTION * start_gt:
-        warnings.append(f"odometry: stalled start: it moves {start_odom:.2f} m over the first "
-                        f"{min(START_FRAMES, len(gt_moves))} steps while the ground truth moves {start_gt:.1f} m "
-                        "(registration found nothing to lock on to?)")
+        warnings.append(
+            f"odometry: stalled start: it moves {start_odom:.2f} m over the first "
+            f"{min(START_FRAMES, len(gt_moves))} steps while the ground truth moves {start_gt:.1f} m "
+            "(registration found nothing to lock on to?)"
+        )
     moving = gt_moves >= MOVING_STEP_M
     stalled = moving & (odom_moves < STALLED_FRACTION * gt_moves)
     if moving.any() and stalled.sum() > MAX_STALLED_SHARE * moving.sum():
-        warnings.append(f"odometry: (near) zero motion on {int(stalled.sum())} of the {int(moving.sum())} steps "
-                        f"where the ground truth moves (< {100 * STALLED_FRACTION:g} % of its step); its ATE "
-                        "measures a failed registration, not drift")
+        warnings.append(
+            f"odometry: (near) zero motion on {int(stalled.sum())} of the {int(moving.sum())} steps "
+            f"where the ground truth moves (< {100 * STALLED_FRACTION:g} % of its step); its ATE "
+            "measures a failed registration, not drift"
+        )
     return warnings
 
 

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Mapping, Sequence
 
 import numpy as np
 from scipy import stats
@@ -23,10 +23,12 @@ ALPHA = 0.05
 # on a sequence where no sampler closes a loop the improvements are +-1e-11 % and a t-test would rank noise.
 ROUNDING = 1e-9
 PAIRED_TEST = "paired t-test (scipy.stats.ttest_rel, two-sided, alpha 0.05)"
-PAIRED_TEST_WHY = ("a paired t-test rather than Wilcoxon's signed-rank test: with n seeds the exact two-sided "
-                   "Wilcoxon p-value cannot go below 2/2^n (0.25 for 3 seeds, 0.0625 for 5), so with the few "
-                   "seeds a comparison affords it could never find a difference; the t-test can, assuming the "
-                   "per-seed differences are roughly normal")
+PAIRED_TEST_WHY = (
+    "a paired t-test rather than Wilcoxon's signed-rank test: with n seeds the exact two-sided "
+    "Wilcoxon p-value cannot go below 2/2^n (0.25 for 3 seeds, 0.0625 for 5), so with the few "
+    "seeds a comparison affords it could never find a difference; the t-test can, assuming the "
+    "per-seed differences are roughly normal"
+)
 REFERENCE = "msa"
 
 
@@ -41,14 +43,18 @@ class Spread:
     ranks: list[int | None]
 
 
-def seed_ranks(values: Mapping[str, float | None], higher_is_better: bool, spec: str | None = None
-               ) -> dict[str, int | None]:
+def seed_ranks(
+    values: Mapping[str, float | None], higher_is_better: bool, spec: str | None = None
+) -> dict[str, int | None]:
     """Rank of each method on one seed (1 = best; None for unavailable values). Values equal once formatted
     with `spec` (the metric's display format, evaluation.display.spec_for; None: as they are) are ties and
     share the best of their ranks ("min": 1, 1, 3), so a PR-AUC of 0.9999999999999999 is not behind 1.0 and
     ATEs 3e-9 m apart do not rank 1 and 2 when the tables show them as equal."""
-    known = {m: v if spec is None else float(format(v, spec)) for m, v in values.items()
-             if v is not None and not math.isnan(v)}
+    known = {
+        m: v if spec is None else float(format(v, spec))
+        for m, v in values.items()
+        if v is not None and not math.isnan(v)
+    }
     if not known:
         return dict.fromkeys(values)
     signed = np.array([-v if higher_is_better else v for v in known.values()])
@@ -56,13 +62,18 @@ def seed_ranks(values: Mapping[str, float | None], higher_is_better: bool, spec:
     return {m: ranked.get(m) for m in values}
 
 
-def spreads(per_seed: Sequence[Mapping[str, float | None]], higher_is_better: bool | None, spec: str | None = None
-            ) -> dict[str, Spread]:
+def spreads(
+    per_seed: Sequence[Mapping[str, float | None]], higher_is_better: bool | None, spec: str | None = None
+) -> dict[str, Spread]:
     """Spread of every method of `per_seed` (one mapping method -> value per seed); ranks only when the
     metric has a direction (`higher_is_better` not None), at the display format `spec` (seed_ranks)."""
     methods = list(dict.fromkeys(m for seed in per_seed for m in seed))
-    ranks = [seed_ranks({m: seed.get(m) for m in methods}, higher_is_better, spec) if higher_is_better is not None
-             else dict.fromkeys(methods) for seed in per_seed]
+    ranks = [
+        seed_ranks({m: seed.get(m) for m in methods}, higher_is_better, spec)
+        if higher_is_better is not None
+        else dict.fromkeys(methods)
+        for seed in per_seed
+    ]
     out = {}
     for m in methods:
         values = [seed.get(m) for seed in per_seed]
@@ -106,7 +117,7 @@ class PairedVerdict:
         return f"{'better' if self.sign > 0 else 'worse'}, beyond the seed spread ({shown})"
 
     def text(self) -> str:
-        """"mean difference +1.2 ± 0.3 over 3 pair(s), p=0.012", or with why there is no p-value."""
+        """ "mean difference +1.2 ± 0.3 over 3 pair(s), p=0.012", or with why there is no p-value."""
         mean = "n/a" if self.mean_difference is None else _number(self.mean_difference, signed=True)
         std = "" if self.std_difference is None else f" ± {_number(self.std_difference)}"
         if self.p is not None:
@@ -117,8 +128,13 @@ class PairedVerdict:
 
     def to_json(self) -> dict[str, object]:
         """The verdict as seeds.json records it."""
-        return {"p": self.p, "mean_difference": self.mean_difference, "std_difference": self.std_difference,
-                "pairs": self.pairs, "verdict": self.verdict}
+        return {
+            "p": self.p,
+            "mean_difference": self.mean_difference,
+            "std_difference": self.std_difference,
+            "pairs": self.pairs,
+            "verdict": self.verdict,
+        }
 
 
 def _number(x: float, signed: bool = False) -> str:
@@ -126,32 +142,52 @@ def _number(x: float, signed: bool = False) -> str:
     return "0.0" if x == 0 else f"{x:+.3g}" if signed else f"{x:.3g}"
 
 
-def paired_verdict(reference: Sequence[float | None], baseline: Sequence[float | None],
-                   higher_is_better: bool, seeds: Sequence[int], unit: str = "seed") -> PairedVerdict:
+def paired_verdict(
+    reference: Sequence[float | None],
+    baseline: Sequence[float | None],
+    higher_is_better: bool,
+    seeds: Sequence[int],
+    unit: str = "seed",
+) -> PairedVerdict:
     """Whether the per-seed difference reference - baseline exceeds its seed-to-seed spread (PAIRED_TEST). No
     p-value, with the reason, when a value is n/a, with fewer than MIN_SEEDS pairs, when the values differ only
     by rounding, or when the difference is the same on every seed (no variance: the t statistic is undefined;
     then `sign` still says which side, since every seed agrees). `unit` names a pair in the reasons (a seed, or
     a pair of runs on one world when they pool datasets)."""
-    missing = [s for s, a, b in zip(seeds, reference, baseline) if a is None or b is None
-               or math.isnan(a) or math.isnan(b)]
+    missing = [
+        s for s, a, b in zip(seeds, reference, baseline) if a is None or b is None or math.isnan(a) or math.isnan(b)
+    ]
     if missing:
-        return PairedVerdict(len(seeds), None, None, None, 0, f"n/a: a value is n/a on {unit}(s) "
-                             f"{', '.join(map(str, missing))} (that seed's notes say why)")
-    diff = np.array([without_rounding(a, b) for a, b in zip(reference, baseline) if a is not None and b is not None],
-                    dtype=np.float64)
+        return PairedVerdict(
+            len(seeds),
+            None,
+            None,
+            None,
+            0,
+            f"n/a: a value is n/a on {unit}(s) {', '.join(map(str, missing))} (that seed's notes say why)",
+        )
+    diff = np.array(
+        [without_rounding(a, b) for a, b in zip(reference, baseline) if a is not None and b is not None],
+        dtype=np.float64,
+    )
     mean = float(diff.mean()) if len(diff) else None
     std = float(diff.std(ddof=1)) if len(diff) >= 2 else None
     if len(seeds) < MIN_SEEDS:
-        return PairedVerdict(len(seeds), mean, std, None, 0,
-                             f"n/a: {len(seeds)} {unit}(s), the paired test needs at least {MIN_SEEDS}")
+        return PairedVerdict(
+            len(seeds), mean, std, None, 0, f"n/a: {len(seeds)} {unit}(s), the paired test needs at least {MIN_SEEDS}"
+        )
     if not diff.any():  # equal, or e.g. no loop closed: the optimiser only rounded
         return PairedVerdict(len(seeds), 0.0, 0.0, None, 0, f"no difference on any {unit}")
     better = 1 if (float(diff.mean()) > 0) == higher_is_better else -1
     if np.all(diff == diff[0]):  # zero variance: the t statistic is undefined
-        return PairedVerdict(len(seeds), mean, 0.0, None, better,
-                             f"{'better' if better > 0 else 'worse'} by the same amount on every {unit} "
-                             "(no variance: no p-value)")
+        return PairedVerdict(
+            len(seeds),
+            mean,
+            0.0,
+            None,
+            better,
+            f"{'better' if better > 0 else 'worse'} by the same amount on every {unit} (no variance: no p-value)",
+        )
     with warnings.catch_warnings():  # scipy's "nearly identical data" warning: the p-value then says as much
         warnings.simplefilter("ignore", RuntimeWarning)
         p = float(stats.ttest_1samp(diff, 0.0).pvalue)  # = ttest_rel(reference, baseline), rounding left out

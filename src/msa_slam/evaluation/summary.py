@@ -8,17 +8,15 @@ warning that its rotation ATE mostly measures the alignment.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Mapping
 
 import numpy as np
 
 from msa_slam.evaluation.metrics import KeyframeTrajectory
 from msa_slam.evaluation.metrics_json import read_keyframe_trajectory
 from msa_slam.evaluation.metrics_reader import MetricsDocument
-
-from msa_slam.evaluation.trajectory import (ATE_ALIGNMENT, AlignmentError, alignment_warnings, ate, improvement,
-                                            rpe)
+from msa_slam.evaluation.trajectory import ATE_ALIGNMENT, AlignmentError, alignment_warnings, ate, improvement, rpe
 
 ESTIMATES = {"before": "odometry", "after": "optimised"}
 ZERO_ERROR = 1e-9  # metres or degrees: an ATE this small is an exact fit
@@ -66,15 +64,20 @@ def _errors(estimate: np.ndarray, reference: np.ndarray) -> tuple[Block, np.ndar
     return out, errors, reason
 
 
-def evaluate_trajectories(odometry: np.ndarray, optimised: np.ndarray, reference: np.ndarray | None,
-                          frames: np.ndarray) -> TrajectoryEvaluation:
+def evaluate_trajectories(
+    odometry: np.ndarray, optimised: np.ndarray, reference: np.ndarray | None, frames: np.ndarray
+) -> TrajectoryEvaluation:
     """ATE/RPE of the odometry and optimised keyframe poses against ground truth at keyframe `frames`
     (`reference` None: a recording without ground truth, every metric None with that reason)."""
     if reference is None:
         block = dict.fromkeys(("ate_translation_m", "ate_rotation_deg", "rpe_translation_m", "rpe_rotation_deg"))
-        metrics: dict[str, object] = {"before": block, "after": dict(block),
-                                      "improvement_pct": {"translation": None, "rotation": None},
-                                      "ate_alignment": None, "ate_rotation_reliable": None}
+        metrics: dict[str, object] = {
+            "before": block,
+            "after": dict(block),
+            "improvement_pct": {"translation": None, "rotation": None},
+            "ate_alignment": None,
+            "ate_rotation_reliable": None,
+        }
         reasons = {"ate": "no ground truth", "rpe": "no ground truth"}
         return _evaluation(metrics, reasons, [], {"odometry": None, "optimised": None})
     blocks, errors, unavailable = {}, {}, {}
@@ -91,18 +94,29 @@ def evaluate_trajectories(odometry: np.ndarray, optimised: np.ndarray, reference
         if improvements[part] is None and before is not None and after is not None:
             unavailable[f"improvement_{part}"] = f"odometry ATE {part} is 0 ({before:.1g}): % improvement undefined"
     frames = np.asarray(frames)
-    alignment = (f"{ATE_ALIGNMENT}, fitted separately for each estimate on the positions of all {len(frames)} "
-                 f"keyframes (frames {int(frames[0])}..{int(frames[-1])}) against ground truth")
+    alignment = (
+        f"{ATE_ALIGNMENT}, fitted separately for each estimate on the positions of all {len(frames)} "
+        f"keyframes (frames {int(frames[0])}..{int(frames[-1])}) against ground truth"
+    )
     unstable = alignment_warnings(reference) if "ate" not in unavailable else []
-    warnings = (["rotation ATE unreliable: the SE(3) alignment's rotation is poorly determined ("
-                 + "; ".join(unstable) + ")"] if unstable else [])
-    metrics = {"before": blocks["before"], "after": blocks["after"], "improvement_pct": improvements,
-               "ate_alignment": alignment, "ate_rotation_reliable": None if "ate" in unavailable else not unstable}
+    warnings = (
+        ["rotation ATE unreliable: the SE(3) alignment's rotation is poorly determined (" + "; ".join(unstable) + ")"]
+        if unstable
+        else []
+    )
+    metrics = {
+        "before": blocks["before"],
+        "after": blocks["after"],
+        "improvement_pct": improvements,
+        "ate_alignment": alignment,
+        "ate_rotation_reliable": None if "ate" in unavailable else not unstable,
+    }
     return _evaluation(metrics, unavailable, warnings, errors)
 
 
-def _evaluation(metrics: Mapping[str, object], reasons: dict[str, str], warnings: list[str],
-                errors: dict[str, np.ndarray | None]) -> TrajectoryEvaluation:
+def _evaluation(
+    metrics: Mapping[str, object], reasons: dict[str, str], warnings: list[str], errors: dict[str, np.ndarray | None]
+) -> TrajectoryEvaluation:
     """The evaluation with its figures typed, each undefined one unavailable with its reason."""
     doc = MetricsDocument(metrics, "the keyframe evaluation", reasons=reasons)
     return TrajectoryEvaluation(read_keyframe_trajectory(doc), reasons, warnings, errors)

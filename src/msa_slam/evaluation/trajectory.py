@@ -88,17 +88,21 @@ def alignment_warnings(reference: np.ndarray) -> list[str]:
     if path < STABLE_PATH_M:
         out.append(f"ground-truth path {path:.1f} m (shorter than {STABLE_PATH_M:g} m)")
     if spread < STABLE_SPREAD_M:
-        out.append(f"nearly straight: ground-truth positions spread {spread:.3f} m across the main direction "
-                   f"(less than {STABLE_SPREAD_M:g} m)")
+        out.append(
+            f"nearly straight: ground-truth positions spread {spread:.3f} m across the main direction "
+            f"(less than {STABLE_SPREAD_M:g} m)"
+        )
     return out
 
 
 def _align(est: PosePath3D, ref: PosePath3D) -> PosePath3D:
     spread = second_spread(ref.positions_xyz)
     if spread < DEGENERATE_SPREAD_M:
-        raise AlignmentError(f"SE(3) alignment undetermined: the {ref.num_poses} ground-truth positions lie on a "
-                             f"point or a line (spread {spread:.2g} m across it; stationary, rotation-only or "
-                             "straight trajectory)")
+        raise AlignmentError(
+            f"SE(3) alignment undetermined: the {ref.num_poses} ground-truth positions lie on a "
+            f"point or a line (spread {spread:.2g} m across it; stationary, rotation-only or "
+            "straight trajectory)"
+        )
     est = copy.deepcopy(est)
     try:
         est.align(ref, correct_scale=False)
@@ -123,8 +127,9 @@ def ate(estimate: np.ndarray, reference: np.ndarray, align: bool = True) -> Traj
     return _summary(*_errors(ref, est, metrics.APE))
 
 
-def rpe(estimate: np.ndarray, reference: np.ndarray, delta: float = 1, unit: str = "frames",
-        tolerance: float = 0.1) -> TrajectoryError:
+def rpe(
+    estimate: np.ndarray, reference: np.ndarray, delta: float = 1, unit: str = "frames", tolerance: float = 0.1
+) -> TrajectoryError:
     """Relative pose error over pose pairs `delta` frames (or metres along the reference) apart."""
     if unit not in RPE_UNITS:
         raise InputError(f"unknown RPE unit {unit!r}; choose frames or meters")
@@ -132,8 +137,9 @@ def rpe(estimate: np.ndarray, reference: np.ndarray, delta: float = 1, unit: str
         raise InputError(f"RPE delta must be > 0, got {delta}")
     est, ref = _paths(estimate, reference, minimum=2)
     try:
-        trans, rot = _errors(ref, est, metrics.RPE, delta=delta, delta_unit=RPE_UNITS[unit],
-                             rel_delta_tol=tolerance, all_pairs=False)
+        trans, rot = _errors(
+            ref, est, metrics.RPE, delta=delta, delta_unit=RPE_UNITS[unit], rel_delta_tol=tolerance, all_pairs=False
+        )
     except (metrics.MetricsException, filters.FilterException) as exc:
         raise InputError(f"RPE with delta {delta} {unit}: {exc}") from exc
     return _summary(trans, rot)

@@ -11,18 +11,29 @@ import logging
 import os
 import sys
 import traceback
+from collections.abc import Sequence
 from concurrent.futures import as_completed
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 from msa_slam.errors import InputError
 from msa_slam.evaluation import peak_rss_bytes
 from msa_slam.evaluation.metrics_json import to_json
 from msa_slam.evaluation.run_metrics import TableRow
-from msa_slam.experiments.seed_folder import (RECORD, check_seed_folder, clean_leftovers, finished_metrics,
-                                              left_out_seeds, remove_seeds, resume_seeds, seed_dir, seed_identities,
-                                              seed_record, write_record)
+from msa_slam.experiments.seed_folder import (
+    RECORD,
+    check_seed_folder,
+    clean_leftovers,
+    finished_metrics,
+    left_out_seeds,
+    remove_seeds,
+    resume_seeds,
+    seed_dir,
+    seed_identities,
+    seed_record,
+    write_record,
+)
 from msa_slam.experiments.seeds import SEED_COLUMNS, seed_markdown, seed_rows, seed_summary, seeded_datasets
 from msa_slam.experiments.sweep import threshold_sweep
 from msa_slam.io.atomic import atomic_path, write_text_atomic
@@ -32,8 +43,15 @@ from msa_slam.pipeline.config import RunConfig, make_config
 from msa_slam.pipeline.driver import run
 from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, CachedFrontEnd, prepare_frontend
 from msa_slam.progress import progress_bar
-from msa_slam.reporting.comparison import (COLUMNS, PROCESSES, comparison_report, failed_section, table_markdown,
-                                           table_row, write_figures)
+from msa_slam.reporting.comparison import (
+    COLUMNS,
+    PROCESSES,
+    comparison_report,
+    failed_section,
+    table_markdown,
+    table_row,
+    write_figures,
+)
 from msa_slam.reporting.report import rpe_segments, scans_read
 from msa_slam.reporting.results import write_run_files
 from msa_slam.sampling.params import GATE_PARAMETERS
@@ -56,8 +74,10 @@ PAPER_METHODS: tuple[tuple[str, str, dict[str, Any]], ...] = (
 )
 UNDER_STUDY = "msa"  # the sampler that gets the user's sampler parameters (method_configs)
 
-def method_configs(base: RunConfig, methods: Sequence[tuple[str, str, dict[str, Any]]] = PAPER_METHODS
-                   ) -> list[RunConfig]:
+
+def method_configs(
+    base: RunConfig, methods: Sequence[tuple[str, str, dict[str, Any]]] = PAPER_METHODS
+) -> list[RunConfig]:
     """One validated config per method: `base` with the method's sampler, parameters and label.
 
     When `base` is a config of the sampler under study (UNDER_STUDY), its sampler parameters (-p window=8,
@@ -75,8 +95,10 @@ def method_configs(base: RunConfig, methods: Sequence[tuple[str, str, dict[str, 
             return {**given, **params}
         return params if sampler in UNGATED_SAMPLERS else {**gate, **params}
 
-    return [make_config({**data, "sampler": sampler, "sampler_params": params_of(sampler, params), "label": label})
-            for label, sampler, params in methods]
+    return [
+        make_config({**data, "sampler": sampler, "sampler_params": params_of(sampler, params), "label": label})
+        for label, sampler, params in methods
+    ]
 
 
 def check_compare_sampler(base: RunConfig) -> None:
@@ -84,9 +106,11 @@ def check_compare_sampler(base: RunConfig) -> None:
     sampler (-p sampler=constant -p distance=2) would be dropped without a word, so they are refused."""
     if base.sampler != UNDER_STUDY and base.sampler_params:
         given = ", ".join(f"{k}={v!r}" for k, v in base.sampler_params.items())
-        raise InputError(f"compare: the sampler parameters go to {UNDER_STUDY} (the baselines keep the paper's "
-                         f"settings); {given} are for sampler {base.sampler!r}: drop them, or give them to "
-                         f"`msa-slam run -p sampler={base.sampler}`")
+        raise InputError(
+            f"compare: the sampler parameters go to {UNDER_STUDY} (the baselines keep the paper's "
+            f"settings); {given} are for sampler {base.sampler!r}: drop them, or give them to "
+            f"`msa-slam run -p sampler={base.sampler}`"
+        )
 
 
 class MethodsFailed(Exception):
@@ -97,11 +121,19 @@ class MethodsFailed(Exception):
         self.report, self.failed = report, failed
 
 
-def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = True,
-                methods: Sequence[tuple[str, str, dict[str, Any]]] = PAPER_METHODS, overwrite: bool = False,
-                default_parent: Path = DEFAULT_RESULTS / "compare", seeds: Sequence[int] | None = None,
-                sweep: bool = True, window_fix: str = CONFIG_WINDOW_FIX, workers: int = 1, figures: bool = True
-                ) -> Path:
+def run_compare(
+    base: RunConfig,
+    out: str | os.PathLike | None,
+    quiet: bool = True,
+    methods: Sequence[tuple[str, str, dict[str, Any]]] = PAPER_METHODS,
+    overwrite: bool = False,
+    default_parent: Path = DEFAULT_RESULTS / "compare",
+    seeds: Sequence[int] | None = None,
+    sweep: bool = True,
+    window_fix: str = CONFIG_WINDOW_FIX,
+    workers: int = 1,
+    figures: bool = True,
+) -> Path:
     """Run every method on the sequence of `base` and write the comparison folder; return its report.md.
 
     `out` is checked before any work (msa_slam.io.outputs; None: a new timestamped folder under
@@ -126,13 +158,18 @@ def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = Tr
     measured times and memory.
     """
     check_workers(workers)
-    plans = None if seeds is None else {seed: method_configs(make_config({**base.dump(), "dataset": dataset}), methods)
-                                        for seed, dataset in zip(seeds, seeded_datasets(base.dataset, seeds))}
+    plans = (
+        None
+        if seeds is None
+        else {
+            seed: method_configs(make_config({**base.dump(), "dataset": dataset}), methods)
+            for seed, dataset in zip(seeds, seeded_datasets(base.dataset, seeds))
+        }
+    )
     with open_result_folder(out, "compare", default_parent, overwrite=overwrite, resume=plans is not None) as folder:
         if plans is None:
             with folder.staging() as tmp:
-                _, failed = _comparison(method_configs(base, methods), tmp, quiet, sweep, window_fix, workers,
-                                        figures)
+                _, failed = _comparison(method_configs(base, methods), tmp, quiet, sweep, window_fix, workers, figures)
         else:
             if not overwrite:
                 check_seed_folder(folder.path)
@@ -144,8 +181,15 @@ def run_compare(base: RunConfig, out: str | os.PathLike | None, quiet: bool = Tr
     return folder.path / "report.md"
 
 
-def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: bool, window_fix: str, workers: int,
-                figures: bool = True) -> tuple[list[TableRow], dict[str, str]]:
+def _comparison(
+    configs: Sequence[RunConfig],
+    tmp: Path,
+    quiet: bool,
+    sweep: bool,
+    window_fix: str,
+    workers: int,
+    figures: bool = True,
+) -> tuple[list[TableRow], dict[str, str]]:
     """One comparison folder's files in `tmp` (the methods in `workers` processes); its table rows and failed
     methods."""
     workers = min(workers, len(configs))  # no idle workers
@@ -159,14 +203,25 @@ def _comparison(configs: Sequence[RunConfig], tmp: Path, quiet: bool, sweep: boo
     drawn = write_figures(results, tmp / "figures", failed, figures) if results else []
     main_peak = mib(peak_rss_bytes())
     write_json(tmp / PROCESSES, {"workers": workers, "main_peak_rss": main_peak})
-    report = (comparison_report(frontend, results, table, drawn, workers, main_peak) if results
-              else f"# Sampler comparison on {display_name(frontend.name)}\n")
+    report = (
+        comparison_report(frontend, results, table, drawn, workers, main_peak)
+        if results
+        else f"# Sampler comparison on {display_name(frontend.name)}\n"
+    )
     (tmp / "report.md").write_text(report + failed_section(failed))
     return rows, failed
 
 
-def _seed_comparisons(base: RunConfig, plans: dict[int, list[RunConfig]], out: Path, quiet: bool,
-                      sweep: bool, window_fix: str, workers: int, figures: bool = True) -> dict[str, str]:
+def _seed_comparisons(
+    base: RunConfig,
+    plans: dict[int, list[RunConfig]],
+    out: Path,
+    quiet: bool,
+    sweep: bool,
+    window_fix: str,
+    workers: int,
+    figures: bool = True,
+) -> dict[str, str]:
     """Each seed's comparison (`plans`: seed -> method configs) under out/seeds/, reusing the ones finished
     earlier with the same settings, data and code (a seed whose data or code changed is removed and rerun, with
     a warning and a line in report.md), then the spread over seeds at the top of `out`."""
@@ -198,8 +253,14 @@ def _say(quiet: bool, line: str) -> None:
         print(line, file=sys.stderr, flush=True)
 
 
-def write_spread(out: Path, base: RunConfig, rows: dict[int, list[TableRow]], failed: dict[str, str],
-                  left_out: list[int], rerun: Sequence[str] = ()) -> None:
+def write_spread(
+    out: Path,
+    base: RunConfig,
+    rows: dict[int, list[TableRow]],
+    failed: dict[str, str],
+    left_out: list[int],
+    rerun: Sequence[str] = (),
+) -> None:
     """seeds.md, seeds.csv, seeds.json and report.md at the top of `out`, each replaced atomically; `rerun`: the
     lines of the seeds this run reran because their data or code changed, listed in report.md."""
     summary = seed_summary(rows)
@@ -208,15 +269,22 @@ def write_spread(out: Path, base: RunConfig, rows: dict[int, list[TableRow]], fa
     write_text_atomic(out / "seeds.csv", rows_csv(seed_rows(summary), SEED_COLUMNS))
     with atomic_path(out / "seeds.json") as path:
         write_json(path, summary.to_json())
-    lines = [f"# Sampler comparison over world seeds: `{base.dataset}`", "",
-             "Each seed simulates a different world along the same trajectory; every seed's full comparison "
-             "(table, figures, per-method runs) is under seeds/seed-<n>/. Metrics as in those reports (ATE and "
-             f"improvement on the full-rate trajectory). Scans read on every seed: {scans_read(base.source)}.", "",
-             table]
+    lines = [
+        f"# Sampler comparison over world seeds: `{base.dataset}`",
+        "",
+        "Each seed simulates a different world along the same trajectory; every seed's full comparison "
+        "(table, figures, per-method runs) is under seeds/seed-<n>/. Metrics as in those reports (ATE and "
+        f"improvement on the full-rate trajectory). Scans read on every seed: {scans_read(base.source)}.",
+        "",
+        table,
+    ]
     lines += [f"- [seed {s}](seeds/seed-{s}/report.md)" for s in rows]
     if left_out:
-        lines += ["", "Also in seeds/, left out of the spread (not among --seeds): "
-                  + ", ".join(f"[seed {s}](seeds/seed-{s}/report.md)" for s in left_out)]
+        lines += [
+            "",
+            "Also in seeds/, left out of the spread (not among --seeds): "
+            + ", ".join(f"[seed {s}](seeds/seed-{s}/report.md)" for s in left_out),
+        ]
     if rerun:
         lines += ["", "Seeds rerun by this run, their earlier results replaced:", "", *(f"- {line}" for line in rerun)]
     if failed:
@@ -227,23 +295,34 @@ def write_spread(out: Path, base: RunConfig, rows: dict[int, list[TableRow]], fa
 Outcome = tuple[RunResult | None, str | None]  # a method's result, or None and the line saying why it failed
 
 
-def _run_methods(configs: Sequence[RunConfig], frontend: CachedFrontEnd, runs: Path, quiet: bool, sweep: bool,
-                 workers: int = 1, figures: bool = True) -> tuple[list[RunResult], dict[str, str]]:
+def _run_methods(
+    configs: Sequence[RunConfig],
+    frontend: CachedFrontEnd,
+    runs: Path,
+    quiet: bool,
+    sweep: bool,
+    workers: int = 1,
+    figures: bool = True,
+) -> tuple[list[RunResult], dict[str, str]]:
     """Each method's run folder under `runs` (a failing method leaves its error.txt instead); the results and the
     failures, both in method order. With `workers` > 1 the methods run in that many processes forked from this
     one (msa_slam.workers: they share the front end), each running its methods one after another."""
     runs.mkdir()
     for cfg in configs:
         (runs / cfg.name).mkdir()
-    outcomes = (_serial(configs, frontend, runs, quiet, sweep, figures) if workers == 1
-                else _parallel(configs, frontend, runs, quiet, sweep, workers, figures))
+    outcomes = (
+        _serial(configs, frontend, runs, quiet, sweep, figures)
+        if workers == 1
+        else _parallel(configs, frontend, runs, quiet, sweep, workers, figures)
+    )
     results = [result for result, _ in outcomes if result is not None]
     failed = {cfg.name: error for cfg, (_, error) in zip(configs, outcomes) if error is not None}
     return results, failed
 
 
-def _serial(configs: Sequence[RunConfig], frontend: CachedFrontEnd, runs: Path, quiet: bool, sweep: bool,
-            figures: bool = True) -> list[Outcome]:
+def _serial(
+    configs: Sequence[RunConfig], frontend: CachedFrontEnd, runs: Path, quiet: bool, sweep: bool, figures: bool = True
+) -> list[Outcome]:
     """The methods one after another in this process, each showing its back-end's progress."""
     outcomes = []
     with progress_bar(quiet, transient=False) as bar:
@@ -255,13 +334,19 @@ def _serial(configs: Sequence[RunConfig], frontend: CachedFrontEnd, runs: Path, 
     return outcomes
 
 
-def _parallel(configs: Sequence[RunConfig], frontend: CachedFrontEnd, runs: Path, quiet: bool, sweep: bool,
-              workers: int, figures: bool = True) -> list[Outcome]:
+def _parallel(
+    configs: Sequence[RunConfig],
+    frontend: CachedFrontEnd,
+    runs: Path,
+    quiet: bool,
+    sweep: bool,
+    workers: int,
+    figures: bool = True,
+) -> list[Outcome]:
     """The methods in `workers` forked processes; one bar, advancing as methods finish (in whatever order)."""
     outcomes: list[Outcome] = [(None, None)] * len(configs)
     with forked_workers(workers, frontend) as submit:
-        futures = {submit(_method_in_worker, cfg, runs / cfg.name, sweep, figures): i
-                   for i, cfg in enumerate(configs)}
+        futures = {submit(_method_in_worker, cfg, runs / cfg.name, sweep, figures): i for i, cfg in enumerate(configs)}
         with progress_bar(quiet, transient=False) as bar:  # after the forks: the bar may run a thread
             task = bar.add_task(f"methods ({workers} worker processes)", total=len(configs))
             for future in as_completed(futures):
@@ -274,8 +359,9 @@ def _parallel(configs: Sequence[RunConfig], frontend: CachedFrontEnd, runs: Path
     return outcomes
 
 
-def _run_method(cfg: RunConfig, frontend: CachedFrontEnd, folder: Path, quiet: bool, sweep: bool,
-                figures: bool = True) -> Outcome:
+def _run_method(
+    cfg: RunConfig, frontend: CachedFrontEnd, folder: Path, quiet: bool, sweep: bool, figures: bool = True
+) -> Outcome:
     """One method's run files in `folder`, or its error.txt when it fails."""
     try:
         result = run(cfg, frontend, quiet, sweep=threshold_sweep if sweep else None)

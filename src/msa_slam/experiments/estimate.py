@@ -15,8 +15,8 @@ scaled by what the finished ones took against theirs (so it also learns how many
 from __future__ import annotations
 
 import time
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Collection, Mapping, Sequence
 
 from msa_slam.errors import InputError
 from msa_slam.evaluation.metrics import Timing
@@ -47,8 +47,9 @@ class GridEstimate:
     def line(self) -> str:
         """The line printed before the first cell."""
         copied = f", {self.shared} copied from an identical cell" if self.shared else ""
-        counts = (f"grid {self.name}: {self.total} cells, {self.finished} finished earlier{copied}, "
-                  f"{len(self.cell_s)} to run")
+        counts = (
+            f"grid {self.name}: {self.total} cells, {self.finished} finished earlier{copied}, {len(self.cell_s)} to run"
+        )
         if not self.cell_s:
             return counts
         if self.seconds is None:
@@ -56,8 +57,14 @@ class GridEstimate:
         return f"{counts}; estimated time {duration(self.seconds)} ({self.basis})"
 
 
-def estimate_grid(name: str, cells: Sequence[Cell], finished: Mapping[str, tuple[dict, RunMetrics]],
-                  todo: Sequence[Cell], workers: int | None, shared: int = 0) -> GridEstimate:
+def estimate_grid(
+    name: str,
+    cells: Sequence[Cell],
+    finished: Mapping[str, tuple[dict, RunMetrics]],
+    todo: Sequence[Cell],
+    workers: int | None,
+    shared: int = 0,
+) -> GridEstimate:
     """The estimate of running `todo` (of the grid's `cells`; `finished`: read_cell's (info, metrics) by id) on
     `workers` local processes (None: a Dask cluster of unknown size, then stated for one worker); `shared` cells
     are copied from identical ones instead (experiments.sharing)."""
@@ -67,13 +74,24 @@ def estimate_grid(name: str, cells: Sequence[Cell], finished: Mapping[str, tuple
     if per_frame is not None:
         cell_s = {cid: None if frames is None else frames * per_frame for cid, (frames, _) in sizes.items()}
     else:
-        cell_s, basis = _assumed_costs(todo, sizes), (
-            "rough: each cell's frames times an assumed cost a frame of its stages on a 2-core machine like this "
-            f"project's: {_stage_costs()}")
+        cell_s, basis = (
+            _assumed_costs(todo, sizes),
+            (
+                "rough: each cell's frames times an assumed cost a frame of its stages on a 2-core machine like this "
+                f"project's: {_stage_costs()}"
+            ),
+        )
     known = [s for s in cell_s.values() if s is not None]
     if not known:  # no frame count (recordings that cannot be opened yet): the clock weighs the cells alike
-        return GridEstimate(name, len(cells), len(finished), dict.fromkeys(cell_s, 1.0), None,
-                            f"the frames of {len(cell_s)} cell(s) are not known before they run", shared)
+        return GridEstimate(
+            name,
+            len(cells),
+            len(finished),
+            dict.fromkeys(cell_s, 1.0),
+            None,
+            f"the frames of {len(cell_s)} cell(s) are not known before they run",
+            shared,
+        )
     mean = sum(known) / len(known)
     unknown = len(cell_s) - len(known)
     if unknown:
@@ -81,15 +99,24 @@ def estimate_grid(name: str, cells: Sequence[Cell], finished: Mapping[str, tuple
     cell_s = {cid: mean if s is None else s for cid, s in cell_s.items()}
     used = 1 if workers is None else max(1, min(workers, len(todo)))
     spread = "on one worker" if workers is None else f"on {used} worker{'s' * (used > 1)}"
-    return GridEstimate(name, len(cells), len(finished), cell_s, sum(cell_s.values()) / used,
-                        f"{basis}; {spread}; start-up and writing results not included", shared)
+    return GridEstimate(
+        name,
+        len(cells),
+        len(finished),
+        cell_s,
+        sum(cell_s.values()) / used,
+        f"{basis}; {spread}; start-up and writing results not included",
+        shared,
+    )
 
 
 def _stage_costs() -> str:
     """STAGE_S for the estimate's basis."""
     scaled = ", ".join(f"{stage} {1e3 * STAGE_S[stage]:g} ms" for stage in ("simulation", "kiss-icp"))
-    return (f"{scaled} for {REFERENCE_POINTS} points a scan (scaled by a scan's points), "
-            f"descriptor {1e3 * STAGE_S['descriptor']:g} ms, back end {1e3 * STAGE_S['back end']:g} ms")
+    return (
+        f"{scaled} for {REFERENCE_POINTS} points a scan (scaled by a scan's points), "
+        f"descriptor {1e3 * STAGE_S['descriptor']:g} ms, back end {1e3 * STAGE_S['back end']:g} ms"
+    )
 
 
 def _recorded_cost(finished: Mapping[str, tuple[dict, RunMetrics]]) -> tuple[float | None, str]:
@@ -103,8 +130,10 @@ def _recorded_cost(finished: Mapping[str, tuple[dict, RunMetrics]]) -> tuple[flo
     if not counted:
         return None, ""
     per_frame = seconds / frames
-    return per_frame, (f"the stage times {counted} finished cell(s) of this grid recorded (metrics.json time_s), "
-                       f"{1e3 * per_frame:.3g} ms a frame, times each cell's frames")
+    return per_frame, (
+        f"the stage times {counted} finished cell(s) of this grid recorded (metrics.json time_s), "
+        f"{1e3 * per_frame:.3g} ms a frame, times each cell's frames"
+    )
 
 
 def recorded_seconds(timing: Timing) -> float:
@@ -135,8 +164,11 @@ def _assumed_costs(todo: Sequence[Cell], sizes: Mapping[str, tuple[int | None, i
         elif spec_kind(config["dataset"]) == "sim" and config["dataset"] not in shared:
             shared.add(config["dataset"])
             seconds += _simulated_frames(config["dataset"]) * STAGE_S["simulation"] * scale
-        front = [("kiss-icp", (config.get("odometry"), repr(config.get("odometry_params"))), scale)] \
-            if config.get("odometry") == "kiss" else []
+        front = (
+            [("kiss-icp", (config.get("odometry"), repr(config.get("odometry_params"))), scale)]
+            if config.get("odometry") == "kiss"
+            else []
+        )
         front.append(("descriptor", (config["descriptor"], repr(config.get("descriptor_params"))), 1.0))
         for stage, key, factor in front:
             if cell.pipeline == "online" or (dataset, key) not in shared:

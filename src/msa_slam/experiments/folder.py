@@ -1,13 +1,13 @@
 """Layout of an experiment results folder and what belongs to its report.
 
-    .msa-slam-result          marker (msa_slam.io.outputs): the folder was written by `msa-slam experiment`
-    grid.yaml                 the grid as last run: the only cells reported are the ones it expands to
-    cells/<cell id>/          one finished run per cell (cell.json, metrics.json, ...); ids hash the config,
-                              so a cell left by an earlier, different grid is recognised as stale; cell.json
-                              records the identity of the cell's data and code, and a resume reruns a cell
-                              whose data or code changed since (msa_slam.experiments.identity)
-    errors/<cell id>.txt      the traceback of a cell that failed (removed when it later succeeds)
-    results.csv, results.md, figures/, report.md    the aggregate (msa_slam.experiments.report)
+.msa-slam-result          marker (msa_slam.io.outputs): the folder was written by `msa-slam experiment`
+grid.yaml                 the grid as last run: the only cells reported are the ones it expands to
+cells/<cell id>/          one finished run per cell (cell.json, metrics.json, ...); ids hash the config,
+                          so a cell left by an earlier, different grid is recognised as stale; cell.json
+                          records the identity of the cell's data and code, and a resume reruns a cell
+                          whose data or code changed since (msa_slam.experiments.identity)
+errors/<cell id>.txt      the traceback of a cell that failed (removed when it later succeeds)
+results.csv, results.md, figures/, report.md    the aggregate (msa_slam.experiments.report)
 """
 
 from __future__ import annotations
@@ -77,8 +77,9 @@ def grid_cells(out: str | os.PathLike) -> tuple[GridSpec, list[Cell]]:
     try:
         data = read_yaml(path)
     except OSError as exc:
-        raise InputError(f"{path}: cannot read the experiment's grid ({exc.strerror}); "
-                         "rerun `msa-slam experiment` into this folder") from None
+        raise InputError(
+            f"{path}: cannot read the experiment's grid ({exc.strerror}); rerun `msa-slam experiment` into this folder"
+        ) from None
     grid = parse_grid(data, str(path))
     return grid, expand(grid, str(path))
 
@@ -91,6 +92,8 @@ def stale_cells(out: str | os.PathLike, cells: list[Cell]) -> list[str]:
     if not folder.is_dir():
         return []
     current = {c.id for c in cells}
-    return sorted(p.name for p in folder.iterdir()
-                  if p.is_dir() and not p.name.startswith(".") and p.name not in current
-                  and (p / CELL_FILE).is_file())
+    return sorted(
+        p.name
+        for p in folder.iterdir()
+        if p.is_dir() and not p.name.startswith(".") and p.name not in current and (p / CELL_FILE).is_file()
+    )

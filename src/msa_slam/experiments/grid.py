@@ -28,12 +28,12 @@ import itertools
 import json
 import os
 import re
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Literal, Mapping, Sequence
+from typing import Annotated, Any, Literal
 
-from pydantic import (BaseModel, ConfigDict, Field, StrictInt, ValidationError, field_validator,
-                      model_validator)
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError, field_validator, model_validator
 
 from msa_slam.config import validation_message
 from msa_slam.errors import InputError
@@ -147,9 +147,18 @@ class Cell:
     index: int = 0  # position in the grid's expansion (report order)
 
     def info(self) -> dict[str, Any]:
-        return {"id": self.id, "index": self.index, "pipeline": self.pipeline, "dataset": self.dataset,
-                "descriptor": self.descriptor, "method": self.method, "sampler": self.sampler, "swept": self.swept,
-                "parameters": self.parameters, "seed": self.seed}
+        return {
+            "id": self.id,
+            "index": self.index,
+            "pipeline": self.pipeline,
+            "dataset": self.dataset,
+            "descriptor": self.descriptor,
+            "method": self.method,
+            "sampler": self.sampler,
+            "swept": self.swept,
+            "parameters": self.parameters,
+            "seed": self.seed,
+        }
 
 
 # Config keys that name a run without changing what it computes: cells differing only there are one run.
@@ -167,7 +176,8 @@ def run_key(cell: Cell, identity: Mapping[str, str | None]) -> str | None:
         return None
     config = {k: v for k, v in cell.config.items() if k not in PRESENTATION_KEYS}
     config["sampler_params"] = check_sampler_params(cell.sampler, config.get("sampler_params") or {}).model_dump(
-        mode="json")
+        mode="json"
+    )
     content = {"pipeline": cell.pipeline, "config": config, "identity": dict(identity)}
     return hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode()).hexdigest()
 
@@ -185,34 +195,46 @@ def parse_grid(data: Any, where: str = "grid") -> GridSpec:
     _check_base_sampler_params(grid, where)
     methods = grid.labels()
     if grid.reference is not None and grid.reference not in methods:
-        raise InputError(f"{where}: reference {grid.reference!r} is not a method of the grid; methods: "
-                         f"{', '.join(methods)} (set `reference:` to one of them)")
+        raise InputError(
+            f"{where}: reference {grid.reference!r} is not a method of the grid; methods: "
+            f"{', '.join(methods)} (set `reference:` to one of them)"
+        )
     return grid
 
 
 # Config keys the grid sets per cell, and where a grid file sets them.
-GRID_KEYS = {"dataset": "datasets", "descriptor": "descriptors", "sampler": "samplers", "seed": "seeds",
-             "label": "samplers (as a method's label)", "sampler_params": "samplers (as a method's params)"}
+GRID_KEYS = {
+    "dataset": "datasets",
+    "descriptor": "descriptors",
+    "sampler": "samplers",
+    "seed": "seeds",
+    "label": "samplers (as a method's label)",
+    "sampler_params": "samplers (as a method's params)",
+}
 
 
 def _check_one_place(grid: GridSpec, where: str) -> None:
     """Refuse a key set in two places: the later one would silently win while labels show the other."""
     for key in grid.base:
         if key in GRID_KEYS and key != "sampler_params":
-            raise InputError(f"{where}: base: {key!r} is set by the grid per cell; list it under "
-                             f"`{GRID_KEYS[key]}:` instead")
+            raise InputError(
+                f"{where}: base: {key!r} is set by the grid per cell; list it under `{GRID_KEYS[key]}:` instead"
+            )
     if not isinstance(grid.base.get("sampler_params", {}), Mapping):
         raise InputError(f"{where}: base: sampler_params must be a mapping of sampler parameters")
     for key in grid.parameters:
         if key in GRID_KEYS:
-            raise InputError(f"{where}: parameters: {key!r} is set by the grid per cell; list it under "
-                             f"`{GRID_KEYS[key]}:` instead")
+            raise InputError(
+                f"{where}: parameters: {key!r} is set by the grid per cell; list it under `{GRID_KEYS[key]}:` instead"
+            )
         name = key.removeprefix("sampler.")
         for spec in grid.samplers:
             for part in ("sweep", "params"):
                 if name in getattr(spec, part):
-                    raise InputError(f"{where}: {key!r} is set both in `parameters` and in the `{part}` of method "
-                                     f"{spec.label or spec.sampler!r}; set it in one place")
+                    raise InputError(
+                        f"{where}: {key!r} is set both in `parameters` and in the `{part}` of method "
+                        f"{spec.label or spec.sampler!r}; set it in one place"
+                    )
 
 
 def _check_base_sampler_params(grid: GridSpec, where: str) -> None:
@@ -222,9 +244,11 @@ def _check_base_sampler_params(grid: GridSpec, where: str) -> None:
     taken = {k for spec in grid.samplers for k in sampler_parameters(spec.sampler)}
     unused = sorted(set(grid.base.get("sampler_params") or {}) - taken)
     if unused:
-        raise InputError(f"{where}: base: sampler_params {', '.join(unused)}: no method's sampler takes "
-                         f"{'them' if len(unused) > 1 else 'it'} (samplers: "
-                         f"{', '.join(dict.fromkeys(s.sampler for s in grid.samplers))})")
+        raise InputError(
+            f"{where}: base: sampler_params {', '.join(unused)}: no method's sampler takes "
+            f"{'them' if len(unused) > 1 else 'it'} (samplers: "
+            f"{', '.join(dict.fromkeys(s.sampler for s in grid.samplers))})"
+        )
 
 
 def check_datasets(grid: GridSpec, where: str = "grid", cells: Sequence[Cell] = ()) -> None:
@@ -236,8 +260,11 @@ def check_datasets(grid: GridSpec, where: str = "grid", cells: Sequence[Cell] = 
     from msa_slam.sources import check_selection, parse_spec
 
     specs = dict.fromkeys(seeded(d, seed) for d in grid.datasets for seed in grid.seeds)
-    selections = dict.fromkeys((c.config["dataset"], c.config.get("dataset_kind", "auto"),
-                                tuple(sorted(c.config["source"].items()))) for c in cells if "source" in c.config)
+    selections = dict.fromkeys(
+        (c.config["dataset"], c.config.get("dataset_kind", "auto"), tuple(sorted(c.config["source"].items())))
+        for c in cells
+        if "source" in c.config
+    )
     try:
         for spec in specs:
             parse_spec(spec)
@@ -264,12 +291,27 @@ def slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9=.+-]+", "_", text).strip("_")[:60]
 
 
-def _config_for(grid: GridSpec, dataset: str, descriptor: str, sampler: str, params: dict[str, Any],
-                parameters: dict[str, Any], seed: int, label: str, where: str) -> dict[str, Any]:
+def _config_for(
+    grid: GridSpec,
+    dataset: str,
+    descriptor: str,
+    sampler: str,
+    params: dict[str, Any],
+    parameters: dict[str, Any],
+    seed: int,
+    label: str,
+    where: str,
+) -> dict[str, Any]:
     from msa_slam.pipeline.config import apply_online_params, apply_params, make_config
 
-    data = {**grid.base, "dataset": seeded(dataset, seed), "descriptor": descriptor,
-            "sampler": sampler, "sampler_params": params, "label": label}
+    data = {
+        **grid.base,
+        "dataset": seeded(dataset, seed),
+        "descriptor": descriptor,
+        "sampler": sampler,
+        "sampler_params": params,
+        "label": label,
+    }
     overrides = [f"{k}={json.dumps(v)}" for k, v in parameters.items()]
     try:
         if grid.pipeline == "online":
@@ -285,21 +327,40 @@ def expand(grid: GridSpec, where: str = "grid") -> list[Cell]:
     if grid.pipeline == "batch" and len(grid.seeds) > 1:
         same = next((d for d in grid.datasets if SEED not in d), None)
         if same is not None:
-            raise InputError(f"{where}: seeds {grid.seeds} but dataset {same!r} has no {{seed}}: every seed would "
-                             "run the same cell (a batch run takes its seed from the dataset)")
+            raise InputError(
+                f"{where}: seeds {grid.seeds} but dataset {same!r} has no {{seed}}: every seed would "
+                "run the same cell (a batch run takes its seed from the dataset)"
+            )
     keys = list(grid.parameters)
     cells = []
     for dataset, descriptor, (label, sampler, params, swept), values, seed in itertools.product(
-            grid.datasets, grid.descriptors, methods, itertools.product(*(grid.parameters[k] for k in keys)),
-            grid.seeds):
+        grid.datasets, grid.descriptors, methods, itertools.product(*(grid.parameters[k] for k in keys)), grid.seeds
+    ):
         parameters = dict(zip(keys, values))
         config = _config_for(grid, dataset, descriptor, sampler, params, parameters, seed, label, where)
-        digest = hashlib.sha256(json.dumps({"pipeline": grid.pipeline, "config": config}, sort_keys=True,
-                                           default=str).encode()).hexdigest()[:10]
-        name = slug(f"{dataset.split(',')[0]}-{descriptor}-{label}"
-                     + "".join(f"-{k}={v}" for k, v in parameters.items()) + f"-s{seed}")
-        cells.append(Cell(f"{name}-{digest}", grid.pipeline, dataset, descriptor, label, sampler, swept, parameters,
-                          seed, config, len(cells)))
+        digest = hashlib.sha256(
+            json.dumps({"pipeline": grid.pipeline, "config": config}, sort_keys=True, default=str).encode()
+        ).hexdigest()[:10]
+        name = slug(
+            f"{dataset.split(',')[0]}-{descriptor}-{label}"
+            + "".join(f"-{k}={v}" for k, v in parameters.items())
+            + f"-s{seed}"
+        )
+        cells.append(
+            Cell(
+                f"{name}-{digest}",
+                grid.pipeline,
+                dataset,
+                descriptor,
+                label,
+                sampler,
+                swept,
+                parameters,
+                seed,
+                config,
+                len(cells),
+            )
+        )
     digests = [c.id.rsplit("-", 1)[1] for c in cells]  # the config hash: names differ by seed even when configs do not
     if len(set(digests)) != len(digests):
         raise InputError(f"{where}: some cells have identical configs (repeated datasets, seeds or methods)")

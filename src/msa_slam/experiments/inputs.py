@@ -11,7 +11,8 @@ read them from the cache. A dataset whose preparation fails is left to its cells
 from __future__ import annotations
 
 import json
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 from msa_slam.experiments.grid import Cell
 from msa_slam.sources.spec import spec_kind
@@ -28,8 +29,11 @@ def input_groups(cells: Sequence[Cell]) -> list[list[Preparation]]:
     groups: dict[str, dict[str, Preparation]] = {}
     for cell in cells:
         config = cell.config
-        dataset = json.dumps([config["dataset"], config.get("dataset_kind"), config.get("source"),
-                              config.get("cache_dir")], sort_keys=True, default=str)
+        dataset = json.dumps(
+            [config["dataset"], config.get("dataset_kind"), config.get("source"), config.get("cache_dir")],
+            sort_keys=True,
+            default=str,
+        )
         if cell.pipeline == "batch":
             what = json.dumps({k: config.get(k) for k in FRONTEND_KEYS}, sort_keys=True, default=str)
         elif spec_kind(config["dataset"]) == "sim":

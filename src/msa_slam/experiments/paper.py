@@ -7,8 +7,8 @@ settings) on short prefixes: nothing is tuned for the quick run alone.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 from msa_slam.errors import InputError
 from msa_slam.experiments.grid import GridSpec, load_grid
@@ -30,16 +30,26 @@ class StandIn:
 STAND_INS: dict[str, StandIn] = {
     "kitti-05": StandIn("KITTI-05", "the shipped KITTI-05 ground truth, simulated with an HDL-64 (KITTI's sensor)"),
     "kitti-06": StandIn("KITTI-06", "the shipped KITTI-06 ground truth, simulated with an HDL-64"),
-    "kitti-00": StandIn("MulRan DCC", "a long urban drive with several revisits, seen by an OS1-64 (MulRan's "
-                        "sensor); DCC's own trajectory is not shipped"),
-    "kitti-07": StandIn("MulRan KAIST", "a shorter loop closed at its end, seen by an OS1-64, as KAIST's campus "
-                        "roads are"),
-    "city-tour": StandIn("Apollo SanJose / Sunnyvale", "a downtown street grid with revisits in both directions, "
-                         "HDL-64 (Apollo's sensor); in Table II driven three times as Sunnyvale's repeated loops"),
-    "reverse-revisit": StandIn("Apollo ColumbiaPark", "a road driven out and back in the other lane, HDL-64: the "
-                               "opposite-direction revisits of a park loop"),
-    "campus-walk": StandIn("Newer College Park", "a handheld walk at ~0.1 m a frame round two quads, OS1-64 (Newer "
-                           "College's sensor)"),
+    "kitti-00": StandIn(
+        "MulRan DCC",
+        "a long urban drive with several revisits, seen by an OS1-64 (MulRan's "
+        "sensor); DCC's own trajectory is not shipped",
+    ),
+    "kitti-07": StandIn(
+        "MulRan KAIST", "a shorter loop closed at its end, seen by an OS1-64, as KAIST's campus roads are"
+    ),
+    "city-tour": StandIn(
+        "Apollo SanJose / Sunnyvale",
+        "a downtown street grid with revisits in both directions, "
+        "HDL-64 (Apollo's sensor); in Table II driven three times as Sunnyvale's repeated loops",
+    ),
+    "reverse-revisit": StandIn(
+        "Apollo ColumbiaPark",
+        "a road driven out and back in the other lane, HDL-64: the opposite-direction revisits of a park loop",
+    ),
+    "campus-walk": StandIn(
+        "Newer College Park", "a handheld walk at ~0.1 m a frame round two quads, OS1-64 (Newer College's sensor)"
+    ),
 }
 NOT_REPRODUCED = (
     "Real sensor data: every column is simulated (docs/simulator.md says how close the simulator is to KITTI); "
@@ -70,8 +80,10 @@ def parse_presets(text: str | None) -> list[str]:
     names = [item.strip() for item in text.split(",") if item.strip()]
     unknown = [n for n in names if n not in PRESETS]
     if not names or unknown:
-        raise InputError(f"--presets {text!r}: unknown preset(s) {', '.join(unknown) or '(none given)'}; "
-                         f"choose from {', '.join(PRESETS)}")
+        raise InputError(
+            f"--presets {text!r}: unknown preset(s) {', '.join(unknown) or '(none given)'}; "
+            f"choose from {', '.join(PRESETS)}"
+        )
     return [p for p in PRESETS if p in names]
 
 
@@ -90,8 +102,9 @@ def variant(grid: GridSpec, quick: bool, seeds: Sequence[int] | None) -> GridSpe
     if quick:
         data["name"] = f"{grid.name}-quick"
         data["seeds"] = data["seeds"][:1]
-        data["datasets"] = [_prefix(d, QUICK_FRAMES[grid.pipeline])
-                            for d in grid.datasets[:QUICK_DATASETS[grid.pipeline]]]
+        data["datasets"] = [
+            _prefix(d, QUICK_FRAMES[grid.pipeline]) for d in grid.datasets[: QUICK_DATASETS[grid.pipeline]]
+        ]
         data["parameters"] = {k: values[:1] for k, values in grid.parameters.items()}
         for spec in data["samplers"]:
             spec["sweep"] = {k: sorted({v[0], v[-1]}) for k, v in spec["sweep"].items()}

@@ -5,8 +5,9 @@ conditions it was measured under."""
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -33,7 +34,7 @@ class Claim:
 
 
 def stat(values: Sequence[float], digits: int = 1, unit: str = "") -> str:
-    """"mean ± std unit (n=N)" of `values`; "n/a" for none."""
+    """ "mean ± std unit (n=N)" of `values`; "n/a" for none."""
     if not len(values):
         return "n/a"
     mean, std = v.mean_std(values)
@@ -45,8 +46,9 @@ def _key(row: Row) -> tuple:
     return row["dataset"], row["descriptor"], row.get("mode"), row["seed"]
 
 
-def paired(rows: Sequence[Row], a: Callable[[Row], bool], b: Callable[[Row], bool], column: str
-           ) -> tuple[list[float], list[float]]:
+def paired(
+    rows: Sequence[Row], a: Callable[[Row], bool], b: Callable[[Row], bool], column: str
+) -> tuple[list[float], list[float]]:
     """The `column` values of the runs picked by `a` and by `b`, paired by world (_key); pairs where either
     value is n/a are left out."""
     left = {_key(r): r[column] for r in rows if a(r) and r[column] is not None}
@@ -61,13 +63,20 @@ def method(name: str, mode: str | None = None) -> Callable[[Row], bool]:
 
 def keeps_accuracy(rows: Sequence[Row], conditions: str) -> Claim:
     msa, full = paired(rows, method("msa", "oracle"), method("all", "oracle"), "improvement_t_pct")
-    ratio = [r["memory_vs_reference_pct"] for r in rows if method("msa", "oracle")(r)
-             and r["memory_vs_reference_pct"] is not None]
+    ratio = [
+        r["memory_vs_reference_pct"]
+        for r in rows
+        if method("msa", "oracle")(r) and r["memory_vs_reference_pct"] is not None
+    ]
     accuracy = v.difference(msa, full)
     verdict = v.combine(v.not_worse(accuracy), v.within(ratio, 40.0, 60.0))
-    return Claim("MSA keeps all samples' accuracy with 40-60 % of the memory", verdict,
-                 f"t. ATE impr. MSA {stat(msa)} % vs all {stat(full)} % ({accuracy.text()}); MSA's memory "
-                 f"{stat(ratio, 0)} % of all's", conditions)
+    return Claim(
+        "MSA keeps all samples' accuracy with 40-60 % of the memory",
+        verdict,
+        f"t. ATE impr. MSA {stat(msa)} % vs all {stat(full)} % ({accuracy.text()}); MSA's memory "
+        f"{stat(ratio, 0)} % of all's",
+        conditions,
+    )
 
 
 def best_sampled(rows: Sequence[Row], conditions: str) -> Claim:
@@ -78,8 +87,12 @@ def best_sampled(rows: Sequence[Row], conditions: str) -> Claim:
         found = v.difference(a, b)
         parts.append(v.expect(found, +1))
         numbers.append(f"vs {base}: {found.text()}")
-    return Claim("MSA has the best accuracy of the sampling methods (Table I)", v.combine(*parts) if parts
-                 else v.NOT_SEPARABLE, "t. ATE impr. MSA - baseline: " + "; ".join(numbers), conditions)
+    return Claim(
+        "MSA has the best accuracy of the sampling methods (Table I)",
+        v.combine(*parts) if parts else v.NOT_SEPARABLE,
+        "t. ATE impr. MSA - baseline: " + "; ".join(numbers),
+        conditions,
+    )
 
 
 def no_universal_constant(rows: Sequence[Row], conditions: str) -> Claim:
@@ -88,24 +101,33 @@ def no_universal_constant(rows: Sequence[Row], conditions: str) -> Claim:
     for dataset in dict.fromkeys(r["dataset"] for r in rows):
         on = [r for r in rows if r["dataset"] == dataset and r.get("mode") == "oracle"]
         for c in constants:
-            values = {r["seed"]: r["improvement_t_pct"] for r in on if r["method"] == c
-                      and r["improvement_t_pct"] is not None}
+            values = {
+                r["seed"]: r["improvement_t_pct"] for r in on if r["method"] == c and r["improvement_t_pct"] is not None
+            }
             if values:
                 scenarios[column_of(dataset)][c] = [values[s] for s in sorted(values)]
     common = {s: cs for s, cs in scenarios.items() if len({len(x) for x in cs.values()}) == 1}
     verdict, beaten = v.no_universal(common)
     best = {s: max(cs, key=lambda c: float(np.mean(cs[c]))) for s, cs in common.items()}
-    return Claim("No constant interval suits every scenario", verdict,
-                 "best constant (t. ATE impr., mean): " + ", ".join(f"{s}: {c}" for s, c in best.items())
-                 + "; beaten beyond the seed spread: " + ", ".join(f"{c} in {', '.join(w) or 'none'}"
-                                                                    for c, w in beaten.items()), conditions)
+    return Claim(
+        "No constant interval suits every scenario",
+        verdict,
+        "best constant (t. ATE impr., mean): "
+        + ", ".join(f"{s}: {c}" for s, c in best.items())
+        + "; beaten beyond the seed spread: "
+        + ", ".join(f"{c} in {', '.join(w) or 'none'}" for c, w in beaten.items()),
+        conditions,
+    )
 
 
 def memory_exhausted(extrapolated_gib: Sequence[float], msa_gib: Sequence[float], conditions: str) -> Claim:
-    return Claim(f"All samples exhausts memory on the long drive (> {LIMIT_GIB:.0f} GiB at "
-                 f"{TARGET_M / 1000:.0f} km)", v.above(extrapolated_gib, LIMIT_GIB),
-                 f"all samples extrapolated to {TARGET_M / 1000:.0f} km: {stat(extrapolated_gib, 1, ' GiB')}; "
-                 f"MSA: {stat(msa_gib, 1, ' GiB')}", conditions)
+    return Claim(
+        f"All samples exhausts memory on the long drive (> {LIMIT_GIB:.0f} GiB at {TARGET_M / 1000:.0f} km)",
+        v.above(extrapolated_gib, LIMIT_GIB),
+        f"all samples extrapolated to {TARGET_M / 1000:.0f} km: {stat(extrapolated_gib, 1, ' GiB')}; "
+        f"MSA: {stat(msa_gib, 1, ' GiB')}",
+        conditions,
+    )
 
 
 def emphasis(rows: Sequence[Row], label: str, claim: str, expected: Mapping[str, int], conditions: str) -> Claim:
@@ -129,20 +151,32 @@ def bound_sweep(rows: Sequence[Row], bound: str, conditions: str) -> Claim:
     def at(value: float) -> Callable[[Row], bool]:
         return lambda r: bound in r.get("swept", {}) and float(r["swept"][bound]) == value
 
-    means = {s: np.mean([r["improvement_t_pct"] for r in swept if at(s)(r) and r["improvement_t_pct"] is not None]
-                        or [np.nan]) for s in settings}
+    means = {
+        s: np.mean(
+            [r["improvement_t_pct"] for r in swept if at(s)(r) and r["improvement_t_pct"] is not None] or [np.nan]
+        )
+        for s in settings
+    }
     known = {s: m for s, m in means.items() if np.isfinite(m)}
     hi, lo = (max(known, key=known.get), min(known, key=known.get)) if known else (settings[-1], settings[0])
     accuracy = v.difference(*paired(swept, at(hi), at(lo), "improvement_t_pct"))
     mem_hi, mem_lo = paired(swept, at(settings[-1]), at(settings[0]), "memory_vs_reference_pct")
     memory = v.difference(mem_hi, mem_lo)
-    return Claim(claim, v.stable_and_sensitive(accuracy, memory),
-                 f"t. ATE impr. best ({bound}={hi:g}) - worst ({bound}={lo:g}): {accuracy.text()}; memory vs all "
-                 f"{stat(mem_lo, 0)} % at {bound}={settings[0]:g}, {stat(mem_hi, 0)} % at {bound}={settings[-1]:g} "
-                 f"({memory.text()})", conditions)
+    return Claim(
+        claim,
+        v.stable_and_sensitive(accuracy, memory),
+        f"t. ATE impr. best ({bound}={hi:g}) - worst ({bound}={lo:g}): {accuracy.text()}; memory vs all "
+        f"{stat(mem_lo, 0)} % at {bound}={settings[0]:g}, {stat(mem_hi, 0)} % at {bound}={settings[-1]:g} "
+        f"({memory.text()})",
+        conditions,
+    )
 
 
 def window_time(solve_ms: Sequence[float], conditions: str) -> Claim:
     low, high = SOLVE_MS
-    return Claim(f"A window of N = 10 is solved in {low:.0f}-{high:.0f} ms", v.within(solve_ms, low, high),
-                 f"median window optimisation of each default MSA run: {stat(solve_ms, 1, ' ms')}", conditions)
+    return Claim(
+        f"A window of N = 10 is solved in {low:.0f}-{high:.0f} ms",
+        v.within(solve_ms, low, high),
+        f"median window optimisation of each default MSA run: {stat(solve_ms, 1, ' ms')}",
+        conditions,
+    )

@@ -9,32 +9,68 @@ from __future__ import annotations
 import json
 import os
 from collections import defaultdict
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
 from msa_slam.errors import InputError, error_line
-from msa_slam.experiments.folder import GRID_FILE, FinishedCells, cell_dir, grid_cells, read_cell, stale_cells
-from msa_slam.experiments.grid import Cell, GridSpec, slug
 from msa_slam.evaluation import NA, fmt
 from msa_slam.evaluation.metrics import Unavailable, Value, known
 from msa_slam.evaluation.run_metrics import RunMetrics, TableRow
+from msa_slam.experiments.folder import GRID_FILE, FinishedCells, cell_dir, grid_cells, read_cell, stale_cells
+from msa_slam.experiments.grid import Cell, GridSpec, slug
+from msa_slam.experiments.seeds import SEED_METRICS, seed_markdown, seed_summary
 from msa_slam.io.atomic import write_text_atomic
-from msa_slam.viz import plot_ate_difference, plot_memory, plot_step_times, plot_sweeps
 from msa_slam.io.tables import rows_csv
 from msa_slam.reporting.results import accounted_bytes
-from msa_slam.experiments.seeds import SEED_METRICS, seed_markdown, seed_summary
+from msa_slam.viz import plot_ate_difference, plot_memory, plot_step_times, plot_sweeps
 
-COLUMNS = ("cell", "pipeline", "dataset", "descriptor", "method", "sampler", "seed", "parameters", "frames",
-           "keyframes", "candidates", "verified", "false_loops", "ate_before_m", "ate_after_m", "improvement_t_pct",
-           "improvement_r_pct", "rpe_pct", "rpe_10m_m", "kf_ate_before_m", "kf_ate_after_m", "kf_improvement_t_pct",
-           "pr_auc", "f1_max", "memory_mib", "memory_vs_reference_pct", "bytes_per_keyframe",
-           "time_s", "fps", "backend_fps", "backend_p99_ms", "process_peak_rss_mib", "rss_growth_mib", "rejected",
-           "unavailable")
-SWEEP_METRICS = {"t. ATE impr. [%]": "improvement_t_pct", "R. ATE impr. [%]": "improvement_r_pct",
-                 "F1-max": "f1_max", "memory vs reference [%]": "memory_vs_reference_pct"}
+COLUMNS = (
+    "cell",
+    "pipeline",
+    "dataset",
+    "descriptor",
+    "method",
+    "sampler",
+    "seed",
+    "parameters",
+    "frames",
+    "keyframes",
+    "candidates",
+    "verified",
+    "false_loops",
+    "ate_before_m",
+    "ate_after_m",
+    "improvement_t_pct",
+    "improvement_r_pct",
+    "rpe_pct",
+    "rpe_10m_m",
+    "kf_ate_before_m",
+    "kf_ate_after_m",
+    "kf_improvement_t_pct",
+    "pr_auc",
+    "f1_max",
+    "memory_mib",
+    "memory_vs_reference_pct",
+    "bytes_per_keyframe",
+    "time_s",
+    "fps",
+    "backend_fps",
+    "backend_p99_ms",
+    "process_peak_rss_mib",
+    "rss_growth_mib",
+    "rejected",
+    "unavailable",
+)
+SWEEP_METRICS = {
+    "t. ATE impr. [%]": "improvement_t_pct",
+    "R. ATE impr. [%]": "improvement_r_pct",
+    "F1-max": "f1_max",
+    "memory vs reference [%]": "memory_vs_reference_pct",
+}
 
 
 @dataclass(frozen=True)
@@ -81,12 +117,21 @@ def make_rows(cells: list[FinishedCell], reference: str = "all") -> list[TableRo
     rows = []
     for c in cells:
         info, m = c.info, c.metrics
-        values = {**m.cell_values(),
-                  "memory_vs_reference_pct": _relative_memory(m, ref_memory.get(_group(info)), reference)}
-        row = {"cell": info["id"], "pipeline": info["pipeline"], "dataset": info["dataset"],
-               "descriptor": info["descriptor"], "method": info["method"], "sampler": info["sampler"],
-               "seed": info["seed"], "parameters": _parameters(info["parameters"]),
-               **{column: known(values[column]) for column in COLUMNS[COLUMNS.index("frames"):-1]}}
+        values = {
+            **m.cell_values(),
+            "memory_vs_reference_pct": _relative_memory(m, ref_memory.get(_group(info)), reference),
+        }
+        row = {
+            "cell": info["id"],
+            "pipeline": info["pipeline"],
+            "dataset": info["dataset"],
+            "descriptor": info["descriptor"],
+            "method": info["method"],
+            "sampler": info["sampler"],
+            "seed": info["seed"],
+            "parameters": _parameters(info["parameters"]),
+            **{column: known(values[column]) for column in COLUMNS[COLUMNS.index("frames") : -1]},
+        }
         why = {column: value.reason for column, value in values.items() if isinstance(value, Unavailable)}
         rows.append({**row, "unavailable": json.dumps(why, sort_keys=True) if why else ""})
     return rows
@@ -96,9 +141,11 @@ def _relative_memory(m: RunMetrics, ref_memory: int | None, reference: str) -> V
     """The cell's accounted memory in % of the reference method's in the same group, or why there is none."""
     if ref_memory:
         return 100.0 * m.memory.accounted.total / ref_memory
-    return Unavailable(f"the `{reference}` cell of this dataset, descriptor, parameters and seed has 0 bytes"
-                       if ref_memory == 0 else f"no finished `{reference}` cell of this dataset, descriptor, "
-                       "parameters and seed to compare with")
+    return Unavailable(
+        f"the `{reference}` cell of this dataset, descriptor, parameters and seed has 0 bytes"
+        if ref_memory == 0
+        else f"no finished `{reference}` cell of this dataset, descriptor, parameters and seed to compare with"
+    )
 
 
 def _parameters(parameters: dict[str, Any]) -> str:
@@ -110,11 +157,19 @@ def _failed_row(cell: Cell, error_file: Path) -> TableRow:
     """results.md's row of a cell that failed (its traceback in `error_file`): every value n/a, the error as the
     reason, so that a method whose cells failed is shown, with why, not left out of the table."""
     reason = f"the cell failed with {error_line(error_file)} (traceback in errors/<cell id>.txt)"
-    metrics = COLUMNS[COLUMNS.index("frames"):COLUMNS.index("unavailable")]
-    return {**dict.fromkeys(COLUMNS), "cell": cell.id, "pipeline": cell.pipeline, "dataset": cell.dataset,
-            "descriptor": cell.descriptor, "method": cell.method, "sampler": cell.sampler, "seed": cell.seed,
-            "parameters": _parameters(cell.parameters),
-            "unavailable": json.dumps(dict.fromkeys(metrics, reason), sort_keys=True)}
+    metrics = COLUMNS[COLUMNS.index("frames") : COLUMNS.index("unavailable")]
+    return {
+        **dict.fromkeys(COLUMNS),
+        "cell": cell.id,
+        "pipeline": cell.pipeline,
+        "dataset": cell.dataset,
+        "descriptor": cell.descriptor,
+        "method": cell.method,
+        "sampler": cell.sampler,
+        "seed": cell.seed,
+        "parameters": _parameters(cell.parameters),
+        "unavailable": json.dumps(dict.fromkeys(metrics, reason), sort_keys=True),
+    }
 
 
 def _seed_lines(methods: dict[str, list[TableRow]]) -> list[str]:
@@ -162,15 +217,23 @@ def _na_notes(methods: dict[str, list[TableRow]], labels: dict[str, str]) -> lis
         if who == ran:
             whom = "every method" + (" and seed" if several else "")
         else:
-            whom = "; ".join(m if who[m] == ran[m] else f"{m} on seed(s) {', '.join(map(str, sorted(who[m])))}"
-                             for m in who)
-        named = ("every value" if entry["columns"] >= set(labels)  # a failed cell's
-                 else ", ".join(label for column, label in labels.items() if column in entry["columns"]))
+            whom = "; ".join(
+                m if who[m] == ran[m] else f"{m} on seed(s) {', '.join(map(str, sorted(who[m])))}" for m in who
+            )
+        named = (
+            "every value"
+            if entry["columns"] >= set(labels)  # a failed cell's
+            else ", ".join(label for column, label in labels.items() if column in entry["columns"])
+        )
         lines.append(f"- {named} n/a ({whom}): {reason}")
     if not lines:
         return []
-    return [f"Notes (n/a values{'; a mean leaves out the seeds where its value is n/a' if several else ''}):", "",
-            *lines, ""]
+    return [
+        f"Notes (n/a values{'; a mean leaves out the seeds where its value is n/a' if several else ''}):",
+        "",
+        *lines,
+        "",
+    ]
 
 
 def table2_markdown(rows: list[TableRow]) -> str:
@@ -178,29 +241,52 @@ def table2_markdown(rows: list[TableRow]) -> str:
     sections: dict[tuple, dict[str, list]] = defaultdict(lambda: defaultdict(list))
     for r in rows:
         sections[(r["dataset"], r["descriptor"], r["parameters"])][r["method"]].append(r)
-    shown = {"keyframes": "keyframes", "improvement_t_pct": "t. ATE impr. (full rate)",
-             "improvement_r_pct": "R. ATE impr. (full rate)", "f1_max": "F1-max", "memory_mib": "mem.",
-             "memory_vs_reference_pct": "mem. vs ref.", "time_s": "time", "fps": "frames/s",
-             "backend_p99_ms": "back-end p99"}
+    shown = {
+        "keyframes": "keyframes",
+        "improvement_t_pct": "t. ATE impr. (full rate)",
+        "improvement_r_pct": "R. ATE impr. (full rate)",
+        "f1_max": "F1-max",
+        "memory_mib": "mem.",
+        "memory_vs_reference_pct": "mem. vs ref.",
+        "time_s": "time",
+        "fps": "frames/s",
+        "backend_p99_ms": "back-end p99",
+    }
     head = ["method", *shown.values()]
     lines = []
     for (dataset, descriptor, params), methods in sections.items():
         seeds = max(len(v) for v in methods.values())
-        lines += [f"### {dataset} ({descriptor}{', ' + params if params else ''}; {seeds} seed(s))", "",
-                  "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        lines += [
+            f"### {dataset} ({descriptor}{', ' + params if params else ''}; {seeds} seed(s))",
+            "",
+            "| " + " | ".join(head) + " |",
+            "|" + "---|" * len(head),
+        ]
         for method, rs in methods.items():
-            lines.append("| " + " | ".join([
-                method, _cell(_mean(rs, "keyframes"), ".0f"), _cell(_mean(rs, "improvement_t_pct"), ".1f", " %"),
-                _cell(_mean(rs, "improvement_r_pct"), ".1f", " %"), _cell(_mean(rs, "f1_max"), ".3f"),
-                _cell(_mean(rs, "memory_mib"), ".2f", " MiB"),
-                _cell(_mean(rs, "memory_vs_reference_pct"), ".0f", " %"),
-                _cell(_mean(rs, "time_s"), ".1f", " s"), _cell(_mean(rs, "fps"), ".1f"),
-                _cell(_mean(rs, "backend_p99_ms"), ".1f", " ms")]) + " |")
+            lines.append(
+                "| "
+                + " | ".join(
+                    [
+                        method,
+                        _cell(_mean(rs, "keyframes"), ".0f"),
+                        _cell(_mean(rs, "improvement_t_pct"), ".1f", " %"),
+                        _cell(_mean(rs, "improvement_r_pct"), ".1f", " %"),
+                        _cell(_mean(rs, "f1_max"), ".3f"),
+                        _cell(_mean(rs, "memory_mib"), ".2f", " MiB"),
+                        _cell(_mean(rs, "memory_vs_reference_pct"), ".0f", " %"),
+                        _cell(_mean(rs, "time_s"), ".1f", " s"),
+                        _cell(_mean(rs, "fps"), ".1f"),
+                        _cell(_mean(rs, "backend_p99_ms"), ".1f", " ms"),
+                    ]
+                )
+                + " |"
+            )
         lines.append("")
         spread = _seed_lines(methods)
         lines += spread
-        lines += _na_notes(methods, {**({k: label for k, (label, _) in SEED_METRICS.items()} if spread else {}),
-                                     **shown})
+        lines += _na_notes(
+            methods, {**({k: label for k, (label, _) in SEED_METRICS.items()} if spread else {}), **shown}
+        )
     return "\n".join(lines)
 
 
@@ -216,18 +302,29 @@ def read_steps(folder: Path) -> dict[str, np.ndarray] | None:
 def _figures(cells: list[FinishedCell], rows: list[TableRow], reference: str, folder: Path) -> list[str]:
     names = []
     folder.mkdir(parents=True, exist_ok=True)
-    ref_ate = {(r["dataset"], r["descriptor"], r["parameters"], r["seed"]): r["ate_after_m"] for r in rows
-               if r["method"] == reference}
+    ref_ate = {
+        (r["dataset"], r["descriptor"], r["parameters"], r["seed"]): r["ate_after_m"]
+        for r in rows
+        if r["method"] == reference
+    }
     diffs: dict[str, list[float]] = defaultdict(list)
     for r in rows:
         ref = ref_ate.get((r["dataset"], r["descriptor"], r["parameters"], r["seed"]))
         if ref is not None and r["ate_after_m"] is not None and r["method"] != reference:  # else n/a: see notes
             diffs[r["method"]].append(r["ate_after_m"] - ref)
     if diffs:
-        absent = {m: "ATE n/a on every cell: see the notes" for m in dict.fromkeys(r["method"] for r in rows)
-                  if m != reference and m not in diffs}
-        plot_ate_difference(folder / "ate_difference.png", diffs, title=f"ATE after optimisation minus {reference}",
-                            reference=reference, absent=absent)
+        absent = {
+            m: "ATE n/a on every cell: see the notes"
+            for m in dict.fromkeys(r["method"] for r in rows)
+            if m != reference and m not in diffs
+        }
+        plot_ate_difference(
+            folder / "ate_difference.png",
+            diffs,
+            title=f"ATE after optimisation minus {reference}",
+            reference=reference,
+            absent=absent,
+        )
         names.append("ate_difference.png")
     by_dataset: dict[str, list[FinishedCell]] = defaultdict(list)
     for c in cells:
@@ -250,10 +347,14 @@ def _figures(cells: list[FinishedCell], rows: list[TableRow], reference: str, fo
             continue
         tag = slug(dataset)
         plot_memory(folder / f"memory_{tag}.png", memory, title=f"{dataset}: memory over time")
-        plot_step_times(folder / f"step_times_{tag}.png", {
-            "incremental PGO (iSAM2) per keyframe step": {k: np.concatenate(v) for k, v in graph.items()},
-            "loop closure detection per keyframe step": {k: np.concatenate(v) for k, v in loops.items()}},
-            title=f"{dataset}: per-step time")
+        plot_step_times(
+            folder / f"step_times_{tag}.png",
+            {
+                "incremental PGO (iSAM2) per keyframe step": {k: np.concatenate(v) for k, v in graph.items()},
+                "loop closure detection per keyframe step": {k: np.concatenate(v) for k, v in loops.items()},
+            },
+            title=f"{dataset}: per-step time",
+        )
         names += [f"memory_{tag}.png", f"step_times_{tag}.png"]
     sweeps: dict[str, dict[str, dict[str, tuple[list, list]]]] = {}
     swept_rows = [(c.info, r) for c, r in zip(cells, rows) if c.info.get("swept")]
@@ -264,16 +365,21 @@ def _figures(cells: list[FinishedCell], rows: list[TableRow], reference: str, fo
             for info, r in swept_rows:
                 if key in info["swept"] and r[column] is not None:
                     lines[info["dataset"]][float(info["swept"][key])].append(r[column])
-            sweeps[key][title] = {ds: (sorted(pts), [float(np.mean(pts[x])) for x in sorted(pts)])
-                                  for ds, pts in lines.items()}
+            sweeps[key][title] = {
+                ds: (sorted(pts), [float(np.mean(pts[x])) for x in sorted(pts)]) for ds, pts in lines.items()
+            }
     if sweeps:
         plot_sweeps(folder / "distance_bounds.png", sweeps, title="swept parameters (means over seeds)")
         names.append("distance_bounds.png")
     return names
 
 
-def write_report(results_dir: str | os.PathLike, reference: str | None = None,
-                 finished: FinishedCells | None = None, rerun: Sequence[str] = ()) -> Path:
+def write_report(
+    results_dir: str | os.PathLike,
+    reference: str | None = None,
+    finished: FinishedCells | None = None,
+    rerun: Sequence[str] = (),
+) -> Path:
     """Write results.csv, results.md, figures/ and report.md into `results_dir` from the finished cells of its
     grid.yaml (results.md also shows the failed ones: n/a, with their error in its notes); return report.md.
     `reference` (default: the grid's) must be one of the grid's methods. `finished`: cells already read from
@@ -285,8 +391,7 @@ def write_report(results_dir: str | os.PathLike, reference: str | None = None,
     if reference is None:
         reference = grid.reference_method()
     elif reference not in methods:
-        raise InputError(f"--reference {reference!r}: not a method of this experiment; available: "
-                         f"{', '.join(methods)}")
+        raise InputError(f"--reference {reference!r}: not a method of this experiment; available: {', '.join(methods)}")
     cells = _finished(out, expected, finished)
     rows = make_rows(cells, reference)
     write_text_atomic(out / "results.csv", rows_csv(rows, COLUMNS))
@@ -300,21 +405,31 @@ def write_report(results_dir: str | os.PathLike, reference: str | None = None,
     figures = _figures(cells, rows, reference, out / "figures") if rows else []
     damaged = [c.id for c in expected if c.id not in done and c.id not in failed and cell_dir(out, c.id).is_dir()]
     stale = stale_cells(out, expected)
-    lines = [f"# Experiment results: {out.name}", "",
-             f"{len(rows)} of {len(expected)} cell(s) finished"
-             + (f", {len(failed)} failed (see errors/)" if failed else "") + ". "
-             "ATE improvement: 100 (before - after) / before of the full-rate trajectory (every frame, posed from "
-             "the keyframe before it; SE(3)-aligned); memory: "
-             f"accounted bytes of keyframe clouds, descriptors and graph (vs the `{reference}` method); time: "
-             "back-end seconds (everything after odometry); p99: per-frame back-end latency.", ""]
+    lines = [
+        f"# Experiment results: {out.name}",
+        "",
+        f"{len(rows)} of {len(expected)} cell(s) finished"
+        + (f", {len(failed)} failed (see errors/)" if failed else "")
+        + ". "
+        "ATE improvement: 100 (before - after) / before of the full-rate trajectory (every frame, posed from "
+        "the keyframe before it; SE(3)-aligned); memory: "
+        f"accounted bytes of keyframe clouds, descriptors and graph (vs the `{reference}` method); time: "
+        "back-end seconds (everything after odometry); p99: per-frame back-end latency.",
+        "",
+    ]
     if failed:
         lines += ["Failed cells: " + ", ".join(failed), ""]
     if damaged:
-        lines += ["Cells left out, their cell.json or metrics.json unreadable (run the experiment again to redo "
-                  "them): " + ", ".join(f"cells/{cell}" for cell in damaged), ""]
+        lines += [
+            "Cells left out, their cell.json or metrics.json unreadable (run the experiment again to redo "
+            "them): " + ", ".join(f"cells/{cell}" for cell in damaged),
+            "",
+        ]
     if stale:
-        lines += [f"Stale cells (from an earlier grid, not in {GRID_FILE}; left out of every aggregate): "
-                  + ", ".join(stale), ""]
+        lines += [
+            f"Stale cells (from an earlier grid, not in {GRID_FILE}; left out of every aggregate): " + ", ".join(stale),
+            "",
+        ]
     if rerun:
         lines += ["Cells rerun by this run, their earlier results left out:", *(f"- {line}" for line in rerun), ""]
     lines.append(table)

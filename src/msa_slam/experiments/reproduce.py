@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Sequence
 
 from msa_slam.evaluation.spread import without_rounding
 from msa_slam.experiments import paper_claims as pc
@@ -45,9 +45,16 @@ class Reproduction:
     shared: int = 0
 
 
-def run_reproduce(presets: Sequence[str], quick: bool = False, seeds: Sequence[int] | None = None,
-                  out: str | os.PathLike | None = None, scheduler: str | None = None, workers: int = 1,
-                  quiet: bool = True, command: str = "msa-slam reproduce") -> Reproduction:
+def run_reproduce(
+    presets: Sequence[str],
+    quick: bool = False,
+    seeds: Sequence[int] | None = None,
+    out: str | os.PathLike | None = None,
+    scheduler: str | None = None,
+    workers: int = 1,
+    quiet: bool = True,
+    command: str = "msa-slam reproduce",
+) -> Reproduction:
     """Run the paper grids `presets` (--quick and --seeds variants: paper.variant) into `out` (default
     msa_slam_results/reproduce, resumed when it holds an earlier reproduction), then write report.md."""
     from msa_slam.experiments.runner import check_scheduler, run_grid
@@ -65,16 +72,25 @@ def run_reproduce(presets: Sequence[str], quick: bool = False, seeds: Sequence[i
         folder.prepare_in_place(grows=(GRIDS,), unit_record=MARKER)
         for name, grid in grids.items():
             others = [folder.path / GRIDS / other for other in PRESETS if other != name]
-            run = run_grid(grid, folder.path / GRIDS / name, scheduler=scheduler, workers=workers, quiet=quiet,
-                           where=f"preset {name}", share_from=others)
+            run = run_grid(
+                grid,
+                folder.path / GRIDS / name,
+                scheduler=scheduler,
+                workers=workers,
+                quiet=quiet,
+                where=f"preset {name}",
+                share_from=others,
+            )
             result.failed.update({f"{name}: {cell}": why for cell, why in run.failed.items()})
             result.ran, result.skipped = result.ran + len(run.ran), result.skipped + len(run.skipped)
             result.shared += len(run.shared)
-        stamp = (f"Command: `{command}`; msa-slam {_version()}; {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC; "
-                 f"wall time {(time.monotonic() - started) / 60:.1f} min on {os.cpu_count()} cores, load average "
-                 f"{load:.1f} at the start and {os.getloadavg()[0]:.1f} at the end; {result.ran} cell(s) run, "
-                 f"{result.shared} copied from an identical cell, {result.skipped} reused from an earlier run"
-                 f"{', quick variant' if quick else ''}.")
+        stamp = (
+            f"Command: `{command}`; msa-slam {_version()}; {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC; "
+            f"wall time {(time.monotonic() - started) / 60:.1f} min on {os.cpu_count()} cores, load average "
+            f"{load:.1f} at the start and {os.getloadavg()[0]:.1f} at the end; {result.ran} cell(s) run, "
+            f"{result.shared} copied from an identical cell, {result.skipped} reused from an earlier run"
+            f"{', quick variant' if quick else ''}."
+        )
         write_reproduce_report(folder.path, grids, stamp, result.failed)
         folder.record_files()
     return result
@@ -88,13 +104,15 @@ def rewrite_reproduce_report(folder: str | os.PathLike) -> Path:
     path = Path(folder)
     with open_result_folder(path, kind=KIND, default_parent=path.parent, resume=True) as result:
         result.prepare_in_place(grows=(GRIDS,), unit_record=MARKER)
-        grids = {name: grid_cells(path / GRIDS / name)[0] for name in PRESETS
-                 if (path / GRIDS / name / GRID_FILE).is_file()}
+        grids = {
+            name: grid_cells(path / GRIDS / name)[0] for name in PRESETS if (path / GRIDS / name / GRID_FILE).is_file()
+        }
         old = (path / "report.md").read_text() if (path / "report.md").is_file() else ""
         run_stamp = next((line for line in old.splitlines() if line.startswith("Command: ")), "")
         now = f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC"
         stamp = (f"{run_stamp} " if run_stamp else "") + (
-            f"Report rewritten by `msa-slam report` (msa-slam {_version()}, {now}) from the finished cells.")
+            f"Report rewritten by `msa-slam report` (msa-slam {_version()}, {now}) from the finished cells."
+        )
         report = write_reproduce_report(path, grids, stamp, {})
         result.record_files()
     return report
@@ -111,46 +129,79 @@ def write_reproduce_report(out: Path, grids: dict[str, GridSpec], stamp: str, fa
     from msa_slam.viz import plot_sweeps, plot_trajectories
     from msa_slam.viz.paper_figures import plot_boxes, plot_memory_distance
 
-    runs = {name: rr.Run(grid, grid_values(out / GRIDS / name), f"{GRIDS}/{name}") for name, grid in grids.items()
-            if (out / GRIDS / name / "cells").is_dir()}
+    runs = {
+        name: rr.Run(grid, grid_values(out / GRIDS / name), f"{GRIDS}/{name}")
+        for name, grid in grids.items()
+        if (out / GRIDS / name / "cells").is_dir()
+    }
     figures = out / "figures"
     figures.mkdir(exist_ok=True)
     t1, t2, ab, bd = (runs.get(p) for p in ("paper-table1", "paper-table2", "paper-ablation", "paper-bounds"))
     t1_figs, t2_figs, bd_figs = [], [], []
     if t1 is not None and t1.values.rows:
-        plot_boxes(figures / "fig5_deviations.png", fig5_panels(t1.values.rows),
-                   "Table I runs: deviation from all samples (pp: percentage points), memory and time",
-                   zero_line=list(fig5_panels(t1.values.rows))[:2])
+        plot_boxes(
+            figures / "fig5_deviations.png",
+            fig5_panels(t1.values.rows),
+            "Table I runs: deviation from all samples (pp: percentage points), memory and time",
+            zero_line=list(fig5_panels(t1.values.rows))[:2],
+        )
         t1_figs.append("fig5_deviations.png")
         shown = [d for d in dict.fromkeys(r["dataset"] for r in t1.values.rows) if dataset_name(d) in FIG6_DATASETS]
         for dataset in shown or [t1.values.rows[0]["dataset"]]:
             found = rr.fig6_panels(t1, dataset)
             if found is not None:
                 name = f"fig6_{dataset_name(dataset)}.png"
-                plot_trajectories(figures / name, found[0], found[1],
-                                  title=f"{column_of(dataset)} (simulated): MSA and entropy after optimisation")
+                plot_trajectories(
+                    figures / name,
+                    found[0],
+                    found[1],
+                    title=f"{column_of(dataset)} (simulated): MSA and entropy after optimisation",
+                )
                 t1_figs.append(name)
     growth: dict = {}
     if t2 is not None and t2.values.rows:
         growth, series, drive = rr.memory_growth(t2)
         if series:
             all_gib = list(growth.get("all", {}).values())
-            plot_memory_distance(figures / "memory_distance.png", series,
-                                 (pc.TARGET_M / 1000, sum(all_gib) / len(all_gib)) if all_gib else None,
-                                 pc.LIMIT_GIB, f"{column_of(drive)} (simulated): accounted memory over distance")
+            plot_memory_distance(
+                figures / "memory_distance.png",
+                series,
+                (pc.TARGET_M / 1000, sum(all_gib) / len(all_gib)) if all_gib else None,
+                pc.LIMIT_GIB,
+                f"{column_of(drive)} (simulated): accounted memory over distance",
+            )
             t2_figs.append("memory_distance.png")
     if bd is not None and bd.values.rows:
-        plot_sweeps(figures / "distance_bounds.png", sweep_lines(bd.values.rows),
-                    title="distance bounds: metrics against each bound (means over seeds)")
+        plot_sweeps(
+            figures / "distance_bounds.png",
+            sweep_lines(bd.values.rows),
+            title="distance bounds: metrics against each bound (means over seeds)",
+        )
         bd_figs.append("distance_bounds.png")
     claims = paper_claims(t1, growth, ab, bd, runs)
-    lines = ["# Reproduction of the paper's evaluation", "", stamp, "",
-             "Every dataset is simulated; which paper column each plays:", "", *rr.stand_in_lines(runs)]
+    lines = [
+        "# Reproduction of the paper's evaluation",
+        "",
+        stamp,
+        "",
+        "Every dataset is simulated; which paper column each plays:",
+        "",
+        *rr.stand_in_lines(runs),
+    ]
     if failed:
-        lines += ["Failed cells (their tracebacks: grids/<preset>/errors/):", "",
-                  *(f"- {cell}: {why}" for cell, why in failed.items()), ""]
-    lines += [*rr.table1(t1, t1_figs), *rr.table2(t2, t2_figs, growth), *rr.ablations(ab), *rr.bounds(bd, bd_figs),
-              *rr.claims_lines(claims)]
+        lines += [
+            "Failed cells (their tracebacks: grids/<preset>/errors/):",
+            "",
+            *(f"- {cell}: {why}" for cell, why in failed.items()),
+            "",
+        ]
+    lines += [
+        *rr.table1(t1, t1_figs),
+        *rr.table2(t2, t2_figs, growth),
+        *rr.ablations(ab),
+        *rr.bounds(bd, bd_figs),
+        *rr.claims_lines(claims),
+    ]
     write_text_atomic(out / "report.md", "\n".join(lines))
     return out / "report.md"
 
@@ -158,8 +209,12 @@ def write_reproduce_report(out: Path, grids: dict[str, GridSpec], stamp: str, fa
 def fig5_panels(rows: list[dict]) -> dict[str, dict[str, list[float]]]:
     """The Fig. 5 panels: each method's t./R. ATE improvement minus all samples' on the same run (dataset, mode,
     seed) in percentage points (a difference of rounding alone is 0.0), and its memory and time."""
-    panels: dict[str, dict[str, list[float]]] = {"t. ATE impr. - all [pp]": {}, "R. ATE impr. - all [pp]": {},
-                                                 "memory [MiB]": {}, "time [s]": {}}
+    panels: dict[str, dict[str, list[float]]] = {
+        "t. ATE impr. - all [pp]": {},
+        "R. ATE impr. - all [pp]": {},
+        "memory [MiB]": {},
+        "time [s]": {},
+    }
     methods = list(dict.fromkeys(r["method"] for r in rows))
     for m in methods:
         for title, column in zip(list(panels)[:2], ("improvement_t_pct", "improvement_r_pct")):
@@ -173,8 +228,11 @@ def fig5_panels(rows: list[dict]) -> dict[str, dict[str, list[float]]]:
 
 def sweep_lines(rows: list[dict]) -> dict:
     """plot_sweeps' input: bound (with its unit) -> metric -> dataset column -> (values, means over seeds)."""
-    columns = {"t. ATE impr. [%]": "improvement_t_pct", "F1-max": "f1_max",
-               "memory vs all [%]": "memory_vs_reference_pct"}
+    columns = {
+        "t. ATE impr. [%]": "improvement_t_pct",
+        "F1-max": "f1_max",
+        "memory vs all [%]": "memory_vs_reference_pct",
+    }
     out: dict = {}
     for bound in sorted({k for r in rows for k in r["swept"]}):
         out[f"{bound} [m]"] = {}
@@ -199,8 +257,9 @@ def _brief(run: rr.Run | None, what: str) -> str:
     return f"{what}; {run.grid.base.get('odometry', 'kiss')} odometry; {datasets}; seeds {', '.join(map(str, seeds))}"
 
 
-def paper_claims(t1: rr.Run | None, growth: dict, ab: rr.Run | None, bd: rr.Run | None,
-                 runs: dict[str, rr.Run]) -> list[pc.Claim]:
+def paper_claims(
+    t1: rr.Run | None, growth: dict, ab: rr.Run | None, bd: rr.Run | None, runs: dict[str, rr.Run]
+) -> list[pc.Claim]:
     """The claims table's rows, in the paper's order."""
     rows1 = t1.values.rows if t1 else []
     rows_ab = ab.values.rows if ab else []
@@ -212,12 +271,24 @@ def paper_claims(t1: rr.Run | None, growth: dict, ab: rr.Run | None, bd: rr.Run 
         pc.best_sampled(rows1, _brief(t1, "Table I, oracle, paired over (dataset, seed)")),
         pc.no_universal_constant(rows1, _brief(t1, "Table I, oracle, constants 1/2/3 m per dataset")),
         pc.memory_exhausted(list(growth.get("all", {}).values()), list(growth.get("msa", {}).values()), drive),
-        pc.emphasis(rows_ab, pc.PI_EMPHASIS, "Emphasising pi (alpha = 10) raises accuracy and keyframes",
-                    {"improvement_t_pct": +1, "keyframes": +1}, _brief(ab, "ablation grid, both scenarios")),
-        pc.emphasis(rows_ab, pc.RHO_EMPHASIS, "Emphasising rho (beta = 10) lowers memory and accuracy",
-                    {"memory_mib": -1, "improvement_t_pct": -1}, _brief(ab, "ablation grid, both scenarios")),
+        pc.emphasis(
+            rows_ab,
+            pc.PI_EMPHASIS,
+            "Emphasising pi (alpha = 10) raises accuracy and keyframes",
+            {"improvement_t_pct": +1, "keyframes": +1},
+            _brief(ab, "ablation grid, both scenarios"),
+        ),
+        pc.emphasis(
+            rows_ab,
+            pc.RHO_EMPHASIS,
+            "Emphasising rho (beta = 10) lowers memory and accuracy",
+            {"memory_mib": -1, "improvement_t_pct": -1},
+            _brief(ab, "ablation grid, both scenarios"),
+        ),
         pc.bound_sweep(rows_bd, "lambda_l", _brief(bd, "bounds grid, lambda_u = 5")),
         pc.bound_sweep(rows_bd, "lambda_u", _brief(bd, "bounds grid, lambda_l = 0.1")),
-        pc.window_time(solve, "every default MSA run (N = 10) of this reproduction; this machine under its load, "
-                              "not the paper's i9"),
+        pc.window_time(
+            solve,
+            "every default MSA run (N = 10) of this reproduction; this machine under its load, not the paper's i9",
+        ),
     ]

@@ -5,8 +5,9 @@ figures beside it. Missing grids (not run, or run with --presets leaving them ou
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -22,11 +23,20 @@ Row = dict[str, Any]
 SECTIONS = ("Table I", "Table II", "Ablations", "Distance bounds", "Claims")
 # column -> (label, decimals, unit) of the per-method tables
 ACCURACY = {"improvement_t_pct": ("t. ATE impr.", 1, " %"), "improvement_r_pct": ("R. ATE impr.", 1, " %")}
-ONLINE = {"keyframes": ("keyframes", 0, ""), **ACCURACY, "f1_max": ("F1-max", 3, ""),
-          "memory_mib": ("memory", 1, " MiB"), "memory_vs_reference_pct": ("mem. vs all", 0, " %"),
-          "time_s": ("time", 1, " s")}
-BATCH = {**ACCURACY, "pr_auc": ("PR-AUC", 3, ""), "memory_vs_reference_pct": ("mem. vs all", 0, " %"),
-         "time_s": ("time", 1, " s")}
+ONLINE = {
+    "keyframes": ("keyframes", 0, ""),
+    **ACCURACY,
+    "f1_max": ("F1-max", 3, ""),
+    "memory_mib": ("memory", 1, " MiB"),
+    "memory_vs_reference_pct": ("mem. vs all", 0, " %"),
+    "time_s": ("time", 1, " s"),
+}
+BATCH = {
+    **ACCURACY,
+    "pr_auc": ("PR-AUC", 3, ""),
+    "memory_vs_reference_pct": ("mem. vs all", 0, " %"),
+    "time_s": ("time", 1, " s"),
+}
 
 
 @dataclass(frozen=True)
@@ -53,11 +63,16 @@ def method_table(rows: Sequence[Row], columns: Mapping[str, tuple[str, int, str]
     by_method: dict[str, list[Row]] = defaultdict(list)
     for r in rows:
         by_method[r["method"]].append(r)
-    lines = ["| method | runs | " + " | ".join(label for label, _, _ in columns.values()) + " |",
-             "|" + "---|" * (len(columns) + 2)]
+    lines = [
+        "| method | runs | " + " | ".join(label for label, _, _ in columns.values()) + " |",
+        "|" + "---|" * (len(columns) + 2),
+    ]
     for m, rs in by_method.items():
-        lines.append(f"| {m} | {len(rs)} | " + " | ".join(mean_cell([r[c] for r in rs], d, u)
-                                                         for c, (_, d, u) in columns.items()) + " |")
+        lines.append(
+            f"| {m} | {len(rs)} | "
+            + " | ".join(mean_cell([r[c] for r in rs], d, u) for c, (_, d, u) in columns.items())
+            + " |"
+        )
     return lines + [""]
 
 
@@ -68,13 +83,17 @@ def conditions(run: Run, extra: str = "") -> str:
     frames = {column_of(r["dataset"]): r["frames"] for r in rows}
     modes = sorted({r["mode"] for r in rows})
     solver = "LM at the end" if run.grid.pipeline == "batch" else "iSAM2 every frame"
-    return (f"Conditions: {run.grid.pipeline} protocol ({solver}); "
-            f"odometry {base.get('odometry', 'kiss')}; {' and '.join(modes) or 'no'} mode; seeds "
-            f"{', '.join(map(str, seeds)) or 'none'}; frames " + ", ".join(f"{k} {v}" for k, v in frames.items())
-            + "; ATE on the full-rate trajectory, SE(3)-aligned (Umeyama, no scale); mean ± sample std over seeds"
-            + f"; values differing only by floating-point rounding (within {ROUNDING:g} of their scale) are shown as "
-            "equal (difference 0.0)"
-            + (f"; {extra}" if extra else "") + f". Cells and per-dataset tables: {run.folder}/results.md.")
+    return (
+        f"Conditions: {run.grid.pipeline} protocol ({solver}); "
+        f"odometry {base.get('odometry', 'kiss')}; {' and '.join(modes) or 'no'} mode; seeds "
+        f"{', '.join(map(str, seeds)) or 'none'}; frames "
+        + ", ".join(f"{k} {v}" for k, v in frames.items())
+        + "; ATE on the full-rate trajectory, SE(3)-aligned (Umeyama, no scale); mean ± sample std over seeds"
+        + f"; values differing only by floating-point rounding (within {ROUNDING:g} of their scale) are shown as "
+        "equal (difference 0.0)"
+        + (f"; {extra}" if extra else "")
+        + f". Cells and per-dataset tables: {run.folder}/results.md."
+    )
 
 
 def _missing(name: str) -> list[str]:
@@ -105,16 +124,19 @@ def table1(run: Run | None, figures: list[str]) -> list[str]:
         datasets = list(dict.fromkeys(r["dataset"] for r in rows))
         by_method = _by(rows, lambda r: r["method"])
         lines += ["| method | " + " | ".join(column_of(d) for d in datasets) + " |", "|" + "---|" * (len(datasets) + 1)]
-        lines += [f"| {m} | " + " | ".join(mean_cell([r["improvement_t_pct"] for r in rs if r["dataset"] == d], 1)
-                                           for d in datasets) + " |" for m, rs in by_method.items()]
+        lines += [
+            f"| {m} | "
+            + " | ".join(mean_cell([r["improvement_t_pct"] for r in rs if r["dataset"] == d], 1) for d in datasets)
+            + " |"
+            for m, rs in by_method.items()
+        ]
         lines += ["", f"All datasets of {mode} mode pooled:", "", *method_table(rows, BATCH)]
         tests = ["| baseline | t. ATE impr. MSA - baseline | R. ATE impr. MSA - baseline |", "|---|---|---|"]
         for base in by_method:
             if base != "msa":
                 found = [pc.v.difference(*pc.paired(rows, pc.method("msa"), pc.method(base), c)) for c in ACCURACY]
                 tests.append(f"| {base} | " + " | ".join(f.text() for f in found) + " |")
-        lines += [f"MSA against each baseline ({mode}), paired over (dataset, seed): {PAIRED_TEST}.", "",
-                  *tests, ""]
+        lines += [f"MSA against each baseline ({mode}), paired over (dataset, seed): {PAIRED_TEST}.", "", *tests, ""]
     return lines + [f"![{n}](figures/{n})" for n in figures] + [""]
 
 
@@ -146,9 +168,13 @@ def table2(run: Run | None, figures: list[str], growth: Mapping[str, Mapping[int
     lines += [conditions(run), ""]
     for dataset, rows in _by(run.values.rows, lambda r: r["dataset"]).items():
         lines += [f"### {column_of(dataset)} (`{dataset}`)", "", *method_table(rows, ONLINE)]
-    lines += [f"Accounted memory extrapolated to {pc.TARGET_M / 1000:.0f} km on the long drive (a straight line "
-              "through the second half of each run's memory against ground-truth distance), GiB:", "",
-              "| method | extrapolated |", "|---|---|"]
+    lines += [
+        f"Accounted memory extrapolated to {pc.TARGET_M / 1000:.0f} km on the long drive (a straight line "
+        "through the second half of each run's memory against ground-truth distance), GiB:",
+        "",
+        "| method | extrapolated |",
+        "|---|---|",
+    ]
     lines += [f"| {m} | {pc.stat(list(by_seed.values()), 1, ' GiB')} |" for m, by_seed in growth.items()]
     return lines + [""] + [f"![{n}](figures/{n})" for n in figures] + [""]
 
@@ -175,11 +201,16 @@ def bounds(run: Run | None, figures: list[str]) -> list[str]:
 
 
 def claims_lines(claims: Sequence[pc.Claim]) -> list[str]:
-    lines = ["## Claims", "",
-             "Verdicts: holds / does not hold / not separable (the difference is within the seed spread: paired "
-             f"t-test p >= 0.05, or mean ± std straddles the threshold; a test needs at least "
-             f"{MIN_SEEDS} seeds). Rules: msa_slam/experiments/verdicts.py.", "",
-             "| claim | verdict | numbers | conditions |", "|---|---|---|---|"]
+    lines = [
+        "## Claims",
+        "",
+        "Verdicts: holds / does not hold / not separable (the difference is within the seed spread: paired "
+        f"t-test p >= 0.05, or mean ± std straddles the threshold; a test needs at least "
+        f"{MIN_SEEDS} seeds). Rules: msa_slam/experiments/verdicts.py.",
+        "",
+        "| claim | verdict | numbers | conditions |",
+        "|---|---|---|---|",
+    ]
     lines += [f"| {c.claim} | **{c.verdict}** | {c.numbers} | {c.conditions} |" for c in claims]
     return lines + [""]
 
@@ -194,9 +225,13 @@ def fig6_panels(run: Run, dataset: str) -> tuple[np.ndarray, list] | None:
     paper's Fig. 6 compares MSA and entropy after optimisation with the raw odometry)."""
     from msa_slam.viz import TrajectoryPanel
 
-    cells = {c.info["method"]: c for c in run.values.cells if c.info["dataset"] == dataset
-             and c.metrics.run.mode == "oracle"
-             and c.info["seed"] == min(r["seed"] for r in run.values.rows)}
+    cells = {
+        c.info["method"]: c
+        for c in run.values.cells
+        if c.info["dataset"] == dataset
+        and c.metrics.run.mode == "oracle"
+        and c.info["seed"] == min(r["seed"] for r in run.values.rows)
+    }
     if "msa" not in cells or "entropy" not in cells:
         return None
     found = {m: aligned_paths(cells[m]) for m in ("msa", "entropy")}
@@ -207,8 +242,15 @@ def fig6_panels(run: Run, dataset: str) -> tuple[np.ndarray, list] | None:
     for m in ("entropy", "msa"):  # loops given (none drawn): the methods the colour scale and the zoom are about
         _, paths, keyframes = found[m]
         path = paths["optimised"]
-        panels.append(TrajectoryPanel(f"{m} after optimisation, ATE {float(np.sqrt(np.mean(path.errors ** 2))):.2f} m",
-                                      path.xy, path.errors, (), keyframes=keyframes))
+        panels.append(
+            TrajectoryPanel(
+                f"{m} after optimisation, ATE {float(np.sqrt(np.mean(path.errors**2))):.2f} m",
+                path.xy,
+                path.errors,
+                (),
+                keyframes=keyframes,
+            )
+        )
     return gt, panels
 
 

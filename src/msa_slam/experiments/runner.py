@@ -18,9 +18,10 @@ import os
 import shutil
 import sys
 import traceback
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 from msa_slam.errors import InputError
 from msa_slam.evaluation.run_metrics import RunMetrics
@@ -31,8 +32,8 @@ from msa_slam.experiments.identity import CELL_IDENTITY, cell_identities, outdat
 from msa_slam.experiments.inputs import input_groups, prepare_inputs
 from msa_slam.experiments.sharing import RUN_KEY, SharePlan, copy_cell, finished_runs, plan_sharing
 from msa_slam.io.atomic import write_text_atomic
-from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, some_names, staged_dir
 from msa_slam.io.marker import foreign_in_units
+from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, some_names, staged_dir
 from msa_slam.io.staging import remove_abandoned, unmark_finished
 from msa_slam.io.write_errors import OutputError
 from msa_slam.workers import check_workers
@@ -76,9 +77,11 @@ def check_replaceable(out: Path, cell_ids: list[str]) -> None:
     found = foreign_in_units(out, [f"cells/{cell_id}" for cell_id in cell_ids])
     for cell_id in cell_ids:
         if found[f"cells/{cell_id}"]:
-            raise OutputError(f"--out {out}: cell {cell_id} must be rerun, but its folder holds files msa-slam did not "
-                              f"write ({some_names(found[f'cells/{cell_id}'])}); move them elsewhere or choose "
-                              "another --out")
+            raise OutputError(
+                f"--out {out}: cell {cell_id} must be rerun, but its folder holds files msa-slam did not "
+                f"write ({some_names(found[f'cells/{cell_id}'])}); move them elsewhere or choose "
+                "another --out"
+            )
 
 
 def _remove_empty_folder(path: Path) -> list[Path]:
@@ -93,13 +96,12 @@ def _remove_empty_folder(path: Path) -> list[Path]:
 def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bool = False) -> RunMetrics:
     """Run one cell and write its folder atomically; returns its metrics (a top-level function so Dask and
     process pools can ship it)."""
-    from msa_slam.io.tables import write_json
-    from msa_slam.reporting.results import write_run_files
-
     from msa_slam.experiments.sweep import threshold_sweep
+    from msa_slam.io.tables import write_json
     from msa_slam.pipeline.config import make_config, make_online_config
     from msa_slam.pipeline.driver import run
     from msa_slam.pipeline.live import with_odometry_threads
+    from msa_slam.reporting.results import write_run_files
 
     online = info["pipeline"] == "online"
     if online:
@@ -149,9 +151,17 @@ def _record(run: GridRun, cell: Cell, error: BaseException | None) -> None:
     run.failed[cell.id] = f"{type(error).__name__}: {reason}"
 
 
-def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | None = None, workers: int = 1,
-             client=None, quiet: bool = True, overwrite: bool = False, where: str = "grid",
-             share_from: Sequence[Path] = ()) -> GridRun:
+def run_grid(
+    grid: GridSpec,
+    out: str | os.PathLike | None,
+    scheduler: str | None = None,
+    workers: int = 1,
+    client=None,
+    quiet: bool = True,
+    overwrite: bool = False,
+    where: str = "grid",
+    share_from: Sequence[Path] = (),
+) -> GridRun:
     """Run the unfinished cells of `grid` into `out`, then write the aggregate report.
 
     `out` is checked and locked first (msa_slam.io.outputs): None picks a new timestamped folder under
@@ -172,8 +182,7 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
     check_datasets(grid, where, cells)
     if scheduler is not None:
         check_scheduler(scheduler)
-    with open_result_folder(out, kind=KIND, default_parent=DEFAULT_PARENT, overwrite=overwrite,
-                            resume=True) as folder:
+    with open_result_folder(out, kind=KIND, default_parent=DEFAULT_PARENT, overwrite=overwrite, resume=True) as folder:
         finished = {} if overwrite or not folder.path.is_dir() else finished_cells(folder.path, cells)
         identities = cell_identities(cells)
         folder.prepare_in_place(fresh=overwrite, grows=("cells",), unit_record=CELL_FILE)
@@ -193,8 +202,9 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
         infos = {cell.id: {**cell.info(), CELL_IDENTITY: identities[cell.id], RUN_KEY: keys[cell.id]} for cell in todo}
         plan = plan_sharing(todo, keys, finished_runs([run.out, *share_from]))
         local = scheduler is None and client is None
-        estimate = estimate_grid(grid.name, cells, finished, plan.run, workers if local else None,
-                                 shared=len(plan.copies) + len(plan.after))
+        estimate = estimate_grid(
+            grid.name, cells, finished, plan.run, workers if local else None, shared=len(plan.copies) + len(plan.after)
+        )
         if not quiet:  # before the first cell, on a terminal or not
             print(estimate.line(), file=sys.stderr, flush=True)
         _run_cells(grid, plan.run, run, scheduler, workers, client, quiet, estimate, infos)
@@ -206,8 +216,10 @@ def run_grid(grid: GridSpec, out: str | os.PathLike | None, scheduler: str | Non
 
 def _copy_cells(run: GridRun, plan: SharePlan, infos: dict[str, dict[str, Any]]) -> None:
     """Write the cells of `plan` that copy a finished cell; one whose cell of this run failed fails with it."""
-    sources = {**plan.copies, **{cid: cell_dir(run.out, first) for cid, first in plan.after.items()
-                                 if first not in run.failed}}
+    sources = {
+        **plan.copies,
+        **{cid: cell_dir(run.out, first) for cid, first in plan.after.items() if first not in run.failed},
+    }
     for cid, first in plan.after.items():
         if first in run.failed:
             run.failed[cid] = f"the same run as cell {first}, which failed: {run.failed[first]}"
@@ -232,8 +244,17 @@ def check_scheduler(scheduler: str) -> None:
         raise InputError(f"--scheduler {scheduler!r}: {exc}; give the address as tcp://host:port") from None
 
 
-def _run_cells(grid: GridSpec, todo: list[Cell], run: GridRun, scheduler: str | None, workers: int, client,
-               quiet: bool, estimate: GridEstimate, infos: dict[str, dict[str, Any]]) -> None:
+def _run_cells(
+    grid: GridSpec,
+    todo: list[Cell],
+    run: GridRun,
+    scheduler: str | None,
+    workers: int,
+    client,
+    quiet: bool,
+    estimate: GridEstimate,
+    infos: dict[str, dict[str, Any]],
+) -> None:
     """Run the `todo` cells, each recording `infos` (its info, identity and run key) as its cell.json."""
     from msa_slam.progress import progress_bar
 
@@ -263,8 +284,10 @@ def _prepare_inputs(client, todo: list[Cell]) -> None:
     from distributed import as_completed
 
     groups = input_groups(todo)
-    futures = {client.submit(prepare_inputs, group, key=f"inputs-{k}-{todo[0].id}", pure=False): group
-               for k, group in enumerate(groups)}
+    futures = {
+        client.submit(prepare_inputs, group, key=f"inputs-{k}-{todo[0].id}", pure=False): group
+        for k, group in enumerate(groups)
+    }
     for future in as_completed(futures):
         try:
             future.result()
@@ -272,8 +295,17 @@ def _prepare_inputs(client, todo: list[Cell]) -> None:
             log.warning("experiment: inputs of %s not prepared ahead: %s", futures[future][0][1]["dataset"], exc)
 
 
-def _run_dask(todo: list[Cell], infos: dict[str, dict[str, Any]], out: Path, figures: bool, scheduler: str | None,
-              workers: int, client, run: GridRun, advance) -> None:
+def _run_dask(
+    todo: list[Cell],
+    infos: dict[str, dict[str, Any]],
+    out: Path,
+    figures: bool,
+    scheduler: str | None,
+    workers: int,
+    client,
+    run: GridRun,
+    advance,
+) -> None:
     from distributed import Client, LocalCluster, as_completed
 
     own_cluster = own_client = None
@@ -285,12 +317,17 @@ def _run_dask(todo: list[Cell], infos: dict[str, dict[str, Any]], out: Path, fig
                 except OSError as exc:
                     raise InputError(f"Dask scheduler {scheduler!r}: cannot connect ({exc})") from None
             else:
-                own_cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                           dashboard_address=":0")
+                own_cluster = LocalCluster(
+                    n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0"
+                )
                 client = own_client = Client(own_cluster)
         _prepare_inputs(client, todo)
-        futures = {client.submit(run_cell, infos[c.id], c.config, str(out.resolve()), figures, key=f"cell-{c.id}",
-                                 pure=False): c for c in todo}
+        futures = {
+            client.submit(
+                run_cell, infos[c.id], c.config, str(out.resolve()), figures, key=f"cell-{c.id}", pure=False
+            ): c
+            for c in todo
+        }
         for future in as_completed(futures):
             cell = futures[future]
             try:

@@ -19,20 +19,21 @@ import os
 import re
 import shutil
 import time
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any
 
 import msa_slam
-from msa_slam.io.marker import foreign_in_units
 from msa_slam.errors import InputError
 from msa_slam.evaluation.metrics_json import from_json
 from msa_slam.evaluation.run_metrics import RunMetrics
+from msa_slam.experiments.identity import changed_identity, run_identities
+from msa_slam.io.marker import foreign_in_units
 from msa_slam.io.outputs import MARKER, OutputError
 from msa_slam.io.staging import clean_stale
 from msa_slam.io.tables import write_json
 from msa_slam.pipeline.config import RunConfig
-from msa_slam.experiments.identity import changed_identity, run_identities
 
 SEEDS = "seeds"
 RECORD = "seed.json"
@@ -54,8 +55,9 @@ def seed_record(dataset: str, configs: Sequence[RunConfig], sweep: bool = True) 
     """What a finished seed must have been run with to be reused: `dataset` is the one without the seed,
     `sweep` whether its methods ran the threshold sweep."""
     methods = {cfg.name: {k: v for k, v in cfg.dump().items() if k not in NOT_SETTINGS} for cfg in configs}
-    return json.loads(json.dumps({"version": msa_slam.__version__, "dataset": dataset, "methods": methods,
-                                  "threshold_sweep": sweep}))
+    return json.loads(
+        json.dumps({"version": msa_slam.__version__, "dataset": dataset, "methods": methods, "threshold_sweep": sweep})
+    )
 
 
 def seed_identities(plans: Mapping[int, Sequence[RunConfig]]) -> dict[int, dict[str, str | None]]:
@@ -64,8 +66,9 @@ def seed_identities(plans: Mapping[int, Sequence[RunConfig]]) -> dict[int, dict[
     return run_identities({seed: [cfg.dump() for cfg in configs] for seed, configs in plans.items()})
 
 
-def write_record(folder: Path, record: Mapping[str, Any], identity: Mapping[str, str | None],
-                 failed: Mapping[str, str]) -> None:
+def write_record(
+    folder: Path, record: Mapping[str, Any], identity: Mapping[str, str | None], failed: Mapping[str, str]
+) -> None:
     write_json(Path(folder) / RECORD, {**record, IDENTITY: dict(identity), "failed": dict(failed)})
 
 
@@ -91,8 +94,10 @@ def finished_metrics(folder: Path) -> list[RunMetrics] | None:
 def check_seed_folder(out: Path) -> None:
     """Without --overwrite, `out` must hold a `compare --seeds` result (its seeds/ folder) or nothing yet."""
     if out.is_dir() and not (out / SEEDS).is_dir() and any(p.name != MARKER for p in out.iterdir()):
-        raise OutputError(f"--out {out}: holds a comparison run without --seeds; pass --overwrite to replace it "
-                          "or choose another --out")
+        raise OutputError(
+            f"--out {out}: holds a comparison run without --seeds; pass --overwrite to replace it "
+            "or choose another --out"
+        )
 
 
 def clean_leftovers(out: Path) -> list[Path]:
@@ -111,8 +116,9 @@ class Resume:
     rerun: dict[int, str] = field(default_factory=dict)
 
 
-def resume_seeds(out: Path, records: Mapping[int, Mapping[str, Any]],
-                 identities: Mapping[int, Mapping[str, str | None]]) -> Resume:
+def resume_seeds(
+    out: Path, records: Mapping[int, Mapping[str, Any]], identities: Mapping[int, Mapping[str, str | None]]
+) -> Resume:
     """Which seeds of `records` (seed -> expected record) finished earlier in `out` are reused (same settings,
     data and code, no failed method) and which are rerun (same settings, other data or code: `identities`, seed
     -> current identity). Raises OutputError, before any work, for a finished seed run with other settings or
@@ -124,14 +130,18 @@ def resume_seeds(out: Path, records: Mapping[int, Mapping[str, Any]],
             continue
         record = _read_json(folder / RECORD)
         if not isinstance(record, dict):
-            raise OutputError(f"--out {out}: seed {seed} has no readable record of the settings it was run with "
-                              f"({SEEDS}/seed-{seed}/{RECORD}); pass --overwrite to replace the folder")
+            raise OutputError(
+                f"--out {out}: seed {seed} has no readable record of the settings it was run with "
+                f"({SEEDS}/seed-{seed}/{RECORD}); pass --overwrite to replace the folder"
+            )
         difference = first_difference(_settings(record), _settings(expected))
         if difference is not None:
             key, there, now = difference
-            raise OutputError(f"--out {out}: seed {seed} was run with other settings ({key}: {there} there, {now} "
-                              "now); rerun with the same settings to resume, or pass --overwrite to replace the "
-                              "folder")
+            raise OutputError(
+                f"--out {out}: seed {seed} was run with other settings ({key}: {there} there, {now} "
+                "now); rerun with the same settings to resume, or pass --overwrite to replace the "
+                "folder"
+            )
         reason = changed_identity(record.get(IDENTITY), identities[seed])
         if reason is not None:
             resume.rerun[seed] = f"seed {seed}: {reason}; rerun"
@@ -151,9 +161,11 @@ def remove_seeds(out: Path, seeds: Mapping[int, str]) -> None:
     that were edited since, is refused (OutputError, before any of them is touched)."""
     for seed, kept in not_msa_slams(out, seeds).items():
         if kept:
-            raise OutputError(f"--out {out}: {seeds[seed].removesuffix('; rerun')}, but its folder holds files "
-                              f"msa-slam did not write or that were edited since ({', '.join(kept[:3])}"
-                              f"{', ...' if len(kept) > 3 else ''}); move them out to rerun it")
+            raise OutputError(
+                f"--out {out}: {seeds[seed].removesuffix('; rerun')}, but its folder holds files "
+                f"msa-slam did not write or that were edited since ({', '.join(kept[:3])}"
+                f"{', ...' if len(kept) > 3 else ''}); move them out to rerun it"
+            )
     for seed in seeds:
         folder = seed_dir(out, seed)
         aside = folder.parent / f".{folder.name}.old-{os.getpid()}-{time.monotonic_ns()}"
@@ -171,8 +183,11 @@ def not_msa_slams(out: Path, seeds: Iterable[int]) -> dict[int, list[str]]:
 def left_out_seeds(out: Path, seeds: Sequence[int]) -> list[int]:
     """Finished seeds in `out` that are not among `seeds` (a rerun with fewer seeds): kept, not in the spread."""
     folder = Path(out) / SEEDS
-    found = [int(m.group(1)) for p in folder.iterdir() if p.is_dir() and (m := _SEED_NAME.fullmatch(p.name))
-             ] if folder.is_dir() else []
+    found = (
+        [int(m.group(1)) for p in folder.iterdir() if p.is_dir() and (m := _SEED_NAME.fullmatch(p.name))]
+        if folder.is_dir()
+        else []
+    )
     return sorted(set(found) - set(seeds))
 
 
@@ -194,4 +209,4 @@ def _show(value: Any, limit: int = 60) -> str:
     if value is _ABSENT:
         return "absent"
     text = json.dumps(value)
-    return text if len(text) <= limit else text[:limit - 3] + "..."
+    return text if len(text) <= limit else text[: limit - 3] + "..."

@@ -4,15 +4,23 @@ per-seed ranks and, for MSA against each baseline, whether the difference exceed
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Mapping, Sequence
 
 from msa_slam.errors import InputError
 from msa_slam.evaluation import NA, fmt
 from msa_slam.evaluation.display import spec_for
 from msa_slam.evaluation.run_metrics import TableRow
-from msa_slam.evaluation.spread import (MIN_SEEDS, PAIRED_TEST, PAIRED_TEST_WHY, REFERENCE, PairedVerdict, Spread,
-                                        paired_verdict, spreads)
+from msa_slam.evaluation.spread import (
+    MIN_SEEDS,
+    PAIRED_TEST,
+    PAIRED_TEST_WHY,
+    REFERENCE,
+    PairedVerdict,
+    Spread,
+    paired_verdict,
+    spreads,
+)
 from msa_slam.sources.spec import spec_kind
 
 # comparison column -> (label, higher is better; None: no direction, no rank and no test)
@@ -49,8 +57,10 @@ def seeded_datasets(dataset: str, seeds: Sequence[int]) -> list[str]:
     from msa_slam.sources import parse_spec
 
     if spec_kind(dataset) != "sim":
-        raise InputError(f"--seeds: dataset {dataset!r} is not simulated; world seeds exist only for sim: "
-                         "datasets (e.g. --dataset sim:test --seeds 0,1,2)")
+        raise InputError(
+            f"--seeds: dataset {dataset!r} is not simulated; world seeds exist only for sim: "
+            "datasets (e.g. --dataset sim:test --seeds 0,1,2)"
+        )
     if "seed" in parse_spec(dataset).keys:
         raise InputError(f"--seeds: dataset {dataset!r} already sets seed=; give the seeds with --seeds only")
     return [f"{dataset},seed={s}" for s in seeds]
@@ -76,10 +86,21 @@ class SeedSummary:
 
     def to_json(self) -> dict[str, object]:
         """seeds.json."""
-        return {"seeds": self.seeds, "test": PAIRED_TEST, "test_choice": PAIRED_TEST_WHY, "min_seeds": MIN_SEEDS,
-                "metrics": {column: {"label": e.label, "higher_is_better": e.higher_is_better,
-                                     "methods": {m: vars(sp) for m, sp in e.methods.items()}, "msa_vs": {m: pv.to_json() for m, pv in e.msa_vs.items()}}
-                            for column, e in self.metrics.items()}}
+        return {
+            "seeds": self.seeds,
+            "test": PAIRED_TEST,
+            "test_choice": PAIRED_TEST_WHY,
+            "min_seeds": MIN_SEEDS,
+            "metrics": {
+                column: {
+                    "label": e.label,
+                    "higher_is_better": e.higher_is_better,
+                    "methods": {m: vars(sp) for m, sp in e.methods.items()},
+                    "msa_vs": {m: pv.to_json() for m, pv in e.msa_vs.items()},
+                }
+                for column, e in self.metrics.items()
+            },
+        }
 
 
 def seed_summary(rows: Mapping[int, Sequence[TableRow]]) -> SeedSummary:
@@ -119,9 +140,11 @@ def _cell(column: str, spread: Spread) -> str:
 
 
 # Why a cell of the seed tables holds no (full) figure: the seeds' own reports give each value's reason.
-SEED_NOTES = ["¹ n/a: the value is n/a on every seed (each seed's report under seeds/seed-<n>/ says why).",
-              "² known on one seed only: no spread over seeds.",
-              "Ranks: n/a where that seed has no value for the method."]
+SEED_NOTES = [
+    "¹ n/a: the value is n/a on every seed (each seed's report under seeds/seed-<n>/ says why).",
+    "² known on one seed only: no spread over seeds.",
+    "Ranks: n/a where that seed has no value for the method.",
+]
 
 
 def seed_markdown(summary: SeedSummary) -> str:
@@ -129,29 +152,46 @@ def seed_markdown(summary: SeedSummary) -> str:
     metrics, seeds = summary.metrics, summary.seeds
     methods = list(next(iter(metrics.values())).methods)
     labels = [e.label for e in metrics.values()]
-    lines = [f"Seeds {', '.join(map(str, seeds))}: mean ± sample std (ddof 1) over the seeds.", "",
-             "| method | " + " | ".join(labels) + " |", "|" + "---|" * (len(labels) + 1)]
+    lines = [
+        f"Seeds {', '.join(map(str, seeds))}: mean ± sample std (ddof 1) over the seeds.",
+        "",
+        "| method | " + " | ".join(labels) + " |",
+        "|" + "---|" * (len(labels) + 1),
+    ]
     cells = [[_cell(k, e.methods[m]) for k, e in metrics.items()] for m in methods]
     lines += [f"| {m} | " + " | ".join(row) + " |" for m, row in zip(methods, cells)]
     marks = [note for mark, note in zip("¹²", SEED_NOTES) if any(c.endswith(mark) for row in cells for c in row)]
     lines += ["", *marks] if marks else []
     ranked = {k: e for k, e in metrics.items() if e.higher_is_better is not None}
-    lines += ["", "Rank per seed (1 = best, among the methods with a value; seeds " + ", ".join(map(str, seeds))
-              + "):", "",
-              "| method | " + " | ".join(e.label for e in ranked.values()) + " |",
-              "|" + "---|" * (len(ranked) + 1)]
-    lines += [f"| {m} | " + " | ".join(", ".join(NA if r is None else str(r) for r in e.methods[m].ranks)
-                                        for e in ranked.values()) + " |" for m in methods]
+    lines += [
+        "",
+        "Rank per seed (1 = best, among the methods with a value; seeds " + ", ".join(map(str, seeds)) + "):",
+        "",
+        "| method | " + " | ".join(e.label for e in ranked.values()) + " |",
+        "|" + "---|" * (len(ranked) + 1),
+    ]
+    lines += [
+        f"| {m} | "
+        + " | ".join(", ".join(NA if r is None else str(r) for r in e.methods[m].ranks) for e in ranked.values())
+        + " |"
+        for m in methods
+    ]
     if any(r is None for e in ranked.values() for m in methods for r in e.methods[m].ranks):
         lines += ["", SEED_NOTES[2]]
     baselines = [m for m in methods if m != REFERENCE]
     if any(e.msa_vs for e in ranked.values()):
-        lines += ["", f"MSA against each baseline, {PAIRED_TEST} over the seeds: does the difference exceed "
-                  f"the seed-to-seed spread? ({PAIRED_TEST_WHY}.)", "",
-                  "| baseline | " + " | ".join(e.label for e in ranked.values()) + " |",
-                  "|" + "---|" * (len(ranked) + 1)]
-        lines += [f"| {b} | " + " | ".join(e.msa_vs[b].verdict if b in e.msa_vs else NA
-                                           for e in ranked.values()) + " |" for b in baselines]
+        lines += [
+            "",
+            f"MSA against each baseline, {PAIRED_TEST} over the seeds: does the difference exceed "
+            f"the seed-to-seed spread? ({PAIRED_TEST_WHY}.)",
+            "",
+            "| baseline | " + " | ".join(e.label for e in ranked.values()) + " |",
+            "|" + "---|" * (len(ranked) + 1),
+        ]
+        lines += [
+            f"| {b} | " + " | ".join(e.msa_vs[b].verdict if b in e.msa_vs else NA for e in ranked.values()) + " |"
+            for b in baselines
+        ]
     else:
         lines += ["", f"No paired test: no method labelled {REFERENCE!r} in the comparison."]
     return "\n".join(lines) + "\n"
@@ -163,11 +203,18 @@ def seed_rows(summary: SeedSummary) -> list[TableRow]:
     for column, entry in summary.metrics.items():
         for method, sp in entry.methods.items():
             verdict = entry.msa_vs.get(method)  # none against itself, nor for a metric without a direction
-            out.append({"metric": column, "method": method, "mean": sp.mean, "std": sp.std,
-                        "values": " ".join(NA if v is None else f"{v:.6g}" for v in sp.values),
-                        "ranks": " ".join(NA if r is None else str(r) for r in sp.ranks),
-                        "msa_vs_p": None if verdict is None else verdict.p,
-                        "msa_vs_verdict": "" if verdict is None else verdict.verdict})
+            out.append(
+                {
+                    "metric": column,
+                    "method": method,
+                    "mean": sp.mean,
+                    "std": sp.std,
+                    "values": " ".join(NA if v is None else f"{v:.6g}" for v in sp.values),
+                    "ranks": " ".join(NA if r is None else str(r) for r in sp.ranks),
+                    "msa_vs_p": None if verdict is None else verdict.p,
+                    "msa_vs_verdict": "" if verdict is None else verdict.verdict,
+                }
+            )
     return out
 
 

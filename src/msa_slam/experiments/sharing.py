@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import os
 import shutil
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 from msa_slam.experiments.folder import CELL_FILE, cell_dir, read_cell
 from msa_slam.experiments.grid import Cell
@@ -82,4 +83,3 @@ def copy_cell(source: Path, out: Path, info: Mapping[str, Any]) -> None:
             else:
                 shutil.copy2(item, tmp / item.name)
         write_json(tmp / CELL_FILE, {**info, SHARED_FROM: os.path.relpath(source.resolve(), target.resolve())})
-

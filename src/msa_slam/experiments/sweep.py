@@ -39,8 +39,9 @@ class _ReplaySampler(Sampler):
         super().__init__()
         self._keys = {int(k) for k in keyframes}
 
-    def _push(self, index: int, pose: np.ndarray, descriptor: np.ndarray | None,
-              points: np.ndarray | None) -> list[int]:
+    def _push(
+        self, index: int, pose: np.ndarray, descriptor: np.ndarray | None, points: np.ndarray | None
+    ) -> list[int]:
         return [index] if index in self._keys else []
 
 
@@ -77,12 +78,24 @@ class _MemoVerify:
         return [self._memo[(c.query, c.match)] for c in candidates]
 
 
-def replay(config: RunConfig, frontend: CachedFrontEnd, clouds: Any, keyframes: np.ndarray,
-           memo: dict[tuple[int, int], LoopClosure]) -> RunResult:
+def replay(
+    config: RunConfig,
+    frontend: CachedFrontEnd,
+    clouds: Any,
+    keyframes: np.ndarray,
+    memo: dict[tuple[int, int], LoopClosure],
+) -> RunResult:
     """The back-end of `config` on fixed `keyframes` whose clouds are in `clouds` (front end from `frontend`)."""
     closer = _MemoVerify(build_loop_closer(config, frontend.descriptor, _SharedClouds(clouds)), memo)
-    backend = build_backend(config, _ReplaySampler(keyframes), closer, PoseGraph(config.graph, mode=config.mode),
-                            len(frontend), frontend.name, local_maps=False)  # local maps: among the shared clouds
+    backend = build_backend(
+        config,
+        _ReplaySampler(keyframes),
+        closer,
+        PoseGraph(config.graph, mode=config.mode),
+        len(frontend),
+        frontend.name,
+        local_maps=False,
+    )  # local maps: among the shared clouds
     times = frontend.sequence.times
     for i in range(len(frontend)):
         backend.add_frame(frontend.odometry[i], frontend.descriptors[i], None, frontend.gt_poses[i], times[i])
@@ -92,9 +105,14 @@ def replay(config: RunConfig, frontend: CachedFrontEnd, clouds: Any, keyframes: 
 def _row(threshold: float, result: RunResult) -> SweepRow:
     trajectory = result.full_rate_evaluation.trajectory
     radius = result.config.loop_radius
-    return SweepRow(threshold, len(result.loops), len(result.accepted_loops),
-                    int(sum(c.gt_distance > radius for c in result.accepted_loops)),
-                    trajectory.after.ate_translation_m, trajectory.improvement.translation)
+    return SweepRow(
+        threshold,
+        len(result.loops),
+        len(result.accepted_loops),
+        int(sum(c.gt_distance > radius for c in result.accepted_loops)),
+        trajectory.after.ate_translation_m,
+        trajectory.improvement.translation,
+    )
 
 
 def threshold_sweep(result: RunResult, frontend: CachedFrontEnd, clouds: Any) -> tuple[SweepRow, ...]:
@@ -103,8 +121,10 @@ def threshold_sweep(result: RunResult, frontend: CachedFrontEnd, clouds: Any) ->
     config = result.config
     # verification outcomes only: a loop the run's graph left out as inconsistent passed verification, and the
     # replay's graph decides again on its own set of loops
-    memo = {(c.query, c.match): replace(c, accepted=True, rejected="") if c.rejected == "inconsistent" else c
-            for c in result.loops}
+    memo = {
+        (c.query, c.match): replace(c, accepted=True, rejected="") if c.rejected == "inconsistent" else c
+        for c in result.loops
+    }
     rows = []
     for threshold in sweep_thresholds(config.similarity_threshold):
         if threshold == round(config.similarity_threshold, 6):

@@ -9,7 +9,7 @@ claim holds, and a claim that does not hold is reported as not holding.
 
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -88,7 +88,7 @@ def stable_and_sensitive(accuracy: PairedVerdict, memory: PairedVerdict) -> str:
 
 
 def no_universal(scenarios: Mapping[str, Mapping[str, Sequence[float]]]) -> tuple[str, dict[str, list[str]]]:
-    """"No constant interval suits every scenario" from each scenario's accuracy per constant (paired over the
+    """ "No constant interval suits every scenario" from each scenario's accuracy per constant (paired over the
     scenario's seeds; higher is better). A constant is beaten in a scenario when the best one there (by mean) is
     separably better. Holds when every constant is beaten somewhere; does not hold when one constant is the best
     by mean in every scenario; otherwise not separable. Returns the verdict and where each constant was beaten."""

@@ -23,9 +23,10 @@ import logging
 import os
 import tempfile
 import time
+from collections.abc import Callable, Iterable, Iterator
 from importlib import metadata
 from pathlib import Path
-from typing import Any, BinaryIO, Callable, Iterable, Iterator, NamedTuple
+from typing import Any, BinaryIO, NamedTuple
 
 import numpy as np
 
@@ -69,8 +70,13 @@ def _stamp(path: str) -> list[int]:
 
 def _memo_entry(entry: Any) -> bool:
     """True for a [size, mtime_ns, inode, ctime_ns, sha256] entry of a DigestIndex."""
-    return (isinstance(entry, list) and len(entry) == 5 and all(type(v) is int for v in entry[:4])
-            and isinstance(entry[4], str) and len(entry[4]) == 64)
+    return (
+        isinstance(entry, list)
+        and len(entry) == 5
+        and all(type(v) is int for v in entry[:4])
+        and isinstance(entry[4], str)
+        and len(entry[4]) == 64
+    )
 
 
 class DigestIndex:
@@ -126,8 +132,9 @@ class DigestIndex:
         self._memo, self.changed = current, False
 
 
-def input_identity(files: Iterable[str | os.PathLike], root: str | os.PathLike | None = None,
-                   cache: "CacheDir | None" = None) -> list[list]:
+def input_identity(
+    files: Iterable[str | os.PathLike], root: str | os.PathLike | None = None, cache: CacheDir | None = None
+) -> list[list]:
     """[name, SHA-256 of the bytes] of every file (a folder, e.g. a ROS2 bag: of every file below it, named
     FOLDER/PATH); the name is relative to `root` when the file is under it, so the identity follows the data,
     not where it is (a moved or copied folder keeps it, any change to a file's bytes does not). `cache`
@@ -135,9 +142,12 @@ def input_identity(files: Iterable[str | os.PathLike], root: str | os.PathLike |
     prefix = None if root is None else os.path.join(os.fspath(root), "")
     out = []
     for given in (os.fspath(f) for f in files):
-        name = given[len(prefix):] if prefix and given.startswith(prefix) else os.path.basename(given)
-        inside = sorted(p.relative_to(given).as_posix() for p in Path(given).rglob("*") if p.is_file()) \
-            if os.path.isdir(given) else [""]
+        name = given[len(prefix) :] if prefix and given.startswith(prefix) else os.path.basename(given)
+        inside = (
+            sorted(p.relative_to(given).as_posix() for p in Path(given).rglob("*") if p.is_file())
+            if os.path.isdir(given)
+            else [""]
+        )
         for part in inside:
             file = os.path.join(given, part) if part else given
             try:
@@ -150,7 +160,7 @@ def input_identity(files: Iterable[str | os.PathLike], root: str | os.PathLike |
     return out
 
 
-def sequence_identity(sequence: Any, cache: "CacheDir | None" = None) -> list[list]:
+def sequence_identity(sequence: Any, cache: CacheDir | None = None) -> list[list]:
     """Identity of a ScanSequence's scans (`path`, `scan_files`, and the `selection` within those files a bag
     sequence has: topic, messages), of the files holding their per-point times (`point_time_files`) and of
     their frame times (deskewing uses both; times edited beside the same scans must not reuse the old
@@ -183,7 +193,7 @@ def named_files(value: Any) -> list[str]:
     return [os.fspath(value)] if isinstance(value, (str, os.PathLike)) and os.path.isfile(value) else []
 
 
-def sequence_inputs(sequence: Any, files: Iterable[str | os.PathLike] = (), cache: "CacheDir | None" = None) -> dict:
+def sequence_inputs(sequence: Any, files: Iterable[str | os.PathLike] = (), cache: CacheDir | None = None) -> dict:
     """The inputs part of the key of an entry computed from `sequence` and `files` (e.g. weights, a pose file)."""
     return {"scans": sequence_identity(sequence, cache), "files": input_identity(files, cache=cache)}
 
@@ -202,8 +212,11 @@ def library_versions(names: Iterable[str]) -> dict[str, str | None]:
 def cache_key(kind: str, inputs: Any, config: Any, code: str, libraries: Iterable[str] = ()) -> str:
     """24 hex digits hashing the kind of entry, its inputs' identity, its configuration, the fingerprint `code` of
     msa-slam's code that computes it (msa_slam.io.fingerprint.code_fingerprint) and the versions of `libraries`."""
-    blob = json.dumps({"kind": kind, "inputs": inputs, "config": config, "code": code,
-                       "libraries": library_versions(libraries)}, sort_keys=True, default=str)
+    blob = json.dumps(
+        {"kind": kind, "inputs": inputs, "config": config, "code": code, "libraries": library_versions(libraries)},
+        sort_keys=True,
+        default=str,
+    )
     return hashlib.sha256(blob.encode()).hexdigest()[:24]
 
 
@@ -366,5 +379,10 @@ class CacheDir:
         self.writable = False
         culprit = exc.filename and Path(os.fsdecode(exc.filename)).parent != path.parent  # e.g. a parent folder
         reason = exc.strerror or (os.strerror(errno.ENOSPC) if is_disk_full(exc, path) else exc)
-        log.warning("cache: cannot write %s (%s%s%s); continuing without the cache", path,
-                    f"{os.fsdecode(exc.filename)}: " if culprit else "", reason, needs)
+        log.warning(
+            "cache: cannot write %s (%s%s%s); continuing without the cache",
+            path,
+            f"{os.fsdecode(exc.filename)}: " if culprit else "",
+            reason,
+            needs,
+        )

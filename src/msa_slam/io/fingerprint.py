@@ -15,8 +15,8 @@ from __future__ import annotations
 import ast
 import functools
 import hashlib
+from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Iterable, Iterator
 
 import msa_slam
 
@@ -31,14 +31,15 @@ def code_fingerprint(modules: Iterable[str], data: Iterable[str] = (), package_d
     return _fingerprint(tuple(sorted(modules)), tuple(sorted(data)), package_dir or PACKAGE_DIR)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _fingerprint(modules: tuple[str, ...], data: tuple[str, ...], package_dir: Path) -> str:
     files = {_module_file(name, package_dir) for name in import_closure(modules, package_dir)}
     files |= {path for pattern in data for path in package_dir.glob(pattern) if path.is_file()}
     digest = hashlib.sha256()
     for path in sorted(files, key=lambda p: p.relative_to(package_dir).as_posix()):
-        digest.update(f"{path.relative_to(package_dir).as_posix()}\0{hashlib.sha256(path.read_bytes()).hexdigest()}\n"
-                      .encode())
+        digest.update(
+            f"{path.relative_to(package_dir).as_posix()}\0{hashlib.sha256(path.read_bytes()).hexdigest()}\n".encode()
+        )
     return digest.hexdigest()
 
 
@@ -86,7 +87,7 @@ def _package_modules(name: str, package_dir: Path) -> list[str]:
     return [".".join((PACKAGE, *(parts[:-1] if parts[-1] == "__init__" else parts))) for parts in found]
 
 
-@functools.lru_cache(maxsize=None)  # each file parsed once per process, whichever fingerprints include it
+@functools.cache  # each file parsed once per process, whichever fingerprints include it
 def _imports(name: str, package_dir: Path) -> list[str]:
     """The msa_slam modules and packages that module `name` imports anywhere in its code (`from P import N`
     counts P, and P.N when N is a module)."""
@@ -97,7 +98,7 @@ def _imports(name: str, package_dir: Path) -> list[str]:
         if isinstance(node, ast.Import):
             named += [alias.name for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
-            base = ".".join(package.split(".")[:len(package.split(".")) - node.level + 1]) if node.level else ""
+            base = ".".join(package.split(".")[: len(package.split(".")) - node.level + 1]) if node.level else ""
             module = ".".join(part for part in (base, node.module) if part)
             named += [module, *(f"{module}.{alias.name}" for alias in node.names)]
     return [module for module in named if _source(module, package_dir) is not None]

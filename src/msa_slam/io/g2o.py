@@ -9,7 +9,7 @@ order to g2o's (translation, rotation), as gtsam's own writer does."""
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import gtsam
 import numpy as np

@@ -7,8 +7,8 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from collections.abc import Collection, Iterable, Mapping
 from pathlib import Path
-from typing import Collection, Iterable, Mapping
 
 import msa_slam
 from msa_slam.io.digest import file_sha256
@@ -38,18 +38,27 @@ def result_kind(path: Path) -> str | None:
     return None if meta is None else meta.get("kind")
 
 
-def write_marker(folder: Path, kind: str, exclude: Collection[str] = (), digests: Mapping[str, str] | None = None
-                 ) -> None:
+def write_marker(
+    folder: Path, kind: str, exclude: Collection[str] = (), digests: Mapping[str, str] | None = None
+) -> None:
     """Mark `folder` as msa-slam's result of `kind`, listing the files and empty folders in it now (but
     `exclude`) as the ones msa-slam wrote, with a digest of each file: an --overwrite removes nothing else
     (foreign_files) and nothing changed since (edited_files). `digests` keeps the recorded digest of files
     changed since (a resume leaves a user's edit in place and must not take it for msa-slam's content)."""
     folder, exclude, kept = Path(folder), set(exclude), dict(digests or {})
     files = [name for name in _files(folder) if name not in exclude]
-    (folder / MARKER).write_text(json.dumps({"tool": "msa-slam", "kind": kind, "version": msa_slam.__version__,
-                                             "files": files,
-                                             "digests": {name: kept.get(name) or _digest(folder / name)
-                                                         for name in files if not name.endswith("/")}}) + "\n")
+    (folder / MARKER).write_text(
+        json.dumps(
+            {
+                "tool": "msa-slam",
+                "kind": kind,
+                "version": msa_slam.__version__,
+                "files": files,
+                "digests": {name: kept.get(name) or _digest(folder / name) for name in files if not name.endswith("/")},
+            }
+        )
+        + "\n"
+    )
 
 
 def recorded_digests(folder: Path) -> dict[str, str]:

@@ -40,8 +40,10 @@ class OutputLock:
             content = os.pread(fd, 4096, 0)
             if content and not is_stamp(content):
                 os.close(fd)
-                raise OutputError(f"{self.path}: a file msa-slam did not write is where it keeps its lock; "
-                                  "move it elsewhere or choose another --out")
+                raise OutputError(
+                    f"{self.path}: a file msa-slam did not write is where it keeps its lock; "
+                    "move it elsewhere or choose another --out"
+                )
             self.fd = fd
             try:
                 os.ftruncate(fd, 0)
@@ -53,8 +55,10 @@ class OutputLock:
 
     def acquire(self) -> None:
         if not self.try_acquire():
-            raise OutputError(f"{self.path.parent / self.path.name[1:-5]}: another msa-slam run is writing "
-                              "this output folder; wait for it or choose another --out")
+            raise OutputError(
+                f"{self.path.parent / self.path.name[1:-5]}: another msa-slam run is writing "
+                "this output folder; wait for it or choose another --out"
+            )
 
     def release(self) -> None:
         if self.fd is not None:

@@ -36,21 +36,39 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
 
-from msa_slam.io.default_folders import (DEFAULT_RESULTS, LATEST, claim_timestamped, clean_default_parent,
-                                         point_latest)
-from msa_slam.io.marker import (MARKER, edited_files, foreign_files, is_result_folder, listed_files, recorded_digests,
-                                write_marker)
+from msa_slam.io.default_folders import DEFAULT_RESULTS, LATEST, claim_timestamped, clean_default_parent, point_latest
+from msa_slam.io.marker import (
+    MARKER,
+    edited_files,
+    foreign_files,
+    is_result_folder,
+    listed_files,
+    recorded_digests,
+    write_marker,
+)
 from msa_slam.io.output_lock import OutputLock
 from msa_slam.io.staging import clean_stale, discard, staged_dir
 from msa_slam.io.write_errors import OutputError, disk_full_error, is_disk_full
 
-__all__ = ["DEFAULT_RESULTS", "MARKER", "OutputError", "ResultFolder", "claim_timestamped", "is_result_folder",
-           "open_result_folder", "out_path", "refuse_working_directory", "some_names", "staged_dir",
-           "write_marker"]
+__all__ = [
+    "DEFAULT_RESULTS",
+    "MARKER",
+    "OutputError",
+    "ResultFolder",
+    "claim_timestamped",
+    "is_result_folder",
+    "open_result_folder",
+    "out_path",
+    "refuse_working_directory",
+    "some_names",
+    "staged_dir",
+    "write_marker",
+]
+
 
 def _check_target(target: Path, kind: str, overwrite: bool, resume: bool, locked: bool = True) -> None:
     """Refuse a target that is not ours, or ours but not to be replaced; say what to do instead. A previous
@@ -65,15 +83,18 @@ def _check_target(target: Path, kind: str, overwrite: bool, resume: bool, locked
     if not any(target.iterdir()):
         return
     if not is_result_folder(target):
-        raise OutputError(f"--out {target}: exists and is not a msa-slam result folder (no {MARKER}); "
-                          "msa-slam never replaces files it did not write: choose a new or empty folder")
+        raise OutputError(
+            f"--out {target}: exists and is not a msa-slam result folder (no {MARKER}); "
+            "msa-slam never replaces files it did not write: choose a new or empty folder"
+        )
     if not locked:
         return
     if overwrite:
         _refuse_foreign(target)
     elif not (resume and is_result_folder(target, kind)):
-        raise OutputError(f"--out {target}: holds a previous msa-slam result; pass --overwrite to replace it "
-                          "or choose another --out")
+        raise OutputError(
+            f"--out {target}: holds a previous msa-slam result; pass --overwrite to replace it or choose another --out"
+        )
 
 
 def _refuse_foreign(target: Path) -> None:
@@ -81,16 +102,20 @@ def _refuse_foreign(target: Path) -> None:
     as msa-slam wrote them (marker.edited_files)."""
     foreign = foreign_files(target)
     if foreign:
-        raise OutputError(f"--out {target}: holds files msa-slam did not write ({some_names(foreign)}); "
-                          "--overwrite would remove them: move them elsewhere or choose another --out (files of a "
-                          "killed experiment or `compare --seeds` run count too: rerun it without --overwrite to "
-                          "finish it first)")
+        raise OutputError(
+            f"--out {target}: holds files msa-slam did not write ({some_names(foreign)}); "
+            "--overwrite would remove them: move them elsewhere or choose another --out (files of a "
+            "killed experiment or `compare --seeds` run count too: rerun it without --overwrite to "
+            "finish it first)"
+        )
     edited = edited_files(target)
     if edited:
-        raise OutputError(f"--out {target}: holds files changed since msa-slam wrote them ({some_names(edited)}); "
-                          "--overwrite would lose the changes: copy them elsewhere or choose another --out (a killed "
-                          "experiment or `compare --seeds` run leaves its reports so too: rerun it without "
-                          "--overwrite to finish it first)")
+        raise OutputError(
+            f"--out {target}: holds files changed since msa-slam wrote them ({some_names(edited)}); "
+            "--overwrite would lose the changes: copy them elsewhere or choose another --out (a killed "
+            "experiment or `compare --seeds` run leaves its reports so too: rerun it without "
+            "--overwrite to finish it first)"
+        )
 
 
 def some_names(names: list[str]) -> str:
@@ -148,8 +173,10 @@ class ResultFolder:
         edited = edited_files(self.path)
         rewritten = [name for name in edited if not any(name.startswith(f"{sub}/") for sub in grows)]
         if rewritten:
-            raise OutputError(f"--out {self.path}: holds files changed since msa-slam wrote them ({some_names(rewritten)}); "
-                              "this run would replace them: copy them elsewhere first or choose another --out")
+            raise OutputError(
+                f"--out {self.path}: holds files changed since msa-slam wrote them ({some_names(rewritten)}); "
+                "this run would replace them: copy them elsewhere first or choose another --out"
+            )
         recorded = recorded_digests(self.path)
         self._edited = {name: ((self.path / name).lstat().st_mtime_ns, recorded[name]) for name in edited}
         self._not_ours = {name: (self.path / name).lstat().st_mtime_ns for name in foreign_files(self.path)}
@@ -182,8 +209,12 @@ class ResultFolder:
 
     def _whole_unit(self, name: str, listed_units: set[str | None]) -> bool:
         unit = self._unit(name)
-        return (unit is not None and unit not in listed_units and bool(self._unit_record)
-                and (self.path / unit / self._unit_record).is_file())
+        return (
+            unit is not None
+            and unit not in listed_units
+            and bool(self._unit_record)
+            and (self.path / unit / self._unit_record).is_file()
+        )
 
 
 def out_path(out: str | os.PathLike) -> Path:
@@ -211,8 +242,13 @@ def _out_target(out: str | os.PathLike) -> Path:
     return target.resolve() if target.is_symlink() else target
 
 
-def _check_output(out: str | os.PathLike | None, kind: str, default_parent: str | os.PathLike,
-                  overwrite: bool = False, resume: bool = False) -> None:
+def _check_output(
+    out: str | os.PathLike | None,
+    kind: str,
+    default_parent: str | os.PathLike,
+    overwrite: bool = False,
+    resume: bool = False,
+) -> None:
     """open_result_folder's checks of `out`, made again under its lock (but the working directory's: an output
     that grows in place (`resume`) may be the folder the user works in, one that replaces it may not)."""
     if out is None:
@@ -243,8 +279,13 @@ def _lock_output(out: str | os.PathLike | None, kind: str, parent: Path) -> Resu
 
 
 @contextlib.contextmanager
-def open_result_folder(out: str | os.PathLike | None, kind: str, default_parent: str | os.PathLike,
-                       overwrite: bool = False, resume: bool = False) -> Iterator[ResultFolder]:
+def open_result_folder(
+    out: str | os.PathLike | None,
+    kind: str,
+    default_parent: str | os.PathLike,
+    overwrite: bool = False,
+    resume: bool = False,
+) -> Iterator[ResultFolder]:
     """Check and lock the output of a command before its work starts; release the lock at the end.
 
     `out=None` picks a new timestamped folder under `default_parent` (and points `latest` at it).
@@ -302,8 +343,11 @@ def _remove_if_bare(folder: ResultFolder) -> None:
     but the marker (an input error found once the data was open) is removed, with the `latest` link to it:
     nothing half-written stays behind. A folder holding results (finished seeds or cells) is kept to resume."""
     path = folder.path
-    if path.is_symlink() or not path.is_dir() or any(p.name != MARKER and (p.is_symlink() or not p.is_dir())
-                                                     for p in path.rglob("*")):
+    if (
+        path.is_symlink()
+        or not path.is_dir()
+        or any(p.name != MARKER and (p.is_symlink() or not p.is_dir()) for p in path.rglob("*"))
+    ):
         return
     shutil.rmtree(path)
     link = path.parent / LATEST

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -46,8 +46,9 @@ def read_number_rows(path: Path) -> list[tuple[int, list[float]]]:
     return rows
 
 
-def read_poses(path: str | os.PathLike, fmt: str = "auto",
-               rotation_tolerance: float = ROTATION_TOLERANCE) -> tuple[np.ndarray, np.ndarray | None]:
+def read_poses(
+    path: str | os.PathLike, fmt: str = "auto", rotation_tolerance: float = ROTATION_TOLERANCE
+) -> tuple[np.ndarray, np.ndarray | None]:
     """Read a pose file; return (poses (N,4,4), timestamps or None). `fmt`: auto, kitti or tum.
 
     A TUM file's times must be finite and increase strictly and its quaternions be of unit norm (within
@@ -62,9 +63,7 @@ def read_poses(path: str | os.PathLike, fmt: str = "auto",
     if fmt == "auto":
         fmt = {12: "kitti", 8: "tum"}.get(width, "")
         if not fmt:
-            raise InputError(
-                f"{path}:{rows[0][0]}: {width} values a line; expected 12 (KITTI) or 8 (TUM)"
-            )
+            raise InputError(f"{path}:{rows[0][0]}: {width} values a line; expected 12 (KITTI) or 8 (TUM)")
     expected = 12 if fmt == "kitti" else 8
     for lineno, vals in rows:
         if len(vals) != expected:
@@ -85,8 +84,7 @@ def read_poses(path: str | os.PathLike, fmt: str = "auto",
     return poses, times
 
 
-def check_times(times: ArrayLike, where: Callable[[int], str],
-                lines: Sequence[int] | None = None) -> np.ndarray:
+def check_times(times: ArrayLike, where: Callable[[int], str], lines: Sequence[int] | None = None) -> np.ndarray:
     """`times` as a float64 array if finite and strictly increasing, else an InputError naming `where(i)`
     (and, given the file `lines` the times were read from, the lines of the bad time and the one before).
 
@@ -106,8 +104,10 @@ def check_times(times: ArrayLike, where: Callable[[int], str],
     if len(steps):
         i = int(steps[0]) + 1
         what = "repeats" if values[i] == values[i - 1] else "is before"
-        raise InputError(f"{where(i)}: time {float(values[i])!r} {what} the previous one ({float(values[i - 1])!r}"
-                         f"{on_line(i - 1)}){on_line(i)}; times must increase strictly")
+        raise InputError(
+            f"{where(i)}: time {float(values[i])!r} {what} the previous one ({float(values[i - 1])!r}"
+            f"{on_line(i - 1)}){on_line(i)}; times must increase strictly"
+        )
     return values
 
 
@@ -118,8 +118,10 @@ def _unit_quaternions(path: Path, quats: np.ndarray, lines: Sequence[int]) -> np
     bad = np.flatnonzero(~(np.abs(norms - 1.0) <= QUATERNION_TOLERANCE))  # NaN norms compare False: refused
     if len(bad):
         k = int(bad[0])
-        raise InputError(f"{path}:{lines[k]}: quaternion (qx qy qz qw) {quats[k].tolist()} has norm {norms[k]:.6g}, "
-                         f"not 1 (allowed deviation {QUATERNION_TOLERANCE:g}); TUM columns are {TUM_COLUMNS}")
+        raise InputError(
+            f"{path}:{lines[k]}: quaternion (qx qy qz qw) {quats[k].tolist()} has norm {norms[k]:.6g}, "
+            f"not 1 (allowed deviation {QUATERNION_TOLERANCE:g}); TUM columns are {TUM_COLUMNS}"
+        )
     return quats
 
 
@@ -138,8 +140,9 @@ def format_tum(poses: np.ndarray, times: np.ndarray | None = None) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_poses(path: str | os.PathLike, poses: np.ndarray, fmt: str = "kitti",
-                times: np.ndarray | None = None) -> None:
+def write_poses(
+    path: str | os.PathLike, poses: np.ndarray, fmt: str = "kitti", times: np.ndarray | None = None
+) -> None:
     """Write poses atomically in KITTI or TUM format."""
     poses = validate_poses(poses, where=str(path))
     if fmt == "kitti":

@@ -13,8 +13,21 @@ import msa_slam
 from msa_slam.io.cache import library_versions
 
 # The distributions whose versions change results (odometry, registration, graph, evaluation, figures).
-LIBRARIES = ("numpy", "scipy", "numba", "gtsam", "kiss-icp", "small_gicp", "evo", "open3d", "torch", "matplotlib",
-             "pydantic", "rosbags", "rerun-sdk")
+LIBRARIES = (
+    "numpy",
+    "scipy",
+    "numba",
+    "gtsam",
+    "kiss-icp",
+    "small_gicp",
+    "evo",
+    "open3d",
+    "torch",
+    "matplotlib",
+    "pydantic",
+    "rosbags",
+    "rerun-sdk",
+)
 
 
 def cpu_model() -> str:

@@ -14,8 +14,8 @@ import os
 import shutil
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 from msa_slam.io.marker import is_result_folder, write_marker
 from msa_slam.io.write_errors import write_error
@@ -220,8 +220,11 @@ def _restore_displaced(target: Path) -> None:
     """Put back a previous result moved aside by a swap that was killed before the new one arrived."""
     if target.exists() or target.is_symlink():
         return
-    displaced = [p for p in leftovers(target.parent, target.name, ("old",))
-                 if is_result_folder(p) and (abandoned(p) or not (p / WRITER).exists())]
+    displaced = [
+        p
+        for p in leftovers(target.parent, target.name, ("old",))
+        if is_result_folder(p) and (abandoned(p) or not (p / WRITER).exists())
+    ]
     if displaced:
         newest = max(displaced, key=lambda p: p.stat().st_mtime_ns)
         (newest / WRITER).unlink(missing_ok=True)

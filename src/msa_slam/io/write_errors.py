@@ -37,13 +37,15 @@ def _free_bytes(path: Path) -> int | None:
         return None
 
 
-def disk_full_error(exc: OSError, path: Path, written: Path | None = None,
-                    advice: str = "choose another --out") -> OutputError:
+def disk_full_error(
+    exc: OSError, path: Path, written: Path | None = None, advice: str = "choose another --out"
+) -> OutputError:
     """One line for a full disk: the path, what was written so far (a lower bound of the need), what is free."""
     free = _free_bytes(path) or 0
     need = f"; at least {_folder_bytes(written) / 2**20:.1f} MiB needed" if written and written.exists() else ""
-    return OutputError(f"{path}: no space left on the device ({free / 2**20:.1f} MiB free{need}); "
-                       f"free some space or {advice}")
+    return OutputError(
+        f"{path}: no space left on the device ({free / 2**20:.1f} MiB free{need}); free some space or {advice}"
+    )
 
 
 def is_disk_full(exc: OSError, path: Path) -> bool:
@@ -55,8 +57,9 @@ def is_disk_full(exc: OSError, path: Path) -> bool:
     return free is not None and free < NEARLY_FULL
 
 
-def write_error(exc: OSError, path: Path, written: Path | None = None, writing: bool = False,
-                advice: str = "choose another --out") -> OutputError | None:
+def write_error(
+    exc: OSError, path: Path, written: Path | None = None, writing: bool = False, advice: str = "choose another --out"
+) -> OutputError | None:
     """The one line for `exc` raised while making `path` (staged in `written`), or None when it is not a
     failed write: a full disk, or a folder that cannot be written (permissions, read-only, I/O error) when the
     error names a file under `path` or `written`. `writing`: the caller only wrote (no input was read), so any
@@ -64,8 +67,11 @@ def write_error(exc: OSError, path: Path, written: Path | None = None, writing: 
     if is_disk_full(exc, path):
         return disk_full_error(exc, path, written, advice)
     filename = Path(os.fsdecode(exc.filename)).absolute() if exc.filename else None
-    inside = filename is not None and any(filename == Path(p).absolute() or Path(p).absolute() in filename.parents
-                                          for p in (path, written) if p is not None)
+    inside = filename is not None and any(
+        filename == Path(p).absolute() or Path(p).absolute() in filename.parents
+        for p in (path, written)
+        if p is not None
+    )
     if writing or (exc.errno in _CANNOT_WRITE and inside):
         what = f"{filename}: " if filename is not None and filename != Path(path).absolute() else ""
         reason = exc.strerror.lower() if exc.strerror else str(exc)

@@ -25,8 +25,15 @@ def read_yaml(path: Path) -> Any:
         context = ""
         if exc.problem and exc.context:
             start = exc.context_mark
-            context = f" ({exc.context}" + (f" started at line {start.line + 1}, column {start.column + 1}"
-                                            if start and start is not mark else "") + ")"
+            context = (
+                f" ({exc.context}"
+                + (
+                    f" started at line {start.line + 1}, column {start.column + 1}"
+                    if start and start is not mark
+                    else ""
+                )
+                + ")"
+            )
         raise InputError(f"{path}: not valid YAML{where}: {problem}{context}") from None
     except yaml.YAMLError as exc:  # e.g. a control character: no line and column, only a position
         raise InputError(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from None

@@ -4,5 +4,12 @@ from msa_slam.odometry.cache import Odometry, OdometryCache, sequence_odometry
 from msa_slam.odometry.kiss import KissOdometry, PosesFromFile
 from msa_slam.odometry.noisy import NoisyOdometry, ReplayedOdometry
 
-__all__ = ["KissOdometry", "NoisyOdometry", "Odometry", "OdometryCache", "PosesFromFile", "ReplayedOdometry",
-           "sequence_odometry"]
+__all__ = [
+    "KissOdometry",
+    "NoisyOdometry",
+    "Odometry",
+    "OdometryCache",
+    "PosesFromFile",
+    "ReplayedOdometry",
+    "sequence_odometry",
+]

@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -26,8 +27,9 @@ class Odometry(Protocol):
 
     config: Mapping[str, Any]
 
-    def register(self, points: np.ndarray, timestamps: np.ndarray | None = None,
-                 time: float | None = None) -> np.ndarray: ...
+    def register(
+        self, points: np.ndarray, timestamps: np.ndarray | None = None, time: float | None = None
+    ) -> np.ndarray: ...
 
 
 class OdometryCache:
@@ -37,8 +39,12 @@ class OdometryCache:
         self.store = cache if isinstance(cache, CacheDir) else CacheDir(cache)
 
     @staticmethod
-    def key(sequence: ScanSequence, config: Mapping[str, Any], extra_inputs: Iterable[str | os.PathLike] = (),
-            store: CacheDir | None = None) -> str:
+    def key(
+        sequence: ScanSequence,
+        config: Mapping[str, Any],
+        extra_inputs: Iterable[str | os.PathLike] = (),
+        store: CacheDir | None = None,
+    ) -> str:
         """Key of the odometry of `sequence` (the identity of the scans it selects: another --first/--jump/-n
         is another entry) with `config` and `extra_inputs` (e.g. the pose file the odometry reads), computed
         by the code of ODOMETRY_CODE; `store` memoises the files' digests."""
@@ -92,9 +98,15 @@ class OdometryCache:
         return self.store.save(f"odometry-{key}", validate_poses(poses, "odometry poses"))
 
 
-def sequence_odometry(sequence: ScanSequence, odometry: Odometry, cache: OdometryCache | None = None,
-                      quiet: bool = False, extra_inputs: Iterable[str | os.PathLike] = (),
-                      frames: Iterable[Frame] | None = None, label: str = "odometry") -> Computed:
+def sequence_odometry(
+    sequence: ScanSequence,
+    odometry: Odometry,
+    cache: OdometryCache | None = None,
+    quiet: bool = False,
+    extra_inputs: Iterable[str | os.PathLike] = (),
+    frames: Iterable[Frame] | None = None,
+    label: str = "odometry",
+) -> Computed:
     """(N, 4, 4) odometry poses of every frame of `sequence`, whether they came from `cache` (which then
     also restores the odometry's `unregistered_frames`, so a cached run reports them as a fresh one does) and
     the time (ms) registering each frame took (as recorded in the cache when replayed).

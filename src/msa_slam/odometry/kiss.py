@@ -15,8 +15,8 @@ from kiss_icp.config.parser import KISSConfig
 from kiss_icp.kiss_icp import KissICP
 
 from msa_slam.errors import InputError
-from msa_slam.odometry.deskew import deskew, se3_log
 from msa_slam.io.poses import read_poses
+from msa_slam.odometry.deskew import deskew, se3_log
 from msa_slam.types import as_points
 
 log = logging.getLogger(__name__)
@@ -33,8 +33,12 @@ _process_threads: int | None = None  # KISS-ICP's thread count, fixed for the wh
 
 def _number(name: str, value: Any, low: float = 0.0, strict: bool = True) -> float:
     """`value` as a finite float > low (>= low unless strict), else an InputError naming the parameter."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or (value <= low if strict else value < low):
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not math.isfinite(value)
+        or (value <= low if strict else value < low)
+    ):
         bound = f"> {low}" if strict else f">= {low}"
         raise InputError(f"odometry {name}={value!r}: must be a finite number {bound}")
     return float(value)
@@ -60,11 +64,20 @@ class KissOdometry:
     count once per process, at its first use, so a later instance asking for another count is refused.
     """
 
-    def __init__(self, max_range: float = 100.0, min_range: float = 0.0, voxel_size: float | None = None,
-                 deskew: bool = False, num_threads: int = DEFAULT_THREADS, max_points_per_voxel: int = 20,
-                 max_num_iterations: int = 500, convergence_criterion: float = 1e-4,
-                 initial_threshold: float = 2.0, min_motion_th: float = 0.1,
-                 fixed_threshold: float | None = None) -> None:
+    def __init__(
+        self,
+        max_range: float = 100.0,
+        min_range: float = 0.0,
+        voxel_size: float | None = None,
+        deskew: bool = False,
+        num_threads: int = DEFAULT_THREADS,
+        max_points_per_voxel: int = 20,
+        max_num_iterations: int = 500,
+        convergence_criterion: float = 1e-4,
+        initial_threshold: float = 2.0,
+        min_motion_th: float = 0.1,
+        fixed_threshold: float | None = None,
+    ) -> None:
         max_range = _number("max_range", max_range)
         min_range = _number("min_range", min_range, strict=False)
         if not min_range < max_range:
@@ -76,15 +89,18 @@ class KissOdometry:
             data=DataConfig(max_range=max_range, min_range=min_range, deskew=deskew),
             mapping=MappingConfig(
                 voxel_size=max_range / 100.0 if voxel_size is None else _number("voxel_size", voxel_size),
-                max_points_per_voxel=_count("max_points_per_voxel", max_points_per_voxel, 1)),
+                max_points_per_voxel=_count("max_points_per_voxel", max_points_per_voxel, 1),
+            ),
             registration=RegistrationConfig(
                 max_num_iterations=_count("max_num_iterations", max_num_iterations, 1),
                 convergence_criterion=_number("convergence_criterion", convergence_criterion),
-                max_num_threads=_count("num_threads", num_threads, 0)),
+                max_num_threads=_count("num_threads", num_threads, 0),
+            ),
             adaptive_threshold=AdaptiveThresholdConfig(
                 fixed_threshold=None if fixed_threshold is None else _number("fixed_threshold", fixed_threshold),
                 initial_threshold=_number("initial_threshold", initial_threshold),
-                min_motion_th=_number("min_motion_th", min_motion_th, strict=False)),
+                min_motion_th=_number("min_motion_th", min_motion_th, strict=False),
+            ),
         )
         _claim_threads(config.registration.max_num_threads)
         self._icp = KissICP(config)
@@ -98,14 +114,19 @@ class KissOdometry:
         """Every constructor argument with its effective value: `KissOdometry(**params)` rebuilds this setup
         (what a re-loadable config.yaml should record as odometry_params)."""
         c = self._icp.config
-        return {"max_range": c.data.max_range, "min_range": c.data.min_range, "voxel_size": c.mapping.voxel_size,
-                "deskew": c.data.deskew, "num_threads": c.registration.max_num_threads,
-                "max_points_per_voxel": c.mapping.max_points_per_voxel,
-                "max_num_iterations": c.registration.max_num_iterations,
-                "convergence_criterion": c.registration.convergence_criterion,
-                "initial_threshold": c.adaptive_threshold.initial_threshold,
-                "min_motion_th": c.adaptive_threshold.min_motion_th,
-                "fixed_threshold": c.adaptive_threshold.fixed_threshold}
+        return {
+            "max_range": c.data.max_range,
+            "min_range": c.data.min_range,
+            "voxel_size": c.mapping.voxel_size,
+            "deskew": c.data.deskew,
+            "num_threads": c.registration.max_num_threads,
+            "max_points_per_voxel": c.mapping.max_points_per_voxel,
+            "max_num_iterations": c.registration.max_num_iterations,
+            "convergence_criterion": c.registration.convergence_criterion,
+            "initial_threshold": c.adaptive_threshold.initial_threshold,
+            "min_motion_th": c.adaptive_threshold.min_motion_th,
+            "fixed_threshold": c.adaptive_threshold.fixed_threshold,
+        }
 
     @property
     def config(self) -> dict[str, Any]:
@@ -116,8 +137,9 @@ class KissOdometry:
             settings["data"]["deskew_reference"] = "mid-sweep"
         return {"method": "kiss_icp", "kiss_icp_version": kiss_icp.__version__, **settings}
 
-    def register(self, points: np.ndarray, timestamps: np.ndarray | None = None,
-                 time: float | None = None) -> np.ndarray:
+    def register(
+        self, points: np.ndarray, timestamps: np.ndarray | None = None, time: float | None = None
+    ) -> np.ndarray:
         """Register the next scan (sensor frame); return its (4, 4) world-from-LiDAR pose.
 
         With deskew on and per-point `timestamps` (s from the sweep start), the pose is that of mid-sweep,
@@ -135,10 +157,12 @@ class KissOdometry:
         """
         cloud = as_points(points, where=f"odometry frame {self._frames}")
         if self._frames == 0 and timestamps is None and self._icp.config.data.deskew:
-            raise InputError("odometry frame 0: deskew is on but the scan has no per-point times; call "
-                             "without_point_times() first for a source without them (the pipelines do for a "
-                             "FrameSource with point_times=False, see pipeline.frontend.make_odometry) or give "
-                             "deskew=False")
+            raise InputError(
+                "odometry frame 0: deskew is on but the scan has no per-point times; call "
+                "without_point_times() first for a source without them (the pipelines do for a "
+                "FrameSource with point_times=False, see pipeline.frontend.make_odometry) or give "
+                "deskew=False"
+            )
         stamps = None
         if self._icp.config.data.deskew and timestamps is not None:
             stamps = self._point_times(timestamps, len(cloud))
@@ -192,8 +216,10 @@ class KissOdometry:
     def _point_times(self, timestamps: np.ndarray, n_points: int) -> np.ndarray:
         stamps = np.asarray(timestamps, dtype=np.float64).ravel()
         if len(stamps) != n_points or not np.isfinite(stamps).all():
-            raise InputError(f"odometry frame {self._frames}: {len(stamps)} per-point times for {n_points} "
-                             "points; deskewing needs one finite time (s) a point")
+            raise InputError(
+                f"odometry frame {self._frames}: {len(stamps)} per-point times for {n_points} "
+                "points; deskewing needs one finite time (s) a point"
+            )
         return stamps
 
     def _sweep_share(self, stamps: np.ndarray, time: float | None) -> float:
@@ -220,12 +246,15 @@ class KissOdometry:
         if not self.unregistered_frames:
             return []
         data, listed = self._icp.config.data, self.unregistered_frames
-        shown = ", ".join(map(str, listed[:MAX_LOGGED_FRAMES])) + (f" and {len(listed) - MAX_LOGGED_FRAMES} more"
-                                                                   if len(listed) > MAX_LOGGED_FRAMES else "")
+        shown = ", ".join(map(str, listed[:MAX_LOGGED_FRAMES])) + (
+            f" and {len(listed) - MAX_LOGGED_FRAMES} more" if len(listed) > MAX_LOGGED_FRAMES else ""
+        )
         which = f"frame{'s' * (len(listed) > 1)} {shown}"
-        return [f"odometry: KISS-ICP could not register {len(listed)} of {frames} frames ({which}): fewer than "
-                f"{MIN_REGISTRATION_POINTS} of their points lie within {data.min_range:g}-{data.max_range:g} m, so "
-                f"their poses were extrapolated at constant velocity"]
+        return [
+            f"odometry: KISS-ICP could not register {len(listed)} of {frames} frames ({which}): fewer than "
+            f"{MIN_REGISTRATION_POINTS} of their points lie within {data.min_range:g}-{data.max_range:g} m, so "
+            f"their poses were extrapolated at constant velocity"
+        ]
 
     def _not_registered(self, in_range: int, n_points: int) -> None:
         """List this frame as not registered, and log it (the first MAX_LOGGED_FRAMES such frames)."""
@@ -240,8 +269,12 @@ class KissOdometry:
                 seen = f"it has only {n_points} point{'s' * (n_points > 1)} ({needs})"
             else:
                 seen = f"only {in_range} of its {n_points} points lie within {span} ({needs})"
-            log.warning("KISS-ICP frame %d: %s, so it was not registered (pose extrapolated at constant velocity)%s",
-                        self._frames, seen, more)
+            log.warning(
+                "KISS-ICP frame %d: %s, so it was not registered (pose extrapolated at constant velocity)%s",
+                self._frames,
+                seen,
+                more,
+            )
 
 
 PARAMETERS = tuple(inspect.signature(KissOdometry).parameters)  # the odometry_params KissOdometry takes
@@ -253,8 +286,10 @@ def _claim_threads(num_threads: int) -> None:
     if _process_threads is None:
         _process_threads = num_threads
     elif _process_threads != num_threads:
-        raise InputError(f"odometry num_threads={num_threads}: KISS-ICP already runs with num_threads="
-                         f"{_process_threads} in this process and cannot change it; use a separate process")
+        raise InputError(
+            f"odometry num_threads={num_threads}: KISS-ICP already runs with num_threads="
+            f"{_process_threads} in this process and cannot change it; use a separate process"
+        )
 
 
 class PosesFromFile:
@@ -277,8 +312,9 @@ class PosesFromFile:
         self.poses = self.poses[rows]
         self.times = None if self.times is None else self.times[rows]
 
-    def register(self, points: np.ndarray | None = None, timestamps: np.ndarray | None = None,
-                 time: float | None = None) -> np.ndarray:
+    def register(
+        self, points: np.ndarray | None = None, timestamps: np.ndarray | None = None, time: float | None = None
+    ) -> np.ndarray:
         """Return the next pose of the file (the scan itself is not needed)."""
         if self._frames >= len(self.poses):
             raise InputError(f"{self.path}: has {len(self.poses)} poses but frame {self._frames} was requested")

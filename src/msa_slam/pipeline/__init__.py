@@ -5,8 +5,9 @@ from msa_slam._lazy import lazy_exports
 
 _EXPORTS = {
     **dict.fromkeys(["FrontEnd", "run"], "driver"),
-    **dict.fromkeys(["OnlineConfig", "RunConfig", "apply_params", "load_config", "make_config",
-                     "make_online_config"], "config"),
+    **dict.fromkeys(
+        ["OnlineConfig", "RunConfig", "apply_params", "load_config", "make_config", "make_online_config"], "config"
+    ),
     **dict.fromkeys(["CachedFrontEnd", "prepare_frontend"], "frontend"),
     "LiveFrontEnd": "live",
 }

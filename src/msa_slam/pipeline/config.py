@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, ClassVar, Literal, Mapping, TypeVar, get_args
+from typing import Any, ClassVar, Literal, TypeVar, get_args
 
-from pydantic import (BaseModel, Field, TypeAdapter, ValidationError, field_serializer, field_validator,
-                      model_validator)
+from pydantic import BaseModel, Field, TypeAdapter, ValidationError, field_serializer, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
 from msa_slam.backend.graph_config import GraphConfig
@@ -110,17 +110,22 @@ class RunConfig(StageConfig):
             if isinstance(params, SamplerParams) and params.NAME == sampler:
                 return data  # validated already (a copy, an assignment to another field)
             if isinstance(params, Mapping) and TAG in params:
-                raise PydanticCustomError("sampler_choice", f"sampler_params: {TAG!r} is not a sampler parameter; "
-                                          "choose the sampler with the config's `sampler` (-p sampler=NAME)")
+                raise PydanticCustomError(
+                    "sampler_choice",
+                    f"sampler_params: {TAG!r} is not a sampler parameter; "
+                    "choose the sampler with the config's `sampler` (-p sampler=NAME)",
+                )
             if isinstance(params, Mapping):
                 data = {**data, "sampler_params": {TAG: sampler, **params}}
         return data
 
     @model_validator(mode="after")
-    def _sampler_checked(self) -> "RunConfig":
+    def _sampler_checked(self) -> RunConfig:
         if not isinstance(self.sampler_params, SamplerParams):  # `sampler` assigned alone: its parameters unchecked
-            raise PydanticCustomError("sampler_choice", f"sampler {self.sampler!r} assigned without its parameters; "
-                                      "build a new config with both (make_config)")
+            raise PydanticCustomError(
+                "sampler_choice",
+                f"sampler {self.sampler!r} assigned without its parameters; build a new config with both (make_config)",
+            )
         return self
 
     @field_validator("descriptor_params", "odometry_params")
@@ -211,11 +216,13 @@ def non_finite(value: Any, where: str) -> str | None:
     parameters (YAML would save it as null), or None."""
     if isinstance(value, float) and not math.isfinite(value):
         return f"{where}={value!r}"
-    items = value.items() if isinstance(value, Mapping) else enumerate(value) if isinstance(value, (list, tuple)) \
-        else ()
+    items = (
+        value.items() if isinstance(value, Mapping) else enumerate(value) if isinstance(value, (list, tuple)) else ()
+    )
     for key, item in items:
-        found = non_finite(item, (f"{where}.{key}" if where else str(key)) if isinstance(value, Mapping)
-                           else f"{where}[{key}]")
+        found = non_finite(
+            item, (f"{where}.{key}" if where else str(key)) if isinstance(value, Mapping) else f"{where}[{key}]"
+        )
         if found is not None:
             return found
     return None
@@ -229,11 +236,14 @@ def check_descriptor(descriptor: str, params: Mapping[str, Any]) -> None:
 
     name = str(descriptor).lower()
     if name not in DESCRIPTOR_NAMES:
-        raise InputError(f"config: descriptor: unknown name {descriptor!r}; choose one of "
-                         f"{', '.join(DESCRIPTOR_NAMES)}")
+        raise InputError(
+            f"config: descriptor: unknown name {descriptor!r}; choose one of {', '.join(DESCRIPTOR_NAMES)}"
+        )
     if name == "precomputed" and "path" not in params:
-        raise InputError("config: descriptor 'precomputed' needs its descriptor file, -p descriptor.path=FILE.npy "
-                         "(one descriptor per scan, e.g. a result folder's descriptors.npy)")
+        raise InputError(
+            "config: descriptor 'precomputed' needs its descriptor file, -p descriptor.path=FILE.npy "
+            "(one descriptor per scan, e.g. a result folder's descriptors.npy)"
+        )
     if name not in OT_NAMES:
         return
     from msa_slam.descriptors.overlap_transformer import WEIGHTS_HINT
@@ -241,8 +251,9 @@ def check_descriptor(descriptor: str, params: Mapping[str, Any]) -> None:
     if "weights" not in params:
         raise InputError(f"config: descriptor {descriptor!r} needs its weights file, -p weights=FILE: {WEIGHTS_HINT}")
     if not Path(str(params["weights"])).is_file():
-        raise InputError(f"config: descriptor {descriptor!r}: weights file not found: {params['weights']}; "
-                         f"expected {WEIGHTS_HINT}")
+        raise InputError(
+            f"config: descriptor {descriptor!r}: weights file not found: {params['weights']}; expected {WEIGHTS_HINT}"
+        )
 
 
 def load_config(path: str | os.PathLike) -> RunConfig:
@@ -265,8 +276,9 @@ def read_config_file(path: str | os.PathLike, model: type[RunConfig] = RunConfig
     data = read_yaml(path) or {}
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a mapping of config keys, got {type(data).__name__}")
-    check_partial(model, data if "sampler" in data else {k: v for k, v in data.items() if k != "sampler_params"},
-                  str(path))
+    check_partial(
+        model, data if "sampler" in data else {k: v for k, v in data.items() if k != "sampler_params"}, str(path)
+    )
     found = None if "sampler" in data else non_finite(data.get("sampler_params"), "sampler_params")
     if found is not None:  # whoever's parameters they are, a NaN is none's
         raise InputError(f"{path}: {found} is not allowed; expected a finite number")
@@ -314,8 +326,9 @@ def apply_overrides(data: dict, params: list[str], model: type[BaseModel]) -> di
         elif not dot:
             bare.append((key, value))
         else:
-            raise InputError(f"--param {key!r}: unknown section {head!r}; use one of "
-                             f"{', '.join([*_SECTIONS, 'verifier', 'graph'])}")
+            raise InputError(
+                f"--param {key!r}: unknown section {head!r}; use one of {', '.join([*_SECTIONS, 'verifier', 'graph'])}"
+            )
     for key, value in bare:
         section = _bare_key_section(data["sampler"], data["descriptor"], key, value, model)
         data[section] = {**data[section], key: value}
@@ -336,8 +349,10 @@ def _check_not_a_sampler_param(sampler: str | None, key: str, value: Any, model:
         check_sampler_params(sampler, {key: value})
     except InputError:
         return  # valid for neither: the config field's own error follows
-    raise InputError(f"--param {key}={value}: `{key}` is the config's {key} ({_allowed(model, key)}); "
-                     f"for the {sampler} sampler's {key} write sampler.{key}={value}")
+    raise InputError(
+        f"--param {key}={value}: `{key}` is the config's {key} ({_allowed(model, key)}); "
+        f"for the {sampler} sampler's {key} write sampler.{key}={value}"
+    )
 
 
 def _allowed(model: type[BaseModel], key: str) -> str:
@@ -354,10 +369,14 @@ def _bare_key_section(sampler: str, descriptor: str, key: str, value: Any, model
     if key == "weights" and str(descriptor).lower() in OT_NAMES:
         return "descriptor_params"
     if key == "weights":
-        raise InputError(f"--param weights={value}: the weights file is the OverlapTransformer's, but the "
-                         f"descriptor is {descriptor!r}; add --descriptor ot (or -p descriptor=ot)")
-    raise InputError(f"--param {key!r}: not a config key ({', '.join(model.model_fields)}), a parameter of "
-                     f"sampler {sampler!r} ({', '.join(known) or 'none'}) nor weights (of descriptor ot)")
+        raise InputError(
+            f"--param weights={value}: the weights file is the OverlapTransformer's, but the "
+            f"descriptor is {descriptor!r}; add --descriptor ot (or -p descriptor=ot)"
+        )
+    raise InputError(
+        f"--param {key!r}: not a config key ({', '.join(model.model_fields)}), a parameter of "
+        f"sampler {sampler!r} ({', '.join(known) or 'none'}) nor weights (of descriptor ot)"
+    )
 
 
 OT_NAMES = ("ot", "overlap_transformer")  # the descriptor that takes `weights`, also as a bare key (-p weights=FILE)

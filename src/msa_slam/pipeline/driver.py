@@ -18,8 +18,9 @@ down ~10x on a busy 2-core machine.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
-from typing import Any, Callable, Protocol, TypeVar
+from typing import Any, Protocol, TypeVar
 
 from threadpoolctl import threadpool_limits
 
@@ -33,7 +34,15 @@ from msa_slam.pipeline.live import LiveFrontEnd, MemoryRecorder
 from msa_slam.registration import make_cloud_store
 from msa_slam.registration.cloud_cache import FrameClouds
 from msa_slam.sampling.msa.warm import load_kernels
-from msa_slam.slam import ProtocolRecord, RunResult, SlamBackend, build_backend, build_loop_closer, measure, slam_sampler
+from msa_slam.slam import (
+    ProtocolRecord,
+    RunResult,
+    SlamBackend,
+    build_backend,
+    build_loop_closer,
+    measure,
+    slam_sampler,
+)
 from msa_slam.sources import open_source
 
 C = TypeVar("C", bound=RunConfig)
@@ -63,14 +72,21 @@ class FrontEnd(Protocol):
     def stream(self, backend: SlamBackend, quiet: bool) -> RunResult:
         """Every frame through `backend`, then its finish()."""
 
-    def record(self, result: RunResult, clouds: Any, sweep: Sweep | None,
-               sweep_off: str) -> tuple[RunResult, ProtocolRecord]:
+    def record(
+        self, result: RunResult, clouds: Any, sweep: Sweep | None, sweep_off: str
+    ) -> tuple[RunResult, ProtocolRecord]:
         """`result` completed with what the protocol adds to it, and the protocol's part of the run's report (timing,
         warnings, throughput, the sweep)."""
 
 
-def run(config: C, source: FrontEnd | None = None, quiet: bool = True, sweep: Sweep | None = None,
-        sweep_off: str = SWEEP_NOT_RUN, window_fix: str = CONFIG_WINDOW_FIX) -> RunResult:
+def run(
+    config: C,
+    source: FrontEnd | None = None,
+    quiet: bool = True,
+    sweep: Sweep | None = None,
+    sweep_off: str = SWEEP_NOT_RUN,
+    window_fix: str = CONFIG_WINDOW_FIX,
+) -> RunResult:
     """Run `config`'s sampler over `source` (default: the config's dataset, through the cached front end for a
     RunConfig, the live one for an OnlineConfig; pass pipeline.live.LiveFrontEnd(source, viewer) for another
     frame source or a live viewer) and measure it.
@@ -80,12 +96,16 @@ def run(config: C, source: FrontEnd | None = None, quiet: bool = True, sweep: Sw
     fill (prepare_frontend; `window_fix`: what the error says to change)."""
     online = isinstance(config, OnlineConfig)
     if source is None:
-        source = (LiveFrontEnd(open_source(config.dataset, config.dataset_kind, config.cache_dir,
-                                           progress=not quiet)) if online
-                  else prepare_frontend(config, quiet, window_fix=window_fix))
+        source = (
+            LiveFrontEnd(open_source(config.dataset, config.dataset_kind, config.cache_dir, progress=not quiet))
+            if online
+            else prepare_frontend(config, quiet, window_fix=window_fix)
+        )
     if online != isinstance(source, LiveFrontEnd):
-        raise InputError(f"run: {type(config).__name__} {config.name!r} cannot run on a {type(source).__name__}: "
-                         "an OnlineConfig runs on the live front end, a RunConfig on the cached one")
+        raise InputError(
+            f"run: {type(config).__name__} {config.name!r} cannot run on a {type(source).__name__}: "
+            "an OnlineConfig runs on the live front end, a RunConfig on the cached one"
+        )
     config = source.start(config)
     load_kernels(config.sampler, config.sampler_params, source.descriptor_shape)  # not in the back end's timings
     with threadpool_limits(limits=1, user_api="blas"):
@@ -106,6 +126,14 @@ def _backend(config: RunConfig, source: FrontEnd) -> tuple[SlamBackend, Any]:
         clouds = make_cloud_store("memory", config.verifier.voxel_size)
         graph, options = PoseGraph(config.graph, mode=config.mode), {}
     closer = build_loop_closer(config, source.descriptor, clouds)
-    backend = build_backend(config, slam_sampler(config), closer, graph, len(source), source.name,
-                            frame_clouds=source.clouds_for(config), **options)
+    backend = build_backend(
+        config,
+        slam_sampler(config),
+        closer,
+        graph,
+        len(source),
+        source.name,
+        frame_clouds=source.clouds_for(config),
+        **options,
+    )
     return backend, clouds

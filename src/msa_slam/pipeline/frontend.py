@@ -13,9 +13,10 @@ from __future__ import annotations
 import logging
 import sys
 import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence, TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -31,7 +32,8 @@ from msa_slam.evaluation.resources import peak_rss_bytes
 from msa_slam.evaluation.sanity import frontend_warnings
 from msa_slam.io.cache import CacheDir, Computed, cache_root
 from msa_slam.odometry import KissOdometry, PosesFromFile
-from msa_slam.odometry.kiss import NO_POINT_TIMES, PARAMETERS as KISS_PARAMETERS
+from msa_slam.odometry.kiss import NO_POINT_TIMES
+from msa_slam.odometry.kiss import PARAMETERS as KISS_PARAMETERS
 from msa_slam.pipeline.config import RunConfig
 from msa_slam.pipeline.read_ahead import frontend_pass
 from msa_slam.place_recognition import PRCurve, precision_recall
@@ -78,7 +80,9 @@ class CachedFrontEnd:
         """The frame clouds when `config` stores scans downsampled as they were (its loop detector and voxel size),
         else None: its back end downsamples what it stores itself."""
         clouds = self.clouds
-        usable = clouds is not None and config.loop_detector == "scan" and clouds.voxel_size == config.verifier.voxel_size
+        usable = (
+            clouds is not None and config.loop_detector == "scan" and clouds.voxel_size == config.verifier.voxel_size
+        )
         return clouds if usable else None
 
     def __len__(self) -> int:
@@ -90,8 +94,10 @@ class CachedFrontEnd:
 
     def matches(self, config: RunConfig) -> bool:
         """True when `config` asks for this front end (same odometry and descriptor settings)."""
-        return (self.odometry_config == _odometry_config(config, len(self))
-                and self.descriptor_settings == (config.descriptor, config.descriptor_params))
+        return self.odometry_config == _odometry_config(config, len(self)) and self.descriptor_settings == (
+            config.descriptor,
+            config.descriptor_params,
+        )
 
     @property
     def descriptor_shape(self) -> tuple[int, ...]:
@@ -111,21 +117,33 @@ class CachedFrontEnd:
         with progress_bar(quiet) as bar:
             task = bar.add_task(f"back-end ({backend.settings.name})", total=len(self))
             for i in range(len(self)):
-                backend.add_frame(self.odometry[i], self.descriptors[i], lambda i=i: sequence[i].points,
-                                  None if gt is None else gt[i], times[i])
+                backend.add_frame(
+                    self.odometry[i],
+                    self.descriptors[i],
+                    lambda i=i: sequence[i].points,
+                    None if gt is None else gt[i],
+                    times[i],
+                )
                 bar.advance(task)
         return backend.finish()
 
-    def record(self, result: RunResult, clouds: Any, sweep: Callable | None,
-               sweep_off: str) -> tuple[RunResult, ProtocolRecord]:
+    def record(
+        self, result: RunResult, clouds: Any, sweep: Callable | None, sweep_off: str
+    ) -> tuple[RunResult, ProtocolRecord]:
         """`result` with the reference protocol's precision-recall, and the batch protocol's record: timing (the
         sampler's share of real time too), the reference protocol's PR-AUC / F1-max and the threshold sweep
         (`sweep`, on the run's `clouds`; else why not: `sweep_off`)."""
         gt = self.gt_poses
-        sims, dists = (reference_protocol_matches(self.descriptor, result.keyframes, self.descriptors, gt)
-                       if gt is not None else ([], []))
-        result = replace(result, descriptors=self.descriptors[:len(result)],
-                         pr_reference=precision_recall(sims, dists, result.config.loop_radius) if len(sims) else None)
+        sims, dists = (
+            reference_protocol_matches(self.descriptor, result.keyframes, self.descriptors, gt)
+            if gt is not None
+            else ([], [])
+        )
+        result = replace(
+            result,
+            descriptors=self.descriptors[: len(result)],
+            pr_reference=precision_recall(sims, dists, result.config.loop_radius) if len(sims) else None,
+        )
         reasons = {}
         fraction, why = sampler_realtime_fraction(result.sampler_stats, result.times, self.sequence.times_known)
         if why is not None:
@@ -134,15 +152,25 @@ class CachedFrontEnd:
         peak = peak_rss_bytes()  # the run's, without the sweep's replays
         rows, seconds = _sweep(result, self, clouds, sweep, sweep_off, reasons)
         reference = _reference(result.pr_reference, reasons["pr_reference"], len(sims))
-        return result, ProtocolRecord(BATCH, tuple(self.warnings), _timing(result, self, fraction, why, seconds),
-                                      RunSetup(self.deskew, _threads(result.config, self), self.odometry_effective),
-                                      {k: v for k, v in reasons.items() if v is not None}, reference, rows,
-                                      peak_rss_bytes=peak)
+        return result, ProtocolRecord(
+            BATCH,
+            tuple(self.warnings),
+            _timing(result, self, fraction, why, seconds),
+            RunSetup(self.deskew, _threads(result.config, self), self.odometry_effective),
+            {k: v for k, v in reasons.items() if v is not None},
+            reference,
+            rows,
+            peak_rss_bytes=peak,
+        )
 
 
 def _odometry_config(config: RunConfig, n_frames: int) -> dict[str, Any]:
-    return {"odometry": config.odometry, "params": config.odometry_params, "frames": n_frames,
-            "source": config.source.model_dump()}
+    return {
+        "odometry": config.odometry,
+        "params": config.odometry_params,
+        "frames": n_frames,
+        "source": config.source.model_dump(),
+    }
 
 
 def pipeline_cache(cache_dir: str | None) -> Path:
@@ -165,8 +193,10 @@ def make_odometry(config: RunConfig, n_frames: int, point_times: bool | None = T
         try:  # deskew_choice's default unless odometry_params say (an asked deskew dropped below)
             odometry = KissOdometry(**{"deskew": deskew_choice(config, point_times)[0], **config.odometry_params})
         except TypeError as exc:
-            raise InputError(f"odometry kiss: bad parameters {sorted(config.odometry_params)} ({exc}); "
-                             f"it takes {', '.join(KISS_PARAMETERS)}") from None
+            raise InputError(
+                f"odometry kiss: bad parameters {sorted(config.odometry_params)} ({exc}); "
+                f"it takes {', '.join(KISS_PARAMETERS)}"
+            ) from None
         if deskew_dropped(config, point_times):
             odometry.without_point_times()
         return odometry
@@ -180,10 +210,15 @@ def make_odometry(config: RunConfig, n_frames: int, point_times: bool | None = T
         return odometry
     rows = config.source.first + config.source.jump * np.arange(n_frames)
     if len(odometry) <= rows[-1]:
-        selection = f" (scans {rows[0]}, {rows[0] + config.source.jump}, ... {rows[-1]} of the recording)" \
-            if n_frames > 1 else ""
-        raise InputError(f"odometry pose file {path}: {len(odometry)} poses but the run reads {n_frames} scans"
-                         f"{selection}; give one pose a scan of the recording, or one a scan read")
+        selection = (
+            f" (scans {rows[0]}, {rows[0] + config.source.jump}, ... {rows[-1]} of the recording)"
+            if n_frames > 1
+            else ""
+        )
+        raise InputError(
+            f"odometry pose file {path}: {len(odometry)} poses but the run reads {n_frames} scans"
+            f"{selection}; give one pose a scan of the recording, or one a scan read"
+        )
     odometry.select(rows)
     return odometry
 
@@ -225,7 +260,8 @@ def source_warnings(config: RunConfig, name: str, times_known: bool, point_times
     """The run's warnings about its scans (`name`) for report.md, each logged once where it is decided: no
     timestamps (frame k at k s, datasets.sequences), deskew switched off without per-point times (make_odometry)."""
     return ([f"{name}: {UNTIMED}"] if not times_known else []) + (
-        [NO_POINT_TIMES] if deskew_dropped(config, point_times) else [])
+        [NO_POINT_TIMES] if deskew_dropped(config, point_times) else []
+    )
 
 
 def check_window(config: RunConfig, n_frames: int, fix: str = CONFIG_WINDOW_FIX) -> None:
@@ -237,9 +273,11 @@ def check_window(config: RunConfig, n_frames: int, fix: str = CONFIG_WINDOW_FIX)
     if window is None or n_frames >= window:
         return
     if not config.flush:
-        raise InputError(f"sampler {config.name!r}: window={window} is longer than the {n_frames} frames read, so it "
-                         f"never fills and only frame 0 becomes a keyframe (flush is off); the evaluation needs at "
-                         f"least {MIN_KEYFRAMES}: " + fix.format(frames=n_frames, window=window))
+        raise InputError(
+            f"sampler {config.name!r}: window={window} is longer than the {n_frames} frames read, so it "
+            f"never fills and only frame 0 becomes a keyframe (flush is off); the evaluation needs at "
+            f"least {MIN_KEYFRAMES}: " + fix.format(frames=n_frames, window=window)
+        )
     warn_short_stream(n_frames, window, flush=True)
 
 
@@ -252,8 +290,9 @@ def replayed_seconds(stages: dict[str, Computed], timer: StageTimer) -> dict[str
     return replayed
 
 
-def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[RunConfig] = (),
-                     window_fix: str = CONFIG_WINDOW_FIX) -> CachedFrontEnd:
+def prepare_frontend(
+    config: RunConfig, quiet: bool = True, samplers: Sequence[RunConfig] = (), window_fix: str = CONFIG_WINDOW_FIX
+) -> CachedFrontEnd:
     """Open the dataset (once: for a large bag that is a full indexing), check that the sampler windows of
     `samplers` (default: `config`'s; compare: every method's) fit the frames read (check_window, with
     `window_fix`), then odometry, descriptors and (scan loop detector) clouds downsampled at the verifier's voxel
@@ -261,14 +300,23 @@ def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[R
     read_ahead.frontend_pass)."""
     timer = StageTimer()
     with timer.stage("dataset"):
-        sequence = open_sequence(config.dataset, config.dataset_kind, config.cache_dir, not quiet, config.source,
-                                 config.mode, keep_parsed=True)
+        sequence = open_sequence(
+            config.dataset,
+            config.dataset_kind,
+            config.cache_dir,
+            not quiet,
+            config.source,
+            config.mode,
+            keep_parsed=True,
+        )
     n = len(sequence)
     for checked in samplers or (config,):
         check_window(checked, n, window_fix)
     if sequence.gt_poses is None and config.sample_on == "gt":
-        raise InputError(f"dataset {config.dataset!r}: sample_on=gt needs ground-truth poses; this recording has "
-                         "none (use sample_on=odometry, or give them with --gt FILE)")
+        raise InputError(
+            f"dataset {config.dataset!r}: sample_on=gt needs ground-truth poses; this recording has "
+            "none (use sample_on=odometry, or give them with --gt FILE)"
+        )
     cache = CacheDir(pipeline_cache(config.cache_dir))
     odometry = make_odometry(config, n, sequence.point_times)
     params = dict(config.descriptor_params)
@@ -283,31 +331,59 @@ def prepare_frontend(config: RunConfig, quiet: bool = True, samplers: Sequence[R
         with timer.stage("clouds"):
             voxel = config.verifier.voxel_size
             clouds = (voxel, cloud_key(sequence, voxel, cache))
-    stages = frontend_pass(sequence, odometry, descriptor, cache, key, config.descriptor != "precomputed",  # one pass
-                           pose_file, quiet, timer, clouds)
+    stages = frontend_pass(
+        sequence,
+        odometry,
+        descriptor,
+        cache,
+        key,
+        config.descriptor != "precomputed",  # one pass
+        pose_file,
+        quiet,
+        timer,
+        clouds,
+    )
     poses, descriptors = stages["odometry"], stages["descriptors"]
     replayed = replayed_seconds(stages, timer)
     if replayed and not quiet:  # where a computed stage shows its progress
-        print("front end replayed from the cache: " + ", ".join(f"{name} (computed in {seconds:.1f} s)"
-                                                                 for name, seconds in replayed.items()),
-              file=sys.stderr)
+        print(
+            "front end replayed from the cache: "
+            + ", ".join(f"{name} (computed in {seconds:.1f} s)" for name, seconds in replayed.items()),
+            file=sys.stderr,
+        )
     sanity = frontend_warnings(sequence.gt_poses, poses.values, sequence.times)
     if isinstance(odometry, KissOdometry):
         sanity += odometry.unregistered_warning(n)
     for warning in sanity:
         logger.warning(warning)
     warnings = [*source_warnings(config, sequence.name, sequence.times_known, sequence.point_times), *sanity]
-    frontend = CachedFrontEnd(sequence, sequence.gt_poses, poses.values, descriptors.values, descriptor,
-                        _odometry_config(config, n), timer, {k: v.cached for k, v in stages.items()},
-                        odometry_effective=dict(odometry.config), warnings=warnings, replayed_s=replayed,
-                        deskew=deskew_record(config, sequence.point_times),
-                        clouds=stages["clouds"].values if "clouds" in stages else None)
+    frontend = CachedFrontEnd(
+        sequence,
+        sequence.gt_poses,
+        poses.values,
+        descriptors.values,
+        descriptor,
+        _odometry_config(config, n),
+        timer,
+        {k: v.cached for k, v in stages.items()},
+        odometry_effective=dict(odometry.config),
+        warnings=warnings,
+        replayed_s=replayed,
+        deskew=deskew_record(config, sequence.point_times),
+        clouds=stages["clouds"].values if "clouds" in stages else None,
+    )
     frontend.descriptor_settings = (config.descriptor, config.descriptor_params)
     return frontend
 
 
-def _sweep(result: RunResult, frontend: CachedFrontEnd, clouds: Any, sweep: Callable | None, sweep_off: str,
-           reasons: dict[str, str | None]) -> tuple[tuple[SweepRow, ...] | Unavailable, float | None]:
+def _sweep(
+    result: RunResult,
+    frontend: CachedFrontEnd,
+    clouds: Any,
+    sweep: Callable | None,
+    sweep_off: str,
+    reasons: dict[str, str | None],
+) -> tuple[tuple[SweepRow, ...] | Unavailable, float | None]:
     """The threshold sweep's rows and seconds (`sweep`: msa_slam.experiments.sweep.threshold_sweep), or why it did
     not run (also put into `reasons`)."""
     if result.gt_poses is None:
@@ -315,8 +391,9 @@ def _sweep(result: RunResult, frontend: CachedFrontEnd, clouds: Any, sweep: Call
     if sweep is None:
         reasons["threshold_sweep"] = sweep_off
     elif protocol(result.config) != "paper":
-        reasons["threshold_sweep"] = ("the verified loop protocol does not use similarity_threshold (its floor: "
-                                      "verified_min_similarity)")
+        reasons["threshold_sweep"] = (
+            "the verified loop protocol does not use similarity_threshold (its floor: verified_min_similarity)"
+        )
     elif result.gt_poses is not None:
         start = time.perf_counter()
         rows = sweep(result, frontend, clouds)
@@ -336,13 +413,16 @@ def _reference_reason(pr: PRCurve | None, ground_truth: bool) -> str | None:
     if not ground_truth:
         return "no ground truth: true loops cannot be told from false ones"
     if pr is None:
-        return ("no frame had more than 10 keyframes before it and a best match more than 10 frames away (the "
-                "reference protocol recorded no match)")
+        return (
+            "no frame had more than 10 keyframes before it and a best match more than 10 frames away (the "
+            "reference protocol recorded no match)"
+        )
     return pr.unavailable or None
 
 
-def sampler_realtime_fraction(sampler_stats: Mapping[str, JSONValue], times: np.ndarray,
-                              times_known: bool) -> tuple[float | None, str | None]:
+def sampler_realtime_fraction(
+    sampler_stats: Mapping[str, JSONValue], times: np.ndarray, times_known: bool
+) -> tuple[float | None, str | None]:
     """The sampler's window optimisations' total time over the duration of the data it sampled (the frames'
     first to last timestamp): the share of a real-time budget sampling alone takes. None with the reason when
     the frames have no timestamps (`times_known` False: their times are frame numbers, 1 frame/s) or span no
@@ -355,20 +435,31 @@ def sampler_realtime_fraction(sampler_stats: Mapping[str, JSONValue], times: np.
     return sampler_stats["optimisation_ms_total"] / 1e3 / span, None
 
 
-def _timing(result: RunResult, frontend: CachedFrontEnd, fraction: float | None, why: str | None,
-            sweep_s: float | None) -> Timing:
+def _timing(
+    result: RunResult, frontend: CachedFrontEnd, fraction: float | None, why: str | None, sweep_s: float | None
+) -> Timing:
     """Seconds per back-end stage (the sweep's last, not in backend_total), the front end's, and the sampler's share
     of real time."""
     times = {s: float(result.steps_ms[s].sum()) / 1e3 for s in BACKEND_STEPS}
     times.update(result.final_s)
     backend_time = sum(times.get(s, 0.0) for s in BACKEND_STAGES)
-    stages = {**{k: round(v, 4) for k, v in times.items()}, "backend_total": round(backend_time, 4),
-              "threshold_sweep": sweep_s}
-    return Timing(stages, {k: round(v, 4) for k, v in frontend.replayed_s.items()},
-                  {k: round(v, 4) for k, v in frontend.timer.seconds.items()}, dict(frontend.cached),
-                  Unavailable(why) if fraction is None else fraction)
+    stages = {
+        **{k: round(v, 4) for k, v in times.items()},
+        "backend_total": round(backend_time, 4),
+        "threshold_sweep": sweep_s,
+    }
+    return Timing(
+        stages,
+        {k: round(v, 4) for k, v in frontend.replayed_s.items()},
+        {k: round(v, 4) for k, v in frontend.timer.seconds.items()},
+        dict(frontend.cached),
+        Unavailable(why) if fraction is None else fraction,
+    )
 
 
 def _threads(config: RunConfig, frontend: CachedFrontEnd) -> dict[str, int | None]:
-    return {"odometry": frontend.odometry_effective.get("registration", {}).get("max_num_threads"),
-            "verification": config.verifier.num_threads, "blas_backend": 1}
+    return {
+        "odometry": frontend.odometry_effective.get("registration", {}).get("max_num_threads"),
+        "verification": config.verifier.num_threads,
+        "blas_backend": 1,
+    }

@@ -39,8 +39,15 @@ from msa_slam.evaluation.sanity import frontend_warnings
 from msa_slam.odometry import KissOdometry, NoisyOdometry, OdometryCache, ReplayedOdometry
 from msa_slam.odometry.kiss import DEFAULT_THREADS
 from msa_slam.pipeline.config import NO_TIMESTAMPS, NOT_REPRODUCIBLE, OnlineConfig
-from msa_slam.pipeline.frontend import (CONFIG_WINDOW_FIX, check_window, config_as_run, deskew_record, make_odometry,
-                                        pipeline_cache, source_warnings)
+from msa_slam.pipeline.frontend import (
+    CONFIG_WINDOW_FIX,
+    check_window,
+    config_as_run,
+    deskew_record,
+    make_odometry,
+    pipeline_cache,
+    source_warnings,
+)
 from msa_slam.pipeline.read_ahead import ahead
 from msa_slam.progress import LogProgress, Progress, progress_bar
 from msa_slam.slam import BACKEND_STEPS, ProtocolRecord, RunResult, SlamBackend
@@ -52,8 +59,16 @@ from msa_slam.workers import available_cpus
 logger = logging.getLogger(__name__)
 
 STEPS = ("odometry", "descriptor", *BACKEND_STEPS)
-MEMORY = ("keyframes", "cloud_bytes", "cloud_disk_bytes", "descriptor_bytes", "graph_bytes", "record_bytes",
-          "pending_bytes", "rss_bytes")
+MEMORY = (
+    "keyframes",
+    "cloud_bytes",
+    "cloud_disk_bytes",
+    "descriptor_bytes",
+    "graph_bytes",
+    "record_bytes",
+    "pending_bytes",
+    "rss_bytes",
+)
 
 
 class MemoryRecorder:
@@ -85,13 +100,23 @@ def _throughput(result: RunResult, seconds: float, cached: bool, times_known: bo
     cfg, mem, n = result.config, result.memory, len(result)
     backend = _backend_seconds(result)
     graph_steps = result.steps_ms["graph_update"][mem["keyframes"] > np.concatenate([[0], mem["keyframes"][:-1]])]
-    rate, rate_from = frame_rate_hz(float(result.times[0]), float(result.times[-1]), n, cfg.sensor_rate_hz,
-                                    times_known)
+    rate, rate_from = frame_rate_hz(float(result.times[0]), float(result.times[-1]), n, cfg.sensor_rate_hz, times_known)
     fps, realtime_factor = throughput(n, seconds, rate)
-    latency = {"backend": _percentiles(result.backend_ms), **{s: _percentiles(result.steps_ms[s]) for s in STEPS},
-               "graph_update_per_keyframe_step": _percentiles(graph_steps)}
-    return Throughput(round(seconds, 4), fps, n / backend if backend > 0 else float("inf"), rate, rate_from,
-                      realtime_factor, latency, cached)
+    latency = {
+        "backend": _percentiles(result.backend_ms),
+        **{s: _percentiles(result.steps_ms[s]) for s in STEPS},
+        "graph_update_per_keyframe_step": _percentiles(graph_steps),
+    }
+    return Throughput(
+        round(seconds, 4),
+        fps,
+        n / backend if backend > 0 else float("inf"),
+        rate,
+        rate_from,
+        realtime_factor,
+        latency,
+        cached,
+    )
 
 
 def _backend_seconds(result: RunResult) -> float:
@@ -101,14 +126,17 @@ def _backend_seconds(result: RunResult) -> float:
 def _timing(result: RunResult, replayed_s: dict[str, float]) -> Timing:
     """Seconds per step, the final optimisation's and the back end's in all."""
     totals = {s: float(result.steps_ms[s].sum()) / 1e3 for s in STEPS}
-    stages = {**{s: round(v, 4) for s, v in totals.items()},
-              "final_optimisation": round(result.final_s["optimisation"], 4),
-              "backend_total": round(_backend_seconds(result), 4)}
+    stages = {
+        **{s: round(v, 4) for s, v in totals.items()},
+        "final_optimisation": round(result.final_s["optimisation"], 4),
+        "backend_total": round(_backend_seconds(result), 4),
+    }
     return Timing(stages, replayed_s)
 
 
-def frame_rate_hz(first: float, last: float, frames: int, fallback: float,
-                  times_known: bool = True) -> tuple[float, str]:
+def frame_rate_hz(
+    first: float, last: float, frames: int, fallback: float, times_known: bool = True
+) -> tuple[float, str]:
     """The data's frame rate and where it comes from: `frames` frames timed `first` to `last` (the frames' own
     timestamps, so a 20 Hz sensor or every other scan, `--jump 2`, counts as recorded), else `fallback` (the
     config's sensor_rate_hz) while they span no time or are not timestamps (`times_known` False: frame
@@ -130,11 +158,14 @@ def open_recording(config: OnlineConfig, quiet: bool = True, window_fix: str = C
     """The frames of `config`'s dataset (with its source options), refused before any work when they cannot serve
     the run: gt-noise odometry without ground truth, a sampler window the frames read never fill (check_window;
     `window_fix`: what the error says to change)."""
-    recording = open_source(config.dataset, config.dataset_kind, config.cache_dir, not quiet, config.source,
-                            config.mode)
+    recording = open_source(
+        config.dataset, config.dataset_kind, config.cache_dir, not quiet, config.source, config.mode
+    )
     if recording.gt_poses is None and config.odometry == "gt-noise":
-        raise InputError(f"dataset {config.dataset!r}: odometry gt-noise perturbs ground truth, which this "
-                         "recording lacks; use --odometry kiss or a pose file")
+        raise InputError(
+            f"dataset {config.dataset!r}: odometry gt-noise perturbs ground truth, which this "
+            "recording lacks; use --odometry kiss or a pose file"
+        )
     frames = len(recording) if config.max_frames is None else min(len(recording), config.max_frames)
     check_window(config, frames, window_fix)
     return recording
@@ -149,8 +180,10 @@ def make_online_odometry(config: OnlineConfig, source: FrameSource, n: int):
         try:
             return NoisyOdometry(source.gt_poses[:n], seed=config.seed, **config.odometry_params), False
         except TypeError:
-            raise InputError(f"odometry gt-noise: bad parameters {sorted(config.odometry_params)}; it takes "
-                             "translation_noise, rotation_noise_deg") from None
+            raise InputError(
+                f"odometry gt-noise: bad parameters {sorted(config.odometry_params)}; it takes "
+                "translation_noise, rotation_noise_deg"
+            ) from None
     odometry = make_odometry(config, len(source), source.point_times)
     if config.odometry == "kiss" and source.sequence is not None:
         cache = OdometryCache(pipeline_cache(config.cache_dir))
@@ -181,14 +214,20 @@ def threads_note(threads: int | None) -> list[str]:
     """The run's warning when its odometry is multi-threaded (none otherwise): for its notes and the log."""
     if threads is None or threads <= 1:
         return []
-    return [f"odometry: KISS-ICP on {threads} threads, {NOT_REPRODUCIBLE}: -p odometry.num_threads=1 makes the "
-            "run deterministic"]
+    return [
+        f"odometry: KISS-ICP on {threads} threads, {NOT_REPRODUCIBLE}: -p odometry.num_threads=1 makes the "
+        "run deterministic"
+    ]
 
 
 def online_progress(quiet: bool) -> Progress | LogProgress:
     """Progress with frames per second and real-time factor (a bar on a terminal, log lines elsewhere)."""
-    return progress_bar(quiet, transient=False, fields="{task.fields[fps]:6.1f} fps  RTF {task.fields[rtf]:5.2f}x  "
-                                                      "kf {task.fields[kf]}  loops {task.fields[loops]}")
+    return progress_bar(
+        quiet,
+        transient=False,
+        fields="{task.fields[fps]:6.1f} fps  RTF {task.fields[rtf]:5.2f}x  "
+        "kf {task.fields[kf]}  loops {task.fields[loops]}",
+    )
 
 
 class LiveFrontEnd:
@@ -242,12 +281,19 @@ class LiveFrontEnd:
         self.front_ms = front_ms = {s: np.zeros(n, dtype=np.float32) for s in STEPS[:2]}
         times_known = source.times_known
         if not times_known and source.sequence is None:  # a sequence opened from files has said so (UNTIMED)
-            logger.warning("online: the frames have no timestamps; the real-time factor is taken against the "
-                           "config's sensor_rate_hz (%g Hz)", config.sensor_rate_hz)
+            logger.warning(
+                "online: the frames have no timestamps; the real-time factor is taken against the "
+                "config's sensor_rate_hz (%g Hz)",
+                config.sensor_rate_hz,
+            )
         replayed = isinstance(odometry, ReplayedOdometry)
         label = f"online {config.name}" + (
-            " (odometry replayed from the cache, counted as computed)" if replayed else
-            f" (odometry: {noun_count(self.threads, 'thread')})" if self.threads is not None else "")
+            " (odometry replayed from the cache, counted as computed)"
+            if replayed
+            else f" (odometry: {noun_count(self.threads, 'thread')})"
+            if self.threads is not None
+            else ""
+        )
         with online_progress(quiet) as bar, closing(backend):
             task = bar.add_task(label, total=n, fps=0.0, rtf=0.0, kf=0, loops=0)
             start, first_time = time.perf_counter(), None
@@ -269,8 +315,11 @@ class LiveFrontEnd:
             for i, frame in enumerate(ahead(frames) if source.live else frames):
                 first_time = frame.time if first_time is None else first_time
                 t0 = time.perf_counter()
-                pose = odometry.register(frame.points, frame.timestamps,  # times: for deskew
-                                         frame.time if times_known else None)
+                pose = odometry.register(
+                    frame.points,
+                    frame.timestamps,  # times: for deskew
+                    frame.time if times_known else None,
+                )
                 t1 = time.perf_counter()
                 if replayed:
                     credit += odometry.ms[i] / 1e3 - (t1 - t0)
@@ -281,19 +330,26 @@ class LiveFrontEnd:
                 if self.viewer is not None:
                     self.viewer.frame(backend, i, frame.points, new)
                 if i < n - 1:  # every frame, so a failure reports the frame it stopped at; the last: after finish()
-                    bar.update(task, completed=i + 1, **figures(i + 1, frame.time, len(backend.store),
-                                                                time.perf_counter() - start + credit))
+                    bar.update(
+                        task,
+                        completed=i + 1,
+                        **figures(i + 1, frame.time, len(backend.store), time.perf_counter() - start + credit),
+                    )
             result = backend.finish()  # flushes the sampler: the last line counts the keyframes the report does
             self.seconds = time.perf_counter() - start + credit  # the pipeline's, as metrics.json and report.md give it
-            bar.update(task, completed=len(result), **figures(len(result), float(result.times[-1]),
-                                                              len(result.keyframes), self.seconds))
+            bar.update(
+                task,
+                completed=len(result),
+                **figures(len(result), float(result.times[-1]), len(result.keyframes), self.seconds),
+            )
         self.recorder = backend.recorder
         if self.viewer is not None:
             self.viewer.finish(result)
         return result
 
-    def record(self, result: RunResult, clouds: object, sweep: object, sweep_off: str
-               ) -> tuple[RunResult, ProtocolRecord]:
+    def record(
+        self, result: RunResult, clouds: object, sweep: object, sweep_off: str
+    ) -> tuple[RunResult, ProtocolRecord]:
         """`result` with the front end's per-frame times and the memory series, and the online protocol's record:
         notes and the odometry's warnings, timing, threads and throughput (no threshold sweep: a batch analysis)."""
         config, odometry, m = result.config, self.odometry, len(result)
@@ -301,8 +357,9 @@ class LiveFrontEnd:
         memory = {k: v[:m] for k, v in self.recorder.memory.items()}
         front = [steps_ms[s] for s in self.front_ms]
         records = result.memory_bytes["record_bytes"] + sum(v.nbytes for v in (*memory.values(), *front))  # per-frame
-        result = replace(result, steps_ms=steps_ms, memory=memory,
-                         memory_bytes={**result.memory_bytes, "record_bytes": records})
+        result = replace(
+            result, steps_ms=steps_ms, memory=memory, memory_bytes={**result.memory_bytes, "record_bytes": records}
+        )
         warnings = frontend_warnings(result.gt_poses, result.odometry, result.times)
         if isinstance(odometry, KissOdometry):
             warnings += odometry.unregistered_warning(m)
@@ -313,8 +370,11 @@ class LiveFrontEnd:
         replayed = isinstance(odometry, ReplayedOdometry)
         replayed_s = {"odometry": round(float(odometry.ms[:m].sum()) / 1e3, 4)} if replayed else {}
         threads_used = {"odometry": self.threads, "verification": config.verifier.num_threads, "blas_backend": 1}
-        return result, ProtocolRecord(ONLINE, (*self.notes, *warnings), _timing(result, replayed_s),
-                                      RunSetup(self.deskew, threads_used),
-                                      throughput=_throughput(result, self.seconds, self.cached,
-                                                             self.source.times_known),
-                                      cloud_store=config.cloud_store)
+        return result, ProtocolRecord(
+            ONLINE,
+            (*self.notes, *warnings),
+            _timing(result, replayed_s),
+            RunSetup(self.deskew, threads_used),
+            throughput=_throughput(result, self.seconds, self.cached, self.source.times_known),
+            cloud_store=config.cloud_store,
+        )

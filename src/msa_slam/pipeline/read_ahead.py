@@ -15,7 +15,8 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from typing import Any, Iterable, Iterator, Sequence, TypeVar
+from collections.abc import Iterable, Iterator, Sequence
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -42,8 +43,13 @@ class ReadAhead:
     are raised here, at the frame they happened at. After a full iteration `described` holds the descriptors and
     `downsampled` the clouds."""
 
-    def __init__(self, sequence: ScanSequence, descriptor: Descriptor | None = None, depth: int = DEPTH,
-                 voxel_size: float | None = None) -> None:
+    def __init__(
+        self,
+        sequence: ScanSequence,
+        descriptor: Descriptor | None = None,
+        depth: int = DEPTH,
+        voxel_size: float | None = None,
+    ) -> None:
         self.sequence, self.descriptor, self.depth, self.voxel_size = sequence, descriptor, depth, voxel_size
         self._values: list[np.ndarray] = []
         self._ms = np.empty(len(sequence))
@@ -88,9 +94,18 @@ class ReadAhead:
         return self._clouds, self._cloud_ms
 
 
-def frontend_pass(sequence: ScanSequence, odometry: Odometry, descriptor: Descriptor, cache: CacheDir, key: str,
-                  cache_descriptors: bool = True, pose_file: Sequence[str] = (), quiet: bool = True,
-                  timer: StageTimer | None = None, clouds: tuple[float, str] | None = None) -> dict[str, Computed]:
+def frontend_pass(
+    sequence: ScanSequence,
+    odometry: Odometry,
+    descriptor: Descriptor,
+    cache: CacheDir,
+    key: str,
+    cache_descriptors: bool = True,
+    pose_file: Sequence[str] = (),
+    quiet: bool = True,
+    timer: StageTimer | None = None,
+    clouds: tuple[float, str] | None = None,
+) -> dict[str, Computed]:
     """The stages `odometry`, `descriptors` (cache key `key`; not cached unless `cache_descriptors`) and, when
     `clouds` is (voxel size, cache key), `clouds` (every frame downsampled: registration.cloud_cache) of every
     frame of `sequence`, each from `cache` when it holds it. The missing ones are computed in one pass over the
@@ -102,10 +117,19 @@ def frontend_pass(sequence: ScanSequence, odometry: Odometry, descriptor: Descri
     store = cache if cache_descriptors else None
     descriptors = None if store is None else load_descriptors(sequence, descriptor, store, key)
     frame_clouds = None if clouds is None else load_frame_clouds(sequence, clouds[0], cache, clouds[1])
-    ahead = ReadAhead(sequence, descriptor if descriptors is None else None,
-                      voxel_size=clouds[0] if clouds is not None and frame_clouds is None else None)
-    label = "odometry" + "".join(f" and {what}" for what, todo in (
-        (f"descriptors ({descriptor.name})", descriptors is None), ("clouds", ahead.voxel_size is not None)) if todo)
+    ahead = ReadAhead(
+        sequence,
+        descriptor if descriptors is None else None,
+        voxel_size=clouds[0] if clouds is not None and frame_clouds is None else None,
+    )
+    label = "odometry" + "".join(
+        f" and {what}"
+        for what, todo in (
+            (f"descriptors ({descriptor.name})", descriptors is None),
+            ("clouds", ahead.voxel_size is not None),
+        )
+        if todo
+    )
     with timer.stage("odometry"):
         poses = sequence_odometry(sequence, odometry, OdometryCache(cache), quiet, pose_file, ahead, label)
     if ahead.computes and not ahead.complete:  # the odometry came from the cache: the scans were not read

@@ -9,8 +9,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Iterable
 
 import numpy as np
 
@@ -224,8 +224,9 @@ class KeyframeDatabase:
         if not ids:
             return None
         cand_t = [self._poses[r, :3, 3] for r in rows] + [validate_pose(c.pose)[:3, 3] for c in extra]
-        bank = np.stack([self.descriptors[r] for r in rows]
-                        + [np.asarray(c.descriptor, dtype=np.float64) for c in extra])
+        bank = np.stack(
+            [self.descriptors[r] for r in rows] + [np.asarray(c.descriptor, dtype=np.float64) for c in extra]
+        )
         sims = np.asarray(self.descriptor.similarity_many(descriptor, bank))
         best = int(np.argmax(sims))
         if abs(int(frame_id) - ids[best]) <= min_gap:

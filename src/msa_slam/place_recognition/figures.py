@@ -5,9 +5,9 @@ says what the markers mark and which methods have no curve."""
 from __future__ import annotations
 
 import textwrap
+from collections.abc import Mapping
 from itertools import cycle
 from pathlib import Path
-from typing import Mapping
 
 import matplotlib
 
@@ -34,12 +34,16 @@ def marked(thresholds: np.ndarray) -> np.ndarray:
 
 def markers_note(curves: Mapping[str, PRCurve]) -> str:
     """What the markers mark: the similarity thresholds they sit on, one list for all curves."""
-    shown = sorted({round(float(t), 2) for c in curves.values()
-                    for t in np.asarray(c.thresholds)[marked(c.thresholds)]})
+    shown = sorted(
+        {round(float(t), 2) for c in curves.values() for t in np.asarray(c.thresholds)[marked(c.thresholds)]}
+    )
     if not shown:
         return f"no markers (no threshold is a multiple of {MARK_EVERY:g})"
-    listed = (", ".join(f"{t:.1f}" for t in shown) if len(shown) <= 4
-              else f"{shown[0]:.1f}, {shown[1]:.1f}, ... {shown[-1]:.1f}")
+    listed = (
+        ", ".join(f"{t:.1f}" for t in shown)
+        if len(shown) <= 4
+        else f"{shown[0]:.1f}, {shown[1]:.1f}, ... {shown[-1]:.1f}"
+    )
     return f"markers: similarity thresholds {listed} (precision and recall of the candidates at least that similar)"
 
 
@@ -60,30 +64,51 @@ def zoom_limits(curves: Mapping[str, PRCurve]) -> tuple[tuple[float, float], tup
     return (max(0.0, r0 - pad_r), min(1.02, r1 + pad_r)), (max(0.0, p0 - pad_p), min(1.02, p1 + pad_p))
 
 
-def plot_pr_curves(curves: Mapping[str, PRCurve], path: str | Path, title: str = "Precision-recall",
-                   absent: Mapping[str, str] | None = None) -> Path:
+def plot_pr_curves(
+    curves: Mapping[str, PRCurve],
+    path: str | Path,
+    title: str = "Precision-recall",
+    absent: Mapping[str, str] | None = None,
+) -> Path:
     """Write one PR curve per label to `path` as PNG (legend, sorted by PR-AUC, shows PR-AUC and F1-max; its
     title says what the markers mark and names the `absent` methods with why they have no curve)."""
     order = sorted(curves, key=lambda k: -(curves[k].auc or 0.0))
     zoom = zoom_limits(curves)
-    fig, axes = plt.subplots(1, 2 if zoom else 1, figsize=(9 if zoom else 5.5, 4.8), dpi=150, squeeze=False,
-                             layout="constrained")
+    fig, axes = plt.subplots(
+        1, 2 if zoom else 1, figsize=(9 if zoom else 5.5, 4.8), dpi=150, squeeze=False, layout="constrained"
+    )
     try:
         for ax, limits in zip(axes[0], [((0.0, 1.02), (0.0, 1.02)), *([] if zoom is None else [zoom])]):
             for label, style, marker in zip(order, cycle(STYLES), cycle(MARKERS)):
                 curve = curves[label]
                 auc = "n/a" if curve.auc is None else f"{curve.auc:.3f}"
                 f1 = "n/a" if curve.f1_max is None else f"{curve.f1_max:.3f}"
-                ax.plot(curve.recall, curve.precision, ls=style, marker=marker, ms=3.5,
-                        markevery=marked(curve.thresholds).tolist(), lw=1.4,
-                        alpha=0.85, label=f"{label} (PR-AUC {auc}, F1-max {f1})")
+                ax.plot(
+                    curve.recall,
+                    curve.precision,
+                    ls=style,
+                    marker=marker,
+                    ms=3.5,
+                    markevery=marked(curve.thresholds).tolist(),
+                    lw=1.4,
+                    alpha=0.85,
+                    label=f"{label} (PR-AUC {auc}, F1-max {f1})",
+                )
             ax.set(xlabel="recall", ylabel="precision", xlim=limits[0], ylim=limits[1])
             ax.set_title("all thresholds" if ax is axes[0][0] else "zoom on the knee", fontsize=9)
             ax.grid(alpha=0.3)
-        caption = "\n".join(textwrap.fill(line, 120) for line in (markers_note(curves), absent_note(absent or {}))
-                            if line)
-        fig.legend(*axes[0][0].get_legend_handles_labels(), loc="outside lower center", ncols=2, fontsize=7,
-                   frameon=False, title=caption, title_fontsize=7)
+        caption = "\n".join(
+            textwrap.fill(line, 120) for line in (markers_note(curves), absent_note(absent or {})) if line
+        )
+        fig.legend(
+            *axes[0][0].get_legend_handles_labels(),
+            loc="outside lower center",
+            ncols=2,
+            fontsize=7,
+            frameon=False,
+            title=caption,
+            title_fontsize=7,
+        )
         fig.suptitle(title, fontsize=10)
         with atomic_path(path) as tmp:
             fig.savefig(tmp, format="png")

@@ -96,19 +96,28 @@ def _unavailable(near: np.ndarray, predicted: np.ndarray, max_distance: float) -
         return "no loop query had a match to score"
     queries = "1 query" if near.size == 1 else f"{near.size} queries"
     if not near.any():
-        return (f"no best match of the {queries} lies within {max_distance:g} m in ground truth (no revisit): "
-                "recall is undefined")
+        return (
+            f"no best match of the {queries} lies within {max_distance:g} m in ground truth (no revisit): "
+            "recall is undefined"
+        )
     if near.all():
-        return (f"the best match of each of the {queries} lies within {max_distance:g} m in ground truth (no wrong "
-                "match to reject): precision is 1 by construction")
+        return (
+            f"the best match of each of the {queries} lies within {max_distance:g} m in ground truth (no wrong "
+            "match to reject): precision is 1 by construction"
+        )
     if not predicted.any():
         return "no match reached the lowest similarity threshold"
     return None
 
 
-def reference_protocol_matches(descriptor: Descriptor, keyframes: np.ndarray, descriptors: np.ndarray,
-                               poses: np.ndarray, n_nearest: int = 10, min_gap: int = 10
-                               ) -> tuple[np.ndarray, np.ndarray]:
+def reference_protocol_matches(
+    descriptor: Descriptor,
+    keyframes: np.ndarray,
+    descriptors: np.ndarray,
+    poses: np.ndarray,
+    n_nearest: int = 10,
+    min_gap: int = 10,
+) -> tuple[np.ndarray, np.ndarray]:
     """Similarities and distances (m) of the reference example's recorded matches: once more than
     `n_nearest` keyframes precede it, every frame compares its descriptor with the `n_nearest` keyframes
     before it that are nearest to its pose (`poses`: every frame's, ground truth for the distances), and

@@ -5,5 +5,13 @@ from msa_slam.registration.clouds import KeyframeCloudStore, as_points, downsamp
 from msa_slam.registration.disk_store import DiskCloudStore, make_cloud_store
 from msa_slam.registration.verify import Verification, Verifier, VerifierConfig
 
-__all__ = ["DiskCloudStore", "KeyframeCloudStore", "Verification", "Verifier", "VerifierConfig", "as_points",
-           "downsample", "make_cloud_store"]
+__all__ = [
+    "DiskCloudStore",
+    "KeyframeCloudStore",
+    "Verification",
+    "Verifier",
+    "VerifierConfig",
+    "as_points",
+    "downsample",
+    "make_cloud_store",
+]

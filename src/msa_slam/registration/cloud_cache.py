@@ -10,8 +10,9 @@ the points are memory-mapped, so a run holds in RAM only the keyframes' clouds i
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, NamedTuple, Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -37,7 +38,7 @@ class FrameClouds:
     def __getitem__(self, frame: int) -> np.ndarray:
         """A copy of the frame's cloud, RAM of its own as the keyframe store accounts it, in downsample's memory
         layout (column-major), so that products with it round as they did on the cloud downsampled here."""
-        return np.asfortranarray(self.points[self.offsets[frame]:self.offsets[frame + 1]])
+        return np.asfortranarray(self.points[self.offsets[frame] : self.offsets[frame + 1]])
 
 
 class ComputedClouds(NamedTuple):
@@ -51,12 +52,16 @@ class ComputedClouds(NamedTuple):
 def cloud_key(sequence: ScanSequence, voxel_size: float, cache: CacheDir | None = None) -> str:
     """Cache key of a sequence's frame clouds: its scans' identity, the voxel size, CLOUD_CODE's fingerprint and
     library versions; `cache` memoises the files' digests."""
-    return cache_key("frame-clouds", sequence_inputs(sequence, (), cache), {"voxel_size": float(voxel_size)},
-                     code_fingerprint(CLOUD_CODE), CLOUD_LIBRARIES)
+    return cache_key(
+        "frame-clouds",
+        sequence_inputs(sequence, (), cache),
+        {"voxel_size": float(voxel_size)},
+        code_fingerprint(CLOUD_CODE),
+        CLOUD_LIBRARIES,
+    )
 
 
-def load_frame_clouds(sequence: ScanSequence, voxel_size: float, cache: CacheDir,
-                      key: str) -> ComputedClouds | None:
+def load_frame_clouds(sequence: ScanSequence, voxel_size: float, cache: CacheDir, key: str) -> ComputedClouds | None:
     """The cached clouds of every frame downsampled at `voxel_size` (a FrameClouds as `values`; entries
     `frame-cloud-offsets-<key>` and `frame-clouds-<key>`, checked to fit each other and the sequence) with the
     time (ms) downsampling each took when computed, or None when any part is absent or bad."""
@@ -71,8 +76,9 @@ def load_frame_clouds(sequence: ScanSequence, voxel_size: float, cache: CacheDir
     return None if points is None else ComputedClouds(FrameClouds(points, offsets, float(voxel_size)), True, ms)
 
 
-def save_frame_clouds(clouds: Sequence[np.ndarray], ms: np.ndarray, voxel_size: float, cache: CacheDir | None,
-                      key: str) -> ComputedClouds:
+def save_frame_clouds(
+    clouds: Sequence[np.ndarray], ms: np.ndarray, voxel_size: float, cache: CacheDir | None, key: str
+) -> ComputedClouds:
     """Every frame's freshly downsampled cloud (`clouds`, in frame order; computed while the front end reads the
     scans: pipeline.read_ahead) as one FrameClouds, stored in `cache` (None: not stored) with the time (ms)
     downsampling each took."""
@@ -93,6 +99,7 @@ def _offsets_check(frames: int) -> Callable[[np.ndarray], np.ndarray]:
         if offsets[0] != 0 or (np.diff(offsets) < 0).any():
             raise ValueError("offsets do not start at 0 and increase")
         return offsets
+
     return check
 
 
@@ -103,4 +110,5 @@ def _points_check(count: int) -> Callable[[np.ndarray], np.ndarray]:
         if not np.isfinite(points).all():
             raise ValueError("NaN or infinite values")
         return points
+
     return check

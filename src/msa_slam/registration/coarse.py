@@ -20,15 +20,18 @@ SCORE_RADIUS_M = 1.5  # half the grid step: every offset within the grid scores 
 REFINED = 3  # best-scoring starts registered
 
 
-def coarse_guess(target: np.ndarray, source: np.ndarray, rotation_guess: np.ndarray,
-                 config: VerifierConfig) -> np.ndarray:
+def coarse_guess(
+    target: np.ndarray, source: np.ndarray, rotation_guess: np.ndarray, config: VerifierConfig
+) -> np.ndarray:
     """T_target_source to start the verifier from: `rotation_guess` (its rotation and translation) moved by
     the grid offset whose coarse registration has the most inliers."""
     voxel, max_dist = 2.0 * config.voxel_size, 3.0 * config.max_correspondence_distance
-    tgt, tree = small_gicp.preprocess_points(np.asarray(target, dtype=np.float64), voxel, config.num_neighbors,
-                                             config.num_threads)
-    src, _ = small_gicp.preprocess_points(np.asarray(source, dtype=np.float64), voxel, config.num_neighbors,
-                                          config.num_threads)
+    tgt, tree = small_gicp.preprocess_points(
+        np.asarray(target, dtype=np.float64), voxel, config.num_neighbors, config.num_threads
+    )
+    src, _ = small_gicp.preprocess_points(
+        np.asarray(source, dtype=np.float64), voxel, config.num_neighbors, config.num_threads
+    )
     if tgt.size() < config.num_neighbors or src.size() < config.num_neighbors:
         return rotation_guess  # the verifier reports the clouds as too sparse
     starts = []
@@ -40,8 +43,16 @@ def coarse_guess(target: np.ndarray, source: np.ndarray, rotation_guess: np.ndar
     starts.sort(key=lambda s: -s[0])
     best, best_T = -1, rotation_guess
     for _, T in starts[:REFINED]:
-        result = small_gicp.align(tgt, src, tree, T, registration_type="GICP", max_correspondence_distance=max_dist,
-                                  num_threads=config.num_threads, max_iterations=config.max_iterations)
+        result = small_gicp.align(
+            tgt,
+            src,
+            tree,
+            T,
+            registration_type="GICP",
+            max_correspondence_distance=max_dist,
+            num_threads=config.num_threads,
+            max_iterations=config.max_iterations,
+        )
         aligned = np.asarray(result.T_target_source, dtype=np.float64)
         count = _inliers(tree, src, aligned, config.max_correspondence_distance)
         if count > best:

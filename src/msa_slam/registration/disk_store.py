@@ -19,8 +19,8 @@ import re
 import shutil
 import tempfile
 import weakref
+from collections.abc import Hashable
 from pathlib import Path
-from typing import Hashable
 
 import numpy as np
 
@@ -59,8 +59,9 @@ def remove_stale_stores(parent: Path) -> list[Path]:
         if match is None or path.is_symlink() or not path.is_dir():
             continue
         try:
-            if path.stat().st_uid != os.getuid() or not all(_STORE_FILE.fullmatch(f.name) or f.name == WRITER
-                                                            for f in path.iterdir()):
+            if path.stat().st_uid != os.getuid() or not all(
+                _STORE_FILE.fullmatch(f.name) or f.name == WRITER for f in path.iterdir()
+            ):
                 continue
             marked = (path / WRITER).exists()
             if (marked and not abandoned(path)) or (not marked and process_alive(int(match.group(1)))):

@@ -32,10 +32,10 @@ from msa_slam.types import as_points, validate_pose
 
 class VerifierConfig(StageConfig):
     """Registration and acceptance parameters (metres, fractions); the run configuration's `verifier` section.
-`min_inlier_fraction` applies to both clouds (source points near the target and target points near the
-aligned source).
+    `min_inlier_fraction` applies to both clouds (source points near the target and target points near the
+    aligned source).
 
-    `num_threads=1` keeps small_gicp's reductions in a fixed order, so identical runs accept identical loops.
+        `num_threads=1` keeps small_gicp's reductions in a fixed order, so identical runs accept identical loops.
     """
 
     SECTION: ClassVar[str] = "verifier"
@@ -80,8 +80,9 @@ class Verifier:
     def __init__(self, config: VerifierConfig | None = None) -> None:
         self.config = config or VerifierConfig()
 
-    def verify(self, target: np.ndarray, source: np.ndarray, initial_guess: np.ndarray | None = None,
-               strict: bool = False) -> Verification:
+    def verify(
+        self, target: np.ndarray, source: np.ndarray, initial_guess: np.ndarray | None = None, strict: bool = False
+    ) -> Verification:
         """Estimate T_target_source from `initial_guess` (identity by default) and decide acceptance (`strict`:
         with the structure gate too). A cloud
         with fewer than `num_neighbors` points after voxel downsampling (a 1-point scan) cannot be registered:
@@ -104,8 +105,14 @@ class Verifier:
                     f"(target {tgt.size()} points, source {src.size()}; need >= {cfg.num_neighbors})"
                 )
             result = small_gicp.align(
-                tgt, src, tree, T, registration_type="GICP", max_correspondence_distance=max_dist,
-                num_threads=cfg.num_threads, max_iterations=cfg.max_iterations,
+                tgt,
+                src,
+                tree,
+                T,
+                registration_type="GICP",
+                max_correspondence_distance=max_dist,
+                num_threads=cfg.num_threads,
+                max_iterations=cfg.max_iterations,
             )
             T = np.asarray(result.T_target_source, dtype=np.float64)
             converged = bool(result.converged)
@@ -113,28 +120,46 @@ class Verifier:
         fraction = num_inliers / src.size()
         target_fraction = _covered_fraction(tgt, src, T, cfg.max_correspondence_distance, cfg.num_threads)
         structure = _structure_residual(tgt, tree, src, T, cfg.max_correspondence_distance) if strict else float("nan")
-        failed = {"overlap": min(fraction, target_fraction) < cfg.min_inlier_fraction,
-                  "inliers": num_inliers < cfg.min_inliers,
-                  "residual": not residual < cfg.max_residual or strict and not structure <= cfg.max_structure_residual}
+        failed = {
+            "overlap": min(fraction, target_fraction) < cfg.min_inlier_fraction,
+            "inliers": num_inliers < cfg.min_inliers,
+            "residual": not residual < cfg.max_residual or strict and not structure <= cfg.max_structure_residual,
+        }
         rejected = next((gate for gate in REJECTIONS if failed[gate]), "")
         covariance = registration_covariance(np.asarray(result.H), result.error, result.num_inliers)
-        return Verification(T, not rejected, residual, num_inliers, float(fraction), converged,
-                            target_fraction, covariance, rejected, structure)
+        return Verification(
+            T,
+            not rejected,
+            residual,
+            num_inliers,
+            float(fraction),
+            converged,
+            target_fraction,
+            covariance,
+            rejected,
+            structure,
+        )
 
 
-def _covered_fraction(target: small_gicp.PointCloud, source: small_gicp.PointCloud, T: np.ndarray,
-                      max_distance: float, num_threads: int) -> float:
+def _covered_fraction(
+    target: small_gicp.PointCloud, source: small_gicp.PointCloud, T: np.ndarray, max_distance: float, num_threads: int
+) -> float:
     """Fraction of target points with an aligned source point within `max_distance`."""
     moved = source.points()[:, :3] @ T[:3, :3].T + T[:3, 3]
     idx, sq_dist = small_gicp.KdTree(moved, num_threads=num_threads).batch_nearest_neighbor_search(
-        target.points()[:, :3])
+        target.points()[:, :3]
+    )
     near = (np.asarray(idx) >= 0) & (np.asarray(sq_dist) <= max_distance**2)
     return float(near.mean())
 
 
-def _point_to_plane_residual(target: small_gicp.PointCloud, tree: small_gicp.KdTree,
-                             source: small_gicp.PointCloud, T: np.ndarray,
-                             max_distance: float) -> tuple[float, int]:
+def _point_to_plane_residual(
+    target: small_gicp.PointCloud,
+    tree: small_gicp.KdTree,
+    source: small_gicp.PointCloud,
+    T: np.ndarray,
+    max_distance: float,
+) -> tuple[float, int]:
     """RMS point-to-plane distance of inlier correspondences (inf when there are none) and their count."""
     moved = source.points()[:, :3] @ T[:3, :3].T + T[:3, 3]
     idx, sq_dist = tree.batch_nearest_neighbor_search(moved)
@@ -149,8 +174,13 @@ def _point_to_plane_residual(target: small_gicp.PointCloud, tree: small_gicp.KdT
     return float(np.sqrt(np.mean(plane**2))), int(inliers.sum())
 
 
-def _structure_residual(target: small_gicp.PointCloud, tree: small_gicp.KdTree, source: small_gicp.PointCloud,
-                        T: np.ndarray, max_distance: float) -> float:
+def _structure_residual(
+    target: small_gicp.PointCloud,
+    tree: small_gicp.KdTree,
+    source: small_gicp.PointCloud,
+    T: np.ndarray,
+    max_distance: float,
+) -> float:
     """Median point-to-plane distance of the source's inliers on non-horizontal surfaces (inf without any)."""
     moved = source.points()[:, :3] @ T[:3, :3].T + T[:3, 3]
     upright = np.abs(source.normals()[:, :3] @ T[2, :3]) < STRUCTURE_MAX_NORMAL_Z

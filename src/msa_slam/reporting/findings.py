@@ -3,8 +3,9 @@ just wrote (comparison.json, through the comparison's table rows), and what one 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from msa_slam.evaluation import NA, fmt
 from msa_slam.evaluation.display import spec_for
@@ -27,15 +28,19 @@ def findings(folder: Path) -> list[str]:
     width = max(len(r["method"]) for r in rows)
     lines = [f"What the comparison found ({metrics[0].run.dataset}, {frames} frames):"]
     lines += [f"  {r['method']:<{width}}  " + _method_line(r, frames, baseline) for r in rows]
-    lines.append(f"Whether these differences are beyond the seed-to-seed spread cannot be told from this run: it "
-                 f"simulated 1 world seed and the paired test needs at least {MIN_SEEDS}; "
-                 f"`{REPRODUCE}` repeats the comparison over several seeds and says.")
+    lines.append(
+        f"Whether these differences are beyond the seed-to-seed spread cannot be told from this run: it "
+        f"simulated 1 world seed and the paired test needs at least {MIN_SEEDS}; "
+        f"`{REPRODUCE}` repeats the comparison over several seeds and says."
+    )
     return lines
 
 
 def _method_line(row: Mapping[str, Any], frames: int, baseline: float | None) -> str:
     memory = NA if not baseline else fmt(100.0 * row["memory_mib"] / baseline, ".1f", " %")
-    return (f"{row['keyframes']} keyframes ({fmt(100.0 * row['keyframes'] / frames, '.1f', ' %')} of frames), "
-            f"memory {memory} of {BASELINE} samples, t. ATE improvement "
-            f"{fmt(row['improvement_t_pct'], spec_for('improvement_t_pct'), ' %')}, {row['verified']} loops, "
-            f"PR-AUC {fmt(row['pr_auc'], spec_for('pr_auc'))}")
+    return (
+        f"{row['keyframes']} keyframes ({fmt(100.0 * row['keyframes'] / frames, '.1f', ' %')} of frames), "
+        f"memory {memory} of {BASELINE} samples, t. ATE improvement "
+        f"{fmt(row['improvement_t_pct'], spec_for('improvement_t_pct'), ' %')}, {row['verified']} loops, "
+        f"PR-AUC {fmt(row['pr_auc'], spec_for('pr_auc'))}"
+    )

@@ -3,7 +3,8 @@ memory and time, the figures."""
 
 from __future__ import annotations
 
-from typing import Any, Collection, Protocol
+from collections.abc import Collection
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -12,8 +13,17 @@ from msa_slam.datasets.options import SourceOptions
 from msa_slam.evaluation import KITTI_LENGTHS_M, NA, PROCESS_RSS_LABEL, fmt, notes, segment_errors
 from msa_slam.evaluation.full_rate import RPE_10M_EVO, STEP_FRAMES, path_length
 from msa_slam.evaluation.loops import FALSE_LOOP_ANGLE_DEG
-from msa_slam.evaluation.metrics import (Deskew, FullRateTrajectory, LoopCounts, Memory, ReferencePR, RunSetup,
-                                         SweepRow, Unavailable, known)
+from msa_slam.evaluation.metrics import (
+    Deskew,
+    FullRateTrajectory,
+    LoopCounts,
+    Memory,
+    ReferencePR,
+    RunSetup,
+    SweepRow,
+    Unavailable,
+    known,
+)
 from msa_slam.evaluation.run_metrics import RunMetrics
 from msa_slam.io.tables import mib
 from msa_slam.pipeline.config import NO_TIMESTAMPS, NOT_REPRODUCIBLE
@@ -41,29 +51,37 @@ def loop_accounting_text(acc: LoopCounts, loop_radius: float, min_travel_m: floa
     """One paragraph on what became of the loop candidates (metrics.json `loop_accounting`): rejections by
     reason, false accepted loops and the revisits closed (n/a without ground truth: the notes say why)."""
     rejected = ", ".join(f"{reason} {n}" for reason, n in acc.rejected.items() if n) or "none"
-    text = (f"Loop accounting: {acc.registered} of {counted(acc.candidates, 'candidate')} registered, "
-            f"{acc.accepted} accepted, rejected: {rejected}.")
+    text = (
+        f"Loop accounting: {acc.registered} of {counted(acc.candidates, 'candidate')} registered, "
+        f"{acc.accepted} accepted, rejected: {rejected}."
+    )
     if isinstance(acc.true_candidates, Unavailable):
         return text + " True candidates, false accepted loops and revisit recall n/a (no ground truth)."
-    text += (f" {acc.true_candidates} true candidates (within {loop_radius:g} m in ground truth); "
-             f"{acc.false_accepted} accepted loops false (measured pose off ground truth by > {loop_radius:g} m "
-             f"or > {FALSE_LOOP_ANGLE_DEG:g} deg).")
+    text += (
+        f" {acc.true_candidates} true candidates (within {loop_radius:g} m in ground truth); "
+        f"{acc.false_accepted} accepted loops false (measured pose off ground truth by > {loop_radius:g} m "
+        f"or > {FALSE_LOOP_ANGLE_DEG:g} deg)."
+    )
     apart = f"keyframe pairs within {loop_radius:g} m, >= {min_travel_m:g} m of path apart"
     if not acc.revisits:
         return text + f" No ground-truth revisit ({apart})."
-    return text + (f" Revisits ({apart}): "
-                   f"{acc.revisits_closed} of {acc.revisits} closed by an accepted loop (recall "
-                   f"{fmt(acc.revisit_recall)}); keyframes with a revisit: {acc.revisit_keyframes_closed} of "
-                   f"{acc.revisit_keyframes} closed (recall {fmt(acc.revisit_keyframe_recall)}).")
+    return text + (
+        f" Revisits ({apart}): "
+        f"{acc.revisits_closed} of {acc.revisits} closed by an accepted loop (recall "
+        f"{fmt(acc.revisit_recall)}); keyframes with a revisit: {acc.revisit_keyframes_closed} of "
+        f"{acc.revisit_keyframes} closed (recall {fmt(acc.revisit_keyframe_recall)})."
+    )
 
 
 def scans_read(source: SourceOptions) -> str:
     """Which scans of the dataset a run read (--first, --jump, -n), with the options that chose them: a
     result on the first 200 scans is not one on the whole sequence, and the frame count alone cannot tell
     a short sequence from a cut one."""
-    parts = ([f"from scan {source.first} (--first {source.first})"] if source.first else []) + (
-        [f"one scan in {source.jump} (--jump {source.jump})"] if source.jump > 1 else []) + (
-        [f"at most {source.frames} scans (-n {source.frames})"] if source.frames is not None else [])
+    parts = (
+        ([f"from scan {source.first} (--first {source.first})"] if source.first else [])
+        + ([f"one scan in {source.jump} (--jump {source.jump})"] if source.jump > 1 else [])
+        + ([f"at most {source.frames} scans (-n {source.frames})"] if source.frames is not None else [])
+    )
     return ", ".join(parts) or "every scan"
 
 
@@ -87,42 +105,60 @@ def rpe_segments(gt: np.ndarray | None) -> tuple[str, str]:
     lengths = [length for length in KITTI_LENGTHS_M if len(segment_errors(gt, gt, length, STEP_FRAMES)[0])]
     total, longest = float(path_length(gt)[-1]), KITTI_LENGTHS_M[-1]
     if not lengths:
-        return "KITTI segments", (f"RPE over KITTI's segments: n/a: the trajectory of {total:.1f} m is shorter "
-                                  f"than the segment lengths ({KITTI_LENGTHS_M[0]:g}-{longest:g} m)")
+        return "KITTI segments", (
+            f"RPE over KITTI's segments: n/a: the trajectory of {total:.1f} m is shorter "
+            f"than the segment lengths ({KITTI_LENGTHS_M[0]:g}-{longest:g} m)"
+        )
     span = f"{lengths[0]:g}-{lengths[-1]:g} m" if len(lengths) > 1 else f"{lengths[0]:g} m"
     if len(lengths) == len(KITTI_LENGTHS_M):
         return span, f"RPE over KITTI's {span} segments"
-    return span, (f"RPE over KITTI's segments of {', '.join(f'{x:g}' for x in lengths)} m only (the trajectory "
-                  f"of {total:.1f} m is too short for the longer ones, up to {longest:g} m)")
+    return span, (
+        f"RPE over KITTI's segments of {', '.join(f'{x:g}' for x in lengths)} m only (the trajectory "
+        f"of {total:.1f} m is too short for the longer ones, up to {longest:g} m)"
+    )
 
 
 def _full_rate_rows(full: FullRateTrajectory, span: str) -> list[str]:
     b, a, imp = full.before, full.after, full.improvement
-    rows = (("ATE translation [m], full rate", "ate_translation_m", "translation"),
-            ("ATE rotation [deg], full rate", "ate_rotation_deg", "rotation"),
-            (f"RPE translation [%], {span}", "rpe_kitti_translation_pct", None),
-            (f"RPE rotation [deg/100 m], {span}", "rpe_kitti_rotation_deg_per_100m", None),
-            ("RPE translation [m], 10 m, all pairs, mean", "rpe_10m_translation_m", None),
-            ("RPE rotation [deg], 10 m, all pairs, mean", "rpe_10m_rotation_deg", None))
-    return [f"| {label} | {fmt(getattr(b, key))} | {fmt(getattr(a, key))} | "
-            f"{fmt(getattr(imp, part), '.1f', ' %') if part else ''} |" for label, key, part in rows]
+    rows = (
+        ("ATE translation [m], full rate", "ate_translation_m", "translation"),
+        ("ATE rotation [deg], full rate", "ate_rotation_deg", "rotation"),
+        (f"RPE translation [%], {span}", "rpe_kitti_translation_pct", None),
+        (f"RPE rotation [deg/100 m], {span}", "rpe_kitti_rotation_deg_per_100m", None),
+        ("RPE translation [m], 10 m, all pairs, mean", "rpe_10m_translation_m", None),
+        ("RPE rotation [deg], 10 m, all pairs, mean", "rpe_10m_rotation_deg", None),
+    )
+    return [
+        f"| {label} | {fmt(getattr(b, key))} | {fmt(getattr(a, key))} | "
+        f"{fmt(getattr(imp, part), '.1f', ' %') if part else ''} |"
+        for label, key, part in rows
+    ]
 
 
 def sweep_lines(sweep: tuple[SweepRow, ...] | Unavailable) -> list[str]:
     """The threshold sweep as a table (nothing when it was not run)."""
     if isinstance(sweep, Unavailable) or not sweep:
         return []
-    return ["Threshold sensitivity (only loop closing and optimisation re-run on the same keyframes):", "",
-            "| similarity threshold | candidates | loops accepted | false loops | full-rate t. ATE impr. |",
-            "|---|---|---|---|---|",
-            *(f"| {r.threshold:.2f} | {r.candidates} | {r.loops_accepted} | {r.false_loops} | "
-              f"{fmt(r.improvement_t_pct, '.1f', ' %')} |" for r in sweep), ""]
+    return [
+        "Threshold sensitivity (only loop closing and optimisation re-run on the same keyframes):",
+        "",
+        "| similarity threshold | candidates | loops accepted | false loops | full-rate t. ATE impr. |",
+        "|---|---|---|---|---|",
+        *(
+            f"| {r.threshold:.2f} | {r.candidates} | {r.loops_accepted} | {r.false_loops} | "
+            f"{fmt(r.improvement_t_pct, '.1f', ' %')} |"
+            for r in sweep
+        ),
+        "",
+    ]
 
 
 def _rss_growth(memory: Memory) -> str:
     """RSS growth over this run's back-end beside the accounted bytes it should be explained by."""
-    return (f"RSS growth over this run's back-end: {mib(memory.rss_growth_bytes)} (accounted in RAM: "
-            f"{mib(memory.accounted.in_ram)}, ratio {fmt(memory.rss_growth_ratio, '.2f')})")
+    return (
+        f"RSS growth over this run's back-end: {mib(memory.rss_growth_bytes)} (accounted in RAM: "
+        f"{mib(memory.accounted.in_ram)}, ratio {fmt(memory.rss_growth_ratio, '.2f')})"
+    )
 
 
 def _batch_lines(result: ReportedRun) -> list[str]:
@@ -132,16 +168,23 @@ def _batch_lines(result: ReportedRun) -> list[str]:
     auc, f1 = (ref.pr_auc, ref.f1_max) if isinstance(ref, ReferencePR) else (ref, ref)
     return [
         "| PR-AUC / F1-max (paper) | PR-AUC / F1-max (reference protocol) | memory (keyframes + graph) | "
-        "back-end time |", "|---|---|---|---|",
+        "back-end time |",
+        "|---|---|---|---|",
         f"| {fmt(pr.pr_auc)} / {fmt(pr.f1_max)} | {fmt(auc)} / {fmt(f1)} | "
-        f"{mib(m.memory.accounted.total)} | {timing.backend_total:.2f} s |", "",
+        f"{mib(m.memory.accounted.total)} | {timing.backend_total:.2f} s |",
+        "",
         *sweep_lines(pr.sweep),
-        f"{PROCESS_RSS_LABEL}: {mib(m.memory.peak_rss_bytes)}; {_rss_growth(m.memory)}", "",
+        f"{PROCESS_RSS_LABEL}: {mib(m.memory.peak_rss_bytes)}; {_rss_growth(m.memory)}",
+        "",
         f"Sampler time over the data's duration: {fmt(timing.sampler_realtime_fraction, '.4f')} "
-        f"({m.sampler_stats['optimisation_ms_total'] / 1e3:.2f} s of window optimisation).", "",
-        "Stage times [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in {**timing.frontend_s, **timing.stages}.items()
-                                   if v is not None)  # threshold_sweep: None when not run
-        + replayed_note(timing.frontend_cached), "",
+        f"({m.sampler_stats['optimisation_ms_total'] / 1e3:.2f} s of window optimisation).",
+        "",
+        "Stage times [s]: "
+        + ", ".join(
+            f"{k} {v:.2f}" for k, v in {**timing.frontend_s, **timing.stages}.items() if v is not None
+        )  # threshold_sweep: None when not run
+        + replayed_note(timing.frontend_cached),
+        "",
     ]
 
 
@@ -177,18 +220,28 @@ def _online_lines(result: ReportedRun) -> list[str]:
     th, memory = m.throughput, m.memory
     return [
         "| PR-AUC / F1-max | memory (keyframes + graph) | bytes / keyframe | frames/s | back-end frames/s | "
-        "real-time factor | back-end p99 [ms] |", "|---|---|---|---|---|---|---|",
+        "real-time factor | back-end p99 [ms] |",
+        "|---|---|---|---|---|---|---|",
         f"| {fmt(m.place_recognition.pr_auc)} / {fmt(m.place_recognition.f1_max)} | "
         f"{mib(memory.accounted.total)} ({memory.accounted.cloud_store}) | "
         f"{memory.bytes_per_keyframe(m.run.keyframes):.0f} | {th.fps:.1f} | {th.backend_fps:.1f} | "
-        f"{th.realtime_factor:.2f} | {th.latency_ms['backend'].p99:.1f} |", "",
+        f"{th.realtime_factor:.2f} | {th.latency_ms['backend'].p99:.1f} |",
+        "",
         "Frames/s: of the whole pipeline as it ran (reading the frames, odometry, descriptor, back end"
-        + (", the odometry replayed from the cache counted with the time it took when computed" if
-           th.odometry_cached else "") + f"); real-time factor: frames/s over the data's "
-        f"{th.frame_rate_hz:.1f} frames/s (" + _rate_source(th.frame_rate_from) + ").", "",
-        f"{PROCESS_RSS_LABEL}: {mib(memory.peak_rss_bytes)}; {_rss_growth(memory)}", "",
-        "Step totals [s]: " + ", ".join(f"{k} {v:.2f}" for k, v in m.timing.stages.items())
-        + replayed_note({"odometry": th.odometry_cached}), "",
+        + (
+            ", the odometry replayed from the cache counted with the time it took when computed"
+            if th.odometry_cached
+            else ""
+        )
+        + f"); real-time factor: frames/s over the data's "
+        f"{th.frame_rate_hz:.1f} frames/s (" + _rate_source(th.frame_rate_from) + ").",
+        "",
+        f"{PROCESS_RSS_LABEL}: {mib(memory.peak_rss_bytes)}; {_rss_growth(memory)}",
+        "",
+        "Step totals [s]: "
+        + ", ".join(f"{k} {v:.2f}" for k, v in m.timing.stages.items())
+        + replayed_note({"odometry": th.odometry_cached}),
+        "",
         *([threads_text(m.setup), ""] if threads_text(m.setup) else []),
     ]
 
@@ -200,7 +253,8 @@ def threads_text(setup: RunSetup) -> str:
     if threads is None:
         return ""
     return f"Odometry: KISS-ICP on {counted(threads, 'thread')}" + (
-        f", {NOT_REPRODUCIBLE} (see the notes)." if threads > 1 else " (bit-reproducible).")
+        f", {NOT_REPRODUCIBLE} (see the notes)." if threads > 1 else " (bit-reproducible)."
+    )
 
 
 # What the files of a result folder hold, in the order report.md lists them ({command}: run or online;
@@ -208,11 +262,13 @@ def threads_text(setup: RunSetup) -> str:
 RESULT_FILES = {
     "config.yaml": "config.yaml (re-run with `msa-slam {command} --config`)",
     "metrics.json": "metrics.json (every key explained in docs/metrics.md of msa-slam)",
-    "frames.csv": "frames.csv", "loops.csv": "loops.csv", "pr.csv": "pr.csv",
+    "frames.csv": "frames.csv",
+    "loops.csv": "loops.csv",
+    "pr.csv": "pr.csv",
     "steps.csv": "steps.csv (per-frame step times and memory)",
     "descriptors.npy": "descriptors.npy (every frame's)",
     "trajectories": "trajectories/ (KITTI and TUM with the frames' times: full-rate {ground_truth}odometry and "
-                    "optimised, keyframe trajectories)",
+    "optimised, keyframe trajectories)",
     "map.ply": "map.ply (keyframe clouds at the optimised poses)",
     "pose_graph.g2o": "pose_graph.g2o",
     "provenance.json": "provenance.json (versions, command line, date, CPU)",
@@ -227,13 +283,17 @@ def standstill_note(cfg: Any, m: RunMetrics) -> str:
         return ""
     turned = f" and turned < {rotation:g} deg" if rotation > 0 else ""
     held = m.sampler_stats.get("standstill_frames")  # counted by samplers with the gate
-    return (f" Standstill gate: a frame that moved < {motion:g} m{turned} since the last frame passed on is no "
-            f"keyframe candidate" + ("" if held is None else f" ({counted(held, 'frame')} held back)") + ".")
+    return (
+        f" Standstill gate: a frame that moved < {motion:g} m{turned} since the last frame passed on is no "
+        f"keyframe candidate" + ("" if held is None else f" ({counted(held, 'frame')} held back)") + "."
+    )
 
 
-RPE_STATISTICS = ("The KITTI RPE is the KITTI devkit's mean over the segments; the 10 m RPE is evo's all-pairs "
-                  "RPE, the mean over every frame paired with the frame nearest 10 m further along the ground-truth "
-                  "path (within 1 m).")
+RPE_STATISTICS = (
+    "The KITTI RPE is the KITTI devkit's mean over the segments; the 10 m RPE is evo's all-pairs "
+    "RPE, the mean over every frame paired with the frame nearest 10 m further along the ground-truth "
+    "path (within 1 m)."
+)
 GT_FILE = "trajectories/gt.tum"  # written only for a run with a ground-truth pose for every frame
 
 
@@ -245,14 +305,18 @@ def alignment_text(m: RunMetrics, files: Collection[str], ground_truth: bool = T
         return "ATE alignment: n/a (no ground truth, so no ATE to align and no ground-truth trajectory written)."
     full, keyframes = known(m.full_rate.alignment) or NA, known(m.keyframe_trajectory.alignment) or NA
     if GT_FILE not in files:
-        return (f"ATE alignment of the full-rate rows: {full}; of the keyframe rows: {keyframes} (no ground-truth "
-                "trajectory was written: not every frame has a ground-truth pose).")
-    return (f"ATE alignment of the full-rate rows: {full} (`evo_ape tum {GT_FILE} trajectories/optimised.tum -a` "
-            f"reproduces them); of the keyframe rows: {keyframes} (`evo_ape tum trajectories/gt_keyframes.tum "
-            "trajectories/optimised_keyframes.tum -a`). "
-            f"`{RPE_10M_EVO.format(reference=GT_FILE, estimate='trajectories/optimised.tum')}` prints the 10 m RPE "
-            "as its mean (`--pose_relation angle_deg`: the rotation; `odometry.tum`: the odometry column); `evo_rpe "
-            "tum trajectories/gt_keyframes.tum trajectories/optimised_keyframes.tum` the keyframe RPE as its rmse.")
+        return (
+            f"ATE alignment of the full-rate rows: {full}; of the keyframe rows: {keyframes} (no ground-truth "
+            "trajectory was written: not every frame has a ground-truth pose)."
+        )
+    return (
+        f"ATE alignment of the full-rate rows: {full} (`evo_ape tum {GT_FILE} trajectories/optimised.tum -a` "
+        f"reproduces them); of the keyframe rows: {keyframes} (`evo_ape tum trajectories/gt_keyframes.tum "
+        "trajectories/optimised_keyframes.tum -a`). "
+        f"`{RPE_10M_EVO.format(reference=GT_FILE, estimate='trajectories/optimised.tum')}` prints the 10 m RPE "
+        "as its mean (`--pose_relation angle_deg`: the rotation; `odometry.tum`: the odometry column); `evo_rpe "
+        "tum trajectories/gt_keyframes.tum trajectories/optimised_keyframes.tum` the keyframe RPE as its rmse."
+    )
 
 
 def report_markdown(result: ReportedRun, figures: list[str], files: Collection[str]) -> str:
@@ -267,18 +331,25 @@ def report_markdown(result: ReportedRun, figures: list[str], files: Collection[s
     after = "iSAM2" if online else "optimised"
     rpe_span, rpe_text = rpe_segments(result.gt_poses)
     lines = [
-        f"# {run.method}{' online' if online else ''} on {display_name(run.sequence)} ({run.mode} loops)", "",
-        f"Sampler: {sampler_label(cfg.sampler, cfg.sampler_params)}.{standstill_note(cfg, m)}", "",
+        f"# {run.method}{' online' if online else ''} on {display_name(run.sequence)} ({run.mode} loops)",
+        "",
+        f"Sampler: {sampler_label(cfg.sampler, cfg.sampler_params)}.{standstill_note(cfg, m)}",
+        "",
         f"Dataset `{cfg.dataset}` (sequence {run.sequence}), {scans_read(cfg.source)}: "
         f"{run.frames} frames -> {run.keyframes} keyframes; {counted(m.loops.candidates, 'loop candidate')} "
         f"({candidate_rule(cfg)}), {m.loops.verified} verified, "
-        + (f"{m.loops.false_loops} false (ground-truth distance > {cfg.loop_radius} m)."
-           if result.gt_poses is not None
-           else f"false loops n/a (no ground truth to tell a loop within {cfg.loop_radius} m from a false one).")
-        + (" iSAM2 updated at every frame that finalised keyframes." if online else ""), "",
+        + (
+            f"{m.loops.false_loops} false (ground-truth distance > {cfg.loop_radius} m)."
+            if result.gt_poses is not None
+            else f"false loops n/a (no ground truth to tell a loop within {cfg.loop_radius} m from a false one)."
+        )
+        + (" iSAM2 updated at every frame that finalised keyframes." if online else ""),
+        "",
         *([deskew_text(m.setup.deskew), ""] if deskew_text(m.setup.deskew) else []),
-        loop_accounting_text(m.loops.accounting, cfg.loop_radius, cfg.min_travel_m), "",
-        f"| metric | odometry | {after} | improvement |", "|---|---|---|---|",
+        loop_accounting_text(m.loops.accounting, cfg.loop_radius, cfg.min_travel_m),
+        "",
+        f"| metric | odometry | {after} | improvement |",
+        "|---|---|---|---|",
         *_full_rate_rows(m.full_rate, rpe_span),
         f"| ATE translation [m], keyframes only | {fmt(b.ate_translation_m)} | {fmt(a.ate_translation_m)} | "
         f"{fmt(imp.translation, '.1f', ' %')} |",
@@ -287,18 +358,28 @@ def report_markdown(result: ReportedRun, figures: list[str], files: Collection[s
         f"| RPE translation [m], consecutive keyframes, RMSE | {fmt(b.rpe_translation_m)} | "
         f"{fmt(a.rpe_translation_m)} | |",
         f"| RPE rotation [deg], consecutive keyframes, RMSE | {fmt(b.rpe_rotation_deg)} | "
-        f"{fmt(a.rpe_rotation_deg)} | |", "",
+        f"{fmt(a.rpe_rotation_deg)} | |",
+        "",
         "Full rate: every frame, its pose from its preceding keyframe's optimised pose and the odometry since "
-        "(trajectories/optimised.tum); the same odometry \"before\" for every sampler. "
-        f"{rpe_text}. " + (RPE_STATISTICS if result.gt_poses is not None
-                           else "RPE over 10 m of travelled path: n/a without ground truth."), "",
-        alignment_text(m, files, result.gt_poses is not None), "",
+        '(trajectories/optimised.tum); the same odometry "before" for every sampler. '
+        f"{rpe_text}. "
+        + (
+            RPE_STATISTICS
+            if result.gt_poses is not None
+            else "RPE over 10 m of travelled path: n/a without ground truth."
+        ),
+        "",
+        alignment_text(m, files, result.gt_poses is not None),
+        "",
         *notes_markdown(m),
         *(_online_lines(result) if online else _batch_lines(result)),
     ]
     lines += [f"![{name}](figures/{name})" for name in figures]
     ground_truth = "ground truth, " if GT_FILE in files else ""
-    listed = [text.format(command="online" if online else "run", ground_truth=ground_truth)
-              for name, text in RESULT_FILES.items() if name in files]
+    listed = [
+        text.format(command="online" if online else "run", ground_truth=ground_truth)
+        for name, text in RESULT_FILES.items()
+        if name in files
+    ]
     lines += ["", f"Files: {', '.join(listed)}.", f"msa-slam {msa_slam.__version__}", ""]
     return "\n".join(lines)

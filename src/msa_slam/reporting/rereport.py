@@ -15,22 +15,30 @@ from pathlib import Path
 
 from msa_slam.errors import InputError
 from msa_slam.io.atomic import write_text_atomic
-from msa_slam.io.outputs import MARKER, OutputError, open_result_folder, some_names
 from msa_slam.io.marker import edited_files, foreign_files, recorded_digests, result_kind, write_marker
+from msa_slam.io.outputs import MARKER, OutputError, open_result_folder, some_names
+from msa_slam.pipeline.config import make_config
 from msa_slam.reporting.comparison import PROCESSES, failed_section, table_row
 from msa_slam.reporting.comparison import comparison_report as write_comparison_report
-from msa_slam.pipeline.config import make_config
 from msa_slam.reporting.report import report_markdown
 from msa_slam.reporting.results import folder_files, run_figures
-from msa_slam.reporting.stored import (comparison_figures, failed_methods, listed_methods, read_comparison,
-                                       read_json, read_run, read_text)
+from msa_slam.reporting.stored import (
+    comparison_figures,
+    failed_methods,
+    listed_methods,
+    read_comparison,
+    read_json,
+    read_run,
+    read_text,
+)
 
 KINDS = ("run", "online", "compare")  # the result kinds (io.marker.result_kind) whose reports this module writes
 SPREAD_FILES = ("seeds.md", "seeds.csv", "seeds.json", "report.md")  # what compare --seeds writes at the top
 
 
-def rewrite_folder(folder: Path, reference: str | None = None,
-                   expected: str = "a result folder of msa-slam") -> tuple[Path, list[str]]:
+def rewrite_folder(
+    folder: Path, reference: str | None = None, expected: str = "a result folder of msa-slam"
+) -> tuple[Path, list[str]]:
     """`msa-slam report FOLDER`: the reports of any result folder written again from its files; its report.md
     and, for an experiment, the cells of an earlier grid its aggregates leave out. `reference`: an experiment's
     method the differences compare to; `expected`: what the error names as a result folder.
@@ -41,8 +49,10 @@ def rewrite_folder(folder: Path, reference: str | None = None,
     if kind is None:
         outer = next((p for p in Path(folder).absolute().parents if result_kind(p) is not None), None)
         inside = f" (it lies inside the result folder {outer}: report that one)" if outer is not None else ""
-        raise InputError(f"{folder}: not a msa-slam result folder (no {MARKER} written by msa-slam){inside}; "
-                         f"expected {expected}; nothing written")
+        raise InputError(
+            f"{folder}: not a msa-slam result folder (no {MARKER} written by msa-slam){inside}; "
+            f"expected {expected}; nothing written"
+        )
     from msa_slam.experiments.folder import KIND as EXPERIMENT
 
     if kind == EXPERIMENT:
@@ -51,12 +61,15 @@ def rewrite_folder(folder: Path, reference: str | None = None,
         from msa_slam.experiments.reproduce import rewrite_reproduce_report
 
         if reference is not None:
-            raise InputError(f"--reference: only for an experiment's folder; {folder} is a result of "
-                             "`msa-slam reproduce` (its grids' reference is all samples)")
+            raise InputError(
+                f"--reference: only for an experiment's folder; {folder} is a result of "
+                "`msa-slam reproduce` (its grids' reference is all samples)"
+            )
         return rewrite_reproduce_report(folder), []
     if kind not in KINDS:
-        raise InputError(f"{folder}: a result of `msa-slam {kind}`, which writes no report.md; expected "
-                         f"{expected}; nothing written")
+        raise InputError(
+            f"{folder}: a result of `msa-slam {kind}`, which writes no report.md; expected {expected}; nothing written"
+        )
     if reference is not None:
         raise InputError(f"--reference: only for an experiment's folder; {folder} is a result of `msa-slam {kind}`")
     return rewrite_report(folder, kind), []
@@ -87,14 +100,17 @@ def rewrite_report(folder: Path, kind: str) -> Path:
         try:
             texts = _reports(path, kind, set(foreign))  # a bad metrics.json: InputError naming file and key
         except KeyError as exc:  # a seed record or seeds.json of another msa-slam version, or edited
-            raise InputError(f"{path}: its records lack {exc} (written by another version of msa-slam?); "
-                             "nothing written") from None
+            raise InputError(
+                f"{path}: its records lack {exc} (written by another version of msa-slam?); nothing written"
+            ) from None
         spread = kind == "compare" and (path / SEEDS).is_dir()
         names = [*texts, *(SPREAD_FILES if spread else ())]
         kept = sorted({name for name in names if name in foreign or name in edited})
         if kept:
-            raise OutputError(f"{path}: {some_names(kept)}: added or edited since msa-slam wrote the folder; "
-                              "`msa-slam report` would replace them: move them elsewhere first")
+            raise OutputError(
+                f"{path}: {some_names(kept)}: added or edited since msa-slam wrote the folder; "
+                "`msa-slam report` would replace them: move them elsewhere first"
+            )
         recorded = recorded_digests(path)
         for name, text in texts.items():
             write_text_atomic(path / name, text)
@@ -138,8 +154,14 @@ def comparison_report(folder: Path) -> str:
     """report.md of a comparison folder (compare, demo, or a seed of compare --seeds), from its files."""
     frontend, runs = read_comparison(folder)
     processes = read_json(folder / PROCESSES) if (folder / PROCESSES).is_file() else {}
-    text = write_comparison_report(frontend, runs, read_text(folder / "comparison.md"), comparison_figures(folder),
-                                   processes.get("workers", 1), processes.get("main_peak_rss"))
+    text = write_comparison_report(
+        frontend,
+        runs,
+        read_text(folder / "comparison.md"),
+        comparison_figures(folder),
+        processes.get("workers", 1),
+        processes.get("main_peak_rss"),
+    )
     from msa_slam.experiments.compare import PAPER_METHODS
 
     text += failed_section(failed_methods(folder, [label for label, _, _ in PAPER_METHODS]))
@@ -154,9 +176,11 @@ def _write_seed_spread(folder: Path) -> None:
     seeds = read_json(folder / "seeds.json")["seeds"]
     records = {seed: read_json(seed_dir(folder, seed) / RECORD) for seed in seeds}
     rows = {seed: [table_row(m) for m in finished_metrics(seed_dir(folder, seed)) or []] for seed in seeds}
-    failed = {f"seed {seed}: {name}": error for seed, record in records.items()
-              for name, error in record.get("failed", {}).items()}
+    failed = {
+        f"seed {seed}: {name}": error
+        for seed, record in records.items()
+        for name, error in record.get("failed", {}).items()
+    }
     first = records[seeds[0]]
     base = make_config({**next(iter(first["methods"].values())), "dataset": first["dataset"]})
     write_spread(folder, base, rows, failed, left_out_seeds(folder, seeds))
-

@@ -10,9 +10,9 @@ from __future__ import annotations
 import csv
 import io
 import os
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import yaml
@@ -28,8 +28,8 @@ from msa_slam.io.ply import write_ply
 from msa_slam.io.poses import write_poses
 from msa_slam.io.provenance import provenance
 from msa_slam.io.tables import rows_csv, write_json
-from msa_slam.reporting.report import report_markdown, sequence_title
 from msa_slam.place_recognition.figures import plot_pr_curves
+from msa_slam.reporting.report import report_markdown, sequence_title
 from msa_slam.slam import RunResult
 from msa_slam.viz import TrajectoryPanel, plot_memory, plot_step_times, plot_trajectories
 from msa_slam.viz.labels import counted, sampler_label
@@ -40,8 +40,24 @@ def frames_csv(result: RunResult) -> str:
     row_of = {int(k): i for i, k in enumerate(result.keyframes)}
     buf = io.StringIO()
     writer = csv.writer(buf)
-    writer.writerow(["frame", "time", "is_keyframe", "odom_x", "odom_y", "odom_z", "gt_x", "gt_y", "gt_z",
-                     "opt_x", "opt_y", "opt_z", "ate_odom_m", "ate_opt_m"])
+    writer.writerow(
+        [
+            "frame",
+            "time",
+            "is_keyframe",
+            "odom_x",
+            "odom_y",
+            "odom_z",
+            "gt_x",
+            "gt_y",
+            "gt_z",
+            "opt_x",
+            "opt_y",
+            "opt_z",
+            "ate_odom_m",
+            "ate_opt_m",
+        ]
+    )
     for i in range(len(result)):
         row = [i, f"{result.times[i]:.6f}", int(i in row_of)]
         row += [f"{v:.6f}" for v in result.odometry[i, :3, 3]]
@@ -51,8 +67,10 @@ def frames_csv(result: RunResult) -> str:
             row += [""] * 5
         else:
             row += [f"{v:.6f}" for v in result.optimised[k, :3, 3]]
-            row += [NA if result.ate_errors[e] is None else f"{result.ate_errors[e][k]:.6f}"
-                    for e in ("odometry", "optimised")]
+            row += [
+                NA if result.ate_errors[e] is None else f"{result.ate_errors[e][k]:.6f}"
+                for e in ("odometry", "optimised")
+            ]
         writer.writerow(row)
     return buf.getvalue()
 
@@ -62,13 +80,32 @@ def loops_csv(result: RunResult) -> str:
     radius = result.config.loop_radius
     buf = io.StringIO()
     writer = csv.writer(buf)
-    writer.writerow(["query_frame", "match_frame", "similarity", "gt_distance_m", "registered", "accepted",
-                     "residual_m", "false_loop"])
+    writer.writerow(
+        [
+            "query_frame",
+            "match_frame",
+            "similarity",
+            "gt_distance_m",
+            "registered",
+            "accepted",
+            "residual_m",
+            "false_loop",
+        ]
+    )
     for c in result.loops:
         known = bool(np.isfinite(c.gt_distance))  # NaN without ground truth
-        writer.writerow([c.query, c.match, f"{c.similarity:.6f}", f"{c.gt_distance:.4f}" if known else NA,
-                         int(c.verified), int(c.accepted), f"{c.residual:.4f}",
-                         int(c.accepted and c.gt_distance > radius) if known else NA])
+        writer.writerow(
+            [
+                c.query,
+                c.match,
+                f"{c.similarity:.6f}",
+                f"{c.gt_distance:.4f}" if known else NA,
+                int(c.verified),
+                int(c.accepted),
+                f"{c.residual:.4f}",
+                int(c.accepted and c.gt_distance > radius) if known else NA,
+            ]
+        )
     return buf.getvalue()
 
 
@@ -80,8 +117,14 @@ def steps_csv(result: RunResult) -> str:
     writer = csv.writer(buf)
     writer.writerow(["frame", *(f"{s}_ms" for s in steps), "backend_ms", *memory])
     for i in range(len(result)):
-        writer.writerow([i, *(f"{result.steps_ms[s][i]:.3f}" for s in steps), f"{backend[i]:.3f}",
-                         *(int(result.memory[m][i]) for m in memory)])
+        writer.writerow(
+            [
+                i,
+                *(f"{result.steps_ms[s][i]:.3f}" for s in steps),
+                f"{backend[i]:.3f}",
+                *(int(result.memory[m][i]) for m in memory),
+            ]
+        )
     return buf.getvalue()
 
 
@@ -90,9 +133,12 @@ def write_trajectory_files(folder: Path, result: RunResult) -> None:
     preceding keyframe's optimised pose and the odometry since), odometry and GT, in KITTI and TUM."""
     folder.mkdir()
     kf, times = result.keyframes, np.asarray(result.times, dtype=np.float64)
-    trajectories = [("optimised", result.optimised_full, times), ("optimised_keyframes", result.optimised, times[kf]),
-                    ("odometry_keyframes", result.odometry[kf], times[kf]),
-                    ("odometry", result.odometry, times)]
+    trajectories = [
+        ("optimised", result.optimised_full, times),
+        ("optimised_keyframes", result.optimised, times[kf]),
+        ("odometry_keyframes", result.odometry[kf], times[kf]),
+        ("odometry", result.odometry, times),
+    ]
     if has_ground_truth(result):
         trajectories += [("gt_keyframes", result.gt_poses[kf], times[kf]), ("gt", result.gt_poses, times)]
     for name, poses, stamps in trajectories:
@@ -114,8 +160,10 @@ def pose_graph_g2o(result: RunResult) -> str:
 def pr_csv(result: RunResult) -> str:
     """The PR curve's arrays: one row per similarity threshold (precision, recall, F1)."""
     pr = result.pr
-    rows = [{"threshold": f"{t:.2f}", "precision": f"{p:.6f}", "recall": f"{r:.6f}", "f1": f"{f:.6f}"}
-            for t, p, r, f in zip(pr.thresholds, pr.precision, pr.recall, pr.f1)]
+    rows = [
+        {"threshold": f"{t:.2f}", "precision": f"{p:.6f}", "recall": f"{r:.6f}", "f1": f"{f:.6f}"}
+        for t, p, r, f in zip(pr.thresholds, pr.precision, pr.recall, pr.f1)
+    ]
     return rows_csv(rows, ("threshold", "precision", "recall", "f1"))
 
 
@@ -130,8 +178,14 @@ def loop_edges(result: RunResult) -> tuple[list, list]:
     return good, bad
 
 
-def trajectory_panel(name: str, ate_m: float | None, estimate: np.ndarray, gt: np.ndarray | None,
-                     errors: np.ndarray | None, loops: tuple[list, list] | None = None) -> TrajectoryPanel:
+def trajectory_panel(
+    name: str,
+    ate_m: float | None,
+    estimate: np.ndarray,
+    gt: np.ndarray | None,
+    errors: np.ndarray | None,
+    loops: tuple[list, list] | None = None,
+) -> TrajectoryPanel:
     """A keyframe trajectory SE(3)-aligned to `gt` and coloured by its ATE; drawn as estimated, in one colour,
     without ground truth or when the alignment is undetermined. `loops` (true, false) are drawn on it; None:
     none belong to it."""
@@ -153,10 +207,19 @@ def trajectory_panels(result: RunResult) -> tuple[TrajectoryPanel, TrajectoryPan
     gt, loops = None if result.gt_poses is None else result.gt_poses[kf], loop_edges(result)
     optimiser = "iSAM2" if m.online else "optimised"
     ate = m.keyframe_trajectory
-    return (trajectory_panel("odometry", known(ate.before.ate_translation_m), result.odometry[kf], gt,
-                             result.ate_errors["odometry"]),
-            trajectory_panel(f"{m.method} {optimiser}", known(ate.after.ate_translation_m), result.optimised, gt,
-                             result.ate_errors["optimised"], loops))
+    return (
+        trajectory_panel(
+            "odometry", known(ate.before.ate_translation_m), result.odometry[kf], gt, result.ate_errors["odometry"]
+        ),
+        trajectory_panel(
+            f"{m.method} {optimiser}",
+            known(ate.after.ate_translation_m),
+            result.optimised,
+            gt,
+            result.ate_errors["optimised"],
+            loops,
+        ),
+    )
 
 
 def reference_xy(result: RunResult) -> np.ndarray:
@@ -166,8 +229,7 @@ def reference_xy(result: RunResult) -> np.ndarray:
 
 def accounted_bytes(memory: dict[str, np.ndarray]) -> np.ndarray:
     """Per-frame accounted memory: keyframe clouds (RAM and disk), descriptors and graph."""
-    return (memory["cloud_bytes"] + memory["cloud_disk_bytes"] + memory["descriptor_bytes"]
-            + memory["graph_bytes"])
+    return memory["cloud_bytes"] + memory["cloud_disk_bytes"] + memory["descriptor_bytes"] + memory["graph_bytes"]
 
 
 RUN_FIGURES = ("trajectories.png", "memory.png", "step_times.png", "pr_curve.png")  # report.md's order
@@ -190,20 +252,30 @@ def _write_figures(result: RunResult, folder: Path) -> list[str]:
     sequence = sequence_title(m.run.sequence, cfg.source, len(result))
     # a labelled run (compare's "constant-2m") says its parameters in its label
     method = m.method if cfg.label else sampler_label(cfg.sampler, cfg.sampler_params)
-    plot_trajectories(folder / "trajectories.png", reference_xy(result), trajectory_panels(result),
-                      title=f"{sequence}: {method}{online} ({counted(m.run.keyframes, 'keyframe')}, "
-                            f"{counted(m.loops.verified, 'loop')}, "
-                            f"{m.run.mode} mode)")
+    plot_trajectories(
+        folder / "trajectories.png",
+        reference_xy(result),
+        trajectory_panels(result),
+        title=f"{sequence}: {method}{online} ({counted(m.run.keyframes, 'keyframe')}, "
+        f"{counted(m.loops.verified, 'loop')}, "
+        f"{m.run.mode} mode)",
+    )
     if result.memory:
-        plot_memory(folder / "memory.png", {m.method: (np.arange(len(result)), accounted_bytes(result.memory),
-                                                          result.memory["rss_bytes"])},
-                    title=f"{sequence}: memory over time")
+        plot_memory(
+            folder / "memory.png",
+            {m.method: (np.arange(len(result)), accounted_bytes(result.memory), result.memory["rss_bytes"])},
+            title=f"{sequence}: memory over time",
+        )
         new_kf = np.diff(result.memory["keyframes"], prepend=0) > 0
-        plot_step_times(folder / "step_times.png", {
-            "graph update (iSAM2)": {m.method: result.steps_ms["graph_update"][new_kf]},
-            "loop detection": {m.method: result.steps_ms["loop_detection"][new_kf]},
-            "back-end per frame": {m.method: result.backend_ms},
-        }, title=f"{sequence}: per-step time")
+        plot_step_times(
+            folder / "step_times.png",
+            {
+                "graph update (iSAM2)": {m.method: result.steps_ms["graph_update"][new_kf]},
+                "loop detection": {m.method: result.steps_ms["loop_detection"][new_kf]},
+                "back-end per frame": {m.method: result.backend_ms},
+            },
+            title=f"{sequence}: per-step time",
+        )
     if result.pr is not None and result.pr.auc is not None:
         plot_pr_curves({m.method: result.pr}, folder / "pr_curve.png", title=f"{sequence}: loop candidates")
     return run_figures(folder)
@@ -231,8 +303,9 @@ def write_run_files(result: RunResult, folder: Path, figures: bool = True) -> No
     (folder / "report.md").write_text(report_markdown(result, names, folder_files(folder)))
 
 
-def write_run(make: Callable[[], RunResult], out: str | os.PathLike | None, command: str = "run",
-              overwrite: bool = False) -> Path:
+def write_run(
+    make: Callable[[], RunResult], out: str | os.PathLike | None, command: str = "run", overwrite: bool = False
+) -> Path:
     """The result folder `out` of the run `make` returns, written atomically; `out` is checked before `make` does
     any work (as `open_result_folder` does; None: a new timestamped folder under msa_slam_results/<command>, run
     or online); return the path of its report.md."""

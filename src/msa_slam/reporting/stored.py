@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import csv
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -91,8 +92,9 @@ def read_comparison(folder: Path) -> tuple[StoredFrontend, list[StoredRun]]:
     """The front end and the finished methods (in the comparison's order) of a comparison folder."""
     listed = listed_methods(folder)
     if not listed:
-        raise InputError(f"{folder}: no method of this comparison finished (comparison.json lists none); "
-                         "nothing to report")
+        raise InputError(
+            f"{folder}: no method of this comparison finished (comparison.json lists none); nothing to report"
+        )
     runs = [read_run(folder / "runs" / m.method) for m in listed]
     first = runs[0].metrics
     timer = StageTimer()
@@ -105,8 +107,10 @@ def failed_methods(folder: Path, order: Sequence[str] = ()) -> dict[str, str]:
     methods of `order` first in that order (the paper's: experiments.compare.PAPER_METHODS), others after by
     name."""
     order = list(order)
-    names = sorted((p.parent.name for p in (folder / "runs").glob("*/error.txt")),
-                   key=lambda name: (order.index(name) if name in order else len(order), name))
+    names = sorted(
+        (p.parent.name for p in (folder / "runs").glob("*/error.txt")),
+        key=lambda name: (order.index(name) if name in order else len(order), name),
+    )
     return {name: error_line(folder / "runs" / name / "error.txt") for name in names}
 
 

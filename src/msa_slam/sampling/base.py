@@ -153,8 +153,9 @@ class Sampler(ABC):
         """Announce the stream's length (and whether finish() will flush) before pushing, so a sampler can warn
         about a useless setting."""
 
-    def push(self, pose: np.ndarray, descriptor: np.ndarray | None = None,
-             points: np.ndarray | None = None) -> list[int]:
+    def push(
+        self, pose: np.ndarray, descriptor: np.ndarray | None = None, points: np.ndarray | None = None
+    ) -> list[int]:
         """Feed the next frame; return the frame indices this frame finalised as keyframes."""
         if self._finished:
             raise RuntimeError(f"{self.name}: push() after finish()")
@@ -180,8 +181,9 @@ class Sampler(ABC):
         self._flushed.extend(new)
         return new
 
-    def run(self, poses: np.ndarray, descriptors: np.ndarray | None = None,
-            clouds=None, flush: bool = False) -> list[int]:
+    def run(
+        self, poses: np.ndarray, descriptors: np.ndarray | None = None, clouds=None, flush: bool = False
+    ) -> list[int]:
         """Convenience: push a whole stream and return the keyframe list."""
         n = len(poses)
         self.expect_frames(n, flush)
@@ -190,8 +192,7 @@ class Sampler(ABC):
         if clouds is not None and len(clouds) != n:
             raise InputError(f"{self.name}: {n} poses but {len(clouds)} clouds")
         for i in range(n):
-            self.push(poses[i], None if descriptors is None else descriptors[i],
-                      None if clouds is None else clouds[i])
+            self.push(poses[i], None if descriptors is None else descriptors[i], None if clouds is None else clouds[i])
         if flush:
             self.finish()
         return self.keyframes
@@ -200,15 +201,19 @@ class Sampler(ABC):
         """The standstill gate: True holds the frame back; False passes it on and makes it the anchor."""
         if not self.gated:
             return False
-        if self._anchor is not None and np.linalg.norm(pose[:3, 3] - self._anchor[:3, 3]) < self.min_motion \
-                and (self.min_rotation == 0 or rotation_deg(self._anchor, pose) < self.min_rotation):
+        if (
+            self._anchor is not None
+            and np.linalg.norm(pose[:3, 3] - self._anchor[:3, 3]) < self.min_motion
+            and (self.min_rotation == 0 or rotation_deg(self._anchor, pose) < self.min_rotation)
+        ):
             return True
         self._anchor = pose.copy()
         return False
 
     @abstractmethod
-    def _push(self, index: int, pose: np.ndarray, descriptor: np.ndarray | None,
-              points: np.ndarray | None) -> list[int]:
+    def _push(
+        self, index: int, pose: np.ndarray, descriptor: np.ndarray | None, points: np.ndarray | None
+    ) -> list[int]:
         """Algorithm step for one validated frame."""
 
     def _finish(self) -> list[int]:
@@ -224,13 +229,16 @@ class Sampler(ABC):
             raise InputError(f"{self.name}: frame {index} descriptor must hold real numbers, got dtype {desc.dtype}")
         desc = desc.astype(np.float64, copy=False)
         if desc.ndim not in (1, 2) or desc.size == 0:
-            raise InputError(f"{self.name}: frame {index} descriptor must be a non-empty 1-D or 2-D array, "
-                             f"got shape {desc.shape}")
+            raise InputError(
+                f"{self.name}: frame {index} descriptor must be a non-empty 1-D or 2-D array, got shape {desc.shape}"
+            )
         if self._descriptor_shape is None:
             self._descriptor_shape = desc.shape
         elif desc.shape != self._descriptor_shape:
-            raise InputError(f"{self.name}: frame {index} descriptor has shape {desc.shape}, "
-                             f"earlier frames had {self._descriptor_shape}")
+            raise InputError(
+                f"{self.name}: frame {index} descriptor has shape {desc.shape}, "
+                f"earlier frames had {self._descriptor_shape}"
+            )
         if not np.isfinite(desc).all():
             raise InputError(f"{self.name}: frame {index} descriptor has NaN or infinite values")
         return desc
@@ -250,7 +258,7 @@ class Sampler(ABC):
 class Timer:
     """Wall-clock milliseconds of a block (perf_counter)."""
 
-    def __enter__(self) -> "Timer":
+    def __enter__(self) -> Timer:
         self._t0 = time.perf_counter()
         return self
 

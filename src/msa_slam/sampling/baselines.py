@@ -115,8 +115,7 @@ class Entropy(_DistanceGated):
 
     def _push(self, index, pose, descriptor, points):
         entropy = histogram_entropy(points, self.bins)
-        if self._last_t is None or self._entropy_changed(entropy) \
-                or self._distance_to_last(pose) > self.max_distance:
+        if self._last_t is None or self._entropy_changed(entropy) or self._distance_to_last(pose) > self.max_distance:
             self._last_t = pose[:3, 3].copy()
             self._last_entropy = entropy
             return [index]

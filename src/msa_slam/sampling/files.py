@@ -21,9 +21,18 @@ from msa_slam.sampling.msa.warm import load_kernels
 from msa_slam.sampling.registry import make_sampler, sampler_parameters
 
 
-def sample_files(poses: Path, descriptors: Path | None, clouds: Path | None, sampler: str, params: dict[str, Any],
-                 pose_format: str = "auto", out: str | os.PathLike | None = None, overwrite: bool = False,
-                 flush: bool = False, quiet: bool = True) -> tuple[Path, int, int]:
+def sample_files(
+    poses: Path,
+    descriptors: Path | None,
+    clouds: Path | None,
+    sampler: str,
+    params: dict[str, Any],
+    pose_format: str = "auto",
+    out: str | os.PathLike | None = None,
+    overwrite: bool = False,
+    flush: bool = False,
+    quiet: bool = True,
+) -> tuple[Path, int, int]:
     """Run `sampler` with `params` over the poses (and per-frame `descriptors` .npy, scan folder or .npy `clouds`)
     and write keyframes.txt, keyframes.json and keyframes.png into the result folder `out` (checked before the
     sampler runs; None: a new one under msa_slam_results/sample); `flush`: the last window flushed at the end
@@ -47,21 +56,35 @@ def sample_files(poses: Path, descriptors: Path | None, clouds: Path | None, sam
         with progress_bar(quiet, transient=False) as progress:
             task = progress.add_task(f"sampling ({sampler})", total=n)
             for i in range(n):
-                chosen.push(pose_stack[i], None if desc is None else desc[i],
-                            None if cloud_list is None else cloud_list[i])
+                chosen.push(
+                    pose_stack[i], None if desc is None else desc[i], None if cloud_list is None else cloud_list[i]
+                )
                 progress.advance(task)
         flushed = chosen.finish() if flush else []
         keyframes = chosen.keyframes
         record = {
-            "version": __version__, "sampler": sampler, "params": {**sampler_parameters(sampler), **params},
-            "inputs": {"poses": str(poses), "descriptors": str(descriptors) if descriptors else None,
-                       "clouds": str(clouds) if clouds else None},
-            "frames": n, "keyframes": keyframes, "online_keyframes": chosen.online_keyframes,
-            "flushed_keyframes": flushed, "stats": chosen.stats.as_dict(),
+            "version": __version__,
+            "sampler": sampler,
+            "params": {**sampler_parameters(sampler), **params},
+            "inputs": {
+                "poses": str(poses),
+                "descriptors": str(descriptors) if descriptors else None,
+                "clouds": str(clouds) if clouds else None,
+            },
+            "frames": n,
+            "keyframes": keyframes,
+            "online_keyframes": chosen.online_keyframes,
+            "flushed_keyframes": flushed,
+            "stats": chosen.stats.as_dict(),
         }
         with folder.staging() as tmp:  # the three files appear together or not at all
             (tmp / "keyframes.txt").write_text("".join(f"{k}\n" for k in keyframes))
             (tmp / "keyframes.json").write_text(json.dumps(record, indent=2) + "\n")
-            plot_keyframes(pose_stack, keyframes, tmp / "keyframes.png",
-                           title=f"{sampler}: {len(keyframes)} of {n} frames", flushed=flushed)
+            plot_keyframes(
+                pose_stack,
+                keyframes,
+                tmp / "keyframes.png",
+                title=f"{sampler}: {len(keyframes)} of {n} frames",
+                flushed=flushed,
+            )
     return folder.path, len(keyframes), n

@@ -12,8 +12,8 @@ run's configuration echoes (config.yaml, metrics.json, labels), so defaults neve
 from __future__ import annotations
 
 import numbers
-from collections.abc import Mapping
-from typing import Annotated, Any, ClassVar, Iterator
+from collections.abc import Iterator, Mapping
+from typing import Annotated, Any, ClassVar
 
 import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
@@ -58,15 +58,19 @@ class SamplerParams(BaseModel, Mapping):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
     NAME: ClassVar[str] = "sampler"
 
-    min_motion: Real = Field(0.0, ge=0, description="metres a frame must move from the last frame the gate "
-                                                     "passed on to be passed on (0: no gate)")
-    min_rotation: Real = Field(0.0, ge=0, lt=MAX_MIN_ROTATION,
-                               description="degrees of turn that pass a frame that moved less than min_motion")
+    min_motion: Real = Field(
+        0.0,
+        ge=0,
+        description="metres a frame must move from the last frame the gate passed on to be passed on (0: no gate)",
+    )
+    min_rotation: Real = Field(
+        0.0, ge=0, lt=MAX_MIN_ROTATION, description="degrees of turn that pass a frame that moved less than min_motion"
+    )
     _given: dict[str, Any] = PrivateAttr(default_factory=dict)
 
     @model_validator(mode="wrap")
     @classmethod
-    def _keep_given(cls, data: Any, handler: Any) -> "SamplerParams":
+    def _keep_given(cls, data: Any, handler: Any) -> SamplerParams:
         """Remember the parameters as given: the run's configuration echoes them, not the defaults."""
         model = handler(data)
         if isinstance(data, Mapping) and model is not data:
@@ -74,11 +78,13 @@ class SamplerParams(BaseModel, Mapping):
         return model
 
     @model_validator(mode="after")
-    def _gate(self) -> "SamplerParams":
+    def _gate(self) -> SamplerParams:
         if self.min_rotation > 0 and self.min_motion == 0:
-            raise rule(f"min_rotation={self.min_rotation!r} needs min_motion > 0 "
-                       "(the standstill gate holds back frames that moved less than min_motion metres, unless they "
-                       "turned at least min_rotation degrees); set min_motion, or min_rotation=0")
+            raise rule(
+                f"min_rotation={self.min_rotation!r} needs min_motion > 0 "
+                "(the standstill gate holds back frames that moved less than min_motion metres, unless they "
+                "turned at least min_rotation degrees); set min_motion, or min_rotation=0"
+            )
         return self
 
     @classmethod
@@ -111,8 +117,12 @@ def expected(model: type[BaseModel], key: str) -> str:
         return f"one of {', '.join(choices)}"
     if field.annotation is bool:
         return "true or false"
-    bounds = [f"{sign} {getattr(m, attr):g}" for m in field.metadata  # pydantic's Ge(ge=3), Lt(lt=1), ...
-              for attr, sign in (("ge", ">="), ("gt", ">"), ("lt", "<"), ("le", "<=")) if hasattr(m, attr)]
+    bounds = [
+        f"{sign} {getattr(m, attr):g}"
+        for m in field.metadata  # pydantic's Ge(ge=3), Lt(lt=1), ...
+        for attr, sign in (("ge", ">="), ("gt", ">"), ("lt", "<"), ("le", "<="))
+        if hasattr(m, attr)
+    ]
     what = "an integer" if field.annotation is int else "a finite number"
     return " ".join([what, " and ".join(bounds)]).strip()
 

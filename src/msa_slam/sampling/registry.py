@@ -3,14 +3,23 @@ run's configuration holds, the sampler's name its tag)."""
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Mapping, Union
+from collections.abc import Mapping
+from typing import Annotated, Any
 
 from pydantic import Field
 
 from msa_slam.errors import InputError
 from msa_slam.sampling.base import Sampler
-from msa_slam.sampling.baselines import (AllParams, AllSamples, ConstantDistance, ConstantParams, Entropy,
-                                         EntropyParams, Spaciousness, SpaciousnessParams)
+from msa_slam.sampling.baselines import (
+    AllParams,
+    AllSamples,
+    ConstantDistance,
+    ConstantParams,
+    Entropy,
+    EntropyParams,
+    Spaciousness,
+    SpaciousnessParams,
+)
 from msa_slam.sampling.msa.params import MSAParams
 from msa_slam.sampling.msa.sampler import MSASampler
 from msa_slam.sampling.params import TAG, SamplerParams, check_params
@@ -24,8 +33,9 @@ SAMPLERS: dict[str, type[Sampler]] = {
 }
 # A sampler and its parameters in one value: pydantic picks the model by the `sampler` tag (tests check that it
 # holds every sampler's Params)
-SamplerChoice = Annotated[Union[AllParams, ConstantParams, EntropyParams, SpaciousnessParams, MSAParams],
-                          Field(discriminator=TAG)]
+SamplerChoice = Annotated[
+    AllParams | ConstantParams | EntropyParams | SpaciousnessParams | MSAParams, Field(discriminator=TAG)
+]
 
 
 def sampler_parameters(name: str) -> dict[str, Any]:

@@ -9,8 +9,16 @@ import hashlib
 from dataclasses import asdict
 from pathlib import Path
 
-from pydantic import (BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, ValidationInfo, field_validator,
-                      model_validator)
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from msa_slam.errors import InputError
 from msa_slam.io.cache import cache_key
@@ -19,8 +27,7 @@ from msa_slam.io.poses import POSE_FORMATS
 from msa_slam.sim.layout import STYLES
 from msa_slam.sim.realism import DEFAULT_REALISM, REALISM
 from msa_slam.sim.sensors import SENSORS
-from msa_slam.sim.trajectories import (TRAJECTORY_NAMES, Trajectory, frame_indices, load_trajectory,
-                                       read_trajectory)
+from msa_slam.sim.trajectories import TRAJECTORY_NAMES, Trajectory, frame_indices, load_trajectory, read_trajectory
 
 SIM_VERSION = "11"  # the generation of worlds and scans that docs and sim.json name: bump it when they change
 SIM_LIBRARIES = ("trimesh", "embreex", "numpy", "scipy")  # ray casting, noise, poses (Rotation): the cache key
@@ -59,8 +66,9 @@ class SimConfig(BaseModel):
         if not path.is_file():
             looks_like_a_file = "/" in v or "." in v  # no shipped name has either
             what = "pose file not found:" if looks_like_a_file else "unknown trajectory"
-            raise ValueError(f"{what} {v!r}; choose one of {', '.join(TRAJECTORY_NAMES)} "
-                             "or give a pose file (KITTI or TUM format)")
+            raise ValueError(
+                f"{what} {v!r}; choose one of {', '.join(TRAJECTORY_NAMES)} or give a pose file (KITTI or TUM format)"
+            )
         return str(path.resolve())
 
     @field_validator("times", "calib")
@@ -81,16 +89,20 @@ class SimConfig(BaseModel):
         return v
 
     @model_validator(mode="after")
-    def _read_trajectory_file(self) -> "SimConfig":
+    def _read_trajectory_file(self) -> SimConfig:
         """Check a trajectory file whole now (errors name its line, before any long work) and hash the files."""
         if self.trajectory in TRAJECTORY_NAMES:
             if self.times is not None or self.calib is not None or self.trajectory_format != "auto":
-                raise ValueError(f"times, calib and trajectory_format apply to a trajectory file, not to the "
-                                 f"shipped trajectory {self.trajectory!r}")
+                raise ValueError(
+                    f"times, calib and trajectory_format apply to a trajectory file, not to the "
+                    f"shipped trajectory {self.trajectory!r}"
+                )
             return self
         self.load_trajectory()
-        parts = [f"{what}:{hashlib.sha256(Path(f).read_bytes()).hexdigest() if f else '-'}"
-                 for what, f in (("poses", self.trajectory), ("times", self.times), ("calib", self.calib))]
+        parts = [
+            f"{what}:{hashlib.sha256(Path(f).read_bytes()).hexdigest() if f else '-'}"
+            for what, f in (("poses", self.trajectory), ("times", self.times), ("calib", self.calib))
+        ]
         self._files_sha256 = ",".join(parts)
         return self
 
@@ -118,8 +130,11 @@ class SimConfig(BaseModel):
     @field_validator("sensor", "realism", "style")
     @classmethod
     def _known_name(cls, v: str | None, info: ValidationInfo) -> str | None:
-        kind, names = {"sensor": ("sensor", SENSORS), "realism": ("realism preset", REALISM),
-                       "style": ("world style", STYLES)}[info.field_name]
+        kind, names = {
+            "sensor": ("sensor", SENSORS),
+            "realism": ("realism preset", REALISM),
+            "style": ("world style", STYLES),
+        }[info.field_name]
         if v is not None and v not in names:
             raise ValueError(f"unknown {kind} {v!r}; choose one of {', '.join(names)}")
         return v
@@ -132,8 +147,13 @@ class SimConfig(BaseModel):
         if self.is_file:  # the files' content, not where they are
             config.update(trajectory="file", times=None, calib=None, trajectory_files=self._files_sha256)
         preset = asdict(REALISM[self.realism])  # its parameters: retuning a preset is a new simulation
-        return cache_key("simulation", [], {"config": config, "realism_preset": preset, "sim_version": SIM_VERSION},
-                         code_fingerprint(SIM_CODE, SIM_DATA), SIM_LIBRARIES)
+        return cache_key(
+            "simulation",
+            [],
+            {"config": config, "realism_preset": preset, "sim_version": SIM_VERSION},
+            code_fingerprint(SIM_CODE, SIM_DATA),
+            SIM_LIBRARIES,
+        )
 
 
 def make_config(where: str = "simulation config", **fields: object) -> SimConfig:
@@ -142,7 +162,8 @@ def make_config(where: str = "simulation config", **fields: object) -> SimConfig
     try:
         return SimConfig(**fields)
     except ValidationError as exc:
-        problems = "; ".join(": ".join([*(['.'.join(map(str, e['loc']))] if e['loc'] else []),
-                                         e['msg'].removeprefix('Value error, ')]) for e in exc.errors())
+        problems = "; ".join(
+            ": ".join([*([".".join(map(str, e["loc"]))] if e["loc"] else []), e["msg"].removeprefix("Value error, ")])
+            for e in exc.errors()
+        )
         raise InputError(f"{where}: {problems}") from None
-

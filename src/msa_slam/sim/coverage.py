@@ -28,10 +28,12 @@ def check_reaches_ground(model: LidarModel, height: float) -> None:
         return
     reach = height / math.sin(math.radians(-lowest))
     if model.max_range < reach:
-        raise InputError(f"simulation config: max_range={model.max_range:g} m is shorter than the {reach:.1f} m at "
-                         f"which the lowest beam of {model.name} ({lowest:g} deg) meets the ground from {height:g} m "
-                         f"up, so the scans would be empty; give max_range >= {math.ceil(reach)} m or leave it unset "
-                         f"(the sensor's default)")
+        raise InputError(
+            f"simulation config: max_range={model.max_range:g} m is shorter than the {reach:.1f} m at "
+            f"which the lowest beam of {model.name} ({lowest:g} deg) meets the ground from {height:g} m "
+            f"up, so the scans would be empty; give max_range >= {math.ceil(reach)} m or leave it unset "
+            f"(the sensor's default)"
+        )
 
 
 def warn_short_range(config: SimConfig) -> None:
@@ -41,8 +43,12 @@ def warn_short_range(config: SimConfig) -> None:
     odometry ATE): 0.03 m at the sensor's 120 m, 0.17 at 20 m, 0.21 at 15 m, 0.68 at 12 m, 3.9 at 10 m, 11.5 at
     4.5 m."""
     if config.max_range is not None and config.max_range < SHORT_RANGE_M:
-        warnings.warn(f"simulate: max_range={config.max_range:g} m leaves the scans only the ground and the nearest "
-                      f"objects; odometry fails on them below about {SHORT_RANGE_M:g} m", UserWarning, stacklevel=3)
+        warnings.warn(
+            f"simulate: max_range={config.max_range:g} m leaves the scans only the ground and the nearest "
+            f"objects; odometry fails on them below about {SHORT_RANGE_M:g} m",
+            UserWarning,
+            stacklevel=3,
+        )
 
 
 def likely_settings(config: SimConfig) -> str:
@@ -62,8 +68,10 @@ def likely_settings(config: SimConfig) -> str:
 
 def empty_scan_error(config: SimConfig, k: int, frames: int) -> InputError:
     """The error for scan k of `frames` having no points (raised before the sequence is written)."""
-    return InputError(f"simulate: scan {k} of {frames} has no points, and msa-slam cannot read a sequence with an "
-                      f"empty scan; {likely_settings(config)} (nothing was written)")
+    return InputError(
+        f"simulate: scan {k} of {frames} has no points, and msa-slam cannot read a sequence with an "
+        f"empty scan; {likely_settings(config)} (nothing was written)"
+    )
 
 
 def warn_sparse_scans(config: SimConfig, scan_bytes: list[int]) -> None:
@@ -78,6 +86,9 @@ def warn_sparse_scans(config: SimConfig, scan_bytes: list[int]) -> None:
     points = np.asarray(scan_bytes, dtype=np.int64) // POINT_BYTES
     sparse = int((points < SPARSE_SCAN_POINTS).sum())
     if sparse:
-        warnings.warn(f"simulate: {sparse} of {len(points)} scans have fewer than {SPARSE_SCAN_POINTS} points "
-                      f"(fewest {points.min()}), too few for odometry and descriptors; {likely_settings(config)}",
-                      UserWarning, stacklevel=3)
+        warnings.warn(
+            f"simulate: {sparse} of {len(points)} scans have fewer than {SPARSE_SCAN_POINTS} points "
+            f"(fewest {points.min()}), too few for odometry and descriptors; {likely_settings(config)}",
+            UserWarning,
+            stacklevel=3,
+        )

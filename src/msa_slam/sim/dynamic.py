@@ -9,8 +9,8 @@ of values drawn once per world, so any frame can be simulated on its own, determ
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 from trimesh.ray.ray_pyembree import RayMeshIntersector
@@ -25,9 +25,11 @@ def unit_hash(ids: np.ndarray, epochs: np.ndarray, seed: int) -> np.ndarray:
     """Deterministic uniform [0, 1) values per (id, epoch) pair (splitmix64): presence is decided
     for any time without storing a schedule."""
     with np.errstate(over="ignore"):
-        x = (np.asarray(ids, dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15)
-             + np.asarray(epochs, dtype=np.int64).astype(np.uint64) * np.uint64(0xBF58476D1CE4E5B9)
-             + np.uint64(seed & 0xFFFFFFFF) * np.uint64(0x94D049BB133111EB))
+        x = (
+            np.asarray(ids, dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+            + np.asarray(epochs, dtype=np.int64).astype(np.uint64) * np.uint64(0xBF58476D1CE4E5B9)
+            + np.uint64(seed & 0xFFFFFFFF) * np.uint64(0x94D049BB133111EB)
+        )
         x ^= x >> np.uint64(30)
         x *= np.uint64(0xBF58476D1CE4E5B9)
         x ^= x >> np.uint64(27)
@@ -44,7 +46,7 @@ class PathFrame:
     arc: np.ndarray
 
     @classmethod
-    def of(cls, xy: np.ndarray) -> "PathFrame":
+    def of(cls, xy: np.ndarray) -> PathFrame:
         return cls(xy, np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))]))
 
     @property
@@ -53,8 +55,10 @@ class PathFrame:
 
     def at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Points (K, 2) and unit headings (K, 2) at arc lengths `s` (K,)."""
+
         def interp(v: np.ndarray) -> np.ndarray:
             return np.column_stack([np.interp(v, self.arc, self.xy[:, 0]), np.interp(v, self.arc, self.xy[:, 1])])
+
         h = interp(s + 2.0) - interp(s - 2.0)
         return interp(s), h / np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-9)
 
@@ -71,15 +75,15 @@ class DynamicObjects:
     refl: np.ndarray
     material: np.ndarray
     motion: np.ndarray
-    s0: np.ndarray        # DRIVE/WALK: arc length at time 0
-    speed: np.ndarray     # DRIVE: signed m/s along the path; WALK: m/s
-    lateral: np.ndarray   # DRIVE/WALK: offset along the path's left normal
-    span: np.ndarray      # WALK: length of the stretch walked back and forth
-    xy: np.ndarray        # FIXED: position (K, 2)
-    z: np.ndarray         # FIXED: ground height
-    yaw: np.ndarray       # FIXED: heading
-    period: np.ndarray    # presence epochs (s); 0 = always present
-    keep: np.ndarray      # probability of being present in an epoch
+    s0: np.ndarray  # DRIVE/WALK: arc length at time 0
+    speed: np.ndarray  # DRIVE: signed m/s along the path; WALK: m/s
+    lateral: np.ndarray  # DRIVE/WALK: offset along the path's left normal
+    span: np.ndarray  # WALK: length of the stretch walked back and forth
+    xy: np.ndarray  # FIXED: position (K, 2)
+    z: np.ndarray  # FIXED: ground height
+    yaw: np.ndarray  # FIXED: heading
+    period: np.ndarray  # presence epochs (s); 0 = always present
+    keep: np.ndarray  # probability of being present in an epoch
 
     def __len__(self) -> int:
         return len(self.motion)
@@ -129,18 +133,25 @@ class DynamicObjects:
         k, p = np.nonzero(valid)
         c, s = np.cos(yaw[idx][k]), np.sin(yaw[idx][k])
         local = parts[k, p]
-        centres = pos[idx][k] + np.column_stack([c * local[:, 0] - s * local[:, 1], s * local[:, 0] + c * local[:, 1],
-                                                 local[:, 2]])
+        centres = pos[idx][k] + np.column_stack(
+            [c * local[:, 0] - s * local[:, 1], s * local[:, 0] + c * local[:, 1], local[:, 2]]
+        )
         return centres, local[:, 3:6], yaw[idx][k], self.refl[idx][k], self.material[idx][k]
 
-    def cast(self, origins: np.ndarray, directions: np.ndarray, time: float,
-             radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def cast(
+        self, origins: np.ndarray, directions: np.ndarray, time: float, radius: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """First hits on the objects at `time`: ray index, distance, unit normal, reflectance, material."""
         sample = origins[:: max(1, len(origins) // 64)]
         centres, half, yaw, refl, material = self.boxes_at(time, sample, radius)
         if len(centres) == 0:
-            return (np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.float32),
-                    np.zeros(0, np.uint8))
+            return (
+                np.zeros(0, np.int64),
+                np.zeros(0),
+                np.zeros((0, 3)),
+                np.zeros(0, np.float32),
+                np.zeros(0, np.uint8),
+            )
         builder = MeshBuilder()
         builder.boxes(centres, half, yaw, refl, material)
         mesh, face_refl, face_material = builder.build()
@@ -156,8 +167,7 @@ class DynamicObjects:
 _AZ_BINS, _EL_BINS = 720, 180  # a 0.5 x 1 degree grid of directions
 
 
-def _candidate_rays(origins: np.ndarray, directions: np.ndarray, centres: np.ndarray,
-                    radii: np.ndarray) -> np.ndarray:
+def _candidate_rays(origins: np.ndarray, directions: np.ndarray, centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
     """Indices of the rays whose direction falls in the angular footprint of some box (its bounding
     sphere seen from the origins' centre, widened by the origins' spread): casting only those keeps the
     dynamic cast a small fraction of the static one."""
@@ -176,9 +186,14 @@ def _candidate_rays(origins: np.ndarray, directions: np.ndarray, centres: np.nda
     for a, e, w in zip(az, el, half):
         e0 = int(np.floor((e - w + np.pi / 2) / np.pi * _EL_BINS))
         e1 = int(np.floor((e + w + np.pi / 2) / np.pi * _EL_BINS))
-        cols = np.arange(int(np.floor((a - w + np.pi) / (2 * np.pi) * _AZ_BINS)),
-                         int(np.floor((a + w + np.pi) / (2 * np.pi) * _AZ_BINS)) + 1) % _AZ_BINS
-        grid[max(e0, 0):min(e1, _EL_BINS - 1) + 1, cols] = True
+        cols = (
+            np.arange(
+                int(np.floor((a - w + np.pi) / (2 * np.pi) * _AZ_BINS)),
+                int(np.floor((a + w + np.pi) / (2 * np.pi) * _AZ_BINS)) + 1,
+            )
+            % _AZ_BINS
+        )
+        grid[max(e0, 0) : min(e1, _EL_BINS - 1) + 1, cols] = True
     ray_az = ((np.arctan2(directions[:, 1], directions[:, 0]) + np.pi) / (2 * np.pi) * _AZ_BINS).astype(np.int64)
     ray_el = ((np.arcsin(np.clip(directions[:, 2], -1.0, 1.0)) + np.pi / 2) / np.pi * _EL_BINS).astype(np.int64)
     return np.flatnonzero(grid[np.minimum(ray_el, _EL_BINS - 1), ray_az % _AZ_BINS])
@@ -191,7 +206,7 @@ class DynamicRecipe:
 
     cars_per_100m: float
     pedestrians_per_100m: float
-    car_lanes: tuple[float, float]       # lateral offsets: with the path's direction, against it
+    car_lanes: tuple[float, float]  # lateral offsets: with the path's direction, against it
     pedestrian_offset: tuple[float, float]
     period: float
 
@@ -205,8 +220,14 @@ def _car_parts(rng: np.random.Generator, n: int) -> np.ndarray:
     return parts
 
 
-def make_dynamic(path: PathFrame, ground: Callable[[np.ndarray], np.ndarray], recipe: DynamicRecipe,
-                 parked: np.ndarray, rng: np.random.Generator, seed: int) -> DynamicObjects | None:
+def make_dynamic(
+    path: PathFrame,
+    ground: Callable[[np.ndarray], np.ndarray],
+    recipe: DynamicRecipe,
+    parked: np.ndarray,
+    rng: np.random.Generator,
+    seed: int,
+) -> DynamicObjects | None:
     """Moving cars, pedestrians and the transient parked cars `parked` (P, 11: x, y, z, yaw, body half
     length and width, cabin centre height and half extents, reflectance); None when there are none."""
     total = path.length
@@ -235,8 +256,9 @@ def make_dynamic(path: PathFrame, ground: Callable[[np.ndarray], np.ndarray], re
 
     peds = slice(n_car, n_car + n_ped)
     half_height = rng.uniform(0.78, 0.95, n_ped)
-    parts[peds, 0, 2:] = np.column_stack([half_height, rng.uniform(0.2, 0.3, n_ped),
-                                          rng.uniform(0.15, 0.22, n_ped), half_height])
+    parts[peds, 0, 2:] = np.column_stack(
+        [half_height, rng.uniform(0.2, 0.3, n_ped), rng.uniform(0.15, 0.22, n_ped), half_height]
+    )
     refl[peds] = rng.uniform(0.15, 0.6, n_ped)
     material[peds] = Material.PERSON
     motion[peds] = WALK
@@ -253,5 +275,6 @@ def make_dynamic(path: PathFrame, ground: Callable[[np.ndarray], np.ndarray], re
         refl[fix] = parked[:, 10]
         period[fix] = recipe.period
         keep[fix] = 0.5
-    return DynamicObjects(path, ground, seed, parts, refl, material, motion, s0, speed, lateral, span, xy, z, yaw,
-                          period, keep)
+    return DynamicObjects(
+        path, ground, seed, parts, refl, material, motion, s0, speed, lateral, span, xy, z, yaw, period, keep
+    )

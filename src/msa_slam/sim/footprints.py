@@ -22,8 +22,9 @@ class Footprints:
         return [(i, j) for i in range(lo[0], hi[0] + 1) for j in range(lo[1], hi[1] + 1)]
 
     @staticmethod
-    def _overlap(a: tuple[np.ndarray, np.ndarray, float], b: tuple[np.ndarray, np.ndarray, float],
-                 margin: float) -> bool:
+    def _overlap(
+        a: tuple[np.ndarray, np.ndarray, float], b: tuple[np.ndarray, np.ndarray, float], margin: float
+    ) -> bool:
         axes = [np.array([np.cos(t), np.sin(t)]) for t in (a[2], a[2] + np.pi / 2, b[2], b[2] + np.pi / 2)]
         d = b[0] - a[0]
         for ax in axes:
@@ -90,4 +91,3 @@ class PathClearance:
         under = (np.abs(rel @ ex) <= half[0] + 1.0) & (np.abs(rel @ ey) <= half[1] + 1.0)
         arc = self.arc[idx][under]
         return bool(np.all((arc >= start) & (arc <= end)))
-

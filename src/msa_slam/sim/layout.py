@@ -12,8 +12,8 @@ parked cars may be transient (kept apart for `dynamic`, present only in some tim
 from __future__ import annotations
 
 import bisect
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Sequence
 
 import numpy as np
 
@@ -28,39 +28,79 @@ class Style:
     """Street-scene parameters, metres. `city` for vehicles (KITTI-like), `campus` for slow platforms."""
 
     name: str
-    road_clearance: float       # no block footprint closer than this to any trajectory point
+    road_clearance: float  # no block footprint closer than this to any trajectory point
     setback: tuple[float, float]  # near facade distance from the path
-    length: tuple[float, float]   # block length along the street
-    depth: tuple[float, float]    # block depth away from the street
+    length: tuple[float, float]  # block length along the street
+    depth: tuple[float, float]  # block depth away from the street
     height: tuple[float, float]
     gap: tuple[float, float]
-    p_gap: float                  # probability of a gap after a block
-    p_back_row: float             # probability of a taller block behind the front
+    p_gap: float  # probability of a gap after a block
+    p_back_row: float  # probability of a taller block behind the front
     pole_spacing: float
     tree_spacing: float
-    p_parked: float               # probability per car slot of a parked car
+    p_parked: float  # probability per car slot of a parked car
     car_offset: tuple[float, float]
     furniture_clearance: float
-    ground_radius: float          # ground extends this far from the path
+    ground_radius: float  # ground extends this far from the path
     ground_cell: float
-    car_lanes: tuple[float, float] = (0.0, 1.6)          # moving cars' offsets: with / against the path
+    car_lanes: tuple[float, float] = (0.0, 1.6)  # moving cars' offsets: with / against the path
     pedestrian_offset: tuple[float, float] = (5.3, 6.6)  # walkers' distance from the path
 
 
 STYLES: dict[str, Style] = {
-    "city": Style("city", 5.0, (7.0, 12.0), (6.0, 24.0), (8.0, 20.0), (4.0, 25.0), (2.0, 8.0), 0.3, 0.35,
-                  30.0, 14.0, 0.5, (3.3, 4.3), 2.3, 70.0, 2.5),
-    "campus": Style("campus", 2.0, (3.5, 7.0), (8.0, 30.0), (6.0, 14.0), (4.0, 15.0), (2.0, 8.0), 0.2, 0.3,
-                    18.0, 7.0, 0.0, (1.6, 2.2), 1.2, 45.0, 1.5, pedestrian_offset=(0.8, 2.2)),
+    "city": Style(
+        "city",
+        5.0,
+        (7.0, 12.0),
+        (6.0, 24.0),
+        (8.0, 20.0),
+        (4.0, 25.0),
+        (2.0, 8.0),
+        0.3,
+        0.35,
+        30.0,
+        14.0,
+        0.5,
+        (3.3, 4.3),
+        2.3,
+        70.0,
+        2.5,
+    ),
+    "campus": Style(
+        "campus",
+        2.0,
+        (3.5, 7.0),
+        (8.0, 30.0),
+        (6.0, 14.0),
+        (4.0, 15.0),
+        (2.0, 8.0),
+        0.2,
+        0.3,
+        18.0,
+        7.0,
+        0.0,
+        (1.6, 2.2),
+        1.2,
+        45.0,
+        1.5,
+        pedestrian_offset=(0.8, 2.2),
+    ),
 }
 
 
 class StreetLayout(PlannedStretches):
     """Places blocks and street furniture along a path; primitives go to a MeshBuilder."""
 
-    def __init__(self, xy: np.ndarray, style: Style, rng: np.random.Generator,
-                 ground_height: Callable[[np.ndarray], float], plan: Sequence[Stretch] = (),
-                 catalogue: Sequence[Design] = (), transient: float = 0.0) -> None:
+    def __init__(
+        self,
+        xy: np.ndarray,
+        style: Style,
+        rng: np.random.Generator,
+        ground_height: Callable[[np.ndarray], float],
+        plan: Sequence[Stretch] = (),
+        catalogue: Sequence[Design] = (),
+        transient: float = 0.0,
+    ) -> None:
         self.style = style
         self.rng = rng
         self.ground = ground_height
@@ -71,7 +111,7 @@ class StreetLayout(PlannedStretches):
         self.catalogue = tuple(catalogue)
         self.transient_share = transient
         self.transient: list[tuple[float, ...]] = []  # parked cars that come and go, see `dynamic`
-        self.boxes: list[tuple[float, ...]] = []   # cx, cy, cz, hx, hy, hz, yaw, refl, material
+        self.boxes: list[tuple[float, ...]] = []  # cx, cy, cz, hx, hy, hz, yaw, refl, material
         self.trunks: list[tuple[float, ...]] = []  # x, y, z, radius, height, refl
         self.crowns: list[tuple[float, ...]] = []  # x, y, z, rx, ry, rz, refl
         seg = np.linalg.norm(np.diff(xy, axis=0), axis=1)
@@ -125,11 +165,24 @@ class StreetLayout(PlannedStretches):
             yaw = float(np.arctan2(h[1], h[0]))
             off = self._u(st.setback)
             if kind < 0.4 and length > 2:
-                self._add_box(p + side * n * off, (length / 2, 0.15), yaw, self._u((0.8, 2.5)),
-                              self._u((0.3, 0.6)), st.road_clearance)
+                self._add_box(
+                    p + side * n * off,
+                    (length / 2, 0.15),
+                    yaw,
+                    self._u((0.8, 2.5)),
+                    self._u((0.3, 0.6)),
+                    st.road_clearance,
+                )
             elif kind < 0.65 and length > 2:
-                self._add_box(p + side * n * off, (length / 2, 0.5), yaw, self._u((0.8, 1.6)), 0.2,
-                              st.road_clearance, material=Material.VEGETATION)  # a hedge
+                self._add_box(
+                    p + side * n * off,
+                    (length / 2, 0.5),
+                    yaw,
+                    self._u((0.8, 1.6)),
+                    0.2,
+                    st.road_clearance,
+                    material=Material.VEGETATION,
+                )  # a hedge
             elif kind < 0.85:
                 for x in np.arange(1.0, length, self._u((3.0, 5.0))):
                     q, _, m = self._at(s + x)
@@ -144,12 +197,20 @@ class StreetLayout(PlannedStretches):
             if self.rng.random() < st.p_back_row:
                 back_depth = self._u(st.depth)
                 back = center + side * n * (depth / 2 + self._u((2.0, 8.0)) + back_depth / 2)
-                self._building(back, yaw, side, self._u(st.length), back_depth, st.road_clearance,
-                               height_scale=1.5)
+                self._building(back, yaw, side, self._u(st.length), back_depth, st.road_clearance, height_scale=1.5)
         return length + self._u((0.3, 1.5))
 
-    def _add_box(self, center: np.ndarray, half_xy: tuple[float, float], yaw: float, height: float,
-                 refl: float, clearance: float, sink: float = 0.5, material: int = Material.SOLID) -> bool:
+    def _add_box(
+        self,
+        center: np.ndarray,
+        half_xy: tuple[float, float],
+        yaw: float,
+        height: float,
+        refl: float,
+        clearance: float,
+        sink: float = 0.5,
+        material: int = Material.SOLID,
+    ) -> bool:
         half = np.asarray(half_xy, float)
         if not self._try(center, half, yaw, clearance):
             return False
@@ -157,9 +218,18 @@ class StreetLayout(PlannedStretches):
         self.boxes.append((*center, z0 + (height + sink) / 2, *half, (height + sink) / 2, yaw, refl, material))
         return True
 
-    def _building(self, center: np.ndarray, yaw: float, side: float, length: float, depth: float,
-                  clearance: float, height_scale: float = 1.0, height: float | None = None,
-                  refl: float | None = None) -> bool:
+    def _building(
+        self,
+        center: np.ndarray,
+        yaw: float,
+        side: float,
+        length: float,
+        depth: float,
+        clearance: float,
+        height_scale: float = 1.0,
+        height: float | None = None,
+        refl: float | None = None,
+    ) -> bool:
         """A block with relief on the facade facing the path: pilasters, balconies, a stepped top.
         Height and reflectance are drawn unless given (a catalogue design fixes them)."""
         st = self.style
@@ -186,13 +256,15 @@ class StreetLayout(PlannedStretches):
                     continue
                 for x in np.arange(-length / 2 + 2.0, length / 2 - 2.0, self._u((4.0, 8.0))):
                     c = near + ex * x - side * ey * 0.6
-                    self.boxes.append((*c, base + 0.5 + 3.0 * k, self._u((0.8, 1.8)), 0.6, 0.5, yaw, refl,
-                                       Material.SOLID))
+                    self.boxes.append(
+                        (*c, base + 0.5 + 3.0 * k, self._u((0.8, 1.8)), 0.6, 0.5, yaw, refl, Material.SOLID)
+                    )
         if height > 8 and self.rng.random() < 0.5:  # stepped upper storey
             c = center + side * ey * depth * 0.15
             extra = self._u((2.0, 6.0))
-            self.boxes.append((*c, base + height + extra / 2, length * 0.35, depth * 0.3, extra / 2, yaw, refl,
-                               Material.SOLID))
+            self.boxes.append(
+                (*c, base + height + extra / 2, length * 0.35, depth * 0.3, extra / 2, yaw, refl, Material.SOLID)
+            )
         return True
 
     def _tree(self, c: np.ndarray, clearance: float) -> None:
@@ -202,8 +274,9 @@ class StreetLayout(PlannedStretches):
             trunk_h = self._u((1.8, 4.0))
             z = self.ground(c) - 0.3
             self.trunks.append((*c, z, self._u((0.12, 0.3)), trunk_h + crown * 0.5, 0.3))
-            self.crowns.append((*c, z + trunk_h + crown * 0.8, crown, crown * self._u((0.8, 1.2)),
-                                crown * self._u((0.7, 1.3)), 0.25))
+            self.crowns.append(
+                (*c, z + trunk_h + crown * 0.8, crown, crown * self._u((0.8, 1.2)), crown * self._u((0.7, 1.3)), 0.25)
+            )
 
     def _furniture(self, total: float) -> None:
         """Poles, trees and parked cars; designed stretches bring their own, hard stretches have none."""
@@ -241,8 +314,13 @@ class StreetLayout(PlannedStretches):
                         self._parked_car(s, side, True)  # an empty slot, taken at some times
                 s += self._u((5.0, 7.5))
 
-    def _parked_car(self, s: float, side: float, transient: bool,
-                    at: Callable[[float], tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None) -> None:
+    def _parked_car(
+        self,
+        s: float,
+        side: float,
+        transient: bool,
+        at: Callable[[float], tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
+    ) -> None:
         """Body and cabin at arc length s (of the path, or of the street `at` gives); a transient car goes to
         `self.transient` (x, y, z, yaw, body half length and width, cabin centre height above ground and half
         extents, reflectance) and keeps its footprint reserved."""

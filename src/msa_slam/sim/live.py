@@ -5,7 +5,8 @@ the path stays continuous and every pass revisits the whole route; each pass has
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Iterator
+from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -17,7 +18,7 @@ if TYPE_CHECKING:
     from msa_slam.sim.config import SimConfig
 
 
-def live_source(config: "SimConfig", laps: int = 1, name: str | None = None) -> FrameSource:
+def live_source(config: SimConfig, laps: int = 1, name: str | None = None) -> FrameSource:
     """The frame source of simulation `config` driven `laps` times (msa_slam.sources parses a `live:` spec into
     them), named after `name` (default: its trajectory); its scans are simulated as the frames are read."""
     from msa_slam.sim import prepare

@@ -73,11 +73,11 @@ class Design:
     pitch: float
     refl: float
     back: tuple[float, float, float] | None  # length, depth, height of a block behind each house
-    tree_pitch: int                          # a tree every this many houses (0: none)
-    fence: float                             # fence height (0: none)
-    light_pitch: int                         # a street light every this many houses (0: none)
+    tree_pitch: int  # a tree every this many houses (0: none)
+    fence: float  # fence height (0: none)
+    light_pitch: int  # a street light every this many houses (0: none)
     detail_seed: int
-    gap_wall: float = 0.0                    # height of the wall between two houses (0: an open gap)
+    gap_wall: float = 0.0  # height of the wall between two houses (0: an open gap)
     variants: tuple[HouseVariant, ...] = ()  # house types (empty: every house is the design's own)
     order_seed: int = 0
 
@@ -106,20 +106,33 @@ def make_catalogue(n: int, style: Style, rng: np.random.Generator, variants: int
         h_lo, h_hi = style.height
         back = None
         if rng.random() < 0.5:
-            back = (float(rng.uniform(*style.length)), float(rng.uniform(*style.depth)),
-                    float(rng.uniform(h_lo + 4.0, h_hi)))
-        designs.append(Design(
-            length=length, depth=float(rng.uniform(*style.depth)),
-            height=float(rng.uniform(h_lo + 2.0, h_lo + 0.6 * (h_hi - h_lo))),
-            setback=setback, pitch=length + float(rng.uniform(*style.gap)),
-            refl=float(rng.uniform(0.35, 0.75)), back=back, tree_pitch=int(rng.integers(0, 2)),
-            fence=float(rng.uniform(0.8, 1.6)) if rng.random() < 0.5 else 0.0,
-            light_pitch=int(rng.integers(0, 2)), detail_seed=int(rng.integers(2**31)),
-            gap_wall=float(rng.uniform(2.6, 3.4))))
+            back = (
+                float(rng.uniform(*style.length)),
+                float(rng.uniform(*style.depth)),
+                float(rng.uniform(h_lo + 4.0, h_hi)),
+            )
+        designs.append(
+            Design(
+                length=length,
+                depth=float(rng.uniform(*style.depth)),
+                height=float(rng.uniform(h_lo + 2.0, h_lo + 0.6 * (h_hi - h_lo))),
+                setback=setback,
+                pitch=length + float(rng.uniform(*style.gap)),
+                refl=float(rng.uniform(0.35, 0.75)),
+                back=back,
+                tree_pitch=int(rng.integers(0, 2)),
+                fence=float(rng.uniform(0.8, 1.6)) if rng.random() < 0.5 else 0.0,
+                light_pitch=int(rng.integers(0, 2)),
+                detail_seed=int(rng.integers(2**31)),
+                gap_wall=float(rng.uniform(2.6, 3.4)),
+            )
+        )
     if variants < 2:
         return tuple(designs)
-    return tuple(replace(d, variants=_house_variants(d, variants, style, rng), order_seed=int(rng.integers(2**31)))
-                 for d in designs)
+    return tuple(
+        replace(d, variants=_house_variants(d, variants, style, rng), order_seed=int(rng.integers(2**31)))
+        for d in designs
+    )
 
 
 def _house_variants(design: Design, n: int, style: Style, rng: np.random.Generator) -> tuple[HouseVariant, ...]:
@@ -128,22 +141,31 @@ def _house_variants(design: Design, n: int, style: Style, rng: np.random.Generat
     Context's height bins see)."""
     h_lo, h_hi = style.height
     lo, hi = style.length
-    back = design.back or (float(rng.uniform(*style.length)), float(rng.uniform(*style.depth)),
-                           float(rng.uniform(h_lo + 4.0, h_hi)))
+    back = design.back or (
+        float(rng.uniform(*style.length)),
+        float(rng.uniform(*style.depth)),
+        float(rng.uniform(h_lo + 4.0, h_hi)),
+    )
     out = [HouseVariant(design.length, design.height, design.back, bool(design.tree_pitch))]
     for _ in range(n - 1):
         step = float(rng.uniform(3.0, 6.0)) * (1.0 if rng.random() < 0.5 else -1.0)
         height = design.height + step
         if not h_lo <= height <= h_hi:
             height = design.height - step
-        out.append(HouseVariant(float(rng.uniform(lo + 2.0, (lo + hi) / 2 + 2.0)), float(np.clip(height, h_lo, h_hi)),
-                                back if rng.random() < 0.5 else None,
-                                bool(rng.random() < 0.5)))
+        out.append(
+            HouseVariant(
+                float(rng.uniform(lo + 2.0, (lo + hi) / 2 + 2.0)),
+                float(np.clip(height, h_lo, h_hi)),
+                back if rng.random() < 0.5 else None,
+                bool(rng.random() < 0.5),
+            )
+        )
     return tuple(out)
 
 
-def straight_runs(xy: np.ndarray, min_length: float = MIN_DESIGN_M,
-                  tolerance_deg: float = STRAIGHT_TOLERANCE_DEG) -> list[tuple[float, float]]:
+def straight_runs(
+    xy: np.ndarray, min_length: float = MIN_DESIGN_M, tolerance_deg: float = STRAIGHT_TOLERANCE_DEG
+) -> list[tuple[float, float]]:
     """Arc-length intervals at least `min_length` long over which the path's heading stays within a range of
     `tolerance_deg` (greedy, in path order)."""
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
@@ -197,8 +219,9 @@ def _runs_within(runs: list[tuple[float, float]], keep: list[tuple[float, float]
     return [(a, b) for a, b in out if b - a >= MIN_DESIGN_M]
 
 
-def _design_pieces(runs: list[tuple[float, float]], total: float, share: float,
-                   rng: np.random.Generator) -> list[tuple[float, float]]:
+def _design_pieces(
+    runs: list[tuple[float, float]], total: float, share: float, rng: np.random.Generator
+) -> list[tuple[float, float]]:
     """Whole straight runs, in a seeded order, until about `share` of the path is covered; a run longer than
     MAX_DESIGN_M is cut into pieces with regular blocks between them."""
     pieces: list[tuple[float, float]] = []
@@ -215,8 +238,15 @@ def _design_pieces(runs: list[tuple[float, float]], total: float, share: float,
     return sorted(pieces)
 
 
-def plan_stretches(xy: np.ndarray, catalogue_share: float, hard_share: float, hard_kinds: tuple[str, ...],
-                   n_designs: int, rng: np.random.Generator, hard_from: float = 0.0) -> tuple[Stretch, ...]:
+def plan_stretches(
+    xy: np.ndarray,
+    catalogue_share: float,
+    hard_share: float,
+    hard_kinds: tuple[str, ...],
+    n_designs: int,
+    rng: np.random.Generator,
+    hard_from: float = 0.0,
+) -> tuple[Stretch, ...]:
     """Special stretches along the path `xy` covering about the given shares of it.
 
     Designs come first and take whole straight runs (Scan Context sees 80 m along a street: two places of a
@@ -244,8 +274,15 @@ def plan_stretches(xy: np.ndarray, catalogue_share: float, hard_share: float, ha
     return tuple(sorted(out, key=lambda x: x.start))
 
 
-def _hard_stretches(end_arc: float, total: float, share: float, kinds: tuple[str, ...], taken: list[Stretch],
-                    rng: np.random.Generator, hard_from: float) -> list[Stretch]:
+def _hard_stretches(
+    end_arc: float,
+    total: float,
+    share: float,
+    kinds: tuple[str, ...],
+    taken: list[Stretch],
+    rng: np.random.Generator,
+    hard_from: float,
+) -> list[Stretch]:
     """About `share` of the path's `total` first-visit length in hard stretches laid between the `taken`
     intervals (designs and re-driven roads; shortened to fit)."""
     taken = sorted(taken, key=lambda x: x.start)

@@ -42,20 +42,41 @@ class Realism:
 # much of the simulated KITTI-09's vertical drift (docs/simulator.md). At 0.02 far returns flickered from scan to
 # scan, which alone took ~0.1 off Scan Context similarity between alike places.
 PAVEMENT_RETURN_FLOOR = 0.1 * (1.73 / 50.0) * (10.0 / 50.0) ** 2
-KITTI_SENSOR = SensorRealism(motion_distortion=True, elevation_bias_deg=-0.22, elevation_sigma_deg=0.03,
-                             azimuth_sigma_deg=0.05, range_bias_sigma=0.02, range_noise_per_m=0.0005,
-                             incidence_noise=0.002, min_return_power=PAVEMENT_RETURN_FLOOR, mixed_pixel_prob=0.3,
-                             mixed_pixel_edge=0.5, vegetation_dropout=0.3, vegetation_depth=0.2)
-KITTI_WORLD = WorldRealism(moving_cars=2.0, pedestrians=2.0, transient_parking=0.4, parked_occupancy=0.85,
-                           catalogue_designs=2, km_per_design=1.0, design_variants=3,
-                           catalogue_share=0.6, hard_share=0.25, foliage_gap=0.3, upright=True)
+KITTI_SENSOR = SensorRealism(
+    motion_distortion=True,
+    elevation_bias_deg=-0.22,
+    elevation_sigma_deg=0.03,
+    azimuth_sigma_deg=0.05,
+    range_bias_sigma=0.02,
+    range_noise_per_m=0.0005,
+    incidence_noise=0.002,
+    min_return_power=PAVEMENT_RETURN_FLOOR,
+    mixed_pixel_prob=0.3,
+    mixed_pixel_edge=0.5,
+    vegetation_dropout=0.3,
+    vegetation_depth=0.2,
+)
+KITTI_WORLD = WorldRealism(
+    moving_cars=2.0,
+    pedestrians=2.0,
+    transient_parking=0.4,
+    parked_occupancy=0.85,
+    catalogue_designs=2,
+    km_per_design=1.0,
+    design_variants=3,
+    catalogue_share=0.6,
+    hard_share=0.25,
+    foliage_gap=0.3,
+    upright=True,
+)
 # "kitti-hard": odometry that drifts several times as much, for tests of what loop closing must repair. A receiver
 # 36x less sensitive (min_return_power 0.005, SIM_VERSION 9's value: the road fades ~20 m out, so KISS-ICP's pitch
 # drifts), twice the per-beam calibration errors, and more of the path in stretches where ICP degenerates along
 # the street (hard_share 0.45, taken from the repeated designs). docs/simulator.md gives its measured drift.
 KITTI_HARD = Realism(
-    replace(KITTI_SENSOR, min_return_power=0.005, elevation_sigma_deg=0.06, azimuth_sigma_deg=0.1,
-            range_bias_sigma=0.04),
+    replace(
+        KITTI_SENSOR, min_return_power=0.005, elevation_sigma_deg=0.06, azimuth_sigma_deg=0.1, range_bias_sigma=0.04
+    ),
     replace(KITTI_WORLD, hard_share=0.45, catalogue_share=0.4),
 )
 REALISM: dict[str, Realism] = {

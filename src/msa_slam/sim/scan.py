@@ -6,7 +6,7 @@ Kept apart from the sensor model so each effect is a small function of arrays th
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -42,16 +42,25 @@ def sweep_rays(poses: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndar
     return origins, world.reshape(-1, 3)
 
 
-def lost_returns(reflectance: np.ndarray, cos_inc: np.ndarray, ranges: np.ndarray, floor: float,
-                 rng: np.random.Generator) -> np.ndarray:
+def lost_returns(
+    reflectance: np.ndarray, cos_inc: np.ndarray, ranges: np.ndarray, floor: float, rng: np.random.Generator
+) -> np.ndarray:
     """Mask of returns too weak to detect: received power ~ reflectance * cos(incidence) / range^2 (relative
     to REFERENCE_RANGE); a return at power `floor` is lost half the time, dark, grazing or far ones mostly."""
     power = reflectance * cos_inc * (REFERENCE_RANGE / ranges) ** 2
     return rng.random(len(ranges)) * (1.0 + (power / floor) ** 2) < 1.0
 
 
-def mixed_pixels(ranges: np.ndarray, ray_idx: np.ndarray, grid: tuple[int, int], edge: float, prob: float,
-                 rng: np.random.Generator, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+def mixed_pixels(
+    ranges: np.ndarray,
+    ray_idx: np.ndarray,
+    grid: tuple[int, int],
+    edge: float,
+    prob: float,
+    rng: np.random.Generator,
+    points: np.ndarray,
+    normals: np.ndarray,
+) -> np.ndarray:
     """`ranges` with mixed pixels: a return at a depth edge (its azimuth neighbour in the same beam more than
     `edge` metres nearer or farther, and that neighbour's hit more than `edge` off the plane of its own: another
     surface) straddles both surfaces, and with probability `prob` reports a range anywhere between them (the
@@ -75,8 +84,7 @@ def mixed_pixels(ranges: np.ndarray, ray_idx: np.ndarray, grid: tuple[int, int],
     return ranges + mixed * rng.random(len(ranges)) * jump
 
 
-def range_sigma(base: float, per_metre: float, incidence: float, ranges: np.ndarray,
-                cos_inc: np.ndarray) -> np.ndarray:
+def range_sigma(base: float, per_metre: float, incidence: float, ranges: np.ndarray, cos_inc: np.ndarray) -> np.ndarray:
     """Range noise std per return: a constant, a part growing with range, and one growing with range and
     the tangent of the incidence angle (the beam's footprint spreads over depth on oblique surfaces)."""
     cos_inc = np.clip(cos_inc, 1.0 / np.hypot(1.0, MAX_TAN_INCIDENCE), 1.0)

@@ -41,11 +41,13 @@ class LidarModel:
 
     def __post_init__(self) -> None:
         if not 8 <= self.azimuth_steps <= MAX_AZIMUTH_STEPS:
-            raise InputError(f"sensor {self.name}: azimuth_steps must be in 8..{MAX_AZIMUTH_STEPS}, got "
-                             f"{self.azimuth_steps}")
+            raise InputError(
+                f"sensor {self.name}: azimuth_steps must be in 8..{MAX_AZIMUTH_STEPS}, got {self.azimuth_steps}"
+            )
         if not 0 < self.min_range < self.max_range:
-            raise InputError(f"sensor {self.name}: need 0 < min_range < max_range, got "
-                             f"{self.min_range} and {self.max_range}")
+            raise InputError(
+                f"sensor {self.name}: need 0 < min_range < max_range, got {self.min_range} and {self.max_range}"
+            )
         if not 0 <= self.range_noise < float("inf"):  # NaN fails too
             raise InputError(f"sensor {self.name}: range_noise must be finite and >= 0, got {self.range_noise}")
         if not 0 <= self.dropout < 1:
@@ -57,8 +59,9 @@ class LidarModel:
     def beams(self) -> int:
         return len(self.elevations_deg)
 
-    def directions(self, elevation_offsets_deg: np.ndarray | None = None,
-                   azimuth_offsets_deg: np.ndarray | None = None) -> np.ndarray:
+    def directions(
+        self, elevation_offsets_deg: np.ndarray | None = None, azimuth_offsets_deg: np.ndarray | None = None
+    ) -> np.ndarray:
         """(beams * azimuth_steps, 3) unit ray directions in the sensor frame (x forward, z up), beam-major,
         optionally with per-beam angle offsets (degrees)."""
         elev = np.asarray(self.elevations_deg, dtype=np.float64)
@@ -68,8 +71,9 @@ class LidarModel:
         azim = np.linspace(0.0, 2 * np.pi, self.azimuth_steps, endpoint=False)[None, :]
         if azimuth_offsets_deg is not None:
             azim = azim + np.radians(azimuth_offsets_deg)[:, None]
-        dirs = np.stack(np.broadcast_arrays(np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim),
-                                            np.sin(elev)), axis=-1)
+        dirs = np.stack(
+            np.broadcast_arrays(np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim), np.sin(elev)), axis=-1
+        )
         return dirs.reshape(-1, 3)
 
 
@@ -80,18 +84,18 @@ class SensorRealism:
     Calibration errors are drawn once per sequence (from the Lidar's seed); the rest per scan.
     """
 
-    motion_distortion: bool = False   # cast each azimuth column from the pose at its firing time
-    elevation_bias_deg: float = 0.0   # reported minus true elevation, all beams (KITTI's HDL-64: ~ -0.22)
+    motion_distortion: bool = False  # cast each azimuth column from the pose at its firing time
+    elevation_bias_deg: float = 0.0  # reported minus true elevation, all beams (KITTI's HDL-64: ~ -0.22)
     elevation_sigma_deg: float = 0.0  # per-beam elevation errors (std)
-    azimuth_sigma_deg: float = 0.0    # per-beam azimuth errors (std)
-    range_bias_sigma: float = 0.0     # m: per-beam range bias (std)
-    range_noise_per_m: float = 0.0    # noise std added per metre of range (on top of the model's range_noise)
-    incidence_noise: float = 0.0      # noise std per metre of range per unit tan(incidence)
-    min_return_power: float = 0.0     # returns at this relative power are lost half the time (dark, grazing)
-    mixed_pixel_prob: float = 0.0     # chance a return at a depth edge reports a range between both surfaces
-    mixed_pixel_edge: float = 0.5     # m: range jump to an azimuth neighbour that makes a depth edge
-    vegetation_dropout: float = 0.0   # chance a return from foliage is lost, per scan and ray
-    vegetation_depth: float = 0.0     # m: mean extra range of foliage returns (the beam enters the crown)
+    azimuth_sigma_deg: float = 0.0  # per-beam azimuth errors (std)
+    range_bias_sigma: float = 0.0  # m: per-beam range bias (std)
+    range_noise_per_m: float = 0.0  # noise std added per metre of range (on top of the model's range_noise)
+    incidence_noise: float = 0.0  # noise std per metre of range per unit tan(incidence)
+    min_return_power: float = 0.0  # returns at this relative power are lost half the time (dark, grazing)
+    mixed_pixel_prob: float = 0.0  # chance a return at a depth edge reports a range between both surfaces
+    mixed_pixel_edge: float = 0.5  # m: range jump to an azimuth neighbour that makes a depth edge
+    vegetation_dropout: float = 0.0  # chance a return from foliage is lost, per scan and ray
+    vegetation_depth: float = 0.0  # m: mean extra range of foliage returns (the beam enters the crown)
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -102,13 +106,14 @@ class SensorRealism:
             if not getattr(self, name) < 1:
                 raise InputError(f"sensor realism: {name} must be in [0, 1), got {getattr(self, name)}")
         if not abs(self.elevation_bias_deg) < 5:
-            raise InputError(f"sensor realism: elevation_bias_deg must be within +-5 deg, got "
-                             f"{self.elevation_bias_deg}")
+            raise InputError(
+                f"sensor realism: elevation_bias_deg must be within +-5 deg, got {self.elevation_bias_deg}"
+            )
         if not self.mixed_pixel_edge > 0:
             raise InputError(f"sensor realism: mixed_pixel_edge must be > 0 m, got {self.mixed_pixel_edge}")
 
     @classmethod
-    def clean(cls) -> "SensorRealism":
+    def clean(cls) -> SensorRealism:
         """Everything off: the ideal sensor of the plain simulator."""
         return cls()
 
@@ -137,8 +142,9 @@ class Lidar:
     the scan from one fixed pose.
     """
 
-    def __init__(self, model: LidarModel, world: World, realism: SensorRealism = SensorRealism(),
-                 seed: int = 0) -> None:
+    def __init__(
+        self, model: LidarModel, world: World, realism: SensorRealism = SensorRealism(), seed: int = 0
+    ) -> None:
         self.model = model
         self.world = world
         self.realism = realism
@@ -179,7 +185,8 @@ class Lidar:
         cos_inc = np.abs(np.einsum("ij,ij->i", hits.normal, dirs_world[ray_idx]))
         reflectance, material, normal = hits.reflectance, hits.material, hits.normal
         ranges, ray_idx, cos_inc, reflectance, material, normal = (
-            a[keep] for a in (ranges, ray_idx, cos_inc, reflectance, material, normal))
+            a[keep] for a in (ranges, ray_idx, cos_inc, reflectance, material, normal)
+        )
         lost = np.zeros(len(ranges), dtype=bool)
         if r.min_return_power > 0:
             lost |= lost_returns(reflectance, cos_inc, ranges, r.min_return_power, rng)
@@ -188,16 +195,28 @@ class Lidar:
             lost |= foliage & (rng.random(len(ranges)) < r.vegetation_dropout)
         if lost.any():
             ranges, ray_idx, cos_inc, reflectance, foliage, normal = (
-                a[~lost] for a in (ranges, ray_idx, cos_inc, reflectance, foliage, normal))
+                a[~lost] for a in (ranges, ray_idx, cos_inc, reflectance, foliage, normal)
+            )
         surface = ranges  # where each ray met its surface (the mixed pixels' edges are between surfaces)
         if r.vegetation_depth > 0:
             ranges = ranges + foliage * rng.exponential(r.vegetation_depth, len(ranges))
         if r.mixed_pixel_prob > 0:
             hit_points = np.broadcast_to(origins, dirs_world.shape)[ray_idx] + surface[:, None] * dirs_world[ray_idx]
-            ranges = mixed_pixels(ranges, ray_idx, (m.beams, m.azimuth_steps), r.mixed_pixel_edge,
-                                  r.mixed_pixel_prob, rng, hit_points, normal)
-        sigma = (range_sigma(m.range_noise, r.range_noise_per_m, r.incidence_noise, ranges, cos_inc)
-                 if r.range_noise_per_m > 0 or r.incidence_noise > 0 else m.range_noise)
+            ranges = mixed_pixels(
+                ranges,
+                ray_idx,
+                (m.beams, m.azimuth_steps),
+                r.mixed_pixel_edge,
+                r.mixed_pixel_prob,
+                rng,
+                hit_points,
+                normal,
+            )
+        sigma = (
+            range_sigma(m.range_noise, r.range_noise_per_m, r.incidence_noise, ranges, cos_inc)
+            if r.range_noise_per_m > 0 or r.incidence_noise > 0
+            else m.range_noise
+        )
         if np.any(sigma > 0):
             ranges = ranges + rng.normal(0.0, sigma, len(ranges))
         if r.range_bias_sigma > 0:

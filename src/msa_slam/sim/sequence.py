@@ -28,8 +28,8 @@ import logging
 import multiprocessing
 import os
 import signal
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
@@ -40,8 +40,8 @@ from msa_slam.errors import InputError
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.cache import cache_root, partial_dir, remove_partials
 from msa_slam.io.outputs import out_path, refuse_working_directory
-from msa_slam.io.write_errors import write_error
 from msa_slam.io.poses import format_kitti
+from msa_slam.io.write_errors import write_error
 from msa_slam.progress import progress_bar
 from msa_slam.sim.config import SIM_VERSION, SimConfig
 from msa_slam.sim.coverage import empty_scan_error, warn_short_range, warn_sparse_scans
@@ -51,8 +51,7 @@ META_FILE = SIM_META  # where the KITTI-layout reader looks for the scans' eleva
 PARALLEL_MIN_FRAMES = 300  # shorter sequences are cast in the calling process (a worker's start-up costs seconds)
 MAX_WORKERS = 4  # each worker builds and holds its own world
 log = logging.getLogger(__name__)
-KITTI_CITATION = ("Trajectory: KITTI odometry ground truth (Geiger, Lenz, Urtasun, CVPR 2012), "
-                  "CC BY-NC-SA 3.0")
+KITTI_CITATION = "Trajectory: KITTI odometry ground truth (Geiger, Lenz, Urtasun, CVPR 2012), CC BY-NC-SA 3.0"
 
 
 def _read_meta(seq_dir: Path) -> dict | None:
@@ -77,10 +76,13 @@ def is_complete(seq_dir: Path, key: str) -> bool:
         return False
     sizes, times_sizes = meta.get("scan_bytes", []), meta.get("point_times_bytes") or []
     velodyne, point_times = seq_dir / "velodyne", seq_dir / TIMES_FOLDER
-    return (meta.get("frames") == len(sizes) == len(list(velodyne.glob("*.bin")))
-            and all(_scan_size(velodyne / f"{k:06d}.bin") == size for k, size in enumerate(sizes))
-            and all(_scan_size(point_times / f"{k:06d}.npy") == size for k, size in enumerate(times_sizes))
-            and (seq_dir / "poses.txt").is_file() and (seq_dir / "times.txt").is_file())
+    return (
+        meta.get("frames") == len(sizes) == len(list(velodyne.glob("*.bin")))
+        and all(_scan_size(velodyne / f"{k:06d}.bin") == size for k, size in enumerate(sizes))
+        and all(_scan_size(point_times / f"{k:06d}.npy") == size for k, size in enumerate(times_sizes))
+        and (seq_dir / "poses.txt").is_file()
+        and (seq_dir / "times.txt").is_file()
+    )
 
 
 def _is_ours(seq_dir: Path, key: str) -> bool:
@@ -128,8 +130,7 @@ def default_workers(frames: int) -> int:
     return 0 if frames < PARALLEL_MIN_FRAMES or cpus < 2 or daemon else min(cpus, MAX_WORKERS)
 
 
-def _written_scans(sim: Simulation, target: Path, workers: int, frames: list[int]
-                   ) -> Iterator[tuple[int, int | None]]:
+def _written_scans(sim: Simulation, target: Path, workers: int, frames: list[int]) -> Iterator[tuple[int, int | None]]:
     """Each of `frames`' (scan bytes, times bytes) in order, cast here (workers 0) or by a spawned pool."""
     if workers <= 0:
         yield from (_write_scan(sim, target, k) for k in frames)
@@ -139,8 +140,9 @@ def _written_scans(sim: Simulation, target: Path, workers: int, frames: list[int
         yield from pool.imap(_worker_write, [(target, k) for k in frames], chunksize=4)
 
 
-def _cast(sim: Simulation, target: Path, progress: bool, workers: int, frames: list[int]
-          ) -> tuple[list[int], list[int]]:
+def _cast(
+    sim: Simulation, target: Path, progress: bool, workers: int, frames: list[int]
+) -> tuple[list[int], list[int]]:
     """Write the scans (and per-point times) of `frames` into target/velodyne (/velodyne_times); their sizes."""
     (target / "velodyne").mkdir(parents=True, exist_ok=True)
     if not sim.realism.is_clean:
@@ -161,13 +163,18 @@ def _cast(sim: Simulation, target: Path, progress: bool, workers: int, frames: l
 def _write_layout(sim: Simulation, target: Path) -> None:
     """poses.txt, times.txt, calib.txt and the links kiss-icp's loader reads, each only where it is missing
     (a repair leaves what is there)."""
-    tables = {"poses.txt": format_kitti(sim.poses), "times.txt": "".join(f"{t:.6e}\n" for t in sim.times),
-              "calib.txt": CALIB_TEXT}
+    tables = {
+        "poses.txt": format_kitti(sim.poses),
+        "times.txt": "".join(f"{t:.6e}\n" for t in sim.times),
+        "calib.txt": CALIB_TEXT,
+    }
     for name, text in tables.items():
         if not (target / name).exists():
             write_text_atomic(target / name, text)
-    links = {Path("sequences", "00", name): Path("..", "..", name)
-             for name in ("velodyne", *tables, *([] if sim.realism.is_clean else [TIMES_FOLDER]))}
+    links = {
+        Path("sequences", "00", name): Path("..", "..", name)
+        for name in ("velodyne", *tables, *([] if sim.realism.is_clean else [TIMES_FOLDER]))
+    }
     links[Path("poses", "00.txt")] = Path("..", "poses.txt")
     for link, points_to in links.items():
         if not (target / link).is_symlink() and not (target / link).exists():
@@ -185,24 +192,40 @@ def _write(sim: Simulation, target: Path, progress: bool, workers: int) -> None:
 def _write_meta(sim: Simulation, target: Path, sizes: list[int], times_sizes: list[int]) -> None:
     """sim.json, written last (atomically): it marks the sequence complete."""
     meta = {
-        "key": sim.config.key(), "sim_version": SIM_VERSION, "msa_slam_version": msa_slam.__version__,
-        "config": sim.config.model_dump(), "frames": len(sim), "scan_bytes": sizes,
+        "key": sim.config.key(),
+        "sim_version": SIM_VERSION,
+        "msa_slam_version": msa_slam.__version__,
+        "config": sim.config.model_dump(),
+        "frames": len(sim),
+        "scan_bytes": sizes,
         "point_times_bytes": times_sizes or None,
         "source_frames": sim.frames.tolist(),
-        "sensor": {"beams": sim.lidar.model.beams, "azimuth_steps": sim.lidar.model.azimuth_steps,
-                   "max_range": sim.lidar.model.max_range,
-                   "elevation_bias_deg": sim.realism.sensor.elevation_bias_deg},  # the reader corrects it
+        "sensor": {
+            "beams": sim.lidar.model.beams,
+            "azimuth_steps": sim.lidar.model.azimuth_steps,
+            "max_range": sim.lidar.model.max_range,
+            "elevation_bias_deg": sim.realism.sensor.elevation_bias_deg,
+        },  # the reader corrects it
         "world_triangles": sim.world.triangles,
         "trajectory_files_sha256": sim.config._files_sha256,
-        "source": (f"trajectory file {sim.config.trajectory}" if sim.config.is_file
-                   else KITTI_CITATION if sim.config.trajectory.startswith("kitti") else "procedural"),
+        "source": (
+            f"trajectory file {sim.config.trajectory}"
+            if sim.config.is_file
+            else KITTI_CITATION
+            if sim.config.trajectory.startswith("kitti")
+            else "procedural"
+        ),
     }
     write_text_atomic(target / META_FILE, json.dumps(meta, indent=1))
 
 
-def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
-                      cache_dir: str | os.PathLike | None = None, progress: bool = False,
-                      workers: int | None = None) -> Path:
+def simulate_sequence(
+    config: SimConfig,
+    out: str | os.PathLike | None = None,
+    cache_dir: str | os.PathLike | None = None,
+    progress: bool = False,
+    workers: int | None = None,
+) -> Path:
     """Write (or reuse) the sequence of `config`; returns its directory.
 
     Without `out` the directory is <cache>/<trajectory>_<sensor>_<key>. An existing complete
@@ -227,8 +250,10 @@ def simulate_sequence(config: SimConfig, out: str | os.PathLike | None = None,
         _repair(config, target, progress, workers)
         return target
     if target.exists() and (not target.is_dir() or any(target.iterdir())):
-        raise InputError(f"{target}: exists and is not a complete simulation of this config (key {key}); "
-                         "remove it or choose another output directory")
+        raise InputError(
+            f"{target}: exists and is not a complete simulation of this config (key {key}); "
+            "remove it or choose another output directory"
+        )
     if out is not None:  # the new sequence takes the folder's place (reused or repaired, it stays)
         refuse_working_directory(out)
     sim = prepare(config)
@@ -253,16 +278,21 @@ def _writing(target: Path, written: Path | None = None) -> Iterator[None]:
     try:
         yield
     except OSError as exc:
-        raise write_error(exc, target, written, writing=True,
-                          advice="choose a writable --out or cache folder (MSA_SLAM_CACHE)") from None
+        raise write_error(
+            exc, target, written, writing=True, advice="choose a writable --out or cache folder (MSA_SLAM_CACHE)"
+        ) from None
 
 
 def _damaged_frames(seq_dir: Path, meta: dict) -> list[int]:
     """The frames whose scan (or per-point times file) is missing or not of the size sim.json records."""
     sizes, times_sizes = meta.get("scan_bytes", []), meta.get("point_times_bytes") or []
     velodyne, point_times = seq_dir / "velodyne", seq_dir / TIMES_FOLDER
-    return [k for k, size in enumerate(sizes) if _scan_size(velodyne / f"{k:06d}.bin") != size
-            or (k < len(times_sizes) and _scan_size(point_times / f"{k:06d}.npy") != times_sizes[k])]
+    return [
+        k
+        for k, size in enumerate(sizes)
+        if _scan_size(velodyne / f"{k:06d}.bin") != size
+        or (k < len(times_sizes) and _scan_size(point_times / f"{k:06d}.npy") != times_sizes[k])
+    ]
 
 
 def _repair(config: SimConfig, target: Path, progress: bool, workers: int | None) -> None:
@@ -274,15 +304,22 @@ def _repair(config: SimConfig, target: Path, progress: bool, workers: int | None
     listed = {f"{k:06d}.bin" for k in range(len(meta.get("scan_bytes", [])))}
     extra = sorted(p.name for p in (target / "velodyne").glob("*.bin") if p.name not in listed)
     if extra:
-        raise InputError(f"{target}: velodyne/ holds scans {META_FILE} does not list ({', '.join(extra[:3])}); "
-                         "move them elsewhere (msa-slam never removes files it did not write)")
+        raise InputError(
+            f"{target}: velodyne/ holds scans {META_FILE} does not list ({', '.join(extra[:3])}); "
+            "move them elsewhere (msa-slam never removes files it did not write)"
+        )
     frames = _damaged_frames(target, meta)
-    log.warning("%s: a scan is missing or truncated (sizes differ from %s); casting %d scan(s) again in place",
-                target, META_FILE, len(frames))
+    log.warning(
+        "%s: a scan is missing or truncated (sizes differ from %s); casting %d scan(s) again in place",
+        target,
+        META_FILE,
+        len(frames),
+    )
     sim = prepare(config)
     with _writing(target), partial_dir(target.parent, target.name) as tmp, _writing(target, tmp):
-        sizes, times_sizes = _cast(sim, tmp, progress, default_workers(len(frames)) if workers is None else workers,
-                                   frames)
+        sizes, times_sizes = _cast(
+            sim, tmp, progress, default_workers(len(frames)) if workers is None else workers, frames
+        )
         for folder in ("velodyne", *([] if sim.realism.is_clean else [TIMES_FOLDER])):
             (target / folder).mkdir(exist_ok=True)
             for file in sorted((tmp / folder).iterdir()):
@@ -305,8 +342,7 @@ DEFAULT_CONFIGS: dict[str, SimConfig] = {
 }
 
 
-def default_sequence(kind: str = "demo", cache_dir: str | os.PathLike | None = None,
-                     progress: bool = False) -> Path:
+def default_sequence(kind: str = "demo", cache_dir: str | os.PathLike | None = None, progress: bool = False) -> Path:
     """The embedded default sequence, simulated on first use and cached.
 
     "demo": the whole KITTI-06 trajectory (1.2 km, a loop driven in both directions: revisits along most of

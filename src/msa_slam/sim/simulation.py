@@ -3,8 +3,9 @@ bound sensor; scans are cast on demand (`Simulation.scan`) or iterated in memory
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Iterator, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
@@ -67,11 +68,16 @@ def prepare(config: SimConfig) -> Simulation:
     world stands along the gravity of the whole trajectory, so a part of it is built as the whole is."""
     traj = config.load_trajectory()
     frames = frame_indices(len(traj), config.start, config.end, config.stride, config.label)
-    model: LidarModel = get_sensor(config.sensor, azimuth_steps=config.azimuth_steps, max_range=config.max_range,
-                                   range_noise=config.range_noise, dropout=config.dropout)
+    model: LidarModel = get_sensor(
+        config.sensor,
+        azimuth_steps=config.azimuth_steps,
+        max_range=config.max_range,
+        range_noise=config.range_noise,
+        dropout=config.dropout,
+    )
     check_reaches_ground(model, traj.sensor_height)
     warn_short_range(config)
-    span = traj.poses[frames[0]:frames[-1] + 1]
+    span = traj.poses[frames[0] : frames[-1] + 1]
     style = config.style or ("campus" if traj.platform == "walk" else "city")
     realism = REALISM[config.realism]
     # a vehicle's gravity is read from its drive (sim.level); a walker's sway is no vehicle's roll, and the

@@ -4,8 +4,8 @@ A mixin of `layout.StreetLayout`, whose drawing and placement helpers it uses.""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Iterator
 
 import numpy as np
 
@@ -43,8 +43,10 @@ class PlannedStretches:
         hard = [o for o in self.plan if o.kind != DESIGN]
         before = max((o.end for o in hard if o.end <= stretch.start), default=-np.inf)
         after = min((o.start for o in hard if o.start >= stretch.end), default=np.inf)
-        return (max(stretch.start - ROW_BEYOND_M, before + ROW_CLEAR_M),
-                min(stretch.end + ROW_BEYOND_M, after - ROW_CLEAR_M))
+        return (
+            max(stretch.start - ROW_BEYOND_M, before + ROW_CLEAR_M),
+            min(stretch.end + ROW_BEYOND_M, after - ROW_CLEAR_M),
+        )
 
     def _design_row(self, stretch: Stretch, design: Design, side: float) -> None:
         """The design's houses, their types in the design's order from the instance's starting point, one garden
@@ -64,24 +66,40 @@ class PlannedStretches:
 
         def at(x: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             return self._row_at(stretch, x)
+
         gaps = []
         for k, house in enumerate(houses):
             p, h, n = at(s + house.length / 2)
             yaw = float(np.arctan2(h[1], h[0]))
             center = p + side * n * (design.setback + design.depth / 2)
             with self._seeded(design.detail_seed, 0):
-                built = self._building(center, yaw, side, house.length, design.depth, st.road_clearance,
-                                       height=house.height, refl=design.refl)
+                built = self._building(
+                    center,
+                    yaw,
+                    side,
+                    house.length,
+                    design.depth,
+                    st.road_clearance,
+                    height=house.height,
+                    refl=design.refl,
+                )
                 if built and house.back is not None:
                     length, depth, height = house.back
                     back = center + side * n * (design.depth / 2 + 4.0 + depth / 2)
-                    self._building(back, yaw, side, length, depth, st.road_clearance, height=height,
-                                   refl=design.refl * 0.9)
+                    self._building(
+                        back, yaw, side, length, depth, st.road_clearance, height=height, refl=design.refl * 0.9
+                    )
             plot = house.length + gap
             if design.fence > 0:
                 q, _, m = at(s + plot / 2)
-                self._add_box(q + side * m * (design.setback - 1.0), (plot / 2 - 0.2, 0.08), yaw,
-                              design.fence, 0.5, st.road_clearance - 1.0)
+                self._add_box(
+                    q + side * m * (design.setback - 1.0),
+                    (plot / 2 - 0.2, 0.08),
+                    yaw,
+                    design.fence,
+                    0.5,
+                    st.road_clearance - 1.0,
+                )
             if house.tree:
                 q, _, m = at(s + house.length + gap / 2)
                 with self._seeded(design.detail_seed, 1):
@@ -102,9 +120,15 @@ class PlannedStretches:
         if design.gap_wall > 0 and gap > 0.5:  # after the houses, which keep a margin to anything placed before
             for x in gaps:
                 q, h, m = at(x + gap / 2)
-                self._wall_piece(q + side * m * (design.setback + design.depth / 2), (gap / 2, 0.15),
-                                 float(np.arctan2(h[1], h[0])), self.ground(q) - 0.3, design.gap_wall + 0.3,
-                                 design.refl * 0.8, overlap=0.6)  # on a bend the inner side's gaps narrow
+                self._wall_piece(
+                    q + side * m * (design.setback + design.depth / 2),
+                    (gap / 2, 0.15),
+                    float(np.arctan2(h[1], h[0])),
+                    self.ground(q) - 0.3,
+                    design.gap_wall + 0.3,
+                    design.refl * 0.8,
+                    overlap=0.6,
+                )  # on a bend the inner side's gaps narrow
 
     def _segments(self, stretch: Stretch, step: float) -> Iterator[tuple[float, np.ndarray, np.ndarray, float]]:
         """(arc length, point, left normal, yaw) every `step` m along the stretch (segment centres)."""
@@ -112,13 +136,23 @@ class PlannedStretches:
             p, h, n = self._at(float(s))
             yield float(s), p, n, float(np.arctan2(h[1], h[0]))
 
-    def _wall_piece(self, center: np.ndarray, half: tuple[float, float], yaw: float, z0: float, height: float,
-                    refl: float, material: int = Material.SOLID, overlap: float = 0.05) -> None:
+    def _wall_piece(
+        self,
+        center: np.ndarray,
+        half: tuple[float, float],
+        yaw: float,
+        z0: float,
+        height: float,
+        refl: float,
+        material: int = Material.SOLID,
+        overlap: float = 0.05,
+    ) -> None:
         """One piece of a continuous structure: kept off every other road, placed where it overlaps what is
         already there by at most `overlap` m (its neighbours, or the houses a garden wall joins)."""
         h = np.asarray(half, float)
         if self.clear.is_clear(center, h, yaw, self.style.furniture_clearance) and self.taken.add_if_free(
-                center, h, yaw, margin=-overlap):
+            center, h, yaw, margin=-overlap
+        ):
             self.boxes.append((*center, z0 + height / 2, *h, height / 2, yaw, refl, material))
 
     def _hard(self, stretch: Stretch) -> None:
@@ -143,8 +177,14 @@ class PlannedStretches:
             z = self.ground(p)
             if kind in ("wall", "tunnel"):
                 for side in (1.0, -1.0):
-                    self._wall_piece(p + side * n * (lateral + 0.15), (step / 2, 0.15), yaw, z - 0.5,
-                                     (roof if kind == "tunnel" else wall_h) + 0.5, refl)
+                    self._wall_piece(
+                        p + side * n * (lateral + 0.15),
+                        (step / 2, 0.15),
+                        yaw,
+                        z - 0.5,
+                        (roof if kind == "tunnel" else wall_h) + 0.5,
+                        refl,
+                    )
                 if kind == "tunnel":
                     half = np.array([step / 2, lateral + 0.5])
                     if self.clear.only_within(p, half, yaw, stretch.start - 10.0, stretch.end + 10.0):

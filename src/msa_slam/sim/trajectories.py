@@ -10,9 +10,9 @@ Any other path comes from a pose file (KITTI 12 numbers a line or TUM `t x y z q
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -85,8 +85,9 @@ def _resample(xy: np.ndarray, step: np.ndarray | float) -> np.ndarray:
     return np.column_stack([np.interp(stations, arc, xy[:, k]) for k in range(2)])
 
 
-def _planar(name: str, xy: np.ndarray, height: np.ndarray, platform: str,
-            roll_pitch: np.ndarray | None = None) -> Trajectory:
+def _planar(
+    name: str, xy: np.ndarray, height: np.ndarray, platform: str, roll_pitch: np.ndarray | None = None
+) -> Trajectory:
     """Poses facing along the path (x forward, z up), from positions sampled at 10 Hz."""
     heading = np.gradient(xy, axis=0)
     yaw = np.unwrap(np.arctan2(heading[:, 1], heading[:, 0]))
@@ -104,8 +105,9 @@ START_ACCEL = 2.5  # m/s^2: procedural vehicles pull away from rest, as a car do
 START_SPEED = 0.5  # m/s at the first frame
 
 
-def _speed_profile(length: float, cruise: float,
-                   curvature_slow: Callable[[np.ndarray], np.ndarray] = np.ones_like) -> np.ndarray:
+def _speed_profile(
+    length: float, cruise: float, curvature_slow: Callable[[np.ndarray], np.ndarray] = np.ones_like
+) -> np.ndarray:
     """Arc-length stations of a vehicle starting from rest (START_ACCEL) up to `cruise` m/frame, slowing
     where `curvature_slow` says. A standing start lets odometry's constant-velocity prior (zero at the
     first scan) follow; a path that starts at full speed can leave KISS-ICP stuck at its start."""
@@ -171,8 +173,29 @@ def city_tour() -> Trajectory:
     """A drive on a 90 m street grid that loops around blocks and comes back along earlier streets
     (several revisits, some in the opposite direction), ~1.1 m per frame slowing to ~0.5 m in turns."""
     grid = 90.0
-    route = np.array([(0, 0), (3, 0), (3, 2), (1, 2), (1, 0), (1, -1), (4, -1), (4, 1), (3, 1),
-                      (3, 0), (2, 0), (2, 2), (0, 2), (0, 0), (1, 0)], dtype=float) * grid
+    route = (
+        np.array(
+            [
+                (0, 0),
+                (3, 0),
+                (3, 2),
+                (1, 2),
+                (1, 0),
+                (1, -1),
+                (4, -1),
+                (4, 1),
+                (3, 1),
+                (3, 0),
+                (2, 0),
+                (2, 2),
+                (0, 2),
+                (0, 0),
+                (1, 0),
+            ],
+            dtype=float,
+        )
+        * grid
+    )
     return _street_drive("city-tour", route)
 
 
@@ -192,8 +215,10 @@ def reverse_revisit() -> Trajectory:
 def campus_walk() -> Trajectory:
     """A handheld walk (~0.1 m per frame, 1.2 m above ground with step bob and sway) around two
     quads of a campus, passing the first quad's paths twice."""
-    route = np.array([(0, 0), (40, 0), (40, 30), (0, 30), (0, 0), (-35, 0), (-35, -25), (0, -25),
-                      (0, 0), (40, 0), (40, 12)], dtype=float)
+    route = np.array(
+        [(0, 0), (40, 0), (40, 30), (0, 30), (0, 0), (-35, 0), (-35, -25), (0, -25), (0, 0), (40, 0), (40, 12)],
+        dtype=float,
+    )
     xy = _resample(_rounded_polyline(route, 4.0), 0.1)
     n = len(xy)
     steps = np.arange(n) * 2 * np.pi / 6.0  # about one step every 0.6 s
@@ -218,8 +243,9 @@ def _orthonormal(rot: np.ndarray) -> np.ndarray:
     return u @ vt
 
 
-def read_trajectory(path: str | Path, fmt: str = "auto", times_file: str | Path | None = None,
-                    calib_file: str | Path | None = None) -> Trajectory:
+def read_trajectory(
+    path: str | Path, fmt: str = "auto", times_file: str | Path | None = None, calib_file: str | Path | None = None
+) -> Trajectory:
     """A trajectory from a pose file: KITTI (12 numbers a line, times from `times_file` or 10 Hz) or TUM
     (`t x y z qx qy qz qw`; its own times). With `calib_file` (a KITTI calib.txt with a `Tr:` line) the poses
     are cam0 poses, converted to the LiDAR frame as inv(Tr) P Tr. Positions are shifted so the first pose
@@ -245,9 +271,11 @@ def read_trajectory(path: str | Path, fmt: str = "auto", times_file: str | Path 
         poses = cam0_to_lidar(poses, read_kitti_calibration(Path(calib_file)))
     along_z, moving = steps_along_z(poses)
     if len(along_z) > 0.5 * max(1, moving):
-        raise InputError(f"{path}: the sensor moves along its z axis on {len(along_z)} of {moving} moving steps "
-                         f"(from pose {along_z[0] + 1}; camera poses, z forward?) while a LiDAR frame has x forward, "
-                         "z up; give --calib with the KITTI calib.txt (Tr line)")
+        raise InputError(
+            f"{path}: the sensor moves along its z axis on {len(along_z)} of {moving} moving steps "
+            f"(from pose {along_z[0] + 1}; camera poses, z forward?) while a LiDAR frame has x forward, "
+            "z up; give --calib with the KITTI calib.txt (Tr line)"
+        )
     poses[:, :3, 3] -= poses[0, :3, 3]
     return Trajectory(path.stem, poses, times - times[0], "car")
 
@@ -261,8 +289,9 @@ def load_trajectory(name: str) -> Trajectory:
     raise InputError(f"unknown trajectory {name!r}; choose one of {', '.join(TRAJECTORY_NAMES)}")
 
 
-def frame_indices(total: int, start: int = 0, end: int | None = None, stride: int = 1,
-                  name: str = "trajectory") -> np.ndarray:
+def frame_indices(
+    total: int, start: int = 0, end: int | None = None, stride: int = 1, name: str = "trajectory"
+) -> np.ndarray:
     """Indices start, start+stride, ... < end of a `total`-frame trajectory, validated."""
     end = total if end is None else end
     if stride < 1:

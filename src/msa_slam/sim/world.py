@@ -9,8 +9,8 @@ reused designs and hard stretches from `plan`, moving and transient objects from
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
-from typing import Iterator
 
 import numpy as np
 import trimesh
@@ -33,19 +33,19 @@ DYNAMIC_RADIUS = 120.0  # dynamic objects farther than this from the rays' origi
 class WorldRealism:
     """World knobs; every default is "off". Densities per 100 m of path, shares of path length."""
 
-    moving_cars: float = 0.0        # cars driving along the path in both directions
-    pedestrians: float = 0.0        # people walking back and forth beside the path
+    moving_cars: float = 0.0  # cars driving along the path in both directions
+    pedestrians: float = 0.0  # people walking back and forth beside the path
     transient_parking: float = 0.0  # share of parking slots whose car comes and goes
-    parked_occupancy: float = 0.0   # share of car slots with a parked car on streets that have parking (0: the style's)
-    turnover_period: float = 60.0   # s: a transient car is there or not per epoch of this length
-    catalogue_designs: int = 0      # street designs reused in different places (perceptual aliasing)
-    km_per_design: float = 0.0      # more designs on longer paths: one per this many km of first visits (0: off)
-    catalogue_share: float = 0.0    # share of the path laid out from the catalogue
-    design_variants: int = 1        # house types per design, laid in an irregular order (1: identical houses)
-    hard_share: float = 0.0         # share of the path in stretches where ICP degenerates along the path
+    parked_occupancy: float = 0.0  # share of car slots with a parked car on streets that have parking (0: the style's)
+    turnover_period: float = 60.0  # s: a transient car is there or not per epoch of this length
+    catalogue_designs: int = 0  # street designs reused in different places (perceptual aliasing)
+    km_per_design: float = 0.0  # more designs on longer paths: one per this many km of first visits (0: off)
+    catalogue_share: float = 0.0  # share of the path laid out from the catalogue
+    design_variants: int = 1  # house types per design, laid in an irregular order (1: identical houses)
+    hard_share: float = 0.0  # share of the path in stretches where ICP degenerates along the path
     hard_kinds: tuple[str, ...] = HARD_KINDS
-    foliage_gap: float = 0.0        # share of rays that pass a crown's surface, drawn per scan and ray
-    upright: bool = False           # build along gravity (level.gravity_up), not along the trajectory frame's z
+    foliage_gap: float = 0.0  # share of rays that pass a crown's surface, drawn per scan and ray
+    upright: bool = False  # build along gravity (level.gravity_up), not along the trajectory frame's z
 
     def __post_init__(self) -> None:
         for name in ("moving_cars", "pedestrians"):
@@ -55,21 +55,26 @@ class WorldRealism:
             if not 0.0 <= getattr(self, name) < 1.0:
                 raise InputError(f"world realism: {name} must be in [0, 1), got {getattr(self, name)}")
         if self.catalogue_share + self.hard_share > 0.9:
-            raise InputError(f"world realism: catalogue_share + hard_share must be <= 0.9, got "
-                             f"{self.catalogue_share} + {self.hard_share}")
+            raise InputError(
+                f"world realism: catalogue_share + hard_share must be <= 0.9, got "
+                f"{self.catalogue_share} + {self.hard_share}"
+            )
         if not self.turnover_period > 0:
             raise InputError(f"world realism: turnover_period must be > 0 s, got {self.turnover_period}")
         if self.catalogue_designs < 0 or (self.catalogue_share > 0 and self.catalogue_designs < 1):
-            raise InputError(f"world realism: catalogue_designs must be >= 1 when catalogue_share > 0, got "
-                             f"{self.catalogue_designs}")
+            raise InputError(
+                f"world realism: catalogue_designs must be >= 1 when catalogue_share > 0, got {self.catalogue_designs}"
+            )
         if not 0.0 <= self.km_per_design <= 100.0:
             raise InputError(f"world realism: km_per_design must be in [0, 100], got {self.km_per_design}")
         if not 1 <= self.design_variants <= 8:
             raise InputError(f"world realism: design_variants must be in [1, 8], got {self.design_variants}")
         unknown = sorted(set(self.hard_kinds) - set(HARD_KINDS))
         if unknown or (self.hard_share > 0 and not self.hard_kinds):
-            raise InputError(f"world realism: hard_kinds {list(self.hard_kinds)} must be a non-empty subset of "
-                             f"{', '.join(HARD_KINDS)}")
+            raise InputError(
+                f"world realism: hard_kinds {list(self.hard_kinds)} must be a non-empty subset of "
+                f"{', '.join(HARD_KINDS)}"
+            )
 
     def designs_for(self, first_visit_m: float) -> int:
         """How many designs a path with `first_visit_m` m of first visits gets: at least `catalogue_designs`, and
@@ -81,7 +86,7 @@ class WorldRealism:
         return max(self.catalogue_designs, round(first_visit_m / (1000.0 * self.km_per_design)))
 
     @classmethod
-    def clean(cls) -> "WorldRealism":
+    def clean(cls) -> WorldRealism:
         """Everything off: the plain world."""
         return cls()
 
@@ -112,13 +117,24 @@ class World:
     An upright world is built in a levelled frame: `levelling` (3, 3) takes the trajectory's frame, in which
     rays are given, to it (None: the same frame)."""
 
-    def __init__(self, mesh: trimesh.Trimesh, reflectance: np.ndarray, material: np.ndarray | None = None,
-                 dynamic: DynamicObjects | None = None, realism: WorldRealism = WorldRealism(),
-                 seed: int = 0, stretches: tuple[Stretch, ...] = (), levelling: np.ndarray | None = None) -> None:
+    def __init__(
+        self,
+        mesh: trimesh.Trimesh,
+        reflectance: np.ndarray,
+        material: np.ndarray | None = None,
+        dynamic: DynamicObjects | None = None,
+        realism: WorldRealism = WorldRealism(),
+        seed: int = 0,
+        stretches: tuple[Stretch, ...] = (),
+        levelling: np.ndarray | None = None,
+    ) -> None:
         self.mesh = mesh
         self.reflectance = reflectance
-        self.material = (np.full(len(mesh.faces), Material.SOLID, dtype=np.uint8) if material is None
-                         else np.asarray(material, dtype=np.uint8))
+        self.material = (
+            np.full(len(mesh.faces), Material.SOLID, dtype=np.uint8)
+            if material is None
+            else np.asarray(material, dtype=np.uint8)
+        )
         self.dynamic = dynamic
         self.realism = realism
         self.seed = seed
@@ -160,8 +176,15 @@ class World:
             hits = self._with_dynamic(hits, origins, directions, time)
         return hits
 
-    def _through_foliage(self, origins: np.ndarray, directions: np.ndarray, tri: np.ndarray, ray: np.ndarray,
-                         dist: np.ndarray, time: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _through_foliage(
+        self,
+        origins: np.ndarray,
+        directions: np.ndarray,
+        tri: np.ndarray,
+        ray: np.ndarray,
+        dist: np.ndarray,
+        time: float,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """A seeded share of the rays that hit a crown pass its surface (a gap in the leaves, different at
         every scan) and return from what lies behind: the crown's far side or beyond."""
         veg = np.flatnonzero(self.material[tri] == Material.VEGETATION)
@@ -237,6 +260,7 @@ class GroundModel:
 def extend_path(xy: np.ndarray, length: float) -> np.ndarray:
     """`xy` continued straight for `length` metres before its start and after its end, so the first and
     last scans see a street around them too (as a real drive that began and ended elsewhere)."""
+
     def heading(a: np.ndarray) -> np.ndarray:
         far = a[np.argmax(np.linalg.norm(a - a[0], axis=1) > 5.0)] if len(a) > 1 else a[0]
         d = far - a[0]
@@ -249,8 +273,14 @@ def extend_path(xy: np.ndarray, length: float) -> np.ndarray:
     return np.concatenate([before, xy, after])
 
 
-def build_world(poses: np.ndarray, style: str = "city", seed: int = 0, sensor_height: float = 1.73,
-                realism: WorldRealism = WorldRealism(), up: np.ndarray | None = None) -> World:
+def build_world(
+    poses: np.ndarray,
+    style: str = "city",
+    seed: int = 0,
+    sensor_height: float = 1.73,
+    realism: WorldRealism = WorldRealism(),
+    up: np.ndarray | None = None,
+) -> World:
     """The world around `poses` (N, 4, 4): same seed, poses and realism give the same world, triangle for
     triangle and object for object. The realism features draw from their own seeded streams. An upright
     world stands along `up` (gravity in the poses' frame; default: level.gravity_up of `poses`)."""
@@ -271,8 +301,15 @@ def build_world(poses: np.ndarray, style: str = "city", seed: int = 0, sensor_he
     xy = extend_path(poses[:, :2, 3], PATH_LEAD)
     path = PathFrame.of(xy)
     designs = realism.designs_for(sum(b - a for a, b in first_visits(xy)))
-    plan = plan_stretches(xy, realism.catalogue_share, realism.hard_share, realism.hard_kinds, designs,
-                          np.random.default_rng([seed, 12, 1]), hard_from=PATH_LEAD + START_STRUCTURE_M)
+    plan = plan_stretches(
+        xy,
+        realism.catalogue_share,
+        realism.hard_share,
+        realism.hard_kinds,
+        designs,
+        np.random.default_rng([seed, 12, 1]),
+        hard_from=PATH_LEAD + START_STRUCTURE_M,
+    )
     catalogue = make_catalogue(designs, st, np.random.default_rng([seed, 12, 2]), realism.design_variants)
     layout = StreetLayout(xy, st, rng, ground, plan, catalogue, realism.transient_parking)
     layout.build()
@@ -280,15 +317,21 @@ def build_world(poses: np.ndarray, style: str = "city", seed: int = 0, sensor_he
     layout.emit(builder)
     lo = xy.min(0) - st.ground_radius
     n = np.ceil((xy.max(0) + st.ground_radius - lo) / st.ground_cell).astype(int)
-    gy, gx = np.mgrid[0:n[1] + 1, 0:n[0] + 1]
+    gy, gx = np.mgrid[0 : n[1] + 1, 0 : n[0] + 1]
     grid = np.column_stack([lo[0] + gx.ravel() * st.ground_cell, lo[1] + gy.ravel() * st.ground_cell])
     centres = grid.reshape(n[1] + 1, n[0] + 1, 2)[:-1, :-1] + st.ground_cell / 2
     near, _ = layout.clear.tree.query(centres.reshape(-1, 2), distance_upper_bound=st.ground_radius)
     keep = np.isfinite(near).reshape(n[1], n[0])
     builder.height_field(lo, st.ground_cell, ground(grid).reshape(n[1] + 1, n[0] + 1), keep, 0.25)
     mesh, reflectance, material = builder.build()
-    recipe = DynamicRecipe(realism.moving_cars if st.p_parked > 0 else 0.0, realism.pedestrians, st.car_lanes,
-                           st.pedestrian_offset, realism.turnover_period)
-    dynamic = make_dynamic(path, ground, recipe, np.array(layout.transient).reshape(-1, 11),
-                           np.random.default_rng([seed, 12, 3]), seed)
+    recipe = DynamicRecipe(
+        realism.moving_cars if st.p_parked > 0 else 0.0,
+        realism.pedestrians,
+        st.car_lanes,
+        st.pedestrian_offset,
+        realism.turnover_period,
+    )
+    dynamic = make_dynamic(
+        path, ground, recipe, np.array(layout.transient).reshape(-1, 11), np.random.default_rng([seed, 12, 3]), seed
+    )
     return World(mesh, reflectance, material, dynamic, realism, seed, plan, levelling)

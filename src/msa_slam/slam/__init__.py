@@ -8,5 +8,16 @@ from msa_slam.slam.measure import ProtocolRecord, measure
 from msa_slam.slam.result import RunResult
 from msa_slam.types import LoopClosure
 
-__all__ = ["BACKEND_STEPS", "KeyframeStore", "LoopCloser", "LoopClosure", "ProtocolRecord", "RunResult", "SlamBackend",
-           "build_backend", "build_loop_closer", "measure", "slam_sampler"]
+__all__ = [
+    "BACKEND_STEPS",
+    "KeyframeStore",
+    "LoopCloser",
+    "LoopClosure",
+    "ProtocolRecord",
+    "RunResult",
+    "SlamBackend",
+    "build_backend",
+    "build_loop_closer",
+    "measure",
+    "slam_sampler",
+]

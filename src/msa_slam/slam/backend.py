@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable, Mapping
 from dataclasses import replace
-from typing import Any, Callable, Mapping, Protocol, Union
+from typing import Any, Protocol, Union
 
 import numpy as np
 
@@ -33,8 +34,8 @@ from msa_slam.sampling.registry import build_sampler
 from msa_slam.slam.keyframes import CloudStore, KeyframeStore
 from msa_slam.slam.local_map import LocalMap
 from msa_slam.slam.loop_closing import LoopCloser
-from msa_slam.slam.map_closures_detector import MapClosuresDetector
 from msa_slam.slam.map import keyframe_map
+from msa_slam.slam.map_closures_detector import MapClosuresDetector
 from msa_slam.slam.result import RunResult, RunSettings
 from msa_slam.types import LoopClosure
 
@@ -61,8 +62,9 @@ class Graph(Protocol):
     def describe(self) -> Mapping[str, JSONValue]: ...
 
     def add_keyframe(self, key: int, pose: np.ndarray) -> None: ...
-    def add_loop(self, target_key: int, source_key: int, T_target_source: np.ndarray,
-                 covariance: np.ndarray | None = None) -> None: ...
+    def add_loop(
+        self, target_key: int, source_key: int, T_target_source: np.ndarray, covariance: np.ndarray | None = None
+    ) -> None: ...
     def update(self, extra_iterations: int = 0) -> None: ...
     def optimize(self) -> np.ndarray: ...
 
@@ -70,7 +72,7 @@ class Graph(Protocol):
 class Recorder(Protocol):
     """Called after every frame (and after the end-of-stream flush) with the frame's index."""
 
-    def record(self, backend: "SlamBackend", frame: int) -> None: ...
+    def record(self, backend: SlamBackend, frame: int) -> None: ...
 
 
 def _scan(points: Points) -> np.ndarray:
@@ -84,10 +86,21 @@ class SlamBackend:
     descriptor, which the sampler always uses. Without a local map, `frame_clouds` (every frame's cloud
     downsampled at the store's voxel size) gives a keyframe's cloud without reading its scan."""
 
-    def __init__(self, settings: RunSettings, sampler: Sampler, store: KeyframeStore, loop_closer: LoopCloser,
-                 graph: Graph, n_frames: int, name: str = "sequence", update_iterations: int = 0,
-                 recorder: Recorder | None = None, local_map: LocalMap | None = None,
-                 loop_descriptor: Descriptor | None = None, frame_clouds: FrameClouds | None = None) -> None:
+    def __init__(
+        self,
+        settings: RunSettings,
+        sampler: Sampler,
+        store: KeyframeStore,
+        loop_closer: LoopCloser,
+        graph: Graph,
+        n_frames: int,
+        name: str = "sequence",
+        update_iterations: int = 0,
+        recorder: Recorder | None = None,
+        local_map: LocalMap | None = None,
+        loop_descriptor: Descriptor | None = None,
+        frame_clouds: FrameClouds | None = None,
+    ) -> None:
         self.settings, self.sampler, self.store = settings, sampler, store
         self.frame_clouds = frame_clouds
         self.local_map, self.loop_descriptor = local_map, loop_descriptor
@@ -122,22 +135,35 @@ class SlamBackend:
     def record_bytes(self) -> int:
         """Bytes of the run's records so far: per-frame poses, times and step times of the frames seen (their
         arrays are allocated for the whole run, but pages are resident only once written) and loop records."""
-        per_frame = (self.odometry[0].nbytes + self.gt[0].nbytes + self.times.itemsize
-                     + sum(v.itemsize for v in self.steps_ms.values())) if self.n else 0
+        per_frame = (
+            (
+                self.odometry[0].nbytes
+                + self.gt[0].nbytes
+                + self.times.itemsize
+                + sum(v.itemsize for v in self.steps_ms.values())
+            )
+            if self.n
+            else 0
+        )
         return self._frames * per_frame + self._loop_bytes
 
     def memory_bytes(self) -> dict[str, int]:
         """Accounted bytes now: keyframe clouds (RAM, disk), descriptors, graph, the run's records and (with a
         local-map loop detector) the local map's recent scans."""
-        memory = {"cloud_bytes": self.store.cloud_bytes, "cloud_disk_bytes": self.store.disk_bytes,
-                  "descriptor_bytes": self.store.descriptor_bytes, "graph_bytes": int(self.graph.nbytes),
-                  "record_bytes": self.record_bytes}
+        memory = {
+            "cloud_bytes": self.store.cloud_bytes,
+            "cloud_disk_bytes": self.store.disk_bytes,
+            "descriptor_bytes": self.store.descriptor_bytes,
+            "graph_bytes": int(self.graph.nbytes),
+            "record_bytes": self.record_bytes,
+        }
         if self.local_map is not None:
             memory["local_map_bytes"] = self.local_map.nbytes
         return memory
 
-    def add_frame(self, odom_pose: np.ndarray, descriptor: np.ndarray, points: Points, gt_pose: np.ndarray | None,
-                  time_s: float) -> list[int]:
+    def add_frame(
+        self, odom_pose: np.ndarray, descriptor: np.ndarray, points: Points, gt_pose: np.ndarray | None, time_s: float
+    ) -> list[int]:
         """Process the next frame; return the keyframes it finalised (frame indices)."""
         i = self._frames
         if i >= self.n:
@@ -173,14 +199,19 @@ class SlamBackend:
         if self.has_gt is None:
             self.has_gt = gt_pose is not None
             if not self.has_gt and self.settings.mode == "oracle":
-                raise InputError("SLAM back-end: the frames have no ground-truth poses, which the oracle mode "
-                                 "needs (it verifies only loops ground truth confirms); use mode realistic")
+                raise InputError(
+                    "SLAM back-end: the frames have no ground-truth poses, which the oracle mode "
+                    "needs (it verifies only loops ground truth confirms); use mode realistic"
+                )
             if not self.has_gt and self.settings.sample_on == "gt":
-                raise InputError("SLAM back-end: sample_on=gt but the frames have no ground-truth poses; "
-                                 "use sample_on=odometry")
+                raise InputError(
+                    "SLAM back-end: sample_on=gt but the frames have no ground-truth poses; use sample_on=odometry"
+                )
         elif self.has_gt != (gt_pose is not None):
-            raise InputError(f"SLAM back-end: frame {i} {'lacks' if self.has_gt else 'has'} a ground-truth pose "
-                             f"but frame 0 {'has' if self.has_gt else 'lacks'} one; give it for all frames or none")
+            raise InputError(
+                f"SLAM back-end: frame {i} {'lacks' if self.has_gt else 'has'} a ground-truth pose "
+                f"but frame 0 {'has' if self.has_gt else 'lacks'} one; give it for all frames or none"
+            )
 
     def _timed(self, step: str, i: int, start: float) -> float:
         now = time.perf_counter()
@@ -191,12 +222,16 @@ class SlamBackend:
         accepted_any = False
         for k in sorted(int(k) for k in new):
             if k not in self._pending:
-                raise RuntimeError(f"sampler {self.settings.sampler!r} chose frame {k} at frame {i}, but frame {k} "
-                                   "had left its window (keyframes must be window members)")
+                raise RuntimeError(
+                    f"sampler {self.settings.sampler!r} chose frame {k} at frame {i}, but frame {k} "
+                    "had left its window (keyframes must be window members)"
+                )
             keys = self.graph.keys
             if keys and k < keys[-1]:
-                raise RuntimeError(f"sampler {self.settings.sampler!r} chose frame {k} after keyframe {keys[-1]} "
-                                   "(keyframes must come in time order)")
+                raise RuntimeError(
+                    f"sampler {self.settings.sampler!r} chose frame {k} after keyframe {keys[-1]} "
+                    "(keyframes must come in time order)"
+                )
             descriptor, points = self._pending.pop(k)
             t = time.perf_counter()
             if self.local_map is not None:
@@ -251,8 +286,10 @@ class SlamBackend:
         if len(keys) < MIN_KEYFRAMES:
             flushed = len(self.sampler.flushed_keyframes)
             split = f" ({len(keys) - flushed} online, {flushed} from the end-of-stream flush)" if flushed else ""
-            raise InputError(f"sampler {self.settings.name!r} kept only {len(keys)} of {n} frames as keyframes"
-                             f"{split}; the evaluation needs at least {MIN_KEYFRAMES}")
+            raise InputError(
+                f"sampler {self.settings.name!r} kept only {len(keys)} of {n} frames as keyframes"
+                f"{split}; the evaluation needs at least {MIN_KEYFRAMES}"
+            )
         memory = self.memory_bytes()
         t0 = time.perf_counter()
         optimised = self.graph.optimize()
@@ -262,20 +299,37 @@ class SlamBackend:
         pr = self.loop_closer.pr_curve() if gt is not None else no_ground_truth_pr()
         evaluation = evaluate_trajectories(self.odometry[keys], optimised, None if gt is None else gt[keys], keys)
         t2 = time.perf_counter()
-        stats = {**self.sampler.stats.as_dict(), "online_keyframes": len(self.sampler.online_keyframes),
-                 "flushed_keyframes": len(self.sampler.flushed_keyframes)}
+        stats = {
+            **self.sampler.stats.as_dict(),
+            "online_keyframes": len(self.sampler.online_keyframes),
+            "flushed_keyframes": len(self.sampler.flushed_keyframes),
+        }
         map_points = keyframe_map(self.store.clouds, keys, optimised, self.settings.verifier.voxel_size)
         memory["map_bytes"] = int(map_points.nbytes)
         t3 = time.perf_counter()
         settle_heap()
         rss_growth = current_rss_bytes() - self.rss_start
-        return RunResult(config=self.settings, name=self.name, times=self.times, odometry=self.odometry, gt_poses=gt,
-                         keyframes=keys, optimised=optimised, loops=self.loops, pr=pr, evaluation=evaluation,
-                         steps_ms=self.steps_ms, memory_bytes=memory, sampler_stats=stats,
-                         pr_queries=len(self.loop_closer.best_similarity),
-                         final_s={"optimisation": t1 - t0, "evaluation": t2 - t1, "map": t3 - t2},
-                         map_points=map_points, graph_factors=self.graph.factors, rss_growth_bytes=rss_growth,
-                         graph_info=self.graph.describe())
+        return RunResult(
+            config=self.settings,
+            name=self.name,
+            times=self.times,
+            odometry=self.odometry,
+            gt_poses=gt,
+            keyframes=keys,
+            optimised=optimised,
+            loops=self.loops,
+            pr=pr,
+            evaluation=evaluation,
+            steps_ms=self.steps_ms,
+            memory_bytes=memory,
+            sampler_stats=stats,
+            pr_queries=len(self.loop_closer.best_similarity),
+            final_s={"optimisation": t1 - t0, "evaluation": t2 - t1, "map": t3 - t2},
+            map_points=map_points,
+            graph_factors=self.graph.factors,
+            rss_growth_bytes=rss_growth,
+            graph_info=self.graph.describe(),
+        )
 
     def _mark_dropped(self, dropped: tuple[int, ...]) -> None:
         """Loops the graph left out as inconsistent (indices in the order they were added, which is the order of
@@ -340,8 +394,9 @@ def slam_sampler(config: RunSettings) -> Sampler:
     """The run's sampler, from the parameters its config validated, with the SLAM core's standstill gate
     (slam_sampler_params)."""
     gated = slam_sampler_params(config.sampler, config.sampler_params)
-    return build_sampler(config.sampler_params.model_copy(
-        update={k: float(gated[k]) for k in GATE_PARAMETERS if k in gated}))
+    return build_sampler(
+        config.sampler_params.model_copy(update={k: float(gated[k]) for k in GATE_PARAMETERS if k in gated})
+    )
 
 
 def build_loop_closer(config: RunSettings, descriptor: Descriptor, clouds: CloudStore) -> LoopCloser:
@@ -354,22 +409,45 @@ def build_loop_closer(config: RunSettings, descriptor: Descriptor, clouds: Cloud
     return LoopCloser(store, Verifier(config.verifier), config, map_closures)
 
 
-def build_backend(config: RunSettings, sampler: Sampler, loop_closer: LoopCloser, graph: Graph, n_frames: int,
-                  name: str, update_iterations: int = 0, recorder: Recorder | None = None,
-                  frame_clouds: FrameClouds | None = None, local_maps: bool = True) -> SlamBackend:
+def build_backend(
+    config: RunSettings,
+    sampler: Sampler,
+    loop_closer: LoopCloser,
+    graph: Graph,
+    n_frames: int,
+    name: str,
+    update_iterations: int = 0,
+    recorder: Recorder | None = None,
+    frame_clouds: FrameClouds | None = None,
+    local_maps: bool = True,
+) -> SlamBackend:
     """The SLAM core for a run configuration (msa_slam.pipeline.config.RunConfig) around its `sampler`
     (slam_sampler) and `loop_closer` (build_loop_closer, whose store is filled from `frame_clouds` when given,
     which must be downsampled at the verifier's voxel size) and `graph` (batch LM or iSAM2). The local-map and
     map-closures detectors keep a local map of the recent scans, unless `local_maps` is False (the store's clouds
     are the keyframes' local maps already: a replay)."""
     if frame_clouds is not None and frame_clouds.voxel_size != config.verifier.voxel_size:
-        raise ValueError(f"frame clouds downsampled at {frame_clouds.voxel_size} m for a run whose verifier uses "
-                         f"{config.verifier.voxel_size} m voxels")
+        raise ValueError(
+            f"frame clouds downsampled at {frame_clouds.voxel_size} m for a run whose verifier uses "
+            f"{config.verifier.voxel_size} m voxels"
+        )
     detector = config.loop_detector
     local_map = LocalMap(config.local_map_m, config.verifier.voxel_size) if local_maps and detector != "scan" else None
     loop_descriptor = loop_closer.store.descriptor if detector == "local-map" else None
-    return SlamBackend(config, sampler, loop_closer.store, loop_closer, graph, n_frames, name, update_iterations,
-                       recorder, local_map, loop_descriptor, frame_clouds)
+    return SlamBackend(
+        config,
+        sampler,
+        loop_closer.store,
+        loop_closer,
+        graph,
+        n_frames,
+        name,
+        update_iterations,
+        recorder,
+        local_map,
+        loop_descriptor,
+        frame_clouds,
+    )
 
 
 def local_map_descriptor(config: RunSettings) -> Descriptor:

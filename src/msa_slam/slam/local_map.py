@@ -53,8 +53,9 @@ class LocalMap:
             if frame <= last:
                 raise InputError(f"local map: frame {frame} after frame {last}; frames must come in order")
             path = last_path + float(np.linalg.norm(pose[:3, 3] - last_pose[:3, 3]))
-        cloud = downsample(points, self.voxel_size, where=f"frame {frame}") if len(points) else np.zeros((0, 3),
-                                                                                                         np.float32)
+        cloud = (
+            downsample(points, self.voxel_size, where=f"frame {frame}") if len(points) else np.zeros((0, 3), np.float32)
+        )
         pose = np.array(pose, dtype=np.float64)
         self._frames.append((int(frame), path, pose, cloud))
         self._nbytes += cloud.nbytes + pose.nbytes

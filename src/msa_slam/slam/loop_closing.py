@@ -27,8 +27,9 @@ of path (the robot left the place and came back) is a revisit.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import replace
-from typing import Mapping, Protocol
+from typing import Protocol
 
 import gtsam
 import numpy as np
@@ -38,8 +39,8 @@ from msa_slam.backend.graph_config import GraphConfig
 from msa_slam.backend.noise import PathCovariance
 from msa_slam.descriptors import Descriptor
 from msa_slam.errors import InputError
-from msa_slam.evaluation.metrics import JSONValue, LoopClosing
 from msa_slam.evaluation.loops import rejection_counts
+from msa_slam.evaluation.metrics import JSONValue, LoopClosing
 from msa_slam.place_recognition import PRCurve, precision_recall
 from msa_slam.registration import Verifier
 from msa_slam.registration.coarse import coarse_guess
@@ -90,8 +91,13 @@ class LoopCloser:
     """Candidates of a new keyframe among the stored ones, and their verification; keeps every query's best
     match (similarity, ground-truth distance) for the PR curve."""
 
-    def __init__(self, store: KeyframeStore, verifier: Verifier, settings: LoopSettings,
-                 map_closures: MapClosuresDetector | None = None) -> None:
+    def __init__(
+        self,
+        store: KeyframeStore,
+        verifier: Verifier,
+        settings: LoopSettings,
+        map_closures: MapClosuresDetector | None = None,
+    ) -> None:
         self.store, self.verifier, self.settings = store, verifier, settings
         self.map_closures = map_closures  # the candidates' source when loop_detector is map-closures
         self.best_similarity: list[float] = []
@@ -101,8 +107,9 @@ class LoopCloser:
         self._drift = PathCovariance()  # odometry covariance accumulated frame by frame (the drift check)
         self._guesses: dict[tuple[int, int], np.ndarray] = {}  # MapClosures' T_match_query by (query, match)
 
-    def candidates(self, frame: int, descriptor: np.ndarray, gt: np.ndarray,
-                   odometry: np.ndarray, cloud: np.ndarray | None = None) -> list[LoopClosure]:
+    def candidates(
+        self, frame: int, descriptor: np.ndarray, gt: np.ndarray, odometry: np.ndarray, cloud: np.ndarray | None = None
+    ) -> list[LoopClosure]:
         """Older keyframes matching `frame` (call before adding it to the store); `gt` and `odometry` hold
         every frame's ground-truth and odometry poses up to `frame` (true-loop distance, travelled path);
         `cloud` is the keyframe's local map, which the map-closures detector queries with."""
@@ -119,8 +126,9 @@ class LoopCloser:
         elif reachable < 0:  # nothing far enough back along the path yet
             return []
         else:
-            matches = self.store.database.query(frame, descriptor, exclude_frames=gap,
-                                                exclude_recent=s.exclude_recent, threshold=0.0, top_k=top_k)
+            matches = self.store.database.query(
+                frame, descriptor, exclude_frames=gap, exclude_recent=s.exclude_recent, threshold=0.0, top_k=top_k
+            )
         if reachable < 0:
             return []
         out = []
@@ -130,12 +138,20 @@ class LoopCloser:
                 self.best_similarity.append(match.similarity)
                 self.best_distance.append(dist)
             if match.similarity >= threshold:
-                out.append(LoopClosure(frame, match.keyframe_id, match.similarity, dist,
-                                       travelled_m=float(path[frame] - path[match.keyframe_id])))
+                out.append(
+                    LoopClosure(
+                        frame,
+                        match.keyframe_id,
+                        match.similarity,
+                        dist,
+                        travelled_m=float(path[frame] - path[match.keyframe_id]),
+                    )
+                )
         return out
 
-    def _map_closure_matches(self, detector: MapClosuresDetector, frame: int, cloud: np.ndarray | None, gap: int,
-                             top_k: int) -> list:
+    def _map_closure_matches(
+        self, detector: MapClosuresDetector, frame: int, cloud: np.ndarray | None, gap: int, top_k: int
+    ) -> list:
         """MapClosures' best `top_k` eligible keyframes for `frame` (it also enters `frame` into its database).
         The ineligible keyframes are the newest ones, so asking for top_k more than there are of them leaves
         top_k eligible ones whenever MapClosures finds that many."""
@@ -164,7 +180,7 @@ class LoopCloser:
         """Cumulative odometry path length up to `frame`, extended incrementally (frames never change)."""
         done = len(self._path)
         if frame >= done:
-            steps = np.linalg.norm(np.diff(self._odometry[done - 1: frame + 1, :3, 3], axis=0), axis=1)
+            steps = np.linalg.norm(np.diff(self._odometry[done - 1 : frame + 1, :3, 3], axis=0), axis=1)
             self._path = np.concatenate([self._path, self._path[-1] + np.cumsum(steps)])
         return self._path
 
@@ -173,8 +189,9 @@ class LoopCloser:
         graph = self.settings.graph
         for k in range(len(self._drift), frame + 1):
             pose = self._odometry[k]
-            self._drift.append(pose, graph.odometry_covariance(np.linalg.inv(self._odometry[k - 1]) @ pose)
-                               if k else None)
+            self._drift.append(
+                pose, graph.odometry_covariance(np.linalg.inv(self._odometry[k - 1]) @ pose) if k else None
+            )
         return self._drift
 
     def verify(self, candidates: list[LoopClosure]) -> list[LoopClosure]:
@@ -197,14 +214,23 @@ class LoopCloser:
         except InputError:  # clouds too sparse to register: the candidate is rejected, not the run
             return replace(cand, verified=True, residual=float("inf"), rejected="sparse")
         rejected = result.rejected
-        if not rejected and drift_check_on(self.settings) and self.exceeds_drift(cand, result.T_target_source,
-                                                                                  result.covariance):
+        if (
+            not rejected
+            and drift_check_on(self.settings)
+            and self.exceeds_drift(cand, result.T_target_source, result.covariance)
+        ):
             rejected = "drift"
-        return replace(cand, verified=True, accepted=not rejected, residual=result.residual,
-                       T_match_query=result.T_target_source, covariance=result.covariance, rejected=rejected)
+        return replace(
+            cand,
+            verified=True,
+            accepted=not rejected,
+            residual=result.residual,
+            T_match_query=result.T_target_source,
+            covariance=result.covariance,
+            rejected=rejected,
+        )
 
-    def exceeds_drift(self, cand: LoopClosure, T_match_query: np.ndarray,
-                      covariance: np.ndarray | None = None) -> bool:
+    def exceeds_drift(self, cand: LoopClosure, T_match_query: np.ndarray, covariance: np.ndarray | None = None) -> bool:
         """Whether the loop's correction of the odometry between its keyframes is beyond what the drift check
         allows (drift_chi2 above the chi-square quantile `drift_confidence`, 6 dof)."""
         return self.drift_chi2(cand, T_match_query, covariance) > float(chi2.ppf(self.settings.drift_confidence, 6))
@@ -270,8 +296,9 @@ def drift_check_on(settings: LoopSettings) -> bool:
     return settings.drift_check == "on" or settings.drift_check == "auto" and settings.mode == "realistic"
 
 
-def loop_summary(loops: list[LoopClosure], settings: LoopSettings,
-                 graph_info: Mapping[str, JSONValue] | None = None) -> LoopClosing:
+def loop_summary(
+    loops: list[LoopClosure], settings: LoopSettings, graph_info: Mapping[str, JSONValue] | None = None
+) -> LoopClosing:
     """What metrics.json reports about loop closing: rejections by reason, accepted loops that are revisits
     (at least 2 x loop_radius of odometry path between the keyframes) apart from the others, and the
     noise models, inlier selection and robust kernel the loop factors had (`graph_info`, the graph's own
@@ -279,11 +306,17 @@ def loop_summary(loops: list[LoopClosure], settings: LoopSettings,
     accepted = [c for c in loops if c.accepted]
     revisits = sum(c.travelled_m >= 2 * settings.loop_radius for c in accepted)
     graph = settings.graph
-    return LoopClosing(rejection_counts(loops, REJECTION_REASONS), {
-        "revisit_loops": int(revisits), "other_loops": len(accepted) - int(revisits),
-        "min_travel_m": settings.min_travel_m, "drift_check": drift_check_on(settings),
-        "loop_kernel": graph.loop_kernel(settings.mode),
-        "loop_inliers": "consistent" if graph.selects_inliers(settings.mode) else "all",
-        **(graph_info or {}),
-        "loop_noise": graph.loop_noise, "odometry_noise": graph.odometry_noise,
-    })
+    return LoopClosing(
+        rejection_counts(loops, REJECTION_REASONS),
+        {
+            "revisit_loops": int(revisits),
+            "other_loops": len(accepted) - int(revisits),
+            "min_travel_m": settings.min_travel_m,
+            "drift_check": drift_check_on(settings),
+            "loop_kernel": graph.loop_kernel(settings.mode),
+            "loop_inliers": "consistent" if graph.selects_inliers(settings.mode) else "all",
+            **(graph_info or {}),
+            "loop_noise": graph.loop_noise,
+            "odometry_noise": graph.odometry_noise,
+        },
+    )

@@ -3,7 +3,7 @@ voxel grid, so a user can look at what the SLAM built (KISS-SLAM writes its loca
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -13,7 +13,9 @@ from msa_slam.slam.keyframes import CloudStore
 CHUNK_POINTS = 2_000_000  # merge on the grid every ~2 M points: memory stays bounded on long sequences
 
 
-def keyframe_map(clouds: CloudStore, keys: Sequence[int] | np.ndarray, poses: np.ndarray, voxel_size: float) -> np.ndarray:
+def keyframe_map(
+    clouds: CloudStore, keys: Sequence[int] | np.ndarray, poses: np.ndarray, voxel_size: float
+) -> np.ndarray:
     """(P, 3) float32 world points: cloud of keyframe keys[i] transformed by poses[i], voxel-downsampled."""
     merged = np.zeros((0, 3), dtype=np.float32)
     pending: list[np.ndarray] = []

@@ -51,7 +51,13 @@ class MapClosuresDetector:
         self._frames.append(int(frame))
         cloud = np.ascontiguousarray(local_map[:, :3], dtype=np.float64)
         found = self._closures.get_top_k_closures(row, cloud, int(k))
-        matches = [MapClosureMatch(self._frames[c.source_id], c.number_of_inliers / (c.number_of_inliers + INLIER_SCALE),
-                                   np.linalg.inv(np.asarray(c.pose, dtype=np.float64)))
-                   for c in found if c.source_id < row]
+        matches = [
+            MapClosureMatch(
+                self._frames[c.source_id],
+                c.number_of_inliers / (c.number_of_inliers + INLIER_SCALE),
+                np.linalg.inv(np.asarray(c.pose, dtype=np.float64)),
+            )
+            for c in found
+            if c.source_id < row
+        ]
         return sorted(matches, key=lambda m: -m.similarity)

@@ -5,14 +5,24 @@ memory, sampler statistics) joined with what the protocol measured around it (`P
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Mapping
 
 from msa_slam.evaluation import peak_rss_bytes
 from msa_slam.evaluation.loops import account_loops
-from msa_slam.evaluation.metrics import (AccountedMemory, Loops, Memory, PlaceRecognition,
-                                         ReferencePR, RunIdentity, RunSetup, SweepRow, Throughput, Timing,
-                                         Unavailable)
+from msa_slam.evaluation.metrics import (
+    AccountedMemory,
+    Loops,
+    Memory,
+    PlaceRecognition,
+    ReferencePR,
+    RunIdentity,
+    RunSetup,
+    SweepRow,
+    Throughput,
+    Timing,
+    Unavailable,
+)
 from msa_slam.evaluation.metrics_json import NOT_BATCH, NOTHING_IN_RAM
 from msa_slam.evaluation.metrics_reader import MetricsDocument
 from msa_slam.evaluation.run_metrics import RunMetrics
@@ -42,8 +52,10 @@ class ProtocolRecord:
 
 
 def _no_queries(min_frame_gap: int, exclude_recent: int) -> str:
-    return (f"no keyframe had an older keyframe to query (more than min_frame_gap={min_frame_gap} frames back "
-            f"and not among the exclude_recent={exclude_recent} newest)")
+    return (
+        f"no keyframe had an older keyframe to query (more than min_frame_gap={min_frame_gap} frames back "
+        f"and not among the exclude_recent={exclude_recent} newest)"
+    )
 
 
 def _memory(result: RunResult, cloud_store: str | None, peak: int) -> Memory:
@@ -53,12 +65,26 @@ def _memory(result: RunResult, cloud_store: str | None, peak: int) -> Memory:
     # what the run keeps in RAM, for the RSS growth: SLAM memory without on-disk clouds, records and the map
     local_map = mem.get("local_map_bytes")  # the recent scans a local-map loop detector keeps (else absent)
     kept = local_map or 0
-    in_ram = (mem["descriptor_bytes"] + mem["cloud_bytes"] + mem["graph_bytes"] + kept + mem["record_bytes"]
-              + mem["map_bytes"])
-    accounted = AccountedMemory(mem["descriptor_bytes"], clouds, mem["graph_bytes"], local_map,
-                                mem["descriptor_bytes"] + clouds + mem["graph_bytes"] + kept, mem["record_bytes"],
-                                mem["map_bytes"], in_ram, mem["cloud_disk_bytes"] if cloud_store else None,
-                                cloud_store)
+    in_ram = (
+        mem["descriptor_bytes"]
+        + mem["cloud_bytes"]
+        + mem["graph_bytes"]
+        + kept
+        + mem["record_bytes"]
+        + mem["map_bytes"]
+    )
+    accounted = AccountedMemory(
+        mem["descriptor_bytes"],
+        clouds,
+        mem["graph_bytes"],
+        local_map,
+        mem["descriptor_bytes"] + clouds + mem["graph_bytes"] + kept,
+        mem["record_bytes"],
+        mem["map_bytes"],
+        in_ram,
+        mem["cloud_disk_bytes"] if cloud_store else None,
+        cloud_store,
+    )
     ratio = round(result.rss_growth_bytes / in_ram, 3) if in_ram else Unavailable(NOTHING_IN_RAM)
     return Memory(accounted, peak, "process", int(result.rss_growth_bytes), ratio)
 
@@ -68,8 +94,9 @@ def measure(result: RunResult, protocol: ProtocolRecord) -> RunMetrics:
     cfg, ev, pr = result.config, result.evaluation, result.pr
     # peak RSS: the whole process's high-water mark, not this run's
     peak = peak_rss_bytes() if protocol.peak_rss_bytes is None else protocol.peak_rss_bytes
-    accounting, loop_reasons = account_loops(result.loops, result.keyframes, result.gt_poses, cfg.loop_radius,
-                                             cfg.min_travel_m, REJECTION_REASONS)
+    accounting, loop_reasons = account_loops(
+        result.loops, result.keyframes, result.gt_poses, cfg.loop_radius, cfg.min_travel_m, REJECTION_REASONS
+    )
     reasons = dict(ev.reasons)
     reasons.update(loop_reasons)
     if pr is None or pr.unavailable:
@@ -77,16 +104,50 @@ def measure(result: RunResult, protocol: ProtocolRecord) -> RunMetrics:
     full_rate = result.full_rate_evaluation
     reasons.update(full_rate.reasons)
     reasons.update(protocol.reasons)
-    values = MetricsDocument({"pr_auc": None if pr is None else pr.auc, "f1_max": None if pr is None else pr.f1_max},
-                             "the run", reasons=reasons)
+    values = MetricsDocument(
+        {"pr_auc": None if pr is None else pr.auc, "f1_max": None if pr is None else pr.f1_max},
+        "the run",
+        reasons=reasons,
+    )
     accepted = result.accepted_loops
-    loops = Loops(accounting.candidates, accounting.true_candidates, accounting.accepted, accounting.registered,
-                  int(sum(c.gt_distance > cfg.loop_radius for c in accepted)),
-                  loop_summary(result.loops, cfg, result.graph_info), accounting)
-    place = PlaceRecognition(values.value("pr_auc", "pr"), values.value("f1_max", "pr"), result.pr_queries,
-                             protocol.reference, protocol.sweep)
-    run = RunIdentity(result.name, cfg.dataset, cfg.name, cfg.sampler, cfg.descriptor, cfg.mode, len(result),
-                      int(len(result.keyframes)))
-    return RunMetrics(protocol.pipeline, run, loops, ev.trajectory, full_rate.trajectory, reasons,
-                      (*protocol.warnings, *ev.warnings), place, _memory(result, protocol.cloud_store, peak),
-                      dict(result.sampler_stats), protocol.timing, protocol.setup, protocol.throughput)
+    loops = Loops(
+        accounting.candidates,
+        accounting.true_candidates,
+        accounting.accepted,
+        accounting.registered,
+        int(sum(c.gt_distance > cfg.loop_radius for c in accepted)),
+        loop_summary(result.loops, cfg, result.graph_info),
+        accounting,
+    )
+    place = PlaceRecognition(
+        values.value("pr_auc", "pr"),
+        values.value("f1_max", "pr"),
+        result.pr_queries,
+        protocol.reference,
+        protocol.sweep,
+    )
+    run = RunIdentity(
+        result.name,
+        cfg.dataset,
+        cfg.name,
+        cfg.sampler,
+        cfg.descriptor,
+        cfg.mode,
+        len(result),
+        int(len(result.keyframes)),
+    )
+    return RunMetrics(
+        protocol.pipeline,
+        run,
+        loops,
+        ev.trajectory,
+        full_rate.trajectory,
+        reasons,
+        (*protocol.warnings, *ev.warnings),
+        place,
+        _memory(result, protocol.cloud_store, peak),
+        dict(result.sampler_stats),
+        protocol.timing,
+        protocol.setup,
+        protocol.throughput,
+    )

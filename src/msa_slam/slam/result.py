@@ -7,9 +7,10 @@ one with `dataclasses.replace` (its own records and the report added), never by 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any, Mapping, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 

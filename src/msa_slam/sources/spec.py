@@ -45,7 +45,7 @@ class SourceSpec:
     name: str = ""  # sim/live: the name given first (default, trajectory or pose file); "" when keys only
     fields: tuple[tuple[str, Any], ...] = ()  # sim/live: the key=value items, values as parsed
     laps: int = 1  # live: passes over the trajectory
-    config: "SimConfig | None" = None  # sim/live: the validated simulation
+    config: SimConfig | None = None  # sim/live: the validated simulation
 
     @property
     def simulated(self) -> bool:
@@ -110,11 +110,13 @@ def _simulated(text: str, kind: Kind) -> SourceSpec:
     names = ", ".join([*DEFAULT_CONFIGS, *TRAJECTORY_NAMES])
     if SEED in text:
         raise InputError(f"{where}: {SEED} is replaced only in an experiment grid's datasets (by each of its seeds)")
-    items = text[len(SIM_PREFIX if kind == "sim" else LIVE_PREFIX):].split(",")
+    items = text[len(SIM_PREFIX if kind == "sim" else LIVE_PREFIX) :].split(",")
     name, items = ("", items) if "=" in items[0] else (items[0].strip(), items[1:])
     if not name and not items:  # e.g. sim:$SEQUENCE with the variable unset
-        raise InputError(f"{where}: names no simulated sequence; give {kind}:NAME (one of {names}) or keys "
-                         f"({kind}:trajectory=FILE,...)")
+        raise InputError(
+            f"{where}: names no simulated sequence; give {kind}:NAME (one of {names}) or keys "
+            f"({kind}:trajectory=FILE,...)"
+        )
     valid = [*SimConfig.model_fields, *(LIVE_FIELDS if kind == "live" else ())]
     fields = _fields(items, valid, where)
     values = dict(fields)
@@ -129,8 +131,10 @@ def _simulated(text: str, kind: Kind) -> SourceSpec:
     elif not name:
         config, base = None, {}
     else:
-        raise InputError(f"{where}: unknown simulated sequence {name!r}; choose one of {names}, or give keys only "
-                         f"({kind}:trajectory=/path/poses.txt,...)")
+        raise InputError(
+            f"{where}: unknown simulated sequence {name!r}; choose one of {names}, or give keys only "
+            f"({kind}:trajectory=/path/poses.txt,...)"
+        )
     if values or config is None:
         config = make_config(where=where, **{**base, **values})
     return SourceSpec(text, kind, name=name, fields=fields, laps=laps, config=config)

@@ -4,8 +4,8 @@ distributions, the box plot of ATE differences to all samples and parameter swee
 from __future__ import annotations
 
 import textwrap
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import matplotlib
 
@@ -24,8 +24,9 @@ def _save(fig, path: str | Path) -> Path:
         plt.close(fig)
 
 
-def plot_memory(path: str | Path, series: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
-                title: str = "memory over time") -> Path:
+def plot_memory(
+    path: str | Path, series: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]], title: str = "memory over time"
+) -> Path:
     """series: label -> (frames, accounted bytes (keyframes + graph), RSS bytes); two panels in MiB."""
     fig, axes = plt.subplots(1, 2, figsize=(11, 4), layout="constrained")
     for label, (frames, accounted, rss) in series.items():
@@ -44,17 +45,22 @@ def idle_note(steps: Mapping[str, np.ndarray]) -> str:
     """What a step-time panel leaves out: per label, the steps that took 0 ms (idle: the step had nothing to
     do, or took less than the timer's resolution), which a log axis cannot place; "" when none."""
     counts = {label: (int((np.asarray(ms) <= 0).sum()), len(ms)) for label, ms in steps.items()}
-    left_out = [f"{label} {idle} of {total}" if len(counts) > 1 else f"{idle} of {total} steps"
-                for label, (idle, total) in counts.items() if idle]
+    left_out = [
+        f"{label} {idle} of {total}" if len(counts) > 1 else f"{idle} of {total} steps"
+        for label, (idle, total) in counts.items()
+        if idle
+    ]
     if not left_out:
         return ""
-    text = "left out, idle (0 ms, no place on a log axis): " + ", ".join(t.replace(" ", "\N{NO-BREAK SPACE}")
-                                                                        for t in left_out)
+    text = "left out, idle (0 ms, no place on a log axis): " + ", ".join(
+        t.replace(" ", "\N{NO-BREAK SPACE}") for t in left_out
+    )
     return textwrap.fill(text, 60, break_on_hyphens=False)
 
 
-def plot_step_times(path: str | Path, steps: Mapping[str, Mapping[str, np.ndarray]],
-                    title: str = "per-step time") -> Path:
+def plot_step_times(
+    path: str | Path, steps: Mapping[str, Mapping[str, np.ndarray]], title: str = "per-step time"
+) -> Path:
     """steps: step name -> (label -> per-step ms); one box-plot panel per step (log scale, as Fig. 8).
     Idle steps (0 ms) have no place on the log axis: each panel's x label counts those it leaves out, so a
     thin or empty box is not read as the whole story."""
@@ -75,9 +81,13 @@ def plot_step_times(path: str | Path, steps: Mapping[str, Mapping[str, np.ndarra
     return _save(fig, path)
 
 
-def plot_ate_difference(path: str | Path, differences: Mapping[str, Sequence[float]],
-                        title: str = "ATE difference to all samples", reference: str = "all",
-                        absent: Mapping[str, str] | None = None) -> Path:
+def plot_ate_difference(
+    path: str | Path,
+    differences: Mapping[str, Sequence[float]],
+    title: str = "ATE difference to all samples",
+    reference: str = "all",
+    absent: Mapping[str, str] | None = None,
+) -> Path:
     """Box plot per method of ATE(method) - ATE(`reference`) [m] over datasets/seeds (negative: better); the
     y label names the reference, as `report --reference` changes it; the x label names the `absent` methods
     (without a difference) and why."""
@@ -93,15 +103,22 @@ def plot_ate_difference(path: str | Path, differences: Mapping[str, Sequence[flo
     return _save(fig, path)
 
 
-def plot_sweeps(path: str | Path,
-                sweeps: Mapping[str, Mapping[str, Mapping[str, tuple[Sequence[float], Sequence[float]]]]],
-                title: str = "distance-bound ablation") -> Path:
+def plot_sweeps(
+    path: str | Path,
+    sweeps: Mapping[str, Mapping[str, Mapping[str, tuple[Sequence[float], Sequence[float]]]]],
+    title: str = "distance-bound ablation",
+) -> Path:
     """sweeps: swept parameter -> metric -> line label (e.g. dataset) -> (values, metric means);
     one row per parameter, one column per metric (the paper's Fig. 9)."""
     params = list(sweeps)
     metrics = list(dict.fromkeys(m for p in params for m in sweeps[p]))
-    fig, axes = plt.subplots(len(params), len(metrics), figsize=(3.6 * len(metrics), 3.0 * len(params) + 0.5),
-                             squeeze=False, layout="constrained")
+    fig, axes = plt.subplots(
+        len(params),
+        len(metrics),
+        figsize=(3.6 * len(metrics), 3.0 * len(params) + 0.5),
+        squeeze=False,
+        layout="constrained",
+    )
     for r, param in enumerate(params):
         for c, metric in enumerate(metrics):
             ax = axes[r][c]
@@ -109,8 +126,16 @@ def plot_sweeps(path: str | Path,
             for label, (x, y) in lines.items():
                 ax.plot(x, y, "o-", label=label)
             if not lines:  # every cell's value n/a (the cells' results.md say why): say so, not an empty frame
-                ax.text(0.5, 0.5, "n/a in every cell\n(results.md gives the reason)", ha="center", va="center",
-                        transform=ax.transAxes, fontsize=9, color="0.4")
+                ax.text(
+                    0.5,
+                    0.5,
+                    "n/a in every cell\n(results.md gives the reason)",
+                    ha="center",
+                    va="center",
+                    transform=ax.transAxes,
+                    fontsize=9,
+                    color="0.4",
+                )
                 ax.set(xticks=[], yticks=[])
             ax.set(xlabel=param, title=metric if r == 0 else "")
             ax.ticklabel_format(axis="y", useOffset=False)  # the metric's own values, not "+5.008e1" offsets

@@ -20,11 +20,14 @@ def check_viewer(save: str | os.PathLike | None = None) -> None:
     try:
         import rerun  # noqa: F401
     except ImportError:
-        raise InputError("--viewer / --viewer-save need the optional rerun-sdk package: "
-                         "pip install 'msa-slam[viewer]' (or pip install rerun-sdk)") from None
+        raise InputError(
+            "--viewer / --viewer-save need the optional rerun-sdk package: "
+            "pip install 'msa-slam[viewer]' (or pip install rerun-sdk)"
+        ) from None
     if save is not None and os.path.lexists(save):
-        raise InputError(f"--viewer-save {save}: the file exists; give a new name (msa-slam never replaces "
-                         "a file it did not write)")
+        raise InputError(
+            f"--viewer-save {save}: the file exists; give a new name (msa-slam never replaces a file it did not write)"
+        )
 
 
 class LiveViewer:
@@ -67,8 +70,9 @@ class LiveViewer:
         self.rec.log("world/optimised", rr.LineStrips3D([xyz], colors=[31, 119, 180]))
         self.rec.log("world/keyframes", rr.Points3D(xyz, radii=0.3, colors=[214, 39, 40]))
         row = {int(k): i for i, k in enumerate(keys)}
-        segments = [xyz[[row[c.match], row[c.query]]] for c in loops
-                    if c.accepted and c.match in row and c.query in row]
+        segments = [
+            xyz[[row[c.match], row[c.query]]] for c in loops if c.accepted and c.match in row and c.query in row
+        ]
         self.rec.log("world/loops", rr.LineStrips3D(segments, colors=[255, 127, 14]))
 
     def close(self) -> None:

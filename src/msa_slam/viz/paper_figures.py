@@ -4,8 +4,8 @@ paper's 128 GB machine marked."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import matplotlib
 
@@ -16,13 +16,16 @@ import numpy as np  # noqa: E402
 from msa_slam.viz.save import save_figure  # noqa: E402
 
 
-def plot_boxes(path: str | Path, panels: Mapping[str, Mapping[str, Sequence[float]]], title: str = "",
-               zero_line: Sequence[str] = ()) -> Path:
+def plot_boxes(
+    path: str | Path,
+    panels: Mapping[str, Mapping[str, Sequence[float]]],
+    title: str = "",
+    zero_line: Sequence[str] = (),
+) -> Path:
     """One box plot per panel (title with its unit -> method -> values), side by side; panels named in
     `zero_line` get a line at 0 (a deviation's "no change"). A method without values is left out of its panel."""
     names = list(panels)
-    fig, axes = plt.subplots(1, len(names), figsize=(3.3 * len(names) + 0.5, 3.9), squeeze=False,
-                             layout="constrained")
+    fig, axes = plt.subplots(1, len(names), figsize=(3.3 * len(names) + 0.5, 3.9), squeeze=False, layout="constrained")
     try:
         for ax, name in zip(axes[0], names):
             methods = [m for m, values in panels[name].items() if len(values)]
@@ -44,9 +47,13 @@ def plot_boxes(path: str | Path, panels: Mapping[str, Mapping[str, Sequence[floa
         plt.close(fig)
 
 
-def plot_memory_distance(path: str | Path, series: Mapping[str, tuple[np.ndarray, np.ndarray]],
-                         extrapolated: tuple[float, float] | None = None, limit_gib: float | None = None,
-                         title: str = "") -> Path:
+def plot_memory_distance(
+    path: str | Path,
+    series: Mapping[str, tuple[np.ndarray, np.ndarray]],
+    extrapolated: tuple[float, float] | None = None,
+    limit_gib: float | None = None,
+    title: str = "",
+) -> Path:
     """Accounted memory [MiB] against distance [km] per method (left), and (right, when `extrapolated` gives
     (target km, all samples' GiB there)) the measured all-samples growth carried to the target beside the
     `limit_gib` line."""
@@ -66,12 +73,16 @@ def plot_memory_distance(path: str | Path, series: Mapping[str, tuple[np.ndarray
                 distance, memory = (np.asarray(x, dtype=float) for x in series["all"])
                 ax2.plot(distance / 1000.0, memory / 2**30, color="C0", label="all (measured)")
                 start = (distance[-1] / 1000.0, memory[-1] / 2**30)
-            ax2.plot([start[0], target_km], [start[1], gib], "--", color="C0",
-                     label=f"all, extrapolated: {gib:.0f} GiB")
+            ax2.plot(
+                [start[0], target_km], [start[1], gib], "--", color="C0", label=f"all, extrapolated: {gib:.0f} GiB"
+            )
             if limit_gib is not None:
                 ax2.axhline(limit_gib, color="tab:red", lw=1.0, label=f"{limit_gib:.0f} GiB (the paper's machine)")
-            ax2.set(xlabel="distance travelled [km]", ylabel="accounted memory [GiB]",
-                    title=f"all samples extrapolated to {target_km:.0f} km")
+            ax2.set(
+                xlabel="distance travelled [km]",
+                ylabel="accounted memory [GiB]",
+                title=f"all samples extrapolated to {target_km:.0f} km",
+            )
             ax2.grid(alpha=0.3)
             top = max(gib, start[1], limit_gib or 0.0)
             ax2.set_ylim(0.0, 1.45 * top if top > 0 else 1.0)  # room above the data and the limit for the legend

@@ -6,9 +6,9 @@ Estimates are drawn after the same SE(3) alignment the ATE uses, so colour and p
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import matplotlib
 
@@ -16,14 +16,15 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
-from matplotlib.colors import Normalize  # noqa: E402
-from matplotlib.colors import to_rgb  # noqa: E402
+from matplotlib.colors import (
+    Normalize,  # noqa: E402
+    to_rgb,  # noqa: E402
+)
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
 from msa_slam.viz.labels import counted  # noqa: E402
-from msa_slam.viz.layout import (FRAME_H_IN, FRAME_W_IN, MAX_HEIGHT_IN, data_limits, fit_to_data,  # noqa: E402
-                                  panel_grid)
+from msa_slam.viz.layout import FRAME_H_IN, FRAME_W_IN, MAX_HEIGHT_IN, data_limits, fit_to_data, panel_grid  # noqa: E402
 from msa_slam.viz.save import save_figure  # noqa: E402
 
 
@@ -88,8 +89,17 @@ def _draw(ax, gt_xy: np.ndarray, panel: TrajectoryPanel, norm: Normalize, cmap: 
     ax.add_collection(lines)
     if not dots and len(panel.keyframes):
         ring = panel.xy[np.asarray(panel.keyframes, dtype=int)]
-        ax.plot(ring[:, 0], ring[:, 1], ls="none", marker="o", ms=RING, mfc="none", mec=KEYFRAME_RING,
-                mew=KEYFRAME_EDGE, zorder=3)
+        ax.plot(
+            ring[:, 0],
+            ring[:, 1],
+            ls="none",
+            marker="o",
+            ms=RING,
+            mfc="none",
+            mec=KEYFRAME_RING,
+            mew=KEYFRAME_EDGE,
+            zorder=3,
+        )
     # A loop between nearby keyframes is a short edge that a line alone would hide: its ends get rings.
     for pairs, colour, marker in ((panel.loops or (), TRUE_LOOP, "o"), (panel.false_loops, FALSE_LOOP, "s")):
         if len(pairs):
@@ -97,10 +107,24 @@ def _draw(ax, gt_xy: np.ndarray, panel: TrajectoryPanel, norm: Normalize, cmap: 
             edges = np.full((len(ends), 3, 2), np.nan)
             edges[:, :2] = ends
             ax.plot(*edges.reshape(-1, 2).T, color=colour, lw=0.8, alpha=0.7, zorder=2.5)
-            ax.plot(*ends.reshape(-1, 2).T, ls="none", color=colour, marker=marker, ms=RING, mfc="none",
-                    mew=RING_EDGE, zorder=4)
-    counts = "" if panel.loops is None else (f", {counted(len(panel.loops), 'loop')}" + (
-        f", {len(panel.false_loops)} false" if len(panel.false_loops) else ""))
+            ax.plot(
+                *ends.reshape(-1, 2).T,
+                ls="none",
+                color=colour,
+                marker=marker,
+                ms=RING,
+                mfc="none",
+                mew=RING_EDGE,
+                zorder=4,
+            )
+    counts = (
+        ""
+        if panel.loops is None
+        else (
+            f", {counted(len(panel.loops), 'loop')}"
+            + (f", {len(panel.false_loops)} false" if len(panel.false_loops) else "")
+        )
+    )
     ax.set_title(f"{panel.title}\n{panel.counts()}{counts}", fontsize=8)
     ax.set_xlabel("x [m]", fontsize=8)
     ax.set_ylabel("y [m]", fontsize=8)
@@ -121,8 +145,11 @@ def zoom_window(gt_xy: np.ndarray, panels: Sequence[TrajectoryPanel]) -> tuple[n
     centres = gt_xy[:: max(1, len(gt_xy) // ZOOM_CENTRES)]
     spread = np.zeros(len(centres))
     for i, centre in enumerate(centres):
-        means = [float(p.errors[inside].mean()) for p in compared
-                 if (inside := (np.abs(p.xy - centre) <= side / 2).all(axis=1)).any()]
+        means = [
+            float(p.errors[inside].mean())
+            for p in compared
+            if (inside := (np.abs(p.xy - centre) <= side / 2).all(axis=1)).any()
+        ]
         spread[i] = max(means) - min(means) if len(means) > 1 else 0.0
     best = int(np.argmax(spread))
     return (centres[best], side) if spread[best] > 0 else None
@@ -140,8 +167,17 @@ def _draw_zoom(ax, gt_xy: np.ndarray, panels: Sequence[TrajectoryPanel], centre:
         if panel.errors is not None and inside.any():
             means.append(float(panel.errors[inside].mean()))
         marks = None if panel.keyframes is None else [int(i) for i in panel.keyframes]  # a path: its keyframes
-        ax.plot(panel.xy[:, 0], panel.xy[:, 1], "-o", color=colours[k % len(colours)], lw=1.0, ms=2.5, zorder=2,
-                label=panel.name, markevery=marks)
+        ax.plot(
+            panel.xy[:, 0],
+            panel.xy[:, 1],
+            "-o",
+            color=colours[k % len(colours)],
+            lw=1.0,
+            ms=2.5,
+            zorder=2,
+            label=panel.name,
+            markevery=marks,
+        )
     half = side / 2
     ax.set(xlim=(centre[0] - half, centre[0] + half), ylim=(centre[1] - half, centre[1] + half))
     ax.set_aspect("equal", adjustable="box")
@@ -157,24 +193,64 @@ def _legend_handles(gt_xy: np.ndarray, panels: Sequence[TrajectoryPanel], cmap: 
     coloured = any(p.errors is not None for p in panels)
     handles = [Line2D([], [], color=GROUND_TRUTH, lw=3.0, label="ground truth")] if len(gt_xy) else []
     if any(p.keyframes is None for p in panels):
-        handles.append(Line2D([], [], color=plt.get_cmap(cmap)(0.5) if coloured else PLAIN, marker="o", ms=3,
-                              lw=1.2, label="keyframes, SE(3)-aligned to ground truth (colour: ATE)" if coloured
-                              else "keyframes (no ground truth: no error to colour them by)"))
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color=plt.get_cmap(cmap)(0.5) if coloured else PLAIN,
+                marker="o",
+                ms=3,
+                lw=1.2,
+                label="keyframes, SE(3)-aligned to ground truth (colour: ATE)"
+                if coloured
+                else "keyframes (no ground truth: no error to colour them by)",
+            )
+        )
     if any(p.keyframes is not None for p in panels):
-        handles.append(Line2D([], [], color=plt.get_cmap(cmap)(0.5) if coloured else PLAIN, lw=1.8,
-                              label="every frame, SE(3)-aligned to ground truth (colour: ATE)" if coloured
-                              else "every frame (no ground truth: no error to colour it by)"))
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color=plt.get_cmap(cmap)(0.5) if coloured else PLAIN,
+                lw=1.8,
+                label="every frame, SE(3)-aligned to ground truth (colour: ATE)"
+                if coloured
+                else "every frame (no ground truth: no error to colour it by)",
+            )
+        )
     if any(p.keyframes is not None and len(p.keyframes) for p in panels):
-        handles.append(Line2D([], [], ls="none", marker="o", ms=RING, mfc="none", mec=KEYFRAME_RING,
-                              mew=KEYFRAME_EDGE, label="keyframe"))
+        handles.append(
+            Line2D(
+                [],
+                [],
+                ls="none",
+                marker="o",
+                ms=RING,
+                mfc="none",
+                mec=KEYFRAME_RING,
+                mew=KEYFRAME_EDGE,
+                label="keyframe",
+            )
+        )
     if any(p.loops for p in panels):
-        handles.append(Line2D([], [], color=TRUE_LOOP, marker="o", ms=RING, mfc="none", lw=0.8,
-                              label="loop (true)" if len(gt_xy) else "loop (not judged: no ground truth)"))
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color=TRUE_LOOP,
+                marker="o",
+                ms=RING,
+                mfc="none",
+                lw=0.8,
+                label="loop (true)" if len(gt_xy) else "loop (not judged: no ground truth)",
+            )
+        )
     if any(len(p.false_loops) for p in panels):
         handles.append(Line2D([], [], color=FALSE_LOOP, marker="s", ms=RING, mfc="none", lw=0.8, label="loop (false)"))
     if zoom:
-        handles.append(Line2D([], [], color="k", lw=0.8, marker="s", ms=6, mfc="none", ls="none",
-                              label="zoomed square"))
+        handles.append(
+            Line2D([], [], color="k", lw=0.8, marker="s", ms=6, mfc="none", ls="none", label="zoomed square")
+        )
     return handles
 
 
@@ -194,14 +270,15 @@ def _grid(panels: Sequence[TrajectoryPanel], extents: Sequence[np.ndarray]) -> t
         (x0, x1), (y0, y1) = data_limits(extent)
         aspects.append((x1 - x0) / (y1 - y0))
     columns, width = panel_grid(len(panels), float(np.median(aspects)))
-    heights = [max(width / a for a in aspects[r:r + columns]) for r in range(0, len(panels), columns)]
+    heights = [max(width / a for a in aspects[r : r + columns]) for r in range(0, len(panels), columns)]
     room = MAX_HEIGHT_IN - len(heights) * FRAME_H_IN
     scale = min(1.0, room / sum(heights)) if room > 0 else 1.0
     return columns, width * scale, [h * scale for h in heights]
 
 
-def plot_trajectories(path: str | Path, gt_xy: np.ndarray, panels: Sequence[TrajectoryPanel],
-                      title: str = "", cmap: str = "viridis") -> Path:
+def plot_trajectories(
+    path: str | Path, gt_xy: np.ndarray, panels: Sequence[TrajectoryPanel], title: str = "", cmap: str = "viridis"
+) -> Path:
     """Write the panels, each fitted to its data at equal aspect and laid out by the route's aspect (one column
     of strips for a long thin route), with one colour scale of the error in metres set by the methods' panels
     (an odometry beyond it saturates; no scale without errors), a zoom panel on the right where the estimates
@@ -214,8 +291,11 @@ def plot_trajectories(path: str | Path, gt_xy: np.ndarray, panels: Sequence[Traj
     # the zoom's axes: as tall as the panels leave room for beside its title and legend, within 2.5-4 inches
     zoom_side = float(np.clip(grid_h - ZOOM_FRAME_IN, 2.5, 4.0)) if zoom else 0.0
     zoom_w = zoom_side + FRAME_W_IN if zoom else 0.0
-    fig = plt.figure(figsize=(grid_w + zoom_w, max(grid_h, zoom_side + ZOOM_FRAME_IN if zoom else 0.0) + 1.1),
-                     dpi=130, layout="constrained")
+    fig = plt.figure(
+        figsize=(grid_w + zoom_w, max(grid_h, zoom_side + ZOOM_FRAME_IN if zoom else 0.0) + 1.1),
+        dpi=130,
+        layout="constrained",
+    )
     fig.get_layout_engine().set(w_pad=0.1)  # inches: the zoom's right edge off the figure's
     try:
         left, right = fig.subfigures(1, 2, width_ratios=[grid_w, zoom_w]) if zoom else (fig, None)
@@ -231,21 +311,32 @@ def plot_trajectories(path: str | Path, gt_xy: np.ndarray, panels: Sequence[Traj
             fit_to_data(ax, extent)
             if zoom:
                 (cx, cy), side = zoom
-                ax.add_patch(Rectangle((cx - side / 2, cy - side / 2), side, side, fill=False, ec="k", lw=0.8,
-                                       zorder=5))
-        for ax in axes[len(panels):]:
+                ax.add_patch(
+                    Rectangle((cx - side / 2, cy - side / 2), side, side, fill=False, ec="k", lw=0.8, zorder=5)
+                )
+        for ax in axes[len(panels) :]:
             ax.axis("off")
         if mappable is not None:
             over = any(float(np.max(p.errors)) > top for p in panels if p.errors is not None)
-            left.colorbar(mappable, ax=axes[:len(panels)].tolist(), shrink=0.6, extend="max" if over else "neither",
-                          label=f"ATE per {'keyframe' if all(p.keyframes is None for p in panels) else 'frame'} [m]"
-                          + (" (larger: top colour)" if over else ""))
+            left.colorbar(
+                mappable,
+                ax=axes[: len(panels)].tolist(),
+                shrink=0.6,
+                extend="max" if over else "neither",
+                label=f"ATE per {'keyframe' if all(p.keyframes is None for p in panels) else 'frame'} [m]"
+                + (" (larger: top colour)" if over else ""),
+            )
         if zoom:
             zoom_ax = right.subplots()
             _draw_zoom(zoom_ax, gt_xy, scaled, *zoom)
             zoom_ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), fontsize=7, frameon=False, ncols=1)
-        fig.legend(handles=_legend_handles(gt_xy, panels, cmap, zoom is not None), loc="outside lower center",
-                   ncols=3, fontsize=8, frameon=False)
+        fig.legend(
+            handles=_legend_handles(gt_xy, panels, cmap, zoom is not None),
+            loc="outside lower center",
+            ncols=3,
+            fontsize=8,
+            frameon=False,
+        )
         if title:
             fig.suptitle(title, fontsize=10)
         return save_figure(fig, path)

@@ -19,7 +19,13 @@ See docs/msa.md.
 
 from msa_slam._lazy import lazy_exports
 
-_EXPORTS = {"MODES": "params", "MSAParams": "params", "MSASampler": "sampler", "ScoreWeights": "terms",
-            "WindowResult": "terms", "optimise_window": "window"}
+_EXPORTS = {
+    "MODES": "params",
+    "MSAParams": "params",
+    "MSASampler": "sampler",
+    "ScoreWeights": "terms",
+    "WindowResult": "terms",
+    "optimise_window": "window",
+}
 __all__ = list(_EXPORTS)
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

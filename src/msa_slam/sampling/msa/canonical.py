@@ -57,8 +57,9 @@ def canonicalise(lam: np.ndarray, vec: np.ndarray, m: int, work: np.ndarray) -> 
 
 
 @njit(cache=True)
-def cluster_scan_lanes(lam: np.ndarray, m: int, count: int, err: np.ndarray, fragile: np.ndarray,
-                       clustered: np.ndarray) -> None:  # pragma: no cover
+def cluster_scan_lanes(
+    lam: np.ndarray, m: int, count: int, err: np.ndarray, fragile: np.ndarray, clustered: np.ndarray
+) -> None:  # pragma: no cover
     """The clusters of each lane's eigenvalues lam[:, lane] (ascending), lane-innermost so that the
     loops vectorise over the lanes: clustered[lane] = 1 where one exists (its eigenvectors are then
     replaced by the eigenspace's basis, canonicalise), fragile[lane] = 1 where a gap lies within
@@ -84,8 +85,9 @@ def cluster_scan_lanes(lam: np.ndarray, m: int, count: int, err: np.ndarray, fra
 
 
 @njit(cache=True)
-def sign_convention_lanes(vec: np.ndarray, m: int, count: int, err: np.ndarray,
-                          fragile: np.ndarray) -> None:  # pragma: no cover
+def sign_convention_lanes(
+    vec: np.ndarray, m: int, count: int, err: np.ndarray, fragile: np.ndarray
+) -> None:  # pragma: no cover
     """Each eigenvector vec[:, j, lane] turned so that its largest-magnitude component is positive
     (components within SIGN_ATOL of the largest tie, the lowest index wins), lane-innermost so that
     the loops vectorise over the lanes; fragile[lane] = 1 where a component lies within 2 err[lane]
@@ -118,8 +120,9 @@ def sign_convention_lanes(vec: np.ndarray, m: int, count: int, err: np.ndarray,
 
 
 @njit(cache=True)
-def _cluster_basis(lam: np.ndarray, vec: np.ndarray, m: int, start: int, stop: int,
-                   work: np.ndarray) -> None:  # pragma: no cover
+def _cluster_basis(
+    lam: np.ndarray, vec: np.ndarray, m: int, start: int, stop: int, work: np.ndarray
+) -> None:  # pragma: no cover
     """Columns start..stop-1 of vec span one eigenspace: replace them by its canonical basis and the
     eigenvalues by their mean (pivoted Gram-Schmidt of the projected coordinate axes)."""
     k = stop - start

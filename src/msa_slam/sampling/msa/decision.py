@@ -68,8 +68,18 @@ def _normalised(values: np.ndarray, used: bool) -> np.ndarray:  # pragma: no cov
 
 
 @njit(cache=True)
-def _margin(score: np.ndarray, rho: np.ndarray, pi: np.ndarray, pi_low: np.ndarray, pi_high: np.ndarray,
-            use_rho: bool, use_pi: bool, alpha: float, beta: float, best: int | np.integer):  # pragma: no cover
+def _margin(
+    score: np.ndarray,
+    rho: np.ndarray,
+    pi: np.ndarray,
+    pi_low: np.ndarray,
+    pi_high: np.ndarray,
+    use_rho: bool,
+    use_pi: bool,
+    alpha: float,
+    beta: float,
+    best: int | np.integer,
+):  # pragma: no cover
     """decision_margin with unused terms flagged instead of None (their arrays are then ignored)."""
     count = len(score)
     if count < 2:
@@ -94,8 +104,18 @@ def _margin(score: np.ndarray, rho: np.ndarray, pi: np.ndarray, pi_low: np.ndarr
 
 
 @njit(cache=True)
-def _decide(rho: np.ndarray, pi: np.ndarray, pi_low: np.ndarray, pi_high: np.ndarray, use_rho: bool,
-            use_pi: bool, alpha: float, beta: float, score_rho: bool, score_pi: bool):  # pragma: no cover
+def _decide(
+    rho: np.ndarray,
+    pi: np.ndarray,
+    pi_low: np.ndarray,
+    pi_high: np.ndarray,
+    use_rho: bool,
+    use_pi: bool,
+    alpha: float,
+    beta: float,
+    score_rho: bool,
+    score_pi: bool,
+):  # pragma: no cover
     """decide on arrays: use_rho/use_pi say whether rho/pi were given (zeros otherwise), score_rho/score_pi
     whether eq. (8) normalises them (ScoreWeights)."""
     rho_hat, pi_hat = _normalised(rho, score_rho), _normalised(pi, score_pi)
@@ -111,9 +131,16 @@ def _array(values: np.ndarray | None, count: int) -> np.ndarray:
     return np.zeros(count) if values is None else np.ascontiguousarray(values, dtype=np.float64)
 
 
-def decision_margin(score: np.ndarray, rho: np.ndarray | None, pi: np.ndarray | None,
-                    pi_low: np.ndarray | None, pi_high: np.ndarray | None, alpha: float, beta: float,
-                    best: int) -> tuple[bool, float]:
+def decision_margin(
+    score: np.ndarray,
+    rho: np.ndarray | None,
+    pi: np.ndarray | None,
+    pi_low: np.ndarray | None,
+    pi_high: np.ndarray | None,
+    alpha: float,
+    beta: float,
+    best: int,
+) -> tuple[bool, float]:
     """(ambiguous, margin) of the choice `best` among candidates with eq. (8) scores `score`.
 
     rho and pi are the candidates' raw redundancy and information, None when an ablation switches
@@ -121,18 +148,43 @@ def decision_margin(score: np.ndarray, rho: np.ndarray | None, pi: np.ndarray | 
     runner-up's relative score excess over the winner.
     """
     count = len(score)
-    ambiguous, margin = _margin(_array(score, count), _array(rho, count), _array(pi, count), _array(pi_low, count),
-                                _array(pi_high, count), rho is not None, pi is not None, alpha, beta, best)
+    ambiguous, margin = _margin(
+        _array(score, count),
+        _array(rho, count),
+        _array(pi, count),
+        _array(pi_low, count),
+        _array(pi_high, count),
+        rho is not None,
+        pi is not None,
+        alpha,
+        beta,
+        best,
+    )
     return bool(ambiguous), float(margin)
 
 
-def decide(count: int, rho: np.ndarray | None, pi: np.ndarray | None, pi_low: np.ndarray | None,
-           pi_high: np.ndarray | None, weights: ScoreWeights) -> tuple[int, bool, float]:
+def decide(
+    count: int,
+    rho: np.ndarray | None,
+    pi: np.ndarray | None,
+    pi_low: np.ndarray | None,
+    pi_high: np.ndarray | None,
+    weights: ScoreWeights,
+) -> tuple[int, bool, float]:
     """The first candidate with the smallest eq. (8) score, whether rounding could change it, its margin.
 
     rho or pi is None when its ablation is on (its normalised value is then 0 for every candidate).
     """
-    best, ambiguous, margin = _decide(_array(rho, count), _array(pi, count), _array(pi_low, count),
-                                      _array(pi_high, count), rho is not None, pi is not None,
-                                      float(weights.alpha), float(weights.beta), weights.use_rho, weights.use_pi)
+    best, ambiguous, margin = _decide(
+        _array(rho, count),
+        _array(pi, count),
+        _array(pi_low, count),
+        _array(pi_high, count),
+        rho is not None,
+        pi is not None,
+        float(weights.alpha),
+        float(weights.beta),
+        weights.use_rho,
+        weights.use_pi,
+    )
     return int(best), bool(ambiguous), float(margin)

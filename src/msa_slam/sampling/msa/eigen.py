@@ -24,9 +24,8 @@ import math
 import numpy as np
 from numba import njit
 
-
 MAX_SWEEPS = 60  # QL sweeps per eigenvalue, so that non-finite input cannot loop forever
-EPS = 2.0 ** -52
+EPS = 2.0**-52
 
 
 @njit(cache=True)
@@ -49,8 +48,9 @@ def symmetric_eigh(v: np.ndarray, d: np.ndarray, e: np.ndarray, n: int) -> None:
 
 
 @njit(cache=True)
-def sort_lanes(d: np.ndarray, v: np.ndarray, lam: np.ndarray, vec: np.ndarray, m: int,
-               count: int) -> None:  # pragma: no cover
+def sort_lanes(
+    d: np.ndarray, v: np.ndarray, lam: np.ndarray, vec: np.ndarray, m: int, count: int
+) -> None:  # pragma: no cover
     """Every lane's eigen-pairs (d[i, lane], v[i, :, lane], as symmetric_eigh_lanes leaves them) ascending
     into lam[:, lane] and vec's columns (lane by lane: a sorting network's exchanges on all lanes at once
     measured 2-4x slower). Ties keep their order (an insertion sort)."""
@@ -79,8 +79,9 @@ LANES = 32  # matrices decomposed together by symmetric_eigh_lanes: measured 1.6
 
 
 @njit(cache=True, error_model="numpy")
-def symmetric_eigh_lanes(v: np.ndarray, d: np.ndarray, e: np.ndarray, n: int, count: int,
-                         work: np.ndarray) -> None:  # pragma: no cover
+def symmetric_eigh_lanes(
+    v: np.ndarray, d: np.ndarray, e: np.ndarray, n: int, count: int, work: np.ndarray
+) -> None:  # pragma: no cover
     """Eigen-decomposition of `count` symmetric n x n matrices held lane-innermost, v[i, j, lane] (both
     triangles): each scalar of EISPACK's one-matrix solver becomes a vector over the lanes, so every
     loop has the lanes innermost, independent and contiguous, and the compiler vectorises it (a
@@ -135,13 +136,18 @@ def lane_buffers(width: int):  # pragma: no cover
     """v, d, e and work for symmetric_eigh_lanes on up to LANES matrices of up to `width` rows. Callers in
     other modules take the lane count from v.shape[2]: numba's cache does not see a change of LANES
     in their compiled code, only here."""
-    return np.empty((width, width, LANES)), np.empty((width, LANES)), np.empty((width, LANES)), \
-        np.empty((LANE_WORK, LANES))
+    return (
+        np.empty((width, width, LANES)),
+        np.empty((width, LANES)),
+        np.empty((width, LANES)),
+        np.empty((LANE_WORK, LANES)),
+    )
 
 
 @njit(cache=True, error_model="numpy")
-def _tridiagonalise_lanes(v: np.ndarray, d: np.ndarray, e: np.ndarray, n: int, count: int,
-                          work: np.ndarray) -> None:  # pragma: no cover
+def _tridiagonalise_lanes(
+    v: np.ndarray, d: np.ndarray, e: np.ndarray, n: int, count: int, work: np.ndarray
+) -> None:  # pragma: no cover
     """Householder reduction (EISPACK tred2, indices swapped) and accumulation of the transformations in
     v's rows, on every lane; d, e: the diagonal and the subdiagonal (e[n - 1] = 0) on exit. A lane whose
     reduction meets an exactly zero column is marked in work[0]: EISPACK skips that step (h = 0), and
@@ -242,8 +248,9 @@ def _tridiagonalise_lanes(v: np.ndarray, d: np.ndarray, e: np.ndarray, n: int, c
 
 
 @njit(cache=True, error_model="numpy")
-def _ql_lanes(v: np.ndarray, d: np.ndarray, e: np.ndarray, n: int, count: int,
-              work: np.ndarray) -> None:  # pragma: no cover
+def _ql_lanes(
+    v: np.ndarray, d: np.ndarray, e: np.ndarray, n: int, count: int, work: np.ndarray
+) -> None:  # pragma: no cover
     """Implicit QL (EISPACK tql2) on every lane, uniform schedule: at eigenvalue l, every lane whose e[l]
     is not yet negligible (and that has done fewer than MAX_SWEEPS sweeps on l, so that non-finite
     input cannot loop forever) sweeps rows n-1 down to l; the others keep their values exactly.
@@ -323,8 +330,11 @@ def _ql_lanes(v: np.ndarray, d: np.ndarray, e: np.ndarray, n: int, count: int,
                         v[i, k, lane] = c[lane] * here - s[lane] * below
             for lane in range(count):  # close the sweep: tql2's formula after a shift, the chase's p without
                 on = active[lane] != 0.0
-                pe = p[lane] if unshifted else \
-                    -s[lane] * s2[lane] * c3[lane] * el1[lane] * e[l, lane] / (dl1[lane] if on else 1.0)
+                pe = (
+                    p[lane]
+                    if unshifted
+                    else -s[lane] * s2[lane] * c3[lane] * el1[lane] * e[l, lane] / (dl1[lane] if on else 1.0)
+                )
                 e[l, lane] = s[lane] * pe if on else e[l, lane]
                 d[l, lane] = c[lane] * pe if on else d[l, lane]
         for lane in range(count):  # eigenvalue l is final: undo the accumulated shift

@@ -123,12 +123,17 @@ def _scaled_steps(t: np.ndarray, scale: np.ndarray, out: np.ndarray) -> np.ndarr
     return out
 
 
-def _information(subsets: np.ndarray, x: np.ndarray, flat: np.ndarray, workspace: ExactWorkspace,
-                 canonical: bool = False) -> np.ndarray:
+def _information(
+    subsets: np.ndarray, x: np.ndarray, flat: np.ndarray, workspace: ExactWorkspace, canonical: bool = False
+) -> np.ndarray:
     """pi for candidates of one size (m > 2), in batches of CHUNK (one stacked eigh per batch)."""
     chunk = workspace.CHUNK
-    return np.concatenate([_information_batch(subsets[i:i + chunk], x[i:i + chunk], flat, workspace, canonical)
-                           for i in range(0, len(subsets), chunk)])
+    return np.concatenate(
+        [
+            _information_batch(subsets[i : i + chunk], x[i : i + chunk], flat, workspace, canonical)
+            for i in range(0, len(subsets), chunk)
+        ]
+    )
 
 
 @njit(cache=True)
@@ -140,8 +145,9 @@ def _canonicalise_stack(lam: np.ndarray, v: np.ndarray) -> None:  # pragma: no c
         canonicalise(lam[c], v[c], m, work)
 
 
-def _information_batch(subsets: np.ndarray, x: np.ndarray, flat: np.ndarray, ws: ExactWorkspace,
-                       canonical: bool) -> np.ndarray:
+def _information_batch(
+    subsets: np.ndarray, x: np.ndarray, flat: np.ndarray, ws: ExactWorkspace, canonical: bool
+) -> np.ndarray:
     count, m = subsets.shape
     width = flat.shape[1]
     f = np.take(flat, subsets, axis=0, out=ws.get("f", (count, m, width)), mode="clip")  # F, unbuffered
@@ -161,8 +167,15 @@ def _information_batch(subsets: np.ndarray, x: np.ndarray, flat: np.ndarray, ws:
     return np.mean((e - lo) / (hi - lo + EIGENVALUE_FLOOR), axis=1)
 
 
-def fast_path_extremes(pi: np.ndarray, dist: np.ndarray, sim: np.ndarray, dmin: float, dmax: float,
-                       gram: np.ndarray, canonical: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def fast_path_extremes(
+    pi: np.ndarray,
+    dist: np.ndarray,
+    sim: np.ndarray,
+    dmin: float,
+    dmax: float,
+    gram: np.ndarray,
+    canonical: bool = False,
+) -> tuple[np.ndarray, np.ndarray]:
     """Extremes of the exact pi under rounding: the fast path's value and its probes' shifts.
 
     The fast path computes pi by another floating-point route (the Gram shortcut); where it or its
@@ -173,8 +186,15 @@ def fast_path_extremes(pi: np.ndarray, dist: np.ndarray, sim: np.ndarray, dmin: 
     return np.minimum(value, pi + (low - value)), np.maximum(value, pi + (high - value))
 
 
-def optimise_exact(translations: np.ndarray, descriptors: np.ndarray, dmin: float, dmax: float,
-                   weights: ScoreWeights, workspace: ExactWorkspace, pi_definition: str = "reference") -> WindowResult:
+def optimise_exact(
+    translations: np.ndarray,
+    descriptors: np.ndarray,
+    dmin: float,
+    dmax: float,
+    weights: ScoreWeights,
+    workspace: ExactWorkspace,
+    pi_definition: str = "reference",
+) -> WindowResult:
     """The window's choice with the reference's arithmetic (and its ambiguity)."""
     canonical = pi_definition == "canonical"
     n = len(translations)
@@ -188,8 +208,14 @@ def optimise_exact(translations: np.ndarray, descriptors: np.ndarray, dmin: floa
     rho = np.concatenate([_redundancy(subsets, sim) for subsets in groups]) if weights.use_rho else None
     pi = pi_low = pi_high = None
     if weights.use_pi:
-        pi = np.concatenate([np.zeros(len(subsets)) if subsets.shape[1] == 2 else
-                             _information(subsets, dist[0, subsets], flat, workspace, canonical) for subsets in groups])
+        pi = np.concatenate(
+            [
+                np.zeros(len(subsets))
+                if subsets.shape[1] == 2
+                else _information(subsets, dist[0, subsets], flat, workspace, canonical)
+                for subsets in groups
+            ]
+        )
         pi_low, pi_high = fast_path_extremes(pi, dist, sim, dmin, dmax, fast.gram(descriptors), canonical)
     best, ambiguous, margin = decide(count, rho, pi, pi_low, pi_high, weights)
     for subsets in groups:

@@ -67,8 +67,9 @@ def pairwise(translations: np.ndarray, descriptors: np.ndarray):  # pragma: no c
 
 
 @njit(cache=True)
-def information_gram(members: np.ndarray, m: int, dist: np.ndarray, gram: np.ndarray,
-                     scratch: np.ndarray, probes: int, canonical: bool):  # pragma: no cover
+def information_gram(
+    members: np.ndarray, m: int, dist: np.ndarray, gram: np.ndarray, scratch: np.ndarray, probes: int, canonical: bool
+):  # pragma: no cover
     """pi of one candidate through G: returns (pi, lowest, highest). Reference pi: the extremes over
     `probes` perturbed eigen-decompositions of C (fast_reference.py). Canonical pi: pi plus or minus its
     bound under solver rounding (fast_canonical.py), no probes needed; scratch: scratch_size(m) or more."""
@@ -105,12 +106,21 @@ def candidate_batches(masks: np.ndarray, lanes: int) -> np.ndarray:  # pragma: n
             size, filled = m, 0
         filled += 1
     starts[count] = len(masks)
-    return starts[:count + 1]
+    return starts[: count + 1]
 
 
 @njit(cache=True)
-def _information_block(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, probes: int, canonical: bool,
-                       out: np.ndarray, starts: np.ndarray, first: int, step: int) -> None:  # pragma: no cover
+def _information_block(
+    masks: np.ndarray,
+    dist: np.ndarray,
+    gram: np.ndarray,
+    probes: int,
+    canonical: bool,
+    out: np.ndarray,
+    starts: np.ndarray,
+    first: int,
+    step: int,
+) -> None:  # pragma: no cover
     """information_rows for the batches first, first + step, ... (candidate_batches; their columns of
     out). Canonical pi decomposes each batch's C together (fast_canonical.canonical_batch: the same values
     as one at a time); the reference pi takes its candidates one by one (information_gram)."""
@@ -146,8 +156,9 @@ def _information_block(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, pr
 
 
 @njit(cache=True, parallel=True)
-def information_rows(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, probes: int,
-                     canonical: bool = False, blocks: int = 2) -> np.ndarray:  # pragma: no cover
+def information_rows(
+    masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, probes: int, canonical: bool = False, blocks: int = 2
+) -> np.ndarray:  # pragma: no cover
     """(3, candidates): pi of the candidates (bit masks, powerset.feasible_subsets), and its lowest and
     highest value under rounding. The size-aligned batches (candidate_batches) are dealt to `blocks` in
     turn, batch b to block b % blocks (candidates come ordered by size, so contiguous ranges left the
@@ -163,12 +174,14 @@ def information_rows(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, prob
 
 
 @njit(cache=True)
-def information_rows_serial(masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, probes: int,
-                            canonical: bool = False) -> np.ndarray:  # pragma: no cover
+def information_rows_serial(
+    masks: np.ndarray, dist: np.ndarray, gram: np.ndarray, probes: int, canonical: bool = False
+) -> np.ndarray:  # pragma: no cover
     """information_rows on the calling thread (windows of fewer than PARALLEL_FROM candidates)."""
     out = np.zeros((3, len(masks)))
-    _information_block(masks, dist, gram, probes, canonical, out, candidate_batches(masks, LANES),
-                       np.int64(0), np.int64(1))
+    _information_block(
+        masks, dist, gram, probes, canonical, out, candidate_batches(masks, LANES), np.int64(0), np.int64(1)
+    )
     return out
 
 
@@ -178,8 +191,14 @@ def gram(descriptors: np.ndarray) -> np.ndarray:
     return flat @ flat.T
 
 
-def optimise_fast(translations: np.ndarray, descriptors: np.ndarray, dmin: float, dmax: float,
-                  weights: ScoreWeights, pi_definition: str = "reference") -> WindowResult:
+def optimise_fast(
+    translations: np.ndarray,
+    descriptors: np.ndarray,
+    dmin: float,
+    dmax: float,
+    weights: ScoreWeights,
+    pi_definition: str = "reference",
+) -> WindowResult:
     """The window's choice with pi through the Gram matrix (and its ambiguity from the probes)."""
     n = len(translations)
     blocks = descriptors.reshape(n, -1, 1) if descriptors.ndim == 2 else descriptors
@@ -193,8 +212,7 @@ def optimise_fast(translations: np.ndarray, descriptors: np.ndarray, dmin: float
         if masks.size < PARALLEL_FROM:
             pi, pi_low, pi_high = information_rows_serial(masks, dist, gram(descriptors), PROBES, canonical)
         else:
-            pi, pi_low, pi_high = information_rows(masks, dist, gram(descriptors), PROBES, canonical,
-                                                   get_num_threads())
+            pi, pi_low, pi_high = information_rows(masks, dist, gram(descriptors), PROBES, canonical, get_num_threads())
     best, ambiguous, margin = decide(int(masks.size), rho if weights.use_rho else None, pi, pi_low, pi_high, weights)
     return WindowResult(mask_positions(int(masks[best])), int(masks.size), ambiguous, margin)
 

@@ -28,7 +28,7 @@ def scratch_size(width: int) -> int:  # pragma: no cover
 @njit(cache=True)
 def _vector(scratch: np.ndarray, slot: int, m: int) -> np.ndarray:  # pragma: no cover
     """Vector `slot` of a candidate of m members in the flat scratch buffer (contiguous)."""
-    return scratch[slot * m:(slot + 1) * m]
+    return scratch[slot * m : (slot + 1) * m]
 
 
 @njit(cache=True)
@@ -36,7 +36,7 @@ def _matrix(scratch: np.ndarray, slot: int, m: int, rows: int = 0) -> np.ndarray
     """Matrix `slot` (m x m, or rows x m) of a candidate in the flat scratch buffer: C-contiguous, so
     that its rows vectorise (views into a wider 2-D buffer are strided and do not)."""
     start = VECTORS * m + slot * m * m
-    return scratch[start:start + max(rows, m) * m].reshape((max(rows, m), m))
+    return scratch[start : start + max(rows, m) * m].reshape((max(rows, m), m))
 
 
 @njit(cache=True)
@@ -46,13 +46,32 @@ def batch_buffers(width: int):  # pragma: no cover
     rows, per-lane values and the lanes' (pi, lowest, highest)."""
     v, d, e, work = lane_buffers(width)
     lanes = v.shape[2]
-    return (v, d, e, work, np.empty((width, lanes)), np.empty((width, width, lanes)), np.empty((width, width, lanes)),
-            np.empty((4, width, lanes)), np.empty((8, lanes)), np.empty((3, lanes)))
+    return (
+        v,
+        d,
+        e,
+        work,
+        np.empty((width, lanes)),
+        np.empty((width, width, lanes)),
+        np.empty((width, width, lanes)),
+        np.empty((4, width, lanes)),
+        np.empty((8, lanes)),
+        np.empty((3, lanes)),
+    )
 
 
 @njit(cache=True)
-def canonical_batch(members: np.ndarray, count: int, m: int, dist: np.ndarray, gram: np.ndarray, buffers,
-                    scratch: np.ndarray, out: np.ndarray, index: np.ndarray) -> None:  # pragma: no cover
+def canonical_batch(
+    members: np.ndarray,
+    count: int,
+    m: int,
+    dist: np.ndarray,
+    gram: np.ndarray,
+    buffers,
+    scratch: np.ndarray,
+    out: np.ndarray,
+    index: np.ndarray,
+) -> None:  # pragma: no cover
     """(pi, lowest, highest) of `count` candidates of m members (members[:, lane]) into
     out[:, index[lane]], every step on all lanes at once (`buffers` from batch_buffers): G_S and C
     formed (fast_terms.form_lanes), C decomposed (eigen.symmetric_eigh_lanes), the eigen-pairs sorted,
@@ -71,8 +90,11 @@ def canonical_batch(members: np.ndarray, count: int, m: int, dist: np.ndarray, g
     pi_lanes(lam, vec, g, m, count, bound, values, rows, per_lane[4:])
     for lane in range(count):
         if clustered[lane] == 0.0:
-            out[0, index[lane]], out[1, index[lane]], out[2, index[lane]] = values[0, lane], values[1, lane], \
-                values[2, lane]
+            out[0, index[lane]], out[1, index[lane]], out[2, index[lane]] = (
+                values[0, lane],
+                values[1, lane],
+                values[2, lane],
+            )
             continue
         # the sorted pairs, signs already turned: canonicalise gives the same bits as on the solver's own
         # (a sign change is exact, and a cluster's basis depends only on its eigenspace)

@@ -18,8 +18,9 @@ PROBE_SCALE = 1e-13  # their relative size: ~450 ulp, beyond any reordering of a
 
 
 @njit(cache=True)
-def reference_information(members: np.ndarray, m: int, dist: np.ndarray, gram: np.ndarray,
-                          probes: int):  # pragma: no cover
+def reference_information(
+    members: np.ndarray, m: int, dist: np.ndarray, gram: np.ndarray, probes: int
+):  # pragma: no cover
     """The reference's pi of one candidate (members[:m]) through G: returns (pi, lowest, highest), the
     extremes over `probes` eigen-decompositions of C perturbed by PROBE_SCALE (and pi itself)."""
     one = np.empty((m, 1), dtype=np.int64)
@@ -33,8 +34,9 @@ def reference_information(members: np.ndarray, m: int, dist: np.ndarray, gram: n
     for p in range(probes):
         for i in range(m):
             for k in range(m):  # a fixed symmetric pattern in [-1, 1], different per probe
-                probe[i, k] = c[i, k] * (1.0 + PROBE_SCALE * np.sin(12.9898 * (p + 1) + 78.233 * (i + k)
-                                                                    + 37.719 * i * k))
+                probe[i, k] = c[i, k] * (
+                    1.0 + PROBE_SCALE * np.sin(12.9898 * (p + 1) + 78.233 * (i + k) + 37.719 * i * k)
+                )
         value = _pi_of_information(probe, g, m)
         lowest, highest = min(lowest, value), max(highest, value)
     return pi, lowest, highest

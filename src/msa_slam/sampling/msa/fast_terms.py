@@ -17,8 +17,18 @@ from msa_slam.sampling.msa.terms import C_CLIP, EIGENVALUE_FLOOR
 
 
 @njit(cache=True, error_model="numpy")
-def form_lanes(members: np.ndarray, m: int, count: int, dist: np.ndarray, gram: np.ndarray, g: np.ndarray,
-                c: np.ndarray, h: np.ndarray, rows: np.ndarray, clipped: np.ndarray) -> None:  # pragma: no cover
+def form_lanes(
+    members: np.ndarray,
+    m: int,
+    count: int,
+    dist: np.ndarray,
+    gram: np.ndarray,
+    g: np.ndarray,
+    c: np.ndarray,
+    h: np.ndarray,
+    rows: np.ndarray,
+    clipped: np.ndarray,
+) -> None:  # pragma: no cover
     """The Gram blocks G_S (g) and C = A G_S A^T (c) of `count` candidates of m members (members[:, lane]),
     lane-innermost so that the loops vectorise over the lanes; h (like g) and rows (3 or more, m,
     lanes) are scratch, clipped (lanes) flags the lanes whose C was cleaned.
@@ -81,14 +91,22 @@ def pi_of_eigenpairs(lam: np.ndarray, vec: np.ndarray, g: np.ndarray, m: int, er
     lam_lanes[:, 0] = lam
     vec_lanes[:, :, 0] = vec
     values = np.empty((3, 1))
-    pi_lanes(lam_lanes, vec_lanes, g, m, np.int64(1), np.full(1, err), values, np.empty((4, m, 1)),
-             np.empty((4, 1)))
+    pi_lanes(lam_lanes, vec_lanes, g, m, np.int64(1), np.full(1, err), values, np.empty((4, m, 1)), np.empty((4, 1)))
     return values[0, 0], values[1, 0], values[2, 0]
 
 
 @njit(cache=True)
-def pi_lanes(lam: np.ndarray, vec: np.ndarray, g: np.ndarray, m: int, count: int, err: np.ndarray,
-              values: np.ndarray, rows: np.ndarray, per_lane: np.ndarray) -> None:  # pragma: no cover
+def pi_lanes(
+    lam: np.ndarray,
+    vec: np.ndarray,
+    g: np.ndarray,
+    m: int,
+    count: int,
+    err: np.ndarray,
+    values: np.ndarray,
+    rows: np.ndarray,
+    per_lane: np.ndarray,
+) -> None:  # pragma: no cover
     """Eq. (5) on every lane, lane-innermost so that the loops vectorise over the lanes: lam[:, lane]
     C's eigenvalues ascending, vec[:, j, lane] the eigenvector of lam[j, lane], g[:, :, lane] the
     candidate's Gram block G_S (e_j^2 = d_j^T G_S d_j, d_j = a_{j+1} - a_j, a_j = sqrt(lam_j) v_j).
@@ -135,8 +153,14 @@ def pi_lanes(lam: np.ndarray, vec: np.ndarray, g: np.ndarray, m: int, count: int
         pi = total[lane] / (m - 1)
         bound = 0.0
         if err[lane] > 0.0:
-            shift = 2.0 * np.sqrt(trace[lane]) * (err[lane] * scale[m - 1, lane]
-                                                  + np.sqrt(SOLVER_RTOL * lam[m - 1, lane] + EIGENVALUE_FLOOR)
-                                                  - np.sqrt(EIGENVALUE_FLOOR))
+            shift = (
+                2.0
+                * np.sqrt(trace[lane])
+                * (
+                    err[lane] * scale[m - 1, lane]
+                    + np.sqrt(SOLVER_RTOL * lam[m - 1, lane] + EIGENVALUE_FLOOR)
+                    - np.sqrt(EIGENVALUE_FLOOR)
+                )
+            )
             bound = min(3.0 * shift / (hi[lane] - lo[lane] + EIGENVALUE_FLOOR), 1.0)
         values[0, lane], values[1, lane], values[2, lane] = pi, max(pi - bound, 0.0), min(pi + bound, 1.0)

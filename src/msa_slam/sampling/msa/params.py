@@ -13,9 +13,9 @@ Mode = Literal["exact", "fast"]
 PiDefinition = Literal["reference", "canonical"]  # LAPACK's eigenvectors as they come, or canonical.py's
 MODES: tuple[str, ...] = get_args(Mode)
 PI_DEFINITIONS: tuple[str, ...] = get_args(PiDefinition)
-MAX_CANDIDATES = 2 ** 15 - 2  # per window optimisation, i.e. N <= 16: measured 5 s a window in exact mode
+MAX_CANDIDATES = 2**15 - 2  # per window optimisation, i.e. N <= 16: measured 5 s a window in exact mode
 # (sc20x60, 17811 feasible candidates), 1 s in fast mode; N = 20 took 116 s for 150 frames, N = 30 runs out of memory
-MAX_CANDIDATES_CANONICAL = 2 ** 19 - 2  # N <= 20 with pi="canonical" in fast mode: compiled solver on 2 threads,
+MAX_CANDIDATES_CANONICAL = 2**19 - 2  # N <= 20 with pi="canonical" in fast mode: compiled solver on 2 threads,
 # candidates streamed (benchmarks/bench_msa.py)
 
 
@@ -34,9 +34,12 @@ def candidate_count_problem(window: int, neighbours: int, mode: str = "exact", p
         return None
     count = f"{2 ** (members - 1) - 2}" if members <= 64 else f"about 10^{int((members - 1) * 0.30103)}"
     joined = f" (+{neighbours - 1} neighbour{'s' * (neighbours > 2)})" if neighbours > 1 else ""
-    return (f"window={window}{joined}: up to 2^{members - 1} - 2 = {count} candidates per window optimisation, "
-            f"more than the limit of {limit} (window + max(neighbours - 1, 0) <= {largest}"
-            + ("" if canonical_fast else "; up to 20 with mode='fast', pi='canonical'") + ")")
+    return (
+        f"window={window}{joined}: up to 2^{members - 1} - 2 = {count} candidates per window optimisation, "
+        f"more than the limit of {limit} (window + max(neighbours - 1, 0) <= {largest}"
+        + ("" if canonical_fast else "; up to 20 with mode='fast', pi='canonical'")
+        + ")"
+    )
 
 
 class MSAParams(SamplerParams):
@@ -54,15 +57,19 @@ class MSAParams(SamplerParams):
     use_rho: Boolean = Field(True, description="the score's rho term (off: the paper's ablation)")
     use_pi: Boolean = Field(True, description="the score's pi term (off: the paper's ablation)")
     mode: Mode = Field("exact", description="exact: the reference's floating-point path; fast: the Gram matrix")
-    pi: PiDefinition = Field("reference", description="reference: LAPACK's eigenvectors (the authors' keyframes); "
-                                                      "canonical: the same keyframes on every machine")
+    pi: PiDefinition = Field(
+        "reference",
+        description="reference: LAPACK's eigenvectors (the authors' keyframes); "
+        "canonical: the same keyframes on every machine",
+    )
 
     @model_validator(mode="after")
-    def _bounds_and_size(self) -> "MSAParams":
+    def _bounds_and_size(self) -> MSAParams:
         """The bounds must be ordered; the window's power set must be small enough to enumerate."""
         if self.lambda_l > self.lambda_u:
-            raise rule(f"lambda_l={self.lambda_l!r} > lambda_u={self.lambda_u!r} is not allowed; "
-                       "expected lambda_l <= lambda_u")
+            raise rule(
+                f"lambda_l={self.lambda_l!r} > lambda_u={self.lambda_u!r} is not allowed; expected lambda_l <= lambda_u"
+            )
         problem = candidate_count_problem(self.window, self.neighbours, self.mode, self.pi)
         if problem is not None:
             raise rule(problem)

@@ -28,8 +28,9 @@ DMIN_FLOOR, DMAX_CAP = 0.01, 5.0  # the reference's limits on the bounds, in met
 FALLBACK_WARN_MIN = 3  # a warning from this many fallback windows, when they are also most windows so far
 
 
-def warn_short_stream(frames: int, window: int, members: int | None = None, flush: bool = False,
-                      held: int = 0, min_motion: float = 0.0) -> None:
+def warn_short_stream(
+    frames: int, window: int, members: int | None = None, flush: bool = False, held: int = 0, min_motion: float = 0.0
+) -> None:
     """The window never filled: no subset was ever optimised, so only frame 0 is an online keyframe. Either the
     stream is shorter than the window or (`members`, the frames that joined it) the frames did not move (`held`
     of them held back by the standstill gate, which `min_motion` sets). With `flush` (the caller flushes at the
@@ -38,10 +39,15 @@ def warn_short_stream(frames: int, window: int, members: int | None = None, flus
         why = f"window={window} is longer than the stream ({frames} frames): the window never filled"
     else:
         gate = f"; the standstill gate held back {held} that moved < {min_motion:g} m" if held else ""
-        why = (f"window={window}: the window never filled in {frames} frames (only {members} moved at least "
-               f"{MIN_WINDOW_STEP} m from the member before them{gate})")
-    advice = ("only the end-of-stream flush chooses keyframes after it; use a smaller window" if flush
-              else "use a smaller window or flush at the end")
+        why = (
+            f"window={window}: the window never filled in {frames} frames (only {members} moved at least "
+            f"{MIN_WINDOW_STEP} m from the member before them{gate})"
+        )
+    advice = (
+        "only the end-of-stream flush chooses keyframes after it; use a smaller window"
+        if flush
+        else "use a smaller window or flush at the end"
+    )
     warnings.warn(f"msa: {why}, so only frame 0 was selected online; {advice}", UserWarning, stacklevel=3)
 
 
@@ -129,8 +135,14 @@ class MSASampler(Sampler):
     def _finish(self) -> list[int]:
         """Flush: optimise whatever is left in the window over all its members (not in the reference)."""
         if self.stats.window_optimisations == 0 and self.stats.frames > 0:
-            warn_short_stream(self.stats.frames, self.window_size, len(self._window), flush=True,
-                              held=self.stats.standstill_frames, min_motion=self.min_motion)
+            warn_short_stream(
+                self.stats.frames,
+                self.window_size,
+                len(self._window),
+                flush=True,
+                held=self.stats.standstill_frames,
+                min_motion=self.min_motion,
+            )
         if len(self._window) < 2:
             return []
         self._update_bounds()
@@ -144,10 +156,14 @@ class MSASampler(Sampler):
         if self._fallback_warned or fallbacks < FALLBACK_WARN_MIN or 2 * fallbacks <= windows:
             return
         self._fallback_warned = True
-        warnings.warn(f"msa: {fallbacks} of the {windows} windows so far had no subset whose consecutive members lie "
-                      f"within the distance bounds (last [{self.dmin:.3g}, {self.dmax:.3g}] m for an average step of "
-                      f"{self._avg_step:.3g} m), so each kept only its first and last member; check "
-                      f"lambda_l={self.lambda_l:g} and lambda_u={self.lambda_u:g}", UserWarning, stacklevel=5)
+        warnings.warn(
+            f"msa: {fallbacks} of the {windows} windows so far had no subset whose consecutive members lie "
+            f"within the distance bounds (last [{self.dmin:.3g}, {self.dmax:.3g}] m for an average step of "
+            f"{self._avg_step:.3g} m), so each kept only its first and last member; check "
+            f"lambda_l={self.lambda_l:g} and lambda_u={self.lambda_u:g}",
+            UserWarning,
+            stacklevel=5,
+        )
 
     def _optimise(self, n: int, update_bounds: bool = True) -> list[int]:
         """Section IV-C over the window's first n members; returns the frames that became keyframes."""
@@ -156,8 +172,16 @@ class MSASampler(Sampler):
                 self._update_bounds()
             members = self._window[:n]  # 2-3. terms and score of every candidate subset, eqs. (3)-(8)
             translations = np.array([self._translation[f] for f in members])
-            result = optimise_window(translations, np.array([self._descriptor[f] for f in members]),
-                                     self.dmin, self.dmax, self.weights, self.mode, self._workspace, self.pi)
+            result = optimise_window(
+                translations,
+                np.array([self._descriptor[f] for f in members]),
+                self.dmin,
+                self.dmax,
+                self.weights,
+                self.mode,
+                self._workspace,
+                self.pi,
+            )
         self._record(result, members, timer.ms)
         self.stats.fallback_windows += fell_back(result, translations, self.dmin, self.dmax)
         self._warn_fallback_windows()
@@ -186,8 +210,9 @@ class MSASampler(Sampler):
         self.stats.candidates_evaluated += result.candidates
         self.stats.optimisation_ms.append(ms)
         if result.ambiguous:
-            self.stats.ambiguous.append(AmbiguousWindow(self.stats.frames - 1, tuple(members),
-                                                        len(self._online), result.margin))
+            self.stats.ambiguous.append(
+                AmbiguousWindow(self.stats.frames - 1, tuple(members), len(self._online), result.margin)
+            )
 
     def _join(self, frame: int) -> None:
         self._window.append(frame)
@@ -215,7 +240,10 @@ class MSASampler(Sampler):
     def _forget(self, frames: list[int]) -> None:
         """Drop poses/descriptors no longer needed: memory stays O(N), plus keyframes if neighbours > 0."""
         for frame in frames:
-            if frame in self._translation and frame not in self._window and not (
-                    self.neighbours > 0 and frame in self._keyframe_set):
+            if (
+                frame in self._translation
+                and frame not in self._window
+                and not (self.neighbours > 0 and frame in self._keyframe_set)
+            ):
                 del self._translation[frame]
                 del self._descriptor[frame]

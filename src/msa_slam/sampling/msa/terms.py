@@ -118,8 +118,14 @@ def score(rho: np.ndarray, pi: np.ndarray, weights: ScoreWeights) -> np.ndarray:
     return (weights.alpha + rho_hat) / (weights.beta + pi_hat)
 
 
-def optimise_window_literal(translations: np.ndarray, descriptors: np.ndarray, dmin: float, dmax: float,
-                            weights: ScoreWeights, canonical: bool = False) -> WindowResult:
+def optimise_window_literal(
+    translations: np.ndarray,
+    descriptors: np.ndarray,
+    dmin: float,
+    dmax: float,
+    weights: ScoreWeights,
+    canonical: bool = False,
+) -> WindowResult:
     """Enumerate, score and choose one subset at a time; the first candidate with the smallest score wins."""
     flat = descriptors.reshape(len(descriptors), -1)
     candidates = constrained_power_set(translations, dmin, dmax)

@@ -69,8 +69,11 @@ def compile_in_background(params: dict[str, Any], shape: tuple[int, ...]) -> Bas
     caller ends (msa_slam.lifetime.end_with_parent); None when it cannot start."""
     try:
         process = multiprocessing.get_context("spawn").Process(
-            target=_compile_at_low_priority, args=(os.getpid(), dict(params), tuple(shape)), daemon=True,
-            name="msa-compile")
+            target=_compile_at_low_priority,
+            args=(os.getpid(), dict(params), tuple(shape)),
+            daemon=True,
+            name="msa-compile",
+        )
         process.start()
     except OSError:
         return None

@@ -9,10 +9,16 @@ from msa_slam.sampling.msa.fast import optimise_fast
 from msa_slam.sampling.msa.terms import ScoreWeights, WindowResult
 
 
-
-def optimise_window(translations: np.ndarray, descriptors: np.ndarray, dmin: float, dmax: float,
-                    weights: ScoreWeights, mode: str = "exact",
-                    workspace: ExactWorkspace | None = None, pi: str = "reference") -> WindowResult:
+def optimise_window(
+    translations: np.ndarray,
+    descriptors: np.ndarray,
+    dmin: float,
+    dmax: float,
+    weights: ScoreWeights,
+    mode: str = "exact",
+    workspace: ExactWorkspace | None = None,
+    pi: str = "reference",
+) -> WindowResult:
     """Choose the subset of the n window members that minimises (alpha + rho^) / (beta + pi^), eq. (8).
 
     translations (n, 3) and descriptors (n, ...) are the window members in window order; pass a
