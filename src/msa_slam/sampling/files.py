@@ -16,7 +16,7 @@ from msa_slam.errors import InputError
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder
 from msa_slam.io.poses import read_poses
 from msa_slam.progress import progress_bar
-from msa_slam.sampling.figure import plot_keyframes
+from msa_slam.sampling import figure
 from msa_slam.sampling.msa.warm import load_kernels
 from msa_slam.sampling.registry import make_sampler, sampler_parameters
 
@@ -80,7 +80,7 @@ def sample_files(
         with folder.staging() as tmp:  # the three files appear together or not at all
             (tmp / "keyframes.txt").write_text("".join(f"{k}\n" for k in keyframes))
             (tmp / "keyframes.json").write_text(json.dumps(record, indent=2) + "\n")
-            plot_keyframes(
+            figure.plot_keyframes(
                 pose_stack,
                 keyframes,
                 tmp / "keyframes.png",
