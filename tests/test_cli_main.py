@@ -5,10 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
-
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    code = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
-    return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=120)
+from helpers.cli import run_cli
 
 
 def test_input_error_is_one_line_without_traceback(tmp_path):

@@ -5,8 +5,8 @@ refused (QA finding H1: they used to be dropped silently)."""
 from __future__ import annotations
 
 import pytest
+from helpers.cli import run_on_scans
 from helpers.streams import write_scans
-from test_messages_real import run_cli
 
 from msa_slam.errors import InputError
 from msa_slam.experiments.compare import PAPER_METHODS, check_compare_sampler, method_configs
@@ -58,21 +58,7 @@ def test_another_samplers_parameters_are_refused_naming_where_they_go():
 
 def test_compare_checks_the_window_given_with_p(tmp_path):
     scans = write_scans(tmp_path / "scans", 4)
-    result = run_cli(
-        "compare",
-        "-d",
-        str(scans),
-        "--mode",
-        "realistic",
-        "-p",
-        "flush=false",
-        "-p",
-        "window=6",
-        "--out",
-        str(tmp_path / "out"),
-        "--cache-dir",
-        str(tmp_path / "cache"),
-    )
+    result = run_on_scans("compare", scans, tmp_path, "-p", "flush=false", "-p", "window=6")
     assert result.returncode == 2, result.stderr
     assert result.stderr.splitlines()[-1] == (
         "error: sampler 'msa': window=6 is longer than the 4 frames read, so it never fills and only frame 0 becomes "

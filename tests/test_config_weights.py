@@ -3,12 +3,10 @@ order with the descriptor; a missing weights file is refused with the overrides,
 
 from __future__ import annotations
 
-import os
 import re
-import subprocess
-import sys
 
 import pytest
+from helpers.cli import run_cli
 
 from msa_slam.errors import InputError
 from msa_slam.pipeline.config import apply_params, make_config
@@ -67,26 +65,17 @@ def test_overlap_transformer_weights_checked_when_the_config_is_made(tmp_path):
 def test_cli_refuses_a_missing_weights_file_before_reading_scans(tmp_path):
     # the dataset does not exist either: the weights come first, one line, nothing written
     missing = tmp_path / "missing.pth"
-    code = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-c",
-            code,
-            "run",
-            "--dataset",
-            str(tmp_path / "no-data"),
-            "--descriptor",
-            "ot",
-            "-p",
-            f"weights={missing}",
-            "--out",
-            str(tmp_path / "out"),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env={**os.environ, "MSA_SLAM_CACHE": str(tmp_path / "cache")},
+    result = run_cli(
+        "run",
+        "--dataset",
+        str(tmp_path / "no-data"),
+        "--descriptor",
+        "ot",
+        "-p",
+        f"weights={missing}",
+        "--out",
+        str(tmp_path / "out"),
+        cache=tmp_path / "cache",
     )
     assert result.returncode == 2
     assert result.stderr.startswith(f"error: config: descriptor 'ot': weights file not found: {missing}; ")
@@ -115,13 +104,6 @@ def test_online_config_routes_and_checks_the_weights(weights, tmp_path):
 )
 def test_cli_refuses_a_bad_descriptor_before_simulating_the_dataset(tmp_path, args, message):
     """sim:test is simulated on first use: a typo in the descriptor must not cost that first."""
-    code = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
-    result = subprocess.run(
-        [sys.executable, "-c", code, "run", "--dataset", "sim:test", *args, "--out", str(tmp_path / "out")],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env={**os.environ, "MSA_SLAM_CACHE": str(tmp_path / "cache")},
-    )
+    result = run_cli("run", "--dataset", "sim:test", *args, "--out", str(tmp_path / "out"), cache=tmp_path / "cache")
     assert result.returncode == 2 and result.stderr.startswith(message), result.stderr
     assert not (tmp_path / "out").exists() and not (tmp_path / "cache").exists()

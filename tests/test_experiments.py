@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 import yaml
+from helpers.cli import run_cli
 from helpers.metrics import stored_metrics
-from test_cli_main import run_cli
 from typer.testing import CliRunner
 
 import msa_slam

@@ -7,7 +7,7 @@ import json
 
 import pytest
 import yaml
-from test_cli_main import run_cli
+from helpers.cli import run_cli
 from test_experiments import TINY, _fake_experiment
 
 import msa_slam

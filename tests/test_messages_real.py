@@ -9,10 +9,10 @@ import shutil
 import signal
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.cli import run_on_scans
 from helpers.streams import write_scans, write_straight_stream
 
 from msa_slam.cli.options import WINDOW_FIX
@@ -24,12 +24,6 @@ from msa_slam.pipeline.frontend import check_window
 from msa_slam.types import validate_poses
 
 IDENTITY = "1 0 0 0 0 1 0 0 0 0 1 0"
-
-
-def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    """The console entry point (msa_slam.cli.main) in a fresh process, as a user runs it."""
-    code = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
-    return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=600, cwd=cwd)
 
 
 # L1: a pose file's value errors name its line (1-based, comments counted), as its parse errors do
@@ -153,19 +147,7 @@ def test_window_longer_than_the_frames_with_flush_warns_only():
 
 def test_run_refuses_a_window_longer_than_the_recording_before_odometry(tmp_path):
     scans = write_scans(tmp_path / "scans", 4)
-    result = run_cli(
-        "run",
-        "-d",
-        str(scans),
-        "--mode",
-        "realistic",
-        "-p",
-        "flush=false",
-        "--out",
-        str(tmp_path / "out"),
-        "--cache-dir",
-        str(tmp_path / "cache"),
-    )
+    result = run_on_scans("run", scans, tmp_path, "-p", "flush=false")
     assert result.returncode == 2, result.stderr
     assert result.stderr.splitlines()[-1] == (
         "error: sampler 'msa': window=10 is longer than the 4 frames read, so it never fills and only frame 0 becomes "
@@ -177,19 +159,7 @@ def test_run_refuses_a_window_longer_than_the_recording_before_odometry(tmp_path
 
 def test_compare_refuses_it_naming_what_compare_can_change(tmp_path):
     scans = write_scans(tmp_path / "scans", 4)
-    result = run_cli(
-        "compare",
-        "-d",
-        str(scans),
-        "--mode",
-        "realistic",
-        "-p",
-        "flush=false",
-        "--out",
-        str(tmp_path / "out"),
-        "--cache-dir",
-        str(tmp_path / "cache"),
-    )
+    result = run_on_scans("compare", scans, tmp_path, "-p", "flush=false")
     assert result.returncode == 2, result.stderr
     assert result.stderr.splitlines()[-1].endswith(
         "the evaluation needs at least 3: use a window of at most 4 frames (-p window=4) or -p flush=true"
@@ -199,19 +169,7 @@ def test_compare_refuses_it_naming_what_compare_can_change(tmp_path):
 
 def test_short_stream_warning_is_one_line_before_the_front_end(tmp_path):
     scans, odometry = write_straight_stream(tmp_path, 4)
-    result = run_cli(
-        "run",
-        "-d",
-        str(scans),
-        "--mode",
-        "realistic",
-        "--odometry",
-        str(odometry),
-        "--out",
-        str(tmp_path / "out"),
-        "--cache-dir",
-        str(tmp_path / "cache"),
-    )
+    result = run_on_scans("run", scans, tmp_path, "--odometry", str(odometry))
     lines = result.stderr.splitlines()
     warned = [i for i, line in enumerate(lines) if "window=10 is longer than the stream" in line]
     assert len(warned) == 1, result.stderr
@@ -223,21 +181,8 @@ def test_short_stream_warning_is_one_line_before_the_front_end(tmp_path):
 
 def test_compare_warns_of_a_short_stream_without_advising_the_flush_it_does(tmp_path):
     scans, odometry = write_straight_stream(tmp_path, 6)
-    result = run_cli(
-        "compare",
-        "-d",
-        str(scans),
-        "--mode",
-        "realistic",
-        "--odometry",
-        str(odometry),
-        "--no-sweep",
-        "--no-figures",
-        "--quiet",
-        "--out",
-        str(tmp_path / "out"),
-        "--cache-dir",
-        str(tmp_path / "cache"),
+    result = run_on_scans(
+        "compare", scans, tmp_path, "--odometry", str(odometry), "--no-sweep", "--no-figures", "--quiet"
     )
     warned = [line for line in result.stderr.splitlines() if "window=10 is longer than the stream" in line]
     assert warned == [

@@ -8,10 +8,9 @@ would otherwise change the threads of every later test's odometry)."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import yaml
+from helpers.cli import run_cli
 from helpers.metrics import metrics_json
 from test_real_inputs_times import _kitti
 
@@ -24,31 +23,22 @@ from msa_slam.reporting.report import threads_text
 from msa_slam.workers import available_cpus
 
 COARSE = "live:figure-eight,stride=4,azimuth_steps=180,realism=clean"
-CLI = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
 
 
 def test_live_source_uses_every_core_and_says_it_is_not_reproducible(tmp_path):
     out = tmp_path / "live"
-    done = subprocess.run(
-        [
-            sys.executable,
-            "-c",
-            CLI,
-            "online",
-            "-d",
-            COARSE,
-            "--sampler",
-            "all",
-            "-p",
-            "max_frames=12",
-            "--cache-dir",
-            str(tmp_path / "cache"),
-            "--out",
-            str(out),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=600,
+    done = run_cli(
+        "online",
+        "-d",
+        COARSE,
+        "--sampler",
+        "all",
+        "-p",
+        "max_frames=12",
+        "--cache-dir",
+        str(tmp_path / "cache"),
+        "--out",
+        str(out),
     )
     assert done.returncode == 0, done.stderr
     metrics = json.loads((out / "metrics.json").read_text())

@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import re
 
+from helpers.cli import run_cli
 from rich.progress import Progress
 
 from msa_slam.progress import LogProgress, progress_bar
@@ -68,30 +69,20 @@ def test_progress_bar_picks_log_lines_off_a_terminal_and_nothing_when_quiet(monk
 
 def test_a_non_tty_run_logs_its_long_stages(tmp_path, sequence, odometry_file):
     """`msa-slam run` with its output in a file (a cluster job's log): the front end's and back-end's log lines."""
-    import os
     import subprocess
-    import sys
 
-    code = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
-    env = {**os.environ, "MSA_SLAM_CACHE": str(tmp_path / "cache")}  # empty: the descriptors are computed
-    with open(tmp_path / "log.txt", "w") as log:
-        done = subprocess.run(
-            [
-                sys.executable,
-                "-c",
-                code,
-                "run",
-                "--dataset",
-                str(sequence),
-                "--odometry",
-                str(odometry_file),
-                "--out",
-                str(tmp_path / "out"),
-            ],
-            env=env,
+    with open(tmp_path / "log.txt", "w") as log:  # an empty cache: the descriptors are computed
+        done = run_cli(
+            "run",
+            "--dataset",
+            str(sequence),
+            "--odometry",
+            str(odometry_file),
+            "--out",
+            str(tmp_path / "out"),
+            cache=tmp_path / "cache",
             stdout=log,
             stderr=subprocess.STDOUT,
-            timeout=600,
         )
     text = (tmp_path / "log.txt").read_text()
     assert done.returncode == 0, text

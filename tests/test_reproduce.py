@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_cli_main import run_cli
+from helpers.cli import run_cli
 from typer.testing import CliRunner
 
 import msa_slam

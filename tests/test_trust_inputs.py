@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from helpers.cli import run_cli
 from helpers.orphans import poll, proc_stat
 from scipy.spatial.transform import Rotation
-from test_cli_main import run_cli
 from test_experiments import TINY
 
 from msa_slam.datasets import open_dataset

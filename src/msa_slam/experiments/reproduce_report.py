@@ -193,7 +193,8 @@ def bounds(run: Run | None, figures: list[str]) -> list[str]:
     lines = ["## Distance bounds", ""]
     if run is None or not run.values.rows:
         return lines + _missing("paper-bounds")
-    lines += [conditions(run, "lambda_l swept with lambda_u = 5, lambda_u swept with lambda_l = 0.1"), ""]
+    swept = "lambda_l swept with lambda_u = 5, lambda_u swept with lambda_l = 0.1 (multiples of the mean step, eq. 7)"
+    lines += [conditions(run, swept), ""]
     columns = {k: ONLINE[k] for k in ("improvement_t_pct", "improvement_r_pct", "f1_max", "memory_vs_reference_pct")}
     for dataset, rows in _by(run.values.rows, lambda r: r["dataset"]).items():
         lines += [f"### {column_of(dataset)}", "", *method_table(rows, columns)]

@@ -103,6 +103,10 @@ def plot_ate_difference(
     return _save(fig, path)
 
 
+# MSA's distance bounds (eq. 7) are multiples of the stream's mean step, not metres: the axis says so
+SWEPT_AXES = {"lambda_l": "lambda_l (x mean step)", "lambda_u": "lambda_u (x mean step)"}
+
+
 def plot_sweeps(
     path: str | Path,
     sweeps: Mapping[str, Mapping[str, Mapping[str, tuple[Sequence[float], Sequence[float]]]]],
@@ -137,7 +141,7 @@ def plot_sweeps(
                     color="0.4",
                 )
                 ax.set(xticks=[], yticks=[])
-            ax.set(xlabel=param, title=metric if r == 0 else "")
+            ax.set(xlabel=SWEPT_AXES.get(param, param), title=metric if r == 0 else "")
             ax.ticklabel_format(axis="y", useOffset=False)  # the metric's own values, not "+5.008e1" offsets
             ax.grid(alpha=0.3)
     handles, labels = next((h for h in (ax.get_legend_handles_labels() for ax in axes.flat) if h[0]), ([], []))

@@ -1,0 +1,31 @@
+"""The sweep figure (the paper's Fig. 9) labels MSA's distance bounds as multiples of the mean step, the unit
+eq. 7 gives them, and any other swept parameter by its name."""
+
+from __future__ import annotations
+
+import matplotlib.pyplot as plt
+import pytest
+
+from msa_slam.viz import experiment_figures
+
+
+@pytest.fixture
+def drawn(monkeypatch):
+    """The figure plot_sweeps builds, kept open instead of written."""
+    figures = []
+    monkeypatch.setattr(experiment_figures, "_save", lambda fig, path: figures.append(fig) or path)
+    yield figures
+    for fig in figures:
+        plt.close(fig)
+
+
+def test_bounds_are_labelled_in_mean_steps_and_other_parameters_by_name(drawn, tmp_path):
+    line = {"city": ([0.0, 0.5, 1.0], [10.0, 12.0, 11.0])}
+    sweeps = {"lambda_l": {"F1": line}, "lambda_u": {"F1": line}, "window": {"F1": line}}
+    experiment_figures.plot_sweeps(tmp_path / "s.png", sweeps)
+    (fig,) = drawn
+    assert [ax.get_xlabel() for ax in fig.axes] == [
+        "lambda_l (x mean step)",
+        "lambda_u (x mean step)",
+        "window",
+    ]
