@@ -347,12 +347,11 @@ def default_sequence(kind: str = "demo", cache_dir: str | os.PathLike | None = N
 
     "demo": the whole KITTI-06 trajectory (1.2 km, a loop driven in both directions: revisits along most of
     it) at the native 10 Hz, 1101 scans, HDL-64 beams with 720 azimuth steps (0.5 deg, ~40k points a scan),
-    realism preset "kitti" (motion distortion, sensor imperfections, a changing world); `msa-slam demo` from
-    an empty cache (simulation ~30 s on 2 workers, KISS-ICP at 1 thread ~140 s, descriptors, 7 methods) takes
-    about 5 minutes on 2 cores (docs/performance.md).
+    realism preset "kitti" (motion distortion, sensor imperfections, a changing world); docs/performance.md
+    gives what `msa-slam demo` costs from an empty cache (simulation, KISS-ICP, descriptors, 7 methods).
     "test": the procedural figure-eight (revisits at its crossing and where it closes) at every 2nd
     frame, 214 scans ~2 m apart after a standing start, HDL-64 beams with 360 azimuth steps (1 deg),
-    realism preset "clean" (the plain simulator the pipeline tests were written against): seconds to make.
+    realism preset "clean" (the plain simulator the pipeline tests were written against), quick to make.
     """
     if kind not in DEFAULT_CONFIGS:
         raise InputError(f"unknown default sequence {kind!r}; choose one of {', '.join(DEFAULT_CONFIGS)}")
