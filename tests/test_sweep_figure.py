@@ -29,3 +29,22 @@ def test_bounds_are_labelled_in_mean_steps_and_other_parameters_by_name(drawn, t
         "lambda_u (x mean step)",
         "window",
     ]
+
+
+def test_the_reproduction_passes_the_bounds_by_name_so_the_axis_gives_their_unit():
+    from msa_slam.experiments.reproduce import sweep_lines
+
+    rows = [
+        {
+            "dataset": "d",
+            "swept": {"lambda_u": u},
+            "improvement_t_pct": None,
+            "f1_max": f,
+            "memory_vs_reference_pct": 50,
+        }
+        for u, f in ((1.0, 0.9), (10.0, 0.8), (10.0, 0.6))
+    ]
+    (bound,) = sweep_lines(rows)
+    assert bound == "lambda_u" and experiment_figures.SWEPT_AXES[bound] == "lambda_u (x mean step)"
+    (line,) = sweep_lines(rows)[bound]["F1-max"].values()
+    assert line == ([1.0, 10.0], [0.9, 0.7])  # the mean of the two seeds at 10

@@ -227,7 +227,7 @@ def fig5_panels(rows: list[dict]) -> dict[str, dict[str, list[float]]]:
 
 
 def sweep_lines(rows: list[dict]) -> dict:
-    """plot_sweeps' input: bound (with its unit) -> metric -> dataset column -> (values, means over seeds)."""
+    """plot_sweeps' input: bound (its axis names the unit) -> metric -> dataset column -> (values, means over seeds)."""
     columns = {
         "t. ATE impr. [%]": "improvement_t_pct",
         "F1-max": "f1_max",
@@ -235,7 +235,7 @@ def sweep_lines(rows: list[dict]) -> dict:
     }
     out: dict = {}
     for bound in sorted({k for r in rows for k in r["swept"]}):
-        out[f"{bound} [m]"] = {}
+        out[bound] = {}
         for title, column in columns.items():
             lines: dict = {}
             for dataset in dict.fromkeys(r["dataset"] for r in rows):
@@ -245,7 +245,7 @@ def sweep_lines(rows: list[dict]) -> dict:
                         points.setdefault(float(r["swept"][bound]), []).append(r[column])
                 xs = sorted(points)
                 lines[column_of(dataset)] = (xs, [sum(points[x]) / len(points[x]) for x in xs])
-            out[f"{bound} [m]"][title] = lines
+            out[bound][title] = lines
     return out
 
 
