@@ -13,10 +13,10 @@ from typer.testing import CliRunner
 
 from msa_slam.cli import app
 from msa_slam.errors import InputError
+from msa_slam.evaluation.metrics import sampler_realtime_fraction
 from msa_slam.io.poses import read_poses
 from msa_slam.pipeline import load_config
 from msa_slam.pipeline.driver import RUN_SWEEP_NOT_RUN
-from msa_slam.pipeline.frontend import sampler_realtime_fraction
 
 runner = CliRunner()
 
@@ -166,11 +166,9 @@ def test_sampler_realtime_fraction_of_known_and_unknown_times():
     """0.5 s of window optimisation over 10 s of data is 5 % of real time; frame numbers give no duration."""
     stats = {"optimisation_ms_total": 500.0}
     times = np.linspace(0.0, 10.0, 101)
-    assert sampler_realtime_fraction(stats, times, times_known=True) == (0.05, None)
-    fraction, why = sampler_realtime_fraction(stats, np.arange(101.0), times_known=False)
-    assert fraction is None and "no timestamps" in why
-    fraction, why = sampler_realtime_fraction(stats, np.zeros(5), times_known=True)
-    assert fraction is None and "span no time" in why
+    assert sampler_realtime_fraction(stats, times, times_known=True) == 0.05
+    assert "no timestamps" in sampler_realtime_fraction(stats, np.arange(101.0), times_known=False).reason
+    assert "span no time" in sampler_realtime_fraction(stats, np.zeros(5), times_known=True).reason
 
 
 def test_run_reports_bad_input(tmp_path, cache_dir):

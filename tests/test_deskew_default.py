@@ -13,9 +13,9 @@ from test_real_inputs_times import N, _points
 from typer.testing import CliRunner
 
 from msa_slam.cli import app
+from msa_slam.odometry.choice import make_odometry
 from msa_slam.odometry.kiss import NO_POINT_TIMES
 from msa_slam.pipeline.config import make_config
-from msa_slam.pipeline.frontend import make_odometry
 from msa_slam.sources import open_sequence
 
 

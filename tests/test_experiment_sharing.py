@@ -9,9 +9,9 @@ import pytest
 from test_experiments import TINY
 
 from msa_slam.experiments import runner
+from msa_slam.experiments.folder import load_cells
 from msa_slam.experiments.grid import expand, parse_grid, run_key
 from msa_slam.experiments.paper import PRESETS, paper_grids
-from msa_slam.experiments.report import load_cells
 from msa_slam.experiments.sharing import RUN_KEY, SHARED_FROM, plan_sharing
 
 IDENTITY = {"data": "d", "code": "c"}

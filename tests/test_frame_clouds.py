@@ -12,8 +12,8 @@ import pytest
 from helpers.metrics import metrics_json
 
 from msa_slam.backend import PoseGraph
+from msa_slam.io.cache import pipeline_cache
 from msa_slam.pipeline import make_config, prepare_frontend, run
-from msa_slam.pipeline.frontend import pipeline_cache
 from msa_slam.registration import KeyframeCloudStore, downsample
 from msa_slam.registration.cloud_cache import cloud_key
 from msa_slam.slam import build_backend

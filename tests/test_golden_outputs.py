@@ -188,7 +188,8 @@ def golden_run(golden_root) -> dict[str, Any]:
 def test_metrics_files_read_back_to_the_same_bytes(golden_root):
     """Every metrics.json (run, online, compare's methods) and comparison.json the commands wrote, read into the
     typed report and written again: the same bytes."""
-    from msa_slam.evaluation.metrics_json import from_json, to_json
+    from msa_slam.evaluation.metrics_json import from_json
+    from msa_slam.evaluation.metrics_writer import to_json
     from msa_slam.io.tables import write_json
 
     files = sorted([*golden_root[0].rglob("metrics.json"), *golden_root[0].rglob("comparison.json")])

@@ -12,7 +12,8 @@ from helpers.metrics import STORED, stored_metrics
 
 from msa_slam.errors import InputError
 from msa_slam.evaluation.metrics import Unavailable
-from msa_slam.evaluation.metrics_json import from_json, to_json
+from msa_slam.evaluation.metrics_json import from_json
+from msa_slam.evaluation.metrics_writer import to_json
 from msa_slam.io.tables import write_json
 from msa_slam.pipeline import make_config
 from msa_slam.reporting.report import report_markdown

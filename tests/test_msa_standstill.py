@@ -3,7 +3,7 @@
 Rule (sampling/base.py): a frame whose translation from the last frame passed on to the sampler is below
 `min_motion` metres and whose rotation from it is below `min_rotation` degrees is held back. make_sampler's
 default is off (the reference's behaviour, which the parity tests check); the SLAM core switches it on
-(slam/backend.py, STANDSTILL_GATE: 0.1 m, 0.5 deg) for every sampler but "all".
+(slam/build.py, STANDSTILL_GATE: 0.1 m, 0.5 deg) for every sampler but "all".
 
 The jitter below is that of KISS-ICP on simulated KITTI-like scans from one fixed pose (docs/msa.md, "Standing
 still"): steps of about 1.2 cm (median), at most 5.2 cm and 0.115 deg from the first pose over 1,000 frames.
@@ -30,7 +30,7 @@ from msa_slam.pipeline.config import apply_params, make_config
 from msa_slam.registration import KeyframeCloudStore
 from msa_slam.sampling import make_sampler, sampler_parameters
 from msa_slam.sampling.registry import SAMPLERS
-from msa_slam.slam.backend import STANDSTILL_GATE, slam_sampler_params
+from msa_slam.slam.build import STANDSTILL_GATE, slam_sampler_params
 
 STANDSTILL = 1000
 JITTER_M, JITTER_MAX_M = 0.01, 0.045  # per axis (sigma) and largest offset: two frames stay < 0.1 m apart

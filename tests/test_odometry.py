@@ -70,8 +70,8 @@ def test_poses_from_file(tmp_path):
 
 def test_pose_file_odometry_follows_the_scan_selection(tmp_path):
     # --odometry FILE with --first/--jump/-n: the file holds one pose a scan of the recording, like --gt
+    from msa_slam.odometry.choice import make_odometry
     from msa_slam.pipeline.config import make_config
-    from msa_slam.pipeline.frontend import make_odometry
 
     poses = np.tile(np.eye(4), (10, 1, 1))
     poses[:, 0, 3] = np.arange(10.0)

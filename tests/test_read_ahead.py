@@ -18,9 +18,9 @@ from msa_slam.descriptors.cache import compute_descriptors, descriptor_key
 from msa_slam.errors import InputError
 from msa_slam.io.cache import TIMES_PREFIX, CacheDir
 from msa_slam.odometry import OdometryCache, sequence_odometry
+from msa_slam.odometry.choice import make_odometry
 from msa_slam.pipeline import LiveFrontEnd, make_config, prepare_frontend, run
 from msa_slam.pipeline.config import make_online_config
-from msa_slam.pipeline.frontend import make_odometry
 from msa_slam.pipeline.read_ahead import DEPTH, ReadAhead
 from msa_slam.registration import downsample
 from msa_slam.sources import open_sequence, open_source

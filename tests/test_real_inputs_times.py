@@ -18,9 +18,9 @@ from msa_slam.datasets import Frame, open_dataset
 from msa_slam.errors import InputError
 from msa_slam.io.cache import sequence_identity
 from msa_slam.odometry import KissOdometry, OdometryCache, sequence_odometry
+from msa_slam.odometry.choice import make_odometry
 from msa_slam.pipeline import LiveFrontEnd, run
 from msa_slam.pipeline.config import NO_TIMESTAMPS, make_config, make_online_config
-from msa_slam.pipeline.frontend import make_odometry
 from msa_slam.pipeline.live import frame_rate_hz
 from msa_slam.reporting.report import _online_lines as online_report_lines
 from msa_slam.sources import open_source

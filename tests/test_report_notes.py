@@ -22,7 +22,6 @@ from msa_slam.errors import InputError
 from msa_slam.evaluation.run_metrics import BATCH_UNTIMED
 from msa_slam.experiments import folder as folder_module
 from msa_slam.experiments import load_grid, parse_grid, run_grid, write_report
-from msa_slam.experiments import report as report_module
 from msa_slam.experiments.folder import grid_cells
 from msa_slam.experiments.identity import cell_identities, outdated_cells
 from msa_slam.experiments.runner import GridRun, _record
@@ -207,7 +206,6 @@ def test_a_resume_reads_each_finished_cell_once(tmp_path, monkeypatch):
         return real(folder)
 
     monkeypatch.setattr(folder_module, "read_cell", counted)
-    monkeypatch.setattr(report_module, "read_cell", counted)
     run = run_grid(parse_grid(TINY), tmp_path)
     assert sorted(run.skipped) == sorted(c.id for c in cells) and not run.ran
     assert sorted(reads) == sorted(c.id for c in cells)  # the version check's reading serves the report

@@ -112,7 +112,7 @@ class FrameSource:
     `point_times`: whether the frames carry per-point times (`timestamps`, which
     deskewing needs): True makes KISS-ICP deskew unless asked not to, False makes it not deskew (an asked deskew
     is dropped with a warning); None (not known): deskew only when asked, and KISS-ICP then refuses a first frame
-    without them (pipeline.frontend.make_odometry). `live`: frames that come once, as from a sensor (nothing to
+    without them (odometry.choice.make_odometry). `live`: frames that come once, as from a sensor (nothing to
     replay bit for bit), so the online pipeline runs KISS-ICP on every core by default
     (pipeline.live.with_odometry_threads)."""
 

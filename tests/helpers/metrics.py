@@ -10,7 +10,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from msa_slam.evaluation.metrics_json import from_json, to_json
+from msa_slam.evaluation.metrics_json import from_json
+from msa_slam.evaluation.metrics_writer import to_json
 from msa_slam.slam import RunResult
 
 STORED = Path(__file__).parent.parent / "data" / "metrics"

@@ -3,16 +3,20 @@ place recognition, memory, time and throughput, batch and online alike.
 
 A value that is undefined for the run (ATE without ground truth, PR-AUC without revisits) is an
 `Unavailable` carrying its reason, never a bare None, so that every reader (tables, report.md) can say why.
-evaluation.run_metrics.RunMetrics holds the sections of one run; evaluation.metrics_json writes metrics.json from
-it (the keys and bytes metrics.json always had) and reads it back for `msa-slam report`, compare's reuse of
-finished seeds and experiment cells.
+evaluation.run_metrics.RunMetrics holds the sections of one run; evaluation.metrics_writer writes metrics.json from
+it (the keys and bytes metrics.json always had) and evaluation.metrics_json reads it back for `msa-slam report`,
+compare's reuse of finished seeds and experiment cells. ProtocolRecord: what a protocol (batch, online) measured
+around the SLAM core, which slam.measure joins with the core's own metrics.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Union
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Union
+
+if TYPE_CHECKING:
+    import numpy as np
 
 BATCH = "batch"
 ONLINE = "online"
@@ -240,6 +244,23 @@ class Timing:
         return total
 
 
+def sampler_realtime_fraction(
+    sampler_stats: Mapping[str, JSONValue], times: np.ndarray, times_known: bool
+) -> float | Unavailable:
+    """Timing's `sampler_realtime_fraction`: the sampler's window optimisations' total time over the duration of the
+    data it sampled (the frames' first to last timestamp), the share of a real-time budget sampling alone takes.
+    Unavailable, with why, when the frames have no timestamps (`times_known` False: their times are frame numbers,
+    1 frame/s) or span no time."""
+    if not times_known:
+        return Unavailable("the frames have no timestamps, so the data's duration is unknown")
+    span = float(times[-1] - times[0]) if len(times) > 1 else 0.0
+    if not span > 0:
+        return Unavailable("the frames' timestamps span no time")
+    total_ms = sampler_stats["optimisation_ms_total"]
+    assert isinstance(total_ms, (int, float)), "the sampler's statistics count milliseconds as numbers"
+    return total_ms / 1e3 / span
+
+
 @dataclass(frozen=True)
 class Latency:
     """Per-frame time percentiles of one step (ms)."""
@@ -284,3 +305,27 @@ class RunSetup:
     @property
     def odometry_threads(self) -> int | None:
         return self.threads.get("odometry")
+
+
+NOT_BATCH = "online runs have no reference protocol and no threshold sweep (batch-only analyses)"
+NOTHING_IN_RAM = "nothing accounted in RAM to compare the RSS growth with"
+_NOT_BATCH = Unavailable(NOT_BATCH)
+
+
+@dataclass(frozen=True)
+class ProtocolRecord:
+    """What a protocol measured around the core: its warnings (listed before the core's), stage times, settings,
+    the reasons it adds to `unavailable` (after the core's) and, batch, the reference PR and the threshold sweep,
+    online, the throughput and the cloud store; `peak_rss_bytes`: the process's peak when the run ended, read before
+    analyses that are no part of it (batch: the sweep; None: read now)."""
+
+    pipeline: str
+    warnings: tuple[str, ...]
+    timing: Timing
+    setup: RunSetup
+    reasons: Mapping[str, str] = field(default_factory=dict)
+    reference: ReferencePR | Unavailable = _NOT_BATCH
+    sweep: tuple[SweepRow, ...] | Unavailable = _NOT_BATCH
+    throughput: Throughput | None = None
+    cloud_store: str | None = None
+    peak_rss_bytes: int | None = None

@@ -2,7 +2,7 @@
 Table-I row and an experiment cell's values, each value a number or `Unavailable` with its reason.
 
 Sections (evaluation.metrics): what was run, loops, keyframe and full-rate trajectory error, place recognition,
-memory, time, settings and, online, throughput. metrics.json is `evaluation.metrics_json.to_json` of it.
+memory, time, settings and, online, throughput. metrics.json is `evaluation.metrics_writer.to_json` of it.
 """
 
 from __future__ import annotations

@@ -7,7 +7,8 @@ from msa_slam._lazy import lazy_exports
 _EXPORTS = {
     **dict.fromkeys(["PAPER_METHODS", "run_compare"], "compare"),
     **dict.fromkeys(["Cell", "GridSpec", "SamplerSpec", "expand", "load_grid", "parse_grid"], "grid"),
-    **dict.fromkeys(["load_cells", "make_rows", "table2_markdown", "write_report"], "report"),
+    **dict.fromkeys(["make_rows", "table2_markdown", "write_report"], "report"),
+    **dict.fromkeys(["load_cells"], "folder"),
     **dict.fromkeys(["GridRun", "clean_partials", "is_finished", "run_cell", "run_grid"], "runner"),
 }
 __all__ = sorted(_EXPORTS)

@@ -19,7 +19,7 @@ from typing import Any
 
 from msa_slam.errors import InputError
 from msa_slam.evaluation import peak_rss_bytes
-from msa_slam.evaluation.metrics_json import to_json
+from msa_slam.evaluation.metrics_writer import to_json
 from msa_slam.evaluation.run_metrics import TableRow
 from msa_slam.experiments.seed_folder import (
     RECORD,
@@ -56,7 +56,7 @@ from msa_slam.reporting.report import rpe_segments, scans_read
 from msa_slam.reporting.results import write_run_files
 from msa_slam.sampling.params import GATE_PARAMETERS
 from msa_slam.slam import RunResult
-from msa_slam.slam.backend import UNGATED_SAMPLERS
+from msa_slam.slam.build import UNGATED_SAMPLERS
 from msa_slam.viz.labels import display_name
 from msa_slam.workers import check_workers, forked_workers, shared
 

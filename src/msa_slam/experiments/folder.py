@@ -7,7 +7,10 @@ cells/<cell id>/          one finished run per cell (cell.json, metrics.json, ..
                           records the identity of the cell's data and code, and a resume reruns a cell
                           whose data or code changed since (msa_slam.experiments.identity)
 errors/<cell id>.txt      the traceback of a cell that failed (removed when it later succeeds)
-results.csv, results.md, figures/, report.md    the aggregate (msa_slam.experiments.report)
+results.csv, results.md, figures/, report.md    the aggregate (msa_slam.experiments.report, grid_figures)
+
+The cells are read back here (read_cell, load_cells; an online cell's steps.csv: read_steps) for the report,
+a resume and the paper's figures.
 """
 
 from __future__ import annotations
@@ -15,9 +18,11 @@ from __future__ import annotations
 import json
 import logging
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from msa_slam.errors import InputError
@@ -97,3 +102,46 @@ def stale_cells(out: str | os.PathLike, cells: list[Cell]) -> list[str]:
         for p in folder.iterdir()
         if p.is_dir() and not p.name.startswith(".") and p.name not in current and (p / CELL_FILE).is_file()
     )
+
+
+@dataclass(frozen=True)
+class FinishedCell:
+    """A finished cell of the grid: what it ran (cell.json, with its place in the grid as `index`), its report and
+    its folder."""
+
+    info: dict[str, Any]
+    metrics: RunMetrics
+    folder: Path
+
+
+def load_cells(results_dir: str | os.PathLike) -> list[FinishedCell]:
+    """(cell info + metrics) of every finished cell of the grid recorded in `results_dir` (grid.yaml), in the
+    grid's order; cell folders of an earlier, different grid are left out (see `stale_cells`)."""
+    return finished_list(Path(results_dir), experiment_grid(Path(results_dir))[1])
+
+
+def experiment_grid(out: Path) -> tuple[GridSpec, list[Cell]]:
+    """The grid recorded in the experiment folder `out` and its cells; refuses a folder that is none."""
+    if not (out / "cells").is_dir():
+        raise InputError(f"{out}: not an experiment results folder (no cells/ inside)")
+    return grid_cells(out)
+
+
+def finished_list(out: Path, cells: list[Cell], known: FinishedCells | None = None) -> list[FinishedCell]:
+    """The finished ones of `cells` in `out`, in their order, taken from `known` (already read) where it has them."""
+    found = []
+    for cell in cells:
+        folder = cell_dir(out, cell.id)
+        read = (known or {}).get(cell.id) or read_cell(folder)
+        if read is not None:
+            found.append(FinishedCell({**read[0], "index": cell.index}, read[1], folder))
+    return found
+
+
+def read_steps(folder: Path) -> dict[str, np.ndarray] | None:
+    """The per-step record (steps.csv) of an online cell by column; None for a cell without one (batch)."""
+    path = folder / "steps.csv"
+    if not path.is_file():
+        return None
+    data = np.genfromtxt(path, delimiter=",", names=True)
+    return {name: np.atleast_1d(data[name]) for name in data.dtype.names}

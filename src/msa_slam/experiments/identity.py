@@ -25,7 +25,7 @@ from typing import Any, TypeVar
 from msa_slam.errors import InputError
 from msa_slam.experiments.folder import FinishedCells
 from msa_slam.experiments.grid import Cell
-from msa_slam.io.cache import CacheDir, array_sha256, input_identity, named_files, sequence_identity
+from msa_slam.io.cache import CacheDir, array_sha256, input_identity, named_files, pipeline_cache, sequence_identity
 from msa_slam.io.fingerprint import PACKAGE, code_fingerprint
 
 CELL_IDENTITY = "identity"  # the key of cell.json that records it
@@ -69,8 +69,6 @@ class DataIdentities:
         """Identity of what `configs` (runs on one dataset selection, e.g. a comparison's methods) read: the
         dataset and every file the configs name; None when the dataset cannot be opened now (the run then fails
         when it starts, with the reason)."""
-        from msa_slam.pipeline.frontend import pipeline_cache
-
         config = configs[0]
         cache_dir = config.get("cache_dir")
         cache = self._caches.setdefault(cache_dir, CacheDir(pipeline_cache(cache_dir)))

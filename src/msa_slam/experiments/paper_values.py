@@ -13,7 +13,8 @@ import numpy as np
 
 from msa_slam.errors import InputError
 from msa_slam.evaluation.run_metrics import TableRow
-from msa_slam.experiments.report import FinishedCell, load_cells, make_rows, read_steps
+from msa_slam.experiments.folder import FinishedCell, load_cells, read_steps
+from msa_slam.experiments.report import make_rows
 from msa_slam.reporting.results import accounted_bytes
 
 

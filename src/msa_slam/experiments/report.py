@@ -1,8 +1,7 @@
 """Aggregate a grid's finished cells into results.csv, results.md (the paper's Table II layout: per dataset,
 one row per method with t./R. ATE improvement on the full-rate trajectory, F1-max, memory and time; mean
-+- std over seeds, and with several seeds the per-seed ranks and MSA's paired-test verdicts) and figures:
-ATE difference to all samples (box plots), memory over time, per-step time distributions, and the
-distance-bound ablation (metrics against swept parameters, the paper's Fig. 9)."""
++- std over seeds, and with several seeds the per-seed ranks and MSA's paired-test verdicts) and report.md, with
+the figures experiments.grid_figures draws."""
 
 from __future__ import annotations
 
@@ -10,7 +9,6 @@ import json
 import os
 from collections import defaultdict
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -20,13 +18,20 @@ from msa_slam.errors import InputError, error_line
 from msa_slam.evaluation import NA, fmt
 from msa_slam.evaluation.metrics import Unavailable, Value, known
 from msa_slam.evaluation.run_metrics import RunMetrics, TableRow
-from msa_slam.experiments.folder import GRID_FILE, FinishedCells, cell_dir, grid_cells, read_cell, stale_cells
-from msa_slam.experiments.grid import Cell, GridSpec, slug
+from msa_slam.experiments.folder import (
+    GRID_FILE,
+    FinishedCell,
+    FinishedCells,
+    cell_dir,
+    experiment_grid,
+    finished_list,
+    stale_cells,
+)
+from msa_slam.experiments.grid import Cell
+from msa_slam.experiments.grid_figures import write_figures
 from msa_slam.experiments.seeds import SEED_METRICS, seed_markdown, seed_summary
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.tables import rows_csv
-from msa_slam.reporting.results import accounted_bytes
-from msa_slam.viz import plot_ate_difference, plot_memory, plot_step_times, plot_sweeps
 
 COLUMNS = (
     "cell",
@@ -65,44 +70,6 @@ COLUMNS = (
     "rejected",
     "unavailable",
 )
-SWEEP_METRICS = {
-    "t. ATE impr. [%]": "improvement_t_pct",
-    "R. ATE impr. [%]": "improvement_r_pct",
-    "F1-max": "f1_max",
-    "memory vs reference [%]": "memory_vs_reference_pct",
-}
-
-
-@dataclass(frozen=True)
-class FinishedCell:
-    """A finished cell of the grid: what it ran (cell.json, with its place in the grid as `index`), its report and
-    its folder."""
-
-    info: dict[str, Any]
-    metrics: RunMetrics
-    folder: Path
-
-
-def load_cells(results_dir: str | os.PathLike) -> list[FinishedCell]:
-    """(cell info + metrics) of every finished cell of the grid recorded in `results_dir` (grid.yaml), in the
-    grid's order; cell folders of an earlier, different grid are left out (see `stale_cells`)."""
-    return _finished(Path(results_dir), _grid_of(Path(results_dir))[1])
-
-
-def _grid_of(out: Path) -> tuple[GridSpec, list[Cell]]:
-    if not (out / "cells").is_dir():
-        raise InputError(f"{out}: not an experiment results folder (no cells/ inside)")
-    return grid_cells(out)
-
-
-def _finished(out: Path, cells: list[Cell], known: FinishedCells | None = None) -> list[FinishedCell]:
-    found = []
-    for cell in cells:
-        folder = cell_dir(out, cell.id)
-        read = (known or {}).get(cell.id) or read_cell(folder)
-        if read is not None:
-            found.append(FinishedCell({**read[0], "index": cell.index}, read[1], folder))
-    return found
 
 
 def _group(info: dict[str, Any]) -> tuple:
@@ -290,90 +257,6 @@ def table2_markdown(rows: list[TableRow]) -> str:
     return "\n".join(lines)
 
 
-def read_steps(folder: Path) -> dict[str, np.ndarray] | None:
-    """The per-step record (steps.csv) of an online cell by column; None for a cell without one (batch)."""
-    path = folder / "steps.csv"
-    if not path.is_file():
-        return None
-    data = np.genfromtxt(path, delimiter=",", names=True)
-    return {name: np.atleast_1d(data[name]) for name in data.dtype.names}
-
-
-def _figures(cells: list[FinishedCell], rows: list[TableRow], reference: str, folder: Path) -> list[str]:
-    names = []
-    folder.mkdir(parents=True, exist_ok=True)
-    ref_ate = {
-        (r["dataset"], r["descriptor"], r["parameters"], r["seed"]): r["ate_after_m"]
-        for r in rows
-        if r["method"] == reference
-    }
-    diffs: dict[str, list[float]] = defaultdict(list)
-    for r in rows:
-        ref = ref_ate.get((r["dataset"], r["descriptor"], r["parameters"], r["seed"]))
-        if ref is not None and r["ate_after_m"] is not None and r["method"] != reference:  # else n/a: see notes
-            diffs[r["method"]].append(r["ate_after_m"] - ref)
-    if diffs:
-        absent = {
-            m: "ATE n/a on every cell: see the notes"
-            for m in dict.fromkeys(r["method"] for r in rows)
-            if m != reference and m not in diffs
-        }
-        plot_ate_difference(
-            folder / "ate_difference.png",
-            diffs,
-            title=f"ATE after optimisation minus {reference}",
-            reference=reference,
-            absent=absent,
-        )
-        names.append("ate_difference.png")
-    by_dataset: dict[str, list[FinishedCell]] = defaultdict(list)
-    for c in cells:
-        if c.info["pipeline"] == "online":
-            by_dataset[c.info["dataset"]].append(c)
-    for dataset, group in by_dataset.items():
-        first_seed = min(c.info["seed"] for c in group)
-        memory, graph, loops = {}, {}, {}
-        for c in group:
-            steps = read_steps(c.folder)
-            if steps is None:
-                continue
-            label = c.info["method"] + (f" {c.info['parameters']}" if c.info["parameters"] else "")
-            new_kf = np.diff(steps["keyframes"], prepend=0) > 0
-            graph.setdefault(label, []).append(steps["graph_update_ms"][new_kf])
-            loops.setdefault(label, []).append(steps["loop_detection_ms"][new_kf])
-            if c.info["seed"] == first_seed:
-                memory[label] = (steps["frame"], accounted_bytes(steps), steps["rss_bytes"])
-        if not memory:
-            continue
-        tag = slug(dataset)
-        plot_memory(folder / f"memory_{tag}.png", memory, title=f"{dataset}: memory over time")
-        plot_step_times(
-            folder / f"step_times_{tag}.png",
-            {
-                "incremental PGO (iSAM2) per keyframe step": {k: np.concatenate(v) for k, v in graph.items()},
-                "loop closure detection per keyframe step": {k: np.concatenate(v) for k, v in loops.items()},
-            },
-            title=f"{dataset}: per-step time",
-        )
-        names += [f"memory_{tag}.png", f"step_times_{tag}.png"]
-    sweeps: dict[str, dict[str, dict[str, tuple[list, list]]]] = {}
-    swept_rows = [(c.info, r) for c, r in zip(cells, rows) if c.info.get("swept")]
-    for key in sorted({k for info, _ in swept_rows for k in info["swept"]}):
-        sweeps[key] = {}
-        for title, column in SWEEP_METRICS.items():
-            lines: dict[str, dict[float, list[float]]] = defaultdict(lambda: defaultdict(list))
-            for info, r in swept_rows:
-                if key in info["swept"] and r[column] is not None:
-                    lines[info["dataset"]][float(info["swept"][key])].append(r[column])
-            sweeps[key][title] = {
-                ds: (sorted(pts), [float(np.mean(pts[x])) for x in sorted(pts)]) for ds, pts in lines.items()
-            }
-    if sweeps:
-        plot_sweeps(folder / "distance_bounds.png", sweeps, title="swept parameters (means over seeds)")
-        names.append("distance_bounds.png")
-    return names
-
-
 def write_report(
     results_dir: str | os.PathLike,
     reference: str | None = None,
@@ -386,13 +269,13 @@ def write_report(
     this folder (folder.finished_cells, by a resume), not read again; `rerun`: the lines of the cells this run
     redid because their data or code had changed (identity.outdated_cells), listed in report.md."""
     out = Path(results_dir)
-    grid, expected = _grid_of(out)
+    grid, expected = experiment_grid(out)
     methods = grid.labels()
     if reference is None:
         reference = grid.reference_method()
     elif reference not in methods:
         raise InputError(f"--reference {reference!r}: not a method of this experiment; available: {', '.join(methods)}")
-    cells = _finished(out, expected, finished)
+    cells = finished_list(out, expected, finished)
     rows = make_rows(cells, reference)
     write_text_atomic(out / "results.csv", rows_csv(rows, COLUMNS))
     done = {c.info["id"] for c in cells}
@@ -402,7 +285,7 @@ def write_report(
     shown = rows + [_failed_row(c, out / "errors" / f"{c.id}.txt") for c in failed_cells]
     table = table2_markdown(sorted(shown, key=lambda r: order[r["cell"]]))
     write_text_atomic(out / "results.md", table)
-    figures = _figures(cells, rows, reference, out / "figures") if rows else []
+    figures = write_figures(cells, rows, reference, out / "figures") if rows else []
     damaged = [c.id for c in expected if c.id not in done and c.id not in failed and cell_dir(out, c.id).is_dir()]
     stale = stale_cells(out, expected)
     lines = [

@@ -61,6 +61,12 @@ def cache_root(cache_dir: str | os.PathLike | None = None) -> Path:
     return Path(env) if env else Path.home() / ".cache" / "msa-slam"
 
 
+def pipeline_cache(cache_dir: str | None) -> Path:
+    """Folder of the pipeline's caches: <cache root>/pipeline (root: a config's `cache_dir`, $MSA_SLAM_CACHE
+    or ~/.cache/msa-slam)."""
+    return cache_root(cache_dir) / "pipeline"
+
+
 def _stamp(path: str) -> list[int]:
     """What changes when a file's bytes may have: size, mtime, inode and ctime (a copy or an edit whose mtime was
     restored still gets another ctime, and a copy another inode)."""

@@ -25,7 +25,8 @@ class Odometry(Protocol):
     """What sequence_odometry needs; an odometry may also list `unregistered_frames` (KissOdometry: frames it
     could only extrapolate), which the cache keeps beside the poses."""
 
-    config: Mapping[str, Any]
+    @property
+    def config(self) -> Mapping[str, Any]: ...
 
     def register(
         self, points: np.ndarray, timestamps: np.ndarray | None = None, time: float | None = None
@@ -113,7 +114,7 @@ def sequence_odometry(
 
     `extra_inputs`: files the odometry reads besides the scans (they are part of the cache key). The key is
     made from `odometry.config`, so the odometry comes configured for these scans (KISS-ICP's deskewing off
-    when they have no per-point times: pipeline.frontend.make_odometry); scans without timestamps give the
+    when they have no per-point times: odometry.choice.make_odometry); scans without timestamps give the
     odometry no scan times (see KissOdometry.register). `frames`: the sequence's frames in order when another
     thread reads them ahead (pipeline.read_ahead; iterated only when the poses are computed), else they are read
     here one by one; `label`: the progress bar's.

@@ -56,7 +56,7 @@ class KissOdometry:
     The configuration is built from these arguments only (KISS-ICP's own defaults written out), never from
     `load_config`, which reads `kiss_icp_*` environment variables that would change results unseen.
     Deskewing is off unless asked for here, where the scans are not known yet; the pipelines ask for it when
-    the source's frames carry per-point times, as kiss-icp does (pipeline.frontend.make_odometry); see
+    the source's frames carry per-point times, as kiss-icp does (odometry.choice.make_odometry); see
     `register` for the sweep time convention. The voxel size follows KISS-ICP's rule
     max_range / 100 unless given. `num_threads=1` (default) keeps the ICP reductions in a fixed order, so
     identical runs give identical poses; 0 (KISS-ICP's "all cores") is faster but differs between runs
@@ -160,7 +160,7 @@ class KissOdometry:
             raise InputError(
                 "odometry frame 0: deskew is on but the scan has no per-point times; call "
                 "without_point_times() first for a source without them (the pipelines do for a "
-                "FrameSource with point_times=False, see pipeline.frontend.make_odometry) or give "
+                "FrameSource with point_times=False, see odometry.choice.make_odometry) or give "
                 "deskew=False"
             )
         stamps = None

@@ -340,8 +340,10 @@ def _check_not_a_sampler_param(sampler: str | None, key: str, value: Any, model:
     a value that only the sampler accepts (`mode=fast`) is refused with the spelling that reaches it."""
     if sampler is None or key not in sampler_parameters(sampler):
         return
+    annotation = model.model_fields[key].annotation
+    assert annotation is not None, "every field of a config model is annotated"
     try:
-        TypeAdapter(model.model_fields[key].annotation).validate_python(value)
+        TypeAdapter(annotation).validate_python(value)
         return
     except ValidationError:
         pass

@@ -18,7 +18,6 @@ down ~10x on a busy 2-core machine.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import replace
 from typing import Any, Protocol, TypeVar
 
@@ -27,15 +26,14 @@ from threadpoolctl import threadpool_limits
 from msa_slam.backend import IncrementalPoseGraph, PoseGraph
 from msa_slam.descriptors import Descriptor
 from msa_slam.errors import InputError
-from msa_slam.evaluation.metrics import SweepRow
+from msa_slam.evaluation.metrics import ProtocolRecord
 from msa_slam.pipeline.config import OnlineConfig, RunConfig
-from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, CachedFrontEnd, prepare_frontend
+from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, Sweep, prepare_frontend
 from msa_slam.pipeline.live import LiveFrontEnd, MemoryRecorder
 from msa_slam.registration import make_cloud_store
 from msa_slam.registration.cloud_cache import FrameClouds
 from msa_slam.sampling.msa.warm import load_kernels
 from msa_slam.slam import (
-    ProtocolRecord,
     RunResult,
     SlamBackend,
     build_backend,
@@ -46,7 +44,6 @@ from msa_slam.slam import (
 from msa_slam.sources import open_source
 
 C = TypeVar("C", bound=RunConfig)
-Sweep = Callable[[RunResult, CachedFrontEnd, Any], tuple[SweepRow, ...]]  # (run, its front end, its clouds)
 SWEEP_NOT_RUN = "not run: left out with `--no-sweep` (the demo leaves it out to stay short)"
 RUN_SWEEP_NOT_RUN = "not run (an analysis, not part of the run: pass `--sweep` to add it)"
 
@@ -62,7 +59,7 @@ class FrontEnd(Protocol):
     @property
     def descriptor_shape(self) -> tuple[int, ...]: ...
 
-    def start(self, config: C) -> C:
+    def start(self, config: RunConfig) -> RunConfig:
         """Get ready to feed a run of `config`, refusing what cannot run; `config` as it runs (what config.yaml
         records)."""
 
@@ -95,36 +92,40 @@ def run(
     `sweep_off` as the reason. A cached front end built here first refuses a sampler window the frames read never
     fill (prepare_frontend; `window_fix`: what the error says to change)."""
     online = isinstance(config, OnlineConfig)
-    if source is None:
-        source = (
-            LiveFrontEnd(open_source(config.dataset, config.dataset_kind, config.cache_dir, progress=not quiet))
-            if online
-            else prepare_frontend(config, quiet, window_fix=window_fix)
-        )
-    if online != isinstance(source, LiveFrontEnd):
+    front: FrontEnd
+    if source is not None:
+        front = source
+    elif online:
+        front = LiveFrontEnd(open_source(config.dataset, config.dataset_kind, config.cache_dir, progress=not quiet))
+    else:
+        front = prepare_frontend(config, quiet, window_fix=window_fix)
+    if online != isinstance(front, LiveFrontEnd):
         raise InputError(
-            f"run: {type(config).__name__} {config.name!r} cannot run on a {type(source).__name__}: "
+            f"run: {type(config).__name__} {config.name!r} cannot run on a {type(front).__name__}: "
             "an OnlineConfig runs on the live front end, a RunConfig on the cached one"
         )
-    config = source.start(config)
-    load_kernels(config.sampler, config.sampler_params, source.descriptor_shape)  # not in the back end's timings
+    started = front.start(config)
+    load_kernels(started.sampler, started.sampler_params, front.descriptor_shape)  # not in the back end's timings
     with threadpool_limits(limits=1, user_api="blas"):
-        backend, clouds = _backend(config, source)
-        result = source.stream(backend, quiet)
-        result, record = source.record(result, clouds, sweep, sweep_off)
+        backend, clouds = _backend(started, front)
+        result = front.stream(backend, quiet)
+        result, record = front.record(result, clouds, sweep, sweep_off)
         return replace(result, metrics=measure(result, record))
 
 
 def _backend(config: RunConfig, source: FrontEnd) -> tuple[SlamBackend, Any]:
     """The SLAM core of `config` fed by `source`, and its keyframe cloud store: iSAM2, the config's cloud store and
     the memory recorder for an online run; Levenberg-Marquardt and clouds in RAM for a batch one."""
+    graph: PoseGraph | IncrementalPoseGraph
+    recorder: MemoryRecorder | None = None
+    update_iterations = 0
     if isinstance(config, OnlineConfig):
         clouds = make_cloud_store(config.cloud_store, config.verifier.voxel_size, config.store_dir)
         graph = IncrementalPoseGraph(config.graph, final_iterations=config.update_iterations, mode=config.mode)
-        options = {"update_iterations": config.update_iterations, "recorder": MemoryRecorder(len(source))}
+        update_iterations, recorder = config.update_iterations, MemoryRecorder(len(source))
     else:
         clouds = make_cloud_store("memory", config.verifier.voxel_size)
-        graph, options = PoseGraph(config.graph, mode=config.mode), {}
+        graph = PoseGraph(config.graph, mode=config.mode)
     closer = build_loop_closer(config, source.descriptor, clouds)
     backend = build_backend(
         config,
@@ -133,7 +134,8 @@ def _backend(config: RunConfig, source: FrontEnd) -> tuple[SlamBackend, Any]:
         graph,
         len(source),
         source.name,
+        update_iterations,
+        recorder,
         frame_clouds=source.clouds_for(config),
-        **options,
     )
     return backend, clouds

@@ -15,7 +15,7 @@ import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from pathlib import Path
+from functools import partial
 from typing import Any, TypeVar
 
 import numpy as np
@@ -26,24 +26,35 @@ from msa_slam.descriptors import Descriptor, make_descriptor
 from msa_slam.descriptors.cache import descriptor_key
 from msa_slam.errors import InputError
 from msa_slam.evaluation import StageTimer
-from msa_slam.evaluation.metrics import BATCH, Deskew, JSONValue, ReferencePR, RunSetup, SweepRow, Timing, Unavailable
+from msa_slam.evaluation.metrics import (
+    BATCH,
+    Deskew,
+    ProtocolRecord,
+    ReferencePR,
+    RunSetup,
+    SweepRow,
+    Timing,
+    Unavailable,
+    sampler_realtime_fraction,
+)
 from msa_slam.evaluation.metrics_reader import NO_REASON
 from msa_slam.evaluation.resources import peak_rss_bytes
 from msa_slam.evaluation.sanity import frontend_warnings
-from msa_slam.io.cache import CacheDir, Computed, cache_root
+from msa_slam.io.cache import CacheDir, Computed, pipeline_cache
 from msa_slam.odometry import KissOdometry, PosesFromFile
+from msa_slam.odometry.choice import deskew_choice, deskew_dropped, make_odometry
 from msa_slam.odometry.kiss import NO_POINT_TIMES
-from msa_slam.odometry.kiss import PARAMETERS as KISS_PARAMETERS
 from msa_slam.pipeline.config import RunConfig
 from msa_slam.pipeline.read_ahead import frontend_pass
 from msa_slam.place_recognition import PRCurve, precision_recall
 from msa_slam.place_recognition.metrics import reference_protocol_matches
 from msa_slam.progress import progress_bar
-from msa_slam.registration.cloud_cache import FrameClouds, cloud_key
+from msa_slam.registration.cloud_cache import ComputedClouds, FrameClouds, cloud_key
 from msa_slam.sampling.msa.sampler import warn_short_stream
-from msa_slam.slam import BACKEND_STEPS, ProtocolRecord, RunResult, SlamBackend
+from msa_slam.slam import BACKEND_STEPS, RunResult, SlamBackend
 from msa_slam.slam.backend import MIN_KEYFRAMES
 from msa_slam.slam.loop_closing import protocol
+from msa_slam.slam.result import RunSettings
 from msa_slam.sources import open_sequence
 
 logger = logging.getLogger(__name__)
@@ -120,7 +131,7 @@ class CachedFrontEnd:
                 backend.add_frame(
                     self.odometry[i],
                     self.descriptors[i],
-                    lambda i=i: sequence[i].points,
+                    partial(_points, sequence, i),
                     None if gt is None else gt[i],
                     times[i],
                 )
@@ -128,7 +139,7 @@ class CachedFrontEnd:
         return backend.finish()
 
     def record(
-        self, result: RunResult, clouds: Any, sweep: Callable | None, sweep_off: str
+        self, result: RunResult, clouds: Any, sweep: Sweep | None, sweep_off: str
     ) -> tuple[RunResult, ProtocolRecord]:
         """`result` with the reference protocol's precision-recall, and the batch protocol's record: timing (the
         sampler's share of real time too), the reference protocol's PR-AUC / F1-max and the threshold sweep
@@ -137,17 +148,17 @@ class CachedFrontEnd:
         sims, dists = (
             reference_protocol_matches(self.descriptor, result.keyframes, self.descriptors, gt)
             if gt is not None
-            else ([], [])
+            else (np.zeros(0), np.zeros(0))
         )
         result = replace(
             result,
             descriptors=self.descriptors[: len(result)],
             pr_reference=precision_recall(sims, dists, result.config.loop_radius) if len(sims) else None,
         )
-        reasons = {}
-        fraction, why = sampler_realtime_fraction(result.sampler_stats, result.times, self.sequence.times_known)
-        if why is not None:
-            reasons["sampler_realtime_fraction"] = why
+        reasons: dict[str, str | None] = {}
+        fraction = sampler_realtime_fraction(result.sampler_stats, result.times, self.sequence.times_known)
+        if isinstance(fraction, Unavailable):
+            reasons["sampler_realtime_fraction"] = fraction.reason
         reasons["pr_reference"] = _reference_reason(result.pr_reference, gt is not None)
         peak = peak_rss_bytes()  # the run's, without the sweep's replays
         rows, seconds = _sweep(result, self, clouds, sweep, sweep_off, reasons)
@@ -155,13 +166,22 @@ class CachedFrontEnd:
         return result, ProtocolRecord(
             BATCH,
             tuple(self.warnings),
-            _timing(result, self, fraction, why, seconds),
+            _timing(result, self, fraction, seconds),
             RunSetup(self.deskew, _threads(result.config, self), self.odometry_effective),
             {k: v for k, v in reasons.items() if v is not None},
             reference,
             rows,
             peak_rss_bytes=peak,
         )
+
+
+# The threshold sweep a batch run may add (experiments.sweep.threshold_sweep): (run, its front end, its clouds) -> rows
+Sweep = Callable[[RunResult, CachedFrontEnd, Any], tuple[SweepRow, ...]]
+
+
+def _points(sequence: ScanSequence, i: int) -> np.ndarray:
+    """Frame `i`'s scan, read when the back end stores it."""
+    return sequence[i].points
 
 
 def _odometry_config(config: RunConfig, n_frames: int) -> dict[str, Any]:
@@ -171,76 +191,6 @@ def _odometry_config(config: RunConfig, n_frames: int) -> dict[str, Any]:
         "frames": n_frames,
         "source": config.source.model_dump(),
     }
-
-
-def pipeline_cache(cache_dir: str | None) -> Path:
-    """Folder of the pipeline's caches: <cache root>/pipeline (root: a config's `cache_dir`, $MSA_SLAM_CACHE
-    or ~/.cache/msa-slam)."""
-    return cache_root(cache_dir) / "pipeline"
-
-
-def make_odometry(config: RunConfig, n_frames: int, point_times: bool | None = True):
-    """KISS-ICP with `odometry_params`, or the pose file named by `config.odometry`: one pose a scan of the
-    recording, cut by the same --first/--jump/-n as the scans (a file with one pose a selected scan is
-    taken as it is).
-
-    KISS-ICP deskews when the scans carry per-point times (`point_times` True), as kiss-icp does, unless
-    `odometry.deskew=false`; without them (False), or when the source does not say (None), it does not. A
-    deskew asked for scans without per-point times is switched off here with one warning (deskew_dropped).
-    Decided before any cache key is made, so that cached and fresh runs (batch and online) record and key what
-    is done."""
-    if config.odometry == "kiss":
-        try:  # deskew_choice's default unless odometry_params say (an asked deskew dropped below)
-            odometry = KissOdometry(**{"deskew": deskew_choice(config, point_times)[0], **config.odometry_params})
-        except TypeError as exc:
-            raise InputError(
-                f"odometry kiss: bad parameters {sorted(config.odometry_params)} ({exc}); "
-                f"it takes {', '.join(KISS_PARAMETERS)}"
-            ) from None
-        if deskew_dropped(config, point_times):
-            odometry.without_point_times()
-        return odometry
-    if config.odometry_params:
-        raise InputError(f"odometry from a pose file takes no parameters, got {sorted(config.odometry_params)}")
-    path = Path(config.odometry).expanduser()
-    if not path.is_file():
-        raise InputError(f"odometry {config.odometry!r}: neither 'kiss' nor an existing pose file")
-    odometry = PosesFromFile(path)
-    if len(odometry) == n_frames:
-        return odometry
-    rows = config.source.first + config.source.jump * np.arange(n_frames)
-    if len(odometry) <= rows[-1]:
-        selection = (
-            f" (scans {rows[0]}, {rows[0] + config.source.jump}, ... {rows[-1]} of the recording)"
-            if n_frames > 1
-            else ""
-        )
-        raise InputError(
-            f"odometry pose file {path}: {len(odometry)} poses but the run reads {n_frames} scans"
-            f"{selection}; give one pose a scan of the recording, or one a scan read"
-        )
-    odometry.select(rows)
-    return odometry
-
-
-def deskew_dropped(config: RunConfig, point_times: bool | None) -> bool:
-    """Whether `config` asks KISS-ICP to deskew scans that have no per-point times (`point_times` False), which
-    make_odometry then switches off."""
-    return config.odometry == "kiss" and point_times is False and config.odometry_params.get("deskew") is True
-
-
-def deskew_choice(config: RunConfig, point_times: bool | None) -> tuple[bool | None, str]:
-    """(whether the odometry deskews, why) for scans with per-point times (`point_times` True), without (False)
-    or not known (None); None for an odometry other than KISS-ICP. Off by default without per-point times, as
-    there is nothing to deskew with; an explicit odometry.deskew wins where it can be done."""
-    if config.odometry != "kiss":
-        return None, "odometry is not KISS-ICP"
-    asked = config.odometry_params.get("deskew")
-    if deskew_dropped(config, point_times):
-        return False, "no per-point times (odometry.deskew=true dropped)"
-    if asked is not None:
-        return bool(asked), f"odometry.deskew={str(bool(asked)).lower()}"
-    return (True, "per-point times") if point_times else (False, "no per-point times")
 
 
 def deskew_record(config: RunConfig, point_times: bool | None) -> Deskew:
@@ -281,7 +231,7 @@ def check_window(config: RunConfig, n_frames: int, fix: str = CONFIG_WINDOW_FIX)
     warn_short_stream(n_frames, window, flush=True)
 
 
-def replayed_seconds(stages: dict[str, Computed], timer: StageTimer) -> dict[str, float]:
+def replayed_seconds(stages: Mapping[str, Computed | ComputedClouds], timer: StageTimer) -> dict[str, float]:
     """Stage -> seconds computing it took, for the `stages` replayed from the cache; `timer` counts them too (a
     replayed stage costs what it took when computed: speed figures are those of the whole pipeline)."""
     replayed = {name: float(stage.ms.sum()) / 1e3 for name, stage in stages.items() if stage.cached}
@@ -325,7 +275,7 @@ def prepare_frontend(
     descriptor = make_descriptor(config.descriptor, **params)
     with timer.stage("descriptors"):
         key = descriptor_key(sequence, config.descriptor, config.descriptor_params, cache)
-    pose_file = [] if config.odometry == "kiss" else [odometry.path]
+    pose_file = [odometry.path] if isinstance(odometry, PosesFromFile) else []
     clouds = None
     if config.loop_detector == "scan":  # the local-map detectors store local maps, built from the scans
         with timer.stage("clouds"):
@@ -343,8 +293,8 @@ def prepare_frontend(
         timer,
         clouds,
     )
-    poses, descriptors = stages["odometry"], stages["descriptors"]
-    replayed = replayed_seconds(stages, timer)
+    poses, descriptors = stages.odometry, stages.descriptors
+    replayed = replayed_seconds(stages.by_name(), timer)
     if replayed and not quiet:  # where a computed stage shows its progress
         print(
             "front end replayed from the cache: "
@@ -365,12 +315,12 @@ def prepare_frontend(
         descriptor,
         _odometry_config(config, n),
         timer,
-        {k: v.cached for k, v in stages.items()},
+        {k: v.cached for k, v in stages.by_name().items()},
         odometry_effective=dict(odometry.config),
         warnings=warnings,
         replayed_s=replayed,
         deskew=deskew_record(config, sequence.point_times),
-        clouds=stages["clouds"].values if "clouds" in stages else None,
+        clouds=None if stages.clouds is None else stages.clouds.values,
     )
     frontend.descriptor_settings = (config.descriptor, config.descriptor_params)
     return frontend
@@ -380,25 +330,24 @@ def _sweep(
     result: RunResult,
     frontend: CachedFrontEnd,
     clouds: Any,
-    sweep: Callable | None,
+    sweep: Sweep | None,
     sweep_off: str,
     reasons: dict[str, str | None],
 ) -> tuple[tuple[SweepRow, ...] | Unavailable, float | None]:
     """The threshold sweep's rows and seconds (`sweep`: msa_slam.experiments.sweep.threshold_sweep), or why it did
     not run (also put into `reasons`)."""
-    if result.gt_poses is None:
-        reasons["threshold_sweep"] = "no ground truth: ATE improvement is undefined"
     if sweep is None:
-        reasons["threshold_sweep"] = sweep_off
+        why = sweep_off
     elif protocol(result.config) != "paper":
-        reasons["threshold_sweep"] = (
-            "the verified loop protocol does not use similarity_threshold (its floor: verified_min_similarity)"
-        )
-    elif result.gt_poses is not None:
+        why = "the verified loop protocol does not use similarity_threshold (its floor: verified_min_similarity)"
+    elif result.gt_poses is None:
+        why = "no ground truth: ATE improvement is undefined"
+    else:
         start = time.perf_counter()
         rows = sweep(result, frontend, clouds)
         return rows, round(time.perf_counter() - start, 4)  # not in backend_total
-    return Unavailable(reasons["threshold_sweep"]), None
+    reasons["threshold_sweep"] = why
+    return Unavailable(why), None
 
 
 def _reference(pr: PRCurve | None, reason: str | None, matches: int) -> ReferencePR:
@@ -420,23 +369,8 @@ def _reference_reason(pr: PRCurve | None, ground_truth: bool) -> str | None:
     return pr.unavailable or None
 
 
-def sampler_realtime_fraction(
-    sampler_stats: Mapping[str, JSONValue], times: np.ndarray, times_known: bool
-) -> tuple[float | None, str | None]:
-    """The sampler's window optimisations' total time over the duration of the data it sampled (the frames'
-    first to last timestamp): the share of a real-time budget sampling alone takes. None with the reason when
-    the frames have no timestamps (`times_known` False: their times are frame numbers, 1 frame/s) or span no
-    time."""
-    if not times_known:
-        return None, "the frames have no timestamps, so the data's duration is unknown"
-    span = float(times[-1] - times[0]) if len(times) > 1 else 0.0
-    if not span > 0:
-        return None, "the frames' timestamps span no time"
-    return sampler_stats["optimisation_ms_total"] / 1e3 / span, None
-
-
 def _timing(
-    result: RunResult, frontend: CachedFrontEnd, fraction: float | None, why: str | None, sweep_s: float | None
+    result: RunResult, frontend: CachedFrontEnd, fraction: float | Unavailable, sweep_s: float | None
 ) -> Timing:
     """Seconds per back-end stage (the sweep's last, not in backend_total), the front end's, and the sampler's share
     of real time."""
@@ -453,11 +387,11 @@ def _timing(
         {k: round(v, 4) for k, v in frontend.replayed_s.items()},
         {k: round(v, 4) for k, v in frontend.timer.seconds.items()},
         dict(frontend.cached),
-        Unavailable(why) if fraction is None else fraction,
+        fraction,
     )
 
 
-def _threads(config: RunConfig, frontend: CachedFrontEnd) -> dict[str, int | None]:
+def _threads(config: RunSettings, frontend: CachedFrontEnd) -> dict[str, int | None]:
     return {
         "odometry": frontend.odometry_effective.get("registration", {}).get("max_num_threads"),
         "verification": config.verifier.num_threads,

@@ -27,30 +27,24 @@ import time
 from contextlib import closing
 from dataclasses import replace
 from itertools import islice
-from typing import Protocol
+from typing import Protocol, TypedDict
 
 import numpy as np
 
 from msa_slam.descriptors import make_descriptor
 from msa_slam.errors import InputError
-from msa_slam.evaluation.metrics import ONLINE, Latency, RunSetup, Throughput, Timing
+from msa_slam.evaluation.metrics import ONLINE, Latency, ProtocolRecord, RunSetup, Throughput, Timing
 from msa_slam.evaluation.resources import current_rss_bytes, throughput
 from msa_slam.evaluation.sanity import frontend_warnings
+from msa_slam.io.cache import pipeline_cache
 from msa_slam.odometry import KissOdometry, NoisyOdometry, OdometryCache, ReplayedOdometry
+from msa_slam.odometry.choice import make_odometry
 from msa_slam.odometry.kiss import DEFAULT_THREADS
-from msa_slam.pipeline.config import NO_TIMESTAMPS, NOT_REPRODUCIBLE, OnlineConfig
-from msa_slam.pipeline.frontend import (
-    CONFIG_WINDOW_FIX,
-    check_window,
-    config_as_run,
-    deskew_record,
-    make_odometry,
-    pipeline_cache,
-    source_warnings,
-)
+from msa_slam.pipeline.config import NO_TIMESTAMPS, NOT_REPRODUCIBLE, OnlineConfig, RunConfig
+from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, check_window, config_as_run, deskew_record, source_warnings
 from msa_slam.pipeline.read_ahead import ahead
 from msa_slam.progress import LogProgress, Progress, progress_bar
-from msa_slam.slam import BACKEND_STEPS, ProtocolRecord, RunResult, SlamBackend
+from msa_slam.slam import BACKEND_STEPS, RunResult, SlamBackend
 from msa_slam.sources import open_source
 from msa_slam.types import FrameSource
 from msa_slam.viz.labels import counted as noun_count  # `counted`: the stream's loop tally
@@ -94,13 +88,16 @@ def _percentiles(values: np.ndarray) -> Latency:
     return Latency(round(float(p50), 3), round(float(p95), 3), round(float(p99), 3), round(float(v.max()), 3))
 
 
-def _throughput(result: RunResult, seconds: float, cached: bool, times_known: bool = True) -> Throughput:
+def _throughput(
+    result: RunResult, sensor_rate_hz: float, seconds: float, cached: bool, times_known: bool = True
+) -> Throughput:
     """Throughput over the pipeline's `seconds` (see LiveFrontEnd.stream) and per-step latency (`times_known`
-    False: the frames' times are frame numbers, see frame_rate_hz)."""
-    cfg, mem, n = result.config, result.memory, len(result)
+    False: the frames' times are frame numbers, see frame_rate_hz, which falls back on `sensor_rate_hz`)."""
+    mem, n = result.memory, len(result)
+    assert mem is not None, "the online protocol records the memory series before its throughput"
     backend = _backend_seconds(result)
     graph_steps = result.steps_ms["graph_update"][mem["keyframes"] > np.concatenate([[0], mem["keyframes"][:-1]])]
-    rate, rate_from = frame_rate_hz(float(result.times[0]), float(result.times[-1]), n, cfg.sensor_rate_hz, times_known)
+    rate, rate_from = frame_rate_hz(float(result.times[0]), float(result.times[-1]), n, sensor_rate_hz, times_known)
     fps, realtime_factor = throughput(n, seconds, rate)
     latency = {
         "backend": _percentiles(result.backend_ms),
@@ -177,6 +174,8 @@ def make_online_odometry(config: OnlineConfig, source: FrameSource, n: int):
     do not redo it: a ReplayedOdometry with the time each frame took computed; live otherwise; deskew as in
     the batch pipeline's key: on when the source's frames carry per-point times, see make_odometry)."""
     if config.odometry == "gt-noise":
+        if source.gt_poses is None:  # open_recording refuses this before any work; a source given directly here
+            raise InputError(f"{source.name}: odometry gt-noise perturbs ground truth, which these frames lack")
         try:
             return NoisyOdometry(source.gt_poses[:n], seed=config.seed, **config.odometry_params), False
         except TypeError:
@@ -185,7 +184,7 @@ def make_online_odometry(config: OnlineConfig, source: FrameSource, n: int):
                 "translation_noise, rotation_noise_deg"
             ) from None
     odometry = make_odometry(config, len(source), source.point_times)
-    if config.odometry == "kiss" and source.sequence is not None:
+    if isinstance(odometry, KissOdometry) and source.sequence is not None:
         cache = OdometryCache(pipeline_cache(config.cache_dir))
         entry = cache.load_entry(OdometryCache.key(source.sequence, odometry.config, store=cache.store), len(source))
         if entry is not None:
@@ -220,6 +219,15 @@ def threads_note(threads: int | None) -> list[str]:
     ]
 
 
+class ProgressFigures(TypedDict, total=False):
+    """The fields of online_progress's line (none when quiet)."""
+
+    fps: float
+    rtf: float
+    kf: int
+    loops: int
+
+
 def online_progress(quiet: bool) -> Progress | LogProgress:
     """Progress with frames per second and real-time factor (a bar on a terminal, log lines elsewhere)."""
     return progress_bar(
@@ -250,13 +258,15 @@ class LiveFrontEnd:
     def descriptor_shape(self) -> tuple[int, ...]:
         return self.descriptor.shape
 
-    def clouds_for(self, config: OnlineConfig) -> None:
+    def clouds_for(self, config: RunConfig) -> None:
         """None: each keyframe's cloud is downsampled as its frame arrives."""
         return None
 
-    def start(self, config: OnlineConfig) -> OnlineConfig:
+    def start(self, config: RunConfig) -> OnlineConfig:
         """The run's odometry (KISS-ICP on every core for a live source, replayed from the cache when it has the
-        scans), descriptor and notes; `config` as it runs."""
+        scans), descriptor and notes; `config` as it runs (an OnlineConfig: a batch RunConfig is refused)."""
+        if not isinstance(config, OnlineConfig):
+            raise InputError(f"run: the live front end runs an OnlineConfig, not a {type(config).__name__}")
         source = self.source
         if source.live:  # frames that come once: no replay to keep bit for bit, so every core
             config = with_odometry_threads(config, available_cpus())
@@ -270,13 +280,14 @@ class LiveFrontEnd:
         self.deskew = deskew_record(config, source.point_times)
         config = config_as_run(config, source.point_times)  # what result.config (config.yaml) records
         self.descriptor = make_descriptor(config.descriptor, **config.descriptor_params)
+        self.config = config
         return config
 
     def stream(self, backend: SlamBackend, quiet: bool) -> RunResult:
         """Each frame: odometry, descriptor, the back end (and the viewer), with a progress line of frames per
         second and real-time factor; then finish(). The pipeline's seconds (replayed odometry counted with the time
         it took computed) and the front end's per-frame times are kept for record()."""
-        config, source, odometry, descriptor = backend.settings, self.source, self.odometry, self.descriptor
+        config, source, odometry, descriptor = self.config, self.source, self.odometry, self.descriptor
         n = self.frames
         self.front_ms = front_ms = {s: np.zeros(n, dtype=np.float32) for s in STEPS[:2]}
         times_known = source.times_known
@@ -300,14 +311,15 @@ class LiveFrontEnd:
             credit = 0.0  # s: replayed odometry's time as computed, less the time its replay took
             counted = accepted = 0  # backend.loops only grows: the loops counted so far, and how many were accepted
 
-            def figures(frames: int, last_time: float, keyframes: int, seconds: float) -> dict[str, float]:
+            def figures(frames: int, last_time: float, keyframes: int, seconds: float) -> ProgressFigures:
                 """The progress line's fields after `frames` frames in the pipeline's `seconds`."""
                 nonlocal counted, accepted
                 if quiet:
                     return {}
                 accepted += sum(c.accepted for c in backend.loops[counted:])
                 counted = len(backend.loops)
-                rate = frame_rate_hz(first_time, last_time, frames, config.sensor_rate_hz, times_known)[0]
+                first = last_time if first_time is None else first_time
+                rate = frame_rate_hz(first, last_time, frames, config.sensor_rate_hz, times_known)[0]
                 fps, rtf = throughput(frames, seconds, rate)
                 return {"fps": fps, "rtf": rtf, "kf": keyframes, "loops": accepted}
 
@@ -342,6 +354,7 @@ class LiveFrontEnd:
                 completed=len(result),
                 **figures(len(result), float(result.times[-1]), len(result.keyframes), self.seconds),
             )
+        assert isinstance(backend.recorder, MemoryRecorder), "an online run's back end records memory (driver._backend)"
         self.recorder = backend.recorder
         if self.viewer is not None:
             self.viewer.finish(result)
@@ -352,7 +365,7 @@ class LiveFrontEnd:
     ) -> tuple[RunResult, ProtocolRecord]:
         """`result` with the front end's per-frame times and the memory series, and the online protocol's record:
         notes and the odometry's warnings, timing, threads and throughput (no threshold sweep: a batch analysis)."""
-        config, odometry, m = result.config, self.odometry, len(result)
+        config, odometry, m = self.config, self.odometry, len(result)
         steps_ms = {**{s: v[:m] for s, v in self.front_ms.items()}, **result.steps_ms}
         memory = {k: v[:m] for k, v in self.recorder.memory.items()}
         front = [steps_ms[s] for s in self.front_ms]
@@ -375,6 +388,6 @@ class LiveFrontEnd:
             (*self.notes, *warnings),
             _timing(result, replayed_s),
             RunSetup(self.deskew, threads_used),
-            throughput=_throughput(result, self.seconds, self.cached, self.source.times_known),
+            throughput=_throughput(result, config.sensor_rate_hz, self.seconds, self.cached, self.source.times_known),
             cloud_store=config.cloud_store,
         )

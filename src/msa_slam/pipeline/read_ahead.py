@@ -16,6 +16,7 @@ import queue
 import threading
 import time
 from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass
 from typing import Any, TypeVar
 
 import numpy as np
@@ -28,7 +29,7 @@ from msa_slam.io.cache import CacheDir, Computed
 from msa_slam.odometry import OdometryCache, sequence_odometry
 from msa_slam.odometry.cache import Odometry
 from msa_slam.progress import progress_bar
-from msa_slam.registration.cloud_cache import load_frame_clouds, save_frame_clouds
+from msa_slam.registration.cloud_cache import ComputedClouds, load_frame_clouds, save_frame_clouds
 from msa_slam.registration.clouds import downsample
 
 DEPTH = 4  # frames read ahead: enough to ride out a slow read, a few MB of scans (a 64-beam scan is ~2 MB)
@@ -94,6 +95,21 @@ class ReadAhead:
         return self._clouds, self._cloud_ms
 
 
+@dataclass(frozen=True)
+class FrontEndStages:
+    """The cached front end's stages of every frame, each computed or read from the cache (`cached`) with the time
+    computing it took (`ms`); `clouds` None for the local-map loop detectors, which store local maps instead."""
+
+    odometry: Computed
+    descriptors: Computed
+    clouds: ComputedClouds | None
+
+    def by_name(self) -> dict[str, Computed | ComputedClouds]:
+        """The stages present, by name, in the order the report lists them."""
+        named = {"odometry": self.odometry, "descriptors": self.descriptors, "clouds": self.clouds}
+        return {name: stage for name, stage in named.items() if stage is not None}
+
+
 def frontend_pass(
     sequence: ScanSequence,
     odometry: Odometry,
@@ -105,7 +121,7 @@ def frontend_pass(
     quiet: bool = True,
     timer: StageTimer | None = None,
     clouds: tuple[float, str] | None = None,
-) -> dict[str, Computed]:
+) -> FrontEndStages:
     """The stages `odometry`, `descriptors` (cache key `key`; not cached unless `cache_descriptors`) and, when
     `clouds` is (voxel size, cache key), `clouds` (every frame downsampled: registration.cloud_cache) of every
     frame of `sequence`, each from `cache` when it holds it. The missing ones are computed in one pass over the
@@ -134,16 +150,13 @@ def frontend_pass(
         poses = sequence_odometry(sequence, odometry, OdometryCache(cache), quiet, pose_file, ahead, label)
     if ahead.computes and not ahead.complete:  # the odometry came from the cache: the scans were not read
         _read_through(ahead, quiet, label.removeprefix("odometry and "))
-    stages = {"odometry": poses}
     if descriptors is None:
         computed = ahead.described()
         descriptors = save_descriptors(store, key, computed.values, computed.ms)
-    stages["descriptors"] = descriptors
     if clouds is not None and frame_clouds is None:
         frame_clouds = save_frame_clouds(*ahead.downsampled(), clouds[0], cache, clouds[1])
-    if frame_clouds is not None:
-        stages["clouds"] = frame_clouds
-    for name, stage in stages.items():  # computed by the reader: the time it took
+    stages = FrontEndStages(poses, descriptors, frame_clouds)
+    for name, stage in stages.by_name().items():  # computed by the reader: the time it took
         if name != "odometry" and not stage.cached:
             timer.seconds[name] = timer.seconds.get(name, 0.0) + float(stage.ms.sum()) / 1e3
     return stages

@@ -27,7 +27,7 @@ from msa_slam.evaluation.metrics import (
 from msa_slam.evaluation.run_metrics import RunMetrics
 from msa_slam.io.tables import mib
 from msa_slam.pipeline.config import NO_TIMESTAMPS, NOT_REPRODUCIBLE
-from msa_slam.slam.backend import slam_sampler_params
+from msa_slam.slam.build import slam_sampler_params
 from msa_slam.slam.loop_closing import candidate_rule
 from msa_slam.viz.labels import counted, display_name, sampler_label
 

@@ -20,7 +20,7 @@ import yaml
 import msa_slam
 from msa_slam.evaluation import NA, AlignmentError, align_se3, fmt
 from msa_slam.evaluation.metrics import known
-from msa_slam.evaluation.metrics_json import to_json
+from msa_slam.evaluation.metrics_writer import to_json
 from msa_slam.evaluation.run_metrics import Stamp
 from msa_slam.io.g2o import format_g2o
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder

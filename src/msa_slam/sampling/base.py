@@ -96,7 +96,7 @@ class Sampler(ABC):
     anchor rather than from the previous frame lets slow motion through once it adds up to `min_motion`, and
     a sampler with the gate behaves exactly as the same sampler without it run on the passed frames. It is
     off by default because the reference processes every frame (the parity vectors include frames that moved
-    less than a millimetre); the SLAM pipelines switch it on (slam/backend.py, STANDSTILL_GATE).
+    less than a millimetre); the SLAM pipelines switch it on (slam/build.py, STANDSTILL_GATE).
     """
 
     name: str = "sampler"

@@ -51,25 +51,43 @@ from msa_slam.types import LoopClosure
 
 
 class LoopSettings(Protocol):
-    """The loop-closing fields of the run configuration (msa_slam.pipeline.config.RunConfig)."""
+    """The loop-closing fields of the run configuration (msa_slam.pipeline.config.RunConfig), read-only: a config
+    narrows some of them (`mode` is a Literal there), which a protocol attribute, being writable, would refuse."""
 
-    similarity_threshold: float
-    min_frame_gap: int
-    exclude_recent: int
-    top_k: int
-    mode: str
-    loop_radius: float
-    min_travel_m: float
-    drift_check: str
-    drift_gate: float
-    drift_confidence: float
-    drift_slack_m: float
-    drift_slack_deg: float
-    loop_detector: str
-    loop_protocol: str
-    verified_top_k: int
-    verified_min_similarity: float
-    graph: GraphConfig
+    @property
+    def similarity_threshold(self) -> float: ...
+    @property
+    def min_frame_gap(self) -> int: ...
+    @property
+    def exclude_recent(self) -> int: ...
+    @property
+    def top_k(self) -> int: ...
+    @property
+    def mode(self) -> str: ...
+    @property
+    def loop_radius(self) -> float: ...
+    @property
+    def min_travel_m(self) -> float: ...
+    @property
+    def drift_check(self) -> str: ...
+    @property
+    def drift_gate(self) -> float: ...
+    @property
+    def drift_confidence(self) -> float: ...
+    @property
+    def drift_slack_m(self) -> float: ...
+    @property
+    def drift_slack_deg(self) -> float: ...
+    @property
+    def loop_detector(self) -> str: ...
+    @property
+    def loop_protocol(self) -> str: ...
+    @property
+    def verified_top_k(self) -> int: ...
+    @property
+    def verified_min_similarity(self) -> float: ...
+    @property
+    def graph(self) -> GraphConfig: ...
 
 
 # every reason a registered candidate can be rejected for; "inconsistent": accepted by loop closing, then left out

@@ -1,54 +1,26 @@
 """The one place a run's report (evaluation.metrics.RunMetrics) is built, batch and online alike: the metrics the
 SLAM core measures for both (counts, loops and their accounting, keyframe and full-rate ATE/RPE, PR, accounted
-memory, sampler statistics) joined with what the protocol measured around it (`ProtocolRecord`).
+memory, sampler statistics) joined with what the protocol measured around it (evaluation.metrics.ProtocolRecord).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass, field
-
 from msa_slam.evaluation import peak_rss_bytes
 from msa_slam.evaluation.loops import account_loops
 from msa_slam.evaluation.metrics import (
+    NOTHING_IN_RAM,
     AccountedMemory,
     Loops,
     Memory,
     PlaceRecognition,
-    ReferencePR,
+    ProtocolRecord,
     RunIdentity,
-    RunSetup,
-    SweepRow,
-    Throughput,
-    Timing,
     Unavailable,
 )
-from msa_slam.evaluation.metrics_json import NOT_BATCH, NOTHING_IN_RAM
 from msa_slam.evaluation.metrics_reader import MetricsDocument
 from msa_slam.evaluation.run_metrics import RunMetrics
 from msa_slam.slam.loop_closing import REJECTION_REASONS, loop_summary
 from msa_slam.slam.result import RunResult
-
-_NOT_BATCH = Unavailable(NOT_BATCH)
-
-
-@dataclass(frozen=True)
-class ProtocolRecord:
-    """What a protocol measured around the core: its warnings (listed before the core's), stage times, settings,
-    the reasons it adds to `unavailable` (after the core's) and, batch, the reference PR and the threshold sweep,
-    online, the throughput and the cloud store; `peak_rss_bytes`: the process's peak when the run ended, read before
-    analyses that are no part of it (batch: the sweep; None: read now)."""
-
-    pipeline: str
-    warnings: tuple[str, ...]
-    timing: Timing
-    setup: RunSetup
-    reasons: Mapping[str, str] = field(default_factory=dict)
-    reference: ReferencePR | Unavailable = _NOT_BATCH
-    sweep: tuple[SweepRow, ...] | Unavailable = _NOT_BATCH
-    throughput: Throughput | None = None
-    cloud_store: str | None = None
-    peak_rss_bytes: int | None = None
 
 
 def _no_queries(min_frame_gap: int, exclude_recent: int) -> str:

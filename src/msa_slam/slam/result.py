@@ -29,15 +29,24 @@ class RunSettings(LoopSettings, Protocol):
     """The fields of a run's configuration the core reads (msa_slam.pipeline.config.RunConfig): the loop-closing
     ones and these."""
 
-    dataset: str
-    sampler: str
-    sampler_params: SamplerParams
-    verifier: VerifierConfig
-    descriptor: str
-    descriptor_params: dict[str, Any]
-    sample_on: str
-    flush: bool
-    local_map_m: float
+    @property
+    def dataset(self) -> str: ...
+    @property
+    def sampler(self) -> str: ...
+    @property
+    def sampler_params(self) -> SamplerParams: ...
+    @property
+    def verifier(self) -> VerifierConfig: ...
+    @property
+    def descriptor(self) -> str: ...
+    @property
+    def descriptor_params(self) -> dict[str, Any]: ...
+    @property
+    def sample_on(self) -> str: ...
+    @property
+    def flush(self) -> bool: ...
+    @property
+    def local_map_m(self) -> float: ...
 
     @property
     def name(self) -> str: ...
