@@ -27,7 +27,7 @@ def pytest_configure(config: pytest.Config) -> None:
 
     reporter = config.pluginmanager.get_plugin("terminalreporter")
     if reporter is not None:
-        reporter.write_line("compiling the numba kernels for the workers (a fresh clone's first run: about a minute)")
+        reporter.write_line("compiling the numba kernels once for the workers (on a fresh clone: a minute or two)")
     compile_test_kernels()
 
 

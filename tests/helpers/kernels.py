@@ -2,9 +2,10 @@
 
 numba compiles a kernel on its first call with each argument type and keeps the machine code in its on-disk cache
 (beside the module, or in NUMBA_CACHE_DIR). On a fresh clone that cache is empty, and every worker compiled what
-it called itself: MSA's kernels alone are about a minute of CPU, paid once per worker. Compiled here first, the
+it called itself: MSA's kernels alone are one to two minutes of CPU, paid in each worker. Compiled here first, the
 workers (and the processes the tests start) load them from the cache instead. The compiled code is the same
-either way, so no test sees a difference but its time; with the cache filled, this takes about a second.
+either way, so no test sees a difference but its time; with the cache filled, this takes about two seconds of
+CPU.
 """
 
 from __future__ import annotations
