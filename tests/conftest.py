@@ -17,6 +17,20 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DIR = REPO_ROOT.parent / "shared"
 
 
+@pytest.hookimpl(trylast=True)  # after the terminal reporter is set up
+def pytest_configure(config: pytest.Config) -> None:
+    """Under pytest-xdist (`make test`), compile the numba kernels once in the controller before its workers start,
+    instead of once in each worker on a fresh clone (helpers/kernels.py)."""
+    if hasattr(config, "workerinput") or (config.getoption("numprocesses", 0) or 0) < 2 or config.option.collectonly:
+        return
+    from helpers.kernels import compile_test_kernels
+
+    reporter = config.pluginmanager.get_plugin("terminalreporter")
+    if reporter is not None:
+        reporter.write_line("compiling the numba kernels once for the workers (on a fresh clone: a minute or two)")
+    compile_test_kernels()
+
+
 def shared_path(*parts: str) -> Path:
     """Path inside ../shared; skips the calling test with a clear reason when it is missing."""
     path = SHARED_DIR.joinpath(*parts)

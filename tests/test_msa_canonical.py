@@ -91,7 +91,7 @@ def test_batched_canonical_pi_equals_the_one_subset_definition():
     assert batched.tolist() == one_by_one
     masks = feasible_subsets(dist, dist, 0.0, np.inf)[0]
     masks = masks[[bin(int(k)).count("1") == 5 for k in masks]]
-    value, low, high = fast.information_rows(masks, dist, fast.gram(desc), 0, True)
+    value, low, high = fast.information_rows(masks, dist, fast.gram(desc), 0, True, 2)  # the sampler's types
     np.testing.assert_allclose(value, one_by_one, atol=1e-9)
     assert (low <= value).all() and (value <= high).all() and (high - low < 1e-6).all()
 

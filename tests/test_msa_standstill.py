@@ -33,6 +33,7 @@ from msa_slam.sampling.registry import SAMPLERS
 from msa_slam.slam.build import STANDSTILL_GATE, slam_sampler_params
 
 STANDSTILL = 1000
+REPORTED = 200  # frames of the reported standstill (41 keyframes without the gate)
 JITTER_M, JITTER_MAX_M = 0.01, 0.045  # per axis (sigma) and largest offset: two frames stay < 0.1 m apart
 JITTER_DEG, JITTER_MAX_DEG = 0.03, 0.1
 GATE = dict(STANDSTILL_GATE)
@@ -90,8 +91,8 @@ def test_a_1000_frame_standstill_makes_no_keyframe_with_the_gate():
     stays the only one, flushed or not, and the sampler's accounted bytes do not grow."""
     poses, descriptors = _standstill_stream()
     ungated = make_sampler("msa", window=10)
-    ungated.run(poses, descriptors)
-    assert len(ungated.online_keyframes) > STANDSTILL // 20  # the problem the gate solves
+    ungated.run(poses[:REPORTED], descriptors[:REPORTED])  # the reported stream's length shows it: 1/5 of the cost
+    assert len(ungated.online_keyframes) > REPORTED // 20  # the problem the gate solves
     gated = make_sampler("msa", window=10, **GATE)
     sizes = []
     with pytest.warns(

@@ -410,7 +410,7 @@ def test_batched_terms_equal_the_one_subset_definitions():
     assert batched.tolist() == one_by_one
     masks = feasible_subsets(dist, dist, 0.0, np.inf)[0]
     masks = masks[[bin(int(k)).count("1") == 5 for k in masks]]
-    gram_pi = fast.information_rows(masks, dist, fast.gram(desc), 0)[0]
+    gram_pi = fast.information_rows(masks, dist, fast.gram(desc), 0, False, 2)[0]  # the sampler's argument types
     np.testing.assert_allclose(gram_pi, one_by_one, atol=1e-6)
 
 
