@@ -1,5 +1,5 @@
 """The comparison's tables, figures and report.md (experiments.compare runs it; `msa-slam report` writes the
-report again from the folder, reporting.rereport): one Table-I row per method, the metrics and trajectory
+report again from the folder, experiments.rereport): one Table-I row per method, the metrics and trajectory
 figures, both protocols' precision-recall curves, the threshold sweep and the memory and time definitions."""
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.reporting.report import (
     GT_FILE,
     RPE_STATISTICS,
+    ReportedRun,
     deskew_text,
     replayed_note,
     rpe_segments,
@@ -42,9 +43,12 @@ class SharedFrontEnd(Protocol):
     """The comparison's shared front end as its report describes it (pipeline.frontend.CachedFrontEnd, or
     reporting.stored.StoredFrontend read back from the folder)."""
 
-    name: str
-    timer: StageTimer
-    cached: dict[str, bool]
+    @property
+    def name(self) -> str: ...
+    @property
+    def timer(self) -> StageTimer: ...
+    @property
+    def cached(self) -> dict[str, bool]: ...
 
     def __len__(self) -> int: ...
 
@@ -140,7 +144,7 @@ def table_markdown(rows: Sequence[TableRow], rpe_span: str = "KITTI segments") -
     return "\n".join(lines) + "\n"
 
 
-def _unavailable(results: Sequence[RunResult], *keys: str) -> str:
+def _unavailable(results: Sequence[ReportedRun], *keys: str) -> str:
     """The first reason any method's report gives under `keys` (metrics.json `unavailable`), else ""."""
     return next((r.metrics.reasons[k] for r in results for k in keys if r.metrics.reasons.get(k)), "")
 
@@ -268,7 +272,7 @@ PROCESSES = "processes.json"
 
 def comparison_report(
     fe: SharedFrontEnd,
-    results: Sequence[RunResult],
+    results: Sequence[ReportedRun],
     table: str,
     figures: list[str],
     workers: int,
@@ -348,7 +352,7 @@ def _processes(workers: int) -> str:
     )
 
 
-def _peak_rss(results: Sequence[RunResult], workers: int, main_peak: str | None = None) -> str:
+def _peak_rss(results: Sequence[ReportedRun], workers: int, main_peak: str | None = None) -> str:
     """The peak-RSS line of report.md: of the one process, or of the busiest worker and of the main process
     (`main_peak`, else this process's peak now)."""
     peak = mib(max(r.metrics.memory.peak_rss_bytes for r in results))
@@ -363,7 +367,7 @@ def _peak_rss(results: Sequence[RunResult], workers: int, main_peak: str | None 
     )
 
 
-def _sweep_lines(results: Sequence[RunResult]) -> list[str]:
+def _sweep_lines(results: Sequence[ReportedRun]) -> list[str]:
     sweep = sweep_markdown(results)
     if not sweep:
         reasons = {r.metrics.reasons.get("threshold_sweep") for r in results}

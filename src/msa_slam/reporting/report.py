@@ -36,9 +36,12 @@ class ReportedRun(Protocol):
     """What report.md is made of: a fresh RunResult, or a finished run read back from its folder
     (reporting.stored), so `msa-slam report` rewrites the same text without running anything again."""
 
-    config: Any
-    metrics: RunMetrics
-    gt_poses: np.ndarray | None
+    @property
+    def config(self) -> Any: ...  # a RunConfig, or the config.yaml a stored run recorded
+    @property
+    def metrics(self) -> RunMetrics | None: ...
+    @property
+    def gt_poses(self) -> np.ndarray | None: ...
 
 
 def notes_markdown(metrics: RunMetrics) -> list[str]:

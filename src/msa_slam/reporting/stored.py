@@ -1,5 +1,5 @@
 """Finished results read back from their folders: what their report.md is made of, so `msa-slam report` can
-write it again from the files alone, without running anything (reporting.rereport)."""
+write it again from the files alone, without running anything (experiments.rereport)."""
 
 from __future__ import annotations
 
