@@ -219,9 +219,9 @@ def test_report_relative_memory_ate_difference_and_sweep_figure(tmp_path):
     (tmp_path / "cells" / ".x.partial-1").mkdir()  # ignored
     result = CliRunner().invoke(app, ["report", str(tmp_path)])
     assert result.exit_code == 0, result.output
-    rows = {r["method"]: r for r in make_rows(load_cells(tmp_path))}
-    assert rows["msa lambda_l=0.0"]["memory_vs_reference_pct"] == pytest.approx(50.0)
-    assert rows["msa lambda_l=1.0"]["memory_vs_reference_pct"] == pytest.approx(25.0)
+    rows = {r.method: r for r in make_rows(load_cells(tmp_path))}
+    assert rows["msa lambda_l=0.0"].value("memory_vs_reference_pct") == pytest.approx(50.0)
+    assert rows["msa lambda_l=1.0"].value("memory_vs_reference_pct") == pytest.approx(25.0)
     for name in ("ate_difference.png", "distance_bounds.png"):
         assert (tmp_path / "figures" / name).is_file()
     assert "| msa lambda_l=1.0 | 50 | 55.0 % |" in (tmp_path / "results.md").read_text()
@@ -240,8 +240,8 @@ def test_report_reference_must_be_a_method_of_the_experiment(tmp_path):
     ):
         write_report(tmp_path, "foo")
     assert not (tmp_path / "report.md").exists()
-    rows = {r["method"]: r for r in make_rows(load_cells(tmp_path), "msa lambda_l=0.0")}
-    assert rows["all"]["memory_vs_reference_pct"] == pytest.approx(200.0)
+    rows = {r.method: r for r in make_rows(load_cells(tmp_path), "msa lambda_l=0.0")}
+    assert rows["all"].value("memory_vs_reference_pct") == pytest.approx(200.0)
 
 
 def test_changed_grid_into_same_out_reports_only_its_own_cells(tmp_path):

@@ -83,3 +83,43 @@ def test_a_cycle_is_found_and_type_checking_imports_are_not(tmp_path):
     (package / "a.py").write_text("from msa_slam import b\n")
     with pytest.raises(graphlib.CycleError):
         graphlib.TopologicalSorter(import_graph(package)).prepare()
+
+
+def _package(module: str) -> str:
+    """The top-level package of a module (msa_slam.X for msa_slam.X.y); a top-level module stands for itself."""
+    return ".".join(module.split(".")[:2])
+
+
+def package_graph(graph: dict[str, set[str]]) -> dict[str, set[str]]:
+    """Package -> the other msa_slam packages its modules import at run time."""
+    packages: dict[str, set[str]] = {}
+    for module, imported in graph.items():
+        own = _package(module)
+        packages.setdefault(own, set()).update(p for p in map(_package, imported) if p != own)
+    return packages
+
+
+def test_no_import_cycle_between_msa_slam_packages():
+    """Layers: no package imports one that imports it back, even through modules that form no cycle themselves
+    (reporting/ writing a study's report through experiments/, which writes its runs through reporting/)."""
+    graph = package_graph(import_graph(PACKAGE_DIR))
+    assert "msa_slam.pipeline" in graph["msa_slam.experiments"]  # experiments/ runs the pipeline
+    try:
+        graphlib.TopologicalSorter(graph).prepare()
+    except graphlib.CycleError as exc:
+        pytest.fail(f"import cycle between packages: {' -> '.join(exc.args[1])}")
+
+
+def test_a_cycle_between_packages_is_found(tmp_path):
+    package = tmp_path / "msa_slam"
+    for name in ("a", "b"):
+        (package / name).mkdir(parents=True)
+        (package / name / "__init__.py").write_text("")
+    (package / "__init__.py").write_text("")
+    (package / "a" / "low.py").write_text("")
+    (package / "a" / "high.py").write_text("from msa_slam.b import low\n")
+    (package / "b" / "low.py").write_text("from msa_slam.a import low\n")
+    graph = import_graph(package)
+    graphlib.TopologicalSorter(graph).prepare()  # no cycle between modules
+    with pytest.raises(graphlib.CycleError):
+        graphlib.TopologicalSorter(package_graph(graph)).prepare()

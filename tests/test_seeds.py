@@ -128,14 +128,11 @@ def test_compare_refuses_seeds_on_real_data_before_any_work(tmp_path):
 
 def test_grid_table_reports_the_spread_over_seeds():
     from msa_slam.experiments.report import table2_markdown
+    from msa_slam.experiments.rows import METRICS, CellRow
 
-    def row(method: str, seed: int, impr: float) -> dict:
-        return {
-            "dataset": "sim:test",
-            "descriptor": "scan_context",
-            "parameters": "",
-            "method": method,
-            "seed": seed,
+    def row(method: str, seed: int, impr: float) -> CellRow:
+        values = {
+            **dict.fromkeys(METRICS),
             "keyframes": 10,
             "improvement_t_pct": impr,
             "improvement_r_pct": 1.0,
@@ -143,14 +140,13 @@ def test_grid_table_reports_the_spread_over_seeds():
             "memory_mib": 1.0,
             "memory_vs_reference_pct": 100.0,
             "time_s": 1.0,
-            "fps": None,
-            "backend_p99_ms": None,
-            "unavailable": '{"backend_p99_ms": "not timed", "fps": "not timed"}',
         }
+        reasons = {"backend_p99_ms": "not timed", "fps": "not timed"}
+        return CellRow(f"c{seed}", "batch", "sim:test", "scan_context", method, method, seed, "", values, reasons)
 
     rows = [row("all", s, 10.0 * s) for s in range(3)] + [row("msa", s, 10.0 * s + 5 + 0.1 * s) for s in range(3)]
     text = table2_markdown(rows)
     assert "| msa | 10 ± 0 | 15.1 ± 10.1 % |" in text  # sample std (ddof 1) over the 3 seeds
     assert "Spread over seeds:" in text and "| all | better, beyond the seed spread" in text
-    assert "Spread over seeds:" not in table2_markdown([r for r in rows if r["seed"] == 0])
+    assert "Spread over seeds:" not in table2_markdown([r for r in rows if r.seed == 0])
     assert "- frames/s, back-end p99 n/a (every method and seed): not timed" in text  # n/a with its reason

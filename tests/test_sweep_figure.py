@@ -33,15 +33,11 @@ def test_bounds_are_labelled_in_mean_steps_and_other_parameters_by_name(drawn, t
 
 def test_the_reproduction_passes_the_bounds_by_name_so_the_axis_gives_their_unit():
     from msa_slam.experiments.reproduce import sweep_lines
+    from msa_slam.experiments.rows import CellRow
 
+    values = {"improvement_t_pct": None, "memory_vs_reference_pct": 50.0}
     rows = [
-        {
-            "dataset": "d",
-            "swept": {"lambda_u": u},
-            "improvement_t_pct": None,
-            "f1_max": f,
-            "memory_vs_reference_pct": 50,
-        }
+        CellRow("c", "online", "d", "sc", "msa", "msa", 0, "", {**values, "f1_max": f}, swept={"lambda_u": u})
         for u, f in ((1.0, 0.9), (10.0, 0.8), (10.0, 0.6))
     ]
     (bound,) = sweep_lines(rows)

@@ -23,7 +23,7 @@ def report_command(
     current grid.yaml (cells of an earlier grid are listed and left out); a comparison over seeds also its
     seeds.md, seeds.csv and seeds.json."""
     from msa_slam.cli.experiment import echo_stale
-    from msa_slam.reporting.rereport import rewrite_folder
+    from msa_slam.experiments.rereport import rewrite_folder
 
     report, stale = rewrite_folder(results_dir, reference, EXPECTED)
     echo_stale(stale)

@@ -13,11 +13,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Union
+from typing import TYPE_CHECKING, TypeVar, Union
 
 if TYPE_CHECKING:
     import numpy as np
 
+T = TypeVar("T")
 BATCH = "batch"
 ONLINE = "online"
 
@@ -33,7 +34,7 @@ Value = Union[int, float, Unavailable]
 JSONValue = Union[None, bool, int, float, str, list, Mapping]  # free-form records (sampler counters, configs)
 
 
-def known(value: object) -> object:
+def known(value: T | Unavailable) -> T | None:
     """The value, or None when unavailable: what a table cell or a CSV column holds."""
     return None if isinstance(value, Unavailable) else value
 

@@ -10,6 +10,7 @@ _EXPORTS = {
     **dict.fromkeys(["make_rows", "table2_markdown", "write_report"], "report"),
     **dict.fromkeys(["load_cells"], "folder"),
     **dict.fromkeys(["GridRun", "clean_partials", "is_finished", "run_cell", "run_grid"], "runner"),
+    **dict.fromkeys(["rewrite_folder", "rewrite_report"], "rereport"),
 }
 __all__ = sorted(_EXPORTS)
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

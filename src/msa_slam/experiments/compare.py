@@ -11,7 +11,7 @@ import logging
 import os
 import sys
 import traceback
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import as_completed
 from dataclasses import replace
 from pathlib import Path
@@ -87,7 +87,7 @@ def method_configs(
     (min_motion, min_rotation) are the exception: they go to every method but those the SLAM core leaves ungated
     ("all"), so that all methods are compared on the same frames."""
     data = base.dump()
-    given = base.sampler_params if base.sampler == UNDER_STUDY else {}
+    given: Mapping[str, Any] = base.sampler_params if base.sampler == UNDER_STUDY else {}
     gate = {k: v for k, v in given.items() if k in GATE_PARAMETERS}
 
     def params_of(sampler: str, params: dict[str, Any]) -> dict[str, Any]:
@@ -195,11 +195,11 @@ def _comparison(
     workers = min(workers, len(configs))  # no idle workers
     frontend = prepare_frontend(configs[0], quiet, configs, window_fix)
     results, failed = _run_methods(configs, frontend, tmp / "runs", quiet, sweep, workers, figures)
-    rows = [table_row(r.metrics) for r in results]
+    rows = [table_row(r.measured) for r in results]
     table = table_markdown(rows, rpe_segments(results[0].gt_poses)[0] if results else "KITTI segments")
     (tmp / "comparison.md").write_text(table)
     (tmp / "comparison.csv").write_text(rows_csv(rows, COLUMNS))
-    write_json(tmp / "comparison.json", [to_json(r.metrics) for r in results])
+    write_json(tmp / "comparison.json", [to_json(r.measured) for r in results])
     drawn = write_figures(results, tmp / "figures", failed, figures) if results else []
     main_peak = mib(peak_rss_bytes())
     write_json(tmp / PROCESSES, {"workers": workers, "main_peak_rss": main_peak})

@@ -96,15 +96,15 @@ def estimate_grid(
     unknown = len(cell_s) - len(known)
     if unknown:
         basis += f"; {unknown} cell(s) of unknown length counted as an average one"
-    cell_s = {cid: mean if s is None else s for cid, s in cell_s.items()}
+    filled = {cid: mean if s is None else s for cid, s in cell_s.items()}
     used = 1 if workers is None else max(1, min(workers, len(todo)))
     spread = "on one worker" if workers is None else f"on {used} worker{'s' * (used > 1)}"
     return GridEstimate(
         name,
         len(cells),
         len(finished),
-        cell_s,
-        sum(cell_s.values()) / used,
+        filled,
+        sum(filled.values()) / used,
         f"{basis}; {spread}; start-up and writing results not included",
         shared,
     )

@@ -144,4 +144,6 @@ def read_steps(folder: Path) -> dict[str, np.ndarray] | None:
     if not path.is_file():
         return None
     data = np.genfromtxt(path, delimiter=",", names=True)
-    return {name: np.atleast_1d(data[name]) for name in data.dtype.names}
+    names = data.dtype.names
+    assert names is not None, "genfromtxt names the columns of a file read with names=True"
+    return {name: np.atleast_1d(data[name]) for name in names}

@@ -332,7 +332,7 @@ def expand(grid: GridSpec, where: str = "grid") -> list[Cell]:
                 "run the same cell (a batch run takes its seed from the dataset)"
             )
     keys = list(grid.parameters)
-    cells = []
+    cells: list[Cell] = []
     for dataset, descriptor, (label, sampler, params, swept), values, seed in itertools.product(
         grid.datasets, grid.descriptors, methods, itertools.product(*(grid.parameters[k] for k in keys)), grid.seeds
     ):

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from msa_slam.evaluation.run_metrics import TableRow
 from msa_slam.experiments.folder import FinishedCell, read_steps
 from msa_slam.experiments.grid import slug
+from msa_slam.experiments.rows import CellRow
 from msa_slam.reporting.results import accounted_bytes
 from msa_slam.viz import plot_ate_difference, plot_memory, plot_step_times, plot_sweeps
 
@@ -23,23 +23,21 @@ SWEEP_METRICS = {
 }
 
 
-def write_figures(cells: list[FinishedCell], rows: list[TableRow], reference: str, folder: Path) -> list[str]:
+def write_figures(cells: list[FinishedCell], rows: list[CellRow], reference: str, folder: Path) -> list[str]:
     names = []
     folder.mkdir(parents=True, exist_ok=True)
     ref_ate = {
-        (r["dataset"], r["descriptor"], r["parameters"], r["seed"]): r["ate_after_m"]
-        for r in rows
-        if r["method"] == reference
+        (r.dataset, r.descriptor, r.parameters, r.seed): r.value("ate_after_m") for r in rows if r.method == reference
     }
     diffs: dict[str, list[float]] = defaultdict(list)
     for r in rows:
-        ref = ref_ate.get((r["dataset"], r["descriptor"], r["parameters"], r["seed"]))
-        if ref is not None and r["ate_after_m"] is not None and r["method"] != reference:  # else n/a: see notes
-            diffs[r["method"]].append(r["ate_after_m"] - ref)
+        ref, ate = ref_ate.get((r.dataset, r.descriptor, r.parameters, r.seed)), r.value("ate_after_m")
+        if ref is not None and ate is not None and r.method != reference:  # else n/a: see notes
+            diffs[r.method].append(ate - ref)
     if diffs:
         absent = {
             m: "ATE n/a on every cell: see the notes"
-            for m in dict.fromkeys(r["method"] for r in rows)
+            for m in dict.fromkeys(r.method for r in rows)
             if m != reference and m not in diffs
         }
         plot_ate_difference(
@@ -56,7 +54,9 @@ def write_figures(cells: list[FinishedCell], rows: list[TableRow], reference: st
             by_dataset[c.info["dataset"]].append(c)
     for dataset, group in by_dataset.items():
         first_seed = min(c.info["seed"] for c in group)
-        memory, graph, loops = {}, {}, {}
+        memory: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        graph: dict[str, list[np.ndarray]] = {}
+        loops: dict[str, list[np.ndarray]] = {}
         for c in group:
             steps = read_steps(c.folder)
             if steps is None:
@@ -87,8 +87,8 @@ def write_figures(cells: list[FinishedCell], rows: list[TableRow], reference: st
         for title, column in SWEEP_METRICS.items():
             lines: dict[str, dict[float, list[float]]] = defaultdict(lambda: defaultdict(list))
             for info, r in swept_rows:
-                if key in info["swept"] and r[column] is not None:
-                    lines[info["dataset"]][float(info["swept"][key])].append(r[column])
+                if key in info["swept"] and (x := r.value(column)) is not None:
+                    lines[info["dataset"]][float(info["swept"][key])].append(x)
             sweeps[key][title] = {
                 ds: (sorted(pts), [float(np.mean(pts[x])) for x in sorted(pts)]) for ds, pts in lines.items()
             }

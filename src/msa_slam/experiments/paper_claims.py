@@ -7,16 +7,15 @@ from __future__ import annotations
 from collections import defaultdict
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from msa_slam.evaluation.display import fmt
 from msa_slam.experiments import verdicts as v
 from msa_slam.experiments.paper import column_of
+from msa_slam.experiments.rows import CellRow as Row
 from msa_slam.experiments.seeds import SEED_METRICS
 
-Row = dict[str, Any]
 LIMIT_GIB = 128.0  # the paper's machine: all samples "exceeds system memory of 128GB"
 TARGET_M = 100_000.0  # Sunnyvale's ~100 km
 SOLVE_MS = (5.0, 15.0)  # "the sampling window optimization (N=10) is solved in approximately 5-15 milliseconds"
@@ -43,7 +42,7 @@ def stat(values: Sequence[float], digits: int = 1, unit: str = "") -> str:
 
 def _key(row: Row) -> tuple:
     """Runs that share a world and settings: dataset, descriptor, mode and seed."""
-    return row["dataset"], row["descriptor"], row.get("mode"), row["seed"]
+    return row.dataset, row.descriptor, row.mode, row.seed
 
 
 def paired(
@@ -51,23 +50,19 @@ def paired(
 ) -> tuple[list[float], list[float]]:
     """The `column` values of the runs picked by `a` and by `b`, paired by world (_key); pairs where either
     value is n/a are left out."""
-    left = {_key(r): r[column] for r in rows if a(r) and r[column] is not None}
-    right = {_key(r): r[column] for r in rows if b(r) and r[column] is not None}
+    left = {_key(r): x for r in rows if a(r) and (x := r.value(column)) is not None}
+    right = {_key(r): x for r in rows if b(r) and (x := r.value(column)) is not None}
     keys = sorted((k for k in left if k in right), key=str)
     return [float(left[k]) for k in keys], [float(right[k]) for k in keys]
 
 
 def method(name: str, mode: str | None = None) -> Callable[[Row], bool]:
-    return lambda r: r["method"] == name and (mode is None or r.get("mode") == mode)
+    return lambda r: r.method == name and (mode is None or r.mode == mode)
 
 
 def keeps_accuracy(rows: Sequence[Row], conditions: str) -> Claim:
     msa, full = paired(rows, method("msa", "oracle"), method("all", "oracle"), "improvement_t_pct")
-    ratio = [
-        r["memory_vs_reference_pct"]
-        for r in rows
-        if method("msa", "oracle")(r) and r["memory_vs_reference_pct"] is not None
-    ]
+    ratio = [x for r in rows if method("msa", "oracle")(r) and (x := r.value("memory_vs_reference_pct")) is not None]
     accuracy = v.difference(msa, full)
     verdict = v.combine(v.not_worse(accuracy), v.within(ratio, 40.0, 60.0))
     return Claim(
@@ -80,7 +75,7 @@ def keeps_accuracy(rows: Sequence[Row], conditions: str) -> Claim:
 
 
 def best_sampled(rows: Sequence[Row], conditions: str) -> Claim:
-    baselines = sorted({r["method"] for r in rows} - {"msa", "all"})
+    baselines = sorted({r.method for r in rows} - {"msa", "all"})
     parts, numbers = [], []
     for base in baselines:
         a, b = paired(rows, method("msa", "oracle"), method(base, "oracle"), "improvement_t_pct")
@@ -97,13 +92,11 @@ def best_sampled(rows: Sequence[Row], conditions: str) -> Claim:
 
 def no_universal_constant(rows: Sequence[Row], conditions: str) -> Claim:
     scenarios: dict[str, dict[str, list[float]]] = defaultdict(dict)
-    constants = sorted({r["method"] for r in rows if r["method"].startswith("constant")})
-    for dataset in dict.fromkeys(r["dataset"] for r in rows):
-        on = [r for r in rows if r["dataset"] == dataset and r.get("mode") == "oracle"]
+    constants = sorted({r.method for r in rows if r.method.startswith("constant")})
+    for dataset in dict.fromkeys(r.dataset for r in rows):
+        on = [r for r in rows if r.dataset == dataset and r.mode == "oracle"]
         for c in constants:
-            values = {
-                r["seed"]: r["improvement_t_pct"] for r in on if r["method"] == c and r["improvement_t_pct"] is not None
-            }
+            values = {r.seed: x for r in on if r.method == c and (x := r.value("improvement_t_pct")) is not None}
             if values:
                 scenarios[column_of(dataset)][c] = [values[s] for s in sorted(values)]
     common = {s: cs for s, cs in scenarios.items() if len({len(x) for x in cs.values()}) == 1}
@@ -142,23 +135,25 @@ def emphasis(rows: Sequence[Row], label: str, claim: str, expected: Mapping[str,
 
 
 def bound_sweep(rows: Sequence[Row], bound: str, conditions: str) -> Claim:
-    swept = [r for r in rows if bound in r.get("swept", {})]
-    settings = sorted({float(r["swept"][bound]) for r in swept})
+    swept = [r for r in rows if bound in r.swept]
+    settings = sorted({float(r.swept[bound]) for r in swept})
     claim = f"Accuracy stable, memory sensitive over {bound}"
     if len(settings) < 2:
         return Claim(claim, v.NOT_SEPARABLE, f"fewer than two {bound} settings ran", conditions)
 
     def at(value: float) -> Callable[[Row], bool]:
-        return lambda r: bound in r.get("swept", {}) and float(r["swept"][bound]) == value
+        return lambda r: bound in r.swept and float(r.swept[bound]) == value
 
     means = {
-        s: np.mean(
-            [r["improvement_t_pct"] for r in swept if at(s)(r) and r["improvement_t_pct"] is not None] or [np.nan]
-        )
+        s: np.mean([x for r in swept if at(s)(r) and (x := r.value("improvement_t_pct")) is not None] or [np.nan])
         for s in settings
     }
     known = {s: m for s, m in means.items() if np.isfinite(m)}
-    hi, lo = (max(known, key=known.get), min(known, key=known.get)) if known else (settings[-1], settings[0])
+    hi, lo = (
+        (max(known, key=lambda s: known[s]), min(known, key=lambda s: known[s]))
+        if known
+        else (settings[-1], settings[0])
+    )
     accuracy = v.difference(*paired(swept, at(hi), at(lo), "improvement_t_pct"))
     mem_hi, mem_lo = paired(swept, at(settings[-1]), at(settings[0]), "memory_vs_reference_pct")
     memory = v.difference(mem_hi, mem_lo)

@@ -5,46 +5,40 @@ walks a cell's metrics or files, so that a change of their layout is met here al
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from msa_slam.errors import InputError
-from msa_slam.evaluation.run_metrics import TableRow
 from msa_slam.experiments.folder import FinishedCell, load_cells, read_steps
 from msa_slam.experiments.report import make_rows
+from msa_slam.experiments.rows import CellRow
 from msa_slam.reporting.results import accounted_bytes
 
 
 @dataclass(frozen=True)
 class GridValues:
-    """The finished cells of one grid: make_rows' rows (plus `mode` and `swept`) and the cells themselves."""
+    """The finished cells of one grid: make_rows' rows and the cells themselves."""
 
-    rows: list[TableRow]
+    rows: list[CellRow]
     cells: list[FinishedCell]
 
 
 def grid_values(folder: str | Path, reference: str = "all") -> GridValues:
-    """Rows of every finished cell of the experiment folder `folder`, each with its `mode` (oracle/realistic)
-    and its `swept` values (a sweep's parameter: value)."""
+    """Rows of every finished cell of the experiment folder `folder` (with their `mode` and `swept` values), and the
+    cells."""
     cells = load_cells(folder)
-    rows = make_rows(cells, reference)
-    for row, cell in zip(rows, cells):
-        params = json.loads(row["parameters"]) if row["parameters"] else {}
-        row["mode"] = params.get("mode", cell.metrics.run.mode)
-        row["swept"] = cell.info.get("swept") or {}
-    return GridValues(rows, cells)
+    return GridValues(make_rows(cells, reference), cells)
 
 
 def window_solve_ms(cells: list[FinishedCell], method: str = "msa") -> list[float]:
     """Median time of one window optimisation of each `method` cell (its sampler_stats), in ms."""
     out = []
     for cell in cells:
-        stats = cell.metrics.sampler_stats or {}
-        if cell.info["method"] == method and stats.get("optimisation_ms_median") is not None:
-            out.append(float(stats["optimisation_ms_median"]))
+        median = (cell.metrics.sampler_stats or {}).get("optimisation_ms_median")
+        if cell.info["method"] == method and isinstance(median, (int, float)):
+            out.append(float(median))
     return out
 
 

@@ -29,47 +29,10 @@ from msa_slam.experiments.folder import (
 )
 from msa_slam.experiments.grid import Cell
 from msa_slam.experiments.grid_figures import write_figures
+from msa_slam.experiments.rows import COLUMNS, METRICS, CellRow
 from msa_slam.experiments.seeds import SEED_METRICS, seed_markdown, seed_summary
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.tables import rows_csv
-
-COLUMNS = (
-    "cell",
-    "pipeline",
-    "dataset",
-    "descriptor",
-    "method",
-    "sampler",
-    "seed",
-    "parameters",
-    "frames",
-    "keyframes",
-    "candidates",
-    "verified",
-    "false_loops",
-    "ate_before_m",
-    "ate_after_m",
-    "improvement_t_pct",
-    "improvement_r_pct",
-    "rpe_pct",
-    "rpe_10m_m",
-    "kf_ate_before_m",
-    "kf_ate_after_m",
-    "kf_improvement_t_pct",
-    "pr_auc",
-    "f1_max",
-    "memory_mib",
-    "memory_vs_reference_pct",
-    "bytes_per_keyframe",
-    "time_s",
-    "fps",
-    "backend_fps",
-    "backend_p99_ms",
-    "process_peak_rss_mib",
-    "rss_growth_mib",
-    "rejected",
-    "unavailable",
-)
 
 
 def _group(info: dict[str, Any]) -> tuple:
@@ -77,9 +40,9 @@ def _group(info: dict[str, Any]) -> tuple:
     return info["dataset"], info["descriptor"], json.dumps(info["parameters"], sort_keys=True), info["seed"]
 
 
-def make_rows(cells: list[FinishedCell], reference: str = "all") -> list[TableRow]:
-    """One flat row per cell (COLUMNS); memory relative to the reference method of the same group; `unavailable`:
-    why each n/a column is (the values' own reasons)."""
+def make_rows(cells: list[FinishedCell], reference: str = "all") -> list[CellRow]:
+    """One row per cell (COLUMNS); memory relative to the reference method of the same group; `reasons`: why each
+    n/a column is (the values' own reasons)."""
     ref_memory = {_group(c.info): c.metrics.memory.accounted.total for c in cells if c.info["method"] == reference}
     rows = []
     for c in cells:
@@ -88,19 +51,22 @@ def make_rows(cells: list[FinishedCell], reference: str = "all") -> list[TableRo
             **m.cell_values(),
             "memory_vs_reference_pct": _relative_memory(m, ref_memory.get(_group(info)), reference),
         }
-        row = {
-            "cell": info["id"],
-            "pipeline": info["pipeline"],
-            "dataset": info["dataset"],
-            "descriptor": info["descriptor"],
-            "method": info["method"],
-            "sampler": info["sampler"],
-            "seed": info["seed"],
-            "parameters": _parameters(info["parameters"]),
-            **{column: known(values[column]) for column in COLUMNS[COLUMNS.index("frames") : -1]},
-        }
-        why = {column: value.reason for column, value in values.items() if isinstance(value, Unavailable)}
-        rows.append({**row, "unavailable": json.dumps(why, sort_keys=True) if why else ""})
+        rows.append(
+            CellRow(
+                info["id"],
+                info["pipeline"],
+                info["dataset"],
+                info["descriptor"],
+                info["method"],
+                info["sampler"],
+                info["seed"],
+                _parameters(info["parameters"]),
+                {column: known(values[column]) for column in METRICS},
+                {column: value.reason for column, value in values.items() if isinstance(value, Unavailable)},
+                (info["parameters"] or {}).get("mode", m.run.mode),
+                info.get("swept") or {},
+            )
+        )
     return rows
 
 
@@ -120,39 +86,38 @@ def _parameters(parameters: dict[str, Any]) -> str:
     return json.dumps(parameters, sort_keys=True) if parameters else ""
 
 
-def _failed_row(cell: Cell, error_file: Path) -> TableRow:
+def _failed_row(cell: Cell, error_file: Path) -> CellRow:
     """results.md's row of a cell that failed (its traceback in `error_file`): every value n/a, the error as the
     reason, so that a method whose cells failed is shown, with why, not left out of the table."""
     reason = f"the cell failed with {error_line(error_file)} (traceback in errors/<cell id>.txt)"
-    metrics = COLUMNS[COLUMNS.index("frames") : COLUMNS.index("unavailable")]
-    return {
-        **dict.fromkeys(COLUMNS),
-        "cell": cell.id,
-        "pipeline": cell.pipeline,
-        "dataset": cell.dataset,
-        "descriptor": cell.descriptor,
-        "method": cell.method,
-        "sampler": cell.sampler,
-        "seed": cell.seed,
-        "parameters": _parameters(cell.parameters),
-        "unavailable": json.dumps(dict.fromkeys(metrics, reason), sort_keys=True),
-    }
+    return CellRow(
+        cell.id,
+        cell.pipeline,
+        cell.dataset,
+        cell.descriptor,
+        cell.method,
+        cell.sampler,
+        cell.seed,
+        _parameters(cell.parameters),
+        dict.fromkeys(METRICS),
+        dict.fromkeys(METRICS, reason),
+    )
 
 
-def _seed_lines(methods: dict[str, list[TableRow]]) -> list[str]:
+def _seed_lines(methods: dict[str, list[CellRow]]) -> list[str]:
     """Per-seed ranks and MSA's paired-test verdicts of one section (nothing with a single seed)."""
     by_seed: dict[int, list[TableRow]] = defaultdict(list)
     for rs in methods.values():
         for r in rs:
-            by_seed[r["seed"]].append(r)
+            by_seed[r.seed].append(r.record())
     if len(by_seed) < 2:
         return []
     return ["Spread over seeds:", "", seed_markdown(seed_summary(dict(sorted(by_seed.items())))), ""]
 
 
-def _mean(rows: list[TableRow], key: str) -> tuple[float, float | None] | None:
+def _mean(rows: list[CellRow], key: str) -> tuple[float, float | None] | None:
     """Mean and sample std (None below 2 values) of the available values; None when there are none."""
-    values = [r[key] for r in rows if r[key] is not None]
+    values = [v for v in (r.value(key) for r in rows) if v is not None]
     if not values:
         return None
     return float(np.mean(values)), float(np.std(values, ddof=1)) if len(values) > 1 else None
@@ -164,19 +129,19 @@ def _cell(stat: tuple[float, float | None] | None, spec: str, unit: str = "") ->
     return fmt(stat[0], spec) + (f" ± {fmt(stat[1], spec)}" if stat[1] is not None else "") + unit
 
 
-def _na_notes(methods: dict[str, list[TableRow]], labels: dict[str, str]) -> list[str]:
+def _na_notes(methods: dict[str, list[CellRow]], labels: dict[str, str]) -> list[str]:
     """One line per reason for the section's n/a values among the `labels` columns (column -> label shown),
     naming the columns and who lacks them (with several seeds, on which seeds when not on all of a method's:
     its mean is then over the others)."""
-    ran = {m: {r["seed"] for r in rs} for m, rs in methods.items()}  # the seeds each method has a row on
+    ran = {m: {r.seed for r in rs} for m, rs in methods.items()}  # the seeds each method has a row on
     found: dict[str, dict[str, Any]] = {}  # reason -> {"columns": {...}, "who": {method: {seeds}}}
     for method, rs in methods.items():
         for r in rs:
-            for column, reason in (json.loads(r["unavailable"]) if r["unavailable"] else {}).items():
+            for column, reason in sorted(r.reasons.items()):
                 if column in labels:
                     entry = found.setdefault(reason, {"columns": set(), "who": defaultdict(set)})
                     entry["columns"].add(column)
-                    entry["who"][method].add(r["seed"])
+                    entry["who"][method].add(r.seed)
     several = len(set().union(*ran.values())) > 1
     lines = []
     for reason, entry in found.items():
@@ -203,11 +168,11 @@ def _na_notes(methods: dict[str, list[TableRow]], labels: dict[str, str]) -> lis
     ]
 
 
-def table2_markdown(rows: list[TableRow]) -> str:
+def table2_markdown(rows: list[CellRow]) -> str:
     """The paper's Table II layout, one section per dataset/descriptor (and grid parameters); means over seeds."""
-    sections: dict[tuple, dict[str, list]] = defaultdict(lambda: defaultdict(list))
+    sections: dict[tuple, dict[str, list[CellRow]]] = defaultdict(lambda: defaultdict(list))
     for r in rows:
-        sections[(r["dataset"], r["descriptor"], r["parameters"])][r["method"]].append(r)
+        sections[(r.dataset, r.descriptor, r.parameters)][r.method].append(r)
     shown = {
         "keyframes": "keyframes",
         "improvement_t_pct": "t. ATE impr. (full rate)",
@@ -277,13 +242,13 @@ def write_report(
         raise InputError(f"--reference {reference!r}: not a method of this experiment; available: {', '.join(methods)}")
     cells = finished_list(out, expected, finished)
     rows = make_rows(cells, reference)
-    write_text_atomic(out / "results.csv", rows_csv(rows, COLUMNS))
+    write_text_atomic(out / "results.csv", rows_csv([r.record() for r in rows], COLUMNS))
     done = {c.info["id"] for c in cells}
     failed_cells = [c for c in expected if c.id not in done and (out / "errors" / f"{c.id}.txt").is_file()]
     failed = [c.id for c in failed_cells]
     order = {c.id: i for i, c in enumerate(expected)}
     shown = rows + [_failed_row(c, out / "errors" / f"{c.id}.txt") for c in failed_cells]
-    table = table2_markdown(sorted(shown, key=lambda r: order[r["cell"]]))
+    table = table2_markdown(sorted(shown, key=lambda r: order[r.cell]))
     write_text_atomic(out / "results.md", table)
     figures = write_figures(cells, rows, reference, out / "figures") if rows else []
     damaged = [c.id for c in expected if c.id not in done and c.id not in failed and cell_dir(out, c.id).is_dir()]

@@ -23,6 +23,7 @@ from msa_slam.experiments import reproduce_report as rr
 from msa_slam.experiments.grid import GridSpec, check_datasets, expand
 from msa_slam.experiments.paper import PRESETS, column_of, dataset_name, paper_grids
 from msa_slam.experiments.paper_values import grid_values, window_solve_ms
+from msa_slam.experiments.rows import CellRow
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.outputs import DEFAULT_RESULTS, MARKER, open_result_folder
 from msa_slam.workers import check_workers
@@ -146,8 +147,8 @@ def write_reproduce_report(out: Path, grids: dict[str, GridSpec], stamp: str, fa
             zero_line=list(fig5_panels(t1.values.rows))[:2],
         )
         t1_figs.append("fig5_deviations.png")
-        shown = [d for d in dict.fromkeys(r["dataset"] for r in t1.values.rows) if dataset_name(d) in FIG6_DATASETS]
-        for dataset in shown or [t1.values.rows[0]["dataset"]]:
+        shown = [d for d in dict.fromkeys(r.dataset for r in t1.values.rows) if dataset_name(d) in FIG6_DATASETS]
+        for dataset in shown or [t1.values.rows[0].dataset]:
             found = rr.fig6_panels(t1, dataset)
             if found is not None:
                 name = f"fig6_{dataset_name(dataset)}.png"
@@ -206,7 +207,7 @@ def write_reproduce_report(out: Path, grids: dict[str, GridSpec], stamp: str, fa
     return out / "report.md"
 
 
-def fig5_panels(rows: list[dict]) -> dict[str, dict[str, list[float]]]:
+def fig5_panels(rows: list[CellRow]) -> dict[str, dict[str, list[float]]]:
     """The Fig. 5 panels: each method's t./R. ATE improvement minus all samples' on the same run (dataset, mode,
     seed) in percentage points (a difference of rounding alone is 0.0), and its memory and time."""
     panels: dict[str, dict[str, list[float]]] = {
@@ -215,18 +216,18 @@ def fig5_panels(rows: list[dict]) -> dict[str, dict[str, list[float]]]:
         "memory [MiB]": {},
         "time [s]": {},
     }
-    methods = list(dict.fromkeys(r["method"] for r in rows))
+    methods = list(dict.fromkeys(r.method for r in rows))
     for m in methods:
         for title, column in zip(list(panels)[:2], ("improvement_t_pct", "improvement_r_pct")):
             a, b = pc.paired(rows, pc.method(m), pc.method("all"), column)
             if m != "all":
                 panels[title][m] = [without_rounding(x, y) for x, y in zip(a, b)]
-        panels["memory [MiB]"][m] = [r["memory_mib"] for r in rows if r["method"] == m]
-        panels["time [s]"][m] = [r["time_s"] for r in rows if r["method"] == m and r["time_s"] is not None]
+        panels["memory [MiB]"][m] = [x for r in rows if r.method == m and (x := r.value("memory_mib")) is not None]
+        panels["time [s]"][m] = [x for r in rows if r.method == m and (x := r.value("time_s")) is not None]
     return panels
 
 
-def sweep_lines(rows: list[dict]) -> dict:
+def sweep_lines(rows: list[CellRow]) -> dict:
     """plot_sweeps' input: bound (its axis names the unit) -> metric -> dataset column -> (values, means over seeds)."""
     columns = {
         "t. ATE impr. [%]": "improvement_t_pct",
@@ -234,15 +235,15 @@ def sweep_lines(rows: list[dict]) -> dict:
         "memory vs all [%]": "memory_vs_reference_pct",
     }
     out: dict = {}
-    for bound in sorted({k for r in rows for k in r["swept"]}):
+    for bound in sorted({k for r in rows for k in r.swept}):
         out[bound] = {}
         for title, column in columns.items():
             lines: dict = {}
-            for dataset in dict.fromkeys(r["dataset"] for r in rows):
+            for dataset in dict.fromkeys(r.dataset for r in rows):
                 points: dict[float, list[float]] = {}
                 for r in rows:
-                    if r["dataset"] == dataset and bound in r["swept"] and r[column] is not None:
-                        points.setdefault(float(r["swept"][bound]), []).append(r[column])
+                    if r.dataset == dataset and bound in r.swept and (y := r.value(column)) is not None:
+                        points.setdefault(float(r.swept[bound]), []).append(y)
                 xs = sorted(points)
                 lines[column_of(dataset)] = (xs, [sum(points[x]) / len(points[x]) for x in xs])
             out[bound][title] = lines
@@ -252,8 +253,8 @@ def sweep_lines(rows: list[dict]) -> dict:
 def _brief(run: rr.Run | None, what: str) -> str:
     if run is None:
         return f"{what}: not run"
-    seeds = sorted({r["seed"] for r in run.values.rows})
-    datasets = ", ".join(dict.fromkeys(column_of(r["dataset"]) for r in run.values.rows))
+    seeds = sorted({r.seed for r in run.values.rows})
+    datasets = ", ".join(dict.fromkeys(column_of(r.dataset) for r in run.values.rows))
     return f"{what}; {run.grid.base.get('odometry', 'kiss')} odometry; {datasets}; seeds {', '.join(map(str, seeds))}"
 
 

@@ -17,9 +17,9 @@ from msa_slam.experiments import paper_claims as pc
 from msa_slam.experiments.grid import GridSpec, slug
 from msa_slam.experiments.paper import NOT_REPRODUCED, STAND_INS, column_of, dataset_name
 from msa_slam.experiments.paper_values import GridValues, aligned_paths, memory_over_distance
+from msa_slam.experiments.rows import CellRow
 from msa_slam.experiments.verdicts import extrapolate
 
-Row = dict[str, Any]
 SECTIONS = ("Table I", "Table II", "Ablations", "Distance bounds", "Claims")
 # column -> (label, decimals, unit) of the per-method tables
 ACCURACY = {"improvement_t_pct": ("t. ATE impr.", 1, " %"), "improvement_r_pct": ("R. ATE impr.", 1, " %")}
@@ -58,11 +58,11 @@ def mean_cell(values: Sequence[float | None], digits: int, unit: str = "") -> st
     return f"{fmt(float(np.mean(known)), spec)} ± {fmt(float(np.std(known, ddof=1)), spec)}{unit}"
 
 
-def method_table(rows: Sequence[Row], columns: Mapping[str, tuple[str, int, str]]) -> list[str]:
+def method_table(rows: Sequence[CellRow], columns: Mapping[str, tuple[str, int, str]]) -> list[str]:
     """One line per method (first appearance order): mean ± sample std over its rows of every column."""
-    by_method: dict[str, list[Row]] = defaultdict(list)
+    by_method: dict[str, list[CellRow]] = defaultdict(list)
     for r in rows:
-        by_method[r["method"]].append(r)
+        by_method[r.method].append(r)
     lines = [
         "| method | runs | " + " | ".join(label for label, _, _ in columns.values()) + " |",
         "|" + "---|" * (len(columns) + 2),
@@ -70,7 +70,7 @@ def method_table(rows: Sequence[Row], columns: Mapping[str, tuple[str, int, str]
     for m, rs in by_method.items():
         lines.append(
             f"| {m} | {len(rs)} | "
-            + " | ".join(mean_cell([r[c] for r in rs], d, u) for c, (_, d, u) in columns.items())
+            + " | ".join(mean_cell([r.value(c) for r in rs], d, u) for c, (_, d, u) in columns.items())
             + " |"
         )
     return lines + [""]
@@ -79,9 +79,9 @@ def method_table(rows: Sequence[Row], columns: Mapping[str, tuple[str, int, str]
 def conditions(run: Run, extra: str = "") -> str:
     """The line naming what a table was measured under."""
     rows, base = run.values.rows, run.grid.base
-    seeds = sorted({r["seed"] for r in rows})
-    frames = {column_of(r["dataset"]): r["frames"] for r in rows}
-    modes = sorted({r["mode"] for r in rows})
+    seeds = sorted({r.seed for r in rows})
+    frames = {column_of(r.dataset): r.value("frames") for r in rows}
+    modes = sorted({r.mode for r in rows})
     solver = "LM at the end" if run.grid.pipeline == "batch" else "iSAM2 every frame"
     return (
         f"Conditions: {run.grid.pipeline} protocol ({solver}); "
@@ -100,15 +100,15 @@ def _missing(name: str) -> list[str]:
     return [f"Not run: the grid {name} was left out (--presets) or has no finished cell.", ""]
 
 
-def _by(rows: Sequence[Row], key: Callable[[Row], Any]) -> dict[Any, list[Row]]:
-    out: dict[Any, list[Row]] = defaultdict(list)
+def _by(rows: Sequence[CellRow], key: Callable[[CellRow], Any]) -> dict[Any, list[CellRow]]:
+    out: dict[Any, list[CellRow]] = defaultdict(list)
     for r in rows:
         out[key(r)].append(r)
     return out
 
 
 def stand_in_lines(runs: Mapping[str, Run]) -> list[str]:
-    names = dict.fromkeys(dataset_name(r["dataset"]) for run in runs.values() for r in run.values.rows)
+    names = dict.fromkeys(dataset_name(r.dataset) for run in runs.values() for r in run.values.rows)
     lines = ["| paper column | simulated sequence | why this one |", "|---|---|---|"]
     lines += [f"| {STAND_INS[n].column} | {n} | {STAND_INS[n].why} |" for n in names if n in STAND_INS]
     return lines + ["", "Not reproduced:", "", *(f"- {line}" for line in NOT_REPRODUCED), ""]
@@ -119,14 +119,14 @@ def table1(run: Run | None, figures: list[str]) -> list[str]:
     if run is None or not run.values.rows:
         return lines + _missing("paper-table1")
     lines += [conditions(run, "Scan Context at 0.8, 3 m truth radius, small_gicp verification"), ""]
-    for mode, rows in _by(run.values.rows, lambda r: r["mode"]).items():
+    for mode, rows in _by(run.values.rows, lambda r: r.mode).items():
         lines += [f"### {mode} mode: t. ATE improvement per dataset [%]", ""]
-        datasets = list(dict.fromkeys(r["dataset"] for r in rows))
-        by_method = _by(rows, lambda r: r["method"])
+        datasets = list(dict.fromkeys(r.dataset for r in rows))
+        by_method = _by(rows, lambda r: r.method)
         lines += ["| method | " + " | ".join(column_of(d) for d in datasets) + " |", "|" + "---|" * (len(datasets) + 1)]
         lines += [
             f"| {m} | "
-            + " | ".join(mean_cell([r["improvement_t_pct"] for r in rs if r["dataset"] == d], 1) for d in datasets)
+            + " | ".join(mean_cell([r.value("improvement_t_pct") for r in rs if r.dataset == d], 1) for d in datasets)
             + " |"
             for m, rs in by_method.items()
         ]
@@ -166,7 +166,7 @@ def table2(run: Run | None, figures: list[str], growth: Mapping[str, Mapping[int
     if run is None or not run.values.rows:
         return lines + _missing("paper-table2")
     lines += [conditions(run), ""]
-    for dataset, rows in _by(run.values.rows, lambda r: r["dataset"]).items():
+    for dataset, rows in _by(run.values.rows, lambda r: r.dataset).items():
         lines += [f"### {column_of(dataset)} (`{dataset}`)", "", *method_table(rows, ONLINE)]
     lines += [
         f"Accounted memory extrapolated to {pc.TARGET_M / 1000:.0f} km on the long drive (a straight line "
@@ -184,7 +184,7 @@ def ablations(run: Run | None) -> list[str]:
     if run is None or not run.values.rows:
         return lines + _missing("paper-ablation")
     lines += [conditions(run, "alpha = 10 emphasises pi and beta = 10 rho in the score (alpha + rho)/(beta + pi)"), ""]
-    for dataset, rows in _by(run.values.rows, lambda r: r["dataset"]).items():
+    for dataset, rows in _by(run.values.rows, lambda r: r.dataset).items():
         lines += [f"### {column_of(dataset)}", "", *method_table(rows, ONLINE)]
     return lines
 
@@ -196,7 +196,7 @@ def bounds(run: Run | None, figures: list[str]) -> list[str]:
     swept = "lambda_l swept with lambda_u = 5, lambda_u swept with lambda_l = 0.1 (multiples of the mean step, eq. 7)"
     lines += [conditions(run, swept), ""]
     columns = {k: ONLINE[k] for k in ("improvement_t_pct", "improvement_r_pct", "f1_max", "memory_vs_reference_pct")}
-    for dataset, rows in _by(run.values.rows, lambda r: r["dataset"]).items():
+    for dataset, rows in _by(run.values.rows, lambda r: r.dataset).items():
         lines += [f"### {column_of(dataset)}", "", *method_table(rows, columns)]
     return lines + [f"![{n}](figures/{n})" for n in figures] + [""]
 
@@ -231,13 +231,14 @@ def fig6_panels(run: Run, dataset: str) -> tuple[np.ndarray, list] | None:
         for c in run.values.cells
         if c.info["dataset"] == dataset
         and c.metrics.run.mode == "oracle"
-        and c.info["seed"] == min(r["seed"] for r in run.values.rows)
+        and c.info["seed"] == min(r.seed for r in run.values.rows)
     }
     if "msa" not in cells or "entropy" not in cells:
         return None
-    found = {m: aligned_paths(cells[m]) for m in ("msa", "entropy")}
-    if any(x is None for x in found.values()):
+    msa, entropy = aligned_paths(cells["msa"]), aligned_paths(cells["entropy"])
+    if msa is None or entropy is None:
         return None
+    found = {"msa": msa, "entropy": entropy}
     gt, odometry = found["msa"][0], found["msa"][1]["odometry"]
     panels = [TrajectoryPanel("KISS-ICP odometry", odometry.xy, odometry.errors, keyframes=())]
     for m in ("entropy", "msa"):  # loops given (none drawn): the methods the colour scale and the zoom are about

@@ -98,12 +98,13 @@ def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bo
     process pools can ship it)."""
     from msa_slam.experiments.sweep import threshold_sweep
     from msa_slam.io.tables import write_json
-    from msa_slam.pipeline.config import make_config, make_online_config
+    from msa_slam.pipeline.config import RunConfig, make_config, make_online_config
     from msa_slam.pipeline.driver import run
     from msa_slam.pipeline.live import with_odometry_threads
     from msa_slam.reporting.results import write_run_files
 
     online = info["pipeline"] == "online"
+    cfg: RunConfig
     if online:
         cfg = make_online_config(config)
         if cfg.cloud_store == "disk" and cfg.store_dir is None:  # the store removes it again when it closes
@@ -115,7 +116,7 @@ def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bo
     with staged_dir(cell_dir(out, info["id"])) as tmp:
         write_run_files(result, tmp, figures or not online)
         write_json(tmp / CELL_FILE, info)
-    return result.metrics
+    return result.measured
 
 
 @dataclass

@@ -107,8 +107,8 @@ def seed_summary(rows: Mapping[int, Sequence[TableRow]]) -> SeedSummary:
     """Per metric: each method's values, mean, std and ranks over the seeds (`rows`: seed -> comparison rows),
     and MSA's verdict against each baseline."""
     seeds = list(rows)
-    methods = list(dict.fromkeys(r["method"] for seed_rows in rows.values() for r in seed_rows))
-    per_seed = {s: {r["method"]: r for r in rows[s]} for s in seeds}
+    methods = list(dict.fromkeys(_method(r) for seed_rows in rows.values() for r in seed_rows))
+    per_seed = {s: {_method(r): r for r in rows[s]} for s in seeds}
     metrics: dict[str, SeedMetric] = {}
     for column, (label, higher) in SEED_METRICS.items():
         values = [{m: _value(per_seed[s].get(m), column) for m in methods} for s in seeds]
@@ -122,10 +122,20 @@ def seed_summary(rows: Mapping[int, Sequence[TableRow]]) -> SeedSummary:
     return SeedSummary(seeds, metrics)
 
 
+def _method(row: TableRow) -> str:
+    """The method a comparison's or a grid's row is of."""
+    method = row["method"]
+    assert isinstance(method, str), "a table row names its method"
+    return method
+
+
 def _value(row: TableRow | None, column: str) -> float | None:
     """A method's value in one seed's row; None where the method did not finish on that seed or the value is n/a."""
     value = None if row is None else row.get(column)
-    return None if value is None else float(value)
+    if value is None:
+        return None
+    assert isinstance(value, (int, float)), f"a table row's {column} is a number or n/a"
+    return float(value)
 
 
 def _cell(column: str, spread: Spread) -> str:
@@ -199,7 +209,7 @@ def seed_markdown(summary: SeedSummary) -> str:
 
 def seed_rows(summary: SeedSummary) -> list[TableRow]:
     """seeds.csv rows: one per method and metric (mean, std, per-seed values and ranks, MSA's verdict)."""
-    out = []
+    out: list[TableRow] = []
     for column, entry in summary.metrics.items():
         for method, sp in entry.methods.items():
             verdict = entry.msa_vs.get(method)  # none against itself, nor for a metric without a direction

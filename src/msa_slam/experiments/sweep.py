@@ -10,6 +10,7 @@ not depend on the threshold, so each pair is registered once over the whole swee
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -19,7 +20,7 @@ from msa_slam.evaluation.metrics import SweepRow
 from msa_slam.pipeline.config import RunConfig, make_config
 from msa_slam.pipeline.frontend import CachedFrontEnd
 from msa_slam.sampling.base import Sampler
-from msa_slam.slam import RunResult, build_backend, build_loop_closer
+from msa_slam.slam import LoopCloser, RunResult, build_backend, build_loop_closer
 from msa_slam.types import LoopClosure
 
 SWEEP_OFFSETS = (-0.10, -0.05, 0.0, 0.05)
@@ -51,7 +52,10 @@ class _SharedClouds:
     def __init__(self, clouds: Any) -> None:
         self._clouds = clouds
 
-    def add(self, key: int, points: np.ndarray | None) -> np.ndarray:
+    def add(self, key: int, points: np.ndarray) -> np.ndarray:
+        return self._clouds[key]
+
+    def keep(self, key: int, cloud: np.ndarray) -> np.ndarray:
         return self._clouds[key]
 
     def __getitem__(self, key: int) -> np.ndarray:
@@ -62,18 +66,16 @@ class _SharedClouds:
         return 0
 
 
-class _MemoVerify:
-    """A loop closer whose verification outcomes are shared by pair (query, match) across the sweep."""
+class _MemoVerify(LoopCloser):
+    """`closer`'s loop closing, with verification outcomes shared by pair (query, match) across the sweep."""
 
-    def __init__(self, closer: Any, memo: dict[tuple[int, int], LoopClosure]) -> None:
-        self._closer, self._memo = closer, memo
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._closer, name)
+    def __init__(self, closer: LoopCloser, memo: dict[tuple[int, int], LoopClosure]) -> None:
+        super().__init__(closer.store, closer.verifier, closer.settings, closer.map_closures)
+        self._memo = memo
 
     def verify(self, candidates: list[LoopClosure]) -> list[LoopClosure]:
         new = [c for c in candidates if (c.query, c.match) not in self._memo]
-        for c in self._closer.verify(new) if new else []:
+        for c in super().verify(new) if new else []:
             self._memo[(c.query, c.match)] = c
         return [self._memo[(c.query, c.match)] for c in candidates]
 
@@ -96,9 +98,11 @@ def replay(
         frontend.name,
         local_maps=False,
     )  # local maps: among the shared clouds
-    times = frontend.sequence.times
+    times, gt, shared = frontend.sequence.times, frontend.gt_poses, _SharedClouds(clouds)
     for i in range(len(frontend)):
-        backend.add_frame(frontend.odometry[i], frontend.descriptors[i], None, frontend.gt_poses[i], times[i])
+        # a keyframe's cloud is the run's (the replay's sampler keeps the run's keyframes): no scan is read
+        cloud = partial(shared.__getitem__, i)
+        backend.add_frame(frontend.odometry[i], frontend.descriptors[i], cloud, None if gt is None else gt[i], times[i])
     return backend.finish()
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from msa_slam.evaluation.spread import MIN_SEEDS, PairedVerdict, paired_verdict
 
@@ -110,7 +111,7 @@ def no_universal(scenarios: Mapping[str, Mapping[str, Sequence[float]]]) -> tupl
     return NOT_SEPARABLE, beaten
 
 
-def extrapolate(distance_m: Sequence[float], memory: Sequence[float], target_m: float) -> float:
+def extrapolate(distance_m: ArrayLike, memory: ArrayLike, target_m: float) -> float:
     """The memory at `target_m` of path from its measured growth: a least-squares line through the second half
     of the run (past the warm-up, where growth is steady), evaluated at the target."""
     d, m = np.asarray(distance_m, dtype=float), np.asarray(memory, dtype=float)

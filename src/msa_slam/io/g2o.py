@@ -30,7 +30,7 @@ def _information(noise) -> str:
     return " ".join(f"{info[i, j] + 0.0:.9g}" for i in range(6) for j in range(i, 6))
 
 
-def format_g2o(keys: Sequence[int], poses: np.ndarray, factors: gtsam.NonlinearFactorGraph) -> str:
+def format_g2o(keys: Sequence[int] | np.ndarray, poses: np.ndarray, factors: gtsam.NonlinearFactorGraph) -> str:
     """g2o text: VERTEX_SE3:QUAT per key at `poses`, EDGE_SE3:QUAT per between factor of `factors` (in their
     order), FIX of the first key."""
     lines = [f"VERTEX_SE3:QUAT {int(k)} {_pose_fields(p)}" for k, p in zip(keys, poses)]

@@ -6,7 +6,6 @@ from msa_slam._lazy import lazy_exports
 _EXPORTS = {
     **dict.fromkeys(["write_run", "write_run_files"], "results"),
     "report_markdown": "report",
-    "rewrite_report": "rereport",
 }
 __all__ = sorted(_EXPORTS)
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -1,5 +1,5 @@
 """The comparison's tables, figures and report.md (experiments.compare runs it; `msa-slam report` writes the
-report again from the folder, reporting.rereport): one Table-I row per method, the metrics and trajectory
+report again from the folder, experiments.rereport): one Table-I row per method, the metrics and trajectory
 figures, both protocols' precision-recall curves, the threshold sweep and the memory and time definitions."""
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from msa_slam.place_recognition.figures import plot_pr_curves
 from msa_slam.reporting.report import (
     GT_FILE,
     RPE_STATISTICS,
+    ReportedRun,
     deskew_text,
     replayed_note,
     rpe_segments,
@@ -42,9 +43,12 @@ class SharedFrontEnd(Protocol):
     """The comparison's shared front end as its report describes it (pipeline.frontend.CachedFrontEnd, or
     reporting.stored.StoredFrontend read back from the folder)."""
 
-    name: str
-    timer: StageTimer
-    cached: dict[str, bool]
+    @property
+    def name(self) -> str: ...
+    @property
+    def timer(self) -> StageTimer: ...
+    @property
+    def cached(self) -> dict[str, bool]: ...
 
     def __len__(self) -> int: ...
 
@@ -140,27 +144,27 @@ def table_markdown(rows: Sequence[TableRow], rpe_span: str = "KITTI segments") -
     return "\n".join(lines) + "\n"
 
 
-def _unavailable(results: Sequence[RunResult], *keys: str) -> str:
+def _unavailable(results: Sequence[ReportedRun], *keys: str) -> str:
     """The first reason any method's report gives under `keys` (metrics.json `unavailable`), else ""."""
-    return next((r.metrics.reasons[k] for r in results for k in keys if r.metrics.reasons.get(k)), "")
+    return next((r.measured.reasons[k] for r in results for k in keys if r.measured.reasons.get(k)), "")
 
 
 def method_metrics(results: Sequence[RunResult]) -> list[MethodMetric]:
     """The metrics figure's panels: each method's difference to all samples (the paper's Fig. 5), then the
     absolute ATE with the odometry's (the same for every method) as one line, keyframes and memory."""
-    full = [r.metrics.full_rate for r in results]
+    full = [r.measured.full_rate for r in results]
     why = _unavailable(results, "ate", "full_rate_ate_optimised", "full_rate_ate")  # "no ground truth" first
     ate = [known(f.after.ate_translation_m) for f in full]
-    memory = [r.metrics.memory.total_mib for r in results]
+    memory = [r.measured.memory.total_mib for r in results]
     return [
         MethodMetric("t. ATE", "m", ate, 3, difference=True, why=why),
         MethodMetric("R. ATE", "deg", [known(f.after.ate_rotation_deg) for f in full], 3, difference=True, why=why),
         MethodMetric("memory", "MiB", memory, 2, difference=True),
-        MethodMetric("back-end time", "s", [r.metrics.timing.backend_total for r in results], 2, difference=True),
+        MethodMetric("back-end time", "s", [r.measured.timing.backend_total for r in results], 2, difference=True),
         MethodMetric(
             "t. ATE, every frame", "m", ate, 3, why=why, line=("odometry", known(full[0].before.ate_translation_m))
         ),
-        MethodMetric("keyframes", "", [r.metrics.run.keyframes for r in results], 0),
+        MethodMetric("keyframes", "", [r.measured.run.keyframes for r in results], 0),
         MethodMetric("memory (keyframes + graph)", "MiB", memory, 2),
     ]
 
@@ -182,7 +186,7 @@ def write_figures(
     if not draw:
         return []
     labels = [r.config.name for r in results]
-    sequence = sequence_title(results[0].metrics.run.sequence, results[0].config.source, len(results[0]))
+    sequence = sequence_title(results[0].measured.run.sequence, results[0].config.source, len(results[0]))
     gone = {name: "failed" for name in failed}
     plot_method_metrics(
         folder / "metrics.png",
@@ -206,7 +210,7 @@ def write_figures(
         curves = {r.config.name: c for r in results if (c := _pr(r, protocol)) is not None and c.auc is not None}
         absent = {
             **{
-                r.config.name: r.metrics.reasons.get(key) or "no loop candidates"
+                r.config.name: r.measured.reasons.get(key) or "no loop candidates"
                 for r in results
                 if r.config.name not in curves
             },
@@ -245,18 +249,15 @@ def pr_csv(results: Sequence[RunResult]) -> str:
     return rows_csv(rows, PR_COLUMNS)
 
 
-def sweep_markdown(results: Sequence[RunResult]) -> str:
+def sweep_markdown(results: Sequence[ReportedRun]) -> str:
     """Loops accepted and full-rate t. ATE improvement per method at each threshold of the sweep."""
-    swept = [r for r in results if not isinstance(r.metrics.place_recognition.sweep, Unavailable)]
+    swept = [(r, rows) for r in results if not isinstance(rows := r.measured.place_recognition.sweep, Unavailable)]
     if not swept:
         return ""
-    thresholds = [row.threshold for row in swept[0].metrics.place_recognition.sweep]
+    thresholds = [row.threshold for row in swept[0][1]]
     lines = ["| method | " + " | ".join(f"{t:.2f}" for t in thresholds) + " |", "|" + "---|" * (len(thresholds) + 1)]
-    for r in swept:
-        cells = {
-            row.threshold: f"{row.loops_accepted} / {fmt(row.improvement_t_pct, '.1f', ' %')}"
-            for row in r.metrics.place_recognition.sweep
-        }
+    for r, rows in swept:
+        cells = {row.threshold: f"{row.loops_accepted} / {fmt(row.improvement_t_pct, '.1f', ' %')}" for row in rows}
         lines.append(f"| {r.config.name} | " + " | ".join(cells.get(t, NA) for t in thresholds) + " |")
     return "\n".join(lines) + "\n"
 
@@ -268,7 +269,7 @@ PROCESSES = "processes.json"
 
 def comparison_report(
     fe: SharedFrontEnd,
-    results: Sequence[RunResult],
+    results: Sequence[ReportedRun],
     table: str,
     figures: list[str],
     workers: int,
@@ -286,7 +287,7 @@ def comparison_report(
         f"Odometry `{cfg.odometry}`, descriptor `{cfg.descriptor}`, "
         f"loops: {candidate_rule(cfg)}, {cfg.mode} verification (small_gicp residual < "
         f"{cfg.verifier.max_residual} m), GTSAM Levenberg-Marquardt. Shared front end: {front}"
-        f"{replayed_note(fe.cached)}. {deskew_text(results[0].metrics.setup.deskew)}".rstrip(),
+        f"{replayed_note(fe.cached)}. {deskew_text(results[0].measured.setup.deskew)}".rstrip(),
         "",
         *(
             []
@@ -324,7 +325,7 @@ def comparison_report(
         "",
     ]
     method_notes = [
-        f"- {r.config.name}: {note}" for r in results for note in notes(r.metrics.reasons, r.metrics.warnings)
+        f"- {r.config.name}: {note}" for r in results for note in notes(r.measured.reasons, r.measured.warnings)
     ]
     if method_notes:
         lines += ["Notes (n/a values and warnings):", "", *method_notes, ""]
@@ -348,10 +349,10 @@ def _processes(workers: int) -> str:
     )
 
 
-def _peak_rss(results: Sequence[RunResult], workers: int, main_peak: str | None = None) -> str:
+def _peak_rss(results: Sequence[ReportedRun], workers: int, main_peak: str | None = None) -> str:
     """The peak-RSS line of report.md: of the one process, or of the busiest worker and of the main process
     (`main_peak`, else this process's peak now)."""
-    peak = mib(max(r.metrics.memory.peak_rss_bytes for r in results))
+    peak = mib(max(r.measured.memory.peak_rss_bytes for r in results))
     if workers == 1:
         return (
             f"Process peak RSS: {peak} (whole process: every method and the shared front end; not a per-method figure)."
@@ -363,10 +364,10 @@ def _peak_rss(results: Sequence[RunResult], workers: int, main_peak: str | None 
     )
 
 
-def _sweep_lines(results: Sequence[RunResult]) -> list[str]:
+def _sweep_lines(results: Sequence[ReportedRun]) -> list[str]:
     sweep = sweep_markdown(results)
     if not sweep:
-        reasons = {r.metrics.reasons.get("threshold_sweep") for r in results}
+        reasons = {r.measured.reasons.get("threshold_sweep") for r in results}
         if reasons == {SWEEP_NOT_RUN}:
             return [f"Threshold sensitivity: {SWEEP_NOT_RUN}.", ""]
         return []  # why is in each method's notes

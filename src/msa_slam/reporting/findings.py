@@ -24,10 +24,10 @@ def findings(folder: Path) -> list[str]:
     metrics = listed_methods(folder)
     rows = [table_row(m) for m in metrics]
     frames = metrics[0].run.frames
-    baseline = next((r["memory_mib"] for r in rows if r["method"] == BASELINE), None)
-    width = max(len(r["method"]) for r in rows)
+    baseline = next((m.memory.total_mib for m in metrics if m.method == BASELINE), None)
+    width = max(len(m.method) for m in metrics)
     lines = [f"What the comparison found ({metrics[0].run.dataset}, {frames} frames):"]
-    lines += [f"  {r['method']:<{width}}  " + _method_line(r, frames, baseline) for r in rows]
+    lines += [f"  {m.method:<{width}}  " + _method_line(r, frames, baseline) for m, r in zip(metrics, rows)]
     lines.append(
         f"Whether these differences are beyond the seed-to-seed spread cannot be told from this run: it "
         f"simulated 1 world seed and the paired test needs at least {MIN_SEEDS}; "

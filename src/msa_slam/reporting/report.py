@@ -3,19 +3,21 @@ memory and time, the figures."""
 
 from __future__ import annotations
 
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 from typing import Any, Protocol
 
 import numpy as np
 
 import msa_slam
 from msa_slam.datasets.options import SourceOptions
+from msa_slam.errors import InputError
 from msa_slam.evaluation import KITTI_LENGTHS_M, NA, PROCESS_RSS_LABEL, fmt, notes, segment_errors
 from msa_slam.evaluation.full_rate import RPE_10M_EVO, STEP_FRAMES, path_length
 from msa_slam.evaluation.loops import FALSE_LOOP_ANGLE_DEG
 from msa_slam.evaluation.metrics import (
     Deskew,
     FullRateTrajectory,
+    JSONValue,
     LoopCounts,
     Memory,
     ReferencePR,
@@ -36,9 +38,12 @@ class ReportedRun(Protocol):
     """What report.md is made of: a fresh RunResult, or a finished run read back from its folder
     (reporting.stored), so `msa-slam report` rewrites the same text without running anything again."""
 
-    config: Any
-    metrics: RunMetrics
-    gt_poses: np.ndarray | None
+    @property
+    def config(self) -> Any: ...  # a RunConfig, or the config.yaml a stored run recorded
+    @property
+    def measured(self) -> RunMetrics: ...  # the run's report
+    @property
+    def gt_poses(self) -> np.ndarray | None: ...
 
 
 def notes_markdown(metrics: RunMetrics) -> list[str]:
@@ -162,8 +167,11 @@ def _rss_growth(memory: Memory) -> str:
 
 
 def _batch_lines(result: ReportedRun) -> list[str]:
-    m = result.metrics
+    m = result.measured
     pr, timing = m.place_recognition, m.timing
+    frontend_s, cached = timing.frontend_s, timing.frontend_cached
+    if frontend_s is None or cached is None:
+        raise ValueError(f"{m.run.sequence}: a batch run's report lacks its front end's timing")
     ref = pr.reference
     auc, f1 = (ref.pr_auc, ref.f1_max) if isinstance(ref, ReferencePR) else (ref, ref)
     return [
@@ -177,18 +185,26 @@ def _batch_lines(result: ReportedRun) -> list[str]:
         f"{PROCESS_RSS_LABEL}: {mib(m.memory.peak_rss_bytes)}; {_rss_growth(m.memory)}",
         "",
         f"Sampler time over the data's duration: {fmt(timing.sampler_realtime_fraction, '.4f')} "
-        f"({m.sampler_stats['optimisation_ms_total'] / 1e3:.2f} s of window optimisation).",
+        f"({_number(m.sampler_stats, 'optimisation_ms_total') / 1e3:.2f} s of window optimisation).",
         "",
         "Stage times [s]: "
         + ", ".join(
-            f"{k} {v:.2f}" for k, v in {**timing.frontend_s, **timing.stages}.items() if v is not None
+            f"{k} {v:.2f}" for k, v in {**frontend_s, **timing.stages}.items() if v is not None
         )  # threshold_sweep: None when not run
-        + replayed_note(timing.frontend_cached),
+        + replayed_note(cached),
         "",
     ]
 
 
-def replayed_note(cached: dict[str, bool]) -> str:
+def _number(stats: Mapping[str, JSONValue], key: str) -> float:
+    """A sampler statistic report.md shows, which must be a number (sampler_stats is free-form JSON)."""
+    value = stats[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InputError(f"metrics.json sampler_stats.{key}: expected a number, got {value!r}")
+    return value
+
+
+def replayed_note(cached: Mapping[str, bool]) -> str:
     """What a time line adds for the stages (`cached`: stage -> read from the cache) that were replayed: their
     time is the one they took when computed (metrics.json `replayed_time_s`)."""
     stages = [stage for stage, hit in cached.items() if hit]
@@ -216,8 +232,10 @@ def _rate_source(frame_rate_from: str) -> str:
 
 
 def _online_lines(result: ReportedRun) -> list[str]:
-    m = result.metrics
+    m = result.measured
     th, memory = m.throughput, m.memory
+    if th is None:
+        raise ValueError(f"{m.run.sequence}: an online run's report lacks its throughput")
     return [
         "| PR-AUC / F1-max | memory (keyframes + graph) | bytes / keyframe | frames/s | back-end frames/s | "
         "real-time factor | back-end p99 [ms] |",
@@ -283,6 +301,8 @@ def standstill_note(cfg: Any, m: RunMetrics) -> str:
         return ""
     turned = f" and turned < {rotation:g} deg" if rotation > 0 else ""
     held = m.sampler_stats.get("standstill_frames")  # counted by samplers with the gate
+    if held is not None and (isinstance(held, bool) or not isinstance(held, int)):
+        raise InputError(f"metrics.json sampler_stats.standstill_frames: expected an integer, got {held!r}")
     return (
         f" Standstill gate: a frame that moved < {motion:g} m{turned} since the last frame passed on is no "
         f"keyframe candidate" + ("" if held is None else f" ({counted(held, 'frame')} held back)") + "."
@@ -323,7 +343,7 @@ def report_markdown(result: ReportedRun, figures: list[str], files: Collection[s
     """The run's report.md text; `figures` are file names under figures/, `files` the relative paths of the
     files and folders in the result folder (only those are listed or named: which files a run writes depends
     on what it produced)."""
-    m, cfg, run = result.metrics, result.config, result.metrics.run
+    m, cfg, run = result.measured, result.config, result.measured.run
     online = m.online
     kt = m.keyframe_trajectory
     b, a, imp = kt.before, kt.after, kt.improvement

@@ -68,7 +68,7 @@ def frames_csv(result: RunResult) -> str:
         else:
             row += [f"{v:.6f}" for v in result.optimised[k, :3, 3]]
             row += [
-                NA if result.ate_errors[e] is None else f"{result.ate_errors[e][k]:.6f}"
+                NA if (errors := result.ate_errors[e]) is None else f"{errors[k]:.6f}"
                 for e in ("odometry", "optimised")
             ]
         writer.writerow(row)
@@ -139,8 +139,9 @@ def write_trajectory_files(folder: Path, result: RunResult) -> None:
         ("odometry_keyframes", result.odometry[kf], times[kf]),
         ("odometry", result.odometry, times),
     ]
-    if has_ground_truth(result):
-        trajectories += [("gt_keyframes", result.gt_poses[kf], times[kf]), ("gt", result.gt_poses, times)]
+    gt = result.gt_poses
+    if gt is not None and has_ground_truth(result):
+        trajectories += [("gt_keyframes", gt[kf], times[kf]), ("gt", gt, times)]
     for name, poses, stamps in trajectories:
         write_poses(folder / f"{name}.kitti", poses, "kitti")
         write_poses(folder / f"{name}.tum", poses, "tum", stamps)
@@ -160,6 +161,8 @@ def pose_graph_g2o(result: RunResult) -> str:
 def pr_csv(result: RunResult) -> str:
     """The PR curve's arrays: one row per similarity threshold (precision, recall, F1)."""
     pr = result.pr
+    if pr is None:
+        raise ValueError(f"{result.name}: the run has no PR curve to write")
     rows = [
         {"threshold": f"{t:.2f}", "precision": f"{p:.6f}", "recall": f"{r:.6f}", "f1": f"{f:.6f}"}
         for t, p, r, f in zip(pr.thresholds, pr.precision, pr.recall, pr.f1)
@@ -203,7 +206,7 @@ def trajectory_panel(
 def trajectory_panels(result: RunResult) -> tuple[TrajectoryPanel, TrajectoryPanel]:
     """Odometry and optimised keyframe trajectories (SE(3)-aligned to GT); the loops on the optimised one (the
     odometry knows none, and compare draws one odometry panel beside every method's)."""
-    kf, m = result.keyframes, result.metrics
+    kf, m = result.keyframes, result.measured
     gt, loops = None if result.gt_poses is None else result.gt_poses[kf], loop_edges(result)
     optimiser = "iSAM2" if m.online else "optimised"
     ate = m.keyframe_trajectory
@@ -247,7 +250,7 @@ def folder_files(folder: Path) -> set[str]:
 
 def _write_figures(result: RunResult, folder: Path) -> list[str]:
     folder.mkdir()
-    m, cfg = result.metrics, result.config
+    m, cfg = result.measured, result.config
     online = " online" if m.online else ""
     sequence = sequence_title(m.run.sequence, cfg.source, len(result))
     # a labelled run (compare's "constant-2m") says its parameters in its label
@@ -285,7 +288,7 @@ def write_run_files(result: RunResult, folder: Path, figures: bool = True) -> No
     """Write all outputs of `result` into an existing (temporary) folder."""
     (folder / "config.yaml").write_text(yaml.safe_dump(result.config.dump(), sort_keys=False))
     stamp = Stamp(msa_slam.__version__, tuple(int(k) for k in result.keyframes))
-    write_json(folder / "metrics.json", to_json(replace(result.metrics, stamp=stamp)))
+    write_json(folder / "metrics.json", to_json(replace(result.measured, stamp=stamp)))
     write_json(folder / "provenance.json", provenance())
     (folder / "frames.csv").write_text(frames_csv(result))
     (folder / "loops.csv").write_text(loops_csv(result))

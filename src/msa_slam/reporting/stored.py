@@ -1,5 +1,5 @@
 """Finished results read back from their folders: what their report.md is made of, so `msa-slam report` can
-write it again from the files alone, without running anything (reporting.rereport)."""
+write it again from the files alone, without running anything (experiments.rereport)."""
 
 from __future__ import annotations
 
@@ -29,6 +29,11 @@ class StoredRun:
     config: Any
     metrics: RunMetrics
     gt_poses: np.ndarray | None
+
+    @property
+    def measured(self) -> RunMetrics:
+        """The run's report (reporting.report.ReportedRun: a fresh RunResult's, once measured, or this one)."""
+        return self.metrics
 
 
 @dataclass
@@ -97,9 +102,12 @@ def read_comparison(folder: Path) -> tuple[StoredFrontend, list[StoredRun]]:
         )
     runs = [read_run(folder / "runs" / m.method) for m in listed]
     first = runs[0].metrics
+    frontend_s, cached = first.timing.frontend_s, first.timing.frontend_cached
+    if frontend_s is None or cached is None:
+        raise InputError(f"{folder}: its methods' metrics.json lack the front end's timing (not a comparison's runs)")
     timer = StageTimer()
-    timer.seconds = dict(first.timing.frontend_s)
-    return StoredFrontend(first.run.sequence, first.run.frames, timer, dict(first.timing.frontend_cached)), runs
+    timer.seconds = dict(frontend_s)
+    return StoredFrontend(first.run.sequence, first.run.frames, timer, dict(cached)), runs
 
 
 def failed_methods(folder: Path, order: Sequence[str] = ()) -> dict[str, str]:

@@ -14,6 +14,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from msa_slam.datasets.options import SourceOptions
 from msa_slam.evaluation import TrajectoryEvaluation, evaluate_full_rate, full_rate_poses
 from msa_slam.evaluation.full_rate import FullRateEvaluation
 from msa_slam.evaluation.metrics import JSONValue
@@ -27,7 +28,7 @@ from msa_slam.types import LoopClosure
 
 class RunSettings(LoopSettings, Protocol):
     """The fields of a run's configuration the core reads (msa_slam.pipeline.config.RunConfig): the loop-closing
-    ones and these."""
+    ones and these, and what its result's readers need to record and describe it (label, odometry, source, dump)."""
 
     @property
     def dataset(self) -> str: ...
@@ -50,6 +51,13 @@ class RunSettings(LoopSettings, Protocol):
 
     @property
     def name(self) -> str: ...
+    @property
+    def label(self) -> str | None: ...  # the run's own name, when given
+    @property
+    def odometry(self) -> str: ...  # "kiss" or a pose file
+    @property
+    def source(self) -> SourceOptions: ...  # the scans read (first, jump, max_frames)
+    def dump(self) -> dict[str, Any]: ...  # the whole configuration, as config.yaml records it
 
 
 @dataclass(frozen=True)
@@ -81,6 +89,13 @@ class RunResult:
     graph_factors: Any = None  # the pose graph's factors (gtsam.NonlinearFactorGraph), for pose_graph.g2o
     rss_growth_bytes: int = 0  # process RSS after the final optimisation minus at the back-end's start
     graph_info: Mapping[str, JSONValue] = field(default_factory=dict)  # how loops entered the graph (Graph.describe)
+
+    @property
+    def measured(self) -> RunMetrics:
+        """The run's report: only a run that pipeline.driver.run measured has one (not the back end's own)."""
+        if self.metrics is None:
+            raise ValueError(f"{self.name}: the run has no report yet (pipeline.driver.run measures it)")
+        return self.metrics
 
     @property
     def accepted_loops(self) -> list[LoopClosure]:

@@ -1,19 +1,27 @@
-"""`msa-slam report DIR` on the folders of `run`, `online` and `compare` (`demo` writes a comparison, `compare
---seeds` one per seed and the spread over them): every report.md the command wrote (a comparison's, each of its
-methods', the spread's) written again from the files in the folder, as the command wrote it, without running
-anything. Each file is replaced atomically, and only when it is msa-slam's as it wrote it (or missing): a file
-someone added or edited is never replaced. Figures are not redrawn: they need the runs' trajectories and loops as
-the pipeline held them, which the folder keeps only in part.
+"""`msa-slam report DIR` on any result folder: a study's (experiment, reproduce) is rewritten by its own module;
+the folders of `run`, `online` and `compare` (`demo` writes a comparison, `compare --seeds` one per seed and the
+spread over them) have every report.md the command wrote (a comparison's, each of its methods', the spread's)
+written again from the files in the folder, as the command wrote it, without running anything. Each file is
+replaced atomically, and only when it is msa-slam's as it wrote it (or missing): a file someone added or edited is
+never replaced. Figures are not redrawn: they need the runs' trajectories and loops as the pipeline held them,
+which the folder keeps only in part.
 
-A comparison over seeds and the studies' folders (experiment, reproduce) are laid out by experiments/, which sits
-above reporting/ (it writes its runs through reporting/): their modules are imported inside the functions that
-read such a folder, the only imports of reporting/ from above."""
+It lives in experiments/, the top of the library's layers, because it must know every folder's layout: the
+studies' and a comparison over seeds (experiments/), and a run's and a comparison's reports (reporting/, which
+imports nothing above it)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 from msa_slam.errors import InputError
+from msa_slam.experiments.compare import PAPER_METHODS, write_spread
+from msa_slam.experiments.folder import CELL_FILE, grid_cells, stale_cells
+from msa_slam.experiments.folder import KIND as EXPERIMENT_KIND
+from msa_slam.experiments.report import write_report
+from msa_slam.experiments.reproduce import rewrite_reproduce_report
+from msa_slam.experiments.runner import DEFAULT_PARENT
+from msa_slam.experiments.seed_folder import RECORD, SEEDS, finished_metrics, left_out_seeds, seed_dir
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.marker import edited_files, foreign_files, recorded_digests, result_kind, write_marker
 from msa_slam.io.outputs import MARKER, OutputError, open_result_folder, some_names
@@ -43,8 +51,7 @@ def rewrite_folder(
     and, for an experiment, the cells of an earlier grid its aggregates leave out. `reference`: an experiment's
     method the differences compare to; `expected`: what the error names as a result folder.
 
-    The studies' folders (experiment, reproduce) are rewritten by their own modules, imported here when asked
-    for: they sit above reporting/, whose run and comparison reports they use."""
+    The studies' folders (experiment, reproduce) are rewritten by their own modules."""
     kind = result_kind(folder)
     if kind is None:
         outer = next((p for p in Path(folder).absolute().parents if result_kind(p) is not None), None)
@@ -53,13 +60,9 @@ def rewrite_folder(
             f"{folder}: not a msa-slam result folder (no {MARKER} written by msa-slam){inside}; "
             f"expected {expected}; nothing written"
         )
-    from msa_slam.experiments.folder import KIND as EXPERIMENT
-
-    if kind == EXPERIMENT:
+    if kind == EXPERIMENT_KIND:
         return _experiment_report(folder, reference)
     if kind == "reproduce":
-        from msa_slam.experiments.reproduce import rewrite_reproduce_report
-
         if reference is not None:
             raise InputError(
                 f"--reference: only for an experiment's folder; {folder} is a result of "
@@ -77,11 +80,7 @@ def rewrite_folder(
 
 def _experiment_report(folder: Path, reference: str | None) -> tuple[Path, list[str]]:
     """results.csv, results.md, figures and report.md of an experiment folder, and its stale cells."""
-    from msa_slam.experiments.folder import CELL_FILE, KIND, grid_cells, stale_cells
-    from msa_slam.experiments.report import write_report
-    from msa_slam.experiments.runner import DEFAULT_PARENT
-
-    with open_result_folder(folder, kind=KIND, default_parent=DEFAULT_PARENT, resume=True) as result:
+    with open_result_folder(folder, kind=EXPERIMENT_KIND, default_parent=DEFAULT_PARENT, resume=True) as result:
         result.prepare_in_place(grows=("cells",), unit_record=CELL_FILE)
         report = write_report(folder, reference)
         result.record_files()
@@ -92,8 +91,6 @@ def _experiment_report(folder: Path, reference: str | None) -> tuple[Path, list[
 def rewrite_report(folder: Path, kind: str) -> Path:
     """Write the reports of the result `folder` of `kind` (one of KINDS) again, under the folder's lock (a run
     writing it meanwhile is refused); return its report.md."""
-    from msa_slam.experiments.seed_folder import SEEDS
-
     with open_result_folder(folder, kind, Path(folder).parent, resume=True) as result:
         path = result.path
         foreign, edited = foreign_files(path), edited_files(path)
@@ -123,8 +120,6 @@ def rewrite_report(folder: Path, kind: str) -> Path:
 def _reports(root: Path, kind: str, foreign: set[str]) -> dict[str, str]:
     """Every report.md of the result `root` but the spread's (relative path -> text); `foreign`: the files
     msa-slam did not write, which no report lists."""
-    from msa_slam.experiments.seed_folder import RECORD, SEEDS
-
     if kind != "compare":
         return {"report.md": run_report(root, foreign)}
     seeds = root / SEEDS
@@ -162,17 +157,12 @@ def comparison_report(folder: Path) -> str:
         processes.get("workers", 1),
         processes.get("main_peak_rss"),
     )
-    from msa_slam.experiments.compare import PAPER_METHODS
-
     text += failed_section(failed_methods(folder, [label for label, _, _ in PAPER_METHODS]))
     return text
 
 
 def _write_seed_spread(folder: Path) -> None:
     """The spread over the seeds seeds.json names, from each seed's comparison.json and seed.json."""
-    from msa_slam.experiments.compare import write_spread
-    from msa_slam.experiments.seed_folder import RECORD, finished_metrics, left_out_seeds, seed_dir
-
     seeds = read_json(folder / "seeds.json")["seeds"]
     records = {seed: read_json(seed_dir(folder, seed) / RECORD) for seed in seeds}
     rows = {seed: [table_row(m) for m in finished_metrics(seed_dir(folder, seed)) or []] for seed in seeds}
