@@ -16,13 +16,13 @@ segment length gets None with the reason.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 from evo.core import filters
 
 from msa_slam.errors import InputError
-from msa_slam.evaluation.metrics import FullRateTrajectory
+from msa_slam.evaluation.metrics import FullRateErrors, FullRateTrajectory
 from msa_slam.evaluation.metrics_json import read_full_rate
 from msa_slam.evaluation.metrics_reader import MetricsDocument
 from msa_slam.evaluation.summary import ZERO_ERROR, Block, ate_or_reason, improvement_pct
@@ -165,15 +165,7 @@ def evaluate_full_rate(odometry: np.ndarray, full_rate: np.ndarray, reference: n
     """Full-rate metrics: `before` (odometry) and `after` (full-rate optimised) ATE and distance RPE, the % ATE
     improvement and the alignment used, each undefined one unavailable with its reason."""
     if reference is None or not np.isfinite(reference).all():
-        keys = (
-            "ate_translation_m",
-            "ate_rotation_deg",
-            "rpe_kitti_translation_pct",
-            "rpe_kitti_rotation_deg_per_100m",
-            "rpe_10m_translation_m",
-            "rpe_10m_rotation_deg",
-        )
-        empty = dict.fromkeys(keys)
+        empty = dict.fromkeys(f.name for f in fields(FullRateErrors))
         return _evaluation(
             {
                 "before": empty,

@@ -5,9 +5,10 @@ two are kept apart because writing needs only the report's fields, reading check
 
 from __future__ import annotations
 
+from dataclasses import fields
 from typing import Any
 
-from msa_slam.evaluation.metrics import ONLINE, Memory, Unavailable
+from msa_slam.evaluation.metrics import ONLINE, FullRateErrors, KeyframeErrors, Memory, Unavailable
 from msa_slam.evaluation.run_metrics import RunMetrics
 
 
@@ -20,15 +21,8 @@ def _fields(obj: Any, names: tuple[str, ...]) -> dict[str, Any]:
     return {name: _none(getattr(obj, name)) for name in names}
 
 
-KEYFRAME_ERRORS = ("ate_translation_m", "ate_rotation_deg", "rpe_translation_m", "rpe_rotation_deg")
-FULL_RATE_ERRORS = (
-    "ate_translation_m",
-    "ate_rotation_deg",
-    "rpe_kitti_translation_pct",
-    "rpe_kitti_rotation_deg_per_100m",
-    "rpe_10m_translation_m",
-    "rpe_10m_rotation_deg",
-)
+KEYFRAME_ERRORS = tuple(f.name for f in fields(KeyframeErrors))  # metrics.json's keys, in the dataclasses' order
+FULL_RATE_ERRORS = tuple(f.name for f in fields(FullRateErrors))
 IMPROVEMENT = ("translation", "rotation")
 SWEEP_ROW = ("threshold", "candidates", "loops_accepted", "false_loops", "ate_after_m", "improvement_t_pct")
 ACCOUNTING = (
