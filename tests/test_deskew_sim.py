@@ -91,24 +91,22 @@ def test_odometry_deskew_of_a_simulated_sweep(sweep):
     assert np.abs(corrected - truth).max() < 1.01 * half_column
 
 
-def _drift(deskew_on: bool, dataset: str, cache: str) -> tuple[float, float]:
-    """(mean frame-to-frame translation error, error over the whole prefix) of KISS-ICP, m."""
+def _drift(deskew_on: bool, dataset: str, cache: str) -> float:
+    """KISS-ICP's error over the whole prefix (the last frame's translation, first frames aligned), m."""
     config = apply_params(make_config(dataset=dataset, cache_dir=cache), [f"odometry.deskew={str(deskew_on).lower()}"])
     frontend = prepare_frontend(config)
     gt = np.linalg.inv(frontend.gt_poses[0]) @ frontend.gt_poses
     est = frontend.odometry
-    steps = [
-        np.linalg.norm((np.linalg.inv(np.linalg.inv(gt[k - 1]) @ gt[k]) @ np.linalg.inv(est[k - 1]) @ est[k])[:3, 3])
-        for k in range(1, len(gt))
-    ]
-    return float(np.mean(steps)), float(np.linalg.norm((np.linalg.inv(gt[-1]) @ est[-1])[:3, 3]))
+    return float(np.linalg.norm((np.linalg.inv(gt[-1]) @ est[-1])[:3, 3]))
 
 
 def test_simulated_distorted_sequence_drifts_less_with_deskew(tmp_path):
     # KITTI-07's first 40 frames (kitti preset: motion distortion and every other imperfection) turn a corner
-    # at ~22 deg/s. Measured over seeds 0-2 and 360/720 azimuth steps: deskew on ends 2-3.7x closer.
+    # at ~22 deg/s. Measured over seeds 0-2 and 360/720 azimuth steps (SIM_VERSION 12): deskew on ends 2.4-3.9x
+    # closer. The mean frame-to-frame error does not separate them (on / off 0.86-1.08 over those six runs; on
+    # SIM_VERSION 11 seed 2 at 360 steps gave 1.03), so only the end is asserted.
     dataset, cache = "sim:kitti-07,end=40,azimuth_steps=360", str(tmp_path / "cache")
-    off_steps, off_final = _drift(False, dataset, cache)
-    on_steps, on_final = _drift(True, dataset, cache)
+    off_final = _drift(False, dataset, cache)
+    on_final = _drift(True, dataset, cache)
     assert off_final > 0.1  # the distortion matters here
-    assert on_final < 0.7 * off_final and on_steps < off_steps
+    assert on_final < 0.7 * off_final

@@ -11,7 +11,7 @@ import pytest
 
 from msa_slam.descriptors.scan_context import ScanContext
 from msa_slam.errors import InputError
-from msa_slam.sim.dynamic import DRIVE, FIXED, WALK
+from msa_slam.sim.dynamic import DRIVE, FIXED, FOLLOW, WALK
 from msa_slam.sim.layout import STYLES
 from msa_slam.sim.plan import MAX_DESIGN_M, MIN_DESIGN_M, first_visits, make_catalogue, plan_stretches, straight_runs
 from msa_slam.sim.sensors import get_sensor
@@ -86,7 +86,7 @@ def test_moving_objects_move_and_parked_ones_stay():
     world = build_world(_path(400, bend=0.0), "city", seed=2, realism=BUSY)
     dyn = world.dynamic
     kinds = set(dyn.motion.tolist())
-    assert kinds == {FIXED, DRIVE, WALK}
+    assert kinds == {FIXED, DRIVE, WALK, FOLLOW}
     a, _ = dyn.poses_at(10.0)
     b, _ = dyn.poses_at(12.0)
     step = np.linalg.norm(b[:, :2] - a[:, :2], axis=1)
@@ -95,6 +95,9 @@ def test_moving_objects_move_and_parked_ones_stay():
     cars = dyn.motion == DRIVE  # straight path: distance covered = speed x time (unless wrapped around)
     wrapped = step[cars] > 100
     assert np.allclose(step[cars][~wrapped], 2.0 * np.abs(dyn.speed[cars][~wrapped]), atol=1e-6)
+    assert np.all(b[cars, 0][~wrapped] < a[cars, 0][~wrapped])  # oncoming: against the path (+x)
+    follow = dyn.motion == FOLLOW  # the ego drives 20 m in 2 s (1 m a pose at 10 Hz); they go its way, not as fast
+    assert np.all(b[follow, 0] > a[follow, 0]) and np.all(b[follow, 0] - a[follow, 0] < 40.0)
     walk = dyn.motion == WALK
     assert np.all(step[walk] <= 2.0 * dyn.speed[walk] + 1e-9) and step[walk].max() > 0
 
@@ -136,19 +139,23 @@ def test_transient_cars_are_there_in_some_time_windows_only():
 
 
 def test_a_moving_car_is_hit_where_it_is_at_that_time():
-    world = build_world(_path(400, bend=0.0), "city", seed=4, realism=BUSY)
+    fields = replace(BUSY, moving_cars=1.0, hard_share=0.6, hard_kinds=("field",))  # no parking: an oncoming lane
+    world = build_world(_path(400, bend=0.0), "city", seed=4, realism=fields)
     dyn = world.dynamic
     pos, _ = dyn.poses_at(20.0)
-    mid = np.flatnonzero((dyn.motion == DRIVE) & (pos[:, 0] > 60) & (pos[:, 0] < 340))[0]
-    origin, direction = _ray_to(world, pos[mid], np.array([-6.0, 0.0]))  # from behind, along the road
+    drive = dyn.motion == DRIVE
+    alone = np.array([not np.any(drive & (pos[:, 0] > x) & (pos[:, 0] < x + 60.0)) for x in pos[:, 0]])
+    mid = np.flatnonzero(drive & dyn.present(20.0) & alone & (pos[:, 0] > 60) & (pos[:, 0] < 340))[0]
+    # from ahead of it, along the road; no car comes to where it was within 3 s (the next is > 60 m behind it)
+    origin, direction = _ray_to(world, pos[mid], np.array([-6.0, 0.0]))
     now, later = world.cast(origin, direction, 20.0), world.cast(origin, direction, 23.0)
     assert now.material.tolist() == [Material.VEHICLE] and now.dist[0] < 6.5
     assert not (later.tri == -1).any()
 
 
 def test_objects_never_sit_on_the_sensor():
-    """Dynamic objects whose footprint reaches the ray origin are left out (a car driving in the ego lane
-    would otherwise swallow the whole scan)."""
+    """Dynamic objects whose footprint reaches the ray origin are left out (a ray cast from inside a car
+    would otherwise see only the car)."""
     world = build_world(_path(400, bend=0.0), "city", seed=5, realism=BUSY)
     pos, _ = world.dynamic.poses_at(30.0)
     hits = world.cast(pos[0] + np.array([0.0, 0.0, 1.0]), _directions(2000), 30.0)

@@ -4,7 +4,8 @@ and parked cars that are present only in some time windows (so revisits of a pla
 Each object is rigid and made of at most two boxes in its own frame. `DynamicObjects.cast` places the
 objects near the rays at a time, builds a tiny mesh of them and casts against it with Embree: the static
 world is never rebuilt, and a scan stays fast. Positions and presence are pure functions of the time and
-of values drawn once per world, so any frame can be simulated on its own, deterministically.
+of values drawn once per world, so any frame can be simulated on its own, deterministically. Where traffic
+drives and walks, so that it never touches the ego vehicle, is `traffic`'s model.
 """
 
 from __future__ import annotations
@@ -15,10 +16,25 @@ from dataclasses import dataclass
 import numpy as np
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
+from msa_slam.sim.footprints import rect_gaps
 from msa_slam.sim.shapes import Material, MeshBuilder
+from msa_slam.sim.traffic import (
+    CLEARANCE,
+    FOLLOW_NEAR,
+    FOLLOW_WAVE,
+    LANE_STEP,
+    EgoClock,
+    PathFrame,
+    Road,
+    following_gap,
+)
 
-FIXED, DRIVE, WALK = 0, 1, 2  # motion kinds: in place (maybe transient), along the path, back and forth
+# motion kinds: in place (maybe transient), oncoming along the path, back and forth, ahead of or behind the ego
+FIXED, DRIVE, WALK, FOLLOW = 0, 1, 2, 3
 _NEAR = 1.0  # objects whose footprint comes this close to a ray origin are dropped (they would hold the sensor)
+CAR_HALF = (2.4, 0.95)  # the largest car's half length and width (_car_parts)
+ONCOMING_SPEED = (8.0, 14.0)  # m/s: one speed for the whole oncoming lane, so no car drives through another
+ONCOMING_SPACING = 10.0  # m: the least distance between oncoming cars' centres
 
 
 def unit_hash(ids: np.ndarray, epochs: np.ndarray, seed: int) -> np.ndarray:
@@ -39,31 +55,6 @@ def unit_hash(ids: np.ndarray, epochs: np.ndarray, seed: int) -> np.ndarray:
 
 
 @dataclass
-class PathFrame:
-    """Arc-length parametrisation of the (extended) path: point and heading at any arc length."""
-
-    xy: np.ndarray
-    arc: np.ndarray
-
-    @classmethod
-    def of(cls, xy: np.ndarray) -> PathFrame:
-        return cls(xy, np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))]))
-
-    @property
-    def length(self) -> float:
-        return float(self.arc[-1])
-
-    def at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Points (K, 2) and unit headings (K, 2) at arc lengths `s` (K,)."""
-
-        def interp(v: np.ndarray) -> np.ndarray:
-            return np.column_stack([np.interp(v, self.arc, self.xy[:, 0]), np.interp(v, self.arc, self.xy[:, 1])])
-
-        h = interp(s + 2.0) - interp(s - 2.0)
-        return interp(s), h / np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-9)
-
-
-@dataclass
 class DynamicObjects:
     """K rigid objects: parts (K, 2, 6) local box centres and half extents (a zero box is no part),
     reflectance, material and motion per object; see the module docstring."""
@@ -71,14 +62,18 @@ class DynamicObjects:
     path: PathFrame
     ground: Callable[[np.ndarray], np.ndarray]
     seed: int
+    ego: EgoClock  # where the ego is on the path at any time: FOLLOW cars keep their distance from it
+    ego_half: np.ndarray  # (2,) the ego's footprint about the sensor (half length, half width)
+    lane: np.ndarray  # DRIVE: whether the oncoming lane is free, per LANE_STEP of arc length (traffic.Road)
     parts: np.ndarray
     refl: np.ndarray
     material: np.ndarray
     motion: np.ndarray
-    s0: np.ndarray  # DRIVE/WALK: arc length at time 0
-    speed: np.ndarray  # DRIVE: signed m/s along the path; WALK: m/s
-    lateral: np.ndarray  # DRIVE/WALK: offset along the path's left normal
-    span: np.ndarray  # WALK: length of the stretch walked back and forth
+    s0: np.ndarray  # DRIVE/WALK: arc length at time 0; FOLLOW: phase (m) of its distance's cycle
+    speed: np.ndarray  # DRIVE: signed m/s along the path; WALK: m/s; FOLLOW: +1 ahead of the ego, -1 behind
+    lateral: np.ndarray  # DRIVE/WALK/FOLLOW: offset along the path's left normal
+    span: np.ndarray  # WALK: length of the stretch walked back and forth; FOLLOW: m of ego path per distance cycle
+    near: np.ndarray  # FOLLOW: its closest distance to the ego (m)
     xy: np.ndarray  # FIXED: position (K, 2)
     z: np.ndarray  # FIXED: ground height
     yaw: np.ndarray  # FIXED: heading
@@ -88,15 +83,44 @@ class DynamicObjects:
     def __len__(self) -> int:
         return len(self.motion)
 
+    def _arc_at(self, time: float) -> np.ndarray:
+        """(K,) arc lengths of the moving objects at `time` (0 for FIXED ones); a FOLLOW car's may fall off
+        the path's ends."""
+        s = np.zeros(len(self))
+        drive, walk, follow = (self.motion == kind for kind in (DRIVE, WALK, FOLLOW))
+        total = self.path.length
+        # oncoming cars go round (one leaving one end stands for one entering the other)
+        s[drive] = np.mod(self.s0[drive] + self.speed[drive] * time, total)
+        u = np.mod(self.speed[walk] * time / self.span[walk] + self.s0[walk] / total, 2.0)
+        s[walk] = self.s0[walk] + self.span[walk] * np.minimum(u, 2.0 - u)  # back and forth
+        ego = self.ego.arc_at(time)
+        s[follow] = ego + self.speed[follow] * following_gap(ego, self.near[follow], self.span[follow], self.s0[follow])
+        return s
+
     def present(self, time: float) -> np.ndarray:
-        """(K,) bool: which objects exist at `time` (each transient one flips a seeded coin per epoch)."""
+        """(K,) bool: which objects exist at `time`: each transient one flips a seeded coin per epoch, an
+        oncoming car drives only where its lane is free, a car ahead or behind only on the path."""
         out = np.ones(len(self), dtype=bool)
         tr = self.period > 0
         if tr.any():
             ids = np.flatnonzero(tr)
             epochs = np.floor(time / self.period[tr] + unit_hash(ids, np.zeros_like(ids), self.seed)).astype(np.int64)
             out[tr] = unit_hash(ids, epochs, self.seed + 1) < self.keep[tr]
+        s = self._arc_at(time)
+        drive, follow = self.motion == DRIVE, self.motion == FOLLOW
+        cell = np.minimum(np.round(s[drive] / LANE_STEP).astype(np.int64), len(self.lane) - 1)
+        out[drive] &= self.lane[cell]
+        out[follow] &= (s[follow] >= 0.0) & (s[follow] <= self.path.length) & self._clear_of_ego(time, follow)
         return out
+
+    def _clear_of_ego(self, time: float, which: np.ndarray) -> np.ndarray:
+        """Whether the objects `which` keep CLEARANCE from the ego's footprint at `time`: a car ahead of or behind
+        the ego along the path may stand beside it where the path comes back within its distance."""
+        p, h = self.path.at(np.array([self.ego.arc_at(time)]))
+        pos, yaw = self.poses_at(time)
+        half = self.footprint_half()
+        gaps = rect_gaps(p[0], self.ego_half, np.arctan2(h[0, 1], h[0, 0]), pos[which, :2], half[which], yaw[which])
+        return gaps >= CLEARANCE
 
     def poses_at(self, time: float) -> tuple[np.ndarray, np.ndarray]:
         """Positions (K, 3) on the ground and headings (K,) at `time`."""
@@ -104,29 +128,31 @@ class DynamicObjects:
         yaw = self.yaw.copy()
         moving = self.motion != FIXED
         if moving.any():
-            total = self.path.length
-            s = self.s0[moving] + self.speed[moving] * time
-            walk = self.motion[moving] == WALK
-            span = self.span[moving][walk]
-            u = np.mod(self.speed[moving][walk] * time / span + self.s0[moving][walk] / total, 2.0)
-            s = np.mod(s, total)  # drivers go round (a car leaving one end stands for one entering the other)
-            s[walk] = self.s0[moving][walk] + span * np.minimum(u, 2.0 - u)  # back and forth
-            p, h = self.path.at(s)
-            normal = np.column_stack([-h[:, 1], h[:, 0]])
-            xy = p + normal * self.lateral[moving, None]
+            p, h = self.path.at(self._arc_at(time)[moving])
+            xy = p + np.column_stack([-h[:, 1], h[:, 0]]) * self.lateral[moving, None]
             pos[moving, :2] = xy
             pos[moving, 2] = self.ground(xy)
-            back = np.where(self.speed[moving] < 0, np.pi, 0.0)
+            back = np.where((self.motion[moving] == DRIVE) & (self.speed[moving] < 0), np.pi, 0.0)  # oncoming
             yaw[moving] = np.arctan2(h[:, 1], h[:, 0]) + back
         return pos, yaw
 
+    def footprint_half(self) -> np.ndarray:
+        """(K, 2) half length and width of each object's footprint, in its own frame."""
+        return np.abs(self.parts[:, :, :2]).max(1) + self.parts[:, :, 3:5].max(1)
+
     def boxes_at(self, time: float, origins: np.ndarray, radius: float) -> tuple[np.ndarray, ...]:
         """World boxes (centres, half extents, yaw, reflectance, material) of the objects present at `time`
-        within `radius` of the ray `origins` (M, 3) and not on top of one of them."""
+        within `radius` of the ray `origins` (M, 3) and whose footprint stays _NEAR from every origin (the
+        traffic model keeps moving objects off the ego's path; this is the guard for rays cast elsewhere)."""
         pos, yaw = self.poses_at(time)
-        foot = np.hypot(self.parts[:, :, 3].max(1), self.parts[:, :, 4].max(1))
-        d = np.linalg.norm(pos[:, None, :2] - origins[None, :, :2], axis=2)
-        keep = self.present(time) & (d.min(1) < radius) & (d.min(1) > foot + _NEAR)
+        rel = origins[None, :, :2] - pos[:, None, :2]
+        c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+        half = self.footprint_half()
+        dx = np.maximum(np.abs(c * rel[..., 0] + s * rel[..., 1]) - half[:, :1], 0.0)
+        dy = np.maximum(np.abs(-s * rel[..., 0] + c * rel[..., 1]) - half[:, 1:], 0.0)
+        gap = np.hypot(dx, dy).min(1)
+        d = np.linalg.norm(rel, axis=2).min(1)
+        keep = self.present(time) & (d < radius) & (gap > _NEAR)
         idx = np.flatnonzero(keep)
         parts = self.parts[idx]
         valid = parts[:, :, 3] > 0
@@ -201,23 +227,46 @@ def _candidate_rays(origins: np.ndarray, directions: np.ndarray, centres: np.nda
 
 @dataclass
 class DynamicRecipe:
-    """How many objects to make: moving cars and pedestrians per 100 m of path, and the transient
-    parked cars (fixed poses) the layout chose; presence epochs of `period` seconds."""
+    """How many objects to make: oncoming cars per 100 m of their lane (and with them one car ahead of the ego and
+    one behind it), pedestrians per 100 m of path, and the transient parked cars (fixed poses) the layout
+    chose; presence epochs of `period` seconds. Where they go: `traffic`."""
 
     cars_per_100m: float
     pedestrians_per_100m: float
-    car_lanes: tuple[float, float]  # lateral offsets: with the path's direction, against it
+    oncoming_lane: float  # m: the oncoming lane's centre to the left of the path
     pedestrian_offset: tuple[float, float]
     period: float
 
 
 def _car_parts(rng: np.random.Generator, n: int) -> np.ndarray:
     """Body and cabin boxes of `n` cars (as the layout's parked cars), relative to the ground point."""
-    hl, hw, cab = rng.uniform(1.9, 2.4, n), rng.uniform(0.8, 0.95, n), rng.uniform(1.3, 1.5, n)
+    hl, hw, cab = rng.uniform(1.9, CAR_HALF[0], n), rng.uniform(0.8, CAR_HALF[1], n), rng.uniform(1.3, 1.5, n)
     parts = np.zeros((n, 2, 6))
     parts[:, 0, 2:] = np.column_stack([np.full(n, 0.6), hl, hw, np.full(n, 0.45)])
     parts[:, 1, 2:] = np.column_stack([1.05 + cab * 0.25, hl * 0.55, hw * 0.9, cab * 0.25])
     return parts
+
+
+def _oncoming_starts(rng: np.random.Generator, per_100m: float, total: float) -> np.ndarray:
+    """Arc lengths at time 0 of the oncoming cars: gaps of 0.5-1.5 times the mean spacing, at least
+    ONCOMING_SPACING, also across the ends (where the lane's cars go round)."""
+    if per_100m <= 0:
+        return np.zeros(0)
+    gaps = np.maximum(rng.uniform(0.5, 1.5, int(total / ONCOMING_SPACING) + 1) * 100.0 / per_100m, ONCOMING_SPACING)
+    starts = np.cumsum(gaps)
+    return starts[starts < total - ONCOMING_SPACING]
+
+
+def _walks_clear(road: Road, lateral: np.ndarray, s0: np.ndarray, span: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """(N,) bool: which walks (offset `lateral`, arc lengths s0..s0 + span, footprint `half` (N, 2)) keep clear
+    of the ego wherever its path goes (a walk beside one street may cross another)."""
+    ok = np.ones(len(s0), dtype=bool)
+    for k in range(len(s0)):
+        s = np.append(np.arange(s0[k], s0[k] + span[k], 1.0), s0[k] + span[k])
+        p, h = road.path.at(s)
+        xy = p + np.column_stack([-h[:, 1], h[:, 0]]) * lateral[k]
+        ok[k] = bool(road.clear_of_ego(xy, np.tile(half[k], (len(s), 1)), np.arctan2(h[:, 1], h[:, 0])).all())
+    return ok
 
 
 def make_dynamic(
@@ -225,13 +274,19 @@ def make_dynamic(
     ground: Callable[[np.ndarray], np.ndarray],
     recipe: DynamicRecipe,
     parked: np.ndarray,
+    road: Road,
+    ego: EgoClock,
     rng: np.random.Generator,
     seed: int,
 ) -> DynamicObjects | None:
-    """Moving cars, pedestrians and the transient parked cars `parked` (P, 11: x, y, z, yaw, body half
+    """Cars in the oncoming lane and one ahead of and one behind the ego (with any cars at all), pedestrians
+    whose walks keep clear of the ego, and the transient parked cars `parked` (P, 11: x, y, z, yaw, body half
     length and width, cabin centre height and half extents, reflectance); None when there are none."""
     total = path.length
-    n_car = int(round(recipe.cars_per_100m * total / 100.0))
+    oncoming = _oncoming_starts(rng, recipe.cars_per_100m, total)
+    n_on = len(oncoming)
+    n_follow = 2 if recipe.cars_per_100m > 0 else 0
+    n_car = n_on + n_follow
     n_ped = int(round(recipe.pedestrians_per_100m * total / 100.0))
     n_fix = len(parked)
     k = n_car + n_ped + n_fix
@@ -241,18 +296,25 @@ def make_dynamic(
     refl = np.zeros(k)
     material = np.full(k, Material.VEHICLE, dtype=np.uint8)
     motion = np.full(k, FIXED)
-    s0, speed, lateral, span = np.zeros(k), np.zeros(k), np.zeros(k), np.ones(k)
+    s0, speed, lateral, span, near = np.zeros(k), np.zeros(k), np.zeros(k), np.ones(k), np.zeros(k)
     xy, z, yaw = np.zeros((k, 2)), np.zeros(k), np.zeros(k)
     period, keep = np.zeros(k), np.ones(k)
 
     cars = slice(0, n_car)
     parts[cars] = _car_parts(rng, n_car)
     refl[cars] = rng.uniform(0.3, 0.9, n_car)
-    motion[cars] = DRIVE
-    s0[cars] = rng.uniform(0.0, total, n_car)
-    forward = rng.random(n_car) < 0.5
-    speed[cars] = np.where(forward, 1.0, -1.0) * rng.uniform(5.0, 14.0, n_car)
-    lateral[cars] = np.where(forward, recipe.car_lanes[0], recipe.car_lanes[1])
+    on = slice(0, n_on)
+    motion[on] = DRIVE
+    s0[on] = oncoming
+    speed[on] = -rng.uniform(*ONCOMING_SPEED)
+    lateral[on] = recipe.oncoming_lane
+    follow = slice(n_on, n_car)
+    motion[follow] = FOLLOW
+    speed[follow] = (1.0, -1.0)[:n_follow]  # one ahead, one behind
+    near[follow] = rng.uniform(*FOLLOW_NEAR, n_follow)
+    span[follow] = rng.uniform(*FOLLOW_WAVE, n_follow)
+    s0[follow] = rng.uniform(0.0, 1.0, n_follow) * span[follow]
+    lane = road.lane_free(recipe.oncoming_lane, CAR_HALF) if n_on else np.zeros(1, dtype=bool)
 
     peds = slice(n_car, n_car + n_ped)
     half_height = rng.uniform(0.78, 0.95, n_ped)
@@ -266,6 +328,8 @@ def make_dynamic(
     s0[peds] = rng.uniform(0.0, 1.0, n_ped) * (total - span[peds])  # the walk stays on the path
     speed[peds] = rng.uniform(0.8, 1.8, n_ped)
     lateral[peds] = np.where(rng.random(n_ped) < 0.5, 1.0, -1.0) * rng.uniform(*recipe.pedestrian_offset, n_ped)
+    rows = np.ones(k, dtype=bool)
+    rows[peds] = _walks_clear(road, lateral[peds], s0[peds], span[peds], parts[peds, 0, 3:5])
 
     fix = slice(n_car + n_ped, k)
     if n_fix:
@@ -275,6 +339,5 @@ def make_dynamic(
         refl[fix] = parked[:, 10]
         period[fix] = recipe.period
         keep[fix] = 0.5
-    return DynamicObjects(
-        path, ground, seed, parts, refl, material, motion, s0, speed, lateral, span, xy, z, yaw, period, keep
-    )
+    per_object = (parts, refl, material, motion, s0, speed, lateral, span, near, xy, z, yaw, period, keep)
+    return DynamicObjects(path, ground, seed, ego, road.ego_half, lane, *(a[rows] for a in per_object))

@@ -34,17 +34,21 @@ class Footprints:
                 return False
         return True
 
-    def add_if_free(self, center: np.ndarray, half: np.ndarray, yaw: float, margin: float = 0.3) -> bool:
+    def is_free(self, center: np.ndarray, half: np.ndarray, yaw: float, margin: float = 0.3) -> bool:
+        """True when the rectangle keeps `margin` from every placed one."""
         rect = (np.asarray(center, float), np.asarray(half, float), float(yaw))
-        radius = float(np.hypot(*half)) + margin
-        cells = self._cells(rect[0], radius)
         seen: set[int] = set()
-        for c in cells:
+        for c in self._cells(rect[0], float(np.hypot(*half)) + margin):
             for idx in self.grid.get(c, ()):
                 if idx not in seen:
                     seen.add(idx)
                     if self._overlap(rect, self.rects[idx], margin):
                         return False
+        return True
+
+    def add_if_free(self, center: np.ndarray, half: np.ndarray, yaw: float, margin: float = 0.3) -> bool:
+        if not self.is_free(center, half, yaw, margin):
+            return False
         self.add(center, half, yaw, margin)
         return True
 
@@ -58,6 +62,35 @@ class Footprints:
 def yaw_axes(yaw: float) -> tuple[np.ndarray, np.ndarray]:
     """Unit x and y axes of a rectangle turned by `yaw`."""
     return np.array([np.cos(yaw), np.sin(yaw)]), np.array([-np.sin(yaw), np.cos(yaw)])
+
+
+def rect_gaps(
+    a_centre: np.ndarray,
+    a_half: np.ndarray,
+    a_yaw: np.ndarray,
+    b_centre: np.ndarray,
+    b_half: np.ndarray,
+    b_yaw: np.ndarray,
+) -> np.ndarray:
+    """Row by row, how far apart two oriented rectangles (centres (K, 2), half extents (K, 2), yaws (K,)) are at
+    least: the widest gap along their four edge normals (separating axes). It is a lower bound of their distance,
+    exact when an edge faces the other rectangle, and <= 0 when they overlap."""
+    d = np.atleast_2d(b_centre) - np.atleast_2d(a_centre)
+    a_half, b_half = np.atleast_2d(a_half), np.atleast_2d(b_half)
+    axes_a, axes_b = _axes(a_yaw), _axes(b_yaw)
+    gaps = []
+    for axis in (*axes_a, *axes_b):
+        ra = sum(a_half[:, i] * np.abs((axis * u).sum(1)) for i, u in enumerate(axes_a))
+        rb = sum(b_half[:, i] * np.abs((axis * u).sum(1)) for i, u in enumerate(axes_b))
+        gaps.append(np.abs((d * axis).sum(1)) - ra - rb)
+    return np.max(gaps, axis=0)
+
+
+def _axes(yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(K, 2) unit x and y axes of rectangles turned by `yaw` (K,)."""
+    yaw = np.atleast_1d(np.asarray(yaw, dtype=np.float64))
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.column_stack([c, s]), np.column_stack([-s, c])
 
 
 class PathClearance:

@@ -43,8 +43,9 @@ class Style:
     furniture_clearance: float
     ground_radius: float  # ground extends this far from the path
     ground_cell: float
-    car_lanes: tuple[float, float] = (0.0, 1.6)  # moving cars' offsets: with / against the path
     pedestrian_offset: tuple[float, float] = (5.3, 6.6)  # walkers' distance from the path
+    oncoming_lane: float = 3.0  # m, the oncoming lane's centre left of the path (right-hand traffic): a lane width
+    ego_half: tuple[float, float] = (2.5, 1.0)  # the ego's footprint about the sensor: KITTI's 4.8 x 1.8 m estate car
 
 
 STYLES: dict[str, Style] = {
@@ -84,6 +85,7 @@ STYLES: dict[str, Style] = {
         45.0,
         1.5,
         pedestrian_offset=(0.8, 2.2),
+        ego_half=(0.3, 0.3),  # a person or a small robot
     ),
 }
 

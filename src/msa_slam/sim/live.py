@@ -34,7 +34,7 @@ def live_source(config: SimConfig, laps: int = 1, name: str | None = None) -> Fr
     def frames() -> Iterator[Frame]:
         for i, (k, lap) in enumerate(zip(index, lap_of)):
             rng = np.random.default_rng([sim.config.seed, int(lap), int(sim.frames[k])])
-            points = sim.lidar.scan(sim.poses[k], rng)[:, :3]
+            points = sim.lidar.scan(sim.poses[k], rng, float(sim.trajectory.times[sim.frames[k]]))[:, :3]
             if sim.realism.sensor.elevation_bias_deg:  # corrected as the KITTI-layout reader corrects sim.json's
                 points = raise_elevation(points)
             yield Frame(i, i * dt, points, gt[i])

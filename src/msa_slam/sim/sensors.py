@@ -158,9 +158,10 @@ class Lidar:
         self._cast_dirs = self._dirs if calibrated else model.directions(-elev_err, -azim_err)
         self.column_times = column_times(model.azimuth_steps, model.sweep_period)
 
-    def scan(self, pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """(P, 4) float32 x, y, z, intensity of a sensor standing still at `pose`."""
-        return self.sweep(fixed_pose(validate_pose(pose, "sensor pose")), 0.0, rng)[0]
+    def scan(self, pose: np.ndarray, rng: np.random.Generator, time: float = 0.0) -> np.ndarray:
+        """(P, 4) float32 x, y, z, intensity of a sensor standing still at `pose` at `time` (where the world's
+        moving objects are then)."""
+        return self.sweep(fixed_pose(validate_pose(pose, "sensor pose")), time, rng)[0]
 
     def sweep(self, pose_at: PoseAt, t: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """One revolution whose forward-facing column fires at `t` (the scan's timestamp, as in KITTI), so it

@@ -58,7 +58,7 @@ class Simulation:
         frame = int(self.frames[k])
         rng = np.random.default_rng([self.config.seed, frame]) if rng is None else rng
         if self.realism.is_clean:
-            return self.lidar.scan(self.trajectory.poses[frame], rng), None
+            return self.lidar.scan(self.trajectory.poses[frame], rng, float(self.trajectory.times[frame])), None
         return self.lidar.sweep(self.trajectory.pose_at, float(self.trajectory.times[frame]), rng)
 
 
@@ -85,7 +85,8 @@ def prepare(config: SimConfig) -> Simulation:
     up = None
     if realism.world.upright:
         up = gravity_up(traj.poses, traj.times) if traj.platform == "car" else np.array([0.0, 0.0, 1.0])
-    world = build_world(span, style, config.seed, traj.sensor_height, realism.world, up)
+    times = traj.times[frames[0] : frames[-1] + 1]
+    world = build_world(span, style, config.seed, traj.sensor_height, realism.world, up, times)
     return Simulation(config, frames, traj, world, Lidar(model, world, realism.sensor, config.seed), realism)
 
 

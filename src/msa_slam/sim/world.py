@@ -18,11 +18,12 @@ from scipy.spatial import cKDTree
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
 from msa_slam.errors import InputError
-from msa_slam.sim.dynamic import DynamicObjects, DynamicRecipe, PathFrame, make_dynamic, unit_hash
+from msa_slam.sim.dynamic import DynamicObjects, DynamicRecipe, make_dynamic, unit_hash
 from msa_slam.sim.layout import STYLES, StreetLayout
 from msa_slam.sim.level import LEVEL_DEG, gravity_up, levelling_rotation, tilt_deg
 from msa_slam.sim.plan import HARD_KINDS, Stretch, first_visits, make_catalogue, plan_stretches
 from msa_slam.sim.shapes import Material, MeshBuilder
+from msa_slam.sim.traffic import EgoClock, PathFrame, Road
 
 PATH_LEAD = 80.0  # m of straight street laid before the first pose and after the last
 START_STRUCTURE_M = 60.0  # no hard stretch over the lead and the first metres: odometry must pick up the motion
@@ -33,7 +34,7 @@ DYNAMIC_RADIUS = 120.0  # dynamic objects farther than this from the rays' origi
 class WorldRealism:
     """World knobs; every default is "off". Densities per 100 m of path, shares of path length."""
 
-    moving_cars: float = 0.0  # cars driving along the path in both directions
+    moving_cars: float = 0.0  # oncoming cars per 100 m of their lane; with any, one car ahead of the ego, one behind
     pedestrians: float = 0.0  # people walking back and forth beside the path
     transient_parking: float = 0.0  # share of parking slots whose car comes and goes
     parked_occupancy: float = 0.0  # share of car slots with a parked car on streets that have parking (0: the style's)
@@ -280,10 +281,13 @@ def build_world(
     sensor_height: float = 1.73,
     realism: WorldRealism = WorldRealism(),
     up: np.ndarray | None = None,
+    times: np.ndarray | None = None,
 ) -> World:
     """The world around `poses` (N, 4, 4): same seed, poses and realism give the same world, triangle for
     triangle and object for object. The realism features draw from their own seeded streams. An upright
-    world stands along `up` (gravity in the poses' frame; default: level.gravity_up of `poses`)."""
+    world stands along `up` (gravity in the poses' frame; default: level.gravity_up of `poses`). `times` (N,)
+    are the poses' times on the clock `World.cast` is given (default: 10 Hz from 0): traffic keeps its distance
+    from the ego where the ego is at that time."""
     if style not in STYLES:
         raise InputError(f"unknown world style {style!r}; choose one of {', '.join(STYLES)}")
     levelling = None
@@ -327,11 +331,22 @@ def build_world(
     recipe = DynamicRecipe(
         realism.moving_cars if st.p_parked > 0 else 0.0,
         realism.pedestrians,
-        st.car_lanes,
+        st.oncoming_lane,
         st.pedestrian_offset,
         realism.turnover_period,
     )
+    times = np.arange(len(poses)) / 10.0 if times is None else np.asarray(times, dtype=np.float64)
+    if times.shape != (len(poses),):
+        raise InputError(f"build_world: {len(times)} times for {len(poses)} poses; give one time a pose")
+    first = (len(xy) - len(poses)) // 2  # extend_path adds as many points before the poses as after them
     dynamic = make_dynamic(
-        path, ground, recipe, np.array(layout.transient).reshape(-1, 11), np.random.default_rng([seed, 12, 3]), seed
+        path,
+        ground,
+        recipe,
+        np.array(layout.transient).reshape(-1, 11),
+        Road(path, st.ego_half, layout.clear, layout.taken),
+        EgoClock(times, path.arc[first : first + len(poses)]),
+        np.random.default_rng([seed, 12, 3]),
+        seed,
     )
     return World(mesh, reflectance, material, dynamic, realism, seed, plan, levelling)
