@@ -9,7 +9,7 @@ parked cars' centres 3.3-4.3 m to each side in the city style, so the ego drives
   the range the dynamic objects are cast to), so they keep their distance when the ego stops and never drive
   backwards (`following_gap`). No car overtakes: the street has no second lane in the ego's direction.
 - Oncoming: a lane `Style.oncoming_lane` m to the left. Between rows of parked cars the street is one carriageway
-  (5-7 m between the rows) and has no room for it, so oncoming cars drive only where the lane is free: no parked
+  (4.7-7 m between the rows) and has no room for it, so oncoming cars drive only where the lane is free: no parked
   car (static or coming-and-going), wall or pole on it, and no stretch of the ego's path (where the path comes
   back, the ego itself drives there), in runs long enough not to flicker (`Road.lane_free`).
 - Pedestrians walk beside the path (sidewalks); a walk that would reach the ego's road anywhere (where the
