@@ -42,7 +42,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import subprocess
 import sys
 import time
@@ -97,25 +96,25 @@ def peer_missing(python: str) -> str | None:
 
 
 def simulated(sequence: str, seed: int, end: int | None, root: Path) -> Path:
-    """The KITTI-layout folder of the simulated sequence (made once; sim.json marks a finished one)."""
+    """The KITTI-layout folder of the simulated sequence, made once: `msa-slam simulate` reuses a complete
+    folder of this simulator version and configuration, resumes its own partial one, and refuses any other
+    (scans of an older SIM_VERSION included: they would be timed as this code's)."""
     folder = root / run_name(sequence, seed, end)
-    if not (folder / "sim.json").is_file():
-        shutil.rmtree(folder, ignore_errors=True)
-        command = [
-            sys.executable,
-            "-c",
-            CLI,
-            "simulate",
-            "--trajectory",
-            trajectory_name(sequence),
-            "--seed",
-            str(seed),
-            "--out",
-            str(folder),
-            "--quiet",
-            *([] if end is None else ["--end", str(end)]),
-        ]
-        subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+    command = [
+        sys.executable,
+        "-c",
+        CLI,
+        "simulate",
+        "--trajectory",
+        trajectory_name(sequence),
+        "--seed",
+        str(seed),
+        "--out",
+        str(folder),
+        "--quiet",
+        *([] if end is None else ["--end", str(end)]),
+    ]
+    subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
     return folder
 
 
