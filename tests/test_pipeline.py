@@ -426,7 +426,7 @@ def test_comparison_table_columns_keep_one_number_of_decimals():
     ],
 )
 def test_rpe_segments_name_the_lengths_evaluated(length, span, said):
-    from msa_slam.reporting.report import rpe_segments
+    from msa_slam.reporting.sequence_text import rpe_segments
 
     gt = np.tile(np.eye(4), (201, 1, 1))
     gt[:, 0, 3] = np.linspace(0, length, 201)

@@ -25,7 +25,7 @@ from msa_slam.experiments import load_grid, parse_grid, run_grid, write_report
 from msa_slam.experiments.folder import grid_cells
 from msa_slam.experiments.identity import cell_identities, outdated_cells
 from msa_slam.experiments.runner import GridRun, _record
-from msa_slam.reporting.report import scans_read
+from msa_slam.reporting.sequence_text import scans_read
 
 PR_REASON = "no keyframe had an older keyframe to query"
 

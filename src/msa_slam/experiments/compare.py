@@ -52,8 +52,8 @@ from msa_slam.reporting.comparison import (
     table_row,
     write_figures,
 )
-from msa_slam.reporting.report import rpe_segments, scans_read
 from msa_slam.reporting.results import write_run_files
+from msa_slam.reporting.sequence_text import rpe_segments, scans_read
 from msa_slam.sampling.params import GATE_PARAMETERS
 from msa_slam.slam import RunResult
 from msa_slam.slam.build import UNGATED_SAMPLERS

@@ -24,11 +24,9 @@ from msa_slam.reporting.report import (
     ReportedRun,
     deskew_text,
     replayed_note,
-    rpe_segments,
-    scans_read,
-    sequence_title,
 )
 from msa_slam.reporting.results import reference_xy, trajectory_panels
+from msa_slam.reporting.sequence_text import rpe_segments, scans_read, sequence_title
 from msa_slam.slam import RunResult
 from msa_slam.slam.loop_closing import REJECTION_REASONS, candidate_rule
 from msa_slam.viz import MethodMetric, plot_method_metrics, plot_trajectories
