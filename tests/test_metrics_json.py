@@ -47,7 +47,7 @@ def _without_pr(data: dict) -> dict:
 def test_unavailable_value_carries_its_reason_into_the_report():
     metrics = from_json(_without_pr(stored_metrics("batch.json")), "metrics.json")
     assert metrics.place_recognition.pr_auc == Unavailable(NO_REVISIT) == metrics.place_recognition.f1_max
-    assert metrics.comparison_row(())["pr_auc"] is None  # a table cell: n/a
+    assert metrics.comparison_row(()).value("pr_auc") is None  # a table cell: n/a
     report = report_markdown(StoredRun(make_config(dataset="golden-seq"), metrics, None), [], set())
     assert "| n/a / n/a |" in report and f"- PR-AUC / F1-max n/a: {NO_REVISIT}\n" in report
     assert to_json(metrics)["pr_auc"] is None and to_json(metrics)["unavailable"]["pr"] == NO_REVISIT

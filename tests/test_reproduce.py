@@ -219,7 +219,7 @@ def constructed_reproduction(out: Path, seeds: list[int]) -> dict:
         for cell in expand(grid):
             folder = root / "cells" / cell.id
             folder.mkdir(parents=True)
-            (folder / "cell.json").write_text(json.dumps(cell.info()))
+            (folder / "cell.json").write_text(json.dumps(cell.info().to_json()))
             (folder / "metrics.json").write_text(json.dumps(_metrics(cell, grid.pipeline)))
             if name == "paper-table2" and cell.dataset == grid.datasets[0] and cell.method in ("all", "msa"):
                 _steps(folder, 2**21 if cell.method == "all" else 2**19)

@@ -37,6 +37,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError, f
 
 from msa_slam.config import validation_message
 from msa_slam.errors import InputError
+from msa_slam.experiments.cell_info import CellInfo
 from msa_slam.io.yaml_file import read_yaml
 from msa_slam.sources.spec import SEED, seeded
 
@@ -146,19 +147,20 @@ class Cell:
     config: dict[str, Any]
     index: int = 0  # position in the grid's expansion (report order)
 
-    def info(self) -> dict[str, Any]:
-        return {
-            "id": self.id,
-            "index": self.index,
-            "pipeline": self.pipeline,
-            "dataset": self.dataset,
-            "descriptor": self.descriptor,
-            "method": self.method,
-            "sampler": self.sampler,
-            "swept": self.swept,
-            "parameters": self.parameters,
-            "seed": self.seed,
-        }
+    def info(self) -> CellInfo:
+        """What the cell runs, as its cell.json records it (without the identity and run key a run adds)."""
+        return CellInfo(
+            self.id,
+            self.index,
+            self.pipeline,
+            self.dataset,
+            self.descriptor,
+            self.method,
+            self.sampler,
+            self.swept,
+            self.parameters,
+            self.seed,
+        )
 
 
 # Config keys that name a run without changing what it computes: cells differing only there are one run.
