@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -28,7 +27,7 @@ from msa_slam.experiments import (
     run_grid,
     write_report,
 )
-from msa_slam.experiments.cell_info import CellInfo
+from msa_slam.experiments.cell_info import CellRecord
 from msa_slam.experiments.folder import write_grid
 from msa_slam.experiments.grid import Cell
 from msa_slam.experiments.identity import cell_identities
@@ -156,9 +155,9 @@ def test_dask_local_cluster_runs_two_cells(tmp_path):
 SWEEP = {**TINY, "samplers": ["all", {"sampler": "msa", "sweep": {"lambda_l": [0.0, 1.0]}}]}
 
 
-def recorded_info(cell: Cell) -> CellInfo:
+def recorded_info(cell: Cell) -> CellRecord:
     """The record of `cell` as run_grid writes it now (with the identity of its data and code)."""
-    return replace(cell.info(), identity=cell_identities([cell])[cell.id])
+    return CellRecord.of(cell, cell_identities([cell])[cell.id])
 
 
 def finished_experiment(root: Path, grid_data: dict, metrics_of: Callable[[Cell], dict]) -> list:

@@ -1,11 +1,12 @@
-"""What an experiment cell ran, as its cell.json records it: the grid's labels for it, its place in the grid, the
-identity of its data and code (experiments.identity), its run key (grid.run_key) and, for a copy of an identical
-cell, the folder its files came from (experiments.sharing)."""
+"""What an experiment cell runs (the grid's labels for it, its place in the grid: CellInfo, which a grid.Cell adds
+its config to) and what its cell.json records of its run (CellRecord): also the identity of its data and code
+(experiments.identity), its run key (grid.run_key) and, for a copy of an identical cell, the folder its files came
+from (experiments.sharing)."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 from msa_slam.errors import InputError
@@ -19,9 +20,8 @@ _REQUIRED = object()
 
 @dataclass(frozen=True)
 class CellInfo:
-    """One cell's record; `swept` and `parameters` are the grid's values for it (sampler parameters swept, grid
-    `parameters`: configuration values, as the grid file gives them); `identity` and `run_key` None in a cell.json
-    an older msa-slam wrote (such a cell is rerun: experiments.identity.changed_identity)."""
+    """What a cell of a grid runs, as the grid labels it; `swept` and `parameters` are the grid's values for it
+    (sampler parameters swept, grid `parameters`: configuration values, as the grid file gives them)."""
 
     id: str
     index: int  # position in the grid's expansion (report order)
@@ -33,9 +33,25 @@ class CellInfo:
     swept: Mapping[str, Any]
     parameters: Mapping[str, Any]
     seed: int
+
+
+@dataclass(frozen=True)
+class CellRecord(CellInfo):
+    """A cell's cell.json: its labels, the identity of its data and code when it ran and its run key (None in a
+    cell.json an older msa-slam wrote: such a cell is rerun, experiments.identity.changed_identity) and, for a
+    copy, the folder its files came from."""
+
     identity: Mapping[str, JSONValue] | None = None
     run_key: str | None = None
     shared_from: str | None = None
+
+    @classmethod
+    def of(
+        cls, cell: CellInfo, identity: Mapping[str, JSONValue] | None = None, run_key: str | None = None
+    ) -> CellRecord:
+        """The record of `cell` run on data and code of `identity`, as run key `run_key`."""
+        labels = {f.name: getattr(cell, f.name) for f in fields(CellInfo)}
+        return cls(**labels, identity=identity, run_key=run_key)
 
     def to_json(self) -> dict[str, JSONValue]:
         """cell.json: the labels, then the identity and run key a run recorded, then where a copy came from."""
@@ -58,7 +74,7 @@ class CellInfo:
         return out
 
     @classmethod
-    def from_json(cls, data: Any, where: str) -> CellInfo:
+    def from_json(cls, data: Any, where: str) -> CellRecord:
         """The record of a cell.json; InputError naming `where` and the key for a missing key or a wrong type."""
         if not isinstance(data, Mapping):
             raise InputError(f"{where}: expected a JSON object")

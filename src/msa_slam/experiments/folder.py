@@ -27,7 +27,7 @@ import yaml
 from msa_slam.errors import InputError
 from msa_slam.evaluation.metrics_json import from_json
 from msa_slam.evaluation.run_metrics import RunMetrics
-from msa_slam.experiments.cell_info import CellInfo
+from msa_slam.experiments.cell_info import CellRecord
 from msa_slam.experiments.grid import Cell, GridSpec, expand, parse_grid
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.yaml_file import read_yaml
@@ -44,7 +44,7 @@ METRICS_FILE = "metrics.json"
 class FinishedCell:
     """A finished cell of the grid: what it ran (cell.json), its report and its folder."""
 
-    info: CellInfo
+    info: CellRecord
     metrics: RunMetrics
     folder: Path
 
@@ -66,7 +66,7 @@ def read_cell(folder: Path) -> FinishedCell | None:
         return None
     try:
         return FinishedCell(
-            CellInfo.from_json(info, str(folder / CELL_FILE)), from_json(data, str(folder / METRICS_FILE)), folder
+            CellRecord.from_json(info, str(folder / CELL_FILE)), from_json(data, str(folder / METRICS_FILE)), folder
         )
     except InputError as exc:
         logger.warning("%s; the cell counts as unfinished", exc)

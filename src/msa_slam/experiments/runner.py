@@ -19,13 +19,13 @@ import shutil
 import sys
 import traceback
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from msa_slam.errors import InputError
 from msa_slam.evaluation.run_metrics import RunMetrics
-from msa_slam.experiments.cell_info import CellInfo
+from msa_slam.experiments.cell_info import CellRecord
 from msa_slam.experiments.estimate import GridClock, GridEstimate, estimate_grid
 from msa_slam.experiments.folder import CELL_FILE, KIND, cell_dir, finished_cells, read_cell, stale_cells, write_grid
 from msa_slam.experiments.grid import Cell, GridSpec, check_datasets, expand, run_key
@@ -94,7 +94,7 @@ def _remove_empty_folder(path: Path) -> list[Path]:
     return [path]
 
 
-def run_cell(info: CellInfo, config: dict[str, Any], out: str, figures: bool = False) -> RunMetrics:
+def run_cell(info: CellRecord, config: dict[str, Any], out: str, figures: bool = False) -> RunMetrics:
     """Run one cell and write its folder atomically; returns its metrics (a top-level function so Dask and
     process pools can ship it)."""
     from msa_slam.experiments.sweep import threshold_sweep
@@ -201,7 +201,7 @@ def run_grid(
         run.skipped = [cell.id for cell in cells if cell.id in finished]
         todo = [cell for cell in cells if cell.id not in finished]
         keys = {cell.id: run_key(cell, identities[cell.id]) for cell in todo}
-        infos = {cell.id: replace(cell.info(), identity=identities[cell.id], run_key=keys[cell.id]) for cell in todo}
+        infos = {cell.id: CellRecord.of(cell, identities[cell.id], keys[cell.id]) for cell in todo}
         plan = plan_sharing(todo, keys, finished_runs([run.out, *share_from]))
         local = scheduler is None and client is None
         estimate = estimate_grid(
@@ -216,7 +216,7 @@ def run_grid(
     return run
 
 
-def _copy_cells(run: GridRun, plan: SharePlan, infos: dict[str, CellInfo]) -> None:
+def _copy_cells(run: GridRun, plan: SharePlan, infos: dict[str, CellRecord]) -> None:
     """Write the cells of `plan` that copy a finished cell; one whose cell of this run failed fails with it."""
     sources = {
         **plan.copies,
@@ -255,7 +255,7 @@ def _run_cells(
     client,
     quiet: bool,
     estimate: GridEstimate,
-    infos: dict[str, CellInfo],
+    infos: dict[str, CellRecord],
 ) -> None:
     """Run the `todo` cells, each recording `infos` (its info, identity and run key) as its cell.json."""
     from msa_slam.progress import progress_bar
@@ -299,7 +299,7 @@ def _prepare_inputs(client, todo: list[Cell]) -> None:
 
 def _run_dask(
     todo: list[Cell],
-    infos: dict[str, CellInfo],
+    infos: dict[str, CellRecord],
     out: Path,
     figures: bool,
     scheduler: str | None,

@@ -16,7 +16,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from msa_slam.experiments.cell_info import CellInfo
+from msa_slam.experiments.cell_info import CellRecord
 from msa_slam.experiments.folder import CELL_FILE, cell_dir, read_cell
 from msa_slam.experiments.grid import Cell
 from msa_slam.io.staging import staged_dir
@@ -66,7 +66,7 @@ def plan_sharing(todo: Sequence[Cell], keys: Mapping[str, str | None], finished:
     return plan
 
 
-def copy_cell(source: Path, out: Path, info: CellInfo) -> None:
+def copy_cell(source: Path, out: Path, info: CellRecord) -> None:
     """The cell `info.id` of the experiment `out` as a copy of the finished cell folder `source`, written
     atomically, with `info` and where its files came from as its cell.json."""
     target = cell_dir(out, info.id)
