@@ -115,7 +115,7 @@ def row_values(metrics: RunMetrics) -> dict[str, Any]:
     metrics.json, which records them)."""
     stats = metrics.sampler_stats
     return {
-        **table_row(metrics),
+        **table_row(metrics).record(),
         "frames": metrics.run.frames,
         "window_ms": stats["optimisation_ms_median"],
         "ambiguous": stats["ambiguous_windows"],
@@ -230,7 +230,7 @@ def run(args: argparse.Namespace) -> str:
     for cell in expand(grid):
         found = read_cell(cell_dir(done.out, cell.id))
         if found is not None:
-            runs.setdefault(by_label[cell.method], {})[cell.seed] = row_values(found[1])
+            runs.setdefault(by_label[cell.method], {})[cell.seed] = row_values(found.metrics)
         elif cell.id in done.failed:
             key = by_label[cell.method]
             failed[key] = "; ".join(filter(None, [failed.get(key), f"seed {cell.seed}: {done.failed[cell.id]}"]))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.metrics import seed_row
 from scipy.spatial.transform import Rotation
 
 import msa_slam.evaluation.resources as resources
@@ -256,9 +257,9 @@ def test_seed_summary_ranks_at_each_metrics_displayed_precision():
 
     rows = {
         0: [
-            {"method": "msa", "pr_auc": 0.9999999999999999, "ate_after_m": 0.412000003},
-            {"method": "all", "pr_auc": 1.0, "ate_after_m": 0.412},
-            {"method": "entropy", "pr_auc": 0.5, "ate_after_m": 0.5},
+            seed_row("msa", pr_auc=0.9999999999999999, ate_after_m=0.412000003),
+            seed_row("all", pr_auc=1.0, ate_after_m=0.412),
+            seed_row("entropy", pr_auc=0.5, ate_after_m=0.5),
         ]
     }
     metrics = seed_summary(rows).metrics

@@ -9,10 +9,11 @@ import pytest
 from test_experiments import TINY
 
 from msa_slam.experiments import runner
+from msa_slam.experiments.cell_info import RUN_KEY, SHARED_FROM
 from msa_slam.experiments.folder import load_cells
 from msa_slam.experiments.grid import expand, parse_grid, run_key
 from msa_slam.experiments.paper import PRESETS, paper_grids
-from msa_slam.experiments.sharing import RUN_KEY, SHARED_FROM, plan_sharing
+from msa_slam.experiments.sharing import plan_sharing
 
 IDENTITY = {"data": "d", "code": "c"}
 
@@ -63,7 +64,7 @@ def test_identical_cells_run_once_and_the_copies_say_where_from(tmp_path, monkey
     real = runner.run_cell
 
     def counted(info, config, out, figures=False):
-        ran.append(info["method"])
+        ran.append(info.method)
         return real(info, config, out, figures)
 
     monkeypatch.setattr(runner, "run_cell", counted)
@@ -75,7 +76,7 @@ def test_identical_cells_run_once_and_the_copies_say_where_from(tmp_path, monkey
     record = json.loads((tmp_path / "a" / "cells" / again.id / "cell.json").read_text())
     assert record[SHARED_FROM] == f"../{cell.id}" and record["method"] == "all-again"
     assert record[RUN_KEY] == json.loads((tmp_path / "a" / "cells" / cell.id / "cell.json").read_text())[RUN_KEY]
-    rows = {c.info["method"]: c.metrics.run.keyframes for c in load_cells(tmp_path / "a")}
+    rows = {c.info.method: c.metrics.run.keyframes for c in load_cells(tmp_path / "a")}
     assert rows["all"] == rows["all-again"] > 0
     # another grid with the same run, told of the first folder: a copy, nothing run
     other = runner.run_grid(

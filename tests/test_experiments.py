@@ -27,9 +27,10 @@ from msa_slam.experiments import (
     run_grid,
     write_report,
 )
+from msa_slam.experiments.cell_info import CellRecord
 from msa_slam.experiments.folder import write_grid
 from msa_slam.experiments.grid import Cell
-from msa_slam.experiments.identity import CELL_IDENTITY, cell_identities
+from msa_slam.experiments.identity import cell_identities
 from msa_slam.io import staging
 from msa_slam.io.outputs import OutputError, open_result_folder, write_marker
 
@@ -154,9 +155,9 @@ def test_dask_local_cluster_runs_two_cells(tmp_path):
 SWEEP = {**TINY, "samplers": ["all", {"sampler": "msa", "sweep": {"lambda_l": [0.0, 1.0]}}]}
 
 
-def recorded_info(cell: Cell) -> dict:
-    """The cell.json of `cell` as run_grid writes it now (with the identity of its data and code)."""
-    return {**cell.info(), CELL_IDENTITY: cell_identities([cell])[cell.id]}
+def recorded_info(cell: Cell) -> CellRecord:
+    """The record of `cell` as run_grid writes it now (with the identity of its data and code)."""
+    return CellRecord.of(cell, cell_identities([cell])[cell.id])
 
 
 def finished_experiment(root: Path, grid_data: dict, metrics_of: Callable[[Cell], dict]) -> list:
@@ -169,7 +170,7 @@ def finished_experiment(root: Path, grid_data: dict, metrics_of: Callable[[Cell]
     for cell in cells:
         folder = root / "cells" / cell.id
         folder.mkdir(parents=True)
-        (folder / "cell.json").write_text(json.dumps(recorded_info(cell)))
+        (folder / "cell.json").write_text(json.dumps(recorded_info(cell).to_json()))
         (folder / "metrics.json").write_text(json.dumps(metrics_of(cell)))
     write_marker(root, "experiment")  # last: it lists the files above as msa-slam's
     return cells
@@ -251,7 +252,7 @@ def test_changed_grid_into_same_out_reports_only_its_own_cells(tmp_path):
     (new,) = expand(parse_grid(changed))
     assert run.ran == [new.id] and not run.skipped and not run.failed
     assert run.stale == sorted(c.id for c in old)
-    assert [c.info["id"] for c in load_cells(tmp_path)] == [new.id]
+    assert [c.info.id for c in load_cells(tmp_path)] == [new.id]
     assert len((tmp_path / "results.csv").read_text().splitlines()) == 2
     assert (
         "1 seed(s)" in (tmp_path / "results.md").read_text() and "const-2m" not in (tmp_path / "results.md").read_text()

@@ -14,10 +14,13 @@ from msa_slam.errors import InputError
 from msa_slam.evaluation.metrics import Unavailable
 from msa_slam.evaluation.metrics_json import from_json
 from msa_slam.evaluation.metrics_writer import to_json
+from msa_slam.experiments.rows import METRICS
 from msa_slam.io.tables import write_json
 from msa_slam.pipeline import make_config
+from msa_slam.reporting.comparison import COLUMNS as COMPARISON_COLUMNS
 from msa_slam.reporting.report import report_markdown
 from msa_slam.reporting.stored import StoredRun, read_run
+from msa_slam.slam.loop_closing import REJECTION_REASONS
 
 NO_REVISIT = "no keyframe pair within loop_radius of each other (made up for this test)"
 
@@ -47,10 +50,19 @@ def _without_pr(data: dict) -> dict:
 def test_unavailable_value_carries_its_reason_into_the_report():
     metrics = from_json(_without_pr(stored_metrics("batch.json")), "metrics.json")
     assert metrics.place_recognition.pr_auc == Unavailable(NO_REVISIT) == metrics.place_recognition.f1_max
-    assert metrics.comparison_row(())["pr_auc"] is None  # a table cell: n/a
+    assert metrics.comparison_row(()).value("pr_auc") is None  # a table cell: n/a
     report = report_markdown(StoredRun(make_config(dataset="golden-seq"), metrics, None), [], set())
     assert "| n/a / n/a |" in report and f"- PR-AUC / F1-max n/a: {NO_REVISIT}\n" in report
     assert to_json(metrics)["pr_auc"] is None and to_json(metrics)["unavailable"]["pr"] == NO_REVISIT
+
+
+@pytest.mark.parametrize("name", ["batch.json", "online.json"])
+def test_table_rows_give_exactly_their_tables_columns_in_order(name):
+    """The rows are built beside the tables' column lists (reporting.comparison.COLUMNS, experiments.rows.METRICS):
+    a value added to one but not the other would be a CSV column without values, or a value no column shows."""
+    metrics = from_json(stored_metrics(name), name)
+    assert ["method", *metrics.comparison_row(REJECTION_REASONS).values] == list(COMPARISON_COLUMNS)
+    assert [c for c in METRICS if c != "memory_vs_reference_pct"] == list(metrics.cell_values())
 
 
 def test_experiment_row_names_the_reason_of_each_na_column():

@@ -21,6 +21,7 @@ from typer.testing import CliRunner
 
 from msa_slam.cli import app
 from msa_slam.errors import InputError
+from msa_slam.evaluation.run_metrics import ComparisonRow
 from msa_slam.experiments.compare import run_compare
 from msa_slam.experiments.sweep import threshold_sweep
 from msa_slam.io.poses import read_poses, write_poses
@@ -403,10 +404,10 @@ def _decimals(cell: str) -> int | None:
 
 def test_comparison_table_columns_keep_one_number_of_decimals():
     """A column never mixes 0.123 and 12.3 (values either side of 10 used to switch from 3 to 1 decimal)."""
-    small = {c: 0.5 + i for i, c in enumerate(COLUMNS)}
+    small = {c: 0.5 + i for i, c in enumerate(COLUMNS[1:])}
     rows = [
-        {**small, "method": "a", "keyframes": 7},
-        {**{c: 12.5 + 10 * i for i, c in enumerate(COLUMNS)}, "method": "b", "keyframes": 70},
+        ComparisonRow("a", {**small, "keyframes": 7}),
+        ComparisonRow("b", {**{c: 12.5 + 10 * i for i, c in enumerate(COLUMNS[1:])}, "keyframes": 70}),
     ]
     lines = table_markdown(rows).splitlines()
     header = [h.strip() for h in lines[0].strip("|").split("|")]
@@ -426,7 +427,7 @@ def test_comparison_table_columns_keep_one_number_of_decimals():
     ],
 )
 def test_rpe_segments_name_the_lengths_evaluated(length, span, said):
-    from msa_slam.reporting.report import rpe_segments
+    from msa_slam.reporting.sequence_text import rpe_segments
 
     gt = np.tile(np.eye(4), (201, 1, 1))
     gt[:, 0, 3] = np.linspace(0, length, 201)

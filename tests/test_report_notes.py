@@ -8,6 +8,7 @@ import csv
 import io
 import json
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -25,7 +26,7 @@ from msa_slam.experiments import load_grid, parse_grid, run_grid, write_report
 from msa_slam.experiments.folder import grid_cells
 from msa_slam.experiments.identity import cell_identities, outdated_cells
 from msa_slam.experiments.runner import GridRun, _record
-from msa_slam.reporting.report import scans_read
+from msa_slam.reporting.sequence_text import scans_read
 
 PR_REASON = "no keyframe had an older keyframe to query"
 
@@ -218,8 +219,10 @@ def test_outdated_cells_uses_what_was_read(tmp_path):
     assert set(finished) == {c.id for c in cells}
     identities = cell_identities(cells)
     assert outdated_cells(finished, identities) == {}
-    info, metrics = finished[cells[0].id]
-    finished[cells[0].id] = ({**info, "identity": {**info["identity"], "data": "0" * 24}}, metrics)
+    cell = finished[cells[0].id]
+    assert cell.info.identity is not None
+    identity = {**cell.info.identity, "data": "0" * 24}
+    finished[cells[0].id] = replace(cell, info=replace(cell.info, identity=identity))
     assert outdated_cells(finished, identities) == {
         cells[0].id: f"cell {cells[0].id}: its data changed since it ran; rerun"
     }

@@ -16,6 +16,7 @@ from msa_slam.cli import app
 from msa_slam.errors import InputError
 from msa_slam.evaluation.spread import PairedVerdict
 from msa_slam.experiments import verdicts as v
+from msa_slam.experiments.cell_info import CellRecord
 from msa_slam.experiments.folder import write_grid
 from msa_slam.experiments.grid import expand, load_grid
 from msa_slam.experiments.paper import PRESETS, QUICK_FRAMES, parse_presets, variant
@@ -219,7 +220,7 @@ def constructed_reproduction(out: Path, seeds: list[int]) -> dict:
         for cell in expand(grid):
             folder = root / "cells" / cell.id
             folder.mkdir(parents=True)
-            (folder / "cell.json").write_text(json.dumps(cell.info()))
+            (folder / "cell.json").write_text(json.dumps(CellRecord.of(cell).to_json()))
             (folder / "metrics.json").write_text(json.dumps(_metrics(cell, grid.pipeline)))
             if name == "paper-table2" and cell.dataset == grid.datasets[0] and cell.method in ("all", "msa"):
                 _steps(folder, 2**21 if cell.method == "all" else 2**19)

@@ -20,8 +20,9 @@ from msa_slam.datasets.sequences import UNTIMED, _warn_untimed
 from msa_slam.odometry.kiss import NO_POINT_TIMES
 from msa_slam.pipeline import LiveFrontEnd, run
 from msa_slam.pipeline.config import load_config, make_config, make_online_config
-from msa_slam.reporting.report import report_markdown, sequence_title
+from msa_slam.reporting.report import report_markdown
 from msa_slam.reporting.results import write_run_files
+from msa_slam.reporting.sequence_text import sequence_title
 from msa_slam.slam import RunResult
 from msa_slam.sources import open_source
 

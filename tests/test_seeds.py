@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+from helpers.metrics import seed_row
 from typer.testing import CliRunner
 
 from msa_slam.cli import app
@@ -62,8 +63,8 @@ def test_paired_verdicts():
 def test_seed_summary_reports_mean_std_ranks_and_verdicts():
     rows = {
         s: [
-            {"method": "all", "improvement_t_pct": 10.0 + 20 * s, "keyframes": 100},
-            {"method": "msa", "improvement_t_pct": 12.0 + 20 * s + 0.1 * s, "keyframes": 40},
+            seed_row("all", improvement_t_pct=10.0 + 20 * s, keyframes=100),
+            seed_row("msa", improvement_t_pct=12.0 + 20 * s + 0.1 * s, keyframes=40),
         ]
         for s in range(3)
     }
@@ -78,7 +79,7 @@ def test_seed_summary_reports_mean_std_ranks_and_verdicts():
 
 
 def test_seed_table_gives_each_metric_one_number_of_decimals():
-    rows = {s: [{"method": "msa", "ate_after_m": 9.5 + s, "rpe_pct": 0.5 + s, "keyframes": 40 + s}] for s in range(3)}
+    rows = {s: [seed_row("msa", ate_after_m=9.5 + s, rpe_pct=0.5 + s, keyframes=40 + s)] for s in range(3)}
     text = seed_markdown(seed_summary(rows))
     # ATE crosses 10 m between seeds yet keeps 3 decimals; counts (a mean over seeds) take 1
     assert "| 10.500 ± 1.000 |" in text and "| 1.500 ± 1.000 |" in text and "| 41.0 ± 1.0 |" in text
@@ -88,8 +89,8 @@ def test_seed_table_gives_each_metric_one_number_of_decimals():
 def test_seed_table_says_why_a_value_is_n_a_or_has_no_spread():
     rows = {
         s: [
-            {"method": "all", "pr_auc": None, "ate_after_m": 1.0 if s == 0 else None},
-            {"method": "msa", "pr_auc": 0.9, "ate_after_m": 2.0 + s},
+            seed_row("all", pr_auc=None, ate_after_m=1.0 if s == 0 else None),
+            seed_row("msa", pr_auc=0.9, ate_after_m=2.0 + s),
         ]
         for s in range(3)
     }
@@ -100,7 +101,7 @@ def test_seed_table_says_why_a_value_is_n_a_or_has_no_spread():
         "| all | n/a, n/a, n/a | n/a, n/a, n/a | 1, n/a, n/a |" in text
         and "Ranks: n/a where that seed has no value" in text
     )
-    full = seed_markdown(seed_summary({s: [{"method": "msa", **{k: 1.0 + s for k in SEED_METRICS}}] for s in range(3)}))
+    full = seed_markdown(seed_summary({s: [seed_row("msa", **{k: 1.0 + s for k in SEED_METRICS})] for s in range(3)}))
     assert "¹" not in full and "²" not in full and "Ranks: n/a" not in full
 
 

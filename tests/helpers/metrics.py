@@ -12,6 +12,8 @@ from typing import Any
 
 from msa_slam.evaluation.metrics_json import from_json
 from msa_slam.evaluation.metrics_writer import to_json
+from msa_slam.evaluation.run_metrics import ComparisonRow
+from msa_slam.experiments.seeds import SEED_METRICS
 from msa_slam.slam import RunResult
 
 STORED = Path(__file__).parent.parent / "data" / "metrics"
@@ -32,3 +34,8 @@ def edited(result: RunResult, change: Callable[[dict[str, Any]], None]) -> RunRe
 def stored_metrics(name: str) -> Any:
     """A stored metrics.json (batch.json, online.json) or comparison.json of tests/data/metrics/, as JSON."""
     return json.loads((STORED / name).read_text())
+
+
+def seed_row(method: str, **values: float | None) -> ComparisonRow:
+    """A comparison row of `method` with the given seed-table values, every other SEED_METRICS column n/a."""
+    return ComparisonRow(method, {column: values.get(column) for column in SEED_METRICS})

@@ -107,5 +107,5 @@ def main() -> None:
         typer.echo(f"error: {exc}", err=True)
         sys.exit(2)
     except PermissionError as exc:  # an unreadable input or unwritable output anywhere: name it, no traceback
-        typer.echo(f"error: {exc.filename}: {exc.strerror.lower()} (check its permissions)", err=True)
+        typer.echo(f"error: {exc.filename}: {str(exc.strerror or exc).lower()} (check its permissions)", err=True)
         sys.exit(2)

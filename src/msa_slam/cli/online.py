@@ -71,6 +71,7 @@ def online_command(
 
         check_viewer(viewer_save)
     base = read_config_file(config, OnlineConfig) if config is not None else {}
+    assert source is not None, "with_source_options passes the source options"
     given = {
         "dataset": dataset,
         "sampler": sampler,

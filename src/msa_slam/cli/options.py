@@ -8,30 +8,36 @@ import inspect
 import typing
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Optional
+from typing import TYPE_CHECKING, Any, Optional
 
 import typer
 from typer.core import TyperCommand, TyperGroup
 
+if TYPE_CHECKING:  # typer runs its own copy of click (typer._click), whose types it does not re-export
+    from typer._click import Context, Parameter
 
-class _FlagsTakeNoValue:
+
+def _flags_take_no_value(params: list[Parameter]) -> list[Parameter]:
     """typer's rich help prints a value type (`<bool>`) beside flags, which take no value (plain click prints
     none): an empty metavar for each flag, the help option's included, leaves that column blank."""
-
-    def get_params(self, ctx: typer.Context) -> list[Any]:
-        params = super().get_params(ctx)  # type: ignore[misc]
-        for param in params:
-            if getattr(param, "is_flag", False):
-                param.metavar = ""
-        return params
+    for param in params:
+        if getattr(param, "is_flag", False):
+            param.metavar = ""
+    return params
 
 
-class Command(_FlagsTakeNoValue, TyperCommand):
+class Command(TyperCommand):
     """A command whose --help shows no value type beside its flags."""
 
+    def get_params(self, ctx: Context) -> list[Parameter]:
+        return _flags_take_no_value(super().get_params(ctx))
 
-class Group(_FlagsTakeNoValue, TyperGroup):
+
+class Group(TyperGroup):
     """The command group, whose --help shows no value type beside its flags (--version, --help)."""
+
+    def get_params(self, ctx: Context) -> list[Parameter]:
+        return _flags_take_no_value(super().get_params(ctx))
 
 
 SAMPLER_NAMES = ("all", "constant", "entropy", "spaciousness", "msa")  # tests check: == the registry's names

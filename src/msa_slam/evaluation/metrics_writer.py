@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import fields
 from typing import Any
 
-from msa_slam.evaluation.metrics import ONLINE, FullRateErrors, KeyframeErrors, Memory, Unavailable
+from msa_slam.evaluation.metrics import ONLINE, FullRateErrors, JSONValue, KeyframeErrors, Memory, Unavailable
 from msa_slam.evaluation.run_metrics import RunMetrics
 
 
@@ -17,7 +17,7 @@ def _none(value: Any) -> Any:
     return None if isinstance(value, Unavailable) else value
 
 
-def _fields(obj: Any, names: tuple[str, ...]) -> dict[str, Any]:
+def _fields(obj: Any, names: tuple[str, ...]) -> dict[str, JSONValue]:
     return {name: _none(getattr(obj, name)) for name in names}
 
 
@@ -41,9 +41,9 @@ ACCOUNTING = (
 )
 
 
-def _memory_json(memory: Memory) -> dict[str, Any]:
+def _memory_json(memory: Memory) -> dict[str, JSONValue]:
     a = memory.accounted
-    out: dict[str, Any] = {
+    out: dict[str, JSONValue] = {
         "keyframe_descriptors": a.keyframe_descriptors,
         "keyframe_clouds": a.keyframe_clouds,
         "graph": a.graph,
@@ -58,7 +58,7 @@ def _memory_json(memory: Memory) -> dict[str, Any]:
     return out
 
 
-def _batch_tail(m: RunMetrics) -> dict[str, Any]:
+def _batch_tail(m: RunMetrics) -> dict[str, JSONValue]:
     t, s, pr = m.timing, m.setup, m.place_recognition
     ref = pr.reference
     if t.frontend_s is None or t.frontend_cached is None:
@@ -78,7 +78,7 @@ def _batch_tail(m: RunMetrics) -> dict[str, Any]:
     }
 
 
-def _online_tail(m: RunMetrics) -> dict[str, Any]:
+def _online_tail(m: RunMetrics) -> dict[str, JSONValue]:
     th, s = m.throughput, m.setup
     if th is None:
         raise ValueError(f"{m.run.sequence}: an online run's report lacks its throughput")
@@ -100,10 +100,10 @@ def _online_tail(m: RunMetrics) -> dict[str, Any]:
     }
 
 
-def to_json(m: RunMetrics) -> dict[str, Any]:
+def to_json(m: RunMetrics) -> dict[str, JSONValue]:
     """The report as metrics.json holds it (key order included); with its stamp when it has one."""
     run, loops, kt, full, pr, memory = m.run, m.loops, m.keyframe_trajectory, m.full_rate, m.place_recognition, m.memory
-    out: dict[str, Any] = {"pipeline": ONLINE} if m.online else {}
+    out: dict[str, JSONValue] = {"pipeline": ONLINE} if m.online else {}
     out.update(
         {
             **_fields(run, ("sequence", "dataset", "method", "sampler", "descriptor", "mode", "frames", "keyframes")),

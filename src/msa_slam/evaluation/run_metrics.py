@@ -36,6 +36,23 @@ BATCH_UNTIMED = (
 
 
 @dataclass(frozen=True)
+class ComparisonRow:
+    """compare's Table-I row of one method: its values by column (reporting.comparison.COLUMNS after `method`),
+    None when n/a (the report's notes say why)."""
+
+    method: str
+    values: Mapping[str, float | None]
+
+    def value(self, column: str) -> float | None:
+        """The value of `column`, None when n/a."""
+        return self.values[column]
+
+    def record(self) -> TableRow:
+        """The row as comparison.csv and comparison.md hold it."""
+        return {"method": self.method, **self.values}
+
+
+@dataclass(frozen=True)
 class Stamp:
     """What metrics.json adds to the measured report: the writing version and the keyframes' frames."""
 
@@ -96,14 +113,13 @@ class RunMetrics:
             "kf_improvement_r_pct": kf.improvement.rotation,
         }
 
-    def comparison_row(self, rejection_reasons: Sequence[str]) -> TableRow:
+    def comparison_row(self, rejection_reasons: Sequence[str]) -> ComparisonRow:
         """compare's Table-I row (reporting.comparison.COLUMNS): full-rate ATE/RPE first, keyframe-only ATE as kf_*
         columns; n/a values as None (their reasons are in the report's notes)."""
         loops, acc, pr = self.loops, self.loops.accounting, self.place_recognition
         reference = pr.reference if isinstance(pr.reference, ReferencePR) else None
         values = self.trajectory_values()
-        row = {
-            "method": self.method,
+        row: dict[str, Value | None] = {
             "keyframes": self.run.keyframes,
             "candidates": loops.candidates,
             "true_candidates": acc.true_candidates,
@@ -138,7 +154,7 @@ class RunMetrics:
                 for k in ("kf_ate_before_m", "kf_ate_after_m", "kf_improvement_t_pct", "kf_improvement_r_pct")
             },
         }
-        return {k: known(v) for k, v in row.items()}
+        return ComparisonRow(self.method, {k: known(v) for k, v in row.items()})
 
     def cell_values(self) -> dict[str, Value]:
         """An experiment cell's metric columns (experiments.report.COLUMNS from `frames` on, but the memory relative

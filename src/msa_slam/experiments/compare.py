@@ -20,7 +20,7 @@ from typing import Any
 from msa_slam.errors import InputError
 from msa_slam.evaluation import peak_rss_bytes
 from msa_slam.evaluation.metrics_writer import to_json
-from msa_slam.evaluation.run_metrics import TableRow
+from msa_slam.evaluation.run_metrics import ComparisonRow
 from msa_slam.experiments.seed_folder import (
     RECORD,
     check_seed_folder,
@@ -52,8 +52,8 @@ from msa_slam.reporting.comparison import (
     table_row,
     write_figures,
 )
-from msa_slam.reporting.report import rpe_segments, scans_read
 from msa_slam.reporting.results import write_run_files
+from msa_slam.reporting.sequence_text import rpe_segments, scans_read
 from msa_slam.sampling.params import GATE_PARAMETERS
 from msa_slam.slam import RunResult
 from msa_slam.slam.build import UNGATED_SAMPLERS
@@ -189,7 +189,7 @@ def _comparison(
     window_fix: str,
     workers: int,
     figures: bool = True,
-) -> tuple[list[TableRow], dict[str, str]]:
+) -> tuple[list[ComparisonRow], dict[str, str]]:
     """One comparison folder's files in `tmp` (the methods in `workers` processes); its table rows and failed
     methods."""
     workers = min(workers, len(configs))  # no idle workers
@@ -198,7 +198,7 @@ def _comparison(
     rows = [table_row(r.measured) for r in results]
     table = table_markdown(rows, rpe_segments(results[0].gt_poses)[0] if results else "KITTI segments")
     (tmp / "comparison.md").write_text(table)
-    (tmp / "comparison.csv").write_text(rows_csv(rows, COLUMNS))
+    (tmp / "comparison.csv").write_text(rows_csv([r.record() for r in rows], COLUMNS))
     write_json(tmp / "comparison.json", [to_json(r.measured) for r in results])
     drawn = write_figures(results, tmp / "figures", failed, figures) if results else []
     main_peak = mib(peak_rss_bytes())
@@ -256,7 +256,7 @@ def _say(quiet: bool, line: str) -> None:
 def write_spread(
     out: Path,
     base: RunConfig,
-    rows: dict[int, list[TableRow]],
+    rows: dict[int, list[ComparisonRow]],
     failed: dict[str, str],
     left_out: list[int],
     rerun: Sequence[str] = (),

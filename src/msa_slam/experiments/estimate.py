@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 from msa_slam.errors import InputError
 from msa_slam.evaluation.metrics import Timing
-from msa_slam.evaluation.run_metrics import RunMetrics
+from msa_slam.experiments.folder import FinishedCells
 from msa_slam.experiments.grid import Cell
 from msa_slam.sources.spec import spec_kind
 
@@ -60,12 +60,12 @@ class GridEstimate:
 def estimate_grid(
     name: str,
     cells: Sequence[Cell],
-    finished: Mapping[str, tuple[dict, RunMetrics]],
+    finished: FinishedCells,
     todo: Sequence[Cell],
     workers: int | None,
     shared: int = 0,
 ) -> GridEstimate:
-    """The estimate of running `todo` (of the grid's `cells`; `finished`: read_cell's (info, metrics) by id) on
+    """The estimate of running `todo` (of the grid's `cells`; `finished`: the finished cells by id) on
     `workers` local processes (None: a Dask cluster of unknown size, then stated for one worker); `shared` cells
     are copied from identical ones instead (experiments.sharing)."""
     opened: dict[tuple, tuple[int | None, int | None]] = {}  # each dataset is looked at once
@@ -119,11 +119,11 @@ def _stage_costs() -> str:
     )
 
 
-def _recorded_cost(finished: Mapping[str, tuple[dict, RunMetrics]]) -> tuple[float | None, str]:
+def _recorded_cost(finished: FinishedCells) -> tuple[float | None, str]:
     """(seconds a frame, basis) from the stage times finished cells recorded; (None, "") when none did."""
     seconds = frames = 0.0
     counted = 0
-    for _, metrics in finished.values():
+    for metrics in (cell.metrics for cell in finished.values()):
         if metrics.run.frames > 0:
             seconds, frames = seconds + recorded_seconds(metrics.timing), frames + metrics.run.frames
             counted += 1

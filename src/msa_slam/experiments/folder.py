@@ -18,9 +18,8 @@ from __future__ import annotations
 import json
 import logging
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import yaml
@@ -28,6 +27,7 @@ import yaml
 from msa_slam.errors import InputError
 from msa_slam.evaluation.metrics_json import from_json
 from msa_slam.evaluation.run_metrics import RunMetrics
+from msa_slam.experiments.cell_info import CellRecord
 from msa_slam.experiments.grid import Cell, GridSpec, expand, parse_grid
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.yaml_file import read_yaml
@@ -40,14 +40,23 @@ CELL_FILE = "cell.json"
 METRICS_FILE = "metrics.json"
 
 
+@dataclass(frozen=True)
+class FinishedCell:
+    """A finished cell of the grid: what it ran (cell.json), its report and its folder."""
+
+    info: CellRecord
+    metrics: RunMetrics
+    folder: Path
+
+
 def cell_dir(out: str | os.PathLike, cell_id: str) -> Path:
     return Path(out) / "cells" / cell_id
 
 
-def read_cell(folder: Path) -> tuple[dict[str, Any], RunMetrics] | None:
-    """(cell info, report) of a finished cell folder; None when either file is missing or unreadable, or its
-    metrics.json lacks a key or holds a wrong type (logged, naming the file and key): a corrupt cell counts as
-    unfinished and is rerun, never silently dropped."""
+def read_cell(folder: Path) -> FinishedCell | None:
+    """The finished cell in `folder`; None when cell.json or metrics.json is missing or unreadable, cell.json is of
+    another cell, or either lacks a key or holds a wrong type (logged, naming the file and key): a corrupt cell
+    counts as unfinished and is rerun, never silently dropped."""
     try:
         info = json.loads((folder / CELL_FILE).read_text())
         data = json.loads((folder / METRICS_FILE).read_text())
@@ -56,13 +65,15 @@ def read_cell(folder: Path) -> tuple[dict[str, Any], RunMetrics] | None:
     if not isinstance(info, dict) or info.get("id") != folder.name:
         return None
     try:
-        return info, from_json(data, str(folder / METRICS_FILE))
+        return FinishedCell(
+            CellRecord.from_json(info, str(folder / CELL_FILE)), from_json(data, str(folder / METRICS_FILE)), folder
+        )
     except InputError as exc:
         logger.warning("%s; the cell counts as unfinished", exc)
         return None
 
 
-FinishedCells = dict[str, tuple[dict[str, Any], RunMetrics]]  # cell id -> (cell info, report)
+FinishedCells = dict[str, FinishedCell]  # cell id -> the finished cell
 
 
 def finished_cells(out: str | os.PathLike, cells: list[Cell]) -> FinishedCells:
@@ -104,16 +115,6 @@ def stale_cells(out: str | os.PathLike, cells: list[Cell]) -> list[str]:
     )
 
 
-@dataclass(frozen=True)
-class FinishedCell:
-    """A finished cell of the grid: what it ran (cell.json, with its place in the grid as `index`), its report and
-    its folder."""
-
-    info: dict[str, Any]
-    metrics: RunMetrics
-    folder: Path
-
-
 def load_cells(results_dir: str | os.PathLike) -> list[FinishedCell]:
     """(cell info + metrics) of every finished cell of the grid recorded in `results_dir` (grid.yaml), in the
     grid's order; cell folders of an earlier, different grid are left out (see `stale_cells`)."""
@@ -131,10 +132,9 @@ def finished_list(out: Path, cells: list[Cell], known: FinishedCells | None = No
     """The finished ones of `cells` in `out`, in their order, taken from `known` (already read) where it has them."""
     found = []
     for cell in cells:
-        folder = cell_dir(out, cell.id)
-        read = (known or {}).get(cell.id) or read_cell(folder)
-        if read is not None:
-            found.append(FinishedCell({**read[0], "index": cell.index}, read[1], folder))
+        read = (known or {}).get(cell.id) or read_cell(cell_dir(out, cell.id))
+        if read is not None:  # its place in this grid, which an earlier grid's may differ from
+            found.append(replace(read, info=replace(read.info, index=cell.index)))
     return found
 
 

@@ -37,6 +37,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError, f
 
 from msa_slam.config import validation_message
 from msa_slam.errors import InputError
+from msa_slam.experiments.cell_info import CellInfo
 from msa_slam.io.yaml_file import read_yaml
 from msa_slam.sources.spec import SEED, seeded
 
@@ -131,34 +132,10 @@ class GridSpec(_Strict):
 
 
 @dataclass(frozen=True)
-class Cell:
+class Cell(CellInfo):
     """One run of the grid: its id (folder name), what it varies, and its full pipeline config."""
 
-    id: str
-    pipeline: str
-    dataset: str
-    descriptor: str
-    method: str
-    sampler: str
-    swept: dict[str, Any]
-    parameters: dict[str, Any]
-    seed: int
     config: dict[str, Any]
-    index: int = 0  # position in the grid's expansion (report order)
-
-    def info(self) -> dict[str, Any]:
-        return {
-            "id": self.id,
-            "index": self.index,
-            "pipeline": self.pipeline,
-            "dataset": self.dataset,
-            "descriptor": self.descriptor,
-            "method": self.method,
-            "sampler": self.sampler,
-            "swept": self.swept,
-            "parameters": self.parameters,
-            "seed": self.seed,
-        }
 
 
 # Config keys that name a run without changing what it computes: cells differing only there are one run.
@@ -348,17 +325,17 @@ def expand(grid: GridSpec, where: str = "grid") -> list[Cell]:
         )
         cells.append(
             Cell(
-                f"{name}-{digest}",
-                grid.pipeline,
-                dataset,
-                descriptor,
-                label,
-                sampler,
-                swept,
-                parameters,
-                seed,
-                config,
-                len(cells),
+                id=f"{name}-{digest}",
+                index=len(cells),
+                pipeline=grid.pipeline,
+                dataset=dataset,
+                descriptor=descriptor,
+                method=label,
+                sampler=sampler,
+                swept=swept,
+                parameters=parameters,
+                seed=seed,
+                config=config,
             )
         )
     digests = [c.id.rsplit("-", 1)[1] for c in cells]  # the config hash: names differ by seed even when configs do not

@@ -50,10 +50,10 @@ def write_figures(cells: list[FinishedCell], rows: list[CellRow], reference: str
         names.append("ate_difference.png")
     by_dataset: dict[str, list[FinishedCell]] = defaultdict(list)
     for c in cells:
-        if c.info["pipeline"] == "online":
-            by_dataset[c.info["dataset"]].append(c)
+        if c.info.pipeline == "online":
+            by_dataset[c.info.dataset].append(c)
     for dataset, group in by_dataset.items():
-        first_seed = min(c.info["seed"] for c in group)
+        first_seed = min(c.info.seed for c in group)
         memory: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         graph: dict[str, list[np.ndarray]] = {}
         loops: dict[str, list[np.ndarray]] = {}
@@ -61,11 +61,11 @@ def write_figures(cells: list[FinishedCell], rows: list[CellRow], reference: str
             steps = read_steps(c.folder)
             if steps is None:
                 continue
-            label = c.info["method"] + (f" {c.info['parameters']}" if c.info["parameters"] else "")
+            label = c.info.method + (f" {c.info.parameters}" if c.info.parameters else "")
             new_kf = np.diff(steps["keyframes"], prepend=0) > 0
             graph.setdefault(label, []).append(steps["graph_update_ms"][new_kf])
             loops.setdefault(label, []).append(steps["loop_detection_ms"][new_kf])
-            if c.info["seed"] == first_seed:
+            if c.info.seed == first_seed:
                 memory[label] = (steps["frame"], accounted_bytes(steps), steps["rss_bytes"])
         if not memory:
             continue
@@ -81,14 +81,14 @@ def write_figures(cells: list[FinishedCell], rows: list[CellRow], reference: str
         )
         names += [f"memory_{tag}.png", f"step_times_{tag}.png"]
     sweeps: dict[str, dict[str, dict[str, tuple[list, list]]]] = {}
-    swept_rows = [(c.info, r) for c, r in zip(cells, rows) if c.info.get("swept")]
-    for key in sorted({k for info, _ in swept_rows for k in info["swept"]}):
+    swept_rows = [(c.info, r) for c, r in zip(cells, rows) if c.info.swept]
+    for key in sorted({k for info, _ in swept_rows for k in info.swept}):
         sweeps[key] = {}
         for title, column in SWEEP_METRICS.items():
             lines: dict[str, dict[float, list[float]]] = defaultdict(lambda: defaultdict(list))
             for info, r in swept_rows:
-                if key in info["swept"] and (x := r.value(column)) is not None:
-                    lines[info["dataset"]][float(info["swept"][key])].append(x)
+                if key in info.swept and (x := r.value(column)) is not None:
+                    lines[info.dataset][float(info.swept[key])].append(x)
             sweeps[key][title] = {
                 ds: (sorted(pts), [float(np.mean(pts[x])) for x in sorted(pts)]) for ds, pts in lines.items()
             }

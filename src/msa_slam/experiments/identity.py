@@ -12,7 +12,7 @@ The code identity is the fingerprint of the whole package (a run uses nearly all
 msa-slam's version, which lives in the package's __init__.py, so a result of another version is rerun rather
 than refused.
 
-A grid's cell records its identity in its cell.json (CELL_IDENTITY), a seed of `compare --seeds` in its seed.json.
+A grid's cell records its identity in its cell.json (experiments.cell_info), a seed of `compare --seeds` in its seed.json.
 """
 
 from __future__ import annotations
@@ -23,12 +23,12 @@ from collections.abc import Mapping, Sequence
 from typing import Any, TypeVar
 
 from msa_slam.errors import InputError
+from msa_slam.evaluation.metrics import JSONValue
 from msa_slam.experiments.folder import FinishedCells
 from msa_slam.experiments.grid import Cell
 from msa_slam.io.cache import CacheDir, array_sha256, input_identity, named_files, pipeline_cache, sequence_identity
 from msa_slam.io.fingerprint import PACKAGE, code_fingerprint
 
-CELL_IDENTITY = "identity"  # the key of cell.json that records it
 CODE = (PACKAGE,)  # what the code identity fingerprints
 PARTS = ("data", "code")  # the parts of an identity
 Run = TypeVar("Run")  # what names a run: a cell id, a seed
@@ -43,7 +43,7 @@ def code_identity() -> str:
     return code_fingerprint(CODE)[:24]
 
 
-def dataset_identity(config: Mapping[str, Any], cache: CacheDir) -> Any:
+def dataset_identity(config: Mapping[str, Any], cache: CacheDir) -> dict[str, JSONValue]:
     """Identity of the data a run `config` reads: the simulation key of a sim:/live: dataset, else the identity
     of the scans its source options select (msa_slam.io.cache.sequence_identity) and of their ground truth."""
     from msa_slam.datasets import SourceOptions, open_source_options
@@ -63,7 +63,7 @@ class DataIdentities:
 
     def __init__(self) -> None:
         self._caches: dict[str | None, CacheDir] = {}
-        self._datasets: dict[str, Any] = {}
+        self._datasets: dict[str, dict[str, JSONValue] | None] = {}  # selection -> its identity (None: unreadable)
 
     def __call__(self, configs: Sequence[Mapping[str, Any]]) -> str | None:
         """Identity of what `configs` (runs on one dataset selection, e.g. a comparison's methods) read: the
@@ -111,8 +111,8 @@ def outdated_cells(finished: FinishedCells, identities: dict[str, dict[str, str 
     """The `finished` cells whose recorded identity differs from `identities` (cell_identities), each with the
     line that says why it is rerun."""
     out = {}
-    for cell_id, (info, _) in finished.items():
-        reason = changed_identity(info.get(CELL_IDENTITY), identities[cell_id])
+    for cell_id, cell in finished.items():
+        reason = changed_identity(cell.info.identity, identities[cell_id])
         if reason is not None:
             out[cell_id] = f"cell {cell_id}: {reason}; rerun"
     return out

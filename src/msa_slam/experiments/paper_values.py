@@ -37,7 +37,7 @@ def window_solve_ms(cells: list[FinishedCell], method: str = "msa") -> list[floa
     out = []
     for cell in cells:
         median = (cell.metrics.sampler_stats or {}).get("optimisation_ms_median")
-        if cell.info["method"] == method and isinstance(median, (int, float)):
+        if cell.info.method == method and isinstance(median, (int, float)):
             out.append(float(median))
     return out
 

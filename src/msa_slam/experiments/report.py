@@ -8,7 +8,8 @@ from __future__ import annotations
 import json
 import os
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +18,8 @@ import numpy as np
 from msa_slam.errors import InputError, error_line
 from msa_slam.evaluation import NA, fmt
 from msa_slam.evaluation.metrics import Unavailable, Value, known
-from msa_slam.evaluation.run_metrics import RunMetrics, TableRow
+from msa_slam.evaluation.run_metrics import RunMetrics
+from msa_slam.experiments.cell_info import CellInfo
 from msa_slam.experiments.folder import (
     GRID_FILE,
     FinishedCell,
@@ -35,15 +37,15 @@ from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.tables import rows_csv
 
 
-def _group(info: dict[str, Any]) -> tuple:
+def _group(info: CellInfo) -> tuple:
     """Cells compared with each other: same dataset, descriptor, grid parameters and seed."""
-    return info["dataset"], info["descriptor"], json.dumps(info["parameters"], sort_keys=True), info["seed"]
+    return info.dataset, info.descriptor, json.dumps(info.parameters, sort_keys=True), info.seed
 
 
 def make_rows(cells: list[FinishedCell], reference: str = "all") -> list[CellRow]:
     """One row per cell (COLUMNS); memory relative to the reference method of the same group; `reasons`: why each
     n/a column is (the values' own reasons)."""
-    ref_memory = {_group(c.info): c.metrics.memory.accounted.total for c in cells if c.info["method"] == reference}
+    ref_memory = {_group(c.info): c.metrics.memory.accounted.total for c in cells if c.info.method == reference}
     rows = []
     for c in cells:
         info, m = c.info, c.metrics
@@ -53,18 +55,18 @@ def make_rows(cells: list[FinishedCell], reference: str = "all") -> list[CellRow
         }
         rows.append(
             CellRow(
-                info["id"],
-                info["pipeline"],
-                info["dataset"],
-                info["descriptor"],
-                info["method"],
-                info["sampler"],
-                info["seed"],
-                _parameters(info["parameters"]),
+                info.id,
+                info.pipeline,
+                info.dataset,
+                info.descriptor,
+                info.method,
+                info.sampler,
+                info.seed,
+                _parameters(info.parameters),
                 {column: known(values[column]) for column in METRICS},
                 {column: value.reason for column, value in values.items() if isinstance(value, Unavailable)},
-                (info["parameters"] or {}).get("mode", m.run.mode),
-                info.get("swept") or {},
+                info.parameters.get("mode", m.run.mode),
+                info.swept,
             )
         )
     return rows
@@ -81,7 +83,7 @@ def _relative_memory(m: RunMetrics, ref_memory: int | None, reference: str) -> V
     )
 
 
-def _parameters(parameters: dict[str, Any]) -> str:
+def _parameters(parameters: Mapping[str, Any]) -> str:
     """A cell's grid parameters as its row (and its section of results.md) shows them."""
     return json.dumps(parameters, sort_keys=True) if parameters else ""
 
@@ -106,10 +108,10 @@ def _failed_row(cell: Cell, error_file: Path) -> CellRow:
 
 def _seed_lines(methods: dict[str, list[CellRow]]) -> list[str]:
     """Per-seed ranks and MSA's paired-test verdicts of one section (nothing with a single seed)."""
-    by_seed: dict[int, list[TableRow]] = defaultdict(list)
+    by_seed: dict[int, list[CellRow]] = defaultdict(list)
     for rs in methods.values():
         for r in rs:
-            by_seed[r.seed].append(r.record())
+            by_seed[r.seed].append(r)
     if len(by_seed) < 2:
         return []
     return ["Spread over seeds:", "", seed_markdown(seed_summary(dict(sorted(by_seed.items())))), ""]
@@ -129,23 +131,31 @@ def _cell(stat: tuple[float, float | None] | None, spec: str, unit: str = "") ->
     return fmt(stat[0], spec) + (f" ± {fmt(stat[1], spec)}" if stat[1] is not None else "") + unit
 
 
+@dataclass
+class _Missing:
+    """The columns one reason leaves n/a in a section, and on which seeds of which methods."""
+
+    columns: set[str] = field(default_factory=set)
+    who: defaultdict[str, set[int]] = field(default_factory=lambda: defaultdict(set))
+
+
 def _na_notes(methods: dict[str, list[CellRow]], labels: dict[str, str]) -> list[str]:
     """One line per reason for the section's n/a values among the `labels` columns (column -> label shown),
     naming the columns and who lacks them (with several seeds, on which seeds when not on all of a method's:
     its mean is then over the others)."""
     ran = {m: {r.seed for r in rs} for m, rs in methods.items()}  # the seeds each method has a row on
-    found: dict[str, dict[str, Any]] = {}  # reason -> {"columns": {...}, "who": {method: {seeds}}}
+    found: dict[str, _Missing] = {}  # reason -> the columns it leaves n/a, and where
     for method, rs in methods.items():
         for r in rs:
             for column, reason in sorted(r.reasons.items()):
                 if column in labels:
-                    entry = found.setdefault(reason, {"columns": set(), "who": defaultdict(set)})
-                    entry["columns"].add(column)
-                    entry["who"][method].add(r.seed)
+                    entry = found.setdefault(reason, _Missing())
+                    entry.columns.add(column)
+                    entry.who[method].add(r.seed)
     several = len(set().union(*ran.values())) > 1
     lines = []
     for reason, entry in found.items():
-        who = entry["who"]
+        who = entry.who
         if who == ran:
             whom = "every method" + (" and seed" if several else "")
         else:
@@ -154,8 +164,8 @@ def _na_notes(methods: dict[str, list[CellRow]], labels: dict[str, str]) -> list
             )
         named = (
             "every value"
-            if entry["columns"] >= set(labels)  # a failed cell's
-            else ", ".join(label for column, label in labels.items() if column in entry["columns"])
+            if entry.columns >= set(labels)  # a failed cell's
+            else ", ".join(label for column, label in labels.items() if column in entry.columns)
         )
         lines.append(f"- {named} n/a ({whom}): {reason}")
     if not lines:
@@ -243,7 +253,7 @@ def write_report(
     cells = finished_list(out, expected, finished)
     rows = make_rows(cells, reference)
     write_text_atomic(out / "results.csv", rows_csv([r.record() for r in rows], COLUMNS))
-    done = {c.info["id"] for c in cells}
+    done = {c.info.id for c in cells}
     failed_cells = [c for c in expected if c.id not in done and (out / "errors" / f"{c.id}.txt").is_file()]
     failed = [c.id for c in failed_cells]
     order = {c.id: i for i, c in enumerate(expected)}

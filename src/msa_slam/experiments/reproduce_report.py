@@ -144,20 +144,20 @@ def memory_growth(run: Run) -> tuple[dict[str, dict[int, float]], dict[str, tupl
     """Per method and seed, the accounted memory extrapolated to pc.TARGET_M [GiB] on the long drive (the grid's
     first dataset), the first seed's series for the figure, and that dataset."""
     drive = run.grid.datasets[0]
-    cells = [c for c in run.values.cells if c.info["dataset"] == drive]
+    cells = [c for c in run.values.cells if c.info.dataset == drive]
     out: dict[str, dict[int, float]] = defaultdict(dict)
     series = {}
-    first = min((c.info["seed"] for c in cells), default=None)
+    first = min((c.info.seed for c in cells), default=None)
     for c in cells:
         found = memory_over_distance(c)
         if found is None:
             continue
         try:
-            out[c.info["method"]][c.info["seed"]] = extrapolate(*found, pc.TARGET_M) / 2**30
+            out[c.info.method][c.info.seed] = extrapolate(*found, pc.TARGET_M) / 2**30
         except ValueError:
             continue
-        if c.info["seed"] == first:
-            series[c.info["method"]] = found
+        if c.info.seed == first:
+            series[c.info.method] = found
     return out, series, drive
 
 
@@ -227,11 +227,11 @@ def fig6_panels(run: Run, dataset: str) -> tuple[np.ndarray, list] | None:
     from msa_slam.viz import TrajectoryPanel
 
     cells = {
-        c.info["method"]: c
+        c.info.method: c
         for c in run.values.cells
-        if c.info["dataset"] == dataset
+        if c.info.dataset == dataset
         and c.metrics.run.mode == "oracle"
-        and c.info["seed"] == min(r.seed for r in run.values.rows)
+        and c.info.seed == min(r.seed for r in run.values.rows)
     }
     if "msa" not in cells or "entropy" not in cells:
         return None

@@ -21,7 +21,7 @@ from msa_slam.experiments.folder import KIND as EXPERIMENT_KIND
 from msa_slam.experiments.report import write_report
 from msa_slam.experiments.reproduce import rewrite_reproduce_report
 from msa_slam.experiments.runner import DEFAULT_PARENT
-from msa_slam.experiments.seed_folder import RECORD, SEEDS, finished_metrics, left_out_seeds, seed_dir
+from msa_slam.experiments.seed_folder import RECORD, SEEDS, SeedRecord, finished_metrics, left_out_seeds, seed_dir
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.marker import edited_files, foreign_files, recorded_digests, result_kind, write_marker
 from msa_slam.io.outputs import MARKER, OutputError, open_result_folder, some_names
@@ -164,13 +164,12 @@ def comparison_report(folder: Path) -> str:
 def _write_seed_spread(folder: Path) -> None:
     """The spread over the seeds seeds.json names, from each seed's comparison.json and seed.json."""
     seeds = read_json(folder / "seeds.json")["seeds"]
-    records = {seed: read_json(seed_dir(folder, seed) / RECORD) for seed in seeds}
+    paths = {seed: seed_dir(folder, seed) / RECORD for seed in seeds}
+    records = {seed: SeedRecord.from_json(read_json(path), str(path)) for seed, path in paths.items()}
     rows = {seed: [table_row(m) for m in finished_metrics(seed_dir(folder, seed)) or []] for seed in seeds}
     failed = {
-        f"seed {seed}: {name}": error
-        for seed, record in records.items()
-        for name, error in record.get("failed", {}).items()
+        f"seed {seed}: {name}": error for seed, record in records.items() for name, error in record.failed.items()
     }
     first = records[seeds[0]]
-    base = make_config({**next(iter(first["methods"].values())), "dataset": first["dataset"]})
+    base = make_config({**next(iter(first.methods.values())), "dataset": first.dataset})
     write_spread(folder, base, rows, failed, left_out_seeds(folder, seeds))

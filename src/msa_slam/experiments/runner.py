@@ -25,12 +25,13 @@ from typing import Any
 
 from msa_slam.errors import InputError
 from msa_slam.evaluation.run_metrics import RunMetrics
+from msa_slam.experiments.cell_info import CellRecord
 from msa_slam.experiments.estimate import GridClock, GridEstimate, estimate_grid
 from msa_slam.experiments.folder import CELL_FILE, KIND, cell_dir, finished_cells, read_cell, stale_cells, write_grid
 from msa_slam.experiments.grid import Cell, GridSpec, check_datasets, expand, run_key
-from msa_slam.experiments.identity import CELL_IDENTITY, cell_identities, outdated_cells
+from msa_slam.experiments.identity import cell_identities, outdated_cells
 from msa_slam.experiments.inputs import input_groups, prepare_inputs
-from msa_slam.experiments.sharing import RUN_KEY, SharePlan, copy_cell, finished_runs, plan_sharing
+from msa_slam.experiments.sharing import SharePlan, copy_cell, finished_runs, plan_sharing
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.marker import foreign_in_units
 from msa_slam.io.outputs import DEFAULT_RESULTS, open_result_folder, some_names, staged_dir
@@ -93,7 +94,7 @@ def _remove_empty_folder(path: Path) -> list[Path]:
     return [path]
 
 
-def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bool = False) -> RunMetrics:
+def run_cell(info: CellRecord, config: dict[str, Any], out: str, figures: bool = False) -> RunMetrics:
     """Run one cell and write its folder atomically; returns its metrics (a top-level function so Dask and
     process pools can ship it)."""
     from msa_slam.experiments.sweep import threshold_sweep
@@ -103,19 +104,19 @@ def run_cell(info: dict[str, Any], config: dict[str, Any], out: str, figures: bo
     from msa_slam.pipeline.live import with_odometry_threads
     from msa_slam.reporting.results import write_run_files
 
-    online = info["pipeline"] == "online"
+    online = info.pipeline == "online"
     cfg: RunConfig
     if online:
         cfg = make_online_config(config)
         if cfg.cloud_store == "disk" and cfg.store_dir is None:  # the store removes it again when it closes
-            cfg = make_online_config({**config, "store_dir": str(Path(out) / STORES / info["id"])})
+            cfg = make_online_config({**config, "store_dir": str(Path(out) / STORES / info.id)})
         cfg = with_odometry_threads(cfg, 1)  # every cell, a live: one too, on one thread: reproducible, a core each
     else:
         cfg = make_config(config)
     result = run(cfg, quiet=True, sweep=None if online else threshold_sweep)
-    with staged_dir(cell_dir(out, info["id"])) as tmp:
+    with staged_dir(cell_dir(out, info.id)) as tmp:
         write_run_files(result, tmp, figures or not online)
-        write_json(tmp / CELL_FILE, info)
+        write_json(tmp / CELL_FILE, info.to_json())
     return result.measured
 
 
@@ -200,7 +201,7 @@ def run_grid(
         run.skipped = [cell.id for cell in cells if cell.id in finished]
         todo = [cell for cell in cells if cell.id not in finished]
         keys = {cell.id: run_key(cell, identities[cell.id]) for cell in todo}
-        infos = {cell.id: {**cell.info(), CELL_IDENTITY: identities[cell.id], RUN_KEY: keys[cell.id]} for cell in todo}
+        infos = {cell.id: CellRecord.of(cell, identities[cell.id], keys[cell.id]) for cell in todo}
         plan = plan_sharing(todo, keys, finished_runs([run.out, *share_from]))
         local = scheduler is None and client is None
         estimate = estimate_grid(
@@ -215,7 +216,7 @@ def run_grid(
     return run
 
 
-def _copy_cells(run: GridRun, plan: SharePlan, infos: dict[str, dict[str, Any]]) -> None:
+def _copy_cells(run: GridRun, plan: SharePlan, infos: dict[str, CellRecord]) -> None:
     """Write the cells of `plan` that copy a finished cell; one whose cell of this run failed fails with it."""
     sources = {
         **plan.copies,
@@ -254,7 +255,7 @@ def _run_cells(
     client,
     quiet: bool,
     estimate: GridEstimate,
-    infos: dict[str, dict[str, Any]],
+    infos: dict[str, CellRecord],
 ) -> None:
     """Run the `todo` cells, each recording `infos` (its info, identity and run key) as its cell.json."""
     from msa_slam.progress import progress_bar
@@ -298,7 +299,7 @@ def _prepare_inputs(client, todo: list[Cell]) -> None:
 
 def _run_dask(
     todo: list[Cell],
-    infos: dict[str, dict[str, Any]],
+    infos: dict[str, CellRecord],
     out: Path,
     figures: bool,
     scheduler: str | None,

@@ -20,12 +20,13 @@ import re
 import shutil
 import time
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import msa_slam
 from msa_slam.errors import InputError
+from msa_slam.evaluation.metrics import JSONValue
 from msa_slam.evaluation.metrics_json import from_json
 from msa_slam.evaluation.run_metrics import RunMetrics
 from msa_slam.experiments.identity import changed_identity, run_identities
@@ -51,13 +52,59 @@ def seed_dir(out: Path, seed: int) -> Path:
     return Path(out) / SEEDS / f"seed-{seed}"
 
 
-def seed_record(dataset: str, configs: Sequence[RunConfig], sweep: bool = True) -> dict[str, Any]:
+@dataclass(frozen=True)
+class SeedRecord:
+    """seed.json: the settings a seed ran with (`dataset` without the seed, each method's resolved config by label,
+    whether its methods ran the threshold sweep), msa-slam's version and, once it ran, the identity of its data
+    and code and the methods that failed (label -> error)."""
+
+    version: str
+    dataset: str
+    methods: Mapping[str, Mapping[str, JSONValue]]
+    threshold_sweep: bool
+    identity: Mapping[str, JSONValue] | None = None
+    failed: Mapping[str, str] = field(default_factory=dict)
+
+    def settings(self) -> dict[str, JSONValue]:
+        """What a finished seed must match to be reused (the version is no setting: it is part of the code)."""
+        return {"dataset": self.dataset, "methods": dict(self.methods), "threshold_sweep": self.threshold_sweep}
+
+    def to_json(self) -> dict[str, JSONValue]:
+        identity = None if self.identity is None else dict(self.identity)
+        return {"version": self.version, **self.settings(), IDENTITY: identity, "failed": dict(self.failed)}
+
+    @classmethod
+    def from_json(cls, data: Any, where: str) -> SeedRecord:
+        """The record of a seed.json; InputError naming `where` for a missing setting or a wrong type (a record
+        without the methods that failed lists none; one without an identity is rerun: changed_identity)."""
+        if not isinstance(data, dict):
+            raise InputError(f"{where}: expected a JSON object")
+        data = {"version": "", "failed": {}, **data}
+        for key, kind in {
+            "version": str,
+            "dataset": str,
+            "methods": dict,
+            "threshold_sweep": bool,
+            "failed": dict,
+        }.items():
+            if not isinstance(data.get(key), kind):
+                raise InputError(f"{where}: {key}: expected {kind.__name__}, got {data.get(key)!r}")
+        identity = data.get(IDENTITY)
+        return cls(
+            data["version"],
+            data["dataset"],
+            data["methods"],
+            data["threshold_sweep"],
+            identity if isinstance(identity, dict) else None,
+            data["failed"],
+        )
+
+
+def seed_record(dataset: str, configs: Sequence[RunConfig], sweep: bool = True) -> SeedRecord:
     """What a finished seed must have been run with to be reused: `dataset` is the one without the seed,
     `sweep` whether its methods ran the threshold sweep."""
     methods = {cfg.name: {k: v for k, v in cfg.dump().items() if k not in NOT_SETTINGS} for cfg in configs}
-    return json.loads(
-        json.dumps({"version": msa_slam.__version__, "dataset": dataset, "methods": methods, "threshold_sweep": sweep})
-    )
+    return SeedRecord(msa_slam.__version__, dataset, json.loads(json.dumps(methods)), sweep)
 
 
 def seed_identities(plans: Mapping[int, Sequence[RunConfig]]) -> dict[int, dict[str, str | None]]:
@@ -67,9 +114,9 @@ def seed_identities(plans: Mapping[int, Sequence[RunConfig]]) -> dict[int, dict[
 
 
 def write_record(
-    folder: Path, record: Mapping[str, Any], identity: Mapping[str, str | None], failed: Mapping[str, str]
+    folder: Path, record: SeedRecord, identity: Mapping[str, str | None], failed: Mapping[str, str]
 ) -> None:
-    write_json(Path(folder) / RECORD, {**record, IDENTITY: dict(identity), "failed": dict(failed)})
+    write_json(Path(folder) / RECORD, replace(record, identity=identity, failed=failed).to_json())
 
 
 def _read_json(path: Path) -> Any:
@@ -117,7 +164,7 @@ class Resume:
 
 
 def resume_seeds(
-    out: Path, records: Mapping[int, Mapping[str, Any]], identities: Mapping[int, Mapping[str, str | None]]
+    out: Path, records: Mapping[int, SeedRecord], identities: Mapping[int, Mapping[str, str | None]]
 ) -> Resume:
     """Which seeds of `records` (seed -> expected record) finished earlier in `out` are reused (same settings,
     data and code, no failed method) and which are rerun (same settings, other data or code: `identities`, seed
@@ -128,13 +175,14 @@ def resume_seeds(
         folder = seed_dir(out, seed)
         if not folder.is_dir():
             continue
-        record = _read_json(folder / RECORD)
-        if not isinstance(record, dict):
-            raise OutputError(
-                f"--out {out}: seed {seed} has no readable record of the settings it was run with "
-                f"({SEEDS}/seed-{seed}/{RECORD}); pass --overwrite to replace the folder"
-            )
-        difference = first_difference(_settings(record), _settings(expected))
+        unreadable = OutputError(
+            f"--out {out}: seed {seed} has no readable record of the settings it was run with "
+            f"({SEEDS}/seed-{seed}/{RECORD}); pass --overwrite to replace the folder"
+        )
+        data = _read_json(folder / RECORD)
+        if not isinstance(data, dict):
+            raise unreadable
+        difference = first_difference({k: v for k, v in data.items() if k not in NOT_COMPARED}, expected.settings())
         if difference is not None:
             key, there, now = difference
             raise OutputError(
@@ -142,16 +190,16 @@ def resume_seeds(
                 "now); rerun with the same settings to resume, or pass --overwrite to replace the "
                 "folder"
             )
-        reason = changed_identity(record.get(IDENTITY), identities[seed])
+        try:
+            record = SeedRecord.from_json(data, str(folder / RECORD))
+        except InputError:
+            raise unreadable from None
+        reason = changed_identity(record.identity, identities[seed])
         if reason is not None:
             resume.rerun[seed] = f"seed {seed}: {reason}; rerun"
-        elif not record.get("failed") and finished_metrics(folder) is not None:
+        elif not record.failed and finished_metrics(folder) is not None:
             resume.reusable.append(seed)
     return resume
-
-
-def _settings(record: Mapping[str, Any]) -> dict[str, Any]:
-    return {k: v for k, v in record.items() if k not in NOT_COMPARED}
 
 
 def remove_seeds(out: Path, seeds: Mapping[int, str]) -> None:

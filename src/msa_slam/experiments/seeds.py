@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 from msa_slam.errors import InputError
 from msa_slam.evaluation import NA, fmt
@@ -103,12 +104,22 @@ class SeedSummary:
         }
 
 
-def seed_summary(rows: Mapping[int, Sequence[TableRow]]) -> SeedSummary:
-    """Per metric: each method's values, mean, std and ranks over the seeds (`rows`: seed -> comparison rows),
+class MethodValues(Protocol):
+    """A method's row of one seed: compare's (evaluation.run_metrics.ComparisonRow) or a grid cell's
+    (experiments.rows.CellRow), each with every SEED_METRICS column."""
+
+    @property
+    def method(self) -> str: ...
+
+    def value(self, column: str) -> float | None: ...
+
+
+def seed_summary(rows: Mapping[int, Sequence[MethodValues]]) -> SeedSummary:
+    """Per metric: each method's values, mean, std and ranks over the seeds (`rows`: seed -> its methods' rows),
     and MSA's verdict against each baseline."""
     seeds = list(rows)
-    methods = list(dict.fromkeys(_method(r) for seed_rows in rows.values() for r in seed_rows))
-    per_seed = {s: {_method(r): r for r in rows[s]} for s in seeds}
+    methods = list(dict.fromkeys(r.method for seed_rows in rows.values() for r in seed_rows))
+    per_seed = {s: {r.method: r for r in rows[s]} for s in seeds}
     metrics: dict[str, SeedMetric] = {}
     for column, (label, higher) in SEED_METRICS.items():
         values = [{m: _value(per_seed[s].get(m), column) for m in methods} for s in seeds]
@@ -122,20 +133,10 @@ def seed_summary(rows: Mapping[int, Sequence[TableRow]]) -> SeedSummary:
     return SeedSummary(seeds, metrics)
 
 
-def _method(row: TableRow) -> str:
-    """The method a comparison's or a grid's row is of."""
-    method = row["method"]
-    assert isinstance(method, str), "a table row names its method"
-    return method
-
-
-def _value(row: TableRow | None, column: str) -> float | None:
+def _value(row: MethodValues | None, column: str) -> float | None:
     """A method's value in one seed's row; None where the method did not finish on that seed or the value is n/a."""
-    value = None if row is None else row.get(column)
-    if value is None:
-        return None
-    assert isinstance(value, (int, float)), f"a table row's {column} is a number or n/a"
-    return float(value)
+    value = None if row is None else row.value(column)
+    return None if value is None else float(value)
 
 
 def _cell(column: str, spread: Spread) -> str:

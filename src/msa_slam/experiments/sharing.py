@@ -4,7 +4,7 @@ The paper's grids repeat runs: all samples and default MSA on the Table II scena
 ablation and the distance-bound sweep, and a sweep's point can equal another sweep's. A cell whose run key
 matches a finished cell (of this experiment folder or of the `share_from` folders, e.g. the other grids of a
 reproduction) or an earlier cell of the same run is not run again: its folder is a copy of that cell's, and
-its cell.json (its own info, identity and run key) records where the files came from under SHARED_FROM, a
+its cell.json (its own info, identity and run key) records where the files came from (`shared_from`), a
 path relative to the cell's folder. The copied files are the other cell's (their label is that cell's).
 """
 
@@ -13,17 +13,14 @@ from __future__ import annotations
 import os
 import shutil
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
 
+from msa_slam.experiments.cell_info import CellRecord
 from msa_slam.experiments.folder import CELL_FILE, cell_dir, read_cell
 from msa_slam.experiments.grid import Cell
 from msa_slam.io.staging import staged_dir
 from msa_slam.io.tables import write_json
-
-RUN_KEY = "run_key"  # cell.json: grid.run_key of the cell
-SHARED_FROM = "shared_from"  # cell.json of a copied cell: the folder its files came from, relative to its own
 
 
 @dataclass
@@ -46,9 +43,8 @@ def finished_runs(folders: Sequence[Path]) -> dict[str, Path]:
             continue
         for cell in sorted(cells.iterdir()):
             read = read_cell(cell) if cell.is_dir() and not cell.name.startswith(".") else None
-            key = None if read is None else read[0].get(RUN_KEY)
-            if isinstance(key, str):
-                out.setdefault(key, cell)
+            if read is not None and read.info.run_key is not None:
+                out.setdefault(read.info.run_key, cell)
     return out
 
 
@@ -70,10 +66,10 @@ def plan_sharing(todo: Sequence[Cell], keys: Mapping[str, str | None], finished:
     return plan
 
 
-def copy_cell(source: Path, out: Path, info: Mapping[str, Any]) -> None:
-    """The cell `info["id"]` of the experiment `out` as a copy of the finished cell folder `source`, written
-    atomically, with `info` and SHARED_FROM as its cell.json."""
-    target = cell_dir(out, info["id"])
+def copy_cell(source: Path, out: Path, info: CellRecord) -> None:
+    """The cell `info.id` of the experiment `out` as a copy of the finished cell folder `source`, written
+    atomically, with `info` and where its files came from as its cell.json."""
+    target = cell_dir(out, info.id)
     with staged_dir(target) as tmp:
         for item in sorted(source.iterdir()):
             if item.name == CELL_FILE or item.name.startswith("."):  # its own cell.json; a writer's lock file
@@ -82,4 +78,5 @@ def copy_cell(source: Path, out: Path, info: Mapping[str, Any]) -> None:
                 shutil.copytree(item, tmp / item.name)
             else:
                 shutil.copy2(item, tmp / item.name)
-        write_json(tmp / CELL_FILE, {**info, SHARED_FROM: os.path.relpath(source.resolve(), target.resolve())})
+        shared_from = os.path.relpath(source.resolve(), target.resolve())
+        write_json(tmp / CELL_FILE, replace(info, shared_from=shared_from).to_json())

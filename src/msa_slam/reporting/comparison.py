@@ -13,7 +13,7 @@ from msa_slam.evaluation.display import spec_for
 from msa_slam.evaluation.full_rate import RPE_10M_EVO
 from msa_slam.evaluation.metrics import Unavailable, known
 from msa_slam.evaluation.resources import StageTimer
-from msa_slam.evaluation.run_metrics import RunMetrics, TableRow
+from msa_slam.evaluation.run_metrics import ComparisonRow, RunMetrics
 from msa_slam.io.tables import mib, rows_csv
 from msa_slam.pipeline.driver import SWEEP_NOT_RUN
 from msa_slam.place_recognition import PRCurve
@@ -24,11 +24,9 @@ from msa_slam.reporting.report import (
     ReportedRun,
     deskew_text,
     replayed_note,
-    rpe_segments,
-    scans_read,
-    sequence_title,
 )
 from msa_slam.reporting.results import reference_xy, trajectory_panels
+from msa_slam.reporting.sequence_text import rpe_segments, scans_read, sequence_title
 from msa_slam.slam import RunResult
 from msa_slam.slam.loop_closing import REJECTION_REASONS, candidate_rule
 from msa_slam.viz import MethodMetric, plot_method_metrics, plot_trajectories
@@ -121,7 +119,7 @@ HEADERS = (
 )
 
 
-def table_row(metrics: RunMetrics) -> TableRow:
+def table_row(metrics: RunMetrics) -> ComparisonRow:
     """One Table-I row (COLUMNS) of a run's report: full-rate ATE/RPE first, keyframe-only ATE as kf_* columns
     (memory: keyframes + graph; RSS growth: the process's settled RSS over the method's back-end, see
     comparison_report; time: back-end stages)."""
@@ -135,12 +133,12 @@ def _cell(column: str, value: Any) -> str:
     return NA if value is None else str(value)
 
 
-def table_markdown(rows: Sequence[TableRow], rpe_span: str = "KITTI segments") -> str:
+def table_markdown(rows: Sequence[ComparisonRow], rpe_span: str = "KITTI segments") -> str:
     """comparison.md: the rows of comparison.csv, each column with one number of decimals; `rpe_span`: the
     KITTI segment lengths the RPE covered (reporting.report.rpe_segments), for its header."""
     headers = [h.format(rpe=rpe_span) for h in HEADERS]
     lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
-    lines += ["| " + " | ".join(_cell(c, r[c]) for c in COLUMNS) + " |" for r in rows]
+    lines += ["| " + " | ".join(_cell(c, record[c]) for c in COLUMNS) + " |" for record in (r.record() for r in rows)]
     return "\n".join(lines) + "\n"
 
 

@@ -1,16 +1,14 @@
 """The few plain lines the demo ends with: what its comparison found per method, read back from the folder it
-just wrote (comparison.json, through the comparison's table rows), and what one world seed cannot tell."""
+just wrote (comparison.json), and what one world seed cannot tell."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 from msa_slam.evaluation import NA, fmt
 from msa_slam.evaluation.display import spec_for
+from msa_slam.evaluation.run_metrics import RunMetrics
 from msa_slam.evaluation.spread import MIN_SEEDS
-from msa_slam.reporting.comparison import table_row
 from msa_slam.reporting.stored import listed_methods
 
 BASELINE = "all"  # memory is given as a share of this method's (every frame a keyframe)
@@ -22,12 +20,11 @@ def findings(folder: Path) -> list[str]:
     improvement, loops and PR-AUC, with the table's decimals; then whether the differences exceed the seed
     spread, which a single world seed cannot say."""
     metrics = listed_methods(folder)
-    rows = [table_row(m) for m in metrics]
     frames = metrics[0].run.frames
     baseline = next((m.memory.total_mib for m in metrics if m.method == BASELINE), None)
     width = max(len(m.method) for m in metrics)
     lines = [f"What the comparison found ({metrics[0].run.dataset}, {frames} frames):"]
-    lines += [f"  {m.method:<{width}}  " + _method_line(r, frames, baseline) for m, r in zip(metrics, rows)]
+    lines += [f"  {m.method:<{width}}  " + _method_line(m, frames, baseline) for m in metrics]
     lines.append(
         f"Whether these differences are beyond the seed-to-seed spread cannot be told from this run: it "
         f"simulated 1 world seed and the paired test needs at least {MIN_SEEDS}; "
@@ -36,11 +33,12 @@ def findings(folder: Path) -> list[str]:
     return lines
 
 
-def _method_line(row: Mapping[str, Any], frames: int, baseline: float | None) -> str:
-    memory = NA if not baseline else fmt(100.0 * row["memory_mib"] / baseline, ".1f", " %")
+def _method_line(m: RunMetrics, frames: int, baseline: float | None) -> str:
+    """One method's line, each value with the comparison table's decimals (evaluation.display.spec_for)."""
+    memory = NA if not baseline else fmt(100.0 * m.memory.total_mib / baseline, ".1f", " %")
     return (
-        f"{row['keyframes']} keyframes ({fmt(100.0 * row['keyframes'] / frames, '.1f', ' %')} of frames), "
+        f"{m.run.keyframes} keyframes ({fmt(100.0 * m.run.keyframes / frames, '.1f', ' %')} of frames), "
         f"memory {memory} of {BASELINE} samples, t. ATE improvement "
-        f"{fmt(row['improvement_t_pct'], spec_for('improvement_t_pct'), ' %')}, {row['verified']} loops, "
-        f"PR-AUC {fmt(row['pr_auc'], spec_for('pr_auc'))}"
+        f"{fmt(m.full_rate.improvement.translation, spec_for('improvement_t_pct'), ' %')}, {m.loops.verified} loops, "
+        f"PR-AUC {fmt(m.place_recognition.pr_auc, spec_for('pr_auc'))}"
     )

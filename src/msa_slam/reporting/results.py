@@ -29,7 +29,8 @@ from msa_slam.io.poses import write_poses
 from msa_slam.io.provenance import provenance
 from msa_slam.io.tables import rows_csv, write_json
 from msa_slam.place_recognition.figures import plot_pr_curves
-from msa_slam.reporting.report import report_markdown, sequence_title
+from msa_slam.reporting.report import report_markdown
+from msa_slam.reporting.sequence_text import sequence_title
 from msa_slam.slam import RunResult
 from msa_slam.viz import TrajectoryPanel, plot_memory, plot_step_times, plot_trajectories
 from msa_slam.viz.labels import counted, sampler_label

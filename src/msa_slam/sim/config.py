@@ -6,6 +6,7 @@ libraries that ray-cast the scans)."""
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Collection
 from dataclasses import asdict
 from pathlib import Path
 
@@ -130,11 +131,13 @@ class SimConfig(BaseModel):
     @field_validator("sensor", "realism", "style")
     @classmethod
     def _known_name(cls, v: str | None, info: ValidationInfo) -> str | None:
-        kind, names = {
+        choices: dict[str, tuple[str, Collection[str]]] = {
             "sensor": ("sensor", SENSORS),
             "realism": ("realism preset", REALISM),
             "style": ("world style", STYLES),
-        }[info.field_name]
+        }
+        assert info.field_name is not None, "a field validator is told its field"
+        kind, names = choices[info.field_name]
         if v is not None and v not in names:
             raise ValueError(f"unknown {kind} {v!r}; choose one of {', '.join(names)}")
         return v

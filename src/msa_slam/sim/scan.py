@@ -67,9 +67,9 @@ def mixed_pixels(
     ghost points real sensors leave along depth edges). `points` and `normals` (P, 3, any one frame) are the
     returns' hits and surface normals. A surface seen at a grazing angle (a far stretch of road, a wall along the
     street) has neighbours metres apart in range but on one plane: no edge, its footprint sees one surface."""
-    index = np.full(grid[0] * grid[1], -1)
-    index[ray_idx] = np.arange(len(ray_idx))
-    index = index.reshape(grid)
+    flat = np.full(grid[0] * grid[1], -1)
+    flat[ray_idx] = np.arange(len(ray_idx))
+    index = flat.reshape(grid)
     jumps = []
     for shift in (1, -1):
         other = np.roll(index, shift, axis=1).ravel()[ray_idx]

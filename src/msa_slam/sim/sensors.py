@@ -12,6 +12,7 @@ with an intensity from surface reflectance and incidence, and each point's time 
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
+from typing import TypeVar
 
 import numpy as np
 
@@ -20,6 +21,8 @@ from msa_slam.sim.scan import PoseAt, column_times, fixed_pose, lost_returns, mi
 from msa_slam.sim.shapes import Material
 from msa_slam.sim.world import World
 from msa_slam.types import validate_pose, validate_poses
+
+T = TypeVar("T")
 
 CALIBRATION_STREAM = 2**40  # seeds the per-sequence calibration errors apart from any per-frame stream
 MAX_AZIMUTH_STEPS = 8192  # columns a revolution: beyond any spinning LiDAR (Ouster 2048, an HDL-64E at 5 Hz ~4500);
@@ -128,11 +131,32 @@ SENSORS: dict[str, LidarModel] = {
 }
 
 
-def get_sensor(name: str, **overrides: float | int | None) -> LidarModel:
-    """The named sensor with any non-None overrides (azimuth_steps, max_range, range_noise, dropout)."""
+def get_sensor(
+    name: str,
+    azimuth_steps: int | None = None,
+    max_range: float | None = None,
+    min_range: float | None = None,
+    range_noise: float | None = None,
+    dropout: float | None = None,
+    sweep_period: float | None = None,
+) -> LidarModel:
+    """The named sensor with the overrides given (None: the sensor's own value)."""
     if name not in SENSORS:
         raise InputError(f"unknown sensor {name!r}; choose one of {', '.join(SENSORS)}")
-    return replace(SENSORS[name], **{k: v for k, v in overrides.items() if v is not None})
+    model = SENSORS[name]
+    return replace(
+        model,
+        azimuth_steps=_given(azimuth_steps, model.azimuth_steps),
+        max_range=_given(max_range, model.max_range),
+        min_range=_given(min_range, model.min_range),
+        range_noise=_given(range_noise, model.range_noise),
+        dropout=_given(dropout, model.dropout),
+        sweep_period=_given(sweep_period, model.sweep_period),
+    )
+
+
+def _given(value: T | None, default: T) -> T:
+    return default if value is None else value
 
 
 class Lidar:

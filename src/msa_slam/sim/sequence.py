@@ -61,6 +61,14 @@ def _read_meta(seq_dir: Path) -> dict | None:
         return None
 
 
+def _accepted_meta(seq_dir: Path) -> dict:
+    """sim.json of a simulation is_complete or _is_ours has just accepted."""
+    meta = _read_meta(seq_dir)
+    if meta is None:  # removed or damaged meanwhile, by another process
+        raise InputError(f"{seq_dir / META_FILE}: removed or damaged while msa-slam was reading it; run again")
+    return meta
+
+
 def _scan_size(path: Path) -> int | None:
     try:
         return path.stat().st_size
@@ -244,7 +252,7 @@ def simulate_sequence(
     remove_partials(target.parent, target.name)
     if is_complete(target, key):
         warn_short_range(config)
-        warn_sparse_scans(config, _read_meta(target)["scan_bytes"])  # as when it was written
+        warn_sparse_scans(config, _accepted_meta(target)["scan_bytes"])  # as when it was written
         return target
     if _is_ours(target, key):
         _repair(config, target, progress, workers)
@@ -278,9 +286,11 @@ def _writing(target: Path, written: Path | None = None) -> Iterator[None]:
     try:
         yield
     except OSError as exc:
-        raise write_error(
+        error = write_error(
             exc, target, written, writing=True, advice="choose a writable --out or cache folder (MSA_SLAM_CACHE)"
-        ) from None
+        )
+        assert error is not None, "write_error words every OSError of a write (writing=True)"
+        raise error from None
 
 
 def _damaged_frames(seq_dir: Path, meta: dict) -> list[int]:
@@ -300,7 +310,7 @@ def _repair(config: SimConfig, target: Path, progress: bool, workers: int | None
     folder beside it, then renamed over the damaged file), write its missing tables and links, and sim.json
     last. Files msa-slam did not write there stay; scans sim.json does not list are refused (a loader would
     read them as frames)."""
-    meta = _read_meta(target)
+    meta = _accepted_meta(target)
     listed = {f"{k:06d}.bin" for k in range(len(meta.get("scan_bytes", [])))}
     extra = sorted(p.name for p in (target / "velodyne").glob("*.bin") if p.name not in listed)
     if extra:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 
@@ -18,7 +17,8 @@ from msa_slam.sim.trajectories import Trajectory, frame_indices
 from msa_slam.sim.world import World, build_world
 
 
-class SimFrame(NamedTuple):
+@dataclass(frozen=True)
+class SimFrame:
     """One simulated scan: output index, time (s from the first frame), points, ground-truth pose."""
 
     index: int

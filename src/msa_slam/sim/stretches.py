@@ -1,6 +1,6 @@
 """Planned stretches of a street layout (see `plan`): rows of a catalogue design's house types, and
 hard stretches (open field, plain walls, tunnel, highway) that constrain ICP little along the path.
-A mixin of `layout.StreetLayout`, whose drawing and placement helpers it uses."""
+A base of `layout.StreetLayout`, drawn with the primitives of `placement.Placement`."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
+from msa_slam.sim.placement import Placement
 from msa_slam.sim.plan import DESIGN, ORDER_LENGTH, Design, HouseVariant, Stretch
 from msa_slam.sim.shapes import Material
 
@@ -16,9 +17,10 @@ ROW_BEYOND_M = 60.0
 ROW_CLEAR_M = 15.0
 
 
-class PlannedStretches:
-    """Designed rows and hard stretches; expects StreetLayout's attributes (rng, style, clear, taken, boxes,
-    trunks, ground) and helpers (_at, _u, _try, _add_box, _building, _tree, _parked_car)."""
+class PlannedStretches(Placement):
+    """Designed rows and hard stretches, placed with Placement's primitives along StreetLayout's `plan`."""
+
+    plan: tuple[Stretch, ...]  # set by StreetLayout
 
     @contextmanager
     def _seeded(self, *seed: int) -> Iterator[None]:

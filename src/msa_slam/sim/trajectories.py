@@ -81,7 +81,7 @@ def _resample(xy: np.ndarray, step: np.ndarray | float) -> np.ndarray:
     """Points along the polyline `xy` at arc-length spacing `step`, or at the arc-length stations `step`."""
     seg = np.linalg.norm(np.diff(xy, axis=0), axis=1)
     arc = np.concatenate([[0.0], np.cumsum(seg)])
-    stations = np.arange(0.0, arc[-1], step) if np.isscalar(step) else step
+    stations = step if isinstance(step, np.ndarray) else np.arange(0.0, arc[-1], step)
     return np.column_stack([np.interp(stations, arc, xy[:, k]) for k in range(2)])
 
 

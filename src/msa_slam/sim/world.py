@@ -174,7 +174,7 @@ class World:
             tri, ray, dist = self._through_foliage(origins, directions, tri, ray, dist, time)
         hits = Hits(tri, ray, dist, self.face_normals[tri], self.reflectance[tri], self.material[tri])
         if self.dynamic is not None:
-            hits = self._with_dynamic(hits, origins, directions, time)
+            hits = self._with_dynamic(self.dynamic, hits, origins, directions, time)
         return hits
 
     def _through_foliage(
@@ -204,10 +204,12 @@ class World:
         order = np.argsort(ray_all, kind="stable")
         return tri[order], ray_all[order], dist[order]
 
-    def _with_dynamic(self, hits: Hits, origins: np.ndarray, directions: np.ndarray, time: float) -> Hits:
+    def _with_dynamic(
+        self, dynamic: DynamicObjects, hits: Hits, origins: np.ndarray, directions: np.ndarray, time: float
+    ) -> Hits:
         """Static hits replaced by nearer hits on the dynamic objects (and rays that only hit those);
         rows stay in ray order."""
-        ray_d, dist_d, normal_d, refl_d, mat_d = self.dynamic.cast(origins, directions, time, DYNAMIC_RADIUS)
+        ray_d, dist_d, normal_d, refl_d, mat_d = dynamic.cast(origins, directions, time, DYNAMIC_RADIUS)
         pos = np.minimum(np.searchsorted(hits.ray, ray_d), max(len(hits.ray) - 1, 0))
         has_static = (hits.ray[pos] == ray_d) if len(hits.ray) else np.zeros(len(ray_d), dtype=bool)
         swap = has_static & (dist_d < hits.dist[pos] if len(hits.ray) else has_static)
@@ -245,7 +247,12 @@ class GroundModel:
         self.waves = rng.uniform([0.02, 0.0, 0.0], [0.08, 2 * np.pi, 2 * np.pi], size=(4, 3))
         self.amp = rng.uniform(0.05, 0.12, size=4)
 
-    def __call__(self, xy: np.ndarray) -> np.ndarray | float:
+    def __call__(self, xy: np.ndarray) -> float:
+        """The ground height at one point (x, y)."""
+        return float(self.heights(xy)[0])
+
+    def heights(self, xy: np.ndarray) -> np.ndarray:
+        """The ground heights at the points `xy` (N, 2)."""
         pts = np.atleast_2d(np.asarray(xy, dtype=np.float64))
         dist, idx = self.tree.query(pts, k=self.k)
         dist, idx = dist.reshape(len(pts), -1), idx.reshape(len(pts), -1)
@@ -255,7 +262,7 @@ class GroundModel:
         proj = pts[:, :1] * np.cos(theta) + pts[:, 1:2] * np.sin(theta)
         relief = (self.amp * np.sin(2 * np.pi * k * proj + phase)).sum(1)
         z = z + relief * np.clip((dist[:, 0] - 4.0) / 10.0, 0.0, 1.0)
-        return z if np.ndim(xy) > 1 else float(z[0])
+        return z
 
 
 def extend_path(xy: np.ndarray, length: float) -> np.ndarray:
@@ -326,7 +333,7 @@ def build_world(
     centres = grid.reshape(n[1] + 1, n[0] + 1, 2)[:-1, :-1] + st.ground_cell / 2
     near, _ = layout.clear.tree.query(centres.reshape(-1, 2), distance_upper_bound=st.ground_radius)
     keep = np.isfinite(near).reshape(n[1], n[0])
-    builder.height_field(lo, st.ground_cell, ground(grid).reshape(n[1] + 1, n[0] + 1), keep, 0.25)
+    builder.height_field(lo, st.ground_cell, ground.heights(grid).reshape(n[1] + 1, n[0] + 1), keep, 0.25)
     mesh, reflectance, material = builder.build()
     recipe = DynamicRecipe(
         realism.moving_cars if st.p_parked > 0 else 0.0,
@@ -341,7 +348,7 @@ def build_world(
     first = (len(xy) - len(poses)) // 2  # extend_path adds as many points before the poses as after them
     dynamic = make_dynamic(
         path,
-        ground,
+        ground.heights,
         recipe,
         np.array(layout.transient).reshape(-1, 11),
         Road(path, st.ego_half, layout.clear, layout.taken),
