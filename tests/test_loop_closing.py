@@ -141,3 +141,34 @@ def test_strict_verification_accepts_two_real_scans_of_one_place_metres_apart():
     result = Verifier().verify(scan_points(0).astype(np.float64), scan_points(5).astype(np.float64), strict=True)
     assert result.accepted and result.structure_residual < 0.1
     assert 2.0 < np.linalg.norm(result.T_target_source[:3, 3]) < 6.0
+
+
+def test_prepared_clouds_register_as_the_point_arrays_do(scans):
+    """A keyframe's cloud prepared once and shared by its candidates gives the registration of the arrays."""
+    verifier = Verifier()
+    target, source = verifier.prepare(scans["target"]), verifier.prepare(scans["true"])
+    verifier.verify(target, verifier.prepare(scans["other_place"]))  # the target's preparation used before
+    for strict in (False, True):
+        shared = verifier.verify(target, source, strict=strict)
+        fresh = verifier.verify(scans["target"], scans["true"], strict=strict)
+        np.testing.assert_array_equal(shared.T_target_source, fresh.T_target_source)
+        assert (shared.accepted, shared.residual, shared.num_inliers) == (
+            fresh.accepted,
+            fresh.residual,
+            fresh.num_inliers,
+        )
+        assert shared.target_fraction == pytest.approx(fresh.target_fraction, abs=1e-3)
+
+
+def test_the_verified_protocol_joins_no_keyframes_farther_apart_than_its_offset(monkeypatch):
+    """KITTI-00 scans 0 and 5, about 4 m apart: a loop of the verified protocol (drift check off, so the clouds
+    alone decide) until the protocol's largest offset is below that, then rejected for overlap."""
+    import msa_slam.slam.loop_closing as loop_closing
+
+    s0, s5 = scan_points(0).astype(np.float64), scan_points(5).astype(np.float64)
+    settings = {"loop_protocol": "verified", "drift_check": "off"}
+    _, loops = _close(s5, s0, **settings)
+    assert loops[0].accepted and 2.0 < np.linalg.norm(loops[0].T_match_query[:3, 3]) < 6.0
+    monkeypatch.setattr(loop_closing, "MAX_LOOP_OFFSET_M", 2.0)
+    _, far = _close(s5, s0, **settings)
+    assert not far[0].accepted and far[0].rejected == "overlap"

@@ -379,3 +379,36 @@ def test_the_slam_core_records_loops_left_out_as_inconsistent(drive):
     assert summary.rejected["inconsistent"] == 1 and summary.details["inlier_selection"]["kept"] == 2
     assert summary.details["loop_kernel"] == "none" and summary.details["loop_inliers"] == "consistent"
     assert result.graph_factors.size() == len(odom) + 2
+
+
+def _random_loops(reach_m: float, count: int, seed: int = 0) -> list[np.ndarray]:
+    """`count` transforms with any rotation (up to 180 deg) and translations up to `reach_m` long, half of them
+    exactly that long (the bound's worst case)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(count):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_rotvec(rng.normal(size=3) * rng.uniform(0, math.pi) / math.sqrt(3)).as_matrix()
+        direction = rng.normal(size=3)
+        T[:3, 3] = direction / np.linalg.norm(direction) * reach_m * (1.0 if k % 2 else rng.uniform())
+        out.append(T)
+    return out
+
+
+def test_a_candidate_rejected_unregistered_has_no_loop_within_the_offset_that_passes_the_drift_check():
+    """beyond_drift is a lower bound of the drift check's chi-square over every loop within the offset: where it
+    says so, no such loop passes (rotations of any size, translations up to the offset in any direction)."""
+    closer, query = _closer(100.0)
+    cand, _ = _lateral_loop(closer, query, 0.0)  # odometry: the keyframes are 100 m apart
+    assert closer.beyond_drift(cand, 30.0)
+    assert all(closer.exceeds_drift(cand, T) for T in _random_loops(30.0, 400))
+    assert not closer.beyond_drift(cand, 95.0)  # a loop 95 m long may agree with the odometry: register it
+
+
+def test_a_candidate_whose_odometry_allows_a_loop_is_registered():
+    """Keyframes the odometry puts 3 m apart after a 100 m drive: a loop near the odometry's passes the drift
+    check, so the candidate is not rejected before registration."""
+    closer, query = _closer(100.0)
+    closer._odometry[query] = closer._odometry[3]
+    cand, T = _lateral_loop(closer, query, 0.5)
+    assert not closer.beyond_drift(cand, 30.0) and not closer.exceeds_drift(cand, T)

@@ -83,6 +83,13 @@ class GraphConfig(StageConfig):
             )
         return np.diag(sigma_pair(self.loop_rotation, self.loop_translation) ** 2)
 
+    def loop_covariance_bound(self) -> np.ndarray:
+        """The largest covariance `loop_covariance` returns (in the Loewner order: every loop's is at most this):
+        the registration's is bounded by the loop_max_* sigmas, the fixed one is itself."""
+        if self.loop_noise == "hessian":
+            return np.diag(sigma_pair(self.loop_max_rotation, self.loop_max_translation) ** 2)
+        return self.loop_covariance(None)
+
     def odometry_covariance(self, motion: np.ndarray) -> np.ndarray:
         """The 6x6 covariance of an odometry edge with relative motion `motion`."""
         if self.odometry_noise == "fixed":

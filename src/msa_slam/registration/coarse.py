@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import small_gicp
 
+from msa_slam.registration.prepared import PreparedCloud
 from msa_slam.registration.verify import VerifierConfig
 
 OFFSETS_M = (-6.0, -3.0, 0.0, 3.0, 6.0)  # grid in x and y: 25 starts, 1.5 m from any offset within +-7.5 m
@@ -21,25 +22,22 @@ REFINED = 3  # best-scoring starts registered
 
 
 def coarse_guess(
-    target: np.ndarray, source: np.ndarray, rotation_guess: np.ndarray, config: VerifierConfig
+    target: PreparedCloud, source: PreparedCloud, rotation_guess: np.ndarray, config: VerifierConfig
 ) -> np.ndarray:
     """T_target_source to start the verifier from: `rotation_guess` (its rotation and translation) moved by
-    the grid offset whose coarse registration has the most inliers."""
+    the grid offset whose coarse registration has the most inliers. The clouds are prepared ones
+    (Verifier.prepare): the verifier's coarse pass uses the same preprocessing."""
     voxel, max_dist = 2.0 * config.voxel_size, 3.0 * config.max_correspondence_distance
-    tgt, tree = small_gicp.preprocess_points(
-        np.asarray(target, dtype=np.float64), voxel, config.num_neighbors, config.num_threads
-    )
-    src, _ = small_gicp.preprocess_points(
-        np.asarray(source, dtype=np.float64), voxel, config.num_neighbors, config.num_threads
-    )
+    (tgt, tree), (src, _) = target.at(voxel), source.at(voxel)
     if tgt.size() < config.num_neighbors or src.size() < config.num_neighbors:
         return rotation_guess  # the verifier reports the clouds as too sparse
+    points = src.points()[:, :3]
     starts = []
     for dx in OFFSETS_M:
         for dy in OFFSETS_M:
             T = rotation_guess.copy()
             T[:2, 3] += (dx, dy)
-            starts.append((_inliers(tree, src, T, SCORE_RADIUS_M), T))
+            starts.append((_inliers(tree, points, T, SCORE_RADIUS_M), T))
     starts.sort(key=lambda s: -s[0])
     best, best_T = -1, rotation_guess
     for _, T in starts[:REFINED]:
@@ -54,14 +52,14 @@ def coarse_guess(
             max_iterations=config.max_iterations,
         )
         aligned = np.asarray(result.T_target_source, dtype=np.float64)
-        count = _inliers(tree, src, aligned, config.max_correspondence_distance)
+        count = _inliers(tree, points, aligned, config.max_correspondence_distance)
         if count > best:
             best, best_T = count, aligned
     return best_T
 
 
-def _inliers(tree: small_gicp.KdTree, source: small_gicp.PointCloud, T: np.ndarray, radius: float) -> int:
-    """Source points with a target point within `radius` after moving them by T."""
-    moved = source.points()[:, :3] @ T[:3, :3].T + T[:3, 3]
+def _inliers(tree: small_gicp.KdTree, points: np.ndarray, T: np.ndarray, radius: float) -> int:
+    """Source `points` with a target point within `radius` after moving them by T."""
+    moved = points @ T[:3, :3].T + T[:3, 3]
     idx, sq_dist = tree.batch_nearest_neighbor_search(moved)
     return int(((np.asarray(idx) >= 0) & (np.asarray(sq_dist) <= radius**2)).sum())

@@ -27,7 +27,8 @@ from pydantic import Field
 
 from msa_slam.config import StageConfig
 from msa_slam.errors import InputError
-from msa_slam.types import as_points, validate_pose
+from msa_slam.registration.prepared import PreparedCloud
+from msa_slam.types import validate_pose
 
 
 class VerifierConfig(StageConfig):
@@ -80,25 +81,35 @@ class Verifier:
     def __init__(self, config: VerifierConfig | None = None) -> None:
         self.config = config or VerifierConfig()
 
+    def prepare(self, points: np.ndarray, where: str = "cloud") -> PreparedCloud:
+        """`points` ready to be registered with this verifier's settings (its preprocessing made once, on use)."""
+        return PreparedCloud(points, self.config.num_neighbors, self.config.num_threads, where)
+
     def verify(
-        self, target: np.ndarray, source: np.ndarray, initial_guess: np.ndarray | None = None, strict: bool = False
+        self,
+        target: np.ndarray | PreparedCloud,
+        source: np.ndarray | PreparedCloud,
+        initial_guess: np.ndarray | None = None,
+        strict: bool = False,
+        coarse: bool = True,
     ) -> Verification:
         """Estimate T_target_source from `initial_guess` (identity by default) and decide acceptance (`strict`:
-        with the structure gate too). A cloud
+        with the structure gate too). The clouds are point arrays or `prepare`d ones (a keyframe's, shared by its
+        candidates); `coarse=False` skips the coarse pass (the guess is a coarse registration already:
+        registration.coarse). A cloud
         with fewer than `num_neighbors` points after voxel downsampling (a 1-point scan) cannot be registered:
         an InputError saying so, which loop closing records as the candidate's rejection (`sparse`)."""
         cfg = self.config
-        tgt_pts = as_points(target, "verification target cloud")
-        src_pts = as_points(source, "verification source cloud")
+        tgt_cloud = target if isinstance(target, PreparedCloud) else self.prepare(target, "verification target cloud")
+        src_cloud = source if isinstance(source, PreparedCloud) else self.prepare(source, "verification source cloud")
         T = np.eye(4) if initial_guess is None else validate_pose(initial_guess, "verification initial guess")
         stages = [(cfg.voxel_size, cfg.max_correspondence_distance)]
-        if cfg.coarse_to_fine:
+        if cfg.coarse_to_fine and coarse:
             # A coarse pass with a wide correspondence radius pulls in guesses that are metres off.
             stages.insert(0, (2.0 * cfg.voxel_size, 3.0 * cfg.max_correspondence_distance))
         converged = False
         for voxel, max_dist in stages:
-            tgt, tree = small_gicp.preprocess_points(tgt_pts, voxel, cfg.num_neighbors, cfg.num_threads)
-            src, _ = small_gicp.preprocess_points(src_pts, voxel, cfg.num_neighbors, cfg.num_threads)
+            (tgt, tree), (src, src_tree) = tgt_cloud.at(voxel), src_cloud.at(voxel)
             if tgt.size() < cfg.num_neighbors or src.size() < cfg.num_neighbors:
                 raise InputError(
                     f"verification clouds too sparse after {voxel} m voxels "
@@ -118,7 +129,7 @@ class Verifier:
             converged = bool(result.converged)
         residual, num_inliers = _point_to_plane_residual(tgt, tree, src, T, cfg.max_correspondence_distance)
         fraction = num_inliers / src.size()
-        target_fraction = _covered_fraction(tgt, src, T, cfg.max_correspondence_distance, cfg.num_threads)
+        target_fraction = _covered_fraction(tgt, src_tree, T, cfg.max_correspondence_distance)
         structure = _structure_residual(tgt, tree, src, T, cfg.max_correspondence_distance) if strict else float("nan")
         failed = {
             "overlap": min(fraction, target_fraction) < cfg.min_inlier_fraction,
@@ -142,12 +153,13 @@ class Verifier:
 
 
 def _covered_fraction(
-    target: small_gicp.PointCloud, source: small_gicp.PointCloud, T: np.ndarray, max_distance: float, num_threads: int
+    target: small_gicp.PointCloud, source_tree: small_gicp.KdTree, T: np.ndarray, max_distance: float
 ) -> float:
-    """Fraction of target points with an aligned source point within `max_distance`."""
-    moved = source.points()[:, :3] @ T[:3, :3].T + T[:3, 3]
-    idx, sq_dist = small_gicp.KdTree(moved, num_threads=num_threads).batch_nearest_neighbor_search(
-        target.points()[:, :3]
+    """Fraction of target points with an aligned source point within `max_distance` (searched in the source's
+    frame: its kd-tree is the prepared cloud's)."""
+    inverse = np.linalg.inv(T)
+    idx, sq_dist = source_tree.batch_nearest_neighbor_search(
+        target.points()[:, :3] @ inverse[:3, :3].T + inverse[:3, 3]
     )
     near = (np.asarray(idx) >= 0) & (np.asarray(sq_dist) <= max_distance**2)
     return float(near.mean())

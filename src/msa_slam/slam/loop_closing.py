@@ -20,7 +20,11 @@ registers from the descriptor's yaw; "verified" takes the best `verified_top_k` 
 `verified_min_similarity` (0.3: below it Scan Context matches are noise even for local maps, and three
 registrations a keyframe stay affordable) and lets registration decide, from the yaw plus a coarse translation
 search (registration/coarse.py), or from MapClosures' own alignment, so no odometry prior is used, and verifies
-strictly (the structure gate of registration/verify.py). An accepted loop
+strictly (the structure gate of registration/verify.py). Its loops join keyframes at most MAX_LOOP_OFFSET_M apart;
+with the drift check on, a candidate whose odometry puts its keyframes so far apart that no loop within that offset
+passes the drift check is rejected for drift before it is registered (most false candidates: it decides what
+registration and the drift check would have, at a fraction of the cost), and a keyframe's cloud is prepared for
+registration once for all its candidates (registration/prepared.py). An accepted loop
 whose ground-truth distance exceeds `loop_radius` is a false loop; one over at least 2 x `loop_radius`
 of path (the robot left the place and came back) is a revisit.
 """
@@ -44,6 +48,7 @@ from msa_slam.evaluation.metrics import JSONValue, LoopClosing
 from msa_slam.place_recognition import PRCurve, precision_recall
 from msa_slam.registration import Verifier
 from msa_slam.registration.coarse import coarse_guess
+from msa_slam.registration.prepared import PreparedCloud
 from msa_slam.registration.verify import REJECTIONS
 from msa_slam.slam.keyframes import KeyframeStore
 from msa_slam.slam.map_closures_detector import MapClosuresDetector
@@ -93,6 +98,14 @@ class LoopSettings(Protocol):
 # every reason a registered candidate can be rejected for; "inconsistent": accepted by loop closing, then left out
 # of the batch graph by the pairwise consistency check (backend/inliers.py)
 REJECTION_REASONS = ("sparse", *REJECTIONS, "drift", "inconsistent")
+# keyframe clouds kept prepared for registration (LoopCloser._prepared): a query's and the matches of the last few
+# queries (consecutive keyframes match neighbouring ones), a few MB each
+PREPARED_KEPT = 8
+# The verified protocol joins keyframes at most this far apart: its coarse search starts within 8.5 m of the
+# descriptor's guess, and GICP carried true loops on sim:test to 15.4 m; twice that is a view of the street from
+# afar rather than a revisit. It bounds what a registration can return, so a candidate whose odometry puts its
+# keyframes so far apart that no loop within it passes the drift check is rejected unregistered (beyond_drift).
+MAX_LOOP_OFFSET_M = 30.0
 
 
 def yaw_guess(descriptor: Descriptor, query_desc: np.ndarray, match_desc: np.ndarray) -> np.ndarray:
@@ -124,6 +137,7 @@ class LoopCloser:
         self._odometry = np.zeros((0, 4, 4))
         self._drift = PathCovariance()  # odometry covariance accumulated frame by frame (the drift check)
         self._guesses: dict[tuple[int, int], np.ndarray] = {}  # MapClosures' T_match_query by (query, match)
+        self._prepared_clouds: dict[int, PreparedCloud] = {}  # by keyframe, least recently used first
 
     def candidates(
         self, frame: int, descriptor: np.ndarray, gt: np.ndarray, odometry: np.ndarray, cloud: np.ndarray | None = None
@@ -220,18 +234,23 @@ class LoopCloser:
         guess = self._guesses.pop((cand.query, cand.match), None)
         if self.settings.mode == "oracle" and cand.gt_distance > self.settings.loop_radius:
             return cand
-        store = self.store
-        target, source = store.cloud(cand.match), store.cloud(cand.query)
         strict = protocol(self.settings) == "verified"
-        if guess is None:
-            guess = yaw_guess(store.descriptor, store.descriptor_of(cand.query), store.descriptor_of(cand.match))
-            if strict:
-                guess = coarse_guess(target, source, guess, self.verifier.config)
+        searched = strict and guess is None  # registered from the descriptor's yaw and the coarse search
+        if searched and drift_check_on(self.settings) and self.beyond_drift(cand, MAX_LOOP_OFFSET_M):
+            return replace(cand, verified=True, rejected="drift")  # no registration the search can return passes
         try:
-            result = self.verifier.verify(target, source, initial_guess=guess, strict=strict)
+            target, source = self._prepared(cand.match), self._prepared(cand.query)
+            if guess is None:
+                store = self.store
+                guess = yaw_guess(store.descriptor, store.descriptor_of(cand.query), store.descriptor_of(cand.match))
+                if strict:
+                    guess = coarse_guess(target, source, guess, self.verifier.config)
+            result = self.verifier.verify(target, source, initial_guess=guess, strict=strict, coarse=not searched)
         except InputError:  # clouds too sparse to register: the candidate is rejected, not the run
             return replace(cand, verified=True, residual=float("inf"), rejected="sparse")
         rejected = result.rejected
+        if not rejected and searched and np.linalg.norm(result.T_target_source[:3, 3]) > MAX_LOOP_OFFSET_M:
+            rejected = "overlap"  # a view of the place from afar, not a revisit (MAX_LOOP_OFFSET_M)
         if (
             not rejected
             and drift_check_on(self.settings)
@@ -247,6 +266,17 @@ class LoopCloser:
             covariance=result.covariance,
             rejected=rejected,
         )
+
+    def _prepared(self, frame: int) -> PreparedCloud:
+        """The keyframe's cloud prepared for registration, kept for the next candidates (the query's own, and
+        matches that recur for consecutive queries): the PREPARED_KEPT most recently used."""
+        prepared = self._prepared_clouds.pop(frame, None)
+        if prepared is None:
+            prepared = self.verifier.prepare(self.store.cloud(frame), f"keyframe {frame}")
+        self._prepared_clouds[frame] = prepared
+        while len(self._prepared_clouds) > PREPARED_KEPT:
+            del self._prepared_clouds[next(iter(self._prepared_clouds))]
+        return prepared
 
     def exceeds_drift(self, cand: LoopClosure, T_match_query: np.ndarray, covariance: np.ndarray | None = None) -> bool:
         """Whether the loop's correction of the odometry between its keyframes is beyond what the drift check
@@ -266,16 +296,36 @@ class LoopCloser:
         (KITTI's relative error is about the same fraction of 100 m and 800 m segments), so over a longer path
         the covariance is scaled by path / reference: the sigma then grows with the path, not its square root
         (x2.6 over 690 m). The pose graph keeps the random walk: there it only weights the chain."""
+        odometry, total = self._drift_covariance(cand, self.settings.graph.loop_covariance(covariance))
+        correction = gtsam.Pose3.Logmap(gtsam.Pose3(np.linalg.inv(odometry) @ T_match_query))
+        return float(correction @ np.linalg.solve(total, correction))
+
+    def beyond_drift(self, cand: LoopClosure, reach_m: float) -> bool:
+        """Whether every loop that puts the query within `reach_m` of the match fails the drift check, so the
+        candidate need not be registered. A lower bound of drift_chi2 for any such loop: with E = T_odometry^-1
+        T_loop and Log(E) = (w, r), r = V(w)^-1 t_E, where V (SO(3)'s left Jacobian) has no singular value above
+        1, so |r| >= |t_E| = |t_loop - t_odometry| >= |t_odometry| - reach_m; and the chi-square is at least that
+        of r alone, r^T S^-1 r >= |r|^2 / max eig(S), S the translation block of the total covariance, taken
+        with the largest loop covariance the graph allows (GraphConfig.loop_covariance_bound)."""
+        odometry, total = self._drift_covariance(cand, self.settings.graph.loop_covariance_bound())
+        gap = float(np.linalg.norm(odometry[:3, 3])) - reach_m
+        if gap <= 0:
+            return False
+        largest = float(np.linalg.eigvalsh(total[3:, 3:])[-1])
+        return gap**2 / largest > float(chi2.ppf(self.settings.drift_confidence, 6))
+
+    def _drift_covariance(self, cand: LoopClosure, loop_covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The odometry T_match_query and the covariance its correction is tested against: drift_gate^2 times the
+        odometry covariance accumulated between the keyframes (grown as systematic drift beyond the drift model's
+        reference length: drift_chi2), plus `loop_covariance` and the slack."""
         s = self.settings
         odometry, path_cov = self._drift_to(cand.query).between(cand.match, cand.query)
-        correction = gtsam.Pose3.Logmap(gtsam.Pose3(np.linalg.inv(odometry) @ T_match_query))
         bound = float(chi2.ppf(s.drift_confidence, 6))
         slack = np.repeat([np.radians(s.drift_slack_deg), s.drift_slack_m], 3) ** 2 / bound
         # Beyond the calibration length the random walk's variance (growing with the path) becomes systematic
         # drift's (growing with its square), as KITTI's relative error, a constant fraction over 100-800 m, has it
         systematic = max(1.0, cand.travelled_m / s.graph.drift_reference_m) if np.isfinite(cand.travelled_m) else 1.0
-        total = s.drift_gate**2 * systematic * path_cov + s.graph.loop_covariance(covariance) + np.diag(slack)
-        return float(correction @ np.linalg.solve(total, correction))
+        return odometry, s.drift_gate**2 * systematic * path_cov + loop_covariance + np.diag(slack)
 
     def pr_curve(self) -> PRCurve | None:
         """Precision-recall of the best matches (None when no keyframe had an older one to query)."""
