@@ -30,7 +30,7 @@ from msa_slam.sim.realism import DEFAULT_REALISM, REALISM
 from msa_slam.sim.sensors import SENSORS
 from msa_slam.sim.trajectories import TRAJECTORY_NAMES, Trajectory, frame_indices, load_trajectory, read_trajectory
 
-SIM_VERSION = "12"  # the generation of worlds and scans that docs and sim.json name: bump it when they change
+SIM_VERSION = "13"  # the generation of worlds and scans that docs and sim.json name: bump it when they change
 SIM_LIBRARIES = ("trimesh", "embreex", "numpy", "scipy")  # ray casting, noise, poses (Rotation): the cache key
 SIM_CODE = ("msa_slam.sim",)  # the simulator, and what it imports: the cache key
 SIM_DATA = ("data/trajectories/*.npz",)  # the shipped trajectories it follows

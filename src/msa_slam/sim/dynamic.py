@@ -236,6 +236,7 @@ class DynamicRecipe:
     oncoming_lane: float  # m: the oncoming lane's centre to the left of the path
     pedestrian_offset: tuple[float, float]
     period: float
+    left_shift: float = 0.0  # m: how much farther out the left footpath is (layout.Style.left_shift)
 
 
 def _car_parts(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -327,7 +328,8 @@ def make_dynamic(
     span[peds] = np.minimum(rng.uniform(15.0, 60.0, n_ped), total)
     s0[peds] = rng.uniform(0.0, 1.0, n_ped) * (total - span[peds])  # the walk stays on the path
     speed[peds] = rng.uniform(0.8, 1.8, n_ped)
-    lateral[peds] = np.where(rng.random(n_ped) < 0.5, 1.0, -1.0) * rng.uniform(*recipe.pedestrian_offset, n_ped)
+    left = rng.random(n_ped) < 0.5
+    lateral[peds] = np.where(left, 1.0, -1.0) * rng.uniform(*recipe.pedestrian_offset, n_ped) + left * recipe.left_shift
     rows = np.ones(k, dtype=bool)
     rows[peds] = _walks_clear(road, lateral[peds], s0[peds], span[peds], parts[peds, 0, 3:5])
 

@@ -7,6 +7,8 @@ between. Every object is rejected if its footprint comes closer than a clearance
 placed (so a revisited place keeps what was built on the first pass: same place, same look).
 With a `plan` (see `plan`), designed and hard stretches are laid first and the block walk skips them;
 parked cars may be transient (kept apart for `dynamic`, present only in some time windows).
+A two-way street (`Style.two_way`, with `world.WorldRealism.right_hand_traffic`) is driven in its right lane: every
+offset to the left of the path is one lane (`Style.left_shift`) larger than its mirror image on the right.
 """
 
 from __future__ import annotations
@@ -24,7 +26,8 @@ from msa_slam.sim.stretches import PlannedStretches
 
 @dataclass(frozen=True)
 class Style:
-    """Street-scene parameters, metres. `city` for vehicles (KITTI-like), `campus` for slow platforms."""
+    """Street-scene parameters, metres, the same on both sides of the path but for `left_shift`. `city` for
+    vehicles (KITTI-like: two-way streets), `campus` for slow platforms (walkways)."""
 
     name: str
     road_clearance: float  # no block footprint closer than this to any trajectory point
@@ -43,8 +46,20 @@ class Style:
     ground_radius: float  # ground extends this far from the path
     ground_cell: float
     pedestrian_offset: tuple[float, float] = (5.3, 6.6)  # walkers' distance from the path
-    oncoming_lane: float = 3.0  # m, the oncoming lane's centre left of the path (right-hand traffic): a lane width
+    # m: a lane's width, so the oncoming lane's centre left of the path (right-hand traffic); RASt 06, Germany's
+    # guidelines for urban streets, gives about 3.0-3.5 m a lane
+    oncoming_lane: float = 3.0
     ego_half: tuple[float, float] = (2.5, 1.0)  # the ego's footprint about the sensor: KITTI's 4.8 x 1.8 m estate car
+    two_way: bool = False  # a two-way street driven in its right lane: see `left_shift`
+
+    @property
+    def left_shift(self) -> float:
+        """How much farther out the left side stands than the right (m). A two-way street is driven in its right
+        lane (right-hand traffic, as KITTI's Germany): the path is that lane's centre and the carriageway goes on
+        one lane (`oncoming_lane`) to the left, so the left row of parked cars, kerb, footpath, poles, trees and
+        buildings stand that much farther out than their mirror images on the right. A street for one lane of
+        traffic, or a walkway (the campus style: the walker keeps to its middle), is symmetric: 0."""
+        return self.oncoming_lane if self.two_way else 0.0
 
 
 STYLES: dict[str, Style] = {
@@ -65,6 +80,7 @@ STYLES: dict[str, Style] = {
         2.3,
         70.0,
         2.5,
+        two_way=True,
     ),
     "campus": Style(
         "campus",
@@ -140,7 +156,7 @@ class StreetLayout(PlannedStretches):
             off = self._u(st.setback)
             if kind < 0.4 and length > 2:
                 self._add_box(
-                    p + side * n * off,
+                    self._beside(p, n, side, off),
                     (length / 2, 0.15),
                     yaw,
                     self._u((0.8, 2.5)),
@@ -149,7 +165,7 @@ class StreetLayout(PlannedStretches):
                 )
             elif kind < 0.65 and length > 2:
                 self._add_box(
-                    p + side * n * off,
+                    self._beside(p, n, side, off),
                     (length / 2, 0.5),
                     yaw,
                     self._u((0.8, 1.6)),
@@ -160,13 +176,13 @@ class StreetLayout(PlannedStretches):
             elif kind < 0.85:
                 for x in np.arange(1.0, length, self._u((3.0, 5.0))):
                     q, _, m = self._at(s + x)
-                    self._tree(q + side * m * (off + self._u((0.0, 3.0))), st.road_clearance)
+                    self._tree(self._beside(q, m, side, off + self._u((0.0, 3.0))), st.road_clearance)
             return length
         length, depth = self._u(st.length), self._u(st.depth)
         p, h, n = self._at(s + length / 2)
         yaw = float(np.arctan2(h[1], h[0]))
         setback = self._u(st.setback)
-        center = p + side * n * (setback + depth / 2)
+        center = self._beside(p, n, side, setback + depth / 2)
         if self._building(center, yaw, side, length, depth, st.road_clearance):
             if self.rng.random() < st.p_back_row:
                 back_depth = self._u(st.depth)
@@ -184,7 +200,7 @@ class StreetLayout(PlannedStretches):
                     s += st.pole_spacing
                     continue
                 p, h, n = self._at(s)
-                c = p + side * n * self._u((st.car_offset[1] + 0.7, st.setback[0] - 0.5))
+                c = self._beside(p, n, side, self._u((st.car_offset[1] + 0.7, st.setback[0] - 0.5)))
                 if self._try(c, np.array([0.2, 0.2]), 0.0, st.furniture_clearance):
                     self.trunks.append((*c, self.ground(c) - 0.3, self._u((0.08, 0.18)), self._u((4.5, 8.0)), 0.8))
                 s += st.pole_spacing * self._u((0.6, 1.4))
@@ -195,7 +211,7 @@ class StreetLayout(PlannedStretches):
                     continue
                 if self.rng.random() < 0.6:
                     p, h, n = self._at(s)
-                    c = p + side * n * self._u((st.car_offset[1] + 1.0, st.setback[1]))
+                    c = self._beside(p, n, side, self._u((st.car_offset[1] + 1.0, st.setback[1])))
                     self._tree(c, st.furniture_clearance + 0.5)
                 s += st.tree_spacing * self._u((0.5, 1.5))
             if st.p_parked <= 0:

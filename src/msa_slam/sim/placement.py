@@ -50,6 +50,11 @@ class Placement:
         h = h / max(np.linalg.norm(h), 1e-9)
         return p, h, np.array([-h[1], h[0]])
 
+    def _beside(self, p: np.ndarray, n: np.ndarray, side: float, offset: float) -> np.ndarray:
+        """The point `offset` m to one side (`side` +1: left, -1: right) of path point `p` (unit left normal `n`),
+        a two-way street's left side one lane farther out (`Style.left_shift`)."""
+        return p + side * n * (offset + (self.style.left_shift if side > 0 else 0.0))
+
     def _try(self, center: np.ndarray, half: np.ndarray, yaw: float, clearance: float) -> bool:
         return self.clear.is_clear(center, half, yaw, clearance) and self.taken.add_if_free(center, half, yaw)
 
@@ -147,7 +152,7 @@ class Placement:
         st = self.style
         p, h, n = (at or self._at)(s)
         yaw = float(np.arctan2(h[1], h[0]))
-        c = p + side * n * self._u(st.car_offset)
+        c = self._beside(p, n, side, self._u(st.car_offset))
         half = np.array([self._u((1.9, 2.4)), self._u((0.8, 0.95))])
         if not self._try(c, half, yaw, st.furniture_clearance):
             return

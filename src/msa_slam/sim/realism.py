@@ -7,7 +7,8 @@ motion distortion over the 10 Hz sweep, KITTI's HDL-64 elevation error (about -0
 KITTI loader and msa-slam's KITTI-layout reader correct) with per-beam angle and range errors, range noise
 growing with range and incidence, lost dark/grazing returns, mixed pixels at depth edges, foliage, moving and
 coming-and-going objects, repeated block designs and stretches with little structure along the road, in a world
-that stands along gravity (read from the drive: sim.level), not along the first LiDAR frame's z axis. "kitti-hard" is "kitti"
+that stands along gravity (read from the drive: sim.level), not along the first LiDAR frame's z axis, whose two-way
+streets are driven in their right lane (the left side a lane farther out: layout.Style.left_shift). "kitti-hard" is "kitti"
 with a less sensitive receiver, larger per-beam errors and more structureless stretches: several times its
 odometry drift, for tests.
 """
@@ -68,6 +69,7 @@ KITTI_WORLD = WorldRealism(
     hard_share=0.25,
     foliage_gap=0.3,
     upright=True,
+    right_hand_traffic=True,
 )
 # "kitti-hard": odometry that drifts several times as much, for tests of what loop closing must repair. A receiver
 # 36x less sensitive (min_return_power 0.005, SIM_VERSION 9's value: the road fades ~20 m out, so KISS-ICP's pitch

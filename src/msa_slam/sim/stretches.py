@@ -73,7 +73,7 @@ class PlannedStretches(Placement):
         for k, house in enumerate(houses):
             p, h, n = at(s + house.length / 2)
             yaw = float(np.arctan2(h[1], h[0]))
-            center = p + side * n * (design.setback + design.depth / 2)
+            center = self._beside(p, n, side, design.setback + design.depth / 2)
             with self._seeded(design.detail_seed, 0):
                 built = self._building(
                     center,
@@ -95,7 +95,7 @@ class PlannedStretches(Placement):
             if design.fence > 0:
                 q, _, m = at(s + plot / 2)
                 self._add_box(
-                    q + side * m * (design.setback - 1.0),
+                    self._beside(q, m, side, design.setback - 1.0),
                     (plot / 2 - 0.2, 0.08),
                     yaw,
                     design.fence,
@@ -105,7 +105,7 @@ class PlannedStretches(Placement):
             if house.tree:
                 q, _, m = at(s + house.length + gap / 2)
                 with self._seeded(design.detail_seed, 1):
-                    self._tree(q + side * m * (design.setback + 1.0), st.road_clearance)
+                    self._tree(self._beside(q, m, side, design.setback + 1.0), st.road_clearance)
             if st.p_parked > 0:  # the same cars in front of every house of the design
                 with self._seeded(design.detail_seed, 2):
                     for x in np.arange(self._u((0.0, 3.0)), plot - 4.0, 6.5):
@@ -113,7 +113,7 @@ class PlannedStretches(Placement):
                             self._parked_car(s + x, side, False, at)
             if design.light_pitch and k % design.light_pitch == 0:
                 q, _, m = at(s)
-                c = q + side * m * (st.car_offset[1] + 0.7)
+                c = self._beside(q, m, side, st.car_offset[1] + 0.7)
                 if self._try(c, np.array([0.2, 0.2]), 0.0, st.furniture_clearance):
                     self.trunks.append((*c, self.ground(c) - 0.3, 0.12, 6.5, 0.8))
             if k < len(houses) - 1:
@@ -123,7 +123,7 @@ class PlannedStretches(Placement):
             for x in gaps:
                 q, h, m = at(x + gap / 2)
                 self._wall_piece(
-                    q + side * m * (design.setback + design.depth / 2),
+                    self._beside(q, m, side, design.setback + design.depth / 2),
                     (gap / 2, 0.15),
                     float(np.arctan2(h[1], h[0])),
                     self.ground(q) - 0.3,
@@ -159,7 +159,9 @@ class PlannedStretches(Placement):
 
     def _hard(self, stretch: Stretch) -> None:
         """Structure that constrains little along the path: an open field with a few far trees, plain walls,
-        a tunnel (walls and a roof) or a highway between low barriers."""
+        a tunnel (walls and a roof) or a highway between low barriers. A two-way street's left side stands one
+        lane farther out (`Style.left_shift`) in fields, between walls and in tunnels (a tunnel with a lane each
+        way); the highway's barriers are laid for it already."""
         st = self.style
         kind = stretch.kind
         if kind == "field":
@@ -167,7 +169,7 @@ class PlannedStretches(Placement):
             while s < stretch.end:
                 p, _, n = self._at(s)
                 side = 1.0 if self.rng.random() < 0.5 else -1.0
-                self._tree(p + side * n * self._u((18.0, 45.0)), st.road_clearance)
+                self._tree(self._beside(p, n, side, self._u((18.0, 45.0))), st.road_clearance)
                 s += self._u((20.0, 45.0))
             return
         step = 4.0
@@ -180,18 +182,20 @@ class PlannedStretches(Placement):
             if kind in ("wall", "tunnel"):
                 for side in (1.0, -1.0):
                     self._wall_piece(
-                        p + side * n * (lateral + 0.15),
+                        self._beside(p, n, side, lateral + 0.15),
                         (step / 2, 0.15),
                         yaw,
                         z - 0.5,
                         (roof if kind == "tunnel" else wall_h) + 0.5,
                         refl,
                     )
-                if kind == "tunnel":
-                    half = np.array([step / 2, lateral + 0.5])
-                    if self.clear.only_within(p, half, yaw, stretch.start - 10.0, stretch.end + 10.0):
-                        self.boxes.append((*p, z + roof + 1.5, *half, 1.5, yaw, refl, Material.SOLID))
-            else:  # highway: a concrete barrier each side, a light pole on the left every 40 m
+                if kind == "tunnel":  # the roof spans the walls: centred between them
+                    half = np.array([step / 2, lateral + 0.5 + st.left_shift / 2])
+                    c = p + n * st.left_shift / 2
+                    if self.clear.only_within(c, half, yaw, stretch.start - 10.0, stretch.end + 10.0):
+                        self.boxes.append((*c, z + roof + 1.5, *half, 1.5, yaw, refl, Material.SOLID))
+            else:  # highway: a concrete barrier each side, a light pole on the left every 40 m; its carriageway
+                # already has a lane left of the ego's (barriers 3.3 m right, 5.8 m left): no left shift
                 for side, off in ((1.0, lateral + 0.3), (-1.0, st.car_offset[0])):
                     self._wall_piece(p + side * n * off, (step / 2, 0.3), yaw, z - 0.2, 1.0, 0.45)
                 if int(s // 40.0) != int((s - step) // 40.0):

@@ -1,17 +1,19 @@
 """Where traffic may drive and walk without touching the ego vehicle: the path as arc lengths, the ego's place on
 it at any time, and the parts of the street that a lane or a walk may use.
 
-The model (right-hand traffic, as KITTI's Germany; the world's street is laid out symmetrically about the path,
-parked cars' centres 3.3-4.3 m to each side in the city style, so the ego drives the middle of its carriageway):
+The model (right-hand traffic, as KITTI's Germany; with `WorldRealism.right_hand_traffic` the city style's
+two-way street is driven in its right lane: parked cars' centres 3.3-4.3 m to the right, the left row one lane
+farther out, 6.3-7.3 m, `layout.Style.left_shift`; the plain world's street is symmetric about the path):
 
 - Same direction: the ego's own lane carries one car ahead of it and one behind, each at a distance from the
   ego that varies smoothly with the ego's own progress along the path (between a following distance and beyond
   the range the dynamic objects are cast to), so they keep their distance when the ego stops and never drive
   backwards (`following_gap`). No car overtakes: the street has no second lane in the ego's direction.
-- Oncoming: a lane `Style.oncoming_lane` m to the left. Between rows of parked cars the street is one carriageway
-  (4.7-7 m between the rows) and has no room for it, so oncoming cars drive only where the lane is free: no parked
-  car (static or coming-and-going), wall or pole on it, and no stretch of the ego's path (where the path comes
-  back, the ego itself drives there), in runs long enough not to flicker (`Road.lane_free`).
+- Oncoming: a lane `Style.oncoming_lane` m to the left. Oncoming cars drive only where the lane is free: no
+  parked car (static or coming-and-going), wall or pole on it, and no stretch of the ego's path (where the path
+  comes back, the ego itself drives there), in runs long enough not to flicker (`Road.lane_free`). On a two-way
+  street that is most of it; on the plain world's symmetric street (4.7-7 m between the rows of parked cars, room
+  for the ego only) only where it has no parking.
 - Pedestrians walk beside the path (sidewalks); a walk that would reach the ego's road anywhere (where the
   path crosses or comes back) is left out (`Road.clear_of_ego`).
 
@@ -33,6 +35,7 @@ FOLLOW_FAR = 150.0  # m: the farthest it drops back, beyond the dynamic objects'
 FOLLOW_WAVE = (600.0, 1500.0)  # m of the ego's path per cycle of that distance: slow enough never to reverse
 LANE_STEP = 1.0  # m: the oncoming lane is checked at every LANE_STEP of arc length
 MIN_LANE_RUN = 30.0  # m: shorter free stretches of the oncoming lane carry no car (it would pop in and out)
+MIN_TURN_RADIUS = 5.0  # m: the tightest curve a car drives (a kerb-to-kerb turning circle of about 10-11 m)
 
 
 @dataclass
@@ -106,14 +109,17 @@ class Road:
 
     def lane_free(self, lateral: float, half: tuple[float, float]) -> np.ndarray:
         """Bool per LANE_STEP of arc length: whether a car (`half` extents) centred there on the lane `lateral` m
-        to the left of the path fits (clear of the ego's path and of placed structure), kept only in free runs of
-        at least MIN_LANE_RUN m."""
+        to the left of the path fits (clear of the ego's path and of placed structure) and can drive it (where the
+        ego turns left the lane, on the inside, turns on a radius `lateral` m tighter: not under MIN_TURN_RADIUS),
+        kept only in free runs of at least MIN_LANE_RUN m."""
         s = np.arange(0.0, self.path.length + LANE_STEP, LANE_STEP)
         p, h = self.path.at(s)
         xy = p + np.column_stack([-h[:, 1], h[:, 0]]) * lateral
         yaw = np.arctan2(h[:, 1], h[:, 0])
         halves = np.tile(np.asarray(half, dtype=np.float64), (len(s), 1))
-        free = self.clear_of_ego(xy, halves, yaw)
+        left_turn = np.gradient(np.unwrap(yaw), s) if len(s) > 1 else np.zeros(len(s))  # rad per m
+        free = left_turn * (lateral + MIN_TURN_RADIUS) <= 1.0
+        free &= self.clear_of_ego(xy, halves, yaw)
         free &= np.array([f and self.taken.is_free(c, halves[0], a, 0.3) for f, c, a in zip(free, xy, yaw)])
         edges = np.flatnonzero(np.diff(np.concatenate([[0], free.astype(np.int8), [0]])))
         for start, end in zip(edges[::2], edges[1::2]):

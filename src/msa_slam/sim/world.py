@@ -47,6 +47,7 @@ class WorldRealism:
     hard_kinds: tuple[str, ...] = HARD_KINDS
     foliage_gap: float = 0.0  # share of rays that pass a crown's surface, drawn per scan and ray
     upright: bool = False  # build along gravity (level.gravity_up), not along the trajectory frame's z
+    right_hand_traffic: bool = False  # two-way streets driven in their right lane (layout.Style.left_shift)
 
     def __post_init__(self) -> None:
         for name in ("moving_cars", "pedestrians"):
@@ -307,6 +308,8 @@ def build_world(
     st = STYLES[style]
     if realism.parked_occupancy > 0 and st.p_parked > 0:  # a style without parking (campus) keeps none
         st = replace(st, p_parked=realism.parked_occupancy)
+    if not realism.right_hand_traffic:  # the plain world's street is symmetric about the path
+        st = replace(st, two_way=False)
     rng = np.random.default_rng(seed)
     ground = GroundModel(poses, sensor_height, rng)
     xy = extend_path(poses[:, :2, 3], PATH_LEAD)
@@ -341,6 +344,7 @@ def build_world(
         st.oncoming_lane,
         st.pedestrian_offset,
         realism.turnover_period,
+        st.left_shift,
     )
     times = np.arange(len(poses)) / 10.0 if times is None else np.asarray(times, dtype=np.float64)
     if times.shape != (len(poses),):
