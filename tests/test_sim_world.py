@@ -256,10 +256,12 @@ def test_house_types_keep_a_street_from_matching_itself_a_few_houses_along():
     assert typed < identical - 0.05
 
 
+@pytest.mark.parametrize("right_hand", [False, True])
 @pytest.mark.parametrize("kind", ["field", "wall", "tunnel", "highway"])
-def test_hard_stretches_keep_the_road_open(kind):
+def test_hard_stretches_keep_the_road_open(kind, right_hand):
     poses = _path(500)
-    world = build_world(poses, "city", seed=8, realism=WorldRealism(hard_share=0.6, hard_kinds=(kind,)))
+    realism = WorldRealism(hard_share=0.6, hard_kinds=(kind,), right_hand_traffic=right_hand)
+    world = build_world(poses, "city", seed=8, realism=realism)
     assert {s.kind for s in world.stretches} == {kind}
     origins = poses[:-1, :3, 3]
     step = poses[1:, :3, 3] - origins
@@ -270,6 +272,9 @@ def test_hard_stretches_keep_the_road_open(kind):
         k = int((s.start + s.end) / 2 - PATH_LEAD)
         up = world.cast(poses[k, :3, 3], np.array([[0.0, 0.0, 1.0]]))
         assert len(up) == 1 and 2.0 < up.dist[0] < 6.0
+        city = STYLES["city"]
+        inside_left_wall = city.road_clearance + (city.left_shift if right_hand else 0.0)  # the wall: 0.65 m out
+        assert len(world.cast(poses[k, :3, 3] + poses[k, :3, 1] * inside_left_wall, np.array([[0.0, 0.0, 1.0]]))) == 1
 
 
 def test_walls_make_places_along_the_stretch_alike():
