@@ -8,8 +8,8 @@ KITTI loader and msa-slam's KITTI-layout reader correct) with per-beam angle and
 growing with range and incidence, lost dark/grazing returns, mixed pixels at depth edges, foliage, moving and
 coming-and-going objects, repeated block designs and stretches with little structure along the road, in a world
 that stands along gravity (read from the drive: sim.level), not along the first LiDAR frame's z axis, whose two-way
-streets are driven in their right lane (the left side a lane farther out: layout.Style.left_shift). "kitti-hard" is "kitti"
-with a less sensitive receiver, larger per-beam errors and more structureless stretches: several times its
+streets are driven in their right lane (the left side a lane farther out: layout.Style.left_shift). "kitti-hard" is
+"kitti" with a less sensitive receiver, larger per-beam errors and more structureless stretches: several times its
 odometry drift, for tests.
 """
 
