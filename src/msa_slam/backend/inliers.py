@@ -24,9 +24,8 @@ from dataclasses import dataclass
 
 import gtsam
 import numpy as np
-from scipy.stats import chi2
 
-from msa_slam.backend.noise import PathCovariance
+from msa_slam.backend.noise import PathCovariance, chi2_quantile
 
 MAX_CLIQUE_CALLS = 200_000  # exact search budget; far above what tens of loops need
 
@@ -101,7 +100,7 @@ class ConsistencyGraph:
     loop for the cost of the new pairs, and the batch graph builds the same graph at the end."""
 
     def __init__(self, confidence: float) -> None:
-        self.threshold = float(chi2.ppf(confidence, 6))
+        self.threshold = chi2_quantile(confidence, 6)
         self._loops: list[LoopEdge] = []
         self._single: list[float] = []
         self._neighbours: list[set[int]] = []

@@ -13,6 +13,7 @@ neither a stiffer nor a looser chain. The rates are calibrated so that the stand
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
 import gtsam
 import numpy as np
@@ -21,6 +22,16 @@ from msa_slam.errors import InputError
 
 _NODES, _WEIGHTS = np.polynomial.legendre.leggauss(4)
 _NODES, _WEIGHTS = (_NODES + 1) / 2, _WEIGHTS / 2  # on [0, 1]
+
+
+@cache
+def chi2_quantile(confidence: float, dof: int) -> float:
+    """The chi-square distribution's `confidence` quantile with `dof` degrees of freedom (scipy's chi2.ppf),
+    imported on first use: scipy.stats takes about a second to import, which every command would otherwise pay
+    before it reads its input, a refused one included."""
+    from scipy.stats import chi2
+
+    return float(chi2.ppf(confidence, dof))
 
 
 @dataclass(frozen=True)

@@ -37,10 +37,9 @@ from typing import Protocol
 
 import gtsam
 import numpy as np
-from scipy.stats import chi2
 
 from msa_slam.backend.graph_config import GraphConfig
-from msa_slam.backend.noise import PathCovariance
+from msa_slam.backend.noise import PathCovariance, chi2_quantile
 from msa_slam.descriptors import Descriptor
 from msa_slam.errors import InputError
 from msa_slam.evaluation.loops import rejection_counts
@@ -281,7 +280,7 @@ class LoopCloser:
     def exceeds_drift(self, cand: LoopClosure, T_match_query: np.ndarray, covariance: np.ndarray | None = None) -> bool:
         """Whether the loop's correction of the odometry between its keyframes is beyond what the drift check
         allows (drift_chi2 above the chi-square quantile `drift_confidence`, 6 dof)."""
-        return self.drift_chi2(cand, T_match_query, covariance) > float(chi2.ppf(self.settings.drift_confidence, 6))
+        return self.drift_chi2(cand, T_match_query, covariance) > chi2_quantile(self.settings.drift_confidence, 6)
 
     def drift_chi2(self, cand: LoopClosure, T_match_query: np.ndarray, covariance: np.ndarray | None = None) -> float:
         """Chi-square of the correction Log(T_odometry^-1 T_match_query) (query frame) against drift_gate^2 times
@@ -312,7 +311,7 @@ class LoopCloser:
         if gap <= 0:
             return False
         largest = float(np.linalg.eigvalsh(total[3:, 3:])[-1])
-        return gap**2 / largest > float(chi2.ppf(self.settings.drift_confidence, 6))
+        return gap**2 / largest > chi2_quantile(self.settings.drift_confidence, 6)
 
     def _drift_covariance(self, cand: LoopClosure, loop_covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The odometry T_match_query and the covariance its correction is tested against: drift_gate^2 times the
@@ -320,7 +319,7 @@ class LoopCloser:
         reference length: drift_chi2), plus `loop_covariance` and the slack."""
         s = self.settings
         odometry, path_cov = self._drift_to(cand.query).between(cand.match, cand.query)
-        bound = float(chi2.ppf(s.drift_confidence, 6))
+        bound = chi2_quantile(s.drift_confidence, 6)
         slack = np.repeat([np.radians(s.drift_slack_deg), s.drift_slack_m], 3) ** 2 / bound
         # Beyond the calibration length the random walk's variance (growing with the path) becomes systematic
         # drift's (growing with its square), as KITTI's relative error, a constant fraction over 100-800 m, has it
