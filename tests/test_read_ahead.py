@@ -207,6 +207,26 @@ def test_a_forked_reader_that_dies_is_an_error_not_a_hang():
     assert seen == list(range(len(seen))) and len(seen) <= 5 and not multiprocessing.active_children()
 
 
+def _read_in_a_daemon(results) -> None:
+    scans = _Scans(10, True)
+    try:
+        results.put(([frame.index for frame in ReadAhead(scans)], scans.reader[0] == os.getpid()))
+    except Exception as exc:  # e.g. "daemonic processes are not allowed to have children"
+        results.put((repr(exc), None))
+
+
+def test_a_daemonic_process_reads_in_a_thread():
+    """A daemonic process (a Dask worker running an experiment's cell) may not have children: its reader is a
+    thread."""
+    context = multiprocessing.get_context("fork")
+    results = context.Queue()
+    daemon = context.Process(target=_read_in_a_daemon, args=(results,), daemon=True)
+    daemon.start()
+    indices, in_the_daemon = results.get(timeout=60)
+    daemon.join()
+    assert indices == list(range(10)) and in_the_daemon and daemon.exitcode == 0
+
+
 @BOTH
 @pytest.mark.parametrize("stop", [StopIteration, KeyboardInterrupt])
 def test_reader_stops_when_the_consumer_stops(forkable, stop):

@@ -3,7 +3,7 @@ downsampled cloud (the keyframe store's form, registration.cloud_cache), a few f
 while the calling thread registers the previous scans.
 
 The reader is a process forked for the pass (pipeline.forked_ahead) when the sequence reads each scan from its own
-file (ScanSequence.forkable), else a thread. A thread overlaps little: KISS-ICP's Python binding holds the GIL
+file (ScanSequence.forkable) and this process may have children, else a thread. A thread overlaps little: KISS-ICP's Python binding holds the GIL
 while it registers a scan, so the reader's Python work waits for each registration to end. In a process, reading,
 describing and downsampling run on another core, and each scan is read and parsed once a run instead of once a
 stage. A scan's descriptor and cloud do not depend on the odometry, and each stage still takes the scans in order,
@@ -13,6 +13,7 @@ Deskewing stays with the odometry: it needs the motion the previous registration
 
 from __future__ import annotations
 
+import multiprocessing
 import queue
 import threading
 import time
@@ -69,7 +70,8 @@ class ReadAhead:
         self._values.clear()
         self._clouds.clear()
         self.complete = False
-        forkable = getattr(self.sequence, "forkable", False)
+        # a daemonic process (a Dask worker running an experiment's cell) may not have children
+        forkable = getattr(self.sequence, "forkable", False) and not multiprocessing.current_process().daemon
         parsed = getattr(self.sequence, "parsed", None)
         if forkable and parsed is not None:  # where the child keeps the text scans it parses, for this process
             parsed.prepare(self.sequence.scan_files)
