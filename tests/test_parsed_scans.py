@@ -1,5 +1,5 @@
-"""Text scans are parsed once per run (msa_slam.datasets.parsed): later reads load the run's binary copy, which
-gives the same arrays, and the copies go when the run lets go of its sequence."""
+"""Text scans are parsed once per run (msa_slam.datasets.parsed), also by the front end's forked reader: later reads
+load the run's binary copy, which gives the same arrays, and the copies go when the run lets go of its sequence."""
 
 from __future__ import annotations
 
@@ -13,7 +13,9 @@ import pytest
 import msa_slam.datasets.pcd as pcd
 from msa_slam.datasets import SourceOptions
 from msa_slam.datasets.parsed import is_text_scan
+from msa_slam.descriptors import make_descriptor
 from msa_slam.io.staging import WRITER, stamp
+from msa_slam.pipeline.read_ahead import ReadAhead
 from msa_slam.sources import open_sequence
 
 N = 4
@@ -132,3 +134,31 @@ def test_a_cache_root_that_cannot_be_written_costs_only_the_copies(tmp_path, par
     np.testing.assert_array_equal(first.points, again.points)
     assert parses["000001.pcd"] == 2
     assert len([r for r in caplog.records if "cannot keep parsed scans" in r.message]) == 1  # once, not every read
+
+
+def test_the_copies_a_forked_reader_makes_are_this_runs(tmp_path, monkeypatch):
+    """The front end's reader is a forked process: the text scans it parses are kept where the run reads them
+    again (each parsed once in all) and removed with the run's sequence."""
+    log = tmp_path / "parses.log"  # appended to by whichever process parses
+    parse = pcd.read_pcd_table
+
+    def counted(path):
+        with log.open("a") as out:
+            out.write(f"{Path(path).name}\n")
+        return parse(path)
+
+    monkeypatch.setattr(pcd, "read_pcd_table", counted)
+    folder = _folder(tmp_path, "ascii")
+    _write_pcd(folder / "000000.pcd", 0, "binary")  # opening reads only the first scan: no text read before the pass
+    kept = open_sequence(str(folder), "folder", cache_dir=tmp_path / "cache", keep_parsed=True)
+    log.unlink()
+    assert kept.forkable and _scratch(tmp_path / "cache") == []
+    read = list(ReadAhead(kept, make_descriptor("sc")))
+    again = [kept[i] for i in range(N)]  # the back end's reads, in this process
+    for a, b in zip(read, again, strict=True):
+        np.testing.assert_array_equal(a.points, b.points)
+    assert sorted(log.read_text().splitlines()) == ["000000.pcd", "000000.pcd", *(f"{k:06d}.pcd" for k in range(1, N))]
+    assert len(_scratch(tmp_path / "cache")) == 1
+    del kept
+    gc.collect()
+    assert _scratch(tmp_path / "cache") == []

@@ -63,7 +63,7 @@ def forked_workers(workers: int, shared_object: Any) -> Iterator[Callable[..., F
     _shared = shared_object
     gc.freeze()
     executor = ProcessPoolExecutor(
-        workers, mp_context=multiprocessing.get_context("fork"), initializer=_start_worker, initargs=(os.getpid(),)
+        workers, mp_context=multiprocessing.get_context("fork"), initializer=start_worker, initargs=(os.getpid(),)
     )
     try:
         yield executor.submit
@@ -85,10 +85,10 @@ def _kill(executor: ProcessPoolExecutor) -> None:
         process.kill()
 
 
-def _start_worker(parent: int) -> None:
-    """A worker's set-up: end with `parent`, leave Ctrl-C to it, end at once on SIGTERM/SIGHUP where the CLI's
-    handlers (inherited by the fork) would unwind the job instead (an ignored SIGHUP, nohup, stays ignored), and
-    one thread per pool."""
+def start_worker(parent: int) -> None:
+    """A forked worker's set-up (compare's, and the front end's reader: pipeline.forked_ahead): end with `parent`,
+    leave Ctrl-C to it, end at once on SIGTERM/SIGHUP where the CLI's handlers (inherited by the fork) would unwind
+    the job instead (an ignored SIGHUP, nohup, stays ignored), and one thread per pool."""
     end_with_parent(parent)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     for stop in (signal.SIGTERM, signal.SIGHUP):

@@ -75,6 +75,8 @@ def cloud_arrays(msg, where: str) -> tuple[np.ndarray, np.ndarray | None]:
 class BagSequence(ScanSequence):
     """The PointCloud2 messages of one topic of a bag, in recording order, read by timestamp when asked."""
 
+    forkable = False  # the bag stays open: a forked reader would share its file handles (offsets) or database
+
     def __init__(self, path: str | os.PathLike, topic: str | None = None) -> None:
         self.path = Path(path)
         self.name = self.path.stem if self.path.is_file() else self.path.name

@@ -13,7 +13,7 @@ import hashlib
 import logging
 import os
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -79,6 +79,12 @@ class ParsedScans:
             store.save(f"{name}-times", times)
         store.save(f"{name}-points", points)
         return points, times
+
+    def prepare(self, scans: Sequence[Path]) -> None:
+        """Make the scratch folder now when any of `scans` is text, so that a reader forked from this process
+        (pipeline.read_ahead) keeps its copies where this one reads them and removes them."""
+        if any(self._text.setdefault(scan, is_text_scan(scan)) for scan in scans):
+            self._folder()
 
     def _folder(self) -> CacheDir | None:
         """The scratch folder's store, made on first use (None, warned once, when it cannot be)."""

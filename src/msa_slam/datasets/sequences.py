@@ -45,6 +45,7 @@ class ScanSequence:
     # Defaults for subclasses that set their own fields (BagSequence: real times, no .bin files).
     times_known = True  # False: `times` are frame numbers, not timestamps
     kitti_bins = True
+    forkable = True  # each scan read opens its own file: a reader forked from this process may read them
     correction: str | None = None  # what the reader corrects in every scan (see kitti_sequence); part of its identity
     _point_times: bool | None = None  # see point_times: None until a scan was read for it
     parsed: ParsedScans | None = None  # a run's copies of the text scans it parsed (datasets.parsed)

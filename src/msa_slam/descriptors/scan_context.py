@@ -38,7 +38,7 @@ def _floor_div(a: float, b: float) -> float:
     return 0.0
 
 
-@numba.njit(cache=True, nogil=True)  # nogil: the batch front end bins in a reader thread beside the odometry
+@numba.njit(cache=True, nogil=True)  # nogil: a reader thread (a bag's front end) bins beside the odometry
 def _bin(xyz, n_ring, n_sector, max_radius, height_offset):
     out = np.zeros((n_ring, n_sector))
     gap_ring = max_radius / n_ring

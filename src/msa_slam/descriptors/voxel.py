@@ -27,7 +27,7 @@ def _slot(slot_key: np.ndarray, key: int, bits: int) -> int:
     return s
 
 
-@numba.njit(cache=True, nogil=True)  # nogil: run in the front end's reader thread beside the odometry
+@numba.njit(cache=True, nogil=True)  # nogil: run in a reader thread (a bag's front end) beside the odometry
 def _voxel_centroids(xyz: np.ndarray, voxel: float) -> tuple[np.ndarray, int]:
     """(centroids, -1), or (empty, i) when point i is not finite. Works on float32/64 views in place."""
     n = xyz.shape[0]

@@ -115,8 +115,8 @@ def sequence_odometry(
     `extra_inputs`: files the odometry reads besides the scans (they are part of the cache key). The key is
     made from `odometry.config`, so the odometry comes configured for these scans (KISS-ICP's deskewing off
     when they have no per-point times: odometry.choice.make_odometry); scans without timestamps give the
-    odometry no scan times (see KissOdometry.register). `frames`: the sequence's frames in order when another
-    thread reads them ahead (pipeline.read_ahead; iterated only when the poses are computed), else they are read
+    odometry no scan times (see KissOdometry.register). `frames`: the sequence's frames in order when a reader
+    process or thread reads them ahead (pipeline.read_ahead; iterated only when the poses are computed), else they are read
     here one by one; `label`: the progress bar's.
     """
     key = None

@@ -1,17 +1,19 @@
-"""The batch front end's per-frame stages in one pass: a reader thread reads each scan, computes its descriptor and
-its downsampled cloud (the keyframe store's form, registration.cloud_cache), a few frames ahead into a bounded
-queue, while the calling thread registers the previous scans.
+"""The batch front end's per-frame stages in one pass: a reader reads each scan, computes its descriptor and its
+downsampled cloud (the keyframe store's form, registration.cloud_cache), a few frames ahead into a bounded queue,
+while the calling thread registers the previous scans.
 
-KISS-ICP's registration (C++), small_gicp's voxel grid and numpy release the GIL for most of their work, so on two
-cores reading, describing and downsampling the scans hide behind the odometry instead of following it, and each
-scan is read and parsed once a run instead of once a stage. A scan's descriptor and cloud do not depend on the
-odometry, and each stage still takes the scans in order, so the poses, descriptors, clouds and their cache
-entries are those of the stages run one after the other. Deskewing stays with the odometry: it needs the motion
-the previous registration estimated.
+The reader is a process forked for the pass (pipeline.forked_ahead) when the sequence reads each scan from its own
+file (ScanSequence.forkable) and this process may have children, else a thread. A thread overlaps little: KISS-ICP's Python binding holds the GIL
+while it registers a scan, so the reader's Python work waits for each registration to end. In a process, reading,
+describing and downsampling run on another core, and each scan is read and parsed once a run instead of once a
+stage. A scan's descriptor and cloud do not depend on the odometry, and each stage still takes the scans in order,
+so the poses, descriptors, clouds and their cache entries are those of the stages run one after the other.
+Deskewing stays with the odometry: it needs the motion the previous registration estimated.
 """
 
 from __future__ import annotations
 
+import multiprocessing
 import queue
 import threading
 import time
@@ -28,6 +30,7 @@ from msa_slam.evaluation import StageTimer
 from msa_slam.io.cache import CacheDir, Computed
 from msa_slam.odometry import OdometryCache, sequence_odometry
 from msa_slam.odometry.cache import Odometry
+from msa_slam.pipeline.forked_ahead import forked_ahead
 from msa_slam.progress import progress_bar
 from msa_slam.registration.cloud_cache import ComputedClouds, load_frame_clouds, save_frame_clouds
 from msa_slam.registration.clouds import downsample
@@ -40,9 +43,9 @@ T = TypeVar("T")
 
 class ReadAhead:
     """The frames of `sequence` in order, read (described by `descriptor` and downsampled at `voxel_size`, unless
-    None) by one thread that starts when iteration does and stops when it ends, early or not; the reader's errors
-    are raised here, at the frame they happened at. After a full iteration `described` holds the descriptors and
-    `downsampled` the clouds."""
+    None) by one process (a forkable sequence) or thread that starts when iteration does and stops when it ends,
+    early or not; the reader's errors are raised here, at the frame they happened at. After a full iteration
+    `described` holds the descriptors and `downsampled` the clouds."""
 
     def __init__(
         self,
@@ -67,20 +70,37 @@ class ReadAhead:
         self._values.clear()
         self._clouds.clear()
         self.complete = False
-        yield from ahead(self._computed(), self.depth)
+        # a daemonic process (a Dask worker running an experiment's cell) may not have children
+        forkable = getattr(self.sequence, "forkable", False) and not multiprocessing.current_process().daemon
+        parsed = getattr(self.sequence, "parsed", None)
+        if forkable and parsed is not None:  # where the child keeps the text scans it parses, for this process
+            parsed.prepare(self.sequence.scan_files)
+        read = forked_ahead if forkable else ahead
+        for i, (frame, described, downsampled) in enumerate(read(self._computed(), self.depth)):
+            if described is not None:
+                self._values.append(described[0])
+                self._ms[i] = described[1]
+            if downsampled is not None:
+                self._clouds.append(downsampled[0])
+                self._cloud_ms[i] = downsampled[1]
+            yield frame
         self.complete = True
 
-    def _computed(self) -> Iterator[Frame]:
-        """The frames read, each described and downsampled before it is handed on (run by the reader thread)."""
+    def _computed(self) -> Iterator[tuple[Frame, tuple[np.ndarray, float] | None, tuple[np.ndarray, float] | None]]:
+        """Each frame read, with its (descriptor, ms computing it) and (downsampled cloud, ms), None when not asked
+        for (run by the reader: in a forked process, what it computes reaches this one only with the frame)."""
         for i in range(len(self.sequence)):
             frame = self.sequence[i]
+            value = cloud = None
             if self.descriptor is not None:
-                self._values.append(describe(self.descriptor, frame.points, i, self._ms))
+                value = describe(self.descriptor, frame.points, i, self._ms), float(self._ms[i])
             if self.voxel_size is not None:
                 start = time.perf_counter()
-                self._clouds.append(downsample(frame.points, self.voxel_size, where=f"frame {i}"))
-                self._cloud_ms[i] = (time.perf_counter() - start) * 1e3
-            yield frame
+                cloud = (
+                    downsample(frame.points, self.voxel_size, where=f"frame {i}"),
+                    (time.perf_counter() - start) * 1e3,
+                )
+            yield frame, value, cloud
 
     def described(self) -> Computed:
         """The descriptors of every frame and the time (ms) computing each took (not from a cache)."""
