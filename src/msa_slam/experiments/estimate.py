@@ -24,7 +24,7 @@ from msa_slam.experiments.folder import FinishedCells
 from msa_slam.experiments.grid import Cell
 from msa_slam.sources.spec import spec_kind
 
-# Seconds a frame of each stage on this project's machine (2-core AMD EPYC, one thread a stage) for a scan of
+# Seconds a frame of each stage on this project's machine (2 cores, one thread a stage) for a scan of
 # REFERENCE_POINTS points, from the demo (1101 HDL-64 scans of 64 x 720: simulation 30 s on both cores, KISS-ICP
 # 139 s, Scan Context 8 s, seven samplers' back ends 117 s). Simulation and KISS-ICP grow with a scan's points.
 REFERENCE_POINTS = 64 * 720
