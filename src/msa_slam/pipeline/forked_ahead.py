@@ -86,15 +86,22 @@ def _read(items: Iterator[Any], sent: Any, stop: Any, parent: int) -> None:
         _send(sent, ("error", _picklable(exc)), stop)
 
 
-def _send(sent: Any, message: tuple[str, Any], stop: Any) -> bool:
-    """Put `message` once the queue has room; False when the consumer stopped first (then exit without flushing)."""
-    data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
+def put_when_room(target: Any, item: object, stop: Any) -> bool:
+    """Put `item` on `target` (a thread's or a process's queue) once it has room; False when the consumer stopped
+    first (`stop` set)."""
     while not stop.is_set():
         try:
-            sent.put(data, timeout=POLL_S)
+            target.put(item, timeout=POLL_S)
             return True
         except queue.Full:
             continue
+    return False
+
+
+def _send(sent: Any, message: tuple[str, Any], stop: Any) -> bool:
+    """Put `message` once the queue has room; False when the consumer stopped first (then exit without flushing)."""
+    if put_when_room(sent, pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL), stop):
+        return True
     sent.cancel_join_thread()
     return False
 

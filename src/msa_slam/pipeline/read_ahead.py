@@ -30,13 +30,12 @@ from msa_slam.evaluation import StageTimer
 from msa_slam.io.cache import CacheDir, Computed
 from msa_slam.odometry import OdometryCache, sequence_odometry
 from msa_slam.odometry.cache import Odometry
-from msa_slam.pipeline.forked_ahead import forked_ahead
+from msa_slam.pipeline.forked_ahead import forked_ahead, put_when_room
 from msa_slam.progress import progress_bar
 from msa_slam.registration.cloud_cache import ComputedClouds, load_frame_clouds, save_frame_clouds
 from msa_slam.registration.clouds import downsample
 
 DEPTH = 4  # frames read ahead: enough to ride out a slow read, a few MB of scans (a 64-beam scan is ~2 MB)
-_POLL_S = 0.1  # how often a reader blocked on a full queue checks whether the consumer stopped
 _END = object()  # put by the reader after the last item
 T = TypeVar("T")
 
@@ -212,19 +211,8 @@ def ahead(items: Iterable[T], depth: int = DEPTH) -> Iterator[T]:
 def _read(items: Iterator[Any], queued: queue.Queue, stop: threading.Event) -> None:
     try:
         for item in items:
-            if not _put(queued, item, stop):
+            if not put_when_room(queued, item, stop):
                 return
-        _put(queued, _END, stop)
+        put_when_room(queued, _END, stop)
     except BaseException as exc:  # handed to the consumer, which raises it
-        _put(queued, exc, stop)
-
-
-def _put(queued: queue.Queue, item: object, stop: threading.Event) -> bool:
-    """Put `item` once the queue has room; False when the consumer stopped first."""
-    while not stop.is_set():
-        try:
-            queued.put(item, timeout=_POLL_S)
-            return True
-        except queue.Full:
-            continue
-    return False
+        put_when_room(queued, exc, stop)
