@@ -4,10 +4,13 @@ refuses run it this way, so that its exit code and its last line are the real on
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
 from typing import Any
+
+import pytest
 
 CLI_CODE = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
 
@@ -27,3 +30,24 @@ def run_on_scans(command: str, scans: Path, folder: Path, *args: str) -> subproc
     the set-up of the tests of what a command says or refuses on a short recording."""
     out, cache = str(folder / "out"), str(folder / "cache")
     return run_cli(command, "-d", str(scans), "--mode", "realistic", *args, "--out", out, "--cache-dir", cache)
+
+
+def main_in_process(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture, *args: str
+) -> subprocess.CompletedProcess:
+    """`msa-slam ARGS` through msa_slam.cli.main in this process, its exit status and output as run_cli gives them:
+    for the tests of a refusal or failure whose text, not the process, is checked (a fresh process costs seconds
+    of imports; test_cli_main.py checks that one has the same one line). The SIGTERM and SIGHUP handlers main
+    installs are put back."""
+    from msa_slam.cli import main
+
+    handlers = {signum: signal.getsignal(signum) for signum in (signal.SIGTERM, signal.SIGHUP)}
+    monkeypatch.setattr(sys, "argv", ["msa-slam", *args])
+    try:
+        with pytest.raises(SystemExit) as stopped:
+            main()
+    finally:
+        for signum, handler in handlers.items():
+            signal.signal(signum, handler)
+    captured = capsys.readouterr()
+    return subprocess.CompletedProcess(list(args), stopped.value.code, captured.out, captured.err)
