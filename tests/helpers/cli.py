@@ -1,5 +1,5 @@
-"""The console entry point in a fresh process, as a user runs it: the tests of what a command prints, writes and
-refuses run it this way, so that its exit code and its last line are the real ones."""
+"""The console entry point in a fresh process, as a user runs it, so that its exit code and its last line are the
+real ones; or in the test's own process, for the tests of a refusal or failure whose text is what they check."""
 
 from __future__ import annotations
 
