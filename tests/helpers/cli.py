@@ -25,11 +25,16 @@ def run_cli(*args: str, cache: Path | None = None, timeout: float = 600, **optio
     return subprocess.run([sys.executable, "-c", CLI_CODE, *args], text=True, timeout=timeout, **options)
 
 
-def run_on_scans(command: str, scans: Path, folder: Path, *args: str) -> subprocess.CompletedProcess:
-    """`msa-slam COMMAND -d SCANS --mode realistic ARGS`, its output in folder/out and its cache in folder/cache:
-    the set-up of the tests of what a command says or refuses on a short recording."""
+def on_scans(command: str, scans: Path, folder: Path, *args: str) -> list[str]:
+    """The arguments of `msa-slam COMMAND -d SCANS --mode realistic ARGS`, its output in folder/out and its cache
+    in folder/cache: the set-up of the tests of what a command says or refuses on a short recording."""
     out, cache = str(folder / "out"), str(folder / "cache")
-    return run_cli(command, "-d", str(scans), "--mode", "realistic", *args, "--out", out, "--cache-dir", cache)
+    return [command, "-d", str(scans), "--mode", "realistic", *args, "--out", out, "--cache-dir", cache]
+
+
+def run_on_scans(command: str, scans: Path, folder: Path, *args: str) -> subprocess.CompletedProcess:
+    """on_scans' command in a fresh process."""
+    return run_cli(*on_scans(command, scans, folder, *args))
 
 
 def main_in_process(
