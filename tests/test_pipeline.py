@@ -143,7 +143,9 @@ def test_compare_writes_table(base, frontend, tmp_path):
 
 
 def test_compare_without_sweep_says_it_was_not_run(base, frontend, tmp_path):
-    report = run_compare(base, tmp_path / "cmp", methods=(("constant-3m", "constant", {"distance": 3.0}),), sweep=False)
+    report = run_compare(
+        base, tmp_path / "cmp", methods=(("constant-3m", "constant", {"distance": 3.0}),), sweep=False, figures=False
+    )
     text = report.read_text()
     assert "Threshold sensitivity: not run: left out with `--no-sweep`" in text
     assert "| method | 0.70 |" not in text
