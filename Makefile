@@ -31,10 +31,12 @@ $(EXTRAS): $(BASE)
 demo: $(BASE)
 	$(VENV)/bin/msa-slam demo
 
-# -n auto: one pytest worker per core; --dist loadfile keeps each test file (and its module fixtures) on one worker
+# -n auto: one pytest worker per core; --dist loadfile keeps each test file (and its module fixtures) on one worker;
+# --durations=10 prints the ten slowest tests of every run (docs/performance.md keeps them)
 test: $(DEV) $(EXTRAS)
-	$(PY) -m pytest -q -n auto --dist loadfile
+	$(PY) -m pytest -q -n auto --dist loadfile --durations=10
 
+# The tests marked slow (end-to-end runs whose code paths the default suite also covers more cheaply); CI runs them
 test-slow: $(DEV) $(EXTRAS)
 	$(PY) -m pytest -q -n auto --dist loadfile -m slow
 

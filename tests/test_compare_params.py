@@ -5,7 +5,7 @@ refused (QA finding H1: they used to be dropped silently)."""
 from __future__ import annotations
 
 import pytest
-from helpers.cli import run_on_scans
+from helpers.cli import main_in_process, on_scans
 from helpers.streams import write_scans
 
 from msa_slam.errors import InputError
@@ -56,9 +56,10 @@ def test_another_samplers_parameters_are_refused_naming_where_they_go():
     assert configs["msa"].sampler_params == {} and configs["constant-2m"].sampler_params == {"distance": 2.0}
 
 
-def test_compare_checks_the_window_given_with_p(tmp_path):
+def test_compare_checks_the_window_given_with_p(tmp_path, monkeypatch, capsys):
     scans = write_scans(tmp_path / "scans", 4)
-    result = run_on_scans("compare", scans, tmp_path, "-p", "flush=false", "-p", "window=6")
+    args = on_scans("compare", scans, tmp_path, "-p", "flush=false", "-p", "window=6")
+    result = main_in_process(monkeypatch, capsys, *args)
     assert result.returncode == 2, result.stderr
     assert result.stderr.splitlines()[-1] == (
         "error: sampler 'msa': window=6 is longer than the 4 frames read, so it never fills and only frame 0 becomes "

@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 
 import pytest
-from helpers.cli import run_cli
+from helpers.cli import main_in_process
 
 from msa_slam.errors import InputError
 from msa_slam.pipeline.config import apply_params, make_config
@@ -62,10 +62,13 @@ def test_overlap_transformer_weights_checked_when_the_config_is_made(tmp_path):
         apply_params(make_config(dataset="x"), ["descriptor=ot", f"weights={missing}"])
 
 
-def test_cli_refuses_a_missing_weights_file_before_reading_scans(tmp_path):
+def test_cli_refuses_a_missing_weights_file_before_reading_scans(tmp_path, monkeypatch, capsys):
     # the dataset does not exist either: the weights come first, one line, nothing written
     missing = tmp_path / "missing.pth"
-    result = run_cli(
+    monkeypatch.setenv("MSA_SLAM_CACHE", str(tmp_path / "cache"))
+    result = main_in_process(
+        monkeypatch,
+        capsys,
         "run",
         "--dataset",
         str(tmp_path / "no-data"),
@@ -75,7 +78,6 @@ def test_cli_refuses_a_missing_weights_file_before_reading_scans(tmp_path):
         f"weights={missing}",
         "--out",
         str(tmp_path / "out"),
-        cache=tmp_path / "cache",
     )
     assert result.returncode == 2
     assert result.stderr.startswith(f"error: config: descriptor 'ot': weights file not found: {missing}; ")
@@ -102,8 +104,9 @@ def test_online_config_routes_and_checks_the_weights(weights, tmp_path):
         ),
     ],
 )
-def test_cli_refuses_a_bad_descriptor_before_simulating_the_dataset(tmp_path, args, message):
+def test_cli_refuses_a_bad_descriptor_before_simulating_the_dataset(tmp_path, monkeypatch, capsys, args, message):
     """sim:test is simulated on first use: a typo in the descriptor must not cost that first."""
-    result = run_cli("run", "--dataset", "sim:test", *args, "--out", str(tmp_path / "out"), cache=tmp_path / "cache")
+    monkeypatch.setenv("MSA_SLAM_CACHE", str(tmp_path / "cache"))
+    result = main_in_process(monkeypatch, capsys, "run", "--dataset", "sim:test", *args, "--out", str(tmp_path / "out"))
     assert result.returncode == 2 and result.stderr.startswith(message), result.stderr
     assert not (tmp_path / "out").exists() and not (tmp_path / "cache").exists()

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from helpers.cli import run_cli
+from helpers.cli import main_in_process
 from helpers.metrics import stored_metrics
 from typer.testing import CliRunner
 
@@ -333,10 +333,10 @@ def test_overwrite_refuses_an_experiment_holding_someone_elses_files(tmp_path):
     assert (tmp_path / "exp" / "notes.md").read_text() == "mine"
 
 
-def test_experiment_exit_code_names_failed_cells_and_keeps_their_log(tmp_path):
+def test_experiment_exit_code_names_failed_cells_and_keeps_their_log(tmp_path, monkeypatch, capsys):
     grid_file = tmp_path / "g.yaml"
     grid_file.write_text(yaml.safe_dump(TOO_SPARSE))
-    result = run_cli("experiment", str(grid_file), "--out", str(tmp_path / "o"), "--quiet")
+    result = main_in_process(monkeypatch, capsys, "experiment", str(grid_file), "--out", str(tmp_path / "o"), "--quiet")
     cells = expand(load_grid(grid_file))
     assert result.returncode == 1, result.stderr
     failed = [line for line in result.stderr.splitlines() if line.startswith("failed: ")]

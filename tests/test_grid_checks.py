@@ -7,7 +7,7 @@ import json
 
 import pytest
 import yaml
-from helpers.cli import run_cli
+from helpers.cli import main_in_process, run_cli
 from test_experiments import TINY, _fake_experiment
 
 import msa_slam
@@ -107,10 +107,10 @@ def test_base_sampler_params_apply_below_the_methods_own_and_swept_values(tmp_pa
         ),
     ],
 )
-def test_unknown_dataset_is_one_line_before_the_result_folder(tmp_path, dataset, message):
+def test_unknown_dataset_is_one_line_before_the_result_folder(tmp_path, monkeypatch, capsys, dataset, message):
     grid_file = tmp_path / "g.yaml"
     grid_file.write_text(yaml.safe_dump({**TINY, "datasets": ["live:figure-eight", dataset]}))
-    result = run_cli("experiment", str(grid_file), "--out", str(tmp_path / "o"), "--quiet")
+    result = main_in_process(monkeypatch, capsys, "experiment", str(grid_file), "--out", str(tmp_path / "o"), "--quiet")
     assert result.returncode == 2
     assert result.stderr.startswith(f"error: {grid_file}: {message}") and len(result.stderr.splitlines()) == 1
     assert not (tmp_path / "o").exists()
@@ -131,19 +131,22 @@ RECORDINGS_ONLY = (
         ({"dataset_kind": "bag"}, f"dataset 'sim:test': --loader {RECORDINGS_ONLY}"),
     ],
 )
-def test_a_simulated_cell_that_cannot_run_is_one_line_before_the_result_folder(tmp_path, monkeypatch, base, message):
+def test_a_simulated_cell_that_cannot_run_is_one_line_before_the_result_folder(
+    tmp_path, monkeypatch, capsys, base, message
+):
     """A selection beyond the simulated sequence, or an option only recordings have, is refused before anything
     is simulated and before the result folder is made."""
     monkeypatch.setenv("MSA_SLAM_CACHE", str(tmp_path / "cache"))
     grid_file = tmp_path / "g.yaml"
     grid_file.write_text(yaml.safe_dump({**TINY, "datasets": ["sim:test"], "base": {**TINY["base"], **base}}))
-    result = run_cli("experiment", str(grid_file), "--out", str(tmp_path / "o"), "--quiet")
+    result = main_in_process(monkeypatch, capsys, "experiment", str(grid_file), "--out", str(tmp_path / "o"), "--quiet")
     assert result.returncode == 2
     assert result.stderr.strip() == f"error: {grid_file}: {message}"
     assert not (tmp_path / "o").exists() and not (tmp_path / "cache").exists()  # nothing simulated
 
 
 def test_malformed_scheduler_is_one_line_before_the_result_folder(tmp_path):
+    """In a fresh process, as a user runs it: the experiment command's refusal is this one line there too."""
     result = run_cli("experiment", "tiny", "--scheduler", "notaurl", "--out", str(tmp_path / "o"), "--quiet")
     assert result.returncode == 2
     assert result.stderr.strip() == (

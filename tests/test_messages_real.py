@@ -12,7 +12,7 @@ import sys
 
 import numpy as np
 import pytest
-from helpers.cli import run_on_scans
+from helpers.cli import main_in_process, on_scans, run_on_scans
 from helpers.streams import write_scans, write_straight_stream
 
 from msa_slam.cli.options import WINDOW_FIX
@@ -145,9 +145,9 @@ def test_window_longer_than_the_frames_with_flush_warns_only():
     check_window(make_config(dataset="scans", sampler="all", flush=False), 5, WINDOW_FIX)  # no window
 
 
-def test_run_refuses_a_window_longer_than_the_recording_before_odometry(tmp_path):
+def test_run_refuses_a_window_longer_than_the_recording_before_odometry(tmp_path, monkeypatch, capsys):
     scans = write_scans(tmp_path / "scans", 4)
-    result = run_on_scans("run", scans, tmp_path, "-p", "flush=false")
+    result = main_in_process(monkeypatch, capsys, *on_scans("run", scans, tmp_path, "-p", "flush=false"))
     assert result.returncode == 2, result.stderr
     assert result.stderr.splitlines()[-1] == (
         "error: sampler 'msa': window=10 is longer than the 4 frames read, so it never fills and only frame 0 becomes "
@@ -157,9 +157,9 @@ def test_run_refuses_a_window_longer_than_the_recording_before_odometry(tmp_path
     assert "odometry" not in result.stderr and not (tmp_path / "out").exists()
 
 
-def test_compare_refuses_it_naming_what_compare_can_change(tmp_path):
+def test_compare_refuses_it_naming_what_compare_can_change(tmp_path, monkeypatch, capsys):
     scans = write_scans(tmp_path / "scans", 4)
-    result = run_on_scans("compare", scans, tmp_path, "-p", "flush=false")
+    result = main_in_process(monkeypatch, capsys, *on_scans("compare", scans, tmp_path, "-p", "flush=false"))
     assert result.returncode == 2, result.stderr
     assert result.stderr.splitlines()[-1].endswith(
         "the evaluation needs at least 3: use a window of at most 4 frames (-p window=4) or -p flush=true"

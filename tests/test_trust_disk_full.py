@@ -10,17 +10,16 @@ import os
 import re
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from helpers.cli import main_in_process
 from test_faults import cli, command, leftovers, stream_files  # noqa: F401 (stream_files: a fixture)
 
 import msa_slam.sampling.figure
 import msa_slam.sim.sequence
-from msa_slam.cli import main
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.cache import CacheDir
 from msa_slam.io.outputs import OutputError
@@ -36,10 +35,8 @@ def full_disk(monkeypatch) -> None:
 
 def run_cli(monkeypatch, capsys, args: list[str]) -> tuple[int, list[str]]:
     """The msa-slam entry point in this process: its exit status and its stderr lines."""
-    monkeypatch.setattr(sys, "argv", ["msa-slam", *args])
-    with pytest.raises(SystemExit) as stopped:
-        main()
-    return stopped.value.code, capsys.readouterr().err.strip().splitlines()
+    result = main_in_process(monkeypatch, capsys, *args)
+    return result.returncode, result.stderr.strip().splitlines()
 
 
 def test_simulation_short_write_on_a_full_disk_is_one_line(tmp_path, monkeypatch, capsys, full_disk):

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from helpers.cli import run_cli
+from helpers.cli import main_in_process
 from helpers.orphans import poll, proc_stat
 from scipy.spatial.transform import Rotation
 from test_experiments import TINY
@@ -77,13 +77,13 @@ def test_a_scan_too_sparse_to_register_is_extrapolated_and_named(caplog):
     ]
 
 
-def test_a_grid_states_its_cells_and_time_before_it_starts_and_the_time_left_as_it_runs(tmp_path):
+def test_a_grid_states_its_cells_and_time_before_it_starts_and_the_time_left_as_it_runs(tmp_path, monkeypatch, capsys):
     """A grid started with no word on its cost. Off a terminal (as here) too: first a line with the cell counts
     and an estimated time with its basis (a first run: assumed stage costs; a resume: what the finished cells
     recorded), then the progress with the time left."""
     grid_file, out = tmp_path / "g.yaml", tmp_path / "o"
     grid_file.write_text(yaml.safe_dump(TINY))
-    first = run_cli("experiment", str(grid_file), "--out", str(out))
+    first = main_in_process(monkeypatch, capsys, "experiment", str(grid_file), "--out", str(out))
     assert first.returncode == 0, first.stderr
     lines = first.stderr.splitlines()
     assert re.fullmatch(
@@ -101,7 +101,7 @@ def test_a_grid_states_its_cells_and_time_before_it_starts_and_the_time_left_as_
     metrics = json.loads((out / "cells" / kept.id / "metrics.json").read_text())
     recorded = sum(v for k, v in metrics["time_s"].items() if k != "backend_total")
     per_frame = recorded / metrics["frames"]
-    second = run_cli("experiment", str(grid_file), "--out", str(out))
+    second = main_in_process(monkeypatch, capsys, "experiment", str(grid_file), "--out", str(out))
     assert second.returncode == 0, second.stderr
     assert second.stderr.splitlines()[0] == (
         f"grid t: 2 cells, 1 finished earlier, 1 to run; estimated time {per_frame * metrics['frames']:.0f} s "

@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from helpers.cli import main_in_process
 from test_experiments import TOO_SPARSE
 from test_faults import cli, command, leftovers, stream_files  # noqa: F401 (stream_files: a fixture)
 from typer.testing import CliRunner
@@ -73,7 +74,7 @@ def test_resumed_experiment_keeps_user_folders_and_removes_killed_writers_leftov
     assert not killed[0].exists() and not (out / "stores" / "cell-b").exists()
 
 
-def test_glob_characters_in_out_touch_no_other_run_and_its_own_leftovers_go(stream_files):
+def test_glob_characters_in_out_touch_no_other_run_and_its_own_leftovers_go(stream_files, monkeypatch, capsys):
     tmp, parent = stream_files, stream_files / "P"
     parent.mkdir()
     code = (
@@ -86,7 +87,7 @@ def test_glob_characters_in_out_touch_no_other_run_and_its_own_leftovers_go(stre
     )
     try:
         assert compare.stdout.readline().strip() == "ready"  # its .cab.partial-* is being written
-        star = cli(tmp, "none", command("sample", tmp, parent / "c*", tmp / "cache"), tmp / "cache", parent / "c*")
+        star = main_in_process(monkeypatch, capsys, *command("sample", tmp, parent / "c*", tmp / "cache"))
         assert star.returncode == 0, star.stderr
     finally:
         compare.communicate("\n", timeout=60)
@@ -96,7 +97,7 @@ def test_glob_characters_in_out_touch_no_other_run_and_its_own_leftovers_go(stre
     args = command("sample", tmp, brackets, tmp / "cache")
     assert cli(tmp, "staging", args, tmp / "cache", brackets).returncode == -9
     assert leftovers(parent)  # a killed run's own staging folder and lock file
-    assert cli(tmp, "none", args, tmp / "cache", brackets).returncode == 0
+    assert main_in_process(monkeypatch, capsys, *args).returncode == 0
     assert leftovers(parent) == [] and is_result_folder(brackets)
     assert sorted(p.name for p in parent.iterdir()) == ["c*", "cab", "res[1]"]
 
@@ -113,17 +114,14 @@ def test_out_expands_the_home_folder(stream_files, monkeypatch):
     assert not (stream_files / "~").exists()
 
 
-def test_out_that_is_the_working_directory_or_a_parent_is_refused(stream_files):
+def test_out_that_is_the_working_directory_or_a_parent_is_refused(stream_files, monkeypatch, capsys):
     empty = stream_files / "empty"
     empty.mkdir()
     folder = empty.stat().st_ino
+    monkeypatch.chdir(empty)
     for out in (".", "..", str(empty)):
-        refused = cli(
-            empty,
-            "none",
-            command("sample", stream_files, Path(out), stream_files / "cache"),
-            stream_files / "cache",
-            empty,
+        refused = main_in_process(
+            monkeypatch, capsys, *command("sample", stream_files, Path(out), stream_files / "cache")
         )
         (line,) = refused.stderr.strip().splitlines()
         assert refused.returncode == 2 and "current working directory; choose a new folder" in line, line
