@@ -172,3 +172,37 @@ def test_the_verified_protocol_joins_no_keyframes_farther_apart_than_its_offset(
     monkeypatch.setattr(loop_closing, "MAX_LOOP_OFFSET_M", 2.0)
     _, far = _close(s5, s0, **settings)
     assert not far[0].accepted and far[0].rejected == "overlap"
+
+
+def test_the_verified_protocol_leaves_a_candidate_turned_beyond_the_drift_unregistered(scans):
+    """Scan 0 seen turned by 90 deg where the odometry says the heading is unchanged after 100 m: Scan Context's
+    yaw says 90 deg, and no loop within the protocol's largest turn of that (MAX_LOOP_TURN_DEG) passes the drift
+    check, so the candidate is rejected for drift unregistered; the true loop is still registered and accepted."""
+    settings = {"loop_protocol": "verified"}  # realistic mode: the drift check is on
+    turned = scans["true"] @ Rotation.from_euler("z", 90, degrees=True).as_matrix()
+    _, loops = _close(turned, scans["target"], **settings)
+    assert len(loops) == 1 and loops[0].rejected == "drift" and loops[0].T_match_query is None
+    _, true = _close(scans["true"], scans["target"], **settings)
+    assert true[0].accepted and true[0].T_match_query is not None
+
+
+def test_the_verified_protocol_rejects_a_loop_turned_farther_from_the_descriptor_yaw_than_its_turn(monkeypatch):
+    """KITTI-00 scans 0 and 5, registered from a descriptor yaw 20 deg off (drift check off, so the clouds alone
+    decide): GICP turns back to the true heading, a loop while the protocol's largest turn allows 20 deg, rejected
+    for overlap once it is below that."""
+    import msa_slam.slam.loop_closing as loop_closing
+
+    def yaw_off(*_args) -> np.ndarray:
+        guess = np.eye(4)
+        guess[:3, :3] = Rotation.from_euler("z", 20, degrees=True).as_matrix()
+        return guess
+
+    monkeypatch.setattr(loop_closing, "yaw_guess", yaw_off)
+    s0, s5 = scan_points(0).astype(np.float64), scan_points(5).astype(np.float64)
+    settings = {"loop_protocol": "verified", "drift_check": "off"}
+    _, loops = _close(s5, s0, **settings)
+    assert loops[0].accepted
+    assert np.degrees(loop_closing.rotation_angle(loops[0].T_match_query[:3, :3])) < 2.0  # turned back by ~20 deg
+    monkeypatch.setattr(loop_closing, "MAX_LOOP_TURN_DEG", 10.0)
+    _, askew = _close(s5, s0, **settings)
+    assert not askew[0].accepted and askew[0].rejected == "overlap"

@@ -412,3 +412,34 @@ def test_a_candidate_whose_odometry_allows_a_loop_is_registered():
     closer._odometry[query] = closer._odometry[3]
     cand, T = _lateral_loop(closer, query, 0.5)
     assert not closer.beyond_drift(cand, 30.0) and not closer.exceeds_drift(cand, T)
+
+
+def _turned(T: np.ndarray, degrees: float) -> np.ndarray:
+    """T with its rotation turned by `degrees` about the vertical."""
+    out = T.copy()
+    out[:3, :3] = out[:3, :3] @ Rotation.from_euler("z", degrees, degrees=True).as_matrix()
+    return out
+
+
+def test_a_candidate_whose_descriptor_yaw_the_heading_cannot_explain_has_no_loop_within_the_turn_that_passes():
+    """Keyframes the odometry puts 3 m apart after 100 m, so the translation bound registers them; a descriptor yaw
+    90 deg from the odometry's heading: every loop within MAX_LOOP_TURN_DEG of that yaw (and 30 m) fails the drift
+    check, so beyond_drift rejects it. A yaw 10 deg off the heading is registered, and a loop near the odometry
+    passes the drift check."""
+    from msa_slam.slam.loop_closing import MAX_LOOP_TURN_DEG
+
+    closer, query = _closer(100.0)
+    closer._odometry[query] = closer._odometry[3]
+    cand, T = _lateral_loop(closer, query, 0.5)
+    guess = _turned(np.eye(4), 90.0)  # T_match_query from the descriptor: the odometry's heading turned by 90 deg
+    assert closer.beyond_drift(cand, 30.0, guess, MAX_LOOP_TURN_DEG)
+    turn = np.radians(MAX_LOOP_TURN_DEG)
+    loops = _random_loops(30.0, 400)
+    rng = np.random.default_rng(1)
+    for L in loops:  # each loop's rotation within the turn of the guess, half of them exactly at it
+        axis = rng.normal(size=3)
+        angle = turn * (1.0 if rng.uniform() < 0.5 else rng.uniform())
+        L[:3, :3] = guess[:3, :3] @ Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle).as_matrix()
+    assert all(closer.exceeds_drift(cand, L) for L in loops)
+    near = _turned(np.eye(4), 10.0)
+    assert not closer.beyond_drift(cand, 30.0, near, MAX_LOOP_TURN_DEG) and not closer.exceeds_drift(cand, T)

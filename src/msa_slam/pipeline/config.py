@@ -64,8 +64,9 @@ class RunConfig(StageConfig):
     mode, verified in realistic mode (slam/loop_closing.py). The default stays "paper": in realistic mode the
     verified protocol closes revisits the paper's threshold misses (a street driven back the other way) with no
     false loop where measured, and keeps every method far better than odometry on the never-worse test's
-    sequence (its loops there are within centimetres of ground truth), but even with the candidates the drift
-    check must reject left unregistered its back end costs several times the paper protocol's
+    sequence (its loops there are within centimetres of ground truth); with the candidates the drift check must
+    reject left unregistered (by their offset and their descriptor yaw) its back end was 1.6x the paper protocol's
+    on reverse-revisit, but it has not been measured so on KITTI-07, where it cost 8-25x before
     (docs/performance.md, "The verified loop protocol's cost").
     """
 

@@ -20,8 +20,9 @@ registers from the descriptor's yaw; "verified" takes the best `verified_top_k` 
 `verified_min_similarity` (0.3: below it Scan Context matches are noise even for local maps, and three
 registrations a keyframe stay affordable) and lets registration decide, from the yaw plus a coarse translation
 search (registration/coarse.py), or from MapClosures' own alignment, so no odometry prior is used, and verifies
-strictly (the structure gate of registration/verify.py). Its loops join keyframes at most MAX_LOOP_OFFSET_M apart;
-with the drift check on, a candidate whose odometry puts its keyframes so far apart that no loop within that offset
+strictly (the structure gate of registration/verify.py). Its loops join keyframes at most MAX_LOOP_OFFSET_M apart
+and turn at most MAX_LOOP_TURN_DEG from the descriptor's yaw; with the drift check on, a candidate whose odometry
+puts its keyframes so far apart, or whose descriptor yaw is so far from the odometry's heading, that no such loop
 passes the drift check is rejected for drift before it is registered (most false candidates: it decides what
 registration and the drift check would have, at a fraction of the cost), and a keyframe's cloud is prepared for
 registration once for all its candidates (registration/prepared.py). An accepted loop
@@ -105,6 +106,12 @@ PREPARED_KEPT = 8
 # afar rather than a revisit. It bounds what a registration can return, so a candidate whose odometry puts its
 # keyframes so far apart that no loop within it passes the drift check is rejected unregistered (beyond_drift).
 MAX_LOOP_OFFSET_M = 30.0
+# Its loops turn at most this far from the descriptor's yaw (Scan Context: 6 deg sectors): the translation search
+# does not turn, GICP refines the yaw by a few degrees (at most 2.7 deg on simulated reverse-revisit), and a
+# registration that turned further did not confirm the descriptor's view of the place. It bounds the loop's rotation,
+# so a candidate whose descriptor yaw is that far beyond what the odometry's heading allows is rejected
+# unregistered too (beyond_drift): on a street driven back the other way, most false candidates.
+MAX_LOOP_TURN_DEG = 30.0
 
 
 def yaw_guess(descriptor: Descriptor, query_desc: np.ndarray, match_desc: np.ndarray) -> np.ndarray:
@@ -115,6 +122,18 @@ def yaw_guess(descriptor: Descriptor, query_desc: np.ndarray, match_desc: np.nda
         c, s = np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))
         guess[:2, :2] = [[c, -s], [s, c]]
     return guess
+
+
+def rotation_angle(rotation: np.ndarray) -> float:
+    """The angle (radians, 0 to pi) of a rotation matrix."""
+    return float(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def within_search(T_match_query: np.ndarray, guess: np.ndarray) -> bool:
+    """Whether a loop of the verified protocol is within its largest offset and turn from the descriptor's
+    `guess` (MAX_LOOP_OFFSET_M, MAX_LOOP_TURN_DEG)."""
+    turn = rotation_angle(guess[:3, :3].T @ T_match_query[:3, :3])
+    return bool(np.linalg.norm(T_match_query[:3, 3]) <= MAX_LOOP_OFFSET_M and turn <= np.radians(MAX_LOOP_TURN_DEG))
 
 
 class LoopCloser:
@@ -235,21 +254,24 @@ class LoopCloser:
             return cand
         strict = protocol(self.settings) == "verified"
         searched = strict and guess is None  # registered from the descriptor's yaw and the coarse search
-        if searched and drift_check_on(self.settings) and self.beyond_drift(cand, MAX_LOOP_OFFSET_M):
+        if guess is None:
+            store = self.store
+            guess = yaw_guess(store.descriptor, store.descriptor_of(cand.query), store.descriptor_of(cand.match))
+        if (
+            searched
+            and drift_check_on(self.settings)
+            and self.beyond_drift(cand, MAX_LOOP_OFFSET_M, guess, MAX_LOOP_TURN_DEG)
+        ):
             return replace(cand, verified=True, rejected="drift")  # no registration the search can return passes
         try:
             target, source = self._prepared(cand.match), self._prepared(cand.query)
-            if guess is None:
-                store = self.store
-                guess = yaw_guess(store.descriptor, store.descriptor_of(cand.query), store.descriptor_of(cand.match))
-                if strict:
-                    guess = coarse_guess(target, source, guess, self.verifier.config)
-            result = self.verifier.verify(target, source, initial_guess=guess, strict=strict, coarse=not searched)
+            start = coarse_guess(target, source, guess, self.verifier.config) if searched else guess
+            result = self.verifier.verify(target, source, initial_guess=start, strict=strict, coarse=not searched)
         except InputError:  # clouds too sparse to register: the candidate is rejected, not the run
             return replace(cand, verified=True, residual=float("inf"), rejected="sparse")
         rejected = result.rejected
-        if not rejected and searched and np.linalg.norm(result.T_target_source[:3, 3]) > MAX_LOOP_OFFSET_M:
-            rejected = "overlap"  # a view of the place from afar, not a revisit (MAX_LOOP_OFFSET_M)
+        if not rejected and searched and not within_search(result.T_target_source, guess):
+            rejected = "overlap"  # a view of the place from afar or askew, not a revisit (within_search)
         if (
             not rejected
             and drift_check_on(self.settings)
@@ -299,19 +321,25 @@ class LoopCloser:
         correction = gtsam.Pose3.Logmap(gtsam.Pose3(np.linalg.inv(odometry) @ T_match_query))
         return float(correction @ np.linalg.solve(total, correction))
 
-    def beyond_drift(self, cand: LoopClosure, reach_m: float) -> bool:
-        """Whether every loop that puts the query within `reach_m` of the match fails the drift check, so the
-        candidate need not be registered. A lower bound of drift_chi2 for any such loop: with E = T_odometry^-1
-        T_loop and Log(E) = (w, r), r = V(w)^-1 t_E, where V (SO(3)'s left Jacobian) has no singular value above
-        1, so |r| >= |t_E| = |t_loop - t_odometry| >= |t_odometry| - reach_m; and the chi-square is at least that
-        of r alone, r^T S^-1 r >= |r|^2 / max eig(S), S the translation block of the total covariance, taken
-        with the largest loop covariance the graph allows (GraphConfig.loop_covariance_bound)."""
+    def beyond_drift(
+        self, cand: LoopClosure, reach_m: float, guess: np.ndarray | None = None, turn_deg: float = MAX_LOOP_TURN_DEG
+    ) -> bool:
+        """Whether every loop that puts the query within `reach_m` of the match (and, given the descriptor's
+        `guess`, turns at most `turn_deg` from its rotation) fails the drift check, so the candidate need not be
+        registered. A lower bound of drift_chi2 for any such loop: with E = T_odometry^-1 T_loop and
+        Log(E) = (w, r), the chi-square is at least that of w alone and of r alone (the quadratic form of the
+        block's marginal covariance, its minimum over the other block), each at least its squared norm over the
+        block's largest eigenvalue, the total covariance taken with the largest loop covariance the graph allows
+        (GraphConfig.loop_covariance_bound). Translation: r = V(w)^-1 t_E, where V (SO(3)'s left Jacobian) has no
+        singular value above 1, so |r| >= |t_E| = |t_loop - t_odometry| >= |t_odometry| - reach_m. Rotation: |w|
+        is the angle between the loop's and the odometry's rotations, at least the angle between the guess's and
+        the odometry's less `turn_deg` (the angle between rotations is a metric)."""
         odometry, total = self._drift_covariance(cand, self.settings.graph.loop_covariance_bound())
-        gap = float(np.linalg.norm(odometry[:3, 3])) - reach_m
-        if gap <= 0:
-            return False
-        largest = float(np.linalg.eigvalsh(total[3:, 3:])[-1])
-        return gap**2 / largest > chi2_quantile(self.settings.drift_confidence, 6)
+        gaps = [(float(np.linalg.norm(odometry[:3, 3])) - reach_m, total[3:, 3:])]
+        if guess is not None:
+            gaps.append((rotation_angle(odometry[:3, :3].T @ guess[:3, :3]) - np.radians(turn_deg), total[:3, :3]))
+        bound = chi2_quantile(self.settings.drift_confidence, 6)
+        return any(gap > 0 and gap**2 / float(np.linalg.eigvalsh(block)[-1]) > bound for gap, block in gaps)
 
     def _drift_covariance(self, cand: LoopClosure, loop_covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The odometry T_match_query and the covariance its correction is tested against: drift_gate^2 times the
