@@ -93,3 +93,57 @@ def test_online_cells_on_a_live_source_share_one_preparation(base, groups):
     )
     found = input_groups(expand(grid))
     assert len(found) == groups and all(len(group) == 1 for group in found)
+
+
+def test_estimate_counts_a_live_sources_shared_odometry_once():
+    """Online cells on one live: source: each simulates, describes and runs its back end; KISS-ICP on one thread
+    runs once, over all the source's frames (simulated once more for it), not once a cell."""
+    from msa_slam.experiments.estimate import REFERENCE_POINTS, STAGE_S, estimate_grid
+
+    def grid(odometry: dict) -> list:
+        spec = {"name": "g", "pipeline": "online", "datasets": [DRIVE], "seeds": [0], "base": odometry}
+        return expand(GridSpec(**spec, samplers=[{"sampler": "all"}, {"sampler": "constant"}, {"sampler": "msa"}]))
+
+    def seconds(odometry: dict) -> float:
+        cells = grid(odometry)
+        found = estimate_grid("g", cells, {}, cells, workers=1)
+        assert found.seconds is not None
+        return found.seconds
+
+    frames, scale = 50, 64 * 180 / REFERENCE_POINTS  # DRIVE: 2 x 25 frames of 64 x 180 points
+    per_cell = frames * (STAGE_S["simulation"] * scale + STAGE_S["descriptor"] + STAGE_S["back end"])
+    registered = frames * STAGE_S["kiss-icp"] * scale
+    shared = seconds({"odometry": "kiss"})  # grid cells run KISS-ICP on one thread
+    assert shared == pytest.approx(3 * per_cell + registered + frames * STAGE_S["simulation"] * scale)
+    several = seconds({"odometry": "kiss", "odometry_params": {"num_threads": 2}})  # not reproducible: not shared
+    assert several == pytest.approx(3 * (per_cell + registered))
+    assert seconds({"odometry": "gt-noise"}) == pytest.approx(3 * per_cell)
+
+
+def test_reproduce_estimate_runs_nothing(tmp_path, monkeypatch):
+    from msa_slam.experiments.reproduce import estimate_reproduction
+
+    monkeypatch.chdir(tmp_path)
+    lines = estimate_reproduction(["paper-table2", "paper-ablation"], quick=True, workers=2)
+    assert lines[0].startswith("grid paper-table2-quick: 9 cells, 0 finished earlier, 9 to run; estimated time ")
+    assert "2 copied from an identical cell" in lines[1]  # all samples and MSA: the same runs as Table II's
+    assert lines[-1].startswith("all 2 grid(s): estimated ") and list(tmp_path.iterdir()) == []
+
+
+def test_a_grid_in_one_process_registers_a_live_source_once(tmp_path):
+    """The cells of a grid run one after the other replay the odometry prepared before them, as on workers."""
+    from msa_slam.experiments.runner import run_grid
+
+    base = {"odometry": "kiss", "mode": "realistic", "max_frames": 30, "cache_dir": str(tmp_path / "cache")}
+    grid = GridSpec(
+        name="g",
+        pipeline="online",
+        datasets=[DRIVE],
+        samplers=[{"sampler": "all"}, {"sampler": "constant", "params": {"distance": 2.0}}],
+        base=base,
+    )
+    done = run_grid(grid, tmp_path / "out")
+    assert len(done.ran) == 2 and not done.failed
+    cached = [json.loads(p.read_text())["odometry_cached"] for p in sorted((tmp_path / "out").rglob("metrics.json"))]
+    assert cached == [True, True]
+    assert len(list((tmp_path / "cache").rglob("odometry-*.npy"))) == 1
