@@ -15,7 +15,7 @@ def reproduce_command(
         False,
         "--quick",
         help="the same grids on short prefixes: fewer datasets, one "
-        "seed, oracle mode, each sweep at its ends (a smoke run)",
+        "seed, Table I in oracle mode only, each sweep at its ends (a smoke run)",
     ),
     out: Optional[Path] = typer.Option(
         None,
