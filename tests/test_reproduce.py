@@ -107,13 +107,39 @@ def test_quick_variant_cuts_datasets_seeds_and_sweeps_only():
     full = load_grid("paper-bounds")
     quick = variant(full, quick=True, seeds=None)
     assert quick.seeds == [0] and quick.name == "paper-bounds-quick"
-    assert quick.datasets == [f"{full.datasets[0]},end={QUICK_FRAMES['online']}"]
+    drive = full.datasets[0].replace(f"laps={TABLE2_LAPS}", "laps=3")  # forth, back, forth over the prefix
+    assert quick.datasets == [f"{drive},end={QUICK_FRAMES['online']}"]
     assert [s.sweep for s in quick.samplers] == [{}, {"lambda_l": [0.0, 2.0]}, {"lambda_u": [1.0, 10.0]}]
     assert [(s.sampler, s.params) for s in quick.samplers] == [(s.sampler, s.params) for s in full.samplers]
-    assert quick.base == full.base
+    assert quick.base == {k: v for k, v in full.base.items() if k != "max_frames"}  # the prefix is shorter
+    table2 = variant(load_grid("paper-table2"), quick=True, seeds=None)
+    assert table2.datasets == quick.datasets and table2.base == quick.base  # so their cells are shared again
     assert variant(full, quick=False, seeds=[4, 7]).seeds == [4, 7]
     table1 = variant(load_grid("paper-table1"), quick=True, seeds=[3, 5])
     assert table1.seeds == [3] and len(table1.datasets) == 2 and table1.parameters == {"mode": ["oracle"]}
+
+
+TABLE2_LAPS = 10
+
+
+@pytest.mark.parametrize("name", ["paper-table2", "paper-ablation", "paper-bounds"])
+def test_table2_grids_run_the_papers_online_protocol_on_a_drive_of_over_20_km(name):
+    """KISS-ICP on one thread (reproducible, so one cached odometry serves every sampler) and realistic loops on
+    the long drive (>= 20 km in paper-table2; its first three passes in the ablations) and the campus walk."""
+    from msa_slam.sources import parse_spec
+
+    grid = load_grid(name)
+    assert grid.pipeline == "online" and grid.base["odometry"] == "kiss" and grid.base["mode"] == "realistic"
+    assert grid.base["odometry_params"] == {"num_threads": 1}
+    drive, walk = (parse_spec(d, seed=0) for d in grid.datasets)
+    assert (drive.name, drive.laps, walk.name, walk.laps) == ("city-tour", TABLE2_LAPS, "campus-walk", 1)
+    poses = drive.simulation.load_trajectory().poses
+    steps = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)
+    frames = drive.simulation.frame_count() * drive.laps
+    read = min(frames, grid.base.get("max_frames", frames))
+    assert steps.sum() * drive.laps > 20_000.0 and 0.7 < steps.mean() < 1.2  # ~1 m a frame, as Sunnyvale's
+    assert read == (frames if name == "paper-table2" else 3 * drive.simulation.frame_count())
+    assert all(cell.config["odometry_params"]["num_threads"] == 1 for cell in expand(grid))
 
 
 def test_presets_parse_and_ship():

@@ -114,7 +114,8 @@ class FrameSource:
     is dropped with a warning); None (not known): deskew only when asked, and KISS-ICP then refuses a first frame
     without them (odometry.choice.make_odometry). `live`: frames that come once, as from a sensor (nothing to
     replay bit for bit), so the online pipeline runs KISS-ICP on every core by default
-    (pipeline.live.with_odometry_threads)."""
+    (pipeline.live.with_odometry_threads). `identity`: what determines frames made in memory (a live: source's
+    simulation key and laps), which keys their cached odometry as a sequence's scans key theirs."""
 
     name: str
     gt_poses: np.ndarray | None
@@ -124,6 +125,7 @@ class FrameSource:
     times_known: bool = True  # False: the frames' times are frame numbers (a recording without timestamps)
     point_times: bool | None = None
     live: bool = False
+    identity: str | None = None
 
     def __len__(self) -> int:
         return len(self.gt_poses) if self.length is None else self.length

@@ -15,7 +15,7 @@ def reproduce_command(
         False,
         "--quick",
         help="the same grids on short prefixes: fewer datasets, one "
-        "seed, oracle mode, each sweep at its ends (a smoke run)",
+        "seed, Table I in oracle mode only, each sweep at its ends (a smoke run)",
     ),
     out: Optional[Path] = typer.Option(
         None,
@@ -36,6 +36,11 @@ def reproduce_command(
         "paper-table1, paper-table2, paper-ablation, paper-bounds)",
     ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+    estimate: bool = typer.Option(
+        False,
+        "--estimate",
+        help="print each grid's cells and estimated time for a fresh run on --workers processes, and run nothing",
+    ),
 ) -> None:
     """Run the paper's evaluation grids (finished cells are kept and skipped), then write one report.md with
     Table I, Table II, the ablations, the distance bounds and a verdict per claim; prints its path. Exits with 1
@@ -47,10 +52,17 @@ def reproduce_command(
     if scheduler is not None and workers != 1:
         raise typer.BadParameter("give either --scheduler or --workers, not both", param_hint="--workers")
     names = parse_presets(presets)
+    chosen = None if seeds is None else parse_seeds(seeds)
+    if estimate:
+        from msa_slam.experiments.reproduce import estimate_reproduction
+
+        for line in estimate_reproduction(names, quick=quick, seeds=chosen, workers=workers):
+            typer.echo(line)
+        return
     run = run_reproduce(
         names,
         quick=quick,
-        seeds=None if seeds is None else parse_seeds(seeds),
+        seeds=chosen,
         out=out,
         scheduler=scheduler,
         workers=workers,

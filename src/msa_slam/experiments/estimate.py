@@ -64,10 +64,12 @@ def estimate_grid(
     todo: Sequence[Cell],
     workers: int | None,
     shared: int = 0,
+    done: set[tuple] | None = None,
 ) -> GridEstimate:
     """The estimate of running `todo` (of the grid's `cells`; `finished`: the finished cells by id) on
     `workers` local processes (None: a Dask cluster of unknown size, then stated for one worker); `shared` cells
-    are copied from identical ones instead (experiments.sharing)."""
+    are copied from identical ones instead (experiments.sharing); `done`: the shared work (simulations, front ends)
+    that grids estimated before this one will have done, updated with this grid's."""
     opened: dict[tuple, tuple[int | None, int | None]] = {}  # each dataset is looked at once
     sizes = {cell.id: _size(cell, opened) for cell in todo}
     per_frame, basis = _recorded_cost(finished)
@@ -75,7 +77,7 @@ def estimate_grid(
         cell_s = {cid: None if frames is None else frames * per_frame for cid, (frames, _) in sizes.items()}
     else:
         cell_s, basis = (
-            _assumed_costs(todo, sizes),
+            _assumed_costs(todo, sizes, set() if done is None else done),
             (
                 "rough: each cell's frames times an assumed cost a frame of its stages on a 2-core machine like this "
                 f"project's: {_stage_costs()}"
@@ -145,11 +147,15 @@ def recorded_seconds(timing: Timing) -> float:
     return float(spent - sum(timing.replayed_s.values()))
 
 
-def _assumed_costs(todo: Sequence[Cell], sizes: Mapping[str, tuple[int | None, int | None]]) -> dict[str, float | None]:
-    """Each cell's seconds from STAGE_S. Work the cells share is counted once, with the first cell needing it:
-    a sim: dataset is simulated once (then cached), and batch cells share the cached odometry and descriptors
-    of their dataset; a live: dataset is simulated by every cell, and an online cell runs its own front end."""
-    shared: set[tuple] = set()
+def _assumed_costs(
+    todo: Sequence[Cell], sizes: Mapping[str, tuple[int | None, int | None]], shared: set[tuple]
+) -> dict[str, float | None]:
+    """Each cell's seconds from STAGE_S. Work the cells share is counted once, with the first cell needing it
+    (`shared`: what is done already, updated): a sim: dataset is simulated once (then cached), and batch cells
+    share the cached odometry and descriptors of their dataset; a live: dataset is simulated by every cell, which
+    describes its frames itself and registers them too unless KISS-ICP runs on one thread: that odometry is
+    computed once for all the cells on the dataset, over all its frames, simulating them once more
+    (pipeline.live.prepare_live_odometry)."""
     costs: dict[str, float | None] = {}
     for cell in todo:
         frames, points = sizes[cell.id]
@@ -171,11 +177,30 @@ def _assumed_costs(todo: Sequence[Cell], sizes: Mapping[str, tuple[int | None, i
         )
         front.append(("descriptor", (config["descriptor"], repr(config.get("descriptor_params"))), 1.0))
         for stage, key, factor in front:
-            if cell.pipeline == "online" or (dataset, key) not in shared:
+            if cell.pipeline == "online" and stage == "kiss-icp" and _replayed_live(config):
+                if (dataset, key) not in shared:
+                    shared.add((dataset, key))
+                    seconds += _live_frames(config["dataset"]) * (STAGE_S["simulation"] + STAGE_S[stage]) * factor
+            elif cell.pipeline == "online" or (dataset, key) not in shared:
                 shared.add((dataset, key))
                 seconds += frames * STAGE_S[stage] * factor
         costs[cell.id] = seconds
     return costs
+
+
+def _replayed_live(config: Mapping) -> bool:
+    """True when an online cell replays its live: dataset's odometry computed once: KISS-ICP on one thread, as
+    grid cells run it unless their config names another count (experiments.runner.run_cell)."""
+    threads = (config.get("odometry_params") or {}).get("num_threads", 1)
+    return spec_kind(config["dataset"]) == "live" and config.get("odometry") == "kiss" and threads == 1
+
+
+def _live_frames(spec: str) -> int:
+    """The frames of a live: dataset, all its laps (what its cached odometry registers)."""
+    from msa_slam.sources import parse_spec
+
+    parsed = parse_spec(spec)
+    return parsed.simulation.frame_count() * parsed.laps
 
 
 def _size(cell: Cell, opened: dict[tuple, tuple[int | None, int | None]]) -> tuple[int | None, int | None]:

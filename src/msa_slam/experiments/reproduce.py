@@ -97,6 +97,35 @@ def run_reproduce(
     return result
 
 
+def estimate_reproduction(
+    presets: Sequence[str], quick: bool = False, seeds: Sequence[int] | None = None, workers: int = 1
+) -> list[str]:
+    """What a fresh reproduction of `presets` would cost on `workers` local processes, nothing run: per grid its
+    cells, those copied from an identical cell of an earlier grid or of itself, and the estimated time of the
+    rest (experiments.estimate: frames times assumed costs a frame, shared work counted once), then the total."""
+    from msa_slam.experiments.estimate import duration, estimate_grid
+    from msa_slam.experiments.grid import run_key
+    from msa_slam.experiments.identity import cell_identities
+    from msa_slam.experiments.sharing import plan_sharing
+
+    check_workers(workers)
+    lines: list[str] = []
+    total, done = 0.0, set[tuple]()
+    planned: dict[str, Path] = {}  # run key -> the grid that runs it first
+    for name, grid in paper_grids(presets, quick, seeds).items():
+        cells = expand(grid, f"preset {name}")
+        identities = cell_identities(cells)
+        keys = {cell.id: run_key(cell, identities[cell.id]) for cell in cells}
+        plan = plan_sharing(cells, keys, planned)
+        copies = len(plan.copies) + len(plan.after)
+        found = estimate_grid(grid.name, cells, {}, plan.run, workers, shared=copies, done=done)
+        planned.update({key: Path(name) for key in keys.values() if key is not None and key not in planned})
+        total += found.seconds or 0.0
+        lines.append(found.line())
+    lines.append(f"all {len(lines)} grid(s): estimated {duration(total)} on {workers} worker(s)")
+    return lines
+
+
 def rewrite_reproduce_report(folder: str | os.PathLike) -> Path:
     """`msa-slam report` of a reproduce folder: report.md and figures again from the finished cells of the grids
     recorded under grids/ (each its grid.yaml as last run), the run's stamp kept and the rewrite noted."""

@@ -30,7 +30,7 @@ from msa_slam.experiments.estimate import GridClock, GridEstimate, estimate_grid
 from msa_slam.experiments.folder import CELL_FILE, KIND, cell_dir, finished_cells, read_cell, stale_cells, write_grid
 from msa_slam.experiments.grid import Cell, GridSpec, check_datasets, expand, run_key
 from msa_slam.experiments.identity import cell_identities, outdated_cells
-from msa_slam.experiments.inputs import input_groups, prepare_inputs
+from msa_slam.experiments.inputs import Preparation, input_groups, prepare_inputs
 from msa_slam.experiments.sharing import SharePlan, copy_cell, finished_runs, plan_sharing
 from msa_slam.io.atomic import write_text_atomic
 from msa_slam.io.marker import foreign_in_units
@@ -268,6 +268,9 @@ def _run_cells(
             bar.update(task, advance=1, left=clock.left(run.ran + list(run.failed)))
 
         if todo and client is None and scheduler is None and workers == 1:
+            for group in input_groups(todo):
+                bar.update(task, description=f"inputs of {group[0][1]['dataset']} (shared by its cells)")
+                _prepare_here(group)
             for cell in todo:
                 bar.update(task, description=f"{cell.method} on {cell.dataset}")
                 try:
@@ -295,6 +298,15 @@ def _prepare_inputs(client, todo: list[Cell]) -> None:
             future.result()
         except Exception as exc:  # the cells meet it again and record it with its traceback
             log.warning("experiment: inputs of %s not prepared ahead: %s", futures[future][0][1]["dataset"], exc)
+
+
+def _prepare_here(group: list[Preparation]) -> None:
+    """Build one dataset's shared inputs in this process before the cells that read them (as _prepare_inputs on a
+    cluster); a failure is logged and left to the cells, which record it."""
+    try:
+        prepare_inputs(group)
+    except Exception as exc:  # the cells meet it again and record it with its traceback
+        log.warning("experiment: inputs of %s not prepared ahead: %s", group[0][1]["dataset"], exc)
 
 
 def _run_dask(

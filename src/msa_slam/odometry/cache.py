@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Iterable, Mapping
+from itertools import islice
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -51,6 +52,14 @@ class OdometryCache:
         by the code of ODOMETRY_CODE; `store` memoises the files' digests."""
         inputs = sequence_inputs(sequence, extra_inputs, store)
         return cache_key("odometry", inputs, dict(config), code_fingerprint(ODOMETRY_CODE), ODOMETRY_LIBRARIES)
+
+    @staticmethod
+    def source_key(identity: str, config: Mapping[str, Any]) -> str:
+        """Key of the odometry with `config` of every frame of a source made in memory whose frames follow from
+        `identity` (FrameSource.identity: a live: source's simulation key and laps), computed by ODOMETRY_CODE."""
+        return cache_key(
+            "odometry", {"frames": identity}, dict(config), code_fingerprint(ODOMETRY_CODE), ODOMETRY_LIBRARIES
+        )
 
     def path(self, key: str) -> Path:
         return self.store.path(f"odometry-{key}")
@@ -127,14 +136,25 @@ def sequence_odometry(
             if hasattr(odometry, "unregistered_frames"):
                 odometry.unregistered_frames = entry[1]
             return Computed(entry[0], True, entry[2])
-    poses, ms = np.empty((len(sequence), 4, 4)), np.empty(len(sequence))
-    with progress_bar(quiet) as progress:
-        task = progress.add_task(label, total=len(sequence))
-        for i, frame in enumerate(iter(sequence) if frames is None else frames):
-            start = time.perf_counter()  # per-point and scan times: used by KISS-ICP only with deskew on
-            poses[i] = odometry.register(frame.points, frame.timestamps, frame.time if sequence.times_known else None)
-            ms[i] = (time.perf_counter() - start) * 1e3
-            progress.advance(task)
+    poses, ms = register_frames(
+        odometry, iter(sequence) if frames is None else frames, len(sequence), sequence.times_known, quiet, label
+    )
     if cache is not None and key is not None:
         cache.save(key, poses, getattr(odometry, "unregistered_frames", ()), ms)
     return Computed(poses, False, ms)
+
+
+def register_frames(
+    odometry: Odometry, frames: Iterable[Frame], n: int, times_known: bool, quiet: bool, label: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """(poses, ms registering each took) of the first `n` of `frames`; without timestamps (`times_known` False)
+    the odometry is given no scan times (see KissOdometry.register)."""
+    poses, ms = np.empty((n, 4, 4)), np.empty(n)
+    with progress_bar(quiet) as progress:
+        task = progress.add_task(label, total=n)
+        for i, frame in enumerate(islice(frames, n)):
+            start = time.perf_counter()  # per-point and scan times: used by KISS-ICP only with deskew on
+            poses[i] = odometry.register(frame.points, frame.timestamps, frame.time if times_known else None)
+            ms[i] = (time.perf_counter() - start) * 1e3
+            progress.advance(task)
+    return poses, ms

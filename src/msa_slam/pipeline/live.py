@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from contextlib import closing
 from dataclasses import replace
 from itertools import islice
@@ -36,8 +37,9 @@ from msa_slam.errors import InputError
 from msa_slam.evaluation.metrics import ONLINE, Latency, ProtocolRecord, RunSetup, Throughput, Timing
 from msa_slam.evaluation.resources import current_rss_bytes, throughput
 from msa_slam.evaluation.sanity import frontend_warnings
-from msa_slam.io.cache import pipeline_cache
+from msa_slam.io.cache import CacheDir, pipeline_cache
 from msa_slam.odometry import KissOdometry, NoisyOdometry, OdometryCache, ReplayedOdometry
+from msa_slam.odometry.cache import register_frames
 from msa_slam.odometry.choice import make_odometry
 from msa_slam.odometry.kiss import DEFAULT_THREADS
 from msa_slam.pipeline.config import NO_TIMESTAMPS, NOT_REPRODUCIBLE, OnlineConfig, RunConfig
@@ -169,10 +171,12 @@ def open_recording(config: OnlineConfig, quiet: bool = True, window_fix: str = C
 
 
 def make_online_odometry(config: OnlineConfig, source: FrameSource, n: int):
-    """(odometry object, cached) - gt-noise, a pose file, or KISS-ICP (replayed from the batch pipeline's
-    cache when it has the scans this run reads, keyed as there by the selection (--first/--jump/-n), so grids
-    do not redo it: a ReplayedOdometry with the time each frame took computed; live otherwise; deskew as in
-    the batch pipeline's key: on when the source's frames carry per-point times, see make_odometry)."""
+    """(odometry object, cached) - gt-noise, a pose file, or KISS-ICP (replayed from the cache when it has the
+    frames this run reads, so grids do not redo it: a ReplayedOdometry with the time each frame took computed;
+    live otherwise; deskew as in the batch pipeline's key: on when the source's frames carry per-point times, see
+    make_odometry). Scans on disk are keyed as in the batch pipeline, by the selection (--first/--jump/-n); a
+    live: source's frames by their identity, with KISS-ICP on one thread only (prepare_live_odometry: what
+    would not be reproducible is not replayed), its first `n` frames from the entry of all of them."""
     if config.odometry == "gt-noise":
         if source.gt_poses is None:  # open_recording refuses this before any work; a source given directly here
             raise InputError(f"{source.name}: odometry gt-noise perturbs ground truth, which these frames lack")
@@ -184,13 +188,55 @@ def make_online_odometry(config: OnlineConfig, source: FrameSource, n: int):
                 "translation_noise, rotation_noise_deg"
             ) from None
     odometry = make_odometry(config, len(source), source.point_times)
-    if isinstance(odometry, KissOdometry) and source.sequence is not None:
+    key = _odometry_key(config, source, odometry)
+    if key is not None:
         cache = OdometryCache(pipeline_cache(config.cache_dir))
-        entry = cache.load_entry(OdometryCache.key(source.sequence, odometry.config, store=cache.store), len(source))
+        entry = cache.load_entry(key(cache.store), len(source))
         if entry is not None:
+            assert isinstance(odometry, KissOdometry), "only KISS-ICP is cached (_odometry_key)"
             odometry.unregistered_frames = [frame for frame in entry[1] if frame < n]
             return ReplayedOdometry(entry[0], entry[2], odometry.unregistered_warning(n)), True
     return odometry, False
+
+
+def _odometry_key(config: OnlineConfig, source: FrameSource, odometry: object) -> Callable[[CacheDir], str] | None:
+    """How the cached odometry of `source` is keyed (given the cache folder, which memoises the scans' digests),
+    or None when it is not cached: only KISS-ICP is, on scans on disk or on a live: source with an identity
+    registered on one thread."""
+    if not isinstance(odometry, KissOdometry):
+        return None
+    if source.sequence is not None:
+        sequence = source.sequence
+        return lambda store: OdometryCache.key(sequence, odometry.config, store=store)
+    if source.identity is not None and odometry_threads(config) == 1:
+        identity = source.identity
+        return lambda store: OdometryCache.source_key(identity, odometry.config)
+    return None
+
+
+def prepare_live_odometry(config: OnlineConfig, quiet: bool = True) -> bool:
+    """Register every frame of `config`'s live: source once and cache the poses, so that the online runs of every
+    sampler on it replay them (make_online_odometry) rather than each running KISS-ICP again; their results are
+    the same bytes as without the cache (one thread: a fixed order of the ICP's sums). Returns whether the cache
+    holds them now; False when this odometry is not cached (another odometry, or KISS-ICP on several threads)."""
+    if config.odometry != "kiss":
+        return False
+    source = open_recording(config)
+    if source.live:
+        config = with_odometry_threads(config, available_cpus())  # as LiveFrontEnd.start: the same key
+    odometry = make_odometry(config, len(source), source.point_times)
+    key = _odometry_key(config, source, odometry)
+    if key is None or source.sequence is not None:  # scans on disk: the batch front end caches them
+        return False
+    cache = OdometryCache(pipeline_cache(config.cache_dir))
+    name = key(cache.store)
+    if cache.load_entry(name, len(source)) is None:
+        frames = source.frames()
+        poses, ms = register_frames(odometry, ahead(frames), len(source), source.times_known, quiet, "odometry")
+        assert isinstance(odometry, KissOdometry), "only KISS-ICP is cached (_odometry_key)"
+        if cache.save(name, poses, odometry.unregistered_frames, ms) is None:
+            return False
+    return True
 
 
 def with_odometry_threads(config: OnlineConfig, threads: int) -> OnlineConfig:

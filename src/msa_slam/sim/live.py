@@ -41,4 +41,5 @@ def live_source(config: SimConfig, laps: int = 1, name: str | None = None) -> Fr
 
     label = f"live-{name}" + (f"-x{laps}" if laps > 1 else "")
     # the simulated frames carry no per-point times; they are streamed like a sensor's (KISS-ICP on every core)
-    return FrameSource(label, gt, frames, point_times=False, live=True)
+    identity = f"simulation {config.key()}, laps {laps}"  # every frame follows from these (seeds included)
+    return FrameSource(label, gt, frames, point_times=False, live=True, identity=identity)
