@@ -6,7 +6,6 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Iterable, Mapping
-from itertools import islice
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -147,12 +146,15 @@ def sequence_odometry(
 def register_frames(
     odometry: Odometry, frames: Iterable[Frame], n: int, times_known: bool, quiet: bool, label: str
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(poses, ms registering each took) of the first `n` of `frames`; without timestamps (`times_known` False)
-    the odometry is given no scan times (see KissOdometry.register)."""
+    """(poses, ms registering each took) of the `n` `frames`, iterated to their end (a read-ahead knows it read
+    every scan only there: pipeline.read_ahead); without timestamps (`times_known` False) the odometry is given
+    no scan times (see KissOdometry.register)."""
     poses, ms = np.empty((n, 4, 4)), np.empty(n)
     with progress_bar(quiet) as progress:
         task = progress.add_task(label, total=n)
-        for i, frame in enumerate(islice(frames, n)):
+        for i, frame in enumerate(frames):
+            if i == n:
+                raise RuntimeError(f"{label}: more frames than the {n} expected")
             start = time.perf_counter()  # per-point and scan times: used by KISS-ICP only with deskew on
             poses[i] = odometry.register(frame.points, frame.timestamps, frame.time if times_known else None)
             ms[i] = (time.perf_counter() - start) * 1e3
