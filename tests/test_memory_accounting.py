@@ -5,10 +5,9 @@ RSS growth per run when runs follow one another in one process (as compare's met
 from __future__ import annotations
 
 import gc
-import multiprocessing
 import subprocess
 import sys
-from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -42,7 +41,7 @@ def _drive(graph, n: int, loop_every: int, seed: int = 0):
 
 
 def _graph_bytes_and_heap(make, loop_every: int) -> tuple[int, int]:
-    """(the graph's accounted bytes, the heap it holds) of a driven graph, measured where no other thread runs."""
+    """(the graph's accounted bytes, the heap it holds) of a driven graph, measured in this process."""
     gc.collect()
     before = heap_in_use_bytes()
     graph = _drive(make(mode="realistic"), 600, loop_every)
@@ -54,10 +53,19 @@ def _graph_bytes_and_heap(make, loop_every: int) -> tuple[int, int]:
 @pytest.mark.parametrize("make, loop_every", [(PoseGraph, 0), (IncrementalPoseGraph, 0), (IncrementalPoseGraph, 15)])
 def test_graph_bytes_estimate_what_gtsam_holds(make, loop_every):
     """The graph's accounted bytes are within 25 % of the heap it holds (they were ~1/4 of it for iSAM2). Measured
-    in a forked child, which has only the forking thread: threads earlier tests left in this worker would
-    otherwise allocate or free heap during the measurement (once seen as a negative heap growth)."""
-    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("fork")) as child:
-        nbytes, held = child.submit(_graph_bytes_and_heap, make, loop_every).result()
+    in a fresh process: in a pytest worker, what earlier test files left in the heap moved the measurement (seen
+    as a negative heap growth, in the worker and in a child forked from it)."""
+    code = (
+        "import sys; sys.path.insert(0, sys.argv[1]); from msa_slam.backend import IncrementalPoseGraph, PoseGraph; "
+        "from test_memory_accounting import _graph_bytes_and_heap as m; "
+        "print(*m(PoseGraph if sys.argv[2] == 'PoseGraph' else IncrementalPoseGraph, int(sys.argv[3])))"
+    )
+    tests = str(Path(__file__).parent)
+    done = subprocess.run(
+        [sys.executable, "-c", code, tests, make.__name__, str(loop_every)], capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    nbytes, held = map(int, done.stdout.split())
     assert nbytes == pytest.approx(held, rel=0.25)
 
 
