@@ -36,7 +36,7 @@ demo: $(BASE)
 test: $(DEV) $(EXTRAS)
 	$(PY) -m pytest -q -n auto --dist loadfile --durations=10
 
-# The tests marked slow (end-to-end runs whose code paths the default suite also covers more cheaply); CI runs them
+# The tests marked slow (end-to-end runs whose code paths the default suite also covers more cheaply); CI runs three of them
 test-slow: $(DEV) $(EXTRAS)
 	$(PY) -m pytest -q -n auto --dist loadfile -m slow
 

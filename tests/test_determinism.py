@@ -60,7 +60,7 @@ def _cached(cache: Path, kind: str) -> np.ndarray:
     return np.load(files[0])
 
 
-# Slow (two cold `run`s of sim:test in fresh processes, about 50 s of CPU; `make test-slow`, which CI runs): the default
+# Slow (two cold `run`s of sim:test in fresh processes, about 50 s of CPU; `make test-slow`; CI runs it): the default
 # suite compares the bytes of a serial and a two-worker comparison (test_compare_workers.py) and of simulations
 # written by one process and by a pool (test_sim.py), and pins run's results (test_golden_outputs.py).
 @pytest.mark.slow

@@ -99,7 +99,7 @@ def kills_then_rerun(name: str, tmp: Path, kill_points: list[str]) -> None:
     assert sorted(p.name for p in (tmp / "results").iterdir()) == ["out"]
 
 
-# Slow (five `run` processes, about a minute of CPU; `make test-slow`, which CI runs): the default suite kills
+# Slow (five `run` processes, about a minute of CPU; `make test-slow`; CI runs it): the default suite kills
 # `sample` at the same staging and final renames below, and test_trust_writers.py repairs a damaged simulation in the cache.
 @pytest.mark.slow
 def test_run_killed_at_cache_staging_and_final_rename(tmp_path):
@@ -116,7 +116,7 @@ def test_sample_killed_while_staging_and_before_final_rename(stream_files):
     kills_then_rerun("sample", stream_files, ["staging", "final"])
 
 
-# Slow (four `experiment` processes; `make test-slow`, which CI runs): test_experiments.py resumes a grid past a
+# Slow (four `experiment` processes; `make test-slow`; CI runs it): test_experiments.py resumes a grid past a
 # killed cell's partial folder in the default suite.
 @pytest.mark.slow
 def test_experiment_killed_while_writing_cells_resumes_to_the_same_result(tmp_path):
