@@ -46,6 +46,13 @@ def frontend(base):
     return prepare_frontend(base)
 
 
+@pytest.fixture(scope="module")
+def swept(base, frontend):
+    """`base`'s run with its threshold sweep, computed once for the tests that only read it (a run and its sweep
+    of four back-end replays are this file's largest repeated cost)."""
+    return run(base, frontend, sweep=threshold_sweep)
+
+
 # Loose gates and threshold: many candidates, and verification accepts nearly anything it registers.
 PERMISSIVE = {
     "similarity_threshold": 0.4,
@@ -55,8 +62,8 @@ PERMISSIVE = {
 }
 
 
-def test_optimisation_reduces_ate_when_loops_exist(base, frontend):
-    result = run(base, frontend, sweep=threshold_sweep)
+def test_optimisation_reduces_ate_when_loops_exist(swept):
+    result = swept
     m = metrics_json(result)
     assert m["verified"] > 0 and m["false_loops"] == 0
     assert m["after"]["ate_translation_m"] < 0.3 * m["before"]["ate_translation_m"]
@@ -185,13 +192,13 @@ def test_full_rate_trajectory_is_written_and_evaluated(base, frontend, tmp_path)
     np.testing.assert_allclose(stamps, result.times, atol=1e-6)
 
 
-def test_threshold_sweep_replays_the_backend(base, frontend):
+def test_threshold_sweep_replays_the_backend(base, frontend, swept):
     """The sweep's row at the run's own threshold is the run; lower thresholds accept at least as many loops
     (candidate sets are nested), and a replay at the run's threshold reproduces its loops and poses."""
     from msa_slam.experiments.sweep import replay
     from msa_slam.registration import KeyframeCloudStore
 
-    result = run(base, frontend, sweep=threshold_sweep)
+    result = swept
     sweep = metrics_json(result)["threshold_sweep"]
     assert [r["threshold"] for r in sweep] == [0.7, 0.75, 0.8, 0.85]
     assert sweep[2]["loops_accepted"] == metrics_json(result)["verified"]
@@ -389,9 +396,8 @@ def _improvement(translation: float, rotation: float):
     return change
 
 
-def test_improvement_rounding_to_zero_prints_unsigned(base, frontend, tmp_path):
-    result = run(base, frontend, sweep=threshold_sweep)
-    result = edited(result, _improvement(-0.04, -0.0004))
+def test_improvement_rounding_to_zero_prints_unsigned(swept, tmp_path):
+    result = edited(swept, _improvement(-0.04, -0.0004))
     report = write_run(lambda: result, tmp_path / "out").read_text()
     ate_rows = [line for line in report.splitlines() if line.startswith("| ATE ")]
     assert "-0.0" not in report and sum(line.endswith(" 0.0 % |") for line in ate_rows) == 4  # full rate, keyframes
