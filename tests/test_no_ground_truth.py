@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from helpers.metrics import metrics_json
+from test_report_any_folder import _report_again
 
 from msa_slam.errors import InputError
 from msa_slam.pipeline import LiveFrontEnd, run
@@ -89,3 +90,10 @@ def test_cli_commands_write_results_without_ground_truth(command, scans_only, tm
     rows = list(csv.DictReader((run / "frames.csv").open()))
     assert len(rows) == 90 and all(r["gt_x"] == "" for r in rows)
     assert all(r["false_loop"] == "n/a" for r in csv.DictReader((run / "loops.csv").open()))
+    if command != "compare":  # `msa-slam report` on the folder (test_report_any_folder.py), on this same run
+        report = (out / "report.md").read_text()
+        assert "ATE alignment: n/a (no ground truth, so no ATE to align and no ground-truth trajectory" in report
+        named = set(re.findall(r"trajectories/[\w.]+", report))
+        assert named and all((out / name).is_file() for name in named)
+        assert "ground truth, odometry" not in report
+        _report_again(out)

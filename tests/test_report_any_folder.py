@@ -1,11 +1,11 @@
 """`msa-slam report DIR` on the folder of any command: the report.md written again from the files alone is the one
 the command wrote, a folder msa-slam did not write is refused untouched, and a file someone added or edited is
-never replaced. Runs without ground truth report n/a and name no ground-truth file."""
+never replaced. Runs without ground truth report n/a and name no ground-truth file: test_no_ground_truth.py checks
+that, and `report` on their folders, on the runs it makes anyway."""
 
 from __future__ import annotations
 
 import json
-import re
 import shutil
 from pathlib import Path
 
@@ -85,36 +85,6 @@ def test_report_of_a_compare_seeds_folder_is_the_one_compare_wrote(tmp_path):
     base = make_config(dataset="sim:test,end=40,azimuth_steps=360", cache_dir=str(tmp_path / "cache"), odometry="kiss")
     out = run_compare(base, tmp_path / "seeds", methods=METHODS[:1], seeds=[0], sweep=False).parent
     assert (out / "seeds" / "seed-0" / "report.md").is_file()
-    _report_again(out)
-
-
-@pytest.mark.parametrize("command", ["run", "online"])
-def test_report_without_ground_truth_says_na_and_names_no_missing_file(command, scans_only, tmp_path):
-    folder, poses = scans_only
-    out = tmp_path / command
-    result = _cli(
-        command,
-        "--dataset",
-        str(folder),
-        "--mode",
-        "realistic",
-        "--odometry",
-        str(poses),
-        "--sampler",
-        "constant",
-        "-p",
-        "distance=1.0",
-        "--out",
-        str(out),
-        "--quiet",
-    )
-    assert result.exit_code == 0, result.output
-    report = (out / "report.md").read_text()
-    assert "ATE (and its % improvement) n/a: no ground truth" in report
-    assert "ATE alignment: n/a (no ground truth, so no ATE to align and no ground-truth trajectory" in report
-    named = set(re.findall(r"trajectories/[\w.]+", report))
-    assert named and all((out / name).is_file() for name in named)
-    assert "ground truth, odometry" not in report and "None" not in report
     _report_again(out)
 
 
