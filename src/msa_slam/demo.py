@@ -3,8 +3,8 @@
 `sim:demo` is the simulator's default: the whole KITTI-06 trajectory at the native 10 Hz (1101 scans)
 with a 64 x 720 HDL-64 and the calibrated `kitti` realism preset. It is simulated, run through KISS-ICP and
 described (Scan Context) on first use and cached, so later runs only redo the back-end per sampler. Meanwhile
-MSA's numba kernels compile on the other core (msa_slam.sampling.msa.warm); the methods then run in one worker
-process per CPU, as `compare` runs them (the same files as one after another).
+MSA's numba kernels compile on the other core (the cached front end starts that: pipeline.frontend); the methods
+then run in one worker process per CPU, as `compare` runs them (the same files as one after another).
 """
 
 from __future__ import annotations
@@ -13,11 +13,9 @@ import os
 import time
 from pathlib import Path
 
-from msa_slam.descriptors.registry import make_descriptor
-from msa_slam.experiments.compare import method_configs, run_compare
+from msa_slam.experiments.compare import run_compare
 from msa_slam.io.outputs import DEFAULT_RESULTS
 from msa_slam.pipeline.config import make_config
-from msa_slam.sampling.msa.warm import compile_in_background
 from msa_slam.workers import available_cpus
 
 DEMO_DATASET = "sim:demo"
@@ -41,8 +39,6 @@ def run_demo(
         mode="oracle",
         cache_dir=None if cache_dir is None else str(cache_dir),
     )
-    msa = next(cfg for cfg in method_configs(config) if cfg.sampler == "msa")
-    compile_in_background(msa.sampler_params, make_descriptor(config.descriptor, **config.descriptor_params).shape)
     report = run_compare(
         config,
         out,

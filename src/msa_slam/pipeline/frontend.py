@@ -42,6 +42,7 @@ from msa_slam.evaluation.resources import peak_rss_bytes
 from msa_slam.evaluation.sanity import frontend_warnings
 from msa_slam.io.cache import CacheDir, Computed, pipeline_cache
 from msa_slam.odometry import KissOdometry, PosesFromFile
+from msa_slam.odometry.cache import OdometryCache
 from msa_slam.odometry.choice import deskew_choice, deskew_dropped, make_odometry
 from msa_slam.odometry.kiss import NO_POINT_TIMES
 from msa_slam.pipeline.config import RunConfig
@@ -51,6 +52,7 @@ from msa_slam.place_recognition.metrics import reference_protocol_matches
 from msa_slam.progress import progress_bar
 from msa_slam.registration.cloud_cache import ComputedClouds, FrameClouds, cloud_key
 from msa_slam.sampling.msa.sampler import warn_short_stream
+from msa_slam.sampling.msa.warm import compile_in_background
 from msa_slam.slam import BACKEND_STEPS, RunResult, SlamBackend
 from msa_slam.slam.backend import MIN_KEYFRAMES
 from msa_slam.slam.loop_closing import protocol
@@ -58,6 +60,10 @@ from msa_slam.slam.result import RunSettings
 from msa_slam.sources import open_sequence
 
 logger = logging.getLogger(__name__)
+
+# A cold KISS-ICP front end of this many frames keeps one core busy longer than MSA's kernels take to compile
+# (about a minute of CPU on this project's 2-core machine, at 0.1-0.3 s a frame of KISS-ICP)
+COMPILE_ALONGSIDE_FRAMES = 300
 Config = TypeVar("Config", bound=RunConfig)  # a batch or online (OnlineConfig) run's config
 
 # What to change when a sampler's window is longer than the frames read (check_window: `frames`, `window`), in
@@ -276,6 +282,7 @@ def prepare_frontend(
     with timer.stage("descriptors"):
         key = descriptor_key(sequence, config.descriptor, config.descriptor_params, cache)
     pose_file = [odometry.path] if isinstance(odometry, PosesFromFile) else []
+    _compile_msa_alongside(samplers or (config,), sequence, odometry, cache, descriptor.shape)
     clouds = None
     if config.loop_detector == "scan":  # the local-map detectors store local maps, built from the scans
         with timer.stage("clouds"):
@@ -324,6 +331,26 @@ def prepare_frontend(
     )
     frontend.descriptor_settings = (config.descriptor, config.descriptor_params)
     return frontend
+
+
+def _compile_msa_alongside(
+    samplers: Sequence[RunConfig],
+    sequence: ScanSequence,
+    odometry: KissOdometry | PosesFromFile,
+    cache: CacheDir,
+    shape: tuple[int, ...],
+) -> None:
+    """Where this front end is about to run KISS-ICP on one core for minutes and a method samples with MSA, start
+    compiling MSA's kernels on the other core (sampling.msa.warm.compile_in_background, lowest priority), so the
+    first window loads them from numba's cache instead of compiling them after the front end, on the run's
+    critical path (about a minute of CPU after a fresh install; an installed cache only loads them, seconds).
+    Skipped for short sequences and when the odometry is cached (the front end is then short)."""
+    msa = next((s for s in samplers if s.sampler == "msa"), None)
+    if msa is None or not isinstance(odometry, KissOdometry) or len(sequence) < COMPILE_ALONGSIDE_FRAMES:
+        return
+    if OdometryCache(cache).path(OdometryCache.key(sequence, odometry.config, (), cache)).is_file():
+        return
+    compile_in_background(dict(msa.sampler_params), shape)
 
 
 def _sweep(

@@ -2,9 +2,8 @@
 
 numba compiles a kernel on its first call (about a minute of CPU for the kernels MSA's default mode uses, on
 this project's 2-core machine) and keeps the machine code in its on-disk cache (the kernels use cache=True).
-The demo spends its first minutes simulating (on every core, where this low-priority process yields) and
-running KISS-ICP on one core, so the other core can compile meanwhile; MSA's first window then loads the cache
-instead of compiling. The compiled code, and so every result, is the same either way; if the background process
+A cold front end (pipeline.frontend, for `run`, `compare` and the demo) spends minutes running KISS-ICP on one
+core, so the other core can compile meanwhile; MSA's first window then loads the cache instead of compiling. The compiled code, and so every result, is the same either way; if the background process
 cannot start, or has not finished in time, MSA compiles the kernels itself as before.
 """
 
@@ -66,7 +65,10 @@ def _compile_at_low_priority(parent: int, params: dict[str, Any], shape: tuple[i
 
 def compile_in_background(params: dict[str, Any], shape: tuple[int, ...]) -> BaseProcess | None:
     """Start compile_kernels in a spawned daemon process at low priority, ended with the caller however the
-    caller ends (msa_slam.lifetime.end_with_parent); None when it cannot start."""
+    caller ends (msa_slam.lifetime.end_with_parent); None when it cannot start (a daemonic process, such as a
+    Dask or pool worker, may not have children: the kernels then compile on first use, as without this)."""
+    if multiprocessing.current_process().daemon:
+        return None
     try:
         process = multiprocessing.get_context("spawn").Process(
             target=_compile_at_low_priority,
