@@ -43,7 +43,7 @@ def test_run_key_is_what_the_cell_computes_not_its_label():
     assert run_key(cells["msa", 0], {"data": None, "code": "c"}) is None  # unreadable data: never shared
 
 
-@pytest.mark.parametrize("quick, cells, runs", [(True, 37, 34), (False, 450, 432)])
+@pytest.mark.parametrize("quick, cells, runs", [(True, 32, 29), (False, 450, 432)])
 def test_the_paper_grids_run_each_distinct_cell_once(quick, cells, runs):
     # all samples and MSA recur in Table II, the ablation and the bounds (in the full run the last two cut the
     # drive shorter: their own); lambda_u = 3 with lambda_l = 0.1 is MSA's default, and the two bound sweeps meet at

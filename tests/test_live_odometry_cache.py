@@ -125,7 +125,7 @@ def test_reproduce_estimate_runs_nothing(tmp_path, monkeypatch):
 
     monkeypatch.chdir(tmp_path)
     lines = estimate_reproduction(["paper-table2", "paper-ablation"], quick=True, workers=2)
-    assert lines[0].startswith("grid paper-table2-quick: 9 cells, 0 finished earlier, 9 to run; estimated time ")
+    assert lines[0].startswith("grid paper-table2-quick: 6 cells, 0 finished earlier, 6 to run; estimated time ")
     assert "2 copied from an identical cell" in lines[1]  # all samples and MSA: the same runs as Table II's
     assert lines[-1].startswith("all 2 grid(s): estimated ") and list(tmp_path.iterdir()) == []
 

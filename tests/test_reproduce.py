@@ -119,6 +119,26 @@ def test_quick_variant_cuts_datasets_seeds_and_sweeps_only():
     assert table1.seeds == [3] and len(table1.datasets) == 2 and table1.parameters == {"mode": ["oracle"]}
 
 
+@pytest.mark.parametrize(
+    ("name", "constants"),
+    [("paper-table1", ["constant-1m", "constant-3m"]), ("paper-table2", ["constant-0.1m", "constant-3m"])],
+)
+def test_quick_variant_keeps_a_family_of_samplers_at_its_two_ends(name, constants):
+    """The constants differ only in their distance, as a sweep's points do: --quick keeps the first and last;
+    samplers that differ in which parameter they set (the ablation's) all stay, in their order."""
+    full = load_grid(name)
+    labels = [s.label or s.sampler for s in variant(full, quick=True, seeds=None).samplers]
+    assert [label for label in labels if label.startswith("constant")] == constants
+    assert [label for label in labels if not label.startswith("constant")] == [
+        s.label or s.sampler for s in full.samplers if s.sampler != "constant"
+    ]
+    ablation = load_grid("paper-ablation")
+    assert variant(ablation, quick=True, seeds=None).samplers == [
+        s.model_copy(update={"sweep": {k: sorted({v[0], v[-1]}) for k, v in s.sweep.items()}})
+        for s in ablation.samplers
+    ]
+
+
 TABLE2_LAPS = 10
 
 

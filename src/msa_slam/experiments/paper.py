@@ -9,12 +9,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from msa_slam.errors import InputError
 from msa_slam.experiments.grid import GridSpec, load_grid
 
 PRESETS = ("paper-table1", "paper-table2", "paper-ablation", "paper-bounds")
-QUICK_FRAMES = {"batch": 120, "online": 60}  # frames of each sequence's prefix under --quick
+QUICK_FRAMES = {"batch": 120, "online": 40}  # frames of each sequence's prefix under --quick
 QUICK_DATASETS = {"batch": 2, "online": 1}  # the first datasets of a grid (KITTI-05 and -06; the long drive)
 QUICK_LAPS = 3  # passes of a live: drive under --quick (the full Table II drive has ten)
 
@@ -98,10 +99,23 @@ def _prefix(spec: str, frames: int) -> str:
     return ",".join([*items, f"end={frames}"])
 
 
+def _family_ends(samplers: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """`samplers` (GridSpec.samplers dumped) less the inner members of each family: samplers of one kind that differ
+    only in the values of the same parameters (Table II's constants 0.1-3 m, a sweep written out one label at a
+    time) keep their first and last, as a sweep keeps its two ends; every other sampler stays."""
+    families: dict[tuple, list[int]] = {}
+    for i, spec in enumerate(samplers):
+        if spec["params"] and not spec["sweep"]:
+            families.setdefault((spec["sampler"], tuple(sorted(spec["params"]))), []).append(i)
+    inner = {i for members in families.values() for i in members[1:-1]}
+    return [spec for i, spec in enumerate(samplers) if i not in inner]
+
+
 def variant(grid: GridSpec, quick: bool, seeds: Sequence[int] | None) -> GridSpec:
     """`grid` with `seeds` (None: the grid's own) and, with `quick`, cut down: the first QUICK_DATASETS datasets
     on prefixes of QUICK_FRAMES frames (a live: drive of at most QUICK_LAPS passes), one seed, each grid parameter
-    at its first value (Table I: oracle), each sweep at its two ends. The name says it is a variant."""
+    at its first value (Table I: oracle), each sweep and each family of samplers (_family_ends) at its two ends.
+    The name says it is a variant."""
     data = grid.model_dump()
     if seeds is not None:
         data["seeds"] = list(seeds)
@@ -113,6 +127,7 @@ def variant(grid: GridSpec, quick: bool, seeds: Sequence[int] | None) -> GridSpe
         ]
         data["parameters"] = {k: values[:1] for k, values in grid.parameters.items()}
         data["base"].pop("max_frames", None)  # a cut longer than the prefix: cells the same as the other grids' again
+        data["samplers"] = _family_ends(data["samplers"])
         for spec in data["samplers"]:
             spec["sweep"] = {k: sorted({v[0], v[-1]}) for k, v in spec["sweep"].items()}
     return GridSpec(**data)
