@@ -137,7 +137,7 @@ def scale(quiet: bool) -> None:
                 f"{km:.1f}",
                 m.run.keyframes,
                 m.loops.verified,
-                m.loops.false_loops,
+                fmt(m.loops.false_loops, "d"),
                 f"{fmt(kt.before.ate_translation_m, '.2f')} -> {fmt(kt.after.ate_translation_m, '.2f')}",
                 fmt(m.place_recognition.f1_max),
                 f"{m.memory.bytes_per_keyframe(m.run.keyframes):.0f}",

@@ -267,8 +267,8 @@ def rows_for(sequence: str, seed: int, args: argparse.Namespace, peer: str | Non
                 "rot": r,
                 "method": label,
                 "recall": number_or_none(acc.revisit_keyframe_recall),
-                "false": number_or_none(acc.false_accepted),
-                "loops": f"{acc.accepted} of {acc.candidates} cand. ({number_or_none(acc.false_accepted)} false), "
+                "false": number_or_none(acc.false_loops),
+                "loops": f"{acc.accepted} of {acc.candidates} cand. ({number_or_none(acc.false_loops)} false), "
                 f"revisit kf recall {recall}",
                 "time": front + m.timing.backend_total,
                 "note": f"{m.run.keyframes} keyframes; front end {front:.1f} s + back end "
@@ -454,7 +454,7 @@ def main() -> None:
     text = [
         f"bench_peer, {date}, {cpu_model()} ({os.cpu_count()} CPUs). APE: evo, {ATE_ALIGNMENT} fitted on "
         "every frame, RMSE over every frame against the simulator's ground truth. msa-slam: compare --mode "
-        "realistic --no-sweep (full-rate trajectory; loops: accepted of candidates, false accepted = pose off "
+        "realistic --no-sweep (full-rate trajectory; loops: accepted of candidates, false = pose off "
         "ground truth by > 3 m or 5 deg, revisit keyframe recall); time = front end + back end.",
         "",
     ]

@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import csv
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
+from helpers.metrics import stored_metrics
 from scipy.spatial.transform import Rotation
 
 from msa_slam.evaluation.loops import (
@@ -19,6 +21,8 @@ from msa_slam.evaluation.loops import (
     revisit_pairs,
 )
 from msa_slam.evaluation.metrics import Unavailable
+from msa_slam.evaluation.metrics_json import from_json
+from msa_slam.evaluation.metrics_writer import to_json
 from msa_slam.experiments.compare import run_compare
 from msa_slam.pipeline import make_config
 from msa_slam.reporting.comparison import COLUMNS, REJECTED_COLUMNS
@@ -86,10 +90,32 @@ def test_accounting_counts_candidates_rejections_false_loops_and_recall():
     assert acc.rejected == {**dict.fromkeys(REJECTION_REASONS, 0), "sparse": 1, "overlap": 1, "drift": 1}
     assert acc.accepted + sum(acc.rejected.values()) == acc.registered
     assert acc.true_candidates == 3  # (2, 4), (0, 6), (1, 5): 0.5 m apart
-    assert acc.false_accepted == 2  # (0, 6) by its shift, (1, 4) by its rotation; (0, 5) is within both
+    assert acc.false_loops == 2  # (0, 6) by its shift, (1, 4) by its rotation; (0, 5) is within both
+    assert acc.distant_loops == 2  # (1, 4) and (0, 5): 10.5 m apart, whether their pose is right or not
     assert (acc.revisits, acc.revisits_closed, acc.revisit_recall) == (3, 2, pytest.approx(2 / 3))
     assert (acc.revisit_keyframes, acc.revisit_keyframes_closed) == (3, 2)
     assert why == {}
+
+
+def test_metrics_json_counts_wrong_poses_as_false_and_far_keyframes_as_distant():
+    """metrics.json's `false_loops` is about the measured pose, not how far apart the keyframes are: (a) keyframes
+    10 m apart registered to their true pose is distant, not false; (b) keyframes 1 m apart registered 4 m off and
+    (c) 10 deg off are false."""
+    gt = _poses([0.0, 10.0, 1.0, 1.0, 0.0], yaws_deg=[0, 0, 0, 30, 0])
+    loops = [
+        _loop(gt, 0, 1, accepted=True),  # (a)
+        _loop(gt, 0, 2, accepted=True, error=_shift(x=4.0)),  # (b)
+        _loop(gt, 0, 3, accepted=True, error=_shift(yaw_deg=10.0)),  # (c)
+    ]
+    acc, _ = account_loops(loops, np.arange(len(gt)), gt, RADIUS, MIN_TRAVEL, REJECTION_REASONS)
+    stored = from_json(stored_metrics("batch.json"), "batch.json")
+    m = to_json(replace(stored, loops=replace(stored.loops, accounting=acc)))
+    assert m["false_loops"] == 2 and m["loop_accounting"]["distant_loops"] == 1
+    assert "false_accepted" not in m["loop_accounting"] and "false_loops" not in m["loop_accounting"]  # one key
+    again = from_json(m, "metrics.json").loops
+    assert (again.false_loops, again.accounting.distant_loops) == (2, 1)
+    row = from_json(m, "metrics.json").comparison_row(REJECTION_REASONS)
+    assert (row.value("false_loops"), row.value("distant_loops")) == (2, 1)
 
 
 def test_pair_recall_and_keyframe_recall_differ_on_dense_keyframes():
@@ -107,7 +133,8 @@ def test_a_loop_away_from_the_revisits_closes_none():
         [_loop(gt, 1, 4, accepted=True)], np.arange(len(XS)), gt, RADIUS, MIN_TRAVEL, REJECTION_REASONS
     )
     assert (acc.revisits, acc.revisits_closed, acc.revisit_recall, acc.revisit_keyframe_recall) == (3, 0, 0.0, 0.0)
-    assert acc.true_candidates == 0 and acc.false_accepted == 0  # its measured pose is the true one
+    assert acc.true_candidates == 0 and acc.false_loops == 0  # its measured pose is the true one
+    assert acc.distant_loops == 1  # 10.5 m apart in ground truth
 
 
 def test_without_ground_truth_only_the_counts_are_given():
@@ -116,8 +143,8 @@ def test_without_ground_truth_only_the_counts_are_given():
     for missing in (None, np.full_like(gt, np.nan)):
         acc, why = account_loops(loops, np.arange(len(XS)), missing, RADIUS, MIN_TRAVEL, REJECTION_REASONS)
         assert (acc.candidates, acc.registered, acc.accepted, acc.rejected["residual"]) == (2, 2, 1, 1)
-        gone = (acc.true_candidates, acc.false_accepted, acc.revisit_recall, acc.revisits)
-        assert gone == (Unavailable(NO_GROUND_TRUTH),) * 4
+        gone = (acc.true_candidates, acc.false_loops, acc.distant_loops, acc.revisit_recall, acc.revisits)
+        assert gone == (Unavailable(NO_GROUND_TRUTH),) * 5
         assert why == {"loop_truth": NO_GROUND_TRUTH}
 
 
@@ -170,17 +197,22 @@ def test_compare_reports_the_loop_accounting(sequence, odometry_file, cache_dir,
                 "verified",
                 "rejected",
                 *REJECTED_COLUMNS,
-                "false_accepted",
+                "false_loops",
+                "distant_loops",
                 "revisits",
             )
         }
         assert count["candidates"] == acc["registered"] == m["registrations"] > 0  # realistic: all registered
         assert count["verified"] + count["rejected"] == acc["registered"]
         assert sum(count[c] for c in REJECTED_COLUMNS) == count["rejected"]
-        assert count["true_candidates"] <= count["candidates"] and count["false_accepted"] <= count["verified"]
+        assert count["true_candidates"] <= count["candidates"]
+        assert count["false_loops"] == m["false_loops"] and count["distant_loops"] == acc["distant_loops"]
         with open(folder / "runs" / row["method"] / "loops.csv") as handle:
             loops = list(csv.DictReader(handle))
-        assert sum(int(r["accepted"]) for r in loops) == count["verified"]
+        accepted = [r for r in loops if int(r["accepted"])]
+        assert len(accepted) == count["verified"]
+        assert sum(int(r["false_loop"]) for r in loops) == count["false_loops"]  # only accepted loops are false
+        assert sum(float(r["gt_distance_m"]) > base.loop_radius for r in accepted) == count["distant_loops"]
         assert sum(float(r["gt_distance_m"]) <= base.loop_radius for r in loops) == count["true_candidates"]
         assert count["revisits"] > 0  # the figure-eight crosses itself
         assert float(row["revisit_recall"]) == pytest.approx(acc["revisits_closed"] / acc["revisits"])

@@ -80,6 +80,11 @@ def test_experiment_row_names_the_reason_of_each_na_column():
         (lambda m: m["memory_bytes"].update(total=1.5), "memory_bytes.total", "must be an integer, not 1.5"),
         (lambda m: m.update(pr_auc=True), "pr_auc", "must be a number or null, not True (bool)"),
         (lambda m: m["threshold_sweep"][1].pop("candidates"), "threshold_sweep[1].candidates", "is missing"),
+        (  # written when false_loops counted keyframes far apart: refused, not read with the new meaning
+            lambda m: m["loop_accounting"].update(false_accepted=m["loop_accounting"].pop("distant_loops")),
+            "loop_accounting.false_accepted",
+            "is from an msa-slam that counted loops as false by their keyframes' ground-truth distance",
+        ),
     ],
 )
 def test_bad_metrics_is_one_error_naming_the_file_and_key(edit, key, problem, tmp_path):

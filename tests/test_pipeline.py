@@ -8,6 +8,7 @@ trajectory back.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import shutil
 from pathlib import Path
@@ -21,13 +22,14 @@ from typer.testing import CliRunner
 
 from msa_slam.cli import app
 from msa_slam.errors import InputError
+from msa_slam.evaluation.loops import is_false_loop
 from msa_slam.evaluation.run_metrics import ComparisonRow
 from msa_slam.experiments.compare import run_compare
 from msa_slam.experiments.sweep import threshold_sweep
 from msa_slam.io.poses import read_poses, write_poses
 from msa_slam.pipeline import apply_params, make_config, prepare_frontend, run
 from msa_slam.reporting.comparison import COLUMNS, table_markdown, table_row
-from msa_slam.reporting.results import write_run
+from msa_slam.reporting.results import loop_edges, loops_csv, write_run
 
 
 @pytest.fixture(scope="session")
@@ -85,13 +87,13 @@ def test_no_loops_means_no_correction(base, frontend):
     assert m["improvement_pct"]["translation"] == pytest.approx(0.0, abs=1e-4)
 
 
-def test_oracle_mode_adds_no_false_loop(base, frontend):
+def test_oracle_mode_accepts_no_distant_loop(base, frontend):
     cfg = make_config({**base.dump(), **PERMISSIVE, "mode": "oracle"})
     result = run(cfg, frontend, sweep=threshold_sweep)
     far = [c for c in result.loops if c.gt_distance > cfg.loop_radius]
     assert far, "the permissive threshold should yield candidates that are not true loops"
     assert not any(c.verified for c in far)
-    assert metrics_json(result)["false_loops"] == 0
+    assert metrics_json(result)["loop_accounting"]["distant_loops"] == 0
     assert all(c.gt_distance <= cfg.loop_radius for c in result.accepted_loops)
 
 
@@ -100,8 +102,14 @@ def test_realistic_mode_counts_its_false_loops(base, frontend):
     result = run(cfg, frontend)  # no sweep: at PERMISSIVE's threshold it would replay many times the candidates
     m = metrics_json(result)
     assert all(c.verified for c in result.loops)  # realistic: every candidate is registered
-    false = [c for c in result.accepted_loops if c.gt_distance > cfg.loop_radius]
-    assert m["false_loops"] == len(false) > 0
+    far = [c for c in result.accepted_loops if c.gt_distance > cfg.loop_radius]
+    assert m["loop_accounting"]["distant_loops"] == len(far) > 0
+    # false: the measured pose is off; metrics.json, loops.csv and the figure's false loops are the same loops
+    false = [c for c in result.accepted_loops if is_false_loop(c, result.gt_poses, cfg.loop_radius)]
+    assert m["false_loops"] == len(false)
+    flags = [r["false_loop"] for r in csv.DictReader(io.StringIO(loops_csv(result)))]
+    assert flags.count("1") == len(false) and flags.count("0") == len(result.loops) - len(false)
+    assert len(loop_edges(result)[1]) == len(false)
     assert m["verified"] == len(result.accepted_loops)
     assert m["candidates"] == len(result.loops) == m["registrations"]
 

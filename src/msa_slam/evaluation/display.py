@@ -29,7 +29,7 @@ COUNT_KEYS = (
     "rejected",
     "false_loops",
     "true_candidates",
-    "false_accepted",
+    "distant_loops",
     "revisits",
 )
 
@@ -60,7 +60,7 @@ NOTE_LABELS = {
     "rpe_kitti": "RPE over KITTI's 100-800 m segments",
     "rpe_10m": "RPE over 10 m (all pairs)",
     "pr_reference": "PR-AUC / F1-max of the reference example's protocol",
-    "loop_truth": "true candidates, false accepted loops and revisit recall",
+    "loop_truth": "true candidates, false and distant loops and revisit recall",
     "revisit_recall": "revisit recall",
     "threshold_sweep": "threshold sensitivity",
     "sampler_realtime_fraction": "sampler time over the data's duration",

@@ -9,11 +9,13 @@ verification (true candidates rejected, by reason) or not at all, which ATE alon
   whose keyframes lie within `loop_radius` of each other in ground truth.
 - `registered`: candidates that went through registration (all in realistic mode; in oracle mode only the
   true ones); `accepted` + the sum of `rejected` (per slam.loop_closing.REJECTION_REASONS) == `registered`.
-- `false_accepted`: accepted loops whose measured relative pose (T_match_query) is off the ground-truth one
+- `false_loops`: accepted loops whose measured relative pose (T_match_query) is off the ground-truth one
   by more than `loop_radius` metres of translation or FALSE_LOOP_ANGLE_DEG of rotation: the error
-  inv(T_gt) @ T_match_query, with T_gt = inv(gt[match]) @ gt[query]. Unlike `false_loops` (keyframes
-  farther than `loop_radius` apart), it also catches a pair of nearby keyframes registered to a wrong pose,
-  which the graph receives as a false constraint all the same.
+  inv(T_gt) @ T_match_query, with T_gt = inv(gt[match]) @ gt[query]. A false loop is a wrong constraint in the
+  graph, whether its keyframes are near each other (registered to a wrong pose) or far apart.
+- `distant_loops`: accepted loops whose keyframes are more than `loop_radius` apart in ground truth. Not wrong
+  in themselves when the measured pose is right: the verified protocol registers keyframes up to
+  MAX_LOOP_OFFSET_M apart (slam/loop_closing.py); the count says how far loop closing reaches.
 - `revisits`: ground-truth revisits, the keyframe pairs within `loop_radius` of each other whose keyframes
   are at least `min_travel_m` apart along the ground-truth path (the loop closer's own condition for a
   candidate, measured on the odometry path); `revisits_closed`: those with an accepted loop;
@@ -70,6 +72,11 @@ def is_false_loop(
     return shift > max_shift_m or angle > max_angle_deg
 
 
+def count_false_loops(loops: Sequence[LoopClosure], gt: np.ndarray, max_shift_m: float) -> int:
+    """How many of `loops` are accepted and false (is_false_loop; `gt`: every frame's pose)."""
+    return int(sum(is_false_loop(c, gt, max_shift_m) for c in loops if c.accepted))
+
+
 def revisit_pairs(keyframes: np.ndarray, gt: np.ndarray, radius: float, min_travel_m: float) -> set[tuple[int, int]]:
     """Ground-truth revisits as (older, newer) keyframe frame pairs: within `radius` metres of each other and at
     least `min_travel_m` apart along the ground-truth path over every frame (`gt`: every frame's pose)."""
@@ -99,7 +106,7 @@ def account_loops(
     counts = (len(loops), int(sum(c.verified for c in loops)), len(accepted), rejection_counts(loops, reasons))
     if gt is None or not np.isfinite(gt).all():
         gone = Unavailable(NO_GROUND_TRUTH)
-        return LoopCounts(*counts, *(gone,) * 8), {"loop_truth": NO_GROUND_TRUTH}
+        return LoopCounts(*counts, *(gone,) * 9), {"loop_truth": NO_GROUND_TRUTH}
     revisits = revisit_pairs(keyframes, gt, radius, min_travel_m)
     closed = {(c.match, c.query) for c in accepted} & revisits
     partnered, partnered_closed = {newer for _, newer in revisits}, {newer for _, newer in closed}
@@ -116,7 +123,8 @@ def account_loops(
     return LoopCounts(
         *counts,
         true_candidates=int(sum(c.gt_distance <= radius for c in loops)),
-        false_accepted=int(sum(is_false_loop(c, gt, radius) for c in accepted)),
+        false_loops=count_false_loops(accepted, gt, radius),
+        distant_loops=int(sum(c.gt_distance > radius for c in accepted)),
         revisits=len(revisits),
         revisits_closed=len(closed),
         revisit_recall=recall(len(closed), len(revisits)),

@@ -127,7 +127,8 @@ class LoopCounts:
     accepted: int
     rejected: Mapping[str, int]
     true_candidates: Value
-    false_accepted: Value
+    false_loops: Value
+    distant_loops: Value
     revisits: Value
     revisits_closed: Value
     revisit_recall: Value
@@ -144,9 +145,13 @@ class Loops:
     true_candidates: Value
     verified: int
     registrations: int
-    false_loops: int
     closing: LoopClosing
     accounting: LoopCounts
+
+    @property
+    def false_loops(self) -> Value:
+        """Accepted loops whose measured pose is false (evaluation.loops: one count, kept in the accounting)."""
+        return self.accounting.false_loops
 
     @property
     def rejected(self) -> int:
@@ -165,7 +170,8 @@ class ReferencePR:
 
 @dataclass(frozen=True)
 class SweepRow:
-    """One similarity threshold of the batch threshold sweep (full-rate ATE after and its improvement)."""
+    """One similarity threshold of the batch threshold sweep (false loops as evaluation.loops counts them; full-rate
+    ATE after and its improvement)."""
 
     threshold: float
     candidates: int

@@ -31,12 +31,17 @@ from msa_slam.evaluation.metrics import (
     Throughput,
     Timing,
     Unavailable,
+    Value,
 )
 from msa_slam.evaluation.metrics_reader import MetricsDocument
 from msa_slam.evaluation.run_metrics import RunMetrics, Stamp
 
 _FULL_RATE = ("full_rate_ate_optimised", "full_rate_ate")
-LOOP_TRUTH = ("true_candidates", "false_accepted", "revisits", "revisits_closed")
+LOOP_TRUTH = ("true_candidates", "distant_loops", "revisits", "revisits_closed")
+DISTANCE_FALSE_LOOPS = (
+    "is from an msa-slam that counted loops as false by their keyframes' ground-truth distance; false_loops "
+    "now counts accepted loops whose measured pose is off ground truth: rerun to get it"
+)
 REVISIT_KEYFRAMES = ("revisit_keyframes", "revisit_keyframes_closed")
 
 
@@ -103,15 +108,17 @@ def _loops(doc: MetricsDocument) -> Loops:
         doc.value("true_candidates", "loop_truth", kind=int),
         doc.typed("verified", int),
         doc.typed("registrations", int),
-        doc.typed("false_loops", int),
         LoopClosing(rejected, details),
-        read_loop_counts(doc.sub("loop_accounting")),
+        read_loop_counts(doc.sub("loop_accounting"), doc.value("false_loops", "loop_truth", kind=int)),
     )
 
 
-def read_loop_counts(acc: MetricsDocument) -> LoopCounts:
-    """metrics.json `loop_accounting` (evaluation.loops.account_loops)."""
-    true_candidates, false_accepted, revisits, closed = (acc.value(k, "loop_truth", kind=int) for k in LOOP_TRUTH)
+def read_loop_counts(acc: MetricsDocument, false_loops: Value) -> LoopCounts:
+    """metrics.json `loop_accounting` (evaluation.loops.account_loops) with the top-level `false_loops`; one written
+    when false_loops meant keyframes far apart (its accounting had `false_accepted`) is refused."""
+    if acc.has("false_accepted"):
+        raise acc.error("loop_accounting.false_accepted", DISTANCE_FALSE_LOOPS)
+    true_candidates, distant, revisits, closed = (acc.value(k, "loop_truth", kind=int) for k in LOOP_TRUTH)
     keyframes, keyframes_closed = (acc.value(k, "loop_truth", kind=int) for k in REVISIT_KEYFRAMES)
     return LoopCounts(
         acc.typed("candidates", int),
@@ -119,7 +126,8 @@ def read_loop_counts(acc: MetricsDocument) -> LoopCounts:
         acc.typed("accepted", int),
         acc.mapping("rejected", int),
         true_candidates,
-        false_accepted,
+        false_loops,
+        distant,
         revisits,
         closed,
         acc.value("revisit_recall", "revisit_recall", "loop_truth"),

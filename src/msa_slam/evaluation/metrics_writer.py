@@ -25,13 +25,14 @@ KEYFRAME_ERRORS = tuple(f.name for f in fields(KeyframeErrors))  # metrics.json'
 FULL_RATE_ERRORS = tuple(f.name for f in fields(FullRateErrors))
 IMPROVEMENT = ("translation", "rotation")
 SWEEP_ROW = ("threshold", "candidates", "loops_accepted", "false_loops", "ate_after_m", "improvement_t_pct")
+# loop_accounting's keys; its false_loops is the top-level "false_loops" (one key)
 ACCOUNTING = (
     "candidates",
     "registered",
     "accepted",
     "rejected",
     "true_candidates",
-    "false_accepted",
+    "distant_loops",
     "revisits",
     "revisits_closed",
     "revisit_recall",
@@ -111,7 +112,7 @@ def to_json(m: RunMetrics) -> dict[str, JSONValue]:
             "true_candidates": _none(loops.true_candidates),
             "verified": loops.verified,
             "registrations": loops.registrations,
-            "false_loops": loops.false_loops,
+            "false_loops": _none(loops.false_loops),
             "loop_closing": {"rejected": dict(loops.closing.rejected), **loops.closing.details},
             "loop_accounting": {**_fields(loops.accounting, ACCOUNTING), "rejected": dict(loops.accounting.rejected)},
             "before": _fields(kt.before, KEYFRAME_ERRORS),

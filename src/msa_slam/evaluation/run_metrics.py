@@ -127,7 +127,7 @@ class RunMetrics:
             "rejected": loops.rejected,
             **{f"rejected_{reason}": acc.rejected.get(reason, 0) for reason in rejection_reasons},
             "false_loops": loops.false_loops,
-            "false_accepted": acc.false_accepted,
+            "distant_loops": acc.distant_loops,
             "revisits": acc.revisits,
             "revisit_recall": acc.revisit_recall,
             "revisit_keyframe_recall": acc.revisit_keyframe_recall,

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from msa_slam.backend import PoseGraph
+from msa_slam.evaluation.loops import count_false_loops
 from msa_slam.evaluation.metrics import SweepRow
 from msa_slam.pipeline.config import RunConfig, make_config
 from msa_slam.pipeline.frontend import CachedFrontEnd
@@ -108,12 +109,13 @@ def replay(
 
 def _row(threshold: float, result: RunResult) -> SweepRow:
     trajectory = result.full_rate_evaluation.trajectory
-    radius = result.config.loop_radius
+    if result.gt_poses is None:
+        raise ValueError(f"{result.name}: the threshold sweep needs ground truth to count false loops")
     return SweepRow(
         threshold,
         len(result.loops),
         len(result.accepted_loops),
-        int(sum(c.gt_distance > radius for c in result.accepted_loops)),
+        count_false_loops(result.loops, result.gt_poses, result.config.loop_radius),
         trajectory.after.ate_translation_m,
         trajectory.improvement.translation,
     )

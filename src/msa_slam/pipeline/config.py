@@ -49,7 +49,8 @@ class RunConfig(StageConfig):
     weights odometry with, grown as systematic drift beyond graph.drift_reference_m) widened `drift_gate` times
     in sigma (1: as is), plus the loop's covariance and a slack of `drift_slack_m` / `drift_slack_deg`
     (slam/loop_closing.py).
-    `loop_radius` (3 m) defines a true loop: oracle verification, false loops and the PR curve.
+    `loop_radius` (3 m) defines a true loop (oracle verification, distant loops and the PR curve) and the
+    translation error of a false loop's measured pose (evaluation/loops.py).
 
     `loop_detector` chooses what finds loop candidates (samplers always use the front end's per-scan
     descriptors): "scan" the front end's descriptor of the keyframe's scan (the paper); "local-map" Scan

@@ -11,6 +11,7 @@ from typing import Any, Protocol
 from msa_slam.evaluation import ATE_ALIGNMENT, NA, fmt, notes, peak_rss_bytes
 from msa_slam.evaluation.display import spec_for
 from msa_slam.evaluation.full_rate import RPE_10M_EVO
+from msa_slam.evaluation.loops import FALSE_LOOP_ANGLE_DEG
 from msa_slam.evaluation.metrics import Unavailable, known
 from msa_slam.evaluation.resources import StageTimer
 from msa_slam.evaluation.run_metrics import ComparisonRow, RunMetrics
@@ -53,7 +54,8 @@ class SharedFrontEnd(Protocol):
 
 # Primary columns: full-rate (every frame, the same "ATE before" for every method); kf_*: keyframes only. Loop columns:
 # what became of the candidates (rejected_<reason>: slam.loop_closing.REJECTION_REASONS) and, against ground truth,
-# how many accepted loops were false and which share of the revisits got one (evaluation.loops).
+# how many accepted loops were false (measured pose off) or distant (keyframes far apart) and which share of the
+# revisits got one (evaluation.loops).
 REJECTED_COLUMNS = tuple(f"rejected_{reason}" for reason in REJECTION_REASONS)
 COLUMNS = (
     "method",
@@ -64,7 +66,7 @@ COLUMNS = (
     "rejected",
     *REJECTED_COLUMNS,
     "false_loops",
-    "false_accepted",
+    "distant_loops",
     "revisits",
     "revisit_recall",
     "revisit_keyframe_recall",
@@ -95,7 +97,7 @@ HEADERS = (
     "rejected",
     *(f"rej. {reason}" for reason in REJECTION_REASONS),
     "false loops",
-    "false accepted",
+    "distant loops",
     "revisits",
     "revisit recall",
     "revisit kf recall",
@@ -305,8 +307,10 @@ def comparison_report(
         + "kf columns: the same ATE on "
         "each method's own keyframes only. PR-AUC / F1-max: the paper's keyframe search (each keyframe's best "
         "older match) and, marked ref., the reference example's protocol (each frame against the 10 nearest "
-        "keyframes); arrays in figures/pr.csv. False loops: verified loops whose ground-truth distance exceeds "
-        f"{cfg.loop_radius} m. Memory: accounted bytes of keyframe descriptors, downsampled keyframe clouds "
+        "keyframes); arrays in figures/pr.csv. False loops: accepted loops whose measured relative pose is off "
+        f"ground truth by more than {cfg.loop_radius} m or {FALSE_LOOP_ANGLE_DEG:g} deg (a wrong constraint in the "
+        f"graph); distant loops: accepted loops whose keyframes are more than {cfg.loop_radius} m apart in ground "
+        "truth (not wrong when their pose is right). Memory: accounted bytes of keyframe descriptors, downsampled keyframe clouds "
         "and the graph, per method; RSS growth: the process's resident set at the end of the method's back-end "
         "(after the final optimisation) minus at its start, both read after a full garbage collection and "
         "with free heap pages handed back (malloc_trim), so memory an earlier method freed counts neither for "

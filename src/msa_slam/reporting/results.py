@@ -19,6 +19,7 @@ import yaml
 
 import msa_slam
 from msa_slam.evaluation import NA, AlignmentError, align_se3, fmt
+from msa_slam.evaluation.loops import is_false_loop
 from msa_slam.evaluation.metrics import known
 from msa_slam.evaluation.metrics_writer import to_json
 from msa_slam.evaluation.run_metrics import Stamp
@@ -77,8 +78,10 @@ def frames_csv(result: RunResult) -> str:
 
 
 def loops_csv(result: RunResult) -> str:
-    """One row per loop candidate: match, similarity, GT distance, registration outcome, false-loop flag."""
-    radius = result.config.loop_radius
+    """One row per loop candidate: match, similarity, GT distance, registration outcome, false-loop flag (an
+    accepted loop whose measured pose is off ground truth, evaluation.loops.is_false_loop; n/a without ground
+    truth)."""
+    radius, gt = result.config.loop_radius, result.gt_poses if has_ground_truth(result) else None
     buf = io.StringIO()
     writer = csv.writer(buf)
     writer.writerow(
@@ -95,6 +98,7 @@ def loops_csv(result: RunResult) -> str:
     )
     for c in result.loops:
         known = bool(np.isfinite(c.gt_distance))  # NaN without ground truth
+        false = NA if gt is None else int(c.accepted and is_false_loop(c, gt, radius))
         writer.writerow(
             [
                 c.query,
@@ -104,7 +108,7 @@ def loops_csv(result: RunResult) -> str:
                 int(c.verified),
                 int(c.accepted),
                 f"{c.residual:.4f}",
-                int(c.accepted and c.gt_distance > radius) if known else NA,
+                false,
             ]
         )
     return buf.getvalue()
@@ -172,13 +176,15 @@ def pr_csv(result: RunResult) -> str:
 
 
 def loop_edges(result: RunResult) -> tuple[list, list]:
-    """Accepted loops as (match row, query row) pairs into the keyframe list: true ones, then false ones."""
+    """Accepted loops as (match row, query row) pairs into the keyframe list: true ones, then false ones (measured
+    pose off ground truth, evaluation.loops.is_false_loop; none without ground truth)."""
     row = {int(k): i for i, k in enumerate(result.keyframes)}
-    radius = result.config.loop_radius
-    if result.gt_poses is None:  # no ground truth: no loop can be called false
-        return [(row[c.match], row[c.query]) for c in result.accepted_loops], []
-    good = [(row[c.match], row[c.query]) for c in result.accepted_loops if c.gt_distance <= radius]
-    bad = [(row[c.match], row[c.query]) for c in result.accepted_loops if c.gt_distance > radius]
+    gt = result.gt_poses if has_ground_truth(result) else None
+    good: list[tuple[int, int]] = []
+    bad: list[tuple[int, int]] = []
+    for c in result.accepted_loops:
+        false = gt is not None and is_false_loop(c, gt, result.config.loop_radius)
+        (bad if false else good).append((row[c.match], row[c.query]))
     return good, bad
 
 

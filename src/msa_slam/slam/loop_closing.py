@@ -26,8 +26,8 @@ puts its keyframes so far apart, or whose descriptor yaw is so far from the odom
 passes the drift check is rejected for drift before it is registered (most false candidates: it decides what
 registration and the drift check would have, at a fraction of the cost), and a keyframe's cloud is prepared for
 registration once for all its candidates (registration/prepared.py). An accepted loop
-whose ground-truth distance exceeds `loop_radius` is a false loop; one over at least 2 x `loop_radius`
-of path (the robot left the place and came back) is a revisit.
+whose measured pose is off ground truth by more than `loop_radius` (or evaluation.loops.FALSE_LOOP_ANGLE_DEG) is a
+false loop; one over at least 2 x `loop_radius` of path (the robot left the place and came back) is a revisit.
 """
 
 from __future__ import annotations

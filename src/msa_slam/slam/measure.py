@@ -81,13 +81,11 @@ def measure(result: RunResult, protocol: ProtocolRecord) -> RunMetrics:
         "the run",
         reasons=reasons,
     )
-    accepted = result.accepted_loops
     loops = Loops(
         accounting.candidates,
         accounting.true_candidates,
         accounting.accepted,
         accounting.registered,
-        int(sum(c.gt_distance > cfg.loop_radius for c in accepted)),
         loop_summary(result.loops, cfg, result.graph_info),
         accounting,
     )

@@ -32,8 +32,9 @@ from msa_slam.viz.save import save_figure  # noqa: E402
 class TrajectoryPanel:
     """One panel: an estimate's xy (K, 2) with per-point error (m; None without ground truth: drawn in one
     colour), and loops as index pairs into it (None: an estimate loops play no part in, such as the odometry,
-    whose title then counts none). `keyframes` None: every point is a keyframe (a dot); else xy is every frame's
-    path, drawn as a line, with the keyframes at these indices as rings."""
+    whose title then counts none); `false_loops`: those whose measured pose is false (evaluation.loops).
+    `keyframes` None: every point is a keyframe (a dot); else xy is every frame's path, drawn as a line, with the
+    keyframes at these indices as rings."""
 
     title: str
     xy: np.ndarray
