@@ -325,7 +325,7 @@ def report_markdown(result: ReportedRun, figures: list[str], files: Collection[s
         f"Dataset `{cfg.dataset}` (sequence {run.sequence}), {scans_read(cfg.source)}: "
         f"{run.frames} frames -> {run.keyframes} keyframes; {counted(m.loops.candidates, 'loop candidate')} "
         f"({candidate_rule(cfg)}), {m.loops.verified} verified, "
-        + (false_loops_text(m.loops.false_loops, cfg.loop_radius))
+        + false_loops_text(m.loops.false_loops, cfg.loop_radius)
         + (" iSAM2 updated at every frame that finalised keyframes." if online else ""),
         "",
         *([deskew_text(m.setup.deskew), ""] if deskew_text(m.setup.deskew) else []),
