@@ -233,7 +233,7 @@ def test_report_lists_only_the_files_written(short_batch, tmp_path):
         "provenance.json",
     ):
         assert (tmp_path / name).exists() and name in files
-    assert "0 false (ground-truth distance > 3.0 m)." in report
+    assert "0 false (measured pose off ground truth by > 3 m or > 5 deg)." in report
 
 
 def test_report_without_ground_truth_gives_no_false_loop_count(sequence, odometry_file, cache_dir, tmp_path):
