@@ -17,10 +17,10 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DIR = REPO_ROOT.parent / "shared"
 
 
-# Test files by their CPU, heaviest first (docs/performance.md, "The test suite"; the others follow in collection
-# order). `make test` hands whole files to pytest-xdist's workers in this order (`--dist loadfile
-# --no-loadscope-reorder`; xdist's own order puts the files with the most tests first, which left heavy files of few
-# tests for the end, where one worker finished one while the other waited).
+# Test files by their CPU, heaviest first (docs/performance.md, "The test suite"); the others, a few seconds or
+# less each, follow in collection order. `make test` hands whole files to pytest-xdist's workers in this order
+# (`--dist loadfile --no-loadscope-reorder`; xdist's own order puts the files with the most tests first, which left
+# heavy files of few tests for the end, where one worker finished one while the other waited).
 HEAVIEST_FIRST = (
     "test_msa_parity.py",
     "test_pipeline.py",
@@ -43,6 +43,8 @@ HEAVIEST_FIRST = (
     "test_trust_inputs.py",
     "test_trust_disk_full.py",
     "test_cli_main.py",
+    "test_viewer.py",  # not measured: an online run recorded for the viewer, and a wheel built by pip
+    "test_packaging.py",
 )
 KERNELS = pytest.StashKey["KernelCompilation"]()
 
