@@ -1,4 +1,5 @@
-"""Shared test helpers: locate ../shared (skip clearly when absent); the simulated sequences the tests run on."""
+"""Shared test helpers: locate ../shared (skip clearly when absent); the simulated sequences the tests run on; under
+pytest-xdist, the kernels compiled once and the heaviest files first."""
 
 from __future__ import annotations
 
