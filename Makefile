@@ -32,13 +32,14 @@ demo: $(BASE)
 	$(VENV)/bin/msa-slam demo
 
 # -n auto: one pytest worker per core; --dist loadfile keeps each test file (and its module fixtures) on one worker;
+# --no-loadscope-reorder hands the files out in the order tests/conftest.py gives them (the heaviest first);
 # --durations=10 prints the ten slowest tests of every run (docs/performance.md keeps them)
 test: $(DEV) $(EXTRAS)
-	$(PY) -m pytest -q -n auto --dist loadfile --durations=10
+	$(PY) -m pytest -q -n auto --dist loadfile --no-loadscope-reorder --durations=10
 
 # The tests marked slow (end-to-end runs whose code paths the default suite also covers more cheaply); CI runs three of them
 test-slow: $(DEV) $(EXTRAS)
-	$(PY) -m pytest -q -n auto --dist loadfile -m slow
+	$(PY) -m pytest -q -n auto --dist loadfile --no-loadscope-reorder -m slow
 
 # Type-checks the packages [tool.mypy] lists in pyproject.toml; no prerequisite: run it after `make test` (whose
 # dev install brings mypy), so it never installs anything itself

@@ -1,4 +1,5 @@
-"""Shared test helpers: locate ../shared (skip clearly when absent); the simulated sequences the tests run on."""
+"""Shared test helpers: locate ../shared (skip clearly when absent); the simulated sequences the tests run on; under
+pytest-xdist, the kernels compiled once and the heaviest files first."""
 
 from __future__ import annotations
 
@@ -17,18 +18,67 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DIR = REPO_ROOT.parent / "shared"
 
 
+# Test files by their CPU, heaviest first (docs/performance.md, "The test suite"); the others, a few seconds or
+# less each, follow in collection order. `make test` hands whole files to pytest-xdist's workers in this order
+# (`--dist loadfile --no-loadscope-reorder`; xdist's own order puts the files with the most tests first, which left
+# heavy files of few tests for the end, where one worker finished one while the other waited).
+HEAVIEST_FIRST = (
+    "test_msa_parity.py",
+    "test_pipeline.py",
+    "test_never_worse.py",
+    "test_local_map_loops.py",
+    "test_compare_workers.py",
+    "test_compare_resume.py",
+    "test_no_ground_truth.py",
+    "test_msa_canonical.py",
+    "test_messages_real.py",
+    "test_faults.py",
+    "test_trust_writers.py",
+    "test_golden_outputs.py",
+    "test_experiment_sharing.py",
+    "test_trust_cache_identity.py",
+    "test_experiments.py",
+    "test_compare_params.py",
+    "test_report_any_folder.py",
+    "test_grid_checks.py",
+    "test_trust_inputs.py",
+    "test_trust_disk_full.py",
+    "test_cli_main.py",
+    "test_viewer.py",  # not measured: an online run recorded for the viewer, and a wheel built by pip
+    "test_packaging.py",
+)
+KERNELS = pytest.StashKey["KernelCompilation"]()
+
+
 @pytest.hookimpl(trylast=True)  # after the terminal reporter is set up
 def pytest_configure(config: pytest.Config) -> None:
-    """Under pytest-xdist (`make test`), compile the numba kernels once in the controller before its workers start,
-    instead of once in each worker on a fresh clone (helpers/kernels.py)."""
+    """Under pytest-xdist (`make test`), start compiling the numba kernels once, in processes of the controller's,
+    while its workers start and collect the tests, instead of once in each worker on a fresh clone
+    (helpers/kernels.py); the workers get their first tests once the kernels are compiled."""
     if hasattr(config, "workerinput") or (config.getoption("numprocesses", 0) or 0) < 2 or config.option.collectonly:
         return
-    from helpers.kernels import compile_test_kernels
+    from helpers.kernels import KernelCompilation
 
     reporter = config.pluginmanager.get_plugin("terminalreporter")
     if reporter is not None:
-        reporter.write_line("compiling the numba kernels once for the workers (on a fresh clone: a minute or two)")
-    compile_test_kernels()
+        reporter.write_line("compiling the numba kernels once for the workers (on a fresh clone: about a minute)")
+    config.stash[KERNELS] = compiling = KernelCompilation()
+    config.add_cleanup(compiling.wait)  # also when the session ends before a worker has collected
+
+
+@pytest.hookimpl(optionalhook=True)  # a pytest-xdist hook: without xdist there is nothing to wait for
+def pytest_xdist_node_collection_finished(node, ids: list[str]) -> None:
+    """In the controller, before the workers' first tests are handed out: wait for the kernels' compilation."""
+    compiling = node.config.stash.get(KERNELS, None)
+    if compiling is not None:
+        compiling.wait()
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """In a pytest-xdist worker, put the files of HEAVIEST_FIRST first, in its order; a file's tests keep theirs."""
+    if hasattr(config, "workerinput"):
+        rank = {name: position for position, name in enumerate(HEAVIEST_FIRST)}
+        items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # a stable sort
 
 
 def shared_path(*parts: str) -> Path:
