@@ -1,7 +1,7 @@
 """The batch front end reads, describes and downsamples the scans in a forked process (or a thread, where the
 sequence cannot be read from a fork) while the odometry registers: same poses, descriptors, frame clouds and cache
 entries as the stages run one after the other, each scan read once a run; the reader stays a bounded number of
-frames ahead, its errors are raised at their frame, and it is gone when the consumer stops. The online pipeline has a live source's frames simulated ahead the same way."""
+frames ahead, its errors are raised at their frame, and it is gone when the consumer stops. The online pipeline has a live source's frames simulated ahead by a spawned process."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import multiprocessing
 import os
 import threading
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -248,10 +249,36 @@ def test_reader_stops_when_the_consumer_stops(forkable, stop):
     assert scans.last == last  # nothing reads on
 
 
+def _logged(producer, log: Path):
+    """`producer`'s frames, each logged to `log` with the process that made it (pickled to a spawned process)."""
+    for frame in producer():
+        with log.open("a") as f:
+            f.write(f"{os.getpid()}\n")
+        yield frame
+
+
+def test_a_live_sources_frames_are_simulated_ahead_by_a_process_of_their_own(tmp_path):
+    """A sensor's frames come while the previous ones are processed: a live source's are made by a spawned
+    process (KISS-ICP holds the GIL while it registers, so a thread would simulate little beside it), no further
+    than a few frames ahead of the run, and the run is the one it is with the frames made in its own process."""
+    source = open_source("live:figure-eight,stride=4,azimuth_steps=180,realism=clean")
+    log = tmp_path / "makers.txt"
+    config = make_online_config(dataset=source.name, odometry="gt-noise", sampler="all", max_frames=12)
+    spawned = run(config, LiveFrontEnd(replace(source, producer=partial(_logged, source.producer, log))))
+    makers = [int(line) for line in log.read_text().split()]
+    assert 12 <= len(makers) <= 12 + DEPTH + 1  # the queue's frames and the one waiting to be put
+    assert len(set(makers)) == 1 and makers[0] != os.getpid()
+    here = run(config, LiveFrontEnd(replace(source, live=False)))
+    assert len(spawned) == len(here) == 12
+    np.testing.assert_array_equal(spawned.odometry, here.odometry)
+    np.testing.assert_array_equal(spawned.optimised, here.optimised)
+    np.testing.assert_array_equal(spawned.keyframes, here.keyframes)
+
+
 @pytest.mark.parametrize("live", [True, False])
-def test_a_live_sources_frames_are_simulated_ahead_by_a_thread_of_their_own(live):
-    """A sensor's frames come while the previous ones are processed: a live source's are made by another thread,
-    no further than the frames the run reads; recorded frames are read by the run's thread, as they were."""
+def test_frames_without_a_producer_are_made_by_a_thread_when_live(live):
+    """A live source that cannot be made in another process (no producer) has its frames made by another thread;
+    recorded frames are read by the run's thread, as they were."""
     source = open_source("live:figure-eight,stride=4,azimuth_steps=180,realism=clean")
     makers: list[threading.Thread] = []
 
@@ -261,6 +288,6 @@ def test_a_live_sources_frames_are_simulated_ahead_by_a_thread_of_their_own(live
             yield frame
 
     config = make_online_config(dataset=source.name, odometry="gt-noise", sampler="all", max_frames=12)
-    result = run(config, LiveFrontEnd(replace(source, frames=frames, live=live)))
-    assert len(result) == 12 and len(makers) == 12
+    result = run(config, LiveFrontEnd(replace(source, frames=frames, live=live, producer=None)))
+    assert len(result) == 12 and len(makers) >= 12
     assert all((maker is threading.current_thread()) != live for maker in makers)

@@ -6,7 +6,7 @@ Points are (P, 3) float32/float64 in the sensor frame.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -115,7 +115,9 @@ class FrameSource:
     without them (odometry.choice.make_odometry). `live`: frames that come once, as from a sensor (nothing to
     replay bit for bit), so the online pipeline runs KISS-ICP on every core by default
     (pipeline.live.with_odometry_threads). `identity`: what determines frames made in memory (a live: source's
-    simulation key and laps), which keys their cached odometry as a sequence's scans key theirs."""
+    simulation key and laps), which keys their cached odometry as a sequence's scans key theirs. `producer`:
+    a picklable callable that makes the same frames in another process (a live: source's simulation, run beside
+    the odometry: pipeline.live.arriving), or None."""
 
     name: str
     gt_poses: np.ndarray | None
@@ -126,6 +128,7 @@ class FrameSource:
     point_times: bool | None = None
     live: bool = False
     identity: str | None = None
+    producer: Callable[[], Iterable[Any]] | None = None
 
     def __len__(self) -> int:
         return len(self.gt_poses) if self.length is None else self.length

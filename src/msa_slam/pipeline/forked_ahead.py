@@ -1,4 +1,5 @@
-"""Items iterated ahead by a process forked from this one, so that the work of making them runs on another core.
+"""Items iterated ahead by another process, forked from this one or spawned, so that the work of making them runs
+on another core.
 
 A thread is not enough when the consumer's own work holds the GIL: KISS-ICP's Python binding does not release it
 while it registers a scan (a pure-Python thread makes ~5 % of its progress while register_frame runs), so a reader
@@ -6,6 +7,8 @@ thread's reading, describing and downsampling would run one after the other with
 The forked process starts with the parent's objects (the sequence, the descriptor) in its memory: nothing is
 pickled but the items it sends back, each pickled in the child so that a failure to pickle is one of its errors.
 It ends with its parent (lifetime.end_with_parent) and leaves Ctrl-C to it, as compare's workers do (workers.py).
+A spawned process (spawned_ahead) starts from a fresh interpreter instead: for items whose making uses a library
+that may hold threads in this process (the simulator's ray casting), which a fork would copy in an unknown state.
 """
 
 from __future__ import annotations
@@ -15,7 +18,8 @@ import os
 import pickle
 import queue
 import traceback
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
+from functools import partial
 from typing import Any, TypeVar
 
 from msa_slam.errors import InputError
@@ -31,11 +35,22 @@ def forked_ahead(items: Iterable[T], depth: int) -> Iterator[T]:
     ahead; its errors are raised here, at the item they happened at, and it is gone when this iteration ends,
     early (break, an error, Ctrl-C) or not. `items` must be iterable in a child of this process (files it
     opens itself; no handle or lock shared with the parent) and its items picklable."""
-    context = multiprocessing.get_context("fork")
+    return _ahead_in("fork", partial(iter, items), depth)
+
+
+def spawned_ahead(make_items: Callable[[], Iterable[T]], depth: int) -> Iterator[T]:
+    """As forked_ahead, the items those of `make_items()` called in a spawned process: `make_items` must pickle
+    (a module-level function, or a partial of one) and build what it needs itself."""
+    return _ahead_in("spawn", make_items, depth)
+
+
+def _ahead_in(method: str, make_items: Callable[[], Iterable[T]], depth: int) -> Iterator[T]:
+    """The items of `make_items()`, made by a process started by `method` ("fork" or "spawn")."""
+    context = multiprocessing.get_context(method)
     sent: Any = context.Queue(maxsize=depth)
     stop = context.Event()
     reader = context.Process(
-        target=_read, args=(iter(items), sent, stop, os.getpid()), name="msa-slam read-ahead", daemon=True
+        target=_read, args=(make_items, sent, stop, os.getpid()), name="msa-slam read-ahead", daemon=True
     )
     reader.start()
     finished = False
@@ -74,11 +89,11 @@ def _receive(sent: Any, reader: Any) -> tuple[str, Any]:
             ) from None
 
 
-def _read(items: Iterator[Any], sent: Any, stop: Any, parent: int) -> None:
+def _read(make_items: Callable[[], Iterable[Any]], sent: Any, stop: Any, parent: int) -> None:
     """The child: send each item, then the end (or the error that stopped it), until the consumer stops."""
     start_worker(parent)
     try:
-        for item in items:
+        for item in make_items():
             if not _send(sent, ("item", item), stop):
                 return
         _send(sent, ("end", None), stop)

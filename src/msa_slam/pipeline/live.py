@@ -9,8 +9,8 @@ after optimisation, and throughput (frames per second, real-time factor for the 
 gets the batch pipeline's plausibility checks (stalled, implausible steps) once the run has ended.
 
 Throughput is that of the whole pipeline as it ran (reading the frames included; a live source's frames are
-simulated by a thread of their own a few frames ahead, as a sensor's driver delivers them while the previous ones
-are processed: pipeline.read_ahead.ahead); odometry replayed from the cache counts with the time it took when it was computed, and the run says it was replayed. The progress line,
+simulated by a process of their own a few frames ahead, as a sensor's driver delivers them while the previous ones
+are processed: arriving); odometry replayed from the cache counts with the time it took when it was computed, and the run says it was replayed. The progress line,
 metrics.json and report.md compute frames per second and real-time factor with one function
 (evaluation.resources.throughput) from the same seconds.
 
@@ -23,8 +23,9 @@ label, metrics.json (`threads`) and report.md.
 from __future__ import annotations
 
 import logging
+import multiprocessing
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from contextlib import closing
 from dataclasses import replace
 from itertools import islice
@@ -32,6 +33,7 @@ from typing import Protocol, TypedDict
 
 import numpy as np
 
+from msa_slam.datasets import Frame
 from msa_slam.descriptors import make_descriptor
 from msa_slam.errors import InputError
 from msa_slam.evaluation.metrics import ONLINE, Latency, ProtocolRecord, RunSetup, Throughput, Timing
@@ -43,8 +45,9 @@ from msa_slam.odometry.cache import register_frames
 from msa_slam.odometry.choice import make_odometry
 from msa_slam.odometry.kiss import DEFAULT_THREADS
 from msa_slam.pipeline.config import NO_TIMESTAMPS, NOT_REPRODUCIBLE, OnlineConfig, RunConfig
+from msa_slam.pipeline.forked_ahead import spawned_ahead
 from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, check_window, config_as_run, deskew_record, source_warnings
-from msa_slam.pipeline.read_ahead import ahead
+from msa_slam.pipeline.read_ahead import DEPTH, ahead
 from msa_slam.progress import LogProgress, Progress, progress_bar
 from msa_slam.slam import BACKEND_STEPS, RunResult, SlamBackend
 from msa_slam.sources import open_source
@@ -231,12 +234,25 @@ def prepare_live_odometry(config: OnlineConfig, quiet: bool = True) -> bool:
     cache = OdometryCache(pipeline_cache(config.cache_dir))
     name = key(cache.store)
     if cache.load_entry(name, len(source)) is None:
-        frames = source.frames()
-        poses, ms = register_frames(odometry, ahead(frames), len(source), source.times_known, quiet, "odometry")
+        with closing(arriving(source, len(source))) as frames:
+            poses, ms = register_frames(odometry, frames, len(source), source.times_known, quiet, "odometry")
         assert isinstance(odometry, KissOdometry), "only KISS-ICP is cached (_odometry_key)"
         if cache.save(name, poses, odometry.unregistered_frames, ms) is None:
             return False
     return True
+
+
+def arriving(source: FrameSource, n: int) -> Generator[Frame, None, None]:
+    """The first `n` frames of `source`. A live source's are made a few ahead of the odometry, as a sensor's
+    driver delivers them: by a spawned process (its `producer`; KISS-ICP's binding holds the GIL while it
+    registers a scan, so a thread would simulate little beside it) unless this process may not have children (a
+    Dask worker), then by a thread. Close it when done: the maker stops."""
+    if not source.live:
+        yield from islice(source.frames(), n)
+    elif source.producer is not None and not multiprocessing.current_process().daemon:
+        yield from islice(spawned_ahead(source.producer, DEPTH), n)
+    else:
+        yield from islice(ahead(source.frames()), n)
 
 
 def with_odometry_threads(config: OnlineConfig, threads: int) -> OnlineConfig:
@@ -351,7 +367,7 @@ class LiveFrontEnd:
             if self.threads is not None
             else ""
         )
-        with online_progress(quiet) as bar, closing(backend):
+        with online_progress(quiet) as bar, closing(backend), closing(arriving(source, n)) as frames:
             task = bar.add_task(label, total=n, fps=0.0, rtf=0.0, kf=0, loops=0)
             start, first_time = time.perf_counter(), None
             credit = 0.0  # s: replayed odometry's time as computed, less the time its replay took
@@ -369,8 +385,7 @@ class LiveFrontEnd:
                 fps, rtf = throughput(frames, seconds, rate)
                 return {"fps": fps, "rtf": rtf, "kf": keyframes, "loops": accepted}
 
-            frames = islice(source.frames(), n)  # a live source's simulated by a thread of their own, a few ahead
-            for i, frame in enumerate(ahead(frames) if source.live else frames):
+            for i, frame in enumerate(frames):
                 first_time = frame.time if first_time is None else first_time
                 t0 = time.perf_counter()
                 pose = odometry.register(
