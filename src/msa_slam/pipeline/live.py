@@ -49,6 +49,7 @@ from msa_slam.pipeline.forked_ahead import spawned_ahead
 from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, check_window, config_as_run, deskew_record, source_warnings
 from msa_slam.pipeline.read_ahead import DEPTH, ahead
 from msa_slam.progress import LogProgress, Progress, progress_bar
+from msa_slam.sim.config import PARALLEL_MIN_FRAMES
 from msa_slam.slam import BACKEND_STEPS, RunResult, SlamBackend
 from msa_slam.sources import open_source
 from msa_slam.types import FrameSource
@@ -245,11 +246,12 @@ def prepare_live_odometry(config: OnlineConfig, quiet: bool = True) -> bool:
 def arriving(source: FrameSource, n: int) -> Generator[Frame, None, None]:
     """The first `n` frames of `source`. A live source's are made a few ahead of the odometry, as a sensor's
     driver delivers them: by a spawned process (its `producer`; KISS-ICP's binding holds the GIL while it
-    registers a scan, so a thread would simulate little beside it) unless this process may not have children (a
-    Dask worker), then by a thread. Close it when done: the maker stops."""
+    registers a scan, so a thread would simulate little beside it), else by a thread: for fewer than
+    PARALLEL_MIN_FRAMES frames (the process's start-up would cost more than it saves) or where this process may
+    not have children (a Dask worker). Close it when done: the maker stops."""
     if not source.live:
         yield from islice(source.frames(), n)
-    elif source.producer is not None and not multiprocessing.current_process().daemon:
+    elif source.producer is not None and n >= PARALLEL_MIN_FRAMES and not multiprocessing.current_process().daemon:
         yield from islice(spawned_ahead(source.producer, DEPTH), n)
     else:
         yield from islice(ahead(source.frames()), n)

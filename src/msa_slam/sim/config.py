@@ -30,6 +30,8 @@ from msa_slam.sim.realism import DEFAULT_REALISM, REALISM
 from msa_slam.sim.sensors import SENSORS
 from msa_slam.sim.trajectories import TRAJECTORY_NAMES, Trajectory, frame_indices, load_trajectory, read_trajectory
 
+PARALLEL_MIN_FRAMES = 300  # fewer frames are simulated in the calling process (a worker's start-up costs seconds)
+
 SIM_VERSION = "13"  # the generation of worlds and scans that docs and sim.json name: bump it when they change
 SIM_LIBRARIES = ("trimesh", "embreex", "numpy", "scipy")  # ray casting, noise, poses (Rotation): the cache key
 SIM_CODE = ("msa_slam.sim",)  # the simulator, and what it imports: the cache key

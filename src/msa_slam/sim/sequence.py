@@ -43,12 +43,11 @@ from msa_slam.io.outputs import out_path, refuse_working_directory
 from msa_slam.io.poses import format_kitti
 from msa_slam.io.write_errors import write_error
 from msa_slam.progress import progress_bar
-from msa_slam.sim.config import SIM_VERSION, SimConfig
+from msa_slam.sim.config import PARALLEL_MIN_FRAMES, SIM_VERSION, SimConfig
 from msa_slam.sim.coverage import empty_scan_error, warn_short_range, warn_sparse_scans
 from msa_slam.sim.simulation import Simulation, prepare
 
 META_FILE = SIM_META  # where the KITTI-layout reader looks for the scans' elevation error
-PARALLEL_MIN_FRAMES = 300  # shorter sequences are cast in the calling process (a worker's start-up costs seconds)
 MAX_WORKERS = 4  # each worker builds and holds its own world
 log = logging.getLogger(__name__)
 KITTI_CITATION = "Trajectory: KITTI odometry ground truth (Geiger, Lenz, Urtasun, CVPR 2012), CC BY-NC-SA 3.0"
