@@ -191,7 +191,7 @@ def _read_through(ahead: ReadAhead, quiet: bool, label: str) -> None:
 
 def ahead(items: Iterable[T], depth: int = DEPTH) -> Iterator[T]:
     """`items` in order, iterated by a thread of their own that starts when this iteration does, at most `depth`
-    items ahead (a live source's frames simulated while the previous ones are registered: pipeline.live); the
+    items ahead (a short live run's frames simulated while the previous ones are registered: pipeline.live); the
     thread's errors are raised here, at the item they happened at, and it stops when this iteration ends, early
     or not."""
     queued: queue.Queue = queue.Queue(maxsize=depth)
