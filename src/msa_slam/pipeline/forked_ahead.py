@@ -20,6 +20,7 @@ import queue
 import traceback
 from collections.abc import Callable, Iterable, Iterator
 from functools import partial
+from multiprocessing.context import ForkContext, SpawnContext
 from typing import Any, TypeVar
 
 from msa_slam.errors import InputError
@@ -35,18 +36,17 @@ def forked_ahead(items: Iterable[T], depth: int) -> Iterator[T]:
     ahead; its errors are raised here, at the item they happened at, and it is gone when this iteration ends,
     early (break, an error, Ctrl-C) or not. `items` must be iterable in a child of this process (files it
     opens itself; no handle or lock shared with the parent) and its items picklable."""
-    return _ahead_in("fork", partial(iter, items), depth)
+    return _ahead_in(multiprocessing.get_context("fork"), partial(iter, items), depth)
 
 
 def spawned_ahead(make_items: Callable[[], Iterable[T]], depth: int) -> Iterator[T]:
     """As forked_ahead, the items those of `make_items()` called in a spawned process: `make_items` must pickle
     (a module-level function, or a partial of one) and build what it needs itself."""
-    return _ahead_in("spawn", make_items, depth)
+    return _ahead_in(multiprocessing.get_context("spawn"), make_items, depth)
 
 
-def _ahead_in(method: str, make_items: Callable[[], Iterable[T]], depth: int) -> Iterator[T]:
-    """The items of `make_items()`, made by a process started by `method` ("fork" or "spawn")."""
-    context = multiprocessing.get_context(method)
+def _ahead_in(context: ForkContext | SpawnContext, make_items: Callable[[], Iterable[T]], depth: int) -> Iterator[T]:
+    """The items of `make_items()`, made by a process `context` starts."""
     sent: Any = context.Queue(maxsize=depth)
     stop = context.Event()
     reader = context.Process(
