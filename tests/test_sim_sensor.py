@@ -228,14 +228,16 @@ def test_mixed_pixels_lie_between_the_surfaces_of_a_depth_edge():
     normals = np.tile([-1.0, 0.0, 0.0], (10, 1))
     ray_idx = np.arange(10)
     mixed = mixed_pixels(
-        ranges, ray_idx, (1, 10), 1.0, 0.999, np.random.default_rng(0), _one_beam(ranges, azimuth), normals
+        ranges, ray_idx, (1, 10), 1.0, 0.999, np.random.default_rng(0), _one_beam(ranges, azimuth).__getitem__, normals
     )
     changed = np.flatnonzero(mixed != ranges)
     assert set(changed) <= {0, 4, 5, 9}  # the edge, and the wrap-around edge between columns 9 and 0
     assert len(changed) >= 3 and np.all((mixed[changed] > 10.0) & (mixed[changed] < 20.3))
     wavy = (10.0 + 0.3 * np.sin(azimuth)) / np.cos(np.radians(azimuth))  # no jump above 1 m, wrap-around included
     assert np.array_equal(
-        mixed_pixels(wavy, ray_idx, (1, 10), 1.0, 0.999, np.random.default_rng(0), _one_beam(wavy, azimuth), normals),
+        mixed_pixels(
+            wavy, ray_idx, (1, 10), 1.0, 0.999, np.random.default_rng(0), _one_beam(wavy, azimuth).__getitem__, normals
+        ),
         wavy,
     )
 
@@ -248,7 +250,14 @@ def test_a_surface_seen_at_a_grazing_angle_has_no_mixed_pixels():
     assert np.abs(np.diff(ranges)).max() > 1.0
     normals = np.tile([0.0, -1.0, 0.0], (10, 1))
     wall = mixed_pixels(
-        ranges, np.arange(10), (1, 10), 0.5, 0.999, np.random.default_rng(0), _one_beam(ranges, azimuth), normals
+        ranges,
+        np.arange(10),
+        (1, 10),
+        0.5,
+        0.999,
+        np.random.default_rng(0),
+        _one_beam(ranges, azimuth).__getitem__,
+        normals,
     )
     assert np.array_equal(wall, ranges)
 

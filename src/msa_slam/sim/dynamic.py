@@ -14,9 +14,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from trimesh.ray.ray_pyembree import RayMeshIntersector
 
 from msa_slam.sim.footprints import rect_gaps
+from msa_slam.sim.raycast import FirstHits
 from msa_slam.sim.shapes import Material, MeshBuilder
 from msa_slam.sim.traffic import (
     CLEARANCE,
@@ -182,7 +182,7 @@ class DynamicObjects:
         builder.boxes(centres, half, yaw, refl, material)
         mesh, face_refl, face_material = builder.build()
         cand = _candidate_rays(origins, directions, centres, np.linalg.norm(half, axis=1))
-        tri, sub = RayMeshIntersector(mesh).intersects_id(origins[cand], directions[cand], multiple_hits=False)
+        tri, sub = FirstHits(mesh).cast(origins[cand], directions[cand])
         ray = cand[sub]
         normals = np.asarray(mesh.face_normals)[tri]
         corner = np.asarray(mesh.triangles[:, 0, :])[tri]

@@ -58,15 +58,17 @@ def mixed_pixels(
     edge: float,
     prob: float,
     rng: np.random.Generator,
-    points: np.ndarray,
+    hit_points: Callable[[np.ndarray], np.ndarray],
     normals: np.ndarray,
 ) -> np.ndarray:
     """`ranges` with mixed pixels: a return at a depth edge (its azimuth neighbour in the same beam more than
     `edge` metres nearer or farther, and that neighbour's hit more than `edge` off the plane of its own: another
     surface) straddles both surfaces, and with probability `prob` reports a range anywhere between them (the
-    ghost points real sensors leave along depth edges). `points` and `normals` (P, 3, any one frame) are the
-    returns' hits and surface normals. A surface seen at a grazing angle (a far stretch of road, a wall along the
-    street) has neighbours metres apart in range but on one plane: no edge, its footprint sees one surface."""
+    ghost points real sensors leave along depth edges). `hit_points(rows)` gives the hits (k, 3, any one frame) of
+    the returns at `rows`, `normals` (P, 3) their surface normals. A surface seen at a grazing angle (a far stretch
+    of road, a wall along the street) has neighbours metres apart in range but on one plane: no edge, its footprint
+    sees one surface. The plane test is made only where the range jumps by more than `edge` (a few % of the
+    returns; a smaller jump is no edge whatever the planes): the hits are asked for those rows alone."""
     flat = np.full(grid[0] * grid[1], -1)
     flat[ray_idx] = np.arange(len(ray_idx))
     index = flat.reshape(grid)
@@ -76,8 +78,9 @@ def mixed_pixels(
         seen = other >= 0
         jump = np.zeros(len(ranges))
         jump[seen] = ranges[other[seen]] - ranges[seen]
-        apart = np.einsum("ij,ij->i", normals[seen], points[other[seen]] - points[seen])
-        jump[seen] *= np.abs(apart) > edge
+        rows = np.flatnonzero(np.abs(jump) > edge)
+        apart = np.einsum("ij,ij->i", normals[rows], hit_points(other[rows]) - hit_points(rows))
+        jump[rows] *= np.abs(apart) > edge
         jumps.append(jump)
     jump = np.where(np.abs(jumps[0]) >= np.abs(jumps[1]), jumps[0], jumps[1])
     mixed = (np.abs(jump) > edge) & (rng.random(len(ranges)) < prob)

@@ -226,7 +226,11 @@ class Lidar:
         if r.vegetation_depth > 0:
             ranges = ranges + foliage * rng.exponential(r.vegetation_depth, len(ranges))
         if r.mixed_pixel_prob > 0:
-            hit_points = np.broadcast_to(origins, dirs_world.shape)[ray_idx] + surface[:, None] * dirs_world[ray_idx]
+            starts = np.broadcast_to(origins, dirs_world.shape)
+
+            def hit_points(rows: np.ndarray) -> np.ndarray:
+                return starts[ray_idx[rows]] + surface[rows, None] * dirs_world[ray_idx[rows]]
+
             ranges = mixed_pixels(
                 ranges,
                 ray_idx,

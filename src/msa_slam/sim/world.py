@@ -15,13 +15,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
-from trimesh.ray.ray_pyembree import RayMeshIntersector
 
 from msa_slam.errors import InputError
 from msa_slam.sim.dynamic import DynamicObjects, DynamicRecipe, make_dynamic, unit_hash
 from msa_slam.sim.layout import STYLES, StreetLayout
 from msa_slam.sim.level import LEVEL_DEG, gravity_up, levelling_rotation, tilt_deg
 from msa_slam.sim.plan import HARD_KINDS, Stretch, first_visits, make_catalogue, plan_stretches
+from msa_slam.sim.raycast import FirstHits
 from msa_slam.sim.shapes import Material, MeshBuilder
 from msa_slam.sim.traffic import EgoClock, PathFrame, Road
 
@@ -144,7 +144,7 @@ class World:
         self.levelling = levelling
         self.face_normals = np.asarray(mesh.face_normals)
         self._face_origins = np.asarray(mesh.triangles[:, 0, :])
-        self._intersector = RayMeshIntersector(mesh)
+        self._first_hits = FirstHits(mesh)
 
     @property
     def triangles(self) -> int:
@@ -153,7 +153,7 @@ class World:
 
     def _cast_static(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The distance comes from the hit triangle's plane, cheaper than asking trimesh for hit locations."""
-        tri, ray = self._intersector.intersects_id(origins, directions, multiple_hits=False)
+        tri, ray = self._first_hits.cast(origins, directions)
         normals = self.face_normals[tri]
         num = np.einsum("ij,ij->i", self._face_origins[tri] - origins[ray], normals)
         dist = num / np.einsum("ij,ij->i", directions[ray], normals)
