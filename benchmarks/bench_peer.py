@@ -5,7 +5,7 @@ with the wall time of each.
     python benchmarks/bench_peer.py [--sequences 07,09] [--seeds 0] [--end N] [--methods msa,constant-2m]
                                     [--peer-python PATH] [--peer-threads 1] [--peer-methods icp,slam,slam-raw]
                                     [-p KEY=VALUE ...] [--label NAME] [--out DIR] [--cache-dir DIR]
-                                    [--speed [--speed-repeats 3]]
+                                    [--speed [--speed-repeats 3] [--speed-jobs peer,run,compare]]
 
 Each sequence is simulated once per seed as a KITTI-layout folder (`msa-slam simulate --trajectory NAME
 --seed S [--end N] --out DIR/data/...`, per-point times in velodyne_times/; a sequence given as a number is
@@ -49,7 +49,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
-from peer_timing import median_timing, timed_jobs
+from peer_timing import JOBS, median_timing, timed_jobs
 
 from msa_slam.evaluation import ATE_ALIGNMENT, fmt
 from msa_slam.evaluation.metrics import known as number_or_none
@@ -360,7 +360,7 @@ def speed_table(sequence: str, seed: int, args: argparse.Namespace, peer: str | 
     folder = simulated(sequence, seed, args.end, args.out / "data")
     gt, _ = read_poses(folder / "poses.txt")
     root = args.out / (run_name(sequence, seed, args.end) + "-speed")
-    timings = timed_jobs(folder, root, CLI, peer, DRIVER, args.peer_threads, args.speed_repeats)
+    timings = timed_jobs(folder, root, CLI, peer, DRIVER, args.peer_threads, args.speed_repeats, args.speed_jobs)
     last = root / "last"
     accuracy = {
         "msa-slam run --sampler msa": last / "run" / "trajectories" / "optimised.kitti",
@@ -434,6 +434,9 @@ def main() -> None:
         "end to end from a cold cache (wall, CPU, peak RSS)",
     )
     parser.add_argument("--speed-repeats", type=int, default=3, help="--speed: runs of each job (medians)")
+    parser.add_argument(
+        "--speed-jobs", default=",".join(JOBS), help=f"--speed: the jobs to time, of {', '.join(JOBS)} (default: all)"
+    )
     args = parser.parse_args()
     args.methods = None if args.methods is None else args.methods.split(",")
     if args.params and not args.label:
@@ -442,6 +445,9 @@ def main() -> None:
     if args.methods is not None and not set(args.methods) <= set(known):
         parser.error(f"--methods: choose from {', '.join(known)}")
     args.peer_methods = args.peer_methods.split(",")
+    args.speed_jobs = tuple(args.speed_jobs.split(","))
+    if not set(args.speed_jobs) <= set(JOBS):
+        parser.error(f"--speed-jobs: choose from {', '.join(JOBS)}")
     if not set(args.peer_methods) <= set(PEER_RUNS):
         parser.error(f"--peer-methods: choose from {', '.join(PEER_RUNS)}")
     args.cache_dir = args.cache_dir or args.out / "cache"

@@ -45,10 +45,20 @@ def measured(command: list[str], log: Path) -> Timing:
     return Timing(wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024.0)
 
 
+JOBS = {"peer": "KISS-SLAM", "run": "msa-slam run --sampler msa", "compare": "msa-slam compare (7 methods)"}
+
+
 def jobs(
-    folder: Path, work: Path, cli: str, peer_python: str | None, driver: Path, threads: int
+    folder: Path,
+    work: Path,
+    cli: str,
+    peer_python: str | None,
+    driver: Path,
+    threads: int,
+    chosen: tuple[str, ...] = tuple(JOBS),
 ) -> dict[str, list[str]]:
-    """The commands to time on `folder`; outputs and cold caches under `work` (a folder of this benchmark's)."""
+    """The `chosen` commands (keys of JOBS) to time on `folder`; outputs and cold caches under `work` (a folder of
+    this benchmark's)."""
     msa_slam = [sys.executable, "-c", cli]
     commands = {
         "msa-slam run --sampler msa": [
@@ -94,19 +104,26 @@ def jobs(
             ],
             **commands,
         }
-    return commands
+    return {name: command for name, command in commands.items() if name in {JOBS[job] for job in chosen}}
 
 
 def timed_jobs(
-    folder: Path, root: Path, cli: str, peer_python: str | None, driver: Path, threads: int, repeats: int
+    folder: Path,
+    root: Path,
+    cli: str,
+    peer_python: str | None,
+    driver: Path,
+    threads: int,
+    repeats: int,
+    chosen: tuple[str, ...] = tuple(JOBS),
 ) -> dict[str, list[Timing]]:
-    """Every job `repeats` times, alternating, each in a new folder under `root` (so from a cold cache); the
+    """Every `chosen` job `repeats` times, alternating, each in a new folder under `root` (so from a cold cache); the
     outputs of the last repeat are kept (root/last) for the accuracy columns."""
     root.mkdir(parents=True, exist_ok=True)
     timings: dict[str, list[Timing]] = {}
     for repeat in range(repeats):
         work = Path(tempfile.mkdtemp(prefix=f"repeat{repeat}-", dir=root))
-        for index, (name, command) in enumerate(jobs(folder, work, cli, peer_python, driver, threads).items()):
+        for index, (name, command) in enumerate(jobs(folder, work, cli, peer_python, driver, threads, chosen).items()):
             timings.setdefault(name, []).append(measured(command, work / f"job{index}.log"))
             print(f"  {name}, repeat {repeat + 1}/{repeats}: {timings[name][-1].wall_s:.1f} s wall", flush=True)
         last = work

@@ -64,3 +64,13 @@ def test_the_peer_is_scored_against_the_truth_at_sweep_end(bench):
     assert end[-1, 0, 3] > path(stamps)[-1, 0, 3] + 0.45  # extrapolated half a frame at the last speed
     peer = path(stamps + 0.05)  # a peer that deskews to the sweep's end and has no drift
     assert bench.ape(peer, end)[0] < 0.006 < bench.ape(peer, path(stamps))[0]
+
+
+def test_speed_jobs_are_the_chosen_ones_in_a_fixed_order(bench, tmp_path):
+    import peer_timing
+
+    chosen = peer_timing.jobs(tmp_path, tmp_path, "", "/peer/python", tmp_path / "driver.py", 1, ("run", "peer"))
+    assert list(chosen) == ["KISS-SLAM", "msa-slam run --sampler msa"]
+    assert chosen["KISS-SLAM"][0] == "/peer/python" and "--threads" in chosen["KISS-SLAM"]
+    without_peer = peer_timing.jobs(tmp_path, tmp_path, "", None, tmp_path / "driver.py", 1, ("peer", "compare"))
+    assert list(without_peer) == ["msa-slam compare (7 methods)"]
