@@ -39,18 +39,21 @@ def forked_ahead(items: Iterable[T], depth: int) -> Iterator[T]:
     return _ahead_in(multiprocessing.get_context("fork"), partial(iter, items), depth)
 
 
-def spawned_ahead(make_items: Callable[[], Iterable[T]], depth: int) -> Iterator[T]:
-    """As forked_ahead, the items those of `make_items()` called in a spawned process: `make_items` must pickle
-    (a module-level function, or a partial of one) and build what it needs itself."""
-    return _ahead_in(multiprocessing.get_context("spawn"), make_items, depth)
+def spawned_ahead(make_items: Callable[[], Iterable[T]], depth: int, niceness: int = 0) -> Iterator[T]:
+    """As forked_ahead, the items those of `make_items()` called in a spawned process, `niceness` steps below this
+    one's priority: `make_items` must pickle (a module-level function, or a partial of one) and build what it needs
+    itself."""
+    return _ahead_in(multiprocessing.get_context("spawn"), make_items, depth, niceness)
 
 
-def _ahead_in(context: ForkContext | SpawnContext, make_items: Callable[[], Iterable[T]], depth: int) -> Iterator[T]:
-    """The items of `make_items()`, made by a process `context` starts."""
+def _ahead_in(
+    context: ForkContext | SpawnContext, make_items: Callable[[], Iterable[T]], depth: int, niceness: int = 0
+) -> Iterator[T]:
+    """The items of `make_items()`, made by a process `context` starts (at `niceness` below this one's priority)."""
     sent: Any = context.Queue(maxsize=depth)
     stop = context.Event()
     reader = context.Process(
-        target=_read, args=(make_items, sent, stop, os.getpid()), name="msa-slam read-ahead", daemon=True
+        target=_read, args=(make_items, sent, stop, os.getpid(), niceness), name="msa-slam read-ahead", daemon=True
     )
     reader.start()
     finished = False
@@ -89,10 +92,12 @@ def _receive(sent: Any, reader: Any) -> tuple[str, Any]:
             ) from None
 
 
-def _read(make_items: Callable[[], Iterable[Any]], sent: Any, stop: Any, parent: int) -> None:
+def _read(make_items: Callable[[], Iterable[Any]], sent: Any, stop: Any, parent: int, niceness: int = 0) -> None:
     """The child: send each item, then the end (or the error that stopped it), until the consumer stops."""
     start_worker(parent)
     try:
+        if niceness:
+            os.nice(niceness)
         for item in make_items():
             if not _send(sent, ("item", item), stop):
                 return

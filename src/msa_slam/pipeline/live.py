@@ -59,6 +59,10 @@ from msa_slam.workers import available_cpus
 logger = logging.getLogger(__name__)
 
 STEPS = ("odometry", "descriptor", *BACKEND_STEPS)
+# A sensor's scans cost the pipeline nothing; a live source's are simulated, about 30 ms of CPU a 720-column scan.
+# Below the pipeline's priority the simulating process runs in its gaps (its single-threaded steps) instead of taking
+# a core from KISS-ICP's threads in the middle of a registration, and still keeps ahead (docs/performance.md).
+SENSOR_NICENESS = 5
 MEMORY = (
     "keyframes",
     "cloud_bytes",
@@ -252,7 +256,7 @@ def arriving(source: FrameSource, n: int) -> Generator[Frame, None, None]:
     if not source.live:
         yield from islice(source.frames(), n)
     elif source.producer is not None and n >= PARALLEL_MIN_FRAMES and not multiprocessing.current_process().daemon:
-        yield from islice(spawned_ahead(source.producer, DEPTH), n)
+        yield from islice(spawned_ahead(source.producer, DEPTH, SENSOR_NICENESS), n)
     else:
         yield from islice(ahead(source.frames()), n)
 
