@@ -26,10 +26,10 @@ from msa_slam.io.cache import TIMES_PREFIX, CacheDir
 from msa_slam.odometry import OdometryCache, sequence_odometry
 from msa_slam.odometry.choice import make_odometry
 from msa_slam.pipeline import LiveFrontEnd, make_config, prepare_frontend, run
-from msa_slam.pipeline import live as live_pipeline
 from msa_slam.pipeline.config import make_online_config
 from msa_slam.pipeline.read_ahead import DEPTH, ReadAhead
 from msa_slam.registration import downsample
+from msa_slam.sim import config as sim_config
 from msa_slam.sources import open_sequence, open_source
 
 
@@ -262,7 +262,7 @@ def test_a_live_sources_frames_are_simulated_ahead_by_a_process_of_their_own(tmp
     """A sensor's frames come while the previous ones are processed: a live source's are made by a spawned
     process (KISS-ICP holds the GIL while it registers, so a thread would simulate little beside it), no further
     than a few frames ahead of the run, and the run is the one it is with the frames made in its own process."""
-    monkeypatch.setattr(live_pipeline, "PARALLEL_MIN_FRAMES", 12)  # a run this long is worth a process
+    monkeypatch.setattr(sim_config, "PARALLEL_MIN_FRAMES", 12)  # a run this long is worth a process
     source = open_source("live:figure-eight,stride=4,azimuth_steps=180,realism=clean")
     log = tmp_path / "makers.txt"
     config = make_online_config(dataset=source.name, odometry="gt-noise", sampler="all", max_frames=12)
@@ -290,7 +290,7 @@ def test_a_short_live_run_has_its_frames_made_by_a_thread(live):
             yield frame
 
     config = make_online_config(dataset=source.name, odometry="gt-noise", sampler="all", max_frames=12)
-    assert config.max_frames < live_pipeline.PARALLEL_MIN_FRAMES
+    assert config.max_frames < sim_config.PARALLEL_MIN_FRAMES
     result = run(config, LiveFrontEnd(replace(source, frames=frames, live=live)))
     assert len(result) == 12 and len(makers) >= 12
     assert all((maker is threading.current_thread()) != live for maker in makers)
