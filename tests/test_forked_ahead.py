@@ -85,3 +85,13 @@ def test_no_slot_outlives_the_iteration(end):
     assert seen == (list(range(40)) if end == "last item" else list(range(len(seen))))
     assert len(seen) == {"last item": 40, "break": 4, "Ctrl-C": 4, "reader's error": 5}.get(end, len(seen))
     assert _slot_mappings() == before and not multiprocessing.active_children()
+
+
+def test_items_come_through_the_pipe_when_slots_cannot_be_mapped(monkeypatch):
+    def refused(*args):
+        raise OSError(12, "Cannot allocate memory")
+
+    monkeypatch.setattr(forked.mmap, "mmap", refused)
+    received = list(forked_ahead(_items(6), depth=2))
+    assert [item["index"] for item in received] == list(range(6))
+    assert np.array_equal(received[5]["points"], _item(5)["points"]) and not multiprocessing.active_children()

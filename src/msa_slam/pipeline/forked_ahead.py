@@ -47,7 +47,7 @@ def forked_ahead(items: Iterable[T], depth: int) -> Iterator[T]:
     early (break, an error, Ctrl-C) or not. `items` must be iterable in a child of this process (files it
     opens itself; no handle or lock shared with the parent) and its items picklable."""
     context = multiprocessing.get_context("fork")
-    return _ahead_in(context, partial(iter, items), depth, lambda: Slots(context, depth))
+    return _ahead_in(context, partial(iter, items), depth, partial(_slots, context, depth))
 
 
 def spawned_ahead(make_items: Callable[[], Iterable[T]], depth: int) -> Iterator[T]:
@@ -100,6 +100,15 @@ class Slots:
     def close(self) -> None:
         for mapped in self.maps:
             mapped.close()
+
+
+def _slots(context: ForkContext, depth: int) -> Slots | None:
+    """Slots for `depth` items ahead; None (every item through the pipe) when the system will not map them (a
+    strict overcommit limit)."""
+    try:
+        return Slots(context, depth)
+    except OSError:
+        return None
 
 
 def _ahead_in(
