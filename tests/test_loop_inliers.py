@@ -16,10 +16,12 @@ import numpy as np
 import pytest
 from conftest import drifted
 from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
 
 from msa_slam.backend import GraphConfig, PoseGraph
 from msa_slam.backend.inliers import LoopEdge, pair_chi2, select_inliers, single_chi2
-from msa_slam.backend.noise import PathCovariance
+from msa_slam.backend.noise import PathCovariance, chi2_quantile
+from msa_slam.errors import InputError
 from msa_slam.evaluation import ate
 
 STEP = 2.0
@@ -443,3 +445,12 @@ def test_a_candidate_whose_descriptor_yaw_the_heading_cannot_explain_has_no_loop
     assert all(closer.exceeds_drift(cand, L) for L in loops)
     near = _turned(np.eye(4), 10.0)
     assert not closer.beyond_drift(cand, 30.0, near, MAX_LOOP_TURN_DEG) and not closer.exceeds_drift(cand, T)
+
+
+@pytest.mark.parametrize("dof", [1, 3, 6])
+def test_chi2_quantile_is_scipys_to_the_bit(dof):
+    """The gates' chi-square bounds, computed without importing scipy.stats, are its chi2.ppf exactly."""
+    for confidence in (1e-6, 0.05, 0.5, 0.9, 0.95, 0.99, 0.999, 0.9999, 1 - 1e-9):
+        assert chi2_quantile(confidence, dof) == float(chi2.ppf(confidence, dof))
+    with pytest.raises(InputError, match="0 < confidence < 1"):
+        chi2_quantile(1.0, dof)

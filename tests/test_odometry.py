@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import pytest
 from helpers.poses import pose_error
@@ -12,6 +14,7 @@ from msa_slam.datasets import folder_sequence
 from msa_slam.errors import InputError
 from msa_slam.io.poses import write_poses
 from msa_slam.odometry import KissOdometry, OdometryCache, PosesFromFile, sequence_odometry
+from msa_slam.odometry.kiss import RANGE_CHECK_POINTS
 from msa_slam.registration import Verifier
 
 
@@ -171,3 +174,21 @@ def test_a_cached_run_knows_the_frames_kiss_icp_could_not_register(tmp_path):
     cache.store.path(f"ms-odometry-{key}").unlink()  # an entry without the time it took is recomputed too
     _, cached, _ = sequence_odometry(folder_sequence(folder), KissOdometry(max_range=50.0), cache, quiet=True)
     assert not cached
+
+
+def test_points_in_range_past_a_scans_first_ones_count(caplog):
+    """A scan's points in range are counted in its first RANGE_CHECK_POINTS first (they nearly always hold
+    enough); when they do not, the rest count too: exactly, for the log."""
+    scene = np.random.default_rng(1).normal(size=(2000, 3)) * 10.0
+    far = np.random.default_rng(2).normal(size=(RANGE_CHECK_POINTS, 3)) + 500.0  # beyond max_range
+    odometry = KissOdometry(max_range=50.0)
+    with caplog.at_level(logging.WARNING, logger="msa_slam.odometry.kiss"):
+        poses = [odometry.register(scene - [0.5 * k, 0.0, 0.0]) for k in range(3)]
+        poses.append(odometry.register(np.vstack([far, scene[:2]])))  # 2 in range, past the first ones
+        poses.append(odometry.register(np.vstack([far, scene - [2.0, 0.0, 0.0]])))  # in range past them only
+    assert odometry.unregistered_frames == [3]
+    assert [r.getMessage() for r in caplog.records] == [
+        f"KISS-ICP frame 3: only 2 of its {RANGE_CHECK_POINTS + 2} points lie within 0-50 m (registration needs 3), "
+        "so it was not registered (pose extrapolated at constant velocity)"
+    ]
+    np.testing.assert_allclose(poses[4][:3, 3], [2.0, 0.0, 0.0], atol=0.05)  # registered: it moved on

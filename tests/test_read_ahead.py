@@ -26,10 +26,11 @@ from msa_slam.io.cache import TIMES_PREFIX, CacheDir
 from msa_slam.odometry import OdometryCache, sequence_odometry
 from msa_slam.odometry.choice import make_odometry
 from msa_slam.pipeline import LiveFrontEnd, make_config, prepare_frontend, run
-from msa_slam.pipeline import live as live_pipeline
 from msa_slam.pipeline.config import make_online_config
+from msa_slam.pipeline.live import SENSOR_NICENESS
 from msa_slam.pipeline.read_ahead import DEPTH, ReadAhead
 from msa_slam.registration import downsample
+from msa_slam.sim import config as sim_config
 from msa_slam.sources import open_sequence, open_source
 
 
@@ -264,7 +265,7 @@ def test_a_live_sources_frames_are_simulated_ahead_by_a_process_of_their_own(tmp
     process (KISS-ICP holds the GIL while it registers, so a thread would simulate little beside it) below the run's
     priority, no further than a few frames ahead of the run, and the run is the one it is with the frames made in
     its own process."""
-    monkeypatch.setattr(live_pipeline, "PARALLEL_MIN_FRAMES", 12)  # a run this long is worth a process
+    monkeypatch.setattr(sim_config, "PARALLEL_MIN_FRAMES", 12)  # a run this long is worth a process
     source = open_source("live:figure-eight,stride=4,azimuth_steps=180,realism=clean")
     log = tmp_path / "makers.txt"
     config = make_online_config(dataset=source.name, odometry="gt-noise", sampler="all", max_frames=12)
@@ -272,7 +273,7 @@ def test_a_live_sources_frames_are_simulated_ahead_by_a_process_of_their_own(tmp
     makers = [tuple(map(int, line.split())) for line in log.read_text().splitlines()]
     assert 12 <= len(makers) <= 12 + DEPTH + 1  # the queue's frames and the one waiting to be put
     assert len(set(makers)) == 1 and makers[0][0] != os.getpid()
-    assert makers[0][1] == min(os.nice(0) + live_pipeline.SENSOR_NICENESS, 19)
+    assert makers[0][1] == min(os.nice(0) + SENSOR_NICENESS, 19)
     here = run(config, LiveFrontEnd(replace(source, live=False)))
     assert len(spawned) == len(here) == 12
     np.testing.assert_array_equal(spawned.odometry, here.odometry)
@@ -293,7 +294,7 @@ def test_a_short_live_run_has_its_frames_made_by_a_thread(live):
             yield frame
 
     config = make_online_config(dataset=source.name, odometry="gt-noise", sampler="all", max_frames=12)
-    assert config.max_frames < live_pipeline.PARALLEL_MIN_FRAMES
+    assert config.max_frames < sim_config.PARALLEL_MIN_FRAMES
     result = run(config, LiveFrontEnd(replace(source, frames=frames, live=live)))
     assert len(result) == 12 and len(makers) >= 12
     assert all((maker is threading.current_thread()) != live for maker in makers)

@@ -8,6 +8,7 @@ The data is the 12-scan KITTI-layout excerpt of the simulated "test" sequence th
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import os
@@ -22,8 +23,9 @@ import msa_slam.io.cache
 import msa_slam.io.fingerprint
 from msa_slam.datasets import open_dataset
 from msa_slam.descriptors.cache import DESCRIPTOR_CODE, descriptor_key
+from msa_slam.errors import InputError
 from msa_slam.experiments import expand, parse_grid, run_grid
-from msa_slam.io.cache import DIGESTS_FILE
+from msa_slam.io.cache import DIGESTS_FILE, CacheDir, input_identity
 from msa_slam.io.fingerprint import PACKAGE_DIR, code_fingerprint, import_closure
 from msa_slam.io.outputs import OutputError
 from msa_slam.odometry import KissOdometry, OdometryCache
@@ -230,3 +232,21 @@ def test_entries_of_another_shape_precision_or_byte_order_are_recomputed(data, t
     np.testing.assert_array_equal(again.odometry, first.odometry)
     np.testing.assert_array_equal(again.descriptors, first.descriptors)
     assert np.load(entry).dtype == np.dtype("<f8")  # rewritten
+
+
+def test_inputs_hashed_on_several_threads_keep_their_order_and_memo(tmp_path):
+    """input_identity hashes the files on several threads: the identity lists them in the order given with the
+    digests of their bytes, the memo holds every one, and the first unreadable file in that order is named."""
+    folder = tmp_path / "scans"
+    folder.mkdir()
+    files = [folder / f"{i:03d}.bin" for i in range(40)]
+    for i, file in enumerate(files):
+        file.write_bytes(np.random.default_rng(i).bytes(50_000 + i))
+    cache = CacheDir(tmp_path / "cache")
+    identity = input_identity(reversed(files), folder, cache)
+    assert identity == [[f.name, hashlib.sha256(f.read_bytes()).hexdigest()] for f in reversed(files)]
+    memo = json.loads((tmp_path / "cache" / DIGESTS_FILE).read_text())
+    assert {name: entry[-1] for name, entry in memo.items()} == {str(f): d for f, (_, d) in zip(files[::-1], identity)}
+    unreadable = [*files[:5], folder / "gone-1.bin", *files[5:], folder / "gone-2.bin"]
+    with pytest.raises(InputError, match=f"^{folder / 'gone-1.bin'}: cannot read this input file"):
+        input_identity(unreadable, folder)

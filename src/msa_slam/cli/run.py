@@ -56,7 +56,6 @@ def run_command(
 ) -> None:
     """Run one sampler through the batch experiment and write its result folder; prints the path of its report.md."""
     from msa_slam.cli.config import cache_option
-    from msa_slam.experiments.sweep import threshold_sweep
     from msa_slam.pipeline.driver import RUN_SWEEP_NOT_RUN, run
     from msa_slam.reporting.results import write_run
 
@@ -69,7 +68,11 @@ def run_command(
         "cache_dir": cache_option(cache_dir),
     }
     cfg = batch_config(config, given, param, source)
-    sweeps = threshold_sweep if sweep else None
+    sweeps = None
+    if sweep:  # imported only then: the sweep's modules are not needed before the odometry starts
+        from msa_slam.experiments.sweep import threshold_sweep
+
+        sweeps = threshold_sweep
     report = write_run(
         lambda: run(
             cfg,

@@ -9,10 +9,17 @@ pickled but the items it sends back, each pickled in the child so that a failure
 It ends with its parent (lifetime.end_with_parent) and leaves Ctrl-C to it, as compare's workers do (workers.py).
 A spawned process (spawned_ahead) starts from a fresh interpreter instead: for items whose making uses a library
 that may hold threads in this process (the simulator's ray casting), which a fork would copy in an unknown state.
+
+A forked reader hands the items' large buffers (a scan's points and times, its downsampled cloud) over through a
+ring of shared memory slots mapped before the fork (Slots), so that only a small header goes through the pipe:
+a 2 MB scan through the pipe costs the consumer, whose time is the odometry's, several copies and a wake-up every
+64 kB. The slots are anonymous shared mappings, inherited by the child and never named, so no path (an error,
+Ctrl-C, either process killed) can leave one behind: they are freed when both processes have let go of them.
 """
 
 from __future__ import annotations
 
+import mmap
 import multiprocessing
 import os
 import pickle
@@ -28,6 +35,9 @@ from msa_slam.workers import start_worker
 
 POLL_S = 0.1  # how often a blocked reader checks the consumer stopped, and a waiting consumer that the reader lives
 JOIN_S = 5.0  # how long a reader that sent its last item may take to exit before it is killed
+# Bytes of out-of-band buffers one item may hand over through shared memory (a larger one goes through the pipe):
+# a 128-beam scan with its times and cloud is ~10 MB. Only the pages an item writes are backed by memory.
+SLOT_BYTES = 32 << 20
 T = TypeVar("T")
 
 
@@ -36,30 +46,99 @@ def forked_ahead(items: Iterable[T], depth: int) -> Iterator[T]:
     ahead; its errors are raised here, at the item they happened at, and it is gone when this iteration ends,
     early (break, an error, Ctrl-C) or not. `items` must be iterable in a child of this process (files it
     opens itself; no handle or lock shared with the parent) and its items picklable."""
-    return _ahead_in(multiprocessing.get_context("fork"), partial(iter, items), depth)
+    context = multiprocessing.get_context("fork")
+    return _ahead_in(context, partial(iter, items), depth, partial(_slots, context, depth))
 
 
 def spawned_ahead(make_items: Callable[[], Iterable[T]], depth: int, niceness: int = 0) -> Iterator[T]:
     """As forked_ahead, the items those of `make_items()` called in a spawned process, `niceness` steps below this
     one's priority: `make_items` must pickle (a module-level function, or a partial of one) and build what it needs
-    itself."""
-    return _ahead_in(multiprocessing.get_context("spawn"), make_items, depth, niceness)
+    itself. Its items come through the pipe whole (a spawned child does not inherit mappings)."""
+    return _ahead_in(multiprocessing.get_context("spawn"), make_items, depth, lambda: None, niceness)
+
+
+class Slots:
+    """A ring of shared memory slots, one item's out-of-band buffers each, mapped before the fork so that the
+    child inherits them: the child takes a free slot (in order), writes the buffers and sends their sizes; the
+    consumer copies them out and frees the slot. Items are received in the order they are sent, so slots are
+    freed in the order they are taken. `depth` + 2 slots: `depth` items queued, one being copied out, one being
+    written."""
+
+    def __init__(self, context: ForkContext, depth: int) -> None:
+        self.maps = [mmap.mmap(-1, SLOT_BYTES) for _ in range(depth + 2)]  # anonymous, shared with children
+        self.free = context.Semaphore(len(self.maps))
+        self.taken = 0  # slots the child took (in the child)
+
+    def put(self, buffers: list[pickle.PickleBuffer], stop: Any) -> tuple[int, tuple[int, ...]] | None:
+        """(the slot `buffers` were written to, their sizes), once a slot is free; None when they do not fit in one
+        or the consumer stopped first (`stop` set): then they go through the pipe."""
+        raws = [buffer.raw() for buffer in buffers]
+        if sum(raw.nbytes for raw in raws) > SLOT_BYTES:
+            return None
+        while not self.free.acquire(timeout=POLL_S):
+            if stop.is_set():
+                return None
+        slot = self.taken % len(self.maps)
+        self.taken += 1
+        start = 0
+        with memoryview(self.maps[slot]) as view:
+            for raw in raws:
+                view[start : start + raw.nbytes] = raw
+                start += raw.nbytes
+        return slot, tuple(raw.nbytes for raw in raws)
+
+    def take(self, slot: int, sizes: tuple[int, ...]) -> list[bytearray]:
+        """Copies of the buffers in `slot` (`sizes` bytes each); the slot is free again."""
+        copies, start = [], 0
+        with memoryview(self.maps[slot]) as view:
+            for size in sizes:
+                copies.append(bytearray(view[start : start + size]))
+                start += size
+        self.free.release()
+        return copies
+
+    def close(self) -> None:
+        for mapped in self.maps:
+            mapped.close()
+
+
+def _slots(context: ForkContext, depth: int) -> Slots | None:
+    """Slots for `depth` items ahead; None (every item through the pipe) when the system will not map them (a
+    strict overcommit limit)."""
+    try:
+        return Slots(context, depth)
+    except OSError:
+        return None
 
 
 def _ahead_in(
-    context: ForkContext | SpawnContext, make_items: Callable[[], Iterable[T]], depth: int, niceness: int = 0
+    context: ForkContext | SpawnContext,
+    make_items: Callable[[], Iterable[T]],
+    depth: int,
+    make_slots: Callable[[], Slots | None],
+    niceness: int = 0,
 ) -> Iterator[T]:
-    """The items of `make_items()`, made by a process `context` starts (at `niceness` below this one's priority)."""
+    """The items of `make_items()`, made by a process `context` starts (at `niceness` below this one's priority),
+    their buffers in the slots `make_slots` maps (none: all through the pipe)."""
     sent: Any = context.Queue(maxsize=depth)
     stop = context.Event()
-    reader = context.Process(
-        target=_read, args=(make_items, sent, stop, os.getpid(), niceness), name="msa-slam read-ahead", daemon=True
-    )
-    reader.start()
+    slots = make_slots()
+    try:
+        reader = context.Process(
+            target=_read,
+            args=(make_items, sent, stop, os.getpid(), slots, niceness),
+            name="msa-slam read-ahead",
+            daemon=True,
+        )
+        reader.start()
+    except BaseException:
+        if slots is not None:
+            slots.close()
+        raise
     finished = False
     try:
         while True:
-            kind, payload = _receive(sent, reader)
+            kind, payload = _receive(sent, reader, slots)
             if kind == "end":
                 finished = True
                 return
@@ -74,36 +153,50 @@ def _ahead_in(
             reader.join()
         sent.close()
         reader.close()
+        if slots is not None:
+            slots.close()
 
 
-def _receive(sent: Any, reader: Any) -> tuple[str, Any]:
+def _receive(sent: Any, reader: Any, slots: Slots | None) -> tuple[str, Any]:
     """The reader's next message; a RuntimeError when it ended without sending one (killed, out of memory)."""
     while True:
         try:
-            return pickle.loads(sent.get(timeout=POLL_S))
+            return _unpacked(sent.get(timeout=POLL_S), slots)
         except queue.Empty:
             if reader.is_alive():
                 continue
         try:  # its messages are all in the pipe once it has ended
-            return pickle.loads(sent.get(timeout=POLL_S))
+            return _unpacked(sent.get(timeout=POLL_S), slots)
         except queue.Empty:
             raise RuntimeError(
                 f"the front end's reader process ended (exit code {reader.exitcode}) before its last frame"
             ) from None
 
 
-def _read(make_items: Callable[[], Iterable[Any]], sent: Any, stop: Any, parent: int, niceness: int = 0) -> None:
+def _unpacked(packed: tuple[bytes, int | None, tuple[int, ...]], slots: Slots | None) -> tuple[str, Any]:
+    """A message from what _send put on the queue: (its pickle, the slot holding its out-of-band buffers or None,
+    their sizes)."""
+    header, slot, sizes = packed
+    if slot is None:
+        return pickle.loads(header)
+    assert slots is not None, "a message in a slot needs the slots"
+    return pickle.loads(header, buffers=slots.take(slot, sizes))
+
+
+def _read(
+    make_items: Callable[[], Iterable[Any]], sent: Any, stop: Any, parent: int, slots: Slots | None, niceness: int = 0
+) -> None:
     """The child: send each item, then the end (or the error that stopped it), until the consumer stops."""
     start_worker(parent)
     try:
         if niceness:
             os.nice(niceness)
         for item in make_items():
-            if not _send(sent, ("item", item), stop):
+            if not _send(sent, ("item", item), stop, slots):
                 return
-        _send(sent, ("end", None), stop)
+        _send(sent, ("end", None), stop, slots)
     except BaseException as exc:  # handed to the consumer, which raises it
-        _send(sent, ("error", _picklable(exc)), stop)
+        _send(sent, ("error", _picklable(exc)), stop, slots)
 
 
 def put_when_room(target: Any, item: object, stop: Any) -> bool:
@@ -118,9 +211,22 @@ def put_when_room(target: Any, item: object, stop: Any) -> bool:
     return False
 
 
-def _send(sent: Any, message: tuple[str, Any], stop: Any) -> bool:
-    """Put `message` once the queue has room; False when the consumer stopped first (then exit without flushing)."""
-    if put_when_room(sent, pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL), stop):
+def _send(sent: Any, message: tuple[str, Any], stop: Any, slots: Slots | None) -> bool:
+    """Put `message` once the queue has room, its out-of-band buffers (arrays) in a slot when there are slots and
+    they fit in one; False when the consumer stopped first (then exit without flushing)."""
+    packed: tuple[bytes, int | None, tuple[int, ...]] | None = None
+    if slots is not None:
+        buffers: list[pickle.PickleBuffer] = []
+        header = pickle.dumps(message, protocol=5, buffer_callback=buffers.append)
+        placed = slots.put(buffers, stop) if buffers else None
+        if placed is not None or not buffers:
+            packed = (header, None, ()) if placed is None else (header, *placed)
+        elif stop.is_set():
+            sent.cancel_join_thread()
+            return False
+    if packed is None:
+        packed = (pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL), None, ())
+    if put_when_room(sent, packed, stop):
         return True
     sent.cancel_join_thread()
     return False

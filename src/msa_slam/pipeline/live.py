@@ -49,7 +49,6 @@ from msa_slam.pipeline.forked_ahead import spawned_ahead
 from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, check_window, config_as_run, deskew_record, source_warnings
 from msa_slam.pipeline.read_ahead import DEPTH, ahead
 from msa_slam.progress import LogProgress, Progress, progress_bar
-from msa_slam.sim.config import PARALLEL_MIN_FRAMES
 from msa_slam.slam import BACKEND_STEPS, RunResult, SlamBackend
 from msa_slam.sources import open_source
 from msa_slam.types import FrameSource
@@ -255,7 +254,10 @@ def arriving(source: FrameSource, n: int) -> Generator[Frame, None, None]:
     not have children (a Dask worker). Close it when done: the maker stops."""
     if not source.live:
         yield from islice(source.frames(), n)
-    elif source.producer is not None and n >= PARALLEL_MIN_FRAMES and not multiprocessing.current_process().daemon:
+        return
+    from msa_slam.sim.config import PARALLEL_MIN_FRAMES  # here: the simulator (trimesh) is slow to import
+
+    if source.producer is not None and n >= PARALLEL_MIN_FRAMES and not multiprocessing.current_process().daemon:
         yield from islice(spawned_ahead(source.producer, DEPTH, SENSOR_NICENESS), n)
     else:
         yield from islice(ahead(source.frames()), n)
