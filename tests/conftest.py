@@ -3,6 +3,7 @@ pytest-xdist, the kernels compiled once and the heaviest files first."""
 
 from __future__ import annotations
 
+import gc
 import shutil
 from pathlib import Path
 
@@ -48,6 +49,7 @@ HEAVIEST_FIRST = (
     "test_packaging.py",
 )
 KERNELS = pytest.StashKey["KernelCompilation"]()
+FROZEN_FILE = pytest.StashKey[Path]()
 
 
 @pytest.hookimpl(trylast=True)  # after the terminal reporter is set up
@@ -79,6 +81,24 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     if hasattr(config, "workerinput"):
         rank = {name: position for position, name in enumerate(HEAVIEST_FIRST)}
         items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # a stable sort
+
+
+@pytest.hookimpl(tryfirst=True)  # before the file's fixtures are set up
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """At each test file's first test: collect the garbage, then freeze what is left (gc.freeze), after unfreezing
+    the previous file's objects, so that nothing a file freed outlives it.
+
+    Why: msa-slam collects the garbage in full at each back end's start and end (evaluation/resources.py's
+    settle_heap, so that an RSS reading is not lowered later by memory freed before it), several times per run
+    (a threshold sweep replays the back end four times). In a pytest process, which holds the suite's imports, its
+    collected tests and the session's fixtures (about 300,000 objects), each such collection cost about a tenth of a
+    second of CPU, most of it going through objects no run made; frozen, they are skipped, and what a run or a test
+    leaves as garbage is collected as before."""
+    if item.config.stash.get(FROZEN_FILE, None) != item.path:
+        item.config.stash[FROZEN_FILE] = item.path
+        gc.unfreeze()
+        gc.collect()
+        gc.freeze()
 
 
 def shared_path(*parts: str) -> Path:
