@@ -85,18 +85,19 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 @pytest.hookimpl(tryfirst=True)  # before the file's fixtures are set up
 def pytest_runtest_setup(item: pytest.Item) -> None:
-    """At each test file's first test: collect the garbage, then freeze what is left (gc.freeze), after unfreezing
-    the previous file's objects, so that nothing a file freed outlives it.
+    """At each test file's first test: collect the garbage, then freeze what is left (gc.freeze).
 
     Why: msa-slam collects the garbage in full at each back end's start and end (evaluation/resources.py's
     settle_heap, so that an RSS reading is not lowered later by memory freed before it), several times per run
     (a threshold sweep replays the back end four times). In a pytest process, which holds the suite's imports, its
     collected tests and the session's fixtures (about 300,000 objects), each such collection cost about a tenth of a
     second of CPU, most of it going through objects no run made; frozen, they are skipped, and what a run or a test
-    leaves as garbage is collected as before."""
+    leaves as garbage is collected as before. What a file freed is collected before the next file's freeze (a
+    file's module fixtures are torn down by then), so that collection too goes only through what the file made;
+    an object frozen while in use and freed in a later file stays until the session ends (or until msa-slam's
+    forked workers unfreeze every object, workers.py)."""
     if item.config.stash.get(FROZEN_FILE, None) != item.path:
         item.config.stash[FROZEN_FILE] = item.path
-        gc.unfreeze()
         gc.collect()
         gc.freeze()
 
