@@ -19,34 +19,41 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DIR = REPO_ROOT.parent / "shared"
 
 
-# Test files by their CPU, heaviest first (docs/performance.md, "The test suite"); the others, a few seconds or
-# less each, follow in collection order. `make test` hands whole files to pytest-xdist's workers in this order
+# Test files of 6 s of CPU or more, heaviest first (docs/performance.md, "The test suite", 2026-12-05); the others,
+# under 6 s each, follow in collection order. `make test` hands whole files to pytest-xdist's workers in this order
 # (`--dist loadfile --no-loadscope-reorder`; xdist's own order puts the files with the most tests first, which left
 # heavy files of few tests for the end, where one worker finished one while the other waited).
 HEAVIEST_FIRST = (
     "test_msa_parity.py",
     "test_pipeline.py",
-    "test_never_worse.py",
-    "test_local_map_loops.py",
     "test_compare_workers.py",
-    "test_compare_resume.py",
-    "test_no_ground_truth.py",
-    "test_msa_canonical.py",
-    "test_messages_real.py",
-    "test_faults.py",
-    "test_trust_writers.py",
-    "test_golden_outputs.py",
-    "test_experiment_sharing.py",
-    "test_trust_cache_identity.py",
+    "test_local_map_loops.py",
+    "test_sim.py",
     "test_experiments.py",
-    "test_compare_params.py",
+    "test_trust_cache_identity.py",
+    "test_memory_accounting.py",
+    "test_live_odometry_cache.py",
+    "test_online.py",
+    "test_sim_world.py",
+    "test_never_worse.py",
+    "test_messages_real.py",
+    "test_single_open.py",
+    "test_experiment_sharing.py",
+    "test_cli_run.py",
+    "test_reproduce.py",
+    "test_no_ground_truth.py",
+    "test_read_ahead.py",
     "test_report_any_folder.py",
-    "test_grid_checks.py",
-    "test_trust_inputs.py",
-    "test_trust_disk_full.py",
-    "test_cli_main.py",
-    "test_viewer.py",  # not measured: an online run recorded for the viewer, and a wheel built by pip
-    "test_packaging.py",
+    "test_msa_canonical.py",
+    "test_deskew_sim.py",
+    "test_cache.py",
+    "test_golden_outputs.py",
+    "test_outputs_files.py",
+    "test_overlap_transformer.py",
+    "test_loop_accounting.py",
+    "test_faults.py",
+    "test_viewer.py",  # under 6 s of CPU, more in wall time: an online run recorded for the viewer
+    "test_packaging.py",  # a wheel built by pip
 )
 KERNELS = pytest.StashKey["KernelCompilation"]()
 FROZEN_FILE = pytest.StashKey[Path]()
