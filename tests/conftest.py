@@ -3,6 +3,7 @@ pytest-xdist, the kernels compiled once and the heaviest files first."""
 
 from __future__ import annotations
 
+import gc
 import shutil
 from pathlib import Path
 
@@ -18,36 +19,44 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DIR = REPO_ROOT.parent / "shared"
 
 
-# Test files by their CPU, heaviest first (docs/performance.md, "The test suite"); the others, a few seconds or
-# less each, follow in collection order. `make test` hands whole files to pytest-xdist's workers in this order
+# Test files of 6 s of CPU or more, heaviest first (docs/performance.md, "The test suite", 2026-12-05); the others,
+# under 6 s each, follow in collection order. `make test` hands whole files to pytest-xdist's workers in this order
 # (`--dist loadfile --no-loadscope-reorder`; xdist's own order puts the files with the most tests first, which left
 # heavy files of few tests for the end, where one worker finished one while the other waited).
 HEAVIEST_FIRST = (
     "test_msa_parity.py",
     "test_pipeline.py",
-    "test_never_worse.py",
-    "test_local_map_loops.py",
     "test_compare_workers.py",
-    "test_compare_resume.py",
-    "test_no_ground_truth.py",
-    "test_msa_canonical.py",
-    "test_messages_real.py",
-    "test_faults.py",
-    "test_trust_writers.py",
-    "test_golden_outputs.py",
-    "test_experiment_sharing.py",
-    "test_trust_cache_identity.py",
+    "test_local_map_loops.py",
+    "test_sim.py",
     "test_experiments.py",
-    "test_compare_params.py",
+    "test_trust_cache_identity.py",
+    "test_memory_accounting.py",
+    "test_live_odometry_cache.py",
+    "test_online.py",
+    "test_sim_world.py",
+    "test_never_worse.py",
+    "test_messages_real.py",
+    "test_single_open.py",
+    "test_experiment_sharing.py",
+    "test_cli_run.py",
+    "test_reproduce.py",
+    "test_no_ground_truth.py",
+    "test_read_ahead.py",
     "test_report_any_folder.py",
-    "test_grid_checks.py",
-    "test_trust_inputs.py",
-    "test_trust_disk_full.py",
-    "test_cli_main.py",
-    "test_viewer.py",  # not measured: an online run recorded for the viewer, and a wheel built by pip
-    "test_packaging.py",
+    "test_msa_canonical.py",
+    "test_deskew_sim.py",
+    "test_cache.py",
+    "test_golden_outputs.py",
+    "test_outputs_files.py",
+    "test_overlap_transformer.py",
+    "test_loop_accounting.py",
+    "test_faults.py",
+    "test_viewer.py",  # under 6 s of CPU, more in wall time: an online run recorded for the viewer
+    "test_packaging.py",  # a wheel built by pip
 )
 KERNELS = pytest.StashKey["KernelCompilation"]()
+FROZEN_FILE = pytest.StashKey[Path]()
 
 
 @pytest.hookimpl(trylast=True)  # after the terminal reporter is set up
@@ -79,6 +88,25 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     if hasattr(config, "workerinput"):
         rank = {name: position for position, name in enumerate(HEAVIEST_FIRST)}
         items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # a stable sort
+
+
+@pytest.hookimpl(tryfirst=True)  # before the file's fixtures are set up
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """At each test file's first test: collect the garbage, then freeze what is left (gc.freeze).
+
+    Why: msa-slam collects the garbage in full at each back end's start and end (evaluation/resources.py's
+    settle_heap, so that an RSS reading is not lowered later by memory freed before it), several times per run
+    (a threshold sweep replays the back end four times). In a pytest process, which holds the suite's imports, its
+    collected tests and the session's fixtures (about 300,000 objects), each such collection cost about a tenth of a
+    second of CPU, most of it going through objects no run made; frozen, they are skipped, and what a run or a test
+    leaves as garbage is collected as before. What a file freed is collected before the next file's freeze (a
+    file's module fixtures are torn down by then), so that collection too goes only through what the file made;
+    an object frozen while in use and freed in a later file stays until the session ends (or until msa-slam's
+    forked workers unfreeze every object, workers.py)."""
+    if item.config.stash.get(FROZEN_FILE, None) != item.path:
+        item.config.stash[FROZEN_FILE] = item.path
+        gc.collect()
+        gc.freeze()
 
 
 def shared_path(*parts: str) -> Path:

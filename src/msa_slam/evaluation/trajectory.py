@@ -15,8 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from evo.core import filters, geometry, metrics
+from evo.core.lie_algebra import LieAlgebraException
 from evo.core.trajectory import PosePath3D
 from evo.core.units import Unit
+from scipy.spatial.transform import Rotation
 
 from msa_slam.errors import InputError
 from msa_slam.types import validate_poses
@@ -57,12 +59,36 @@ def _paths(estimate: np.ndarray, reference: np.ndarray, minimum: int) -> tuple[P
 
 
 def _errors(ref: PosePath3D, est: PosePath3D, metric_type: type, **kwargs) -> tuple[np.ndarray, np.ndarray]:
-    results = []
-    for relation in (metrics.PoseRelation.translation_part, metrics.PoseRelation.rotation_angle_deg):
-        metric = metric_type(relation, **kwargs)
-        metric.process_data((ref, est))
-        results.append(np.asarray(metric.error, dtype=np.float64))
-    return results[0], results[1]
+    """(translation errors in metres, rotation-angle errors in degrees): evo's translation metric, and the rotation
+    angles of the same error poses (an RPE's pairs, an APE's est^-1 ref) computed for the whole stack at once, as
+    evo's rotation_angle_deg does one pose at a time (those calls were about a sixth of a comparison's time). The
+    angles agree with evo's to rounding (1e-13 relative at most; the translations are evo's own)."""
+    metric = metric_type(metrics.PoseRelation.translation_part, **kwargs)
+    metric.process_data((ref, est))
+    if metric_type is metrics.APE:  # its translation part compares positions only: the rotations' errors here
+        rotations = np.einsum("nji,njk->nik", _rotations(est), _rotations(ref))
+    else:
+        rotations = np.asarray(metric.E, dtype=np.float64).reshape(-1, 4, 4)[:, :3, :3]
+    return np.asarray(metric.error, dtype=np.float64), _rotation_angles_deg(rotations)
+
+
+def _rotations(path: PosePath3D) -> np.ndarray:
+    return np.asarray(path.poses_se3, dtype=np.float64).reshape(-1, 4, 4)[:, :3, :3]
+
+
+def _rotation_angles_deg(rotations: np.ndarray) -> np.ndarray:
+    """The rotation angle, degrees, of each (3, 3) matrix of an (N, 3, 3) stack: evo's so3_log_angle (the same
+    check that each is a rotation, then the norm of scipy's rotation vector), for all of them in one call."""
+    identity = np.broadcast_to(np.eye(3), rotations.shape)
+    valid = (
+        np.isclose(np.linalg.det(rotations), 1.0, atol=1e-6).all()
+        and np.isclose(np.einsum("nji,njk->nik", rotations, rotations), identity, atol=1e-6).all()
+    )
+    if not valid:
+        raise LieAlgebraException("matrix is not a valid SO(3) group element")
+    if not len(rotations):
+        return np.zeros(0)
+    return np.abs(np.rad2deg(np.linalg.norm(Rotation.from_matrix(rotations).as_rotvec(), axis=1)))
 
 
 def _summary(trans: np.ndarray, rot: np.ndarray) -> TrajectoryError:
