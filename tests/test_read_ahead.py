@@ -27,7 +27,6 @@ from msa_slam.odometry import OdometryCache, sequence_odometry
 from msa_slam.odometry.choice import make_odometry
 from msa_slam.pipeline import LiveFrontEnd, make_config, prepare_frontend, run
 from msa_slam.pipeline.config import make_online_config
-from msa_slam.pipeline.live import SENSOR_NICENESS
 from msa_slam.pipeline.read_ahead import DEPTH, ReadAhead
 from msa_slam.registration import downsample
 from msa_slam.sim import config as sim_config
@@ -252,28 +251,25 @@ def test_reader_stops_when_the_consumer_stops(forkable, stop):
 
 
 def _logged(producer, log: Path):
-    """`producer`'s frames, each logged to `log` with the process that made it and its niceness (pickled to a
-    spawned process)."""
+    """`producer`'s frames, each logged to `log` with the process that made it (pickled to a spawned process)."""
     for frame in producer():
         with log.open("a") as f:
-            f.write(f"{os.getpid()} {os.nice(0)}\n")
+            f.write(f"{os.getpid()}\n")
         yield frame
 
 
 def test_a_live_sources_frames_are_simulated_ahead_by_a_process_of_their_own(tmp_path, monkeypatch):
     """A sensor's frames come while the previous ones are processed: a live source's are made by a spawned
-    process (KISS-ICP holds the GIL while it registers, so a thread would simulate little beside it) below the run's
-    priority, no further than a few frames ahead of the run, and the run is the one it is with the frames made in
-    its own process."""
+    process (KISS-ICP holds the GIL while it registers, so a thread would simulate little beside it), no further
+    than a few frames ahead of the run, and the run is the one it is with the frames made in its own process."""
     monkeypatch.setattr(sim_config, "PARALLEL_MIN_FRAMES", 12)  # a run this long is worth a process
     source = open_source("live:figure-eight,stride=4,azimuth_steps=180,realism=clean")
     log = tmp_path / "makers.txt"
     config = make_online_config(dataset=source.name, odometry="gt-noise", sampler="all", max_frames=12)
     spawned = run(config, LiveFrontEnd(replace(source, producer=partial(_logged, source.producer, log))))
-    makers = [tuple(map(int, line.split())) for line in log.read_text().splitlines()]
+    makers = [int(line) for line in log.read_text().split()]
     assert 12 <= len(makers) <= 12 + DEPTH + 1  # the queue's frames and the one waiting to be put
-    assert len(set(makers)) == 1 and makers[0][0] != os.getpid()
-    assert makers[0][1] == min(os.nice(0) + SENSOR_NICENESS, 19)
+    assert len(set(makers)) == 1 and makers[0] != os.getpid()
     here = run(config, LiveFrontEnd(replace(source, live=False)))
     assert len(spawned) == len(here) == 12
     np.testing.assert_array_equal(spawned.odometry, here.odometry)

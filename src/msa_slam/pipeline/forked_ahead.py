@@ -50,11 +50,11 @@ def forked_ahead(items: Iterable[T], depth: int) -> Iterator[T]:
     return _ahead_in(context, partial(iter, items), depth, partial(_slots, context, depth))
 
 
-def spawned_ahead(make_items: Callable[[], Iterable[T]], depth: int, niceness: int = 0) -> Iterator[T]:
-    """As forked_ahead, the items those of `make_items()` called in a spawned process, `niceness` steps below this
-    one's priority: `make_items` must pickle (a module-level function, or a partial of one) and build what it needs
-    itself. Its items come through the pipe whole (a spawned child does not inherit mappings)."""
-    return _ahead_in(multiprocessing.get_context("spawn"), make_items, depth, lambda: None, niceness)
+def spawned_ahead(make_items: Callable[[], Iterable[T]], depth: int) -> Iterator[T]:
+    """As forked_ahead, the items those of `make_items()` called in a spawned process: `make_items` must pickle
+    (a module-level function, or a partial of one) and build what it needs itself. Its items come through the
+    pipe whole (a spawned child does not inherit mappings)."""
+    return _ahead_in(multiprocessing.get_context("spawn"), make_items, depth, lambda: None)
 
 
 class Slots:
@@ -116,19 +116,15 @@ def _ahead_in(
     make_items: Callable[[], Iterable[T]],
     depth: int,
     make_slots: Callable[[], Slots | None],
-    niceness: int = 0,
 ) -> Iterator[T]:
-    """The items of `make_items()`, made by a process `context` starts (at `niceness` below this one's priority),
-    their buffers in the slots `make_slots` maps (none: all through the pipe)."""
+    """The items of `make_items()`, made by a process `context` starts, their buffers in the slots `make_slots`
+    maps (none: all through the pipe)."""
     sent: Any = context.Queue(maxsize=depth)
     stop = context.Event()
     slots = make_slots()
     try:
         reader = context.Process(
-            target=_read,
-            args=(make_items, sent, stop, os.getpid(), slots, niceness),
-            name="msa-slam read-ahead",
-            daemon=True,
+            target=_read, args=(make_items, sent, stop, os.getpid(), slots), name="msa-slam read-ahead", daemon=True
         )
         reader.start()
     except BaseException:
@@ -183,14 +179,10 @@ def _unpacked(packed: tuple[bytes, int | None, tuple[int, ...]], slots: Slots | 
     return pickle.loads(header, buffers=slots.take(slot, sizes))
 
 
-def _read(
-    make_items: Callable[[], Iterable[Any]], sent: Any, stop: Any, parent: int, slots: Slots | None, niceness: int = 0
-) -> None:
+def _read(make_items: Callable[[], Iterable[Any]], sent: Any, stop: Any, parent: int, slots: Slots | None) -> None:
     """The child: send each item, then the end (or the error that stopped it), until the consumer stops."""
     start_worker(parent)
     try:
-        if niceness:
-            os.nice(niceness)
         for item in make_items():
             if not _send(sent, ("item", item), stop, slots):
                 return

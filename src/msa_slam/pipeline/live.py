@@ -58,10 +58,6 @@ from msa_slam.workers import available_cpus
 logger = logging.getLogger(__name__)
 
 STEPS = ("odometry", "descriptor", *BACKEND_STEPS)
-# A sensor's scans cost the pipeline nothing; a live source's are simulated, about 30 ms of CPU a 720-column scan.
-# Below the pipeline's priority the simulating process runs in its gaps (its single-threaded steps) instead of taking
-# a core from KISS-ICP's threads in the middle of a registration, and still keeps ahead (docs/performance.md).
-SENSOR_NICENESS = 5
 MEMORY = (
     "keyframes",
     "cloud_bytes",
@@ -258,7 +254,7 @@ def arriving(source: FrameSource, n: int) -> Generator[Frame, None, None]:
     from msa_slam.sim.config import PARALLEL_MIN_FRAMES  # here: the simulator (trimesh) is slow to import
 
     if source.producer is not None and n >= PARALLEL_MIN_FRAMES and not multiprocessing.current_process().daemon:
-        yield from islice(spawned_ahead(source.producer, DEPTH, SENSOR_NICENESS), n)
+        yield from islice(spawned_ahead(source.producer, DEPTH), n)
     else:
         yield from islice(ahead(source.frames()), n)
 
