@@ -59,7 +59,8 @@ def coarse_guess(
 
 
 def _inliers(tree: small_gicp.KdTree, points: np.ndarray, T: np.ndarray, radius: float) -> int:
-    """Source `points` with a target point within `radius` after moving them by T."""
+    """Source `points` with a target point within `radius` after moving them by T (only the distances are read:
+    a point without a neighbour has the largest double as its squared distance)."""
     moved = points @ T[:3, :3].T + T[:3, 3]
-    idx, sq_dist = tree.batch_nearest_neighbor_search(moved)
-    return int(((np.asarray(idx) >= 0) & (np.asarray(sq_dist) <= radius**2)).sum())
+    _, sq_dist = tree.batch_nearest_neighbor_search(moved)
+    return int((np.fromiter(sq_dist, np.float64, len(moved)) <= radius**2).sum())

@@ -127,10 +127,11 @@ class Verifier:
             )
             T = np.asarray(result.T_target_source, dtype=np.float64)
             converged = bool(result.converged)
-        residual, num_inliers = _point_to_plane_residual(tgt, tree, src, T, cfg.max_correspondence_distance)
+        matches = _Matches(tgt, tree, src, T, cfg.max_correspondence_distance)
+        residual, num_inliers = matches.point_to_plane_residual()
         fraction = num_inliers / src.size()
         target_fraction = _covered_fraction(tgt, src_tree, T, cfg.max_correspondence_distance)
-        structure = _structure_residual(tgt, tree, src, T, cfg.max_correspondence_distance) if strict else float("nan")
+        structure = matches.structure_residual() if strict else float("nan")
         failed = {
             "overlap": min(fraction, target_fraction) < cfg.min_inlier_fraction,
             "inliers": num_inliers < cfg.min_inliers,
@@ -158,52 +159,49 @@ def _covered_fraction(
     """Fraction of target points with an aligned source point within `max_distance` (searched in the source's
     frame: its kd-tree is the prepared cloud's)."""
     inverse = np.linalg.inv(T)
-    idx, sq_dist = source_tree.batch_nearest_neighbor_search(
-        target.points()[:, :3] @ inverse[:3, :3].T + inverse[:3, 3]
-    )
-    near = (np.asarray(idx) >= 0) & (np.asarray(sq_dist) <= max_distance**2)
-    return float(near.mean())
+    moved = target.points()[:, :3] @ inverse[:3, :3].T + inverse[:3, 3]
+    _, sq_dist = source_tree.batch_nearest_neighbor_search(moved)  # no neighbour: the largest double
+    return float((np.fromiter(sq_dist, np.float64, len(moved)) <= max_distance**2).mean())
 
 
-def _point_to_plane_residual(
-    target: small_gicp.PointCloud,
-    tree: small_gicp.KdTree,
-    source: small_gicp.PointCloud,
-    T: np.ndarray,
-    max_distance: float,
-) -> tuple[float, int]:
-    """RMS point-to-plane distance of inlier correspondences (inf when there are none) and their count."""
-    moved = source.points()[:, :3] @ T[:3, :3].T + T[:3, 3]
-    idx, sq_dist = tree.batch_nearest_neighbor_search(moved)
-    idx = np.asarray(idx)
-    inliers = (idx >= 0) & (np.asarray(sq_dist) <= max_distance**2)
-    if not inliers.any():
-        return float("inf"), 0
-    nearest = idx[inliers]
-    normals = target.normals()[nearest, :3]
-    offsets = moved[inliers] - target.points()[nearest, :3]
-    plane = np.einsum("ij,ij->i", normals, offsets)
-    return float(np.sqrt(np.mean(plane**2))), int(inliers.sum())
+class _Matches:
+    """The aligned source points and their nearest target points, searched once for both the residual and the
+    structure check (a point's nearest neighbour does not depend on the other points searched with it)."""
 
+    def __init__(
+        self,
+        target: small_gicp.PointCloud,
+        tree: small_gicp.KdTree,
+        source: small_gicp.PointCloud,
+        T: np.ndarray,
+        max_distance: float,
+    ) -> None:
+        self.target, self.source, self.T = target, source, T
+        self.moved = source.points()[:, :3] @ T[:3, :3].T + T[:3, 3]
+        idx, sq_dist = tree.batch_nearest_neighbor_search(self.moved)
+        self.idx = np.asarray(idx)
+        self.inliers = np.fromiter(sq_dist, np.float64, len(self.moved)) <= max_distance**2  # none: largest double
 
-def _structure_residual(
-    target: small_gicp.PointCloud,
-    tree: small_gicp.KdTree,
-    source: small_gicp.PointCloud,
-    T: np.ndarray,
-    max_distance: float,
-) -> float:
-    """Median point-to-plane distance of the source's inliers on non-horizontal surfaces (inf without any)."""
-    moved = source.points()[:, :3] @ T[:3, :3].T + T[:3, 3]
-    upright = np.abs(source.normals()[:, :3] @ T[2, :3]) < STRUCTURE_MAX_NORMAL_Z
-    idx, sq_dist = tree.batch_nearest_neighbor_search(moved[upright])
-    idx = np.asarray(idx)
-    inliers = (idx >= 0) & (np.asarray(sq_dist) <= max_distance**2)
-    if not inliers.any():
-        return float("inf")
-    nearest = idx[inliers]
-    offsets = moved[upright][inliers] - target.points()[nearest, :3]
-    return float(np.median(np.abs(np.einsum("ij,ij->i", target.normals()[nearest, :3], offsets))))
+    def point_to_plane_residual(self) -> tuple[float, int]:
+        """RMS point-to-plane distance of inlier correspondences (inf when there are none) and their count."""
+        inliers = self.inliers
+        if not inliers.any():
+            return float("inf"), 0
+        nearest = self.idx[inliers]
+        normals = self.target.normals()[nearest, :3]
+        offsets = self.moved[inliers] - self.target.points()[nearest, :3]
+        plane = np.einsum("ij,ij->i", normals, offsets)
+        return float(np.sqrt(np.mean(plane**2))), int(inliers.sum())
+
+    def structure_residual(self) -> float:
+        """Median point-to-plane distance of the source's inliers on non-horizontal surfaces (inf without any)."""
+        upright = np.abs(self.source.normals()[:, :3] @ self.T[2, :3]) < STRUCTURE_MAX_NORMAL_Z
+        inliers = self.inliers[upright]
+        if not inliers.any():
+            return float("inf")
+        nearest = self.idx[upright][inliers]
+        offsets = self.moved[upright][inliers] - self.target.points()[nearest, :3]
+        return float(np.median(np.abs(np.einsum("ij,ij->i", self.target.normals()[nearest, :3], offsets))))
 
 
 def registration_covariance(hessian: np.ndarray, error: float, num_inliers: int) -> np.ndarray:
