@@ -454,3 +454,56 @@ def test_chi2_quantile_is_scipys_to_the_bit(dof):
         assert chi2_quantile(confidence, dof) == float(chi2.ppf(confidence, dof))
     with pytest.raises(InputError, match="0 < confidence < 1"):
         chi2_quantile(1.0, dof)
+
+
+def _brute_force_clique(neighbours: list[set[int]], score: np.ndarray) -> set[int]:
+    """The largest pairwise-connected subset, ties to the lower score sum, then to the lower sorted indices."""
+    from itertools import combinations
+
+    n = len(neighbours)
+    for size in range(n, 0, -1):
+        cliques = [c for c in combinations(range(n), size) if all(b in neighbours[a] for a, b in combinations(c, 2))]
+        if cliques:
+            return set(min(cliques, key=lambda c: (float(score[list(c)].sum()), sorted(c))))
+    return set()
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_exact_clique_is_the_largest_and_most_plausible_set(seed):
+    """On random consistency graphs (ties in size included) the exact search keeps what an exhaustive search
+    over every subset keeps."""
+    from msa_slam.backend.inliers import _maximum_clique
+
+    rng = np.random.default_rng(seed)
+    n = 11
+    edges = np.triu(rng.random((n, n)) < 0.6, 1)
+    neighbours = [set(np.flatnonzero(edges[i] | edges[:, i]).tolist()) for i in range(n)]
+    score = rng.integers(0, 3, n).astype(float)  # integer scores: equal sums happen, so the index rule decides
+    clique, method = _maximum_clique(neighbours, score)
+    assert method == "exact"
+    assert clique == _brute_force_clique(neighbours, score)
+
+
+def test_a_clique_deeper_than_the_recursion_limit_is_found_exactly():
+    """A revisit driven through twice gives hundreds of mutually consistent loops: the search does not recurse
+    once per loop (which stopped a KITTI-00 run at Python's recursion limit), so a clique far deeper than the
+    limit in force is found, and exactly."""
+    import inspect
+    import sys
+
+    from msa_slam.backend.inliers import _maximum_clique
+
+    n = 400
+    neighbours = [set(range(n)) - {i} for i in range(n)]
+    neighbours[7] -= {11}  # one inconsistent pair: a maximum clique leaves one of them out
+    neighbours[11] -= {7}
+    score = np.ones(n)
+    score[11] = 0.5  # loop 11 is the more plausible one
+    limit = sys.getrecursionlimit()
+    sys.setrecursionlimit(len(inspect.stack()) + 100)
+    try:
+        clique, method = _maximum_clique(neighbours, score)
+    finally:
+        sys.setrecursionlimit(limit)
+    assert method == "exact"
+    assert clique == set(range(n)) - {7}

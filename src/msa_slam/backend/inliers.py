@@ -10,7 +10,7 @@ the two short paths i -> k and j -> l allow (chi-square test, 6 degrees of freed
 revisit agree however far the robot drifted in between; a wrong loop disagrees with them by its error.
 
 The kept set is the largest set of pairwise consistent loops (a maximum clique of the consistency graph):
-exact (Bron-Kerbosch with Tomita's pivot) while the search stays within MAX_CLIQUE_CALLS recursive calls,
+exact (Bron-Kerbosch with Tomita's pivot) while the search stays within MAX_CLIQUE_CALLS calls,
 else greedy (the loop with most consistent partners first, then the one consistent with all chosen so far
 that has most partners). Among maximum sets of equal size the one whose loops odometry finds most plausible
 (smallest sum of single-loop chi-square values) is kept, so a single loop inconsistent with every other is
@@ -145,32 +145,50 @@ def _better(candidate: set[int], best: set[int], score: np.ndarray) -> bool:
     return a < b or a == b and sorted(candidate) < sorted(best)
 
 
+class _SearchBudgetSpent(Exception):
+    """The exact search used MAX_CLIQUE_CALLS calls: the greedy set is kept instead."""
+
+
 def _maximum_clique(neighbours: list[set[int]], score: np.ndarray) -> tuple[set[int], str]:
+    """Bron-Kerbosch with Tomita's pivot on an explicit stack, not by recursion: a maximum clique is as deep as it
+    is large, and a revisit driven through twice can give a thousand consistent loops, beyond Python's recursion
+    limit. The frames are visited in the recursive order, so the clique found is the same."""
     best: set[int] = set()
     calls = 0
 
-    def expand(clique: set[int], candidates: set[int], excluded: set[int]) -> bool:
+    def enter(clique: set[int], candidates: set[int], excluded: set[int]) -> list | None:
+        """A call of the recursive search: a frame to branch from, or None when it ends here."""
         nonlocal best, calls
         calls += 1
         if calls > MAX_CLIQUE_CALLS:
-            return False
+            raise _SearchBudgetSpent
         if not candidates and not excluded:
             if _better(clique, best, score):
                 best = set(clique)
-            return True
+            return None
         if len(clique) + len(candidates) < len(best):  # cannot beat the best found
-            return True
+            return None
         pivot = max(candidates | excluded, key=lambda u: len(neighbours[u] & candidates))
-        for v in sorted(candidates - neighbours[pivot]):
-            if not expand(clique | {v}, candidates & neighbours[v], excluded & neighbours[v]):
-                return False
-            candidates = candidates - {v}
-            excluded = excluded | {v}
-        return True
+        return [clique, candidates, excluded, sorted(candidates - neighbours[pivot]), 0]
 
-    if expand(set(), set(range(len(neighbours))), set()):
-        return best, "exact"
-    return _greedy_clique(neighbours, score), "greedy"
+    try:
+        root = enter(set(), set(range(len(neighbours))), set())
+        stack = [] if root is None else [root]
+        while stack:
+            frame = stack[-1]
+            clique, candidates, excluded, branches, done = frame
+            if done == len(branches):
+                stack.pop()
+                continue
+            v = branches[done]
+            child = enter(clique | {v}, candidates & neighbours[v], excluded & neighbours[v])
+            # the later branches of this frame see v as excluded (the recursive search's loop update)
+            frame[1], frame[2], frame[4] = candidates - {v}, excluded | {v}, done + 1
+            if child is not None:
+                stack.append(child)
+    except _SearchBudgetSpent:
+        return _greedy_clique(neighbours, score), "greedy"
+    return best, "exact"
 
 
 def _greedy_clique(neighbours: list[set[int]], score: np.ndarray) -> set[int]:
