@@ -14,7 +14,7 @@ import numpy as np
 import small_gicp
 
 from msa_slam.registration.prepared import PreparedCloud
-from msa_slam.registration.verify import VerifierConfig
+from msa_slam.registration.verify import VerifierConfig, nearest_within
 
 OFFSETS_M = (-6.0, -3.0, 0.0, 3.0, 6.0)  # grid in x and y: 25 starts, 1.5 m from any offset within +-7.5 m
 SCORE_RADIUS_M = 1.5  # half the grid step: every offset within the grid scores on some start
@@ -59,8 +59,5 @@ def coarse_guess(
 
 
 def _inliers(tree: small_gicp.KdTree, points: np.ndarray, T: np.ndarray, radius: float) -> int:
-    """Source `points` with a target point within `radius` after moving them by T (only the distances are read:
-    a point without a neighbour has the largest double as its squared distance)."""
-    moved = points @ T[:3, :3].T + T[:3, 3]
-    _, sq_dist = tree.batch_nearest_neighbor_search(moved)
-    return int((np.fromiter(sq_dist, np.float64, len(moved)) <= radius**2).sum())
+    """Source `points` with a target point within `radius` after moving them by T."""
+    return int(nearest_within(tree, points, T, radius)[2].sum())

@@ -158,10 +158,19 @@ def _covered_fraction(
 ) -> float:
     """Fraction of target points with an aligned source point within `max_distance` (searched in the source's
     frame: its kd-tree is the prepared cloud's)."""
-    inverse = np.linalg.inv(T)
-    moved = target.points()[:, :3] @ inverse[:3, :3].T + inverse[:3, 3]
-    _, sq_dist = source_tree.batch_nearest_neighbor_search(moved)  # no neighbour: the largest double
-    return float((np.fromiter(sq_dist, np.float64, len(moved)) <= max_distance**2).mean())
+    _, _, near = nearest_within(source_tree, target.points()[:, :3], np.linalg.inv(T), max_distance)
+    return float(near.mean())
+
+
+def nearest_within(
+    tree: small_gicp.KdTree, points: np.ndarray, T: np.ndarray, radius: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`points` moved by T, the index of each one's nearest point in `tree`, and whether that point is within
+    `radius`. Only the distances decide: a point without a neighbour has the largest double as its distance (and
+    an index that is no point's)."""
+    moved = points @ T[:3, :3].T + T[:3, 3]
+    idx, sq_dist = tree.batch_nearest_neighbor_search(moved)
+    return moved, np.asarray(idx), np.fromiter(sq_dist, np.float64, len(moved)) <= radius**2
 
 
 class _Matches:
@@ -177,10 +186,7 @@ class _Matches:
         max_distance: float,
     ) -> None:
         self.target, self.source, self.T = target, source, T
-        self.moved = source.points()[:, :3] @ T[:3, :3].T + T[:3, 3]
-        idx, sq_dist = tree.batch_nearest_neighbor_search(self.moved)
-        self.idx = np.asarray(idx)
-        self.inliers = np.fromiter(sq_dist, np.float64, len(self.moved)) <= max_distance**2  # none: largest double
+        self.moved, self.idx, self.inliers = nearest_within(tree, source.points()[:, :3], T, max_distance)
 
     def point_to_plane_residual(self) -> tuple[float, int]:
         """RMS point-to-plane distance of inlier correspondences (inf when there are none) and their count."""
