@@ -6,8 +6,8 @@ their parent.
 Three methods on the simulated test sequence with drifted odometry from a pose file and loose loop gates (as
 test_pipeline, but a similarity threshold of 0.6 instead of 0.4: at 0.4 the threshold sweep's replays at 0.3 and
 0.35 verify six times as many loop candidates, and each comparison costs four times as much, for nothing this file
-checks) in realistic mode, so that loops are verified with small_gicp: with two workers one of them runs two
-methods, so a worker's first and a later method are both compared.
+checks) in realistic mode with the paper's loop protocol, so that loops are verified with small_gicp: with two
+workers one of them runs two methods, so a worker's first and a later method are both compared.
 """
 
 from __future__ import annotations
@@ -44,6 +44,7 @@ def base(sequence, odometry_file, cache_dir):
         odometry=str(odometry_file),
         cache_dir=str(cache_dir),
         mode="realistic",
+        loop_protocol="paper",  # the threshold's protocol, whose sweep the msa run writes
         **{**PERMISSIVE, "similarity_threshold": SIMILARITY},
     )
 

@@ -80,6 +80,7 @@ def test_auto_protocol_follows_the_mode():
     oracle, realistic = (make_config(dataset="x", mode=mode, loop_protocol="auto") for mode in ("oracle", "realistic"))
     assert (protocol(oracle), acceptance(oracle)) == ("paper", (0.8, 1))
     assert (protocol(realistic), acceptance(realistic)) == ("verified", (0.3, 3))
-    assert protocol(make_config(dataset="x", mode="realistic")) == "paper"  # the default: verified is opt-in
+    default = make_config(dataset="x", mode="realistic")
+    assert (default.loop_protocol, protocol(default)) == ("auto", "verified")
     forced = make_config(dataset="x", mode="realistic", loop_protocol="paper", top_k=2)
     assert acceptance(forced) == (0.8, 2)

@@ -282,7 +282,9 @@ def test_apply_params_routes_keys():
     assert cfg.similarity_threshold == 0.7 and cfg.odometry_params == {"max_range": 80}
 
 
-def test_unregistrable_candidate_is_rejected_not_fatal():
+# either protocol (the verified one's drift pre-filter off: no odometry is given here)
+@pytest.mark.parametrize("protocol", [{"loop_protocol": "paper"}, {"loop_protocol": "verified", "drift_check": "off"}])
+def test_unregistrable_candidate_is_rejected_not_fatal(protocol):
     from msa_slam.descriptors import ScanContext
     from msa_slam.registration import KeyframeCloudStore, Verifier
     from msa_slam.slam import KeyframeStore, LoopCloser, LoopClosure
@@ -292,10 +294,10 @@ def test_unregistrable_candidate_is_rejected_not_fatal():
     for k, points in enumerate((rng.uniform(-20, 20, (5000, 3)), rng.uniform(-1, 1, (4, 3)))):  # 4: too sparse
         store.add_cloud(k, points)
         store.add(k, np.eye(4), np.zeros((20, 60)))
-    out = LoopCloser(store, Verifier(), make_config(dataset="x", mode="realistic")).verify(
+    out = LoopCloser(store, Verifier(), make_config(dataset="x", mode="realistic", **protocol)).verify(
         [LoopClosure(1, 0, 0.9, 1.0)]
     )
-    assert out[0].verified and not out[0].accepted and out[0].residual == float("inf")
+    assert out[0].verified and not out[0].accepted and out[0].residual == float("inf") and out[0].rejected == "sparse"
 
 
 def _posed_sequence(folder: Path, sequence: Path, gt: np.ndarray, odometry: np.ndarray) -> tuple[Path, Path]:

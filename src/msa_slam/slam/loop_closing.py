@@ -14,7 +14,7 @@ the loop's own covariance and a slack (`drift_slack_m`,
 `drift_slack_deg`: the correction allowed in one direction with no path at all): a chi-square test at
 `drift_confidence`, 6 degrees of freedom.
 
-What finds the candidates (`loop_detector`) and how they are accepted (`loop_protocol`: "paper" by default;
+What finds the candidates (`loop_detector`) and how they are accepted (`loop_protocol`, by default
 "auto": paper in oracle mode, verified in realistic mode): the paper takes matches at or above `similarity_threshold` (best `top_k`) and
 registers from the descriptor's yaw; "verified" takes the best `verified_top_k` above the floor
 `verified_min_similarity` (0.3: below it Scan Context matches are noise even for local maps, and three
