@@ -41,14 +41,19 @@ def _result_metrics(value):
     return value
 
 
-def _cold_run(root: Path, name: str) -> tuple[Path, Path]:
-    """`msa-slam run` in a fresh process with its own empty cache (simulation, odometry, descriptors)."""
+def _cold_run(root: Path, name: str, options: list[str]) -> tuple[Path, Path]:
+    """`msa-slam run` with `options` in a fresh process with its own empty cache (simulation, odometry,
+    descriptors)."""
     cache, out = root / f"cache-{name}", root / f"out-{name}"
     code = "import sys; from msa_slam.cli import main; sys.argv = ['msa-slam', *sys.argv[1:]]; main()"
     # The cache root comes from the environment: --cache-dir would be recorded in config.yaml.
     env = {**os.environ, "MSA_SLAM_CACHE": str(cache)}
     done = subprocess.run(
-        [sys.executable, "-c", code, *RUN, "--out", str(out)], env=env, capture_output=True, text=True, timeout=600
+        [sys.executable, "-c", code, *RUN, *options, "--out", str(out)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
     assert done.returncode == 0, done.stderr
     return out, cache
@@ -60,12 +65,14 @@ def _cached(cache: Path, kind: str) -> np.ndarray:
     return np.load(files[0])
 
 
-# Slow (two cold `run`s of sim:test in fresh processes, about 50 s of CPU; `make test-slow`; CI runs it): the default
+# Slow (two cold `run`s of sim:test in fresh processes, about 50 s of CPU, in each mode: oracle, the default, and
+# realistic, whose loops the verified protocol accepts by registration; `make test-slow`; CI runs it): the default
 # suite compares the bytes of a serial and a two-worker comparison (test_compare_workers.py) and of simulations
 # written by one process and by a pool (test_sim.py), and pins run's results (test_golden_outputs.py).
 @pytest.mark.slow
-def test_two_cold_runs_are_bitwise_identical(tmp_path):
-    (a, cache_a), (b, cache_b) = _cold_run(tmp_path, "a"), _cold_run(tmp_path, "b")
+@pytest.mark.parametrize("options", [[], ["--mode", "realistic"]], ids=["oracle", "realistic"])
+def test_two_cold_runs_are_bitwise_identical(tmp_path, options):
+    (a, cache_a), (b, cache_b) = _cold_run(tmp_path, "a", options), _cold_run(tmp_path, "b", options)
     files = [
         "config.yaml",
         "frames.csv",
