@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -19,6 +19,7 @@ from msa_slam.types import validate_poses
 
 ODOMETRY_LIBRARIES = ("kiss-icp", "numpy", "scipy", "gtsam")  # scipy, gtsam: the deskew's SE(3) (odometry.deskew)
 ODOMETRY_CODE = ("msa_slam.odometry", "msa_slam.datasets")  # the odometries and the scan readers: the cache key
+PoseHook = Callable[[int, np.ndarray], None]  # called with each frame's index and pose as it is computed
 
 
 class Odometry(Protocol):
@@ -115,6 +116,7 @@ def sequence_odometry(
     extra_inputs: Iterable[str | os.PathLike] = (),
     frames: Iterable[Frame] | None = None,
     label: str = "odometry",
+    on_pose: PoseHook | None = None,
 ) -> Computed:
     """(N, 4, 4) odometry poses of every frame of `sequence`, whether they came from `cache` (which then
     also restores the odometry's `unregistered_frames`, so a cached run reports them as a fresh one does) and
@@ -125,7 +127,8 @@ def sequence_odometry(
     when they have no per-point times: odometry.choice.make_odometry); scans without timestamps give the
     odometry no scan times (see KissOdometry.register). `frames`: the sequence's frames in order when a reader
     process or thread reads them ahead (pipeline.read_ahead; iterated only when the poses are computed), else they are read
-    here one by one; `label`: the progress bar's.
+    here one by one; `label`: the progress bar's; `on_pose(i, pose)` is called as each pose is computed (not for
+    poses replayed from the cache).
     """
     key = None
     if cache is not None:
@@ -136,7 +139,13 @@ def sequence_odometry(
                 odometry.unregistered_frames = entry[1]
             return Computed(entry[0], True, entry[2])
     poses, ms = register_frames(
-        odometry, iter(sequence) if frames is None else frames, len(sequence), sequence.times_known, quiet, label
+        odometry,
+        iter(sequence) if frames is None else frames,
+        len(sequence),
+        sequence.times_known,
+        quiet,
+        label,
+        on_pose,
     )
     if cache is not None and key is not None:
         cache.save(key, poses, getattr(odometry, "unregistered_frames", ()), ms)
@@ -144,11 +153,17 @@ def sequence_odometry(
 
 
 def register_frames(
-    odometry: Odometry, frames: Iterable[Frame], n: int, times_known: bool, quiet: bool, label: str
+    odometry: Odometry,
+    frames: Iterable[Frame],
+    n: int,
+    times_known: bool,
+    quiet: bool,
+    label: str,
+    on_pose: PoseHook | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(poses, ms registering each took) of the `n` `frames`, iterated to their end (a read-ahead knows it read
     every scan only there: pipeline.read_ahead); without timestamps (`times_known` False) the odometry is given
-    no scan times (see KissOdometry.register)."""
+    no scan times (see KissOdometry.register); `on_pose(i, pose)` after each frame's registration."""
     poses, ms = np.empty((n, 4, 4)), np.empty(n)
     with progress_bar(quiet) as progress:
         task = progress.add_task(label, total=n)
@@ -158,5 +173,7 @@ def register_frames(
             start = time.perf_counter()  # per-point and scan times: used by KISS-ICP only with deskew on
             poses[i] = odometry.register(frame.points, frame.timestamps, frame.time if times_known else None)
             ms[i] = (time.perf_counter() - start) * 1e3
+            if on_pose is not None:
+                on_pose(i, poses[i])
             progress.advance(task)
     return poses, ms

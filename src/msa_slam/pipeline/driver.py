@@ -4,7 +4,8 @@ Both protocols drive the same SLAM core (msa_slam.slam) in the same steps; what 
 from and what the run records around the core, which a front end (FrontEnd) provides:
 - the cached batch front end (pipeline.frontend.CachedFrontEnd, the paper's Table I protocol): odometry,
   descriptors and downsampled clouds of every frame computed once and cached, streamed through the back end,
-  optimised with Levenberg-Marquardt at the end;
+  optimised with Levenberg-Marquardt at the end; while they are computed when that can be
+  (pipeline.streamed.StreamedFrontEnd: the back end beside the odometry, the same values in the same order);
 - the live front end (pipeline.live.LiveFrontEnd, section V-B): frames one by one, odometry and descriptor as
   each arrives, iSAM2 updated as keyframes are finalised, a per-frame memory record.
 The config decides the rest: an OnlineConfig runs iSAM2 with its cloud store and the memory recorder, a RunConfig
@@ -28,10 +29,11 @@ from msa_slam.descriptors import Descriptor
 from msa_slam.errors import InputError
 from msa_slam.evaluation.metrics import ProtocolRecord
 from msa_slam.pipeline.config import OnlineConfig, RunConfig
-from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, Sweep, prepare_frontend
+from msa_slam.pipeline.frontend import CONFIG_WINDOW_FIX, Sweep
 from msa_slam.pipeline.live import LiveFrontEnd, MemoryRecorder
+from msa_slam.pipeline.streamed import open_frontend
 from msa_slam.registration import make_cloud_store
-from msa_slam.registration.cloud_cache import FrameClouds
+from msa_slam.registration.cloud_cache import CloudsByFrame
 from msa_slam.sampling.msa.warm import load_kernels
 from msa_slam.slam import (
     RunResult,
@@ -63,7 +65,7 @@ class FrontEnd(Protocol):
         """Get ready to feed a run of `config`, refusing what cannot run; `config` as it runs (what config.yaml
         records)."""
 
-    def clouds_for(self, config: RunConfig) -> FrameClouds | None:
+    def clouds_for(self, config: RunConfig) -> CloudsByFrame | None:
         """Every frame's cloud downsampled as `config` stores keyframes, when the front end has them."""
 
     def stream(self, backend: SlamBackend, quiet: bool) -> RunResult:
@@ -74,6 +76,9 @@ class FrontEnd(Protocol):
     ) -> tuple[RunResult, ProtocolRecord]:
         """`result` completed with what the protocol adds to it, and the protocol's part of the run's report (timing,
         warnings, throughput, the sweep)."""
+
+    def close(self) -> None:
+        """Stop what the front end still runs (a run that ended early); safe to call twice."""
 
 
 def run(
@@ -90,7 +95,7 @@ def run(
 
     `sweep` (batch runs only) replays the back end at other similarity thresholds; without it the report gives
     `sweep_off` as the reason. A cached front end built here first refuses a sampler window the frames read never
-    fill (prepare_frontend; `window_fix`: what the error says to change)."""
+    fill (streamed.open_frontend; `window_fix`: what the error says to change)."""
     online = isinstance(config, OnlineConfig)
     front: FrontEnd
     if source is not None:
@@ -98,19 +103,22 @@ def run(
     elif online:
         front = LiveFrontEnd(open_source(config.dataset, config.dataset_kind, config.cache_dir, progress=not quiet))
     else:
-        front = prepare_frontend(config, quiet, window_fix=window_fix)
+        front = open_frontend(config, quiet, window_fix=window_fix)
     if online != isinstance(front, LiveFrontEnd):
         raise InputError(
             f"run: {type(config).__name__} {config.name!r} cannot run on a {type(front).__name__}: "
             "an OnlineConfig runs on the live front end, a RunConfig on the cached one"
         )
-    started = front.start(config)
-    load_kernels(started.sampler, started.sampler_params, front.descriptor_shape)  # not in the back end's timings
-    with threadpool_limits(limits=1, user_api="blas"):
-        backend, clouds = _backend(started, front)
-        result = front.stream(backend, quiet)
-        result, record = front.record(result, clouds, sweep, sweep_off)
-        return replace(result, metrics=measure(result, record))
+    try:
+        started = front.start(config)
+        load_kernels(started.sampler, started.sampler_params, front.descriptor_shape)  # not in the back end's timings
+        with threadpool_limits(limits=1, user_api="blas"):
+            backend, clouds = _backend(started, front)
+            result = front.stream(backend, quiet)
+            result, record = front.record(result, clouds, sweep, sweep_off)
+            return replace(result, metrics=measure(result, record))
+    finally:
+        front.close()
 
 
 def _backend(config: RunConfig, source: FrontEnd) -> tuple[SlamBackend, Any]:

@@ -25,10 +25,10 @@ import os
 import pickle
 import queue
 import traceback
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Generator, Iterable, Iterator
 from functools import partial
 from multiprocessing.context import ForkContext, SpawnContext
-from typing import Any, TypeVar
+from typing import Any, Generic, TypeVar
 
 from msa_slam.errors import InputError
 from msa_slam.workers import start_worker
@@ -39,6 +39,7 @@ JOIN_S = 5.0  # how long a reader that sent its last item may take to exit befor
 # a 128-beam scan with its times and cloud is ~10 MB. Only the pages an item writes are backed by memory.
 SLOT_BYTES = 32 << 20
 T = TypeVar("T")
+R = TypeVar("R")
 
 
 def forked_ahead(items: Iterable[T], depth: int) -> Iterator[T]:
@@ -47,14 +48,61 @@ def forked_ahead(items: Iterable[T], depth: int) -> Iterator[T]:
     early (break, an error, Ctrl-C) or not. `items` must be iterable in a child of this process (files it
     opens itself; no handle or lock shared with the parent) and its items picklable."""
     context = multiprocessing.get_context("fork")
-    return _ahead_in(context, partial(iter, items), depth, partial(_slots, context, depth))
+    return _ahead_in(context, partial(_emit_all, partial(iter, items)), depth, partial(_slots, context, depth))
 
 
 def spawned_ahead(make_items: Callable[[], Iterable[T]], depth: int) -> Iterator[T]:
     """As forked_ahead, the items those of `make_items()` called in a spawned process: `make_items` must pickle
     (a module-level function, or a partial of one) and build what it needs itself. Its items come through the
     pipe whole (a spawned child does not inherit mappings)."""
-    return _ahead_in(multiprocessing.get_context("spawn"), make_items, depth, lambda: None)
+    return _ahead_in(multiprocessing.get_context("spawn"), partial(_emit_all, make_items), depth, lambda: None)
+
+
+class ForkedProducer(Generic[T, R]):
+    """`produce(emit)` run in a forked process that may have children of its own (not daemonic): the items it
+    passes to `emit`, in order, at most `depth` ahead of the consumer, then what it returns (`result`). For work
+    whose producer itself wants a reader process beside it (the batch front end's odometry: pipeline.streamed).
+    `start()` forks it (iteration starts it too); it is gone once iteration ends or `close()` is called, as a
+    forked_ahead reader is, and its errors are raised where its items are received. Its buffers go through
+    slots of `slot_bytes`."""
+
+    def __init__(self, produce: Callable[[Callable[[T], None]], R], depth: int, slot_bytes: int = SLOT_BYTES) -> None:
+        self._context = multiprocessing.get_context("fork")
+        self._produce, self._depth, self._slot_bytes = produce, depth, slot_bytes
+        self._items: Generator[T, None, R] | None = None
+        self.result: R | None = None
+
+    def start(self) -> None:
+        if self._items is None:
+            slots = partial(_slots, self._context, self._depth, self._slot_bytes)
+            self._items = _ahead_in(self._context, self._produce, self._depth, slots, daemon=False)
+            self._items = _started(self._items)
+
+    def __iter__(self) -> Generator[T, None, None]:
+        self.start()
+        assert self._items is not None
+        self.result = yield from self._items
+
+    def close(self) -> None:
+        """Stop the producer (what it was producing is not needed); safe to call twice or before `start`."""
+        if self._items is not None:
+            self._items.close()
+
+
+def _started(items: Generator[T, None, Any]) -> Generator[T, None, Any]:
+    """`items` with its process started now: _ahead_in's first step forks it and yields a None marker."""
+    marker = next(items)
+    assert marker is None, "_ahead_in yields None once its process has started"
+    return items
+
+
+class _Stopped(Exception):
+    """Raised in a producer's process by `emit` when the consumer stopped: unwinds the producer."""
+
+
+def _emit_all(make_items: Callable[[], Iterable[T]], emit: Callable[[T], None]) -> None:
+    for item in make_items():
+        emit(item)
 
 
 class Slots:
@@ -64,8 +112,9 @@ class Slots:
     freed in the order they are taken. `depth` + 2 slots: `depth` items queued, one being copied out, one being
     written."""
 
-    def __init__(self, context: ForkContext, depth: int) -> None:
-        self.maps = [mmap.mmap(-1, SLOT_BYTES) for _ in range(depth + 2)]  # anonymous, shared with children
+    def __init__(self, context: ForkContext, depth: int, slot_bytes: int | None = None) -> None:
+        self.slot_bytes = SLOT_BYTES if slot_bytes is None else slot_bytes
+        self.maps = [mmap.mmap(-1, self.slot_bytes) for _ in range(depth + 2)]  # anonymous, shared with children
         self.free = context.Semaphore(len(self.maps))
         self.taken = 0  # slots the child took (in the child)
 
@@ -73,7 +122,7 @@ class Slots:
         """(the slot `buffers` were written to, their sizes), once a slot is free; None when they do not fit in one
         or the consumer stopped first (`stop` set): then they go through the pipe."""
         raws = [buffer.raw() for buffer in buffers]
-        if sum(raw.nbytes for raw in raws) > SLOT_BYTES:
+        if sum(raw.nbytes for raw in raws) > self.slot_bytes:
             return None
         while not self.free.acquire(timeout=POLL_S):
             if stop.is_set():
@@ -102,29 +151,31 @@ class Slots:
             mapped.close()
 
 
-def _slots(context: ForkContext, depth: int) -> Slots | None:
+def _slots(context: ForkContext, depth: int, slot_bytes: int | None = None) -> Slots | None:
     """Slots for `depth` items ahead; None (every item through the pipe) when the system will not map them (a
     strict overcommit limit)."""
     try:
-        return Slots(context, depth)
+        return Slots(context, depth, slot_bytes)
     except OSError:
         return None
 
 
 def _ahead_in(
     context: ForkContext | SpawnContext,
-    make_items: Callable[[], Iterable[T]],
+    produce: Callable[[Callable[[Any], None]], Any],
     depth: int,
     make_slots: Callable[[], Slots | None],
-) -> Iterator[T]:
-    """The items of `make_items()`, made by a process `context` starts, their buffers in the slots `make_slots`
-    maps (none: all through the pipe)."""
+    daemon: bool = True,
+) -> Generator[Any, None, Any]:
+    """The items `produce(emit)` emits, made by a process `context` starts, their buffers in the slots `make_slots`
+    maps (none: all through the pipe); returns what `produce` returned. A non-daemonic process (`daemon` False)
+    yields None first, once started (ForkedProducer.start)."""
     sent: Any = context.Queue(maxsize=depth)
     stop = context.Event()
     slots = make_slots()
     try:
         reader = context.Process(
-            target=_read, args=(make_items, sent, stop, os.getpid(), slots), name="msa-slam read-ahead", daemon=True
+            target=_read, args=(produce, sent, stop, os.getpid(), slots), name="msa-slam read-ahead", daemon=daemon
         )
         reader.start()
     except BaseException:
@@ -133,11 +184,13 @@ def _ahead_in(
         raise
     finished = False
     try:
+        if not daemon:
+            yield None
         while True:
             kind, payload = _receive(sent, reader, slots)
             if kind == "end":
                 finished = True
-                return
+                return payload
             if kind == "error":
                 raise payload
             yield payload
@@ -179,14 +232,22 @@ def _unpacked(packed: tuple[bytes, int | None, tuple[int, ...]], slots: Slots | 
     return pickle.loads(header, buffers=slots.take(slot, sizes))
 
 
-def _read(make_items: Callable[[], Iterable[Any]], sent: Any, stop: Any, parent: int, slots: Slots | None) -> None:
-    """The child: send each item, then the end (or the error that stopped it), until the consumer stops."""
+def _read(
+    produce: Callable[[Callable[[Any], None]], Any], sent: Any, stop: Any, parent: int, slots: Slots | None
+) -> None:
+    """The child: send each item `produce` emits, then the end with what it returned (or the error that stopped
+    it), until the consumer stops."""
     start_worker(parent)
+
+    def emit(item: Any) -> None:
+        if not _send(sent, ("item", item), stop, slots):
+            raise _Stopped
+
     try:
-        for item in make_items():
-            if not _send(sent, ("item", item), stop, slots):
-                return
-        _send(sent, ("end", None), stop, slots)
+        result = produce(emit)
+        _send(sent, ("end", result), stop, slots)
+    except _Stopped:
+        return
     except BaseException as exc:  # handed to the consumer, which raises it
         _send(sent, ("error", _picklable(exc)), stop, slots)
 

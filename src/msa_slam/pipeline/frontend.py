@@ -46,7 +46,7 @@ from msa_slam.odometry.cache import OdometryCache
 from msa_slam.odometry.choice import deskew_choice, deskew_dropped, make_odometry
 from msa_slam.odometry.kiss import NO_POINT_TIMES
 from msa_slam.pipeline.config import RunConfig
-from msa_slam.pipeline.read_ahead import frontend_pass
+from msa_slam.pipeline.read_ahead import FrameHook, FrontEndStages, frontend_pass
 from msa_slam.place_recognition import PRCurve, precision_recall
 from msa_slam.place_recognition.metrics import reference_protocol_matches
 from msa_slam.progress import progress_bar
@@ -137,12 +137,15 @@ class CachedFrontEnd:
                 backend.add_frame(
                     self.odometry[i],
                     self.descriptors[i],
-                    partial(_points, sequence, i),
+                    partial(frame_points, sequence, i),
                     None if gt is None else gt[i],
                     times[i],
                 )
                 bar.advance(task)
         return backend.finish()
+
+    def close(self) -> None:
+        """Nothing runs beside a computed front end."""
 
     def record(
         self, result: RunResult, clouds: Any, sweep: Sweep | None, sweep_off: str
@@ -185,7 +188,7 @@ class CachedFrontEnd:
 Sweep = Callable[[RunResult, CachedFrontEnd, Any], tuple[SweepRow, ...]]
 
 
-def _points(sequence: ScanSequence, i: int) -> np.ndarray:
+def frame_points(sequence: ScanSequence, i: int) -> np.ndarray:
     """Frame `i`'s scan, read when the back end stores it."""
     return sequence[i].points
 
@@ -254,6 +257,98 @@ def prepare_frontend(
     `window_fix`), then odometry, descriptors and (scan loop detector) clouds downsampled at the verifier's voxel
     size for all frames (cached per sequence; those missing from the cache computed in one pass over the scans:
     read_ahead.frontend_pass)."""
+    return compute_frontend(plan_frontend(config, quiet, samplers, window_fix), samplers)
+
+
+def compute_frontend(plan: FrontEndPlan, samplers: Sequence[RunConfig] = ()) -> CachedFrontEnd:
+    """The stages of `plan` computed (or replayed from the cache), MSA's kernels compiled alongside when a method
+    of `samplers` (default: the plan's config) needs them."""
+    _compile_msa_alongside(samplers or (plan.config,), plan)
+    return plan.assemble(plan.run_pass())
+
+
+@dataclass
+class FrontEndPlan:
+    """A cached front end opened and checked, its stages not computed yet: what frontend_pass needs, and how its
+    stages become a CachedFrontEnd (`assemble`)."""
+
+    config: RunConfig
+    sequence: ScanSequence
+    cache: CacheDir
+    odometry: KissOdometry | PosesFromFile
+    descriptor: Descriptor
+    key: str  # the descriptors' cache key
+    clouds: tuple[float, str] | None  # (voxel size, cache key) of the frame clouds; None for local-map detectors
+    timer: StageTimer
+    quiet: bool
+
+    @property
+    def pose_file(self) -> list[str]:
+        return [self.odometry.path] if isinstance(self.odometry, PosesFromFile) else []
+
+    @property
+    def odometry_cached(self) -> bool:
+        """Whether the odometry's poses are in the cache (the pass then only reads what else is missing)."""
+        key = OdometryCache.key(self.sequence, self.odometry.config, self.pose_file, self.cache)
+        return OdometryCache(self.cache).path(key).is_file()
+
+    def run_pass(self, on_frame: FrameHook | None = None) -> FrontEndStages:
+        """The front end's stages (read_ahead.frontend_pass), each frame to `on_frame` as the pass completes it."""
+        return frontend_pass(
+            self.sequence,
+            self.odometry,
+            self.descriptor,
+            self.cache,
+            self.key,
+            self.config.descriptor != "precomputed",  # one pass
+            self.pose_file,
+            self.quiet,
+            self.timer,
+            self.clouds,
+            on_frame,
+        )
+
+    def assemble(self, stages: FrontEndStages) -> CachedFrontEnd:
+        """The CachedFrontEnd of these stages, with the warnings about its scans and odometry (logged here)."""
+        config, sequence, timer = self.config, self.sequence, self.timer
+        n = len(sequence)
+        poses, descriptors = stages.odometry, stages.descriptors
+        replayed = replayed_seconds(stages.by_name(), timer)
+        if replayed and not self.quiet:  # where a computed stage shows its progress
+            print(
+                "front end replayed from the cache: "
+                + ", ".join(f"{name} (computed in {seconds:.1f} s)" for name, seconds in replayed.items()),
+                file=sys.stderr,
+            )
+        sanity = frontend_warnings(sequence.gt_poses, poses.values, sequence.times)
+        if isinstance(self.odometry, KissOdometry):
+            sanity += self.odometry.unregistered_warning(n)
+        for warning in sanity:
+            logger.warning(warning)
+        warnings = [*source_warnings(config, sequence.name, sequence.times_known, sequence.point_times), *sanity]
+        frontend = CachedFrontEnd(
+            sequence,
+            sequence.gt_poses,
+            poses.values,
+            descriptors.values,
+            self.descriptor,
+            _odometry_config(config, n),
+            timer,
+            {k: v.cached for k, v in stages.by_name().items()},
+            odometry_effective=dict(self.odometry.config),
+            warnings=warnings,
+            replayed_s=replayed,
+            deskew=deskew_record(config, sequence.point_times),
+            clouds=None if stages.clouds is None else stages.clouds.values,
+        )
+        frontend.descriptor_settings = (config.descriptor, config.descriptor_params)
+        return frontend
+
+
+def plan_frontend(
+    config: RunConfig, quiet: bool = True, samplers: Sequence[RunConfig] = (), window_fix: str = CONFIG_WINDOW_FIX
+) -> FrontEndPlan:
+    """The dataset opened and every check made that can refuse the run before its long work (prepare_frontend)."""
     timer = StageTimer()
     with timer.stage("dataset"):
         sequence = open_sequence(
@@ -281,76 +376,26 @@ def prepare_frontend(
     descriptor = make_descriptor(config.descriptor, **params)
     with timer.stage("descriptors"):
         key = descriptor_key(sequence, config.descriptor, config.descriptor_params, cache)
-    pose_file = [odometry.path] if isinstance(odometry, PosesFromFile) else []
-    _compile_msa_alongside(samplers or (config,), sequence, odometry, cache, descriptor.shape)
     clouds = None
     if config.loop_detector == "scan":  # the local-map detectors store local maps, built from the scans
         with timer.stage("clouds"):
             voxel = config.verifier.voxel_size
             clouds = (voxel, cloud_key(sequence, voxel, cache))
-    stages = frontend_pass(
-        sequence,
-        odometry,
-        descriptor,
-        cache,
-        key,
-        config.descriptor != "precomputed",  # one pass
-        pose_file,
-        quiet,
-        timer,
-        clouds,
-    )
-    poses, descriptors = stages.odometry, stages.descriptors
-    replayed = replayed_seconds(stages.by_name(), timer)
-    if replayed and not quiet:  # where a computed stage shows its progress
-        print(
-            "front end replayed from the cache: "
-            + ", ".join(f"{name} (computed in {seconds:.1f} s)" for name, seconds in replayed.items()),
-            file=sys.stderr,
-        )
-    sanity = frontend_warnings(sequence.gt_poses, poses.values, sequence.times)
-    if isinstance(odometry, KissOdometry):
-        sanity += odometry.unregistered_warning(n)
-    for warning in sanity:
-        logger.warning(warning)
-    warnings = [*source_warnings(config, sequence.name, sequence.times_known, sequence.point_times), *sanity]
-    frontend = CachedFrontEnd(
-        sequence,
-        sequence.gt_poses,
-        poses.values,
-        descriptors.values,
-        descriptor,
-        _odometry_config(config, n),
-        timer,
-        {k: v.cached for k, v in stages.by_name().items()},
-        odometry_effective=dict(odometry.config),
-        warnings=warnings,
-        replayed_s=replayed,
-        deskew=deskew_record(config, sequence.point_times),
-        clouds=None if stages.clouds is None else stages.clouds.values,
-    )
-    frontend.descriptor_settings = (config.descriptor, config.descriptor_params)
-    return frontend
+    return FrontEndPlan(config, sequence, cache, odometry, descriptor, key, clouds, timer, quiet)
 
 
-def _compile_msa_alongside(
-    samplers: Sequence[RunConfig],
-    sequence: ScanSequence,
-    odometry: KissOdometry | PosesFromFile,
-    cache: CacheDir,
-    shape: tuple[int, ...],
-) -> None:
+def _compile_msa_alongside(samplers: Sequence[RunConfig], plan: FrontEndPlan) -> None:
     """Where this front end is about to run KISS-ICP on one core for minutes and a method samples with MSA, start
     compiling MSA's kernels on the other core (sampling.msa.warm.compile_in_background, lowest priority), so the
     first window loads them from numba's cache instead of compiling them after the front end, on the run's
     critical path (about a minute of CPU after a fresh install; an installed cache only loads them, seconds).
     Skipped for short sequences and when the odometry is cached (the front end is then short)."""
     msa = next((s for s in samplers if s.sampler == "msa"), None)
-    if msa is None or not isinstance(odometry, KissOdometry) or len(sequence) < COMPILE_ALONGSIDE_FRAMES:
+    if msa is None or not isinstance(plan.odometry, KissOdometry) or len(plan.sequence) < COMPILE_ALONGSIDE_FRAMES:
         return
-    if OdometryCache(cache).path(OdometryCache.key(sequence, odometry.config, (), cache)).is_file():
+    if plan.odometry_cached:
         return
-    compile_in_background(dict(msa.sampler_params), shape)
+    compile_in_background(dict(msa.sampler_params), plan.descriptor.shape)
 
 
 def _sweep(

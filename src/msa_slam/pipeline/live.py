@@ -349,6 +349,9 @@ class LiveFrontEnd:
         self.config = config
         return config
 
+    def close(self) -> None:
+        """Nothing runs beside a live front end between its frames (its reader stops with its stream)."""
+
     def stream(self, backend: SlamBackend, quiet: bool) -> RunResult:
         """Each frame: odometry, descriptor, the back end (and the viewer), with a progress line of frames per
         second and real-time factor; then finish(). The pipeline's seconds (replayed odometry counted with the time

@@ -17,7 +17,7 @@ import multiprocessing
 import queue
 import threading
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -101,6 +101,13 @@ class ReadAhead:
                 )
             yield frame, value, cloud
 
+    def outputs(self, i: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Frame `i`'s descriptor and downsampled cloud (None when not asked for), once frame `i` was yielded."""
+        return (
+            self._values[i] if self.descriptor is not None else None,
+            self._clouds[i] if self.voxel_size is not None else None,
+        )
+
     def described(self) -> Computed:
         """The descriptors of every frame and the time (ms) computing each took (not from a cache)."""
         if self.descriptor is None or not self.complete:
@@ -140,6 +147,7 @@ def frontend_pass(
     quiet: bool = True,
     timer: StageTimer | None = None,
     clouds: tuple[float, str] | None = None,
+    on_frame: FrameHook | None = None,
 ) -> FrontEndStages:
     """The stages `odometry`, `descriptors` (cache key `key`; not cached unless `cache_descriptors`) and, when
     `clouds` is (voxel size, cache key), `clouds` (every frame downsampled: registration.cloud_cache) of every
@@ -147,7 +155,8 @@ def frontend_pass(
     scans (ReadAhead): alongside the odometry when it is computed, else in a pass that only reads. `pose_file`:
     the file a pose-file odometry reads (part of its key). `timer`'s stages: odometry (its pass, what was computed
     alongside included), descriptors and clouds (the time computing them took, hidden in the odometry's when
-    computed alongside)."""
+    computed alongside). `on_frame(i, pose, descriptor, cloud)` gets every frame in order, as soon as its pose is
+    computed (all at the end when the odometry is replayed): a back end beside the pass (pipeline.streamed)."""
     timer = timer or StageTimer()
     store = cache if cache_descriptors else None
     descriptors = None if store is None else load_descriptors(sequence, descriptor, store, key)
@@ -165,8 +174,18 @@ def frontend_pass(
         )
         if todo
     )
+    handover = None if on_frame is None else _Handover(on_frame, ahead, descriptors, frame_clouds)
     with timer.stage("odometry"):
-        poses = sequence_odometry(sequence, odometry, OdometryCache(cache), quiet, pose_file, ahead, label)
+        poses = sequence_odometry(
+            sequence,
+            odometry,
+            OdometryCache(cache),
+            quiet,
+            pose_file,
+            ahead,
+            label,
+            None if handover is None else handover.pose,
+        )
     if ahead.computes and not ahead.complete:  # the odometry came from the cache: the scans were not read
         _read_through(ahead, quiet, label.removeprefix("odometry and "))
     if descriptors is None:
@@ -175,10 +194,43 @@ def frontend_pass(
     if clouds is not None and frame_clouds is None:
         frame_clouds = save_frame_clouds(*ahead.downsampled(), clouds[0], cache, clouds[1])
     stages = FrontEndStages(poses, descriptors, frame_clouds)
+    if handover is not None:
+        handover.rest(stages)
     for name, stage in stages.by_name().items():  # computed by the reader: the time it took
         if name != "odometry" and not stage.cached:
             timer.seconds[name] = timer.seconds.get(name, 0.0) + float(stage.ms.sum()) / 1e3
     return stages
+
+
+# A frame handed on as the pass completes it: (index, odometry pose, descriptor, downsampled cloud or None)
+FrameHook = Callable[[int, np.ndarray, np.ndarray, "np.ndarray | None"], None]
+
+
+class _Handover:
+    """Each frame to `on_frame` in order, as its pose is computed (descriptor and cloud from the cache or the
+    reader), the frames not handed on yet once the stages are complete (`rest`: a replayed odometry)."""
+
+    def __init__(
+        self, on_frame: FrameHook, ahead: ReadAhead, descriptors: Computed | None, clouds: ComputedClouds | None
+    ) -> None:
+        self.on_frame, self.ahead, self.descriptors, self.clouds = on_frame, ahead, descriptors, clouds
+        self.handed = 0
+
+    def pose(self, i: int, pose: np.ndarray) -> None:
+        described, cloud = self.ahead.outputs(i)
+        descriptor = self.descriptors.values[i] if self.descriptors is not None else described
+        if self.clouds is not None:
+            cloud = self.clouds.values[i]
+        assert descriptor is not None, "the reader describes the frames when the cache has no descriptors"
+        self.on_frame(i, pose, descriptor, cloud)
+        self.handed = i + 1
+
+    def rest(self, stages: FrontEndStages) -> None:
+        clouds = stages.clouds
+        for i in range(self.handed, len(stages.odometry.values)):
+            cloud = None if clouds is None else clouds.values[i]
+            self.on_frame(i, stages.odometry.values[i], stages.descriptors.values[i], cloud)
+        self.handed = len(stages.odometry.values)
 
 
 def _read_through(ahead: ReadAhead, quiet: bool, label: str) -> None:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
@@ -22,6 +22,15 @@ from msa_slam.io.fingerprint import code_fingerprint
 
 CLOUD_LIBRARIES = ("numpy", "small_gicp")
 CLOUD_CODE = ("msa_slam.registration.clouds", "msa_slam.datasets")  # the voxel downsampling and the scan readers
+
+
+class CloudsByFrame(Protocol):
+    """Frame i's downsampled cloud by index, a copy (FrameClouds, or the clouds received so far while a front end
+    computes them: pipeline.streamed)."""
+
+    @property
+    def voxel_size(self) -> float: ...
+    def __getitem__(self, frame: int) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)

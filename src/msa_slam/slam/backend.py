@@ -3,7 +3,7 @@ frames, iSAM2 at every keyframe step).
 
 For each frame: sampler.push (and, with a local-map loop detector, the frame's scan into the local map) -> for
 every keyframe it finalises: store its cloud (its local map with such a detector; else the front end's
-downsampled cloud of the frame when given, FrameClouds, or its scan downsampled here), add it to the pose graph,
+downsampled cloud of the frame when given, CloudsByFrame, or its scan downsampled here), add it to the pose graph,
 look for loop candidates among the older keyframes, store its pose and descriptor, verify the candidates
 and add the accepted loops -> update the graph (iSAM2 relinearises; batch LM waits for `finish`).
 Every RELEASE_EVERY frames free heap pages go back to the system (iSAM2's piecewise re-elimination leaves them
@@ -26,7 +26,7 @@ from msa_slam.evaluation import evaluate_trajectories
 from msa_slam.evaluation.metrics import JSONValue
 from msa_slam.evaluation.resources import current_rss_bytes, release_free_heap, settle_heap
 from msa_slam.place_recognition import PRCurve
-from msa_slam.registration.cloud_cache import FrameClouds
+from msa_slam.registration.cloud_cache import CloudsByFrame
 from msa_slam.sampling.base import Sampler
 from msa_slam.slam.keyframes import KeyframeStore
 from msa_slam.slam.local_map import LocalMap
@@ -91,7 +91,7 @@ class SlamBackend:
         recorder: Recorder | None = None,
         local_map: LocalMap | None = None,
         loop_descriptor: Descriptor | None = None,
-        frame_clouds: FrameClouds | None = None,
+        frame_clouds: CloudsByFrame | None = None,
     ) -> None:
         self.settings, self.sampler, self.store = settings, sampler, store
         self.frame_clouds = frame_clouds
@@ -117,6 +117,12 @@ class SlamBackend:
     @property
     def keyframes(self) -> list[int]:
         return self.graph.keys
+
+    @property
+    def oldest_selectable(self) -> int:
+        """The oldest frame the sampler may still make a keyframe (the next frame when none may): a front end can
+        forget what it holds for older frames."""
+        return min(self._pending, default=self._frames)
 
     @property
     def pending_bytes(self) -> int:

@@ -9,7 +9,7 @@ from typing import Any
 
 from msa_slam.descriptors import Descriptor
 from msa_slam.registration import Verifier
-from msa_slam.registration.cloud_cache import FrameClouds
+from msa_slam.registration.cloud_cache import CloudsByFrame
 from msa_slam.sampling.base import Sampler
 from msa_slam.sampling.params import GATE_PARAMETERS
 from msa_slam.sampling.registry import build_sampler
@@ -70,7 +70,7 @@ def build_backend(
     name: str,
     update_iterations: int = 0,
     recorder: Recorder | None = None,
-    frame_clouds: FrameClouds | None = None,
+    frame_clouds: CloudsByFrame | None = None,
     local_maps: bool = True,
 ) -> SlamBackend:
     """The SLAM core for a run configuration (msa_slam.pipeline.config.RunConfig) around its `sampler`
