@@ -9,6 +9,7 @@ import multiprocessing
 import os
 import signal
 from collections.abc import Iterator
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -95,3 +96,39 @@ def test_items_come_through_the_pipe_when_slots_cannot_be_mapped(monkeypatch):
     received = list(forked_ahead(_items(6), depth=2))
     assert [item["index"] for item in received] == list(range(6))
     assert np.array_equal(received[5]["points"], _item(5)["points"]) and not multiprocessing.active_children()
+
+
+def _produce_with_a_reader(n: int, emit) -> str:
+    """A producer that reads its items through a forked reader of its own (as the streamed front end's pass
+    does), emits them and returns a summary."""
+    for item in forked_ahead(_items(n), depth=2):
+        emit(item["index"])
+    return f"{n} emitted"
+
+
+def _produce_then_fail(emit) -> None:
+    emit(0)
+    raise ValueError("frame 1: corrupt scan")
+
+
+def test_a_producer_with_its_own_reader_hands_on_its_items_and_result():
+    producer = forked.ForkedProducer(partial(_produce_with_a_reader, 7), depth=3)
+    assert list(producer) == list(range(7)) and producer.result == "7 emitted"
+    assert not multiprocessing.active_children()
+
+
+def test_a_producers_error_is_raised_where_its_items_are_received():
+    received = []
+    with pytest.raises(ValueError, match="frame 1: corrupt scan"):
+        received.extend(forked.ForkedProducer(_produce_then_fail, depth=2))
+    assert received == [0] and not multiprocessing.active_children()
+
+
+def test_a_producer_closed_early_is_gone():
+    producer = forked.ForkedProducer(partial(_produce_with_a_reader, 40), depth=2)
+    producer.start()
+    items = iter(producer)
+    assert next(items) == 0
+    producer.close()
+    assert producer.result is None and not multiprocessing.active_children()
+    forked.ForkedProducer(partial(_produce_with_a_reader, 3), depth=2).close()  # never started: nothing to stop

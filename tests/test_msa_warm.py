@@ -5,13 +5,10 @@ import pytest
 from helpers.streams import write_scans
 
 import msa_slam.pipeline.frontend as frontend
-from msa_slam.io.cache import CacheDir
 from msa_slam.odometry.cache import OdometryCache
-from msa_slam.odometry.choice import make_odometry
 from msa_slam.pipeline.config import make_config
 from msa_slam.sampling.msa import exact, powerset, warm
 from msa_slam.sampling.msa.warm import compile_kernels
-from msa_slam.sources import open_sequence
 
 
 def test_compile_kernels_compiles_what_the_default_mode_runs():
@@ -30,16 +27,17 @@ def _compiles(monkeypatch, tmp_path, scans, samplers: dict[str, dict], cached: b
     started: list = []
     monkeypatch.setattr(frontend, "compile_in_background", lambda params, shape: started.append((params, shape)))
     configs = [
-        make_config(dataset=str(scans), sampler=name, sampler_params=params) for name, params in samplers.items()
+        make_config(
+            dataset=str(scans), sampler=name, sampler_params=params, mode="realistic", cache_dir=str(tmp_path / "cache")
+        )
+        for name, params in samplers.items()
     ]
-    sequence = open_sequence(str(scans))
-    odometry = make_odometry(configs[0], len(sequence), sequence.point_times)
-    cache = CacheDir(tmp_path / "cache")
+    plan = frontend.plan_frontend(configs[0])
     if cached:
-        path = OdometryCache(cache).path(OdometryCache.key(sequence, odometry.config, (), cache))
+        path = OdometryCache(plan.cache).path(OdometryCache.key(plan.sequence, plan.odometry.config, (), plan.cache))
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_bytes(b"")
-    frontend._compile_msa_alongside(configs, sequence, odometry, cache, (20, 60))
+    frontend._compile_msa_alongside(configs, plan)
     return started
 
 
