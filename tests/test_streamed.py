@@ -12,6 +12,8 @@ from helpers.metrics import metrics_json
 from helpers.results import differences, stable_content
 
 from msa_slam.errors import InputError
+from msa_slam.odometry import sequence_odometry
+from msa_slam.odometry.choice import make_odometry
 from msa_slam.pipeline import make_config, prepare_frontend, run
 from msa_slam.pipeline.frontend import CachedFrontEnd
 from msa_slam.pipeline.streamed import StreamedFrontEnd, open_frontend
@@ -40,6 +42,11 @@ def test_a_cold_run_streams_and_writes_what_the_computed_front_end_gives(sequenc
     for name in ("odometry", "keyframes", "optimised", "descriptors", "map_points"):  # at full precision
         np.testing.assert_array_equal(getattr(streamed, name), getattr(computed, name), err_msg=name)
     assert not differences(stable_content(tmp_path / "streamed"), stable_content(tmp_path / "computed"))
+    # the odometry the forked pass computed is KISS-ICP's in this process, to the bit
+    in_process = sequence_odometry(
+        front.plan.sequence, make_odometry(config, len(streamed.odometry), front.plan.sequence.point_times), quiet=True
+    )
+    np.testing.assert_array_equal(streamed.odometry, in_process.values)
     assert metrics_json(streamed)["frontend_cached"] == {"odometry": False, "descriptors": False, "clouds": False}
     assert metrics_json(computed)["frontend_cached"] == {"odometry": True, "descriptors": True, "clouds": True}
 
