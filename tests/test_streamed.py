@@ -17,7 +17,7 @@ from msa_slam.odometry.choice import make_odometry
 from msa_slam.pipeline import make_config, prepare_frontend, run
 from msa_slam.pipeline.frontend import CachedFrontEnd
 from msa_slam.pipeline.streamed import StreamedFrontEnd, open_frontend
-from msa_slam.reporting.results import write_run
+from msa_slam.reporting.results import write_run_files
 from msa_slam.slam import SlamBackend
 
 # KISS-ICP with coarse voxels on the simulated figure-eight: seconds of odometry, loops at the crossing
@@ -52,10 +52,11 @@ def test_a_cold_run_streams_and_writes_what_the_computed_front_end_gives(sequenc
 
 
 def _written(make, out):
-    """The result of `make()`, written to `out` as `run` writes it."""
-    made = []
-    write_run(lambda: made.append(make()) or made[0], out, "run", False)
-    return made[0]
+    """The result of `make()`, its files written to `out` as `run` writes them (figures left out)."""
+    result = make()
+    out.mkdir()
+    write_run_files(result, out, figures=False)
+    return result
 
 
 def test_a_back_end_failing_mid_stream_stops_the_pass(sequence, tmp_path, monkeypatch):
