@@ -97,10 +97,7 @@ class CachedFrontEnd:
         """The frame clouds when `config` stores scans downsampled as they were (its loop detector and voxel size),
         else None: its back end downsamples what it stores itself."""
         clouds = self.clouds
-        usable = (
-            clouds is not None and config.loop_detector == "scan" and clouds.voxel_size == config.verifier.voxel_size
-        )
-        return clouds if usable else None
+        return clouds if clouds is not None and stores_clouds_as_given(config, clouds.voxel_size) else None
 
     def __len__(self) -> int:
         return len(self.sequence)
@@ -186,6 +183,12 @@ class CachedFrontEnd:
 
 # The threshold sweep a batch run may add (experiments.sweep.threshold_sweep): (run, its front end, its clouds) -> rows
 Sweep = Callable[[RunResult, CachedFrontEnd, Any], tuple[SweepRow, ...]]
+
+
+def stores_clouds_as_given(config: RunConfig, voxel_size: float) -> bool:
+    """Whether a run of `config` keeps the frames' clouds downsampled at `voxel_size` as they are: its loop detector
+    stores single scans (not local maps) and its verifier uses that voxel size."""
+    return config.loop_detector == "scan" and voxel_size == config.verifier.voxel_size
 
 
 def frame_points(sequence: ScanSequence, i: int) -> np.ndarray:

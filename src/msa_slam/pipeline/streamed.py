@@ -36,6 +36,7 @@ from msa_slam.pipeline.frontend import (
     config_as_run,
     frame_points,
     plan_frontend,
+    stores_clouds_as_given,
 )
 from msa_slam.pipeline.read_ahead import FrontEndStages
 from msa_slam.registration.cloud_cache import ComputedClouds, load_frame_clouds
@@ -122,10 +123,7 @@ class StreamedFrontEnd:
         """The frames' clouds as they arrive, when `config` stores them as they are downsampled (as
         CachedFrontEnd.clouds_for)."""
         clouds = self._clouds
-        usable = (
-            clouds is not None and config.loop_detector == "scan" and clouds.voxel_size == config.verifier.voxel_size
-        )
-        return clouds if usable else None
+        return clouds if clouds is not None and stores_clouds_as_given(config, clouds.voxel_size) else None
 
     def stream(self, backend: SlamBackend, quiet: bool) -> RunResult:
         """Each frame through `backend` as the pass hands it on (the pass shows the progress), then its finish().
